@@ -1,0 +1,340 @@
+"""Driver for the laser / TEC / HV controller over Modbus TCP (pymodbus sync client).
+
+Typed methods over the register map in drivers/controller/protocol.py (wire format and golden
+bytes: docs/protocols/controller.md). The controller powers the DFB laser (Optilab DFB-1550,
+§4.4.1) with its TEC, and the MEMS HV of the FPSA (50 V for the 128x128 array, §4.3; pull-in 32 V /
+release 29 V for the 20x20 array, §4.2.6), gated by a safety interlock.
+
+Guarantees:
+- Setpoints are checked against the driver's own ``Limits`` BEFORE anything is sent
+  (``LimitError`` naming quantity, value and range). The device checks its hardware limits again
+  and answers exception 3, mapped to ``DeviceRefused`` naming register and value.
+- Every request is tried at most ``retries + 1`` times; a reply that never comes ends in
+  ``DeviceTimeout("controller", operation)``. Between attempts the TCP connection is reopened so a
+  late reply to an abandoned request cannot be taken for the answer to the next one. All writes
+  of this map are idempotent (setpoints, enables, CLEAR_FAULTS), so retrying a write is safe.
+- Modbus exception responses become typed errors (errors.modbus_exception).
+- ``bring_up``/``bring_down`` command AND read back; waiting uses the injected
+  ``SettleCheck.sleep`` (``time.sleep`` in the lab, ``VirtualClock.advance`` on the bench), so this
+  module never decides what time is.
+
+Sync ``ModbusTcpClient`` was chosen because the one scan worker that owns the hardware is a plain
+thread; an asyncio client would force a loop onto every caller.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusIOException
+from pymodbus.pdu import ModbusPDU
+
+from drivers.controller import protocol as p
+from drivers.controller.errors import (
+    DEVICE,
+    ConfigError,
+    ControllerError,
+    DeviceFailure,
+    DeviceFaulted,
+    DeviceTimeout,
+    DeviceUnreachable,
+    InterlockOpen,
+    ProtocolError,
+    SettleError,
+    modbus_exception,
+)
+
+
+@dataclass(frozen=True)
+class SettleCheck:
+    """How ``bring_up``/``bring_down`` wait for readbacks.
+
+    ``sleep(dt_s)`` is called between polls; the total wait is the sum of the poll intervals, so
+    with ``VirtualClock.advance`` the whole sequence runs in virtual time.
+    """
+
+    sleep: Callable[[float], object]
+    timeout_s: float = 10.0
+    poll_s: float = 0.01
+    laser_tol_ma: float = 0.5
+    hv_tol_v: float = 0.25
+    tec_tol_c: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("timeout_s", "poll_s", "laser_tol_ma", "hv_tol_v", "tec_tol_c"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{DEVICE}: SettleCheck.{name} must be a finite number > 0, got {v!r}")
+        if not callable(self.sleep):
+            raise ConfigError(f"{DEVICE}: SettleCheck.sleep must be callable, got {self.sleep!r}")
+
+
+class LaserHvController:
+    """Laser / TEC / HV controller on Modbus TCP."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int = 502,
+        *,
+        device_id: int = 1,
+        timeout_s: float = 0.5,
+        retries: int = 2,
+        limits: p.Limits,
+        settle_check: SettleCheck | None = None,
+    ) -> None:
+        if not isinstance(limits, p.Limits):
+            raise ConfigError(f"{DEVICE}: limits must be a protocol.Limits, got {limits!r}")
+        if not (isinstance(retries, int) and retries >= 0):
+            raise ConfigError(f"{DEVICE}: retries must be an int >= 0, got {retries!r}")
+        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
+            raise ConfigError(f"{DEVICE}: timeout_s must be > 0, got {timeout_s!r}")
+        if not (isinstance(device_id, int) and 0 <= device_id <= 255):
+            raise ConfigError(f"{DEVICE}: device_id must be in 0..255, got {device_id!r}")
+        self.host = host
+        self.port = int(port)
+        self.device_id = device_id
+        self.timeout_s = float(timeout_s)
+        self.retries = retries
+        self.limits = limits
+        self.settle_check = settle_check
+        #: bytes handed to the socket so far (tests use it to prove that a refused write sent nothing)
+        self.bytes_sent = 0
+        # pymodbus' own retries are off: retries are counted and bounded here, with a reconnect
+        # between attempts.
+        self._client = ModbusTcpClient(
+            host, port=self.port, timeout=self.timeout_s, retries=0, trace_packet=self._trace_packet,
+        )
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def close(self) -> None:
+        self._client.close()
+
+    def __enter__(self) -> "LaserHvController":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        if sending:
+            self.bytes_sent += len(data)
+        return data
+
+    # -- transport core ---------------------------------------------------------------------
+    def _call(self, operation: str, register: p.Register, value: object,
+              request: Callable[..., ModbusPDU], *args: object, **kwargs: object) -> ModbusPDU:
+        attempts = 0
+        for _ in range(self.retries + 1):
+            attempts += 1
+            try:
+                rsp = request(*args, device_id=self.device_id, **kwargs)
+            except ConnectionException as exc:
+                self._client.close()
+                raise DeviceUnreachable(DEVICE, self.host, self.port, operation) from exc
+            except ModbusIOException:
+                self._client.close()  # drop any late reply before the next attempt
+                continue
+            if rsp.isError():
+                code = getattr(rsp, "exception_code", None)
+                if not isinstance(code, int):
+                    raise ProtocolError(f"{operation} reply", rsp, "error response without an exception code")
+                raise modbus_exception(operation, register.name, value, code)
+            return rsp
+        raise DeviceTimeout(DEVICE, operation, attempts)
+
+    def _read_words(self, operation: str, register: p.Register, count: int) -> list[int]:
+        fn = (self._client.read_input_registers if register.table is p.Table.INPUT
+              else self._client.read_holding_registers)
+        rsp = self._call(operation, register, None, fn, register.address, count=count)
+        words = list(rsp.registers)
+        if len(words) != count:
+            raise ProtocolError(f"{register.name} reply length", len(words), f"expected {count} words")
+        return words
+
+    def _read_bits(self, operation: str, register: p.Register, count: int) -> list[bool]:
+        fn = (self._client.read_coils if register.table is p.Table.COIL
+              else self._client.read_discrete_inputs)
+        rsp = self._call(operation, register, None, fn, register.address, count=count)
+        bits = list(rsp.bits)
+        if len(bits) < count:
+            raise ProtocolError(f"{register.name} reply length", len(bits), f"expected {count} bits")
+        return [bool(b) for b in bits[:count]]
+
+    def _read(self, operation: str, register: p.Register) -> float | int | bool | str:
+        if register.kind is p.Kind.BOOL:
+            return self._read_bits(operation, register, 1)[0]
+        return p.decode_value(register, self._read_words(operation, register, register.words))
+
+    def _write_setpoint(self, operation: str, register: p.Register, value: float) -> None:
+        v = self.limits.check(register, value)  # LimitError before anything is sent
+        (word,) = p.encode_value(register, v)
+        self._call(operation, register, v, self._client.write_register, register.address, word)
+
+    def _write_coil(self, operation: str, register: p.Register, on: bool) -> None:
+        if not isinstance(on, bool):
+            raise TypeError(f"{DEVICE}: {operation} expects a bool, got {on!r}")
+        self._call(operation, register, on, self._client.write_coil, register.address, on)
+
+    # -- identity / status ------------------------------------------------------------------
+    def identify(self) -> p.Identity:
+        """Model, firmware and map version; ProtocolError if the device serves another map."""
+        ident = p.decode_identity(self._read_words("identify", p.MODEL, p.IDENTITY_BLOCK[1]))
+        if ident.map_version != p.MAP_VERSION:
+            raise ProtocolError("MAP_VERSION", ident.map_version,
+                                f"driver understands register map version {p.MAP_VERSION}")
+        return ident
+
+    def status(self) -> p.Status:
+        """Readbacks, faults, uptime and heartbeat in one request."""
+        return p.decode_status(self._read_words("read status", p.LASER_CURRENT, p.STATUS_BLOCK[1]))
+
+    def flags(self) -> p.Flags:
+        """Interlock, output states, fault summary and TEC-settled in one request."""
+        return p.decode_flags(self._read_bits("read flags", p.INTERLOCK_CLOSED, p.FLAGS_BLOCK[1]))
+
+    def uptime_s(self) -> float:
+        return int(self._read("read uptime", p.UPTIME_MS)) / 1000.0
+
+    def heartbeat(self) -> int:
+        return int(self._read("read heartbeat", p.HEARTBEAT))
+
+    # -- laser ------------------------------------------------------------------------------
+    def laser_enable(self, on: bool) -> None:
+        self._enable("laser enable", p.LASER_ENABLE, on)
+
+    def laser_is_on(self) -> bool:
+        return bool(self._read("read laser on", p.LASER_ON))
+
+    def set_laser_current_ma(self, current_ma: float) -> None:
+        self._write_setpoint("set laser current", p.LASER_CURRENT_SETPOINT, current_ma)
+
+    def laser_current_setpoint_ma(self) -> float:
+        return float(self._read("read laser current setpoint", p.LASER_CURRENT_SETPOINT))
+
+    def laser_current_ma(self) -> float:
+        """Measured laser current (readback)."""
+        return float(self._read("read laser current", p.LASER_CURRENT))
+
+    # -- TEC --------------------------------------------------------------------------------
+    def set_tec_c(self, temperature_c: float) -> None:
+        self._write_setpoint("set TEC temperature", p.TEC_SETPOINT, temperature_c)
+
+    def tec_setpoint_c(self) -> float:
+        return float(self._read("read TEC setpoint", p.TEC_SETPOINT))
+
+    def tec_c(self) -> float:
+        """Measured laser temperature (readback)."""
+        return float(self._read("read TEC temperature", p.TEC_TEMPERATURE))
+
+    # -- HV ---------------------------------------------------------------------------------
+    def hv_enable(self, on: bool) -> None:
+        self._enable("HV enable", p.HV_ENABLE, on)
+
+    def hv_is_on(self) -> bool:
+        return bool(self._read("read HV on", p.HV_ON))
+
+    def set_hv_v(self, voltage_v: float) -> None:
+        self._write_setpoint("set HV voltage", p.HV_SETPOINT, voltage_v)
+
+    def hv_setpoint_v(self) -> float:
+        return float(self._read("read HV setpoint", p.HV_SETPOINT))
+
+    def hv_v(self) -> float:
+        """Measured HV output voltage (readback)."""
+        return float(self._read("read HV voltage", p.HV_VOLTAGE))
+
+    # -- interlock / faults -----------------------------------------------------------------
+    def interlock_closed(self) -> bool:
+        return bool(self._read("read interlock", p.INTERLOCK_CLOSED))
+
+    def faults(self) -> frozenset[p.Fault]:
+        return p.decode_faults(int(self._read("read faults", p.FAULTS)))
+
+    def clear_faults(self) -> frozenset[p.Fault]:
+        """Clear latched faults whose cause is gone; returns the faults still latched."""
+        self._call("clear faults", p.COMMAND, p.Command.CLEAR_FAULTS.name, self._client.write_register,
+                   p.COMMAND.address, int(p.Command.CLEAR_FAULTS))
+        return self.faults()
+
+    def _enable(self, operation: str, register: p.Register, on: bool) -> None:
+        try:
+            self._write_coil(operation, register, on)
+        except DeviceFailure as exc:
+            # The device refuses an enable (exception 4) when the interlock is open or a fault is
+            # latched; say which.
+            if not self.interlock_closed():
+                raise InterlockOpen(operation) from exc
+            latched = self.faults()
+            if latched:
+                raise DeviceFaulted(operation, latched) from exc
+            raise
+
+    # -- sequences --------------------------------------------------------------------------
+    def _settle_check(self, settle_check: SettleCheck | None, operation: str) -> SettleCheck:
+        sc = settle_check if settle_check is not None else self.settle_check
+        if sc is None:
+            raise ConfigError(f"{DEVICE}: {operation} needs a SettleCheck (argument or constructor)")
+        return sc
+
+    @staticmethod
+    def _settle(quantity: str, setpoint: float, read: Callable[[], float], tolerance: float,
+                unit: str, sc: SettleCheck) -> float:
+        waited_s = 0.0
+        while True:
+            value = read()
+            if abs(value - setpoint) <= tolerance:
+                return value
+            if waited_s >= sc.timeout_s:
+                raise SettleError(quantity, setpoint, value, tolerance, unit, waited_s)
+            sc.sleep(sc.poll_s)
+            waited_s += sc.poll_s
+
+    def bring_up(self, current_ma: float, hv_v: float, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """TEC settled -> HV on at ``hv_v`` -> laser on at ``current_ma``, each read back.
+
+        Both setpoints are limit-checked before anything is sent. On any failure after outputs
+        were touched, laser and HV are switched off (best effort) before the error propagates.
+        """
+        sc = self._settle_check(settle_check, "bring_up")
+        current = self.limits.check(p.LASER_CURRENT_SETPOINT, current_ma)
+        hv = self.limits.check(p.HV_SETPOINT, hv_v)
+        if not self.interlock_closed():
+            raise InterlockOpen("bring_up")
+        latched = self.faults()
+        if latched:
+            raise DeviceFaulted("bring_up", latched)
+        # The DFB's wavelength follows its temperature: no light before the TEC has settled.
+        self._settle("TEC temperature", self.tec_setpoint_c(), self.tec_c, sc.tec_tol_c, "degC", sc)
+        try:
+            self.set_hv_v(hv)
+            self.hv_enable(True)
+            self._settle("HV voltage", hv, self.hv_v, sc.hv_tol_v, "V", sc)
+            self.set_laser_current_ma(current)
+            self.laser_enable(True)
+            self._settle("laser current", current, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
+        except ControllerError:
+            self._safe_off()
+            raise
+        return self.status()
+
+    def bring_down(self, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """Laser off (current to 0) first, then HV off (voltage to 0); both read back to 0."""
+        sc = self._settle_check(settle_check, "bring_down")
+        self.laser_enable(False)
+        self.set_laser_current_ma(0.0)
+        self._settle("laser current", 0.0, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
+        self.hv_enable(False)
+        self.set_hv_v(0.0)
+        self._settle("HV voltage", 0.0, self.hv_v, sc.hv_tol_v, "V", sc)
+        return self.status()
+
+    def _safe_off(self) -> None:
+        for fn in (self.laser_enable, self.hv_enable):
+            try:
+                fn(False)
+            except ControllerError:
+                pass  # the original error is what the caller needs to see

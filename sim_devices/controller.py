@@ -1,0 +1,435 @@
+"""Simulated laser / TEC / HV controller: a pymodbus TCP server on 127.0.0.1 with device logic.
+
+Byte-level peer of drivers/controller/driver.py (register map in drivers/controller/protocol.py,
+wire format in docs/protocols/controller.md). What it models:
+
+- DFB laser injection current (§4.4.1, Fig. 4-29), TEC-held laser temperature and the MEMS HV
+  supply of the FPSA (50 V actuation for 128x128, §4.3; pull-in 32 V / release 29 V for 20x20,
+  §4.2.6). Readbacks follow their targets with first-order lags on the shared VirtualClock
+  (x -> target + (x - target) * exp(-dt / tau)); nothing here reads the wall clock or sleeps.
+- Hardware limits enforced again in the device: an out-of-range setpoint write is refused with
+  Modbus exception 3 (ILLEGAL DATA VALUE) and changes nothing (multi-register writes are atomic).
+- Interlock: opening it turns laser and HV off at once (outputs crowbarred to 0, not lagged) and
+  latches Fault.INTERLOCK_OPEN. Enabling laser or HV while the interlock is open or any fault is
+  latched is REFUSED with exception 4 (SERVER DEVICE FAILURE); the coil keeps reading 0.
+  COMMAND=CLEAR_FAULTS clears latched faults whose cause is gone (INTERLOCK_OPEN stays while open).
+- Fault injection for tests/bench: ``inject_exception(code, n)`` answers the next n requests with
+  that exception, ``inject_timeout(n)`` swallows the next n responses (the request is still
+  executed, like a reply lost on the wire), ``inject_fault(fault)`` latches a fault and trips the
+  outputs.
+
+Start/stop from a thread (``start()``/``stop()``, or ``with ControllerSim(...) as sim``) or from a
+running asyncio loop (``await start_async()``/``await stop_async()``). Port 0 binds a free port,
+reported by ``.port``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+import math
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from pymodbus.constants import ExcCodes
+from pymodbus.pdu import ModbusPDU
+from pymodbus.server import ModbusBaseServer, ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from drivers.controller import protocol as p
+from sim_devices.clock import VirtualClock
+
+_READ_FC_TABLE = {1: p.Table.COIL, 2: p.Table.DISCRETE_INPUT, 3: p.Table.HOLDING, 4: p.Table.INPUT}
+_WRITE_FC_TABLE = {5: p.Table.COIL, 15: p.Table.COIL, 6: p.Table.HOLDING, 16: p.Table.HOLDING,
+                   22: p.Table.HOLDING, 23: p.Table.HOLDING}
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """First-order time constants of the outputs and the ambient temperature."""
+
+    laser_tau_s: float = 1e-3   # current driver loop
+    hv_tau_s: float = 5e-3      # HV amplifier slew into the MEMS electrode capacitance
+    tec_tau_s: float = 2.0      # thermal time constant of the laser butterfly on the TEC
+    ambient_c: float = 25.0
+
+    def __post_init__(self) -> None:
+        for name in ("laser_tau_s", "hv_tau_s", "tec_tau_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"Dynamics.{name} must be finite and > 0, got {v!r}")
+
+
+@dataclass
+class ControllerState:
+    """Plain state the bench reads (outputs are the ACTUAL values, not setpoints)."""
+
+    interlock_closed: bool = True
+    laser_on: bool = False
+    laser_current_ma: float = 0.0
+    hv_on: bool = False
+    hv_v: float = 0.0
+    tec_c: float = 25.0
+    laser_setpoint_ma: float = 0.0
+    hv_setpoint_v: float = 0.0
+    tec_setpoint_c: float = 25.0
+    faults: set[p.Fault] = field(default_factory=set)
+    last_command: int = 0
+
+
+def _approach(x: float, target: float, dt_s: float, tau_s: float) -> float:
+    return target + (x - target) * math.exp(-dt_s / tau_s)
+
+
+def _bits_to_words(bits: Sequence[bool]) -> list[int]:
+    # pymodbus' SimDevice packs coil/discrete-input n at bit (n % 16) of word n // 16.
+    words = [0] * ((len(bits) + 15) // 16)
+    for i, b in enumerate(bits):
+        if b:
+            words[i // 16] |= 1 << (i % 16)
+    return words
+
+
+class ControllerModel:
+    """Device logic without networking (what the firmware would do). Thread-safe."""
+
+    def __init__(
+        self,
+        clock: VirtualClock,
+        *,
+        dynamics: Dynamics = Dynamics(),
+        hw_limits: p.Limits = p.HARDWARE_LIMITS,
+        model: str = "LHV-1550",
+        firmware: tuple[int, int] = (1, 0),
+    ) -> None:
+        self.clock = clock
+        self.dynamics = dynamics
+        self.hw_limits = hw_limits
+        self._model_words = p.encode_value(p.MODEL, model)
+        self._firmware_word = p.encode_firmware(*firmware)
+        self._lock = threading.RLock()
+        self._t0_s = clock.now()
+        self._t_last_s = self._t0_s
+        self._state = ControllerState(tec_c=dynamics.ambient_c, tec_setpoint_c=dynamics.ambient_c)
+        self.heartbeat = 0
+
+    # -- time -------------------------------------------------------------------------------
+    def _advance(self) -> None:
+        now = self.clock.now()
+        dt = now - self._t_last_s
+        if dt <= 0.0:
+            return
+        s, d = self._state, self.dynamics
+        s.laser_current_ma = _approach(s.laser_current_ma, s.laser_setpoint_ma if s.laser_on else 0.0,
+                                       dt, d.laser_tau_s)
+        s.hv_v = _approach(s.hv_v, s.hv_setpoint_v if s.hv_on else 0.0, dt, d.hv_tau_s)
+        s.tec_c = _approach(s.tec_c, s.tec_setpoint_c, dt, d.tec_tau_s)
+        self._t_last_s = now
+
+    @property
+    def state(self) -> ControllerState:
+        """A snapshot of the state at the clock's current time."""
+        with self._lock:
+            self._advance()
+            snap = copy.copy(self._state)
+            snap.faults = set(self._state.faults)
+            return snap
+
+    # -- bench / fault hooks ----------------------------------------------------------------
+    def _trip(self) -> None:
+        s = self._state
+        s.laser_on = s.hv_on = False
+        s.laser_current_ma = 0.0
+        s.hv_v = 0.0
+
+    def set_interlock(self, closed: bool) -> None:
+        with self._lock:
+            self._advance()
+            self._state.interlock_closed = bool(closed)
+            if not closed:
+                self._state.faults.add(p.Fault.INTERLOCK_OPEN)
+                self._trip()
+
+    def inject_fault(self, fault: p.Fault) -> None:
+        with self._lock:
+            self._advance()
+            self._state.faults.add(fault)
+            self._trip()
+
+    # -- register images --------------------------------------------------------------------
+    def image(self, table: p.Table) -> list[int] | list[bool]:
+        """Current content of ``table`` from address 0 (bits for coil/DI tables)."""
+        with self._lock:
+            self._advance()
+            s = self._state
+            if table is p.Table.COIL:
+                return [s.laser_on, s.hv_on]
+            if table is p.Table.DISCRETE_INPUT:
+                settled = abs(s.tec_c - s.tec_setpoint_c) <= p.TEC_SETTLED_BAND_C
+                return [s.interlock_closed, s.laser_on, s.hv_on, bool(s.faults), settled]
+            if table is p.Table.HOLDING:
+                return [
+                    *p.encode_value(p.LASER_CURRENT_SETPOINT, s.laser_setpoint_ma),
+                    *p.encode_value(p.TEC_SETPOINT, s.tec_setpoint_c),
+                    *p.encode_value(p.HV_SETPOINT, s.hv_setpoint_v),
+                    s.last_command,
+                ]
+            uptime_ms = int((self.clock.now() - self._t0_s) * 1000.0) % (1 << 32)
+            return [
+                *self._model_words,
+                self._firmware_word,
+                p.MAP_VERSION,
+                *p.encode_value(p.LASER_CURRENT, _clip(p.LASER_CURRENT, s.laser_current_ma)),
+                *p.encode_value(p.TEC_TEMPERATURE, _clip(p.TEC_TEMPERATURE, s.tec_c)),
+                *p.encode_value(p.HV_VOLTAGE, _clip(p.HV_VOLTAGE, s.hv_v)),
+                p.encode_faults(s.faults),
+                *p.encode_value(p.UPTIME_MS, uptime_ms),
+                self.heartbeat & 0xFFFF,
+            ]
+
+    # -- writes -----------------------------------------------------------------------------
+    def write(self, table: p.Table, address: int, values: Sequence[int] | Sequence[bool]) -> p.ExceptionCode | None:
+        """Apply a Modbus write; returns the exception code to answer with, or None if accepted.
+        Validates everything first, so a refused write changes nothing."""
+        with self._lock:
+            self._advance()
+            if table is p.Table.COIL:
+                return self._write_coils(address, [bool(v) for v in values])
+            if table is p.Table.HOLDING:
+                return self._write_holding(address, [int(v) for v in values])
+            return p.ExceptionCode.ILLEGAL_FUNCTION
+
+    def _write_coils(self, address: int, bits: list[bool]) -> p.ExceptionCode | None:
+        s = self._state
+        targets = {}
+        for i, b in enumerate(bits):
+            reg = p.register_at(p.Table.COIL, address + i)
+            if reg is None:
+                return p.ExceptionCode.ILLEGAL_DATA_ADDRESS
+            targets[reg.name] = b
+        if any(targets.values()) and (not s.interlock_closed or s.faults):
+            return p.ExceptionCode.SERVER_DEVICE_FAILURE
+        if p.LASER_ENABLE.name in targets:
+            s.laser_on = targets[p.LASER_ENABLE.name]
+        if p.HV_ENABLE.name in targets:
+            s.hv_on = targets[p.HV_ENABLE.name]
+        return None
+
+    def _write_holding(self, address: int, words: list[int]) -> p.ExceptionCode | None:
+        s = self._state
+        updates: list[tuple[p.Register, float | int]] = []
+        for i, w in enumerate(words):
+            reg = p.register_at(p.Table.HOLDING, address + i)
+            if reg is None:
+                return p.ExceptionCode.ILLEGAL_DATA_ADDRESS
+            try:
+                value = p.decode_value(reg, [w])
+                if reg is p.COMMAND:
+                    value = p.Command(value)
+                else:
+                    self.hw_limits.check(reg, float(value))
+            except (p.ProtocolError, p.LimitError, ValueError):
+                return p.ExceptionCode.ILLEGAL_DATA_VALUE
+            updates.append((reg, value))
+        for reg, value in updates:
+            if reg is p.LASER_CURRENT_SETPOINT:
+                s.laser_setpoint_ma = float(value)
+            elif reg is p.TEC_SETPOINT:
+                s.tec_setpoint_c = float(value)
+            elif reg is p.HV_SETPOINT:
+                s.hv_setpoint_v = float(value)
+            elif reg is p.COMMAND:
+                s.last_command = int(value)
+                if value is p.Command.CLEAR_FAULTS:
+                    s.faults = {p.Fault.INTERLOCK_OPEN} if not s.interlock_closed else set()
+        return None
+
+
+def _clip(reg: p.Register, value: float) -> float:
+    lo, hi = reg.representable_range()
+    return min(max(value, lo), hi)
+
+
+class ControllerSim:
+    """The simulated controller served over Modbus TCP."""
+
+    def __init__(
+        self,
+        clock: VirtualClock | None = None,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        device_id: int = 1,
+        dynamics: Dynamics = Dynamics(),
+        hw_limits: p.Limits = p.HARDWARE_LIMITS,
+        model: str = "LHV-1550",
+        firmware: tuple[int, int] = (1, 0),
+    ) -> None:
+        self.clock = clock if clock is not None else VirtualClock()
+        self.model = ControllerModel(self.clock, dynamics=dynamics, hw_limits=hw_limits,
+                                     model=model, firmware=firmware)
+        self.host = host
+        self.device_id = device_id
+        self._requested_port = port
+        self.port: int | None = None
+        self._inject_lock = threading.Lock()
+        self._pending_exceptions: list[int] = []
+        self._pending_timeouts = 0
+        self._current_exception: int | None = None
+        self.requests_received = 0
+        self.responses_dropped = 0
+        self._server: ModbusTcpServer | None = None
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop_event: asyncio.Event | None = None
+
+    # -- bench-facing state -----------------------------------------------------------------
+    @property
+    def state(self) -> ControllerState:
+        return self.model.state
+
+    def set_interlock(self, closed: bool) -> None:
+        self.model.set_interlock(closed)
+
+    def inject_fault(self, fault: p.Fault) -> None:
+        self.model.inject_fault(fault)
+
+    def inject_exception(self, code: int, n: int = 1) -> None:
+        """Answer the next ``n`` requests with Modbus exception ``code`` (nothing executed)."""
+        ExcCodes(code)  # ValueError for a code Modbus does not define
+        with self._inject_lock:
+            self._pending_exceptions.extend([int(code)] * n)
+
+    def inject_timeout(self, n: int = 1) -> None:
+        """Swallow the responses to the next ``n`` requests (the requests still execute)."""
+        with self._inject_lock:
+            self._pending_timeouts += int(n)
+
+    # -- pymodbus hooks ---------------------------------------------------------------------
+    async def _action(self, function_code: int, start_address: int, address: int, count: int,
+                      registers: list[int], set_values: list[int] | list[bool] | None) -> ExcCodes | None:
+        if self._current_exception is not None:
+            return ExcCodes(self._current_exception)
+        if set_values is not None:
+            table = _WRITE_FC_TABLE.get(function_code)
+            if table is None:
+                return ExcCodes.ILLEGAL_FUNCTION
+            code = self.model.write(table, address, set_values)
+            if code is not None:
+                return ExcCodes(int(code))
+        else:
+            table = _READ_FC_TABLE.get(function_code) or _WRITE_FC_TABLE[function_code]
+        # Refresh pymodbus' register block from the model so the read (or the write's echo)
+        # reflects device logic; the block starts at address 0 (see _build_device).
+        img = self.model.image(table)
+        words = _bits_to_words(img) if table in (p.Table.COIL, p.Table.DISCRETE_INPUT) else list(img)
+        registers[0:len(words)] = words
+        return None
+
+    def _trace_pdu(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU:
+        if not sending:
+            self.requests_received += 1
+            self.model.heartbeat += 1
+            # Decide per request (not per datastore call: a write calls the action twice).
+            with self._inject_lock:
+                self._current_exception = self._pending_exceptions.pop(0) if self._pending_exceptions else None
+        return pdu
+
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        if sending:
+            with self._inject_lock:
+                if self._pending_timeouts > 0:
+                    self._pending_timeouts -= 1
+                    self.responses_dropped += 1
+                    return b""
+        return data
+
+    def _build_device(self) -> SimDevice:
+        def bits(table: p.Table) -> list[SimData]:
+            return [SimData(0, values=[False] * p.table_size(table), datatype=DataType.BITS)]
+
+        def regs(table: p.Table) -> list[SimData]:
+            return [SimData(0, values=[0] * p.table_size(table), datatype=DataType.REGISTERS)]
+
+        return SimDevice(
+            self.device_id,
+            simdata=(bits(p.Table.COIL), bits(p.Table.DISCRETE_INPUT),
+                     regs(p.Table.HOLDING), regs(p.Table.INPUT)),
+            action=self._action,
+        )
+
+    # -- lifecycle --------------------------------------------------------------------------
+    async def start_async(self) -> int:
+        """Start serving inside the running loop; returns the bound port."""
+        if self._server is not None:
+            raise RuntimeError("controller sim already started")
+        server = ModbusTcpServer(
+            self._build_device(),
+            address=(self.host, self._requested_port),
+            trace_packet=self._trace_packet,
+            trace_pdu=self._trace_pdu,
+        )
+        await server.serve_forever(background=True)
+        self._server = server
+        self.port = server.transport.sockets[0].getsockname()[1]
+        return self.port
+
+    async def stop_async(self) -> None:
+        if self._server is None:
+            return
+        server, self._server = self._server, None
+        await server.shutdown()
+        if ModbusBaseServer.active_server is server:  # pymodbus keeps the last server alive
+            ModbusBaseServer.active_server = None
+
+    def start(self, timeout_s: float = 5.0) -> int:
+        """Run the server on its own thread + event loop; returns the bound port."""
+        if self._thread is not None:
+            raise RuntimeError("controller sim already started")
+        ready = threading.Event()
+        failure: list[BaseException] = []
+
+        async def main() -> None:
+            self._loop = asyncio.get_running_loop()
+            self._stop_event = asyncio.Event()
+            try:
+                await self.start_async()
+            except BaseException as exc:  # reported to the starting thread
+                failure.append(exc)
+                ready.set()
+                return
+            ready.set()
+            await self._stop_event.wait()
+            await self.stop_async()
+
+        self._thread = threading.Thread(target=asyncio.run, args=(main(),),
+                                        name=f"controller-sim-{self.host}", daemon=True)
+        self._thread.start()
+        if not ready.wait(timeout_s):
+            raise RuntimeError("controller sim did not start in time")
+        if failure:
+            self._thread.join()
+            self._thread = None
+            raise RuntimeError(f"controller sim failed to start on {self.host}:{self._requested_port}") \
+                from failure[0]
+        assert self.port is not None
+        return self.port
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        if self._thread is None:
+            return
+        if self._loop is not None and self._stop_event is not None:
+            self._loop.call_soon_threadsafe(self._stop_event.set)
+        self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            raise RuntimeError("controller sim thread did not stop")
+        self._thread = None
+        self._loop = None
+
+    def __enter__(self) -> "ControllerSim":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
