@@ -208,7 +208,7 @@ def _check_args(
     if np.any(off):
         bad = int(np.argmax(off))
         raise RayError(
-            f"cast: directions must be unit vectors; directions[{bad}] has norm {norms[bad]!r}"
+            f"cast: directions must be unit vectors; directions[{bad}] has norm {float(norms[bad])!r}"
         )
     o = np.asarray(origin, dtype=np.float64)
     if o.shape != (3,) or not np.all(np.isfinite(o)):
