@@ -1,0 +1,225 @@
+"""AWG driver: typed methods over USBTMC/SCPI on a pyusb ``Device``.
+
+§4.4.1: the AWG plays the pre-distorted laser-modulation waveform (§2.2 iterative learning
+pre-distortion), one period per external trigger from the FPGA (burst mode) so the chirp stays in
+step with the FPSA pixel switching. The driver talks to whatever ``usb.core.Device`` it is given; the
+caller found it with ``usb.core.find(idVendor=..., idProduct=..., backend=backend)`` where the
+backend comes from configuration (libusb1 in the lab, the simulated backend on the bench). There is
+no knowledge of simulation here.
+
+Every setting command is followed by ``SYST:ERR?`` so a device-side SCPI error is raised as
+``AwgError`` naming the command that caused it. USB timeouts are retried a bounded number of times
+(the whole message is resent with a fresh bTag), then ``DeviceTimeout("awg", command)``.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+from typing import Literal
+
+import numpy as np
+import usb.core
+
+from drivers import usbtmc
+from drivers.awg import protocol as p
+from drivers.usbtmc import (
+    DeviceTimeout,
+    InvalidArgument,
+    ProtocolError,
+    UsbDeviceError,
+    classify_usb_error,
+)
+
+log = logging.getLogger(__name__)
+
+DEVICE = "awg"
+#: bytes per DEV_DEP_MSG_OUT transfer; a waveform upload is split into this many-byte chunks
+CHUNK_BYTES = 1 << 20
+#: largest answer we ask for per REQUEST_DEV_DEP_MSG_IN
+READ_CHUNK = 64 * 1024
+
+
+class AwgError(UsbDeviceError):
+    """The AWG reported a SCPI error (code and text) for the named command."""
+
+    def __init__(self, command: str, code: int, text: str) -> None:
+        self.code = code
+        self.text = text
+        super().__init__(DEVICE, command, f"SCPI error {code}: {text}")
+
+
+class AwgDriver:
+    """Typed AWG control. ``device`` is a pyusb ``usb.core.Device``."""
+
+    def __init__(self, device: usb.core.Device, *, timeout_ms: int = 2000, retries: int = 3,
+                 ep_out: int = p.AWG_EP_OUT, ep_in: int = p.AWG_EP_IN) -> None:
+        if device is None:
+            raise DeviceTimeout(DEVICE, "usb.core.find", "no AWG found on the USB backend")
+        self._dev = device
+        self._timeout_ms = int(timeout_ms)
+        self._retries = int(retries)
+        self._ep_out = ep_out
+        self._ep_in = ep_in
+        self._btag = 0
+        self._rxbuf = usbtmc.HEADER_LEN + READ_CHUNK + 4
+        try:
+            device.set_configuration()
+        except usb.core.USBError as exc:
+            raise classify_usb_error(exc, DEVICE, "set_configuration") from exc
+
+    # ----------------------------------------------------------------------- transport
+
+    def _tag(self) -> int:
+        self._btag = usbtmc.next_btag(self._btag)
+        return self._btag
+
+    def _send(self, message: bytes) -> None:
+        msg = message + b"\n"
+        n = len(msg)
+        pos = 0
+        while True:
+            chunk = msg[pos:pos + CHUNK_BYTES]
+            pos += len(chunk)
+            self._dev.write(self._ep_out, usbtmc.encode_dev_dep_msg_out(self._tag(), chunk, pos >= n),
+                            self._timeout_ms)
+            if pos >= n:
+                return
+
+    def _receive(self) -> bytes:
+        parts: list[bytes] = []
+        while True:
+            tag = self._tag()
+            self._dev.write(self._ep_out, usbtmc.encode_request_dev_dep_msg_in(tag, READ_CHUNK),
+                            self._timeout_ms)
+            raw = self._dev.read(self._ep_in, self._rxbuf, self._timeout_ms)
+            data, eom = usbtmc.decode_dev_dep_msg_in(memoryview(raw), tag)
+            parts.append(data)
+            if eom:
+                return b"".join(parts).rstrip(b"\r\n")
+
+    def _transact(self, message: bytes, query: bool) -> bytes:
+        name = message[:40].decode("ascii", "replace")
+        last: Exception | None = None
+        for attempt in range(self._retries + 1):
+            try:
+                self._send(message)
+                return self._receive() if query else b""
+            except usb.core.USBError as exc:
+                err = classify_usb_error(exc, DEVICE, name)
+                if not isinstance(err, DeviceTimeout):
+                    if getattr(exc, "errno", None) == errno.EPIPE:
+                        # a stalled bulk pipe stays halted until cleared; leave it usable
+                        self._clear_halts()
+                    raise err from exc
+                last = exc
+                log.warning("awg: timeout on %r (attempt %d/%d)", name, attempt + 1, self._retries + 1)
+            except ProtocolError as exc:
+                raise UsbDeviceError(DEVICE, name, f"bad reply: {exc}") from exc
+        raise DeviceTimeout(DEVICE, name, f"no answer after {self._retries + 1} attempts") from last
+
+    def _clear_halts(self) -> None:
+        for ep in (self._ep_out, self._ep_in):
+            try:
+                self._dev.clear_halt(ep)
+            except usb.core.USBError:
+                pass
+
+    def query(self, message: bytes) -> bytes:
+        return self._transact(message, True)
+
+    def write(self, message: bytes) -> None:
+        """Send a setting command and raise ``AwgError`` if the device queued an error for it."""
+        self._transact(message, False)
+        errs = self._drain_errors()
+        if errs:
+            code, text = errs[0]
+            raise AwgError(message[:40].decode("ascii", "replace"), code, text)
+
+    def _drain_errors(self) -> list[tuple[int, str]]:
+        out: list[tuple[int, str]] = []
+        for _ in range(64):  # the queue is bounded on the device; never loop forever
+            code, text = p.parse_error(self.query(p.cmd_err()))
+            if code == 0:
+                break
+            out.append((code, text))
+        return out
+
+    # ----------------------------------------------------------------------- typed API
+
+    def identify(self) -> p.Identity:
+        return p.parse_idn(self.query(p.cmd_idn()))
+
+    def reset(self) -> None:
+        """*RST then *CLS: defaults restored, output off, error queue empty."""
+        self.write(p.cmd_rst())
+        self.write(p.cmd_cls())
+
+    def errors(self) -> list[tuple[int, str]]:
+        """Drain the device error queue: list of (code, text), oldest first."""
+        return self._drain_errors()
+
+    def set_sample_rate(self, hz: float) -> None:
+        if not (np.isfinite(hz) and hz > 0):
+            raise InvalidArgument(f"awg sample rate must be > 0 Hz, got {hz!r}")
+        self.write(p.cmd_sample_rate(hz))
+
+    def sample_rate(self) -> float:
+        return p.parse_float(self.query(b"SOUR:FREQ:SAMP?"))
+
+    def set_amplitude(self, v: float) -> None:
+        if not (np.isfinite(v) and v > 0):
+            raise InvalidArgument(f"awg amplitude must be > 0 V, got {v!r}")
+        self.write(p.cmd_amplitude(v))
+
+    def amplitude(self) -> float:
+        return p.parse_float(self.query(b"SOUR:VOLT?"))
+
+    def set_offset(self, v: float) -> None:
+        if not np.isfinite(v):
+            raise InvalidArgument(f"awg offset must be finite, got {v!r}")
+        self.write(p.cmd_offset(v))
+
+    def offset(self) -> float:
+        return p.parse_float(self.query(b"SOUR:VOLT:OFFS?"))
+
+    def set_trigger_external(self, external: bool) -> None:
+        """External trigger = burst mode: one waveform period per trigger edge."""
+        self.write(p.cmd_trigger_source(bool(external)))
+
+    def output(self, on: bool) -> None:
+        self.write(p.cmd_output(bool(on)))
+
+    def output_on(self) -> bool:
+        return p.parse_int(self.query(b"OUTP?")) == 1
+
+    def waveform_points(self) -> int:
+        return p.parse_int(self.query(b"SOUR:DATA:ARB:POIN?"))
+
+    def upload_waveform(self, samples: np.ndarray,
+                        units: Literal["normalized", "volts"] = "normalized") -> None:
+        """Upload one waveform period.
+
+        ``normalized``: samples in [-1, 1] are DAC full scale (amplitude/offset unchanged).
+        ``volts``: the driver sets offset = (max+min)/2 and amplitude = (max-min)/2 so the
+        waveform spans the full DAC range, then uploads the normalized codes.
+        """
+        s = np.asarray(samples, dtype=np.float64)
+        if s.ndim != 1 or s.size < 2:
+            raise InvalidArgument(f"awg waveform must be 1-D with >= 2 samples, got shape {s.shape}")
+        if not np.all(np.isfinite(s)):
+            raise InvalidArgument("awg waveform contains non-finite samples")
+        if units == "volts":
+            hi, lo = float(s.max()), float(s.min())
+            amp = (hi - lo) / 2.0
+            off = (hi + lo) / 2.0
+            if amp <= 0:
+                raise InvalidArgument("awg waveform in volts is constant: amplitude would be 0 V")
+            s = np.clip((s - off) / amp, -1.0, 1.0)
+            self.set_amplitude(amp)
+            self.set_offset(off)
+        elif units != "normalized":
+            raise InvalidArgument(f"awg waveform units must be 'normalized' or 'volts', got {units!r}")
+        elif np.max(np.abs(s)) > 1.0:
+            raise InvalidArgument(f"awg normalized waveform exceeds [-1, 1] (max |s| = {np.max(np.abs(s))})")
+        self.write(p.cmd_upload(p.codes_from_normalized(s)))

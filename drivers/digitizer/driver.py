@@ -1,0 +1,218 @@
+"""Digitizer driver: typed methods over the vendor USB protocol (drivers/digitizer/protocol.py).
+
+§4.4.1: the ADC samples the beat (and optionally the MZI reference and I/Q beat) once per external
+trigger, i.e. one segment per chirp per FPSA pixel, and hands the records to the PC. The driver gets
+a pyusb ``Device`` from the caller (``usb.core.find(..., backend=backend)``, backend from
+configuration); it does not know whether the bus is real or simulated.
+
+Bulk data is read in large transfers (1 MiB by default) into one preallocated buffer and parsed
+with a numpy record dtype (``np.frombuffer``): per-segment work is two crc32 calls, per-sample work
+is none in Python. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
+timeouts are retried a bounded number of times then ``DeviceTimeout("digitizer", command)``.
+"""
+
+from __future__ import annotations
+
+import array
+import logging
+import zlib
+from collections.abc import Callable
+from typing import TypeVar
+
+import numpy as np
+import usb.core
+
+from drivers.digitizer import protocol as p
+from drivers.usbtmc import (
+    DeviceStall,
+    DeviceTimeout,
+    InvalidArgument,
+    UsbDeviceError,
+    classify_usb_error,
+)
+
+log = logging.getLogger(__name__)
+
+DEVICE = "digitizer"
+T = TypeVar("T")
+
+
+class DigitizerError(DeviceStall):
+    """The digitizer refused a request (stalled the control pipe): bad value or wrong state."""
+
+
+class DigitizerDataError(UsbDeviceError):
+    """Segment stream that fails validation (magic, index, crc) for the named read."""
+
+
+class DigitizerDriver:
+    """Typed digitizer control. ``device`` is a pyusb ``usb.core.Device``."""
+
+    def __init__(self, device: usb.core.Device, *, timeout_ms: int = 2000, retries: int = 3,
+                 chunk_bytes: int = 1 << 20) -> None:
+        if device is None:
+            raise DeviceTimeout(DEVICE, "usb.core.find", "no digitizer found on the USB backend")
+        self._dev = device
+        self._timeout_ms = int(timeout_ms)
+        self._retries = int(retries)
+        self._chunk = array.array("B", bytes(chunk_bytes))
+        try:
+            device.set_configuration()
+        except usb.core.USBError as exc:
+            raise classify_usb_error(exc, DEVICE, "set_configuration") from exc
+
+    # -------------------------------------------------------------------- transport
+
+    def _guard(self, command: str, fn: Callable[[], T], retry: bool = True) -> T:
+        last: Exception | None = None
+        for attempt in range(self._retries + 1 if retry else 1):
+            try:
+                return fn()
+            except usb.core.USBError as exc:
+                err = classify_usb_error(exc, DEVICE, command)
+                if isinstance(err, DeviceStall):
+                    raise DigitizerError(DEVICE, command, "request refused (STALL)") from exc
+                if not isinstance(err, DeviceTimeout):
+                    raise err from exc
+                last = exc
+                log.warning("digitizer: timeout on %s (attempt %d)", command, attempt + 1)
+        raise DeviceTimeout(DEVICE, command, f"no answer after {attempt + 1} attempts") from last
+
+    def _out(self, req: p.Req, w_value: int = 0, data: bytes = b"") -> None:
+        self._guard(req.name, lambda: self._dev.ctrl_transfer(
+            p.REQTYPE_OUT, int(req), w_value, 0, data, self._timeout_ms))
+
+    def _in(self, req: p.Req, length: int) -> bytes:
+        return bytes(self._guard(req.name, lambda: self._dev.ctrl_transfer(
+            p.REQTYPE_IN, int(req), 0, 0, length, self._timeout_ms)))
+
+    # -------------------------------------------------------------------- typed API
+
+    def identify(self) -> str:
+        return self._in(p.Req.IDENTIFY, 64).rstrip(b"\x00").decode("ascii", "replace")
+
+    def set_channels(self, channels: tuple[str, ...]) -> None:
+        """("beat",), ("beat", "mzi"), ("beat_i", "beat_q"), ("beat_i", "beat_q", "mzi"), ..."""
+        try:
+            mask = p.channel_mask(tuple(channels))
+        except p.DigitizerProtocolError as exc:
+            raise InvalidArgument(f"digitizer channels {channels!r}: {exc}") from None
+        self._out(p.Req.SET_CHANNELS, mask)
+
+    def set_sample_rate(self, hz: float) -> None:
+        if not (np.isfinite(hz) and hz >= 1):
+            raise InvalidArgument(f"digitizer sample rate must be >= 1 Hz, got {hz!r}")
+        self._out(p.Req.SET_SAMPLE_RATE, data=p.enc_u64(int(round(hz))))
+
+    def set_record_length(self, n: int) -> None:
+        if not 1 <= int(n) <= 0xFFFFFFFF:
+            raise InvalidArgument(f"digitizer record length {n!r} out of u32 range")
+        self._out(p.Req.SET_RECORD_LENGTH, data=p.enc_u32(int(n)))
+
+    def set_segments(self, n: int) -> None:
+        if not 1 <= int(n) <= 0xFFFFFFFF:
+            raise InvalidArgument(f"digitizer segment count {n!r} out of u32 range")
+        self._out(p.Req.SET_SEGMENTS, data=p.enc_u32(int(n)))
+
+    def set_format(self, bits: int) -> None:
+        if bits not in (8, 16):
+            raise InvalidArgument(f"digitizer sample format must be 8 or 16 bits, got {bits!r}")
+        self._out(p.Req.SET_FORMAT, bits)
+
+    def set_input_range(self, volts: float) -> None:
+        mv = int(round(volts * 1000.0)) if np.isfinite(volts) else -1
+        if not 1 <= mv <= 0xFFFFFFFF:
+            raise InvalidArgument(f"digitizer input range {volts!r} V out of range")
+        self._out(p.Req.SET_RANGE, data=p.enc_u32(mv))
+
+    def configure(self, *, channels: tuple[str, ...], sample_rate_hz: float, record_length: int,
+                  segments: int, bits: int = 16, input_range_v: float = 1.0) -> p.Config:
+        """All settings in one call; returns the device's read-back configuration."""
+        self.set_channels(channels)
+        self.set_sample_rate(sample_rate_hz)
+        self.set_record_length(record_length)
+        self.set_segments(segments)
+        self.set_format(bits)
+        self.set_input_range(input_range_v)
+        return self.config()
+
+    def config(self) -> p.Config:
+        return p.decode_config(self._in(p.Req.GET_CONFIG, 24))
+
+    def arm(self) -> None:
+        self._out(p.Req.ARM)
+
+    def abort(self) -> None:
+        self._out(p.Req.ABORT)
+
+    def status(self) -> p.Status:
+        return p.decode_status(self._in(p.Req.GET_STATUS, 16))
+
+    def read_segments(self, first: int, count: int,
+                      cfg: p.Config | None = None) -> tuple[list[p.SegmentHeader], np.ndarray]:
+        """Read segments ``first .. first+count-1`` of the current acquisition.
+
+        Returns (headers, samples) with samples shaped (count, n_channels, record_length), dtype
+        int16 or int8 following the configured format. ``cfg`` (from ``config()``) saves a control
+        round trip when the caller already has it.
+        """
+        if count < 1 or first < 0:
+            raise InvalidArgument(f"digitizer read_segments(first={first}, count={count}) invalid")
+        cfg = cfg or self.config()
+        n_ch = len(cfg.channels)
+        rec = p.segment_dtype(n_ch, cfg.record_length, cfg.bits)
+        command = f"READ_SEGMENTS({first},{count})"
+        self._guard(command, lambda: self._dev.ctrl_transfer(
+            p.REQTYPE_OUT, int(p.Req.READ_SEGMENTS), 0, 0, p.enc_read_segments(first, count),
+            self._timeout_ms))
+        total = rec.itemsize * count
+        raw = np.empty(total, dtype=np.uint8)
+        self._read_into(memoryview(raw), command)
+
+        recs = raw.view(rec)
+        self._validate(recs, raw, first, count, cfg, command)
+        cols = [recs[f].tolist() for f in ("index", "trigger_time_ns", "n_samples", "mask", "bits",
+                                            "overrange", "payload_crc32")]
+        headers = [p.SegmentHeader(*vals) for vals in zip(*cols)]
+        samples = np.ascontiguousarray(recs["data"])
+        if cfg.bits == 16:
+            samples = samples.astype(np.int16, copy=False)
+        else:
+            samples = samples.astype(np.int8, copy=False)
+        return headers, samples
+
+    def _read_into(self, out: memoryview, command: str) -> None:
+        chunk = self._chunk
+        cview = memoryview(chunk)
+        pos = 0
+        total = len(out)
+        while pos < total:
+            want = min(len(chunk), total - pos)
+            buf = chunk if want == len(chunk) else array.array("B", bytes(want))
+            n = self._guard(command, lambda: self._dev.read(p.EP_DATA_IN, buf, self._timeout_ms))
+            if n <= 0:
+                raise DigitizerDataError(DEVICE, command, f"empty bulk transfer at byte {pos} of {total}")
+            src = cview if buf is chunk else memoryview(buf)
+            out[pos:pos + n] = src[:n]
+            pos += n
+
+    @staticmethod
+    def _validate(recs: np.ndarray, raw: np.ndarray, first: int, count: int, cfg: p.Config,
+                  command: str) -> None:
+        if not np.all(recs["magic"] == p.MAGIC):
+            raise DigitizerDataError(DEVICE, command, "segment magic missing: stream out of step")
+        expect = np.arange(first, first + count, dtype=np.uint64)
+        if not np.array_equal(recs["index"].astype(np.uint64), expect):
+            raise DigitizerDataError(DEVICE, command, "segment indices out of sequence")
+        if not (np.all(recs["n_samples"] == cfg.record_length) and np.all(recs["mask"] == cfg.channel_mask)
+                and np.all(recs["bits"] == cfg.bits)):
+            raise DigitizerDataError(DEVICE, command, "segment header does not match configuration")
+        mv = memoryview(raw)
+        size = recs.dtype.itemsize
+        for i in range(count):
+            o = i * size
+            if zlib.crc32(mv[o:o + 28]) != int(recs["header_crc32"][i]):
+                raise DigitizerDataError(DEVICE, command, f"segment {first + i} header crc32 mismatch")
+            if zlib.crc32(mv[o + p.HEADER_LEN:o + size]) != int(recs["payload_crc32"][i]):
+                raise DigitizerDataError(DEVICE, command, f"segment {first + i} payload crc32 mismatch")
+

@@ -1,0 +1,374 @@
+"""Digitizer wire codec: vendor control requests and the framed segment stream on bulk-IN.
+
+§4.4.1: the photodetector's beat signal is sampled by the ADC and sent to the PC; one record
+(segment) per external trigger, i.e. per chirp at one FPSA pixel. Optional channels: the auxiliary
+MZI used for chirp linearization (§2.2, Fig. 2-3) and I/Q beat (two ADC channels) instead of a single
+real beat channel.
+
+Commands are USB vendor control transfers on endpoint 0 (bmRequestType 0x40 OUT / 0xC0 IN); an
+invalid request or value makes the device STALL the control pipe (pyusb raises USBError EPIPE), and
+``GET_STATUS`` reports the code of the last refused request. Sample data flow on bulk-IN endpoint
+0x81 after ``READ_SEGMENTS(first, count)``: every segment is one 32-byte header followed by its
+payload (channel-major: all samples of channel 0, then channel 1, ...; little-endian int8/int16):
+
+    off size field
+      0   4  magic b"DGSG"
+      4   1  version (1)
+      5   1  bits per sample (8 | 16)
+      6   1  channel mask (bit0 beat, bit1 beat_i, bit2 beat_q, bit3 mzi)
+      7   1  overrange flags, bit i = i-th channel present in the mask (ascending bit order)
+      8   4  segment index (u32)
+     12   4  samples per channel (u32)
+     16   8  trigger timestamp (u64, ns since bench/device power-up)
+     24   4  crc32 of the payload (zlib.crc32)
+     28   4  crc32 of header bytes 0..27 (makes resync after garbage reliable)
+
+All integers little endian. This module is PURE; parsers raise only ``DigitizerProtocolError``.
+Golden bytes: docs/protocols/digitizer.md.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.usbtmc import ProtocolError
+
+DIGITIZER_VID = 0x1209
+DIGITIZER_PID = 0xA902
+EP_DATA_IN = 0x81
+
+REQTYPE_OUT = 0x40  # vendor | device | host-to-device
+REQTYPE_IN = 0xC0   # vendor | device | device-to-host
+
+
+class Req(enum.IntEnum):
+    IDENTIFY = 0x01        # IN, 64 bytes ASCII "maker,model,serial,fw"
+    SET_CHANNELS = 0x10    # OUT, wValue = channel mask
+    SET_SAMPLE_RATE = 0x11  # OUT, data u64 Hz
+    SET_RECORD_LENGTH = 0x12  # OUT, data u32 samples per channel
+    SET_SEGMENTS = 0x13    # OUT, data u32 segments per acquisition
+    SET_FORMAT = 0x14      # OUT, wValue = bits (8 | 16)
+    SET_RANGE = 0x15       # OUT, data u32 full-scale input range in millivolts (peak)
+    ARM = 0x20             # OUT, no data
+    ABORT = 0x21           # OUT, no data
+    GET_STATUS = 0x30      # IN, 16 bytes (see Status)
+    GET_CONFIG = 0x31      # IN, 24 bytes (see Config)
+    READ_SEGMENTS = 0x40   # OUT, data u32 first, u32 count -> stream on EP 0x81
+
+
+CHANNEL_BITS = {"beat": 0x01, "beat_i": 0x02, "beat_q": 0x04, "mzi": 0x08}
+MAGIC = b"DGSG"
+VERSION = 1
+HEADER = struct.Struct("<4sBBBBIIQII")
+HEADER_LEN = HEADER.size  # 32
+assert HEADER_LEN == 32
+
+
+class DigitizerProtocolError(ProtocolError):
+    """Digitizer bytes that cannot be decoded (bad magic, CRC, field values, lengths)."""
+
+
+class State(enum.IntEnum):
+    IDLE = 0
+    ARMED = 1
+    CAPTURING = 2
+    DONE = 3
+
+
+# --------------------------------------------------------------------------- channel masks
+
+
+def channel_mask(channels: tuple[str, ...] | list[str]) -> int:
+    mask = 0
+    for ch in channels:
+        try:
+            bit = CHANNEL_BITS[ch]
+        except KeyError:
+            raise DigitizerProtocolError(f"unknown digitizer channel {ch!r}; known {sorted(CHANNEL_BITS)}") from None
+        if mask & bit:
+            raise DigitizerProtocolError(f"digitizer channel {ch!r} listed twice")
+        mask |= bit
+    validate_mask(mask)
+    return mask
+
+
+def validate_mask(mask: int) -> None:
+    if mask <= 0 or mask & ~0x0F:
+        raise DigitizerProtocolError(f"digitizer channel mask 0x{mask:02x} invalid")
+    iq = mask & 0x06
+    if iq and iq != 0x06:
+        raise DigitizerProtocolError("I/Q option needs both beat_i and beat_q")
+    if iq and mask & 0x01:
+        raise DigitizerProtocolError("beat and beat_i/beat_q are exclusive (one ADC pair)")
+
+
+def channels_of(mask: int) -> tuple[str, ...]:
+    """Channel names in payload order (ascending mask bit)."""
+    validate_mask(mask)
+    return tuple(name for name, bit in sorted(CHANNEL_BITS.items(), key=lambda kv: kv[1]) if mask & bit)
+
+
+def bytes_per_sample(bits: int) -> int:
+    if bits not in (8, 16):
+        raise DigitizerProtocolError(f"sample format must be 8 or 16 bits, got {bits}")
+    return bits // 8
+
+
+def sample_dtype(bits: int) -> np.dtype:
+    return np.dtype("<i1") if bytes_per_sample(bits) == 1 else np.dtype("<i2")
+
+
+def segment_bytes(n_channels: int, record_length: int, bits: int) -> int:
+    return HEADER_LEN + n_channels * record_length * bytes_per_sample(bits)
+
+
+def segment_dtype(n_channels: int, record_length: int, bits: int) -> np.dtype:
+    """numpy record layout of one header+payload segment: lets both sides build and parse a
+    whole batch of segments with vectorized field access instead of per-sample loops."""
+    return np.dtype([
+        ("magic", "S4"), ("version", "u1"), ("bits", "u1"), ("mask", "u1"), ("overrange", "u1"),
+        ("index", "<u4"), ("n_samples", "<u4"), ("trigger_time_ns", "<u8"),
+        ("payload_crc32", "<u4"), ("header_crc32", "<u4"),
+        ("data", sample_dtype(bits), (n_channels, record_length)),
+    ])
+
+
+def overrange_flags(overrange: np.ndarray) -> np.ndarray:
+    """bool (count, n_channels) -> u8 flags per segment, bit i = channel i."""
+    ov = np.asarray(overrange, dtype=bool)
+    weights = (1 << np.arange(ov.shape[1], dtype=np.uint16))
+    return (ov.astype(np.uint16) @ weights).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------- control payloads
+
+
+def enc_u32(x: int) -> bytes:
+    if not 0 <= x <= 0xFFFFFFFF:
+        raise DigitizerProtocolError(f"value {x} does not fit u32")
+    return struct.pack("<I", x)
+
+
+def enc_u64(x: int) -> bytes:
+    if not 0 <= x <= 0xFFFFFFFFFFFFFFFF:
+        raise DigitizerProtocolError(f"value {x} does not fit u64")
+    return struct.pack("<Q", x)
+
+
+def dec_u32(data: bytes) -> int:
+    if len(data) != 4:
+        raise DigitizerProtocolError(f"expected 4-byte u32, got {len(data)} bytes")
+    return struct.unpack("<I", data)[0]
+
+
+def dec_u64(data: bytes) -> int:
+    if len(data) != 8:
+        raise DigitizerProtocolError(f"expected 8-byte u64, got {len(data)} bytes")
+    return struct.unpack("<Q", data)[0]
+
+
+def enc_read_segments(first: int, count: int) -> bytes:
+    return enc_u32(first) + enc_u32(count)
+
+
+def dec_read_segments(data: bytes) -> tuple[int, int]:
+    if len(data) != 8:
+        raise DigitizerProtocolError(f"READ_SEGMENTS needs 8 bytes, got {len(data)}")
+    return struct.unpack("<II", data)
+
+
+_STATUS = struct.Struct("<BBHIII")   # state, last_refused_request, reserved, captured, overrange, read_pos
+
+
+@dataclass(frozen=True)
+class Status:
+    state: State
+    segments_captured: int
+    overrange_count: int
+    last_refused_request: int = 0  # bRequest of the last stalled request, 0 = none
+    segments_sent: int = 0
+
+
+def encode_status(s: Status) -> bytes:
+    return _STATUS.pack(int(s.state), s.last_refused_request, 0, s.segments_captured,
+                        s.overrange_count, s.segments_sent)
+
+
+def decode_status(data: bytes) -> Status:
+    if len(data) != _STATUS.size:
+        raise DigitizerProtocolError(f"status must be {_STATUS.size} bytes, got {len(data)}")
+    st, refused, _r, cap, ovr, sent = _STATUS.unpack(data)
+    try:
+        state = State(st)
+    except ValueError:
+        raise DigitizerProtocolError(f"unknown digitizer state {st}") from None
+    return Status(state, cap, ovr, refused, sent)
+
+
+_CONFIG = struct.Struct("<QIIIBBH")  # rate Hz, record length, segments, range mV, mask, bits, reserved
+
+
+@dataclass(frozen=True)
+class Config:
+    sample_rate_hz: int
+    record_length: int
+    segments: int
+    input_range_mv: int
+    channel_mask: int
+    bits: int
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        return channels_of(self.channel_mask)
+
+
+def encode_config(c: Config) -> bytes:
+    return _CONFIG.pack(c.sample_rate_hz, c.record_length, c.segments, c.input_range_mv,
+                        c.channel_mask, c.bits, 0)
+
+
+def decode_config(data: bytes) -> Config:
+    if len(data) != _CONFIG.size:
+        raise DigitizerProtocolError(f"config must be {_CONFIG.size} bytes, got {len(data)}")
+    rate, rl, seg, rng, mask, bits, _r = _CONFIG.unpack(data)
+    validate_mask(mask)
+    bytes_per_sample(bits)
+    return Config(rate, rl, seg, rng, mask, bits)
+
+
+# ------------------------------------------------------------------------- segment header
+
+
+@dataclass(frozen=True)
+class SegmentHeader:
+    index: int
+    trigger_time_ns: int
+    n_samples: int
+    channel_mask: int
+    bits: int
+    overrange: int          # bit i = i-th present channel over range
+    payload_crc32: int
+
+    @property
+    def n_channels(self) -> int:
+        return bin(self.channel_mask).count("1")
+
+    @property
+    def payload_len(self) -> int:
+        return self.n_channels * self.n_samples * bytes_per_sample(self.bits)
+
+    @property
+    def trigger_time_s(self) -> float:
+        return self.trigger_time_ns * 1e-9
+
+
+def encode_segment_header(h: SegmentHeader) -> bytes:
+    validate_mask(h.channel_mask)
+    bytes_per_sample(h.bits)
+    head = HEADER.pack(MAGIC, VERSION, h.bits, h.channel_mask, h.overrange, h.index, h.n_samples,
+                       h.trigger_time_ns, h.payload_crc32, 0)
+    return head[:28] + struct.pack("<I", zlib.crc32(head[:28]))
+
+
+def encode_segment(index: int, trigger_time_ns: int, channel_mask_: int, bits: int,
+                   overrange: int, samples: np.ndarray) -> bytes:
+    """Header + payload for one segment; ``samples`` shape (n_channels, n_samples)."""
+    dt = sample_dtype(bits)
+    payload = np.ascontiguousarray(samples, dtype=dt).tobytes()
+    n_ch = bin(channel_mask_).count("1")
+    if samples.ndim != 2 or samples.shape[0] != n_ch:
+        raise DigitizerProtocolError(f"samples shape {samples.shape} does not match {n_ch} channels")
+    h = SegmentHeader(index, trigger_time_ns, samples.shape[1], channel_mask_, bits, overrange,
+                      zlib.crc32(payload))
+    return encode_segment_header(h) + payload
+
+
+def decode_segment_header(data: bytes | memoryview) -> SegmentHeader:
+    if len(data) < HEADER_LEN:
+        raise DigitizerProtocolError(f"segment header needs {HEADER_LEN} bytes, got {len(data)}")
+    raw = bytes(data[:HEADER_LEN])
+    magic, ver, bits, mask, ovr, idx, ns, t_ns, pcrc, hcrc = HEADER.unpack(raw)
+    if magic != MAGIC:
+        raise DigitizerProtocolError(f"bad segment magic {magic!r}")
+    if zlib.crc32(raw[:28]) != hcrc:
+        raise DigitizerProtocolError("segment header crc32 mismatch")
+    if ver != VERSION:
+        raise DigitizerProtocolError(f"unsupported segment header version {ver}")
+    bytes_per_sample(bits)
+    validate_mask(mask)
+    if ovr >> bin(mask).count("1"):
+        raise DigitizerProtocolError(f"overrange flags 0x{ovr:02x} name absent channels")
+    return SegmentHeader(idx, t_ns, ns, mask, bits, ovr, pcrc)
+
+
+def decode_segment(data: bytes | memoryview) -> tuple[SegmentHeader, np.ndarray, int]:
+    """One whole segment at the start of ``data`` -> (header, samples (n_ch, n), bytes used)."""
+    h = decode_segment_header(data)
+    end = HEADER_LEN + h.payload_len
+    if len(data) < end:
+        raise DigitizerProtocolError(f"segment {h.index} truncated: need {end} bytes, have {len(data)}")
+    payload = memoryview(data)[HEADER_LEN:end]
+    if zlib.crc32(payload) != h.payload_crc32:
+        raise DigitizerProtocolError(f"segment {h.index} payload crc32 mismatch")
+    arr = np.frombuffer(payload, dtype=sample_dtype(h.bits)).reshape(h.n_channels, h.n_samples)
+    return h, arr.copy(), end
+
+
+class SegmentStreamParser:
+    """Incremental parser of the bulk-IN segment stream that resynchronizes after garbage.
+
+    On anything that is not a valid header (magic + header crc) it scans forward to the next
+    ``DGSG``; a segment whose payload crc fails is dropped and counted in ``crc_errors``; the
+    next header is searched for right after the bad header, so one damaged segment never hides
+    the next good one. ``max_payload`` bounds the memory a corrupted length field can demand.
+    """
+
+    def __init__(self, max_payload: int = 64 * 1024 * 1024) -> None:
+        self._buf = bytearray()
+        self.max_payload = max_payload
+        self.dropped_bytes = 0
+        self.crc_errors = 0
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[tuple[SegmentHeader, np.ndarray]]:
+        self._buf += data
+        buf = self._buf
+        out: list[tuple[SegmentHeader, np.ndarray]] = []
+        pos = 0
+        while True:
+            k = buf.find(MAGIC, pos)
+            if k < 0:
+                keep = max(pos, len(buf) - 3)  # a magic may straddle the next feed
+                self.dropped_bytes += keep - pos
+                pos = keep
+                break
+            self.dropped_bytes += k - pos
+            pos = k
+            if len(buf) - pos < HEADER_LEN:
+                break
+            try:
+                h = decode_segment_header(bytes(buf[pos:pos + HEADER_LEN]))
+                if h.payload_len > self.max_payload:
+                    raise DigitizerProtocolError("payload too large")
+            except DigitizerProtocolError:
+                pos += 1
+                self.dropped_bytes += 1
+                continue
+            end = pos + HEADER_LEN + h.payload_len
+            if len(buf) < end:
+                break
+            payload = bytes(buf[pos + HEADER_LEN:end])  # a copy: no view may pin buf (del below)
+            if zlib.crc32(payload) != h.payload_crc32:
+                self.crc_errors += 1
+                pos += 1
+                self.dropped_bytes += 1
+                continue
+            arr = np.frombuffer(payload, dtype=sample_dtype(h.bits)).reshape(h.n_channels, h.n_samples)
+            out.append((h, arr))
+            pos = end
+        del buf[:pos]
+        return out

@@ -1,0 +1,256 @@
+"""Simulated digitizer (ADC): the vendor-protocol peer on the simulated USB bus.
+
+§4.4.1: the beat signal from the photodetector is sampled by the ADC, one segment per external
+trigger (one chirp at one FPSA pixel), and sent to the PC. The bench injects a ``SegmentSource``
+that synthesizes the codes of requested segments (beat, MZI, I/Q channels) from the world model.
+
+Memory stays bounded: segments are pulled from the source lazily, in batches of about
+``batch_bytes``, as the host drains bulk-IN; never a whole frame at once. Time is modelled on the
+shared ``VirtualClock``: before a segment is served the clock moves to its trigger time plus the
+record duration (the capture must have happened), and every bulk-IN transfer advances it by
+bytes / ``usb_rate_bytes_s`` (the modelled bus throughput, 40 MB/s by default).
+
+Wire format: drivers/digitizer/protocol.py and docs/protocols/digitizer.md.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from drivers.digitizer import protocol as p
+from sim_devices.clock import VirtualClock
+from sim_devices.usb_backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_stall, usb_timeout
+
+SAMPLE_RATE_MIN_HZ = 1_000
+SAMPLE_RATE_MAX_HZ = 5_000_000_000
+RECORD_LENGTH_MAX = 16 * 1024 * 1024
+SEGMENTS_MAX = 1 << 24
+RANGE_MV_MIN = 10
+RANGE_MV_MAX = 10_000
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    sample_rate_hz: float
+    record_length: int
+    channels: tuple[str, ...]
+    bits: int
+    input_range_v: float
+
+
+@dataclass
+class CapturedSegments:
+    """What the source returns: trigger times (float64 s, (count,)), int16 codes
+    (count, n_channels, record_length) already quantized to ``bits``, overrange (count, n_channels)."""
+
+    trigger_time_s: np.ndarray
+    codes: np.ndarray
+    overrange: np.ndarray
+
+
+class SegmentSource(Protocol):
+    def capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
+        """Segments ``first..first+count-1``. Must be a function of the indices: the digitizer
+        may ask again for segments the host re-reads."""
+        ...
+
+
+class SimDigitizer(SimUsbDevice):
+    """Simulated digitizer: configuration, arm/abort/status, lazy segment stream on EP 0x81."""
+
+    def __init__(self, clock: VirtualClock, source: SegmentSource, *, serial: str = "SIM0002",
+                 usb_rate_bytes_s: float = 40e6, batch_bytes: int = 4 << 20) -> None:
+        super().__init__()
+        self.spec = DeviceSpec(
+            vid=p.DIGITIZER_VID, pid=p.DIGITIZER_PID, manufacturer="lidard-sim", product="ADC-2CH",
+            serial=serial, interface_class=0xFF, interface_subclass=0x00, interface_protocol=0x00,
+            endpoints=(EndpointSpec(p.EP_DATA_IN),),
+        )
+        self.clock = clock
+        self.source = source
+        self.usb_rate_bytes_s = float(usb_rate_bytes_s)
+        self.batch_bytes = int(batch_bytes)
+        self.config = p.Config(sample_rate_hz=250_000_000, record_length=20_000, segments=1,
+                               input_range_mv=1000, channel_mask=p.CHANNEL_BITS["beat"], bits=16)
+        self._reset_acquisition()
+        self.last_refused_request = 0
+        #: largest batch actually pulled from the source (tests check memory stays bounded)
+        self.max_batch_segments = 0
+
+    def _reset_acquisition(self) -> None:
+        self.state = p.State.IDLE
+        self.segments_captured = 0
+        self.overrange_count = 0
+        self._armed_cfg: p.Config | None = None
+        self._next = 0          # next segment index to stream
+        self._end = 0           # one past the last segment requested by READ_SEGMENTS
+        self._batch: memoryview | None = None
+        self._batch_pos = 0
+        self.segments_sent = 0
+
+    def capture_config(self, c: p.Config | None = None) -> CaptureConfig:
+        c = c or self.config
+        return CaptureConfig(float(c.sample_rate_hz), c.record_length, c.channels, c.bits,
+                             c.input_range_mv / 1000.0)
+
+    # ------------------------------------------------------------------------ control
+
+    def _refuse(self, req: int, why: str):
+        self.last_refused_request = req
+        return usb_stall(f"digitizer request 0x{req:02x}: {why}")
+
+    def handle_ctrl(self, bm, req, w_value, w_index, data, w_length):
+        try:
+            r = p.Req(req)
+        except ValueError:
+            raise self._refuse(req, "unknown request") from None
+        if bm & 0x80:
+            if r is p.Req.IDENTIFY:
+                s = self.spec
+                return f"{s.manufacturer},{s.product},{s.serial},1.0".encode()[:w_length]
+            if r is p.Req.GET_STATUS:
+                return p.encode_status(p.Status(self.state, self.segments_captured, self.overrange_count,
+                                                self.last_refused_request, self.segments_sent))
+            if r is p.Req.GET_CONFIG:
+                return p.encode_config(self.config)
+            raise self._refuse(req, "not an IN request")
+        if self.state in (p.State.ARMED, p.State.CAPTURING) and r in (
+                p.Req.SET_CHANNELS, p.Req.SET_SAMPLE_RATE, p.Req.SET_RECORD_LENGTH,
+                p.Req.SET_SEGMENTS, p.Req.SET_FORMAT, p.Req.SET_RANGE):
+            raise self._refuse(req, "configuration locked while armed")
+        c = self.config
+        try:
+            if r is p.Req.SET_CHANNELS:
+                p.validate_mask(w_value)
+                self.config = _replace(c, channel_mask=w_value)
+            elif r is p.Req.SET_SAMPLE_RATE:
+                v = p.dec_u64(data or b"")
+                if not SAMPLE_RATE_MIN_HZ <= v <= SAMPLE_RATE_MAX_HZ:
+                    raise self._refuse(req, f"sample rate {v} Hz")
+                self.config = _replace(c, sample_rate_hz=v)
+            elif r is p.Req.SET_RECORD_LENGTH:
+                v = p.dec_u32(data or b"")
+                if not 1 <= v <= RECORD_LENGTH_MAX:
+                    raise self._refuse(req, f"record length {v}")
+                self.config = _replace(c, record_length=v)
+            elif r is p.Req.SET_SEGMENTS:
+                v = p.dec_u32(data or b"")
+                if not 1 <= v <= SEGMENTS_MAX:
+                    raise self._refuse(req, f"segments {v}")
+                self.config = _replace(c, segments=v)
+            elif r is p.Req.SET_FORMAT:
+                p.bytes_per_sample(w_value)
+                self.config = _replace(c, bits=w_value)
+            elif r is p.Req.SET_RANGE:
+                v = p.dec_u32(data or b"")
+                if not RANGE_MV_MIN <= v <= RANGE_MV_MAX:
+                    raise self._refuse(req, f"range {v} mV")
+                self.config = _replace(c, input_range_mv=v)
+            elif r is p.Req.ARM:
+                self._reset_acquisition()
+                self.state = p.State.ARMED
+                self._armed_cfg = self.config
+            elif r is p.Req.ABORT:
+                self._reset_acquisition()
+            elif r is p.Req.READ_SEGMENTS:
+                first, count = p.dec_read_segments(data or b"")
+                cfg = self._armed_cfg
+                if cfg is None or count < 1 or first + count > cfg.segments:
+                    raise self._refuse(req, f"READ_SEGMENTS({first},{count}) outside acquisition")
+                self._next, self._end = first, first + count
+                self._batch, self._batch_pos = None, 0
+            else:
+                raise self._refuse(req, "not an OUT request")
+        except p.DigitizerProtocolError as exc:
+            raise self._refuse(req, str(exc)) from None
+        return len(data or b"")
+
+    # ------------------------------------------------------------------------ bulk-IN
+
+    def _make_batch(self) -> None:
+        cfg = self._armed_cfg
+        assert cfg is not None
+        n_ch = len(cfg.channels)
+        rec = p.segment_dtype(n_ch, cfg.record_length, cfg.bits)
+        count = max(1, min(self._end - self._next, self.batch_bytes // rec.itemsize))
+        first = self._next
+        cap = self.source.capture(first, count, self.capture_config(cfg))
+        codes = np.asarray(cap.codes)
+        if codes.shape != (count, n_ch, cfg.record_length):
+            raise ValueError(f"SegmentSource returned codes {codes.shape}, expected "
+                             f"{(count, n_ch, cfg.record_length)}")
+        lo, hi = (-128, 127) if cfg.bits == 8 else (-32768, 32767)
+        clipped = (codes < lo) | (codes > hi)
+        over = np.asarray(cap.overrange, dtype=bool) | clipped.any(axis=2)
+        recs = np.zeros(count, dtype=rec)
+        recs["magic"] = p.MAGIC
+        recs["version"] = p.VERSION
+        recs["bits"] = cfg.bits
+        recs["mask"] = cfg.channel_mask
+        recs["overrange"] = p.overrange_flags(over)
+        recs["index"] = np.arange(first, first + count, dtype=np.uint32)
+        recs["n_samples"] = cfg.record_length
+        t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
+        recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
+        recs["data"] = np.clip(codes, lo, hi) if clipped.any() else codes
+        raw = recs.view(np.uint8)
+        mv = memoryview(raw)
+        size = rec.itemsize
+        pcrc = recs["payload_crc32"]
+        hcrc = recs["header_crc32"]
+        for i in range(count):
+            o = i * size
+            pcrc[i] = zlib.crc32(mv[o + p.HEADER_LEN:o + size])
+            hcrc[i] = zlib.crc32(mv[o:o + 28])
+        # the capture of the batch's last segment must be over before it can be served
+        record_s = cfg.record_length / cfg.sample_rate_hz
+        self.clock.advance_to(float(t_s.max()) + record_s)
+        new_captured = max(self.segments_captured, first + count)
+        if new_captured > self.segments_captured:
+            fresh = slice(max(0, self.segments_captured - first), count)
+            self.overrange_count += int(over[fresh].sum())
+            self.segments_captured = new_captured
+        self.state = p.State.DONE if self.segments_captured >= cfg.segments else p.State.CAPTURING
+        self.max_batch_segments = max(self.max_batch_segments, count)
+        self._batch, self._batch_pos = mv, 0
+        self._next = first + count
+
+    def handle_bulk_in(self, ep, buf):
+        if ep != p.EP_DATA_IN:
+            raise usb_stall(f"digitizer bulk-IN 0x{ep:02x}")
+        n_out = 0
+        want = len(buf)
+        while n_out < want:
+            if self._batch is None or self._batch_pos >= len(self._batch):
+                if self._next >= self._end:
+                    break
+                self._make_batch()
+            assert self._batch is not None
+            k = min(want - n_out, len(self._batch) - self._batch_pos)
+            buf[n_out:n_out + k] = self._batch[self._batch_pos:self._batch_pos + k]
+            self._batch_pos += k
+            n_out += k
+        if self._batch is not None and self._batch_pos >= len(self._batch) and self._next >= self._end:
+            self._batch = None
+        if n_out == 0:
+            # nothing requested: a real device NAKs and the host's transfer times out
+            raise usb_timeout("digitizer bulk-IN with no READ_SEGMENTS pending")
+        self.segments_sent = self._next  # segments pulled into the stream so far
+        self.clock.advance(n_out / self.usb_rate_bytes_s)
+        return n_out
+
+    def handle_clear_halt(self, ep):
+        self._batch, self._next, self._end = None, 0, 0
+
+    def handle_reset(self):
+        self._reset_acquisition()
+
+
+def _replace(c: p.Config, **kw) -> p.Config:
+    d = c.__dict__.copy()
+    d.update(kw)
+    return p.Config(**d)
