@@ -1,0 +1,276 @@
+"""Persistent state of the daemon: scans and chirp calibrations in SQLite, arrays in files.
+
+Layout under the data directory::
+
+    lidard.sqlite3                  WAL mode; tables ``scans`` and ``calibrations``
+    scans/<id>/scan.<fmt>[.json]    point clouds and sidecars (written by lidard.jobs)
+    calibrations/<id>.npy           the linearized drive waveform u(t) of §2.2 (ILC, Fig. 2-5)
+
+One connection guarded by a lock serves all threads (the scan worker and the API's threadpool);
+SQLite in WAL mode lets outside readers (``sqlite3`` shell, a second daemon refusing to start) read
+while the daemon writes. A scan left ``queued`` or ``running`` by a process that died is marked
+``interrupted`` when the store is opened again: its hardware state is unknown, so it is never
+resumed silently.
+
+Scan ids are 16 characters of Crockford base32: 10 for the millisecond timestamp (so ids sort by
+creation time) and 6 random, URL-safe and short enough to type.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import sqlite3
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import LidardError
+from .instrument_api import CalibrationResult
+from .pointcloud import atomic_write
+
+SCAN_STATES = ("queued", "running", "done", "failed", "cancelled", "interrupted")
+TERMINAL_STATES = frozenset({"done", "failed", "cancelled", "interrupted"})
+_CROCKFORD = "0123456789ABCDEFGHJKMNPQRSTVWXYZ"
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS scans (
+    id TEXT PRIMARY KEY,
+    state TEXT NOT NULL,
+    request TEXT NOT NULL,
+    progress REAL NOT NULL DEFAULT 0,
+    stage TEXT NOT NULL DEFAULT 'queued',
+    created REAL NOT NULL,
+    started REAL,
+    finished REAL,
+    hardware_time_s REAL,
+    wall_time_s REAL,
+    points INTEGER NOT NULL DEFAULT 0,
+    pixels_scanned INTEGER NOT NULL DEFAULT 0,
+    pixels_planned INTEGER NOT NULL DEFAULT 0,
+    error TEXT,
+    partial INTEGER NOT NULL DEFAULT 0,
+    files TEXT NOT NULL DEFAULT '{}',
+    calibration_id TEXT
+);
+CREATE TABLE IF NOT EXISTS calibrations (
+    id TEXT PRIMARY KEY,
+    laser TEXT NOT NULL,
+    temperature_c REAL,
+    created REAL NOT NULL,
+    converged INTEGER NOT NULL,
+    iterations TEXT NOT NULL,
+    reduction TEXT NOT NULL,
+    fs_drive_hz REAL NOT NULL,
+    drive_file TEXT,
+    meta TEXT NOT NULL DEFAULT '{}'
+);
+CREATE INDEX IF NOT EXISTS calibrations_laser ON calibrations (laser, created);
+"""
+
+
+_id_lock = threading.Lock()
+_last_id_value = 0
+
+
+class StoreError(LidardError):
+    """The data directory or database cannot be used; the message names the path."""
+
+
+def new_id(now_s: float | None = None) -> str:
+    """Short, URL-safe, time-sortable id: 48-bit ms timestamp + 30 random bits, Crockford base32."""
+    global _last_id_value
+    ms = int((time.time() if now_s is None else now_s) * 1000)
+    value = (ms << 30) | secrets.randbits(30)
+    with _id_lock:
+        # Two ids in the same millisecond still sort in creation order within this process.
+        if value <= _last_id_value:
+            value = _last_id_value + 1
+        _last_id_value = value
+    chars = []
+    for _ in range(16):
+        chars.append(_CROCKFORD[value & 31])
+        value >>= 5
+    return "".join(reversed(chars))
+
+
+@dataclass
+class ScanRecord:
+    id: str
+    state: str
+    request: dict[str, Any]
+    progress: float = 0.0
+    stage: str = "queued"
+    created: float = 0.0
+    started: float | None = None
+    finished: float | None = None
+    hardware_time_s: float | None = None
+    wall_time_s: float | None = None
+    points: int = 0
+    pixels_scanned: int = 0
+    pixels_planned: int = 0
+    error: str | None = None
+    partial: bool = False
+    files: dict[str, str] = field(default_factory=dict)
+    calibration_id: str | None = None
+
+    @property
+    def terminal(self) -> bool:
+        return self.state in TERMINAL_STATES
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+_SCAN_COLUMNS = tuple(ScanRecord.__dataclass_fields__)
+_JSON_COLUMNS = {"request", "files"}
+
+
+class Store:
+    """SQLite + files under ``data_dir``; thread-safe (one connection, one lock)."""
+
+    def __init__(self, data_dir: str | os.PathLike):
+        self.data_dir = Path(data_dir).expanduser()
+        try:
+            (self.data_dir / "scans").mkdir(parents=True, exist_ok=True)
+            (self.data_dir / "calibrations").mkdir(parents=True, exist_ok=True)
+            self.db_path = self.data_dir / "lidard.sqlite3"
+            self._conn = sqlite3.connect(self.db_path, check_same_thread=False, isolation_level=None,
+                                         timeout=10.0)
+        except (OSError, sqlite3.Error) as exc:
+            raise StoreError(f"data directory {self.data_dir}: cannot open the store ({exc})") from None
+        self._lock = threading.RLock()
+        with self._lock:
+            self._conn.row_factory = sqlite3.Row
+            mode = self._conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            if str(mode).lower() != "wal":
+                raise StoreError(f"{self.db_path}: cannot switch SQLite to WAL mode (got {mode})")
+            self._conn.execute("PRAGMA synchronous=NORMAL")
+            self._conn.executescript(_SCHEMA)
+            self.recovered = self._conn.execute(
+                "UPDATE scans SET state='interrupted', stage='interrupted', "
+                "error=COALESCE(error, 'daemon stopped while the scan was ' || state) "
+                "WHERE state IN ('queued', 'running')").rowcount
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()
+
+    def journal_mode(self) -> str:
+        with self._lock:
+            return str(self._conn.execute("PRAGMA journal_mode").fetchone()[0]).lower()
+
+    def scan_dir(self, scan_id: str) -> Path:
+        return self.data_dir / "scans" / scan_id
+
+    # -- scans ---------------------------------------------------------------------------------
+    def create_scan(self, request: dict[str, Any], pixels_planned: int = 0) -> ScanRecord:
+        rec = ScanRecord(id=new_id(), state="queued", request=request, created=time.time(),
+                         pixels_planned=pixels_planned)
+        with self._lock:
+            self._conn.execute(
+                "INSERT INTO scans (id, state, request, created, pixels_planned, stage) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                (rec.id, rec.state, json.dumps(request), rec.created, pixels_planned, rec.stage))
+        return rec
+
+    def update_scan(self, scan_id: str, **fields: Any) -> None:
+        bad = set(fields) - set(_SCAN_COLUMNS) - {"id"}
+        if bad or "id" in fields:
+            raise StoreError(f"update_scan: unknown column(s) {sorted(bad | ({'id'} & set(fields)))}")
+        if "state" in fields and fields["state"] not in SCAN_STATES:
+            raise StoreError(f"update_scan: state {fields['state']!r} not one of {SCAN_STATES}")
+        values = [json.dumps(v) if k in _JSON_COLUMNS else (int(v) if k == "partial" else v)
+                  for k, v in fields.items()]
+        sets = ", ".join(f"{k} = ?" for k in fields)
+        with self._lock:
+            cur = self._conn.execute(f"UPDATE scans SET {sets} WHERE id = ?", (*values, scan_id))
+        if cur.rowcount != 1:
+            raise StoreError(f"scan {scan_id!r} not found")
+
+    def transition(self, scan_id: str, from_states: tuple[str, ...], **fields: Any) -> bool:
+        """Update only if the scan is in one of ``from_states`` (atomic compare-and-set)."""
+        values = [json.dumps(v) if k in _JSON_COLUMNS else (int(v) if k == "partial" else v)
+                  for k, v in fields.items()]
+        sets = ", ".join(f"{k} = ?" for k in fields)
+        marks = ", ".join("?" for _ in from_states)
+        with self._lock:
+            cur = self._conn.execute(f"UPDATE scans SET {sets} WHERE id = ? AND state IN ({marks})",
+                                     (*values, scan_id, *from_states))
+        return cur.rowcount == 1
+
+    @staticmethod
+    def _scan_from_row(row: sqlite3.Row) -> ScanRecord:
+        d = {k: row[k] for k in _SCAN_COLUMNS}
+        d["request"] = json.loads(d["request"])
+        d["files"] = json.loads(d["files"])
+        d["partial"] = bool(d["partial"])
+        return ScanRecord(**d)
+
+    def get_scan(self, scan_id: str) -> ScanRecord | None:
+        with self._lock:
+            row = self._conn.execute("SELECT * FROM scans WHERE id = ?", (scan_id,)).fetchone()
+        return None if row is None else self._scan_from_row(row)
+
+    def list_scans(self, limit: int = 100, state: str | None = None) -> list[ScanRecord]:
+        """Newest first."""
+        q, args = "SELECT * FROM scans", []
+        if state is not None:
+            q += " WHERE state = ?"
+            args.append(state)
+        q += " ORDER BY created DESC, id DESC LIMIT ?"
+        args.append(int(limit))
+        with self._lock:
+            rows = self._conn.execute(q, args).fetchall()
+        return [self._scan_from_row(r) for r in rows]
+
+    # -- calibrations --------------------------------------------------------------------------
+    def save_calibration(self, cal: CalibrationResult) -> str:
+        cal_id = new_id()
+        drive_file = None
+        drive = np.asarray(cal.drive_v, dtype=np.float64)
+        if drive.size:
+            drive_file = f"calibrations/{cal_id}.npy"
+            with atomic_write(self.data_dir / drive_file) as f:
+                np.save(f, drive, allow_pickle=False)
+        with self._lock:
+            self._conn.execute(
+                "INSERT INTO calibrations (id, laser, temperature_c, created, converged, iterations, "
+                "reduction, fs_drive_hz, drive_file, meta) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (cal_id, cal.laser, float(cal.temperature_c), time.time(), int(bool(cal.converged)),
+                 json.dumps(cal.iterations), json.dumps(cal.reduction), float(cal.fs_drive_hz),
+                 drive_file, json.dumps(cal.meta, default=str)))
+        return cal_id
+
+    def _calibration_from_row(self, row: sqlite3.Row) -> CalibrationResult:
+        drive = np.zeros(0)
+        if row["drive_file"]:
+            drive = np.load(self.data_dir / row["drive_file"], allow_pickle=False)
+        meta = json.loads(row["meta"])
+        meta.update(id=row["id"], created=row["created"])
+        return CalibrationResult(iterations=json.loads(row["iterations"]),
+                                 reduction=json.loads(row["reduction"]), converged=bool(row["converged"]),
+                                 laser=row["laser"], temperature_c=row["temperature_c"], drive_v=drive,
+                                 fs_drive_hz=row["fs_drive_hz"], meta=meta)
+
+    def latest_calibration(self, laser: str | None = None) -> CalibrationResult | None:
+        """Newest calibration (for ``laser`` if given); ``meta['id']`` holds its id."""
+        q = "SELECT * FROM calibrations"
+        args: list[Any] = []
+        if laser is not None:
+            q += " WHERE laser = ?"
+            args.append(laser)
+        with self._lock:
+            row = self._conn.execute(q + " ORDER BY created DESC, id DESC LIMIT 1", args).fetchone()
+        return None if row is None else self._calibration_from_row(row)
+
+    def get_calibration(self, cal_id: str) -> CalibrationResult | None:
+        with self._lock:
+            row = self._conn.execute("SELECT * FROM calibrations WHERE id = ?", (cal_id,)).fetchone()
+        return None if row is None else self._calibration_from_row(row)
