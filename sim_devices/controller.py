@@ -102,8 +102,10 @@ class ControllerModel:
         hw_limits: p.Limits = p.HARDWARE_LIMITS,
         model: str = "LHV-1550",
         firmware: tuple[int, int] = (1, 0),
+        map_version: int = p.MAP_VERSION,
     ) -> None:
         self.clock = clock
+        self.map_version = map_version  # another value lets tests play an incompatible device
         self.dynamics = dynamics
         self.hw_limits = hw_limits
         self._model_words = p.encode_value(p.MODEL, model)
@@ -179,7 +181,7 @@ class ControllerModel:
             return [
                 *self._model_words,
                 self._firmware_word,
-                p.MAP_VERSION,
+                self.map_version,
                 *p.encode_value(p.LASER_CURRENT, _clip(p.LASER_CURRENT, s.laser_current_ma)),
                 *p.encode_value(p.TEC_TEMPERATURE, _clip(p.TEC_TEMPERATURE, s.tec_c)),
                 *p.encode_value(p.HV_VOLTAGE, _clip(p.HV_VOLTAGE, s.hv_v)),
@@ -265,10 +267,11 @@ class ControllerSim:
         hw_limits: p.Limits = p.HARDWARE_LIMITS,
         model: str = "LHV-1550",
         firmware: tuple[int, int] = (1, 0),
+        map_version: int = p.MAP_VERSION,
     ) -> None:
         self.clock = clock if clock is not None else VirtualClock()
         self.model = ControllerModel(self.clock, dynamics=dynamics, hw_limits=hw_limits,
-                                     model=model, firmware=firmware)
+                                     model=model, firmware=firmware, map_version=map_version)
         self.host = host
         self.device_id = device_id
         self._requested_port = port

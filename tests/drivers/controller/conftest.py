@@ -1,0 +1,49 @@
+"""Fixtures: a simulated controller on 127.0.0.1 (virtual clock) and a driver pointed at it."""
+
+from __future__ import annotations
+
+import pytest
+
+from drivers.controller import protocol as p
+from drivers.controller.driver import LaserHvController, SettleCheck
+from sim_devices.clock import VirtualClock
+from sim_devices.controller import ControllerSim
+
+# Deployment limits tighter than the hardware's (250 mA, 100 V, 15..40 degC).
+LIMITS = p.Limits(max_laser_current_ma=200.0, max_hv_v=60.0, tec_range_c=(18.0, 35.0))
+# Wider than the hardware: lets a test push out-of-range values past the driver to the device.
+WIDE = p.Limits(max_laser_current_ma=600.0, max_hv_v=600.0, tec_range_c=(-100.0, 300.0))
+TIMEOUT_S = 0.05  # short: timeout tests wait (retries + 1) * TIMEOUT_S of real time
+
+
+@pytest.fixture
+def clock():
+    return VirtualClock()
+
+
+@pytest.fixture
+def sim(clock):
+    s = ControllerSim(clock)
+    s.start()
+    yield s
+    s.stop()
+
+
+@pytest.fixture
+def ctl(sim):
+    c = LaserHvController("127.0.0.1", sim.port, device_id=1, timeout_s=TIMEOUT_S, retries=2,
+                          limits=LIMITS)
+    yield c
+    c.close()
+
+
+@pytest.fixture
+def wide(sim):
+    c = LaserHvController("127.0.0.1", sim.port, timeout_s=TIMEOUT_S, retries=0, limits=WIDE)
+    yield c
+    c.close()
+
+
+@pytest.fixture
+def settle(clock):
+    return SettleCheck(sleep=clock.advance, timeout_s=20.0, poll_s=0.005)
