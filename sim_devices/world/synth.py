@@ -1,0 +1,512 @@
+"""Digitized FMCW beat and monitor-MZI synthesis for a batch of digitizer segments.
+
+Physics (dissertation §2.1 eqs. 2-1..2-5, §2.3, §2.4 eqs. 2-11, 2-13..2-15):
+
+* Laser phase Phi(t) = 2 pi int (nu - nu0) dt + phi_n(t) (+ 2 pi nu0 t, which only enters through the
+  delay). The deterministic part comes from :class:`ChirpTrajectory`, computed once per AWG waveform
+  on the AWG grid; it is accumulated in float64 (a float32 accumulator loses the beat: with
+  gamma ~ 1e14 Hz/s the chirp phase reaches ~1e6 rad over a ramp, where float32 has a 0.06-0.12 rad
+  ulp; a test shows it).
+* An interferometer of delay tau beats Phi(t) against Phi(t - tau). A target at distance d(t) = d + v t
+  (v > 0 receding) returns light delayed by tau(t) = 2 d(t) / c, so the LiDAR beat phase is::
+
+      dPhi(t) = Phi(t) - Phi(t - tau(t))
+              = [Phi_chirp(t) - Phi_chirp(t - tau(t))] + 2 pi nu0 tau(t) + phi_n(t) - phi_n(t - tau)
+
+  and 2 pi nu0 tau(t) = 2 pi nu0 tau_0 - 2 pi f_D t with the optical Doppler shift of the return
+  f_D = -2 v / lambda (``HitBatch.doppler_hz``; receding -> red shift -> f_D < 0). Differentiating, the
+  beat frequency is gamma tau - f_D: on the up ramp f_up = 2 gamma d / c + 2 v / lambda and on the down
+  ramp the (negative) frequency -2|gamma| d / c + 2 v / lambda, i.e. |f_down| = 2|gamma| d/c - 2 v/lambda.
+  With the approaching speed V = -v these are eqs. 2-4 and 2-5 (a test checks this).
+* Real beat: A cos(dPhi) (+ dc_v); I/Q beat: I = A cos(dPhi), Q = A sin(dPhi) -- the complex beat
+  I + jQ = A exp(+j dPhi), so the up-ramp tone of a static target has a POSITIVE frequency and the
+  down-ramp tone a negative one. A = ``HitBatch.amplitude_v`` = G_TIA I_AC (eq. 2-11); its FFT peak
+  ASD (eq. 2-13) is A sqrt(T/2) (eq. 2-14 with tau_c = inf).
+* Phase noise: ONE Wiener realization per segment on the ADC grid (variance 2 pi linewidth / fs per
+  sample), shared by the LiDAR beat and the monitor MZI, so that the MZI carries exactly the phase
+  noise that H7's compensation removes. For a delay that is an integer number m of ADC samples the
+  beat noise is exactly phi[k] - phi[k - m]. Otherwise phi(t - tau) is the linear interpolation
+  between the neighbouring samples plus an independent Brownian-bridge term of variance
+  2 pi linewidth dt w (1 - w), which makes Var[phi(t) - phi(t - tau)] = 2 pi linewidth tau exactly.
+  (Bridge terms of two different delays in the same sample interval are drawn independently, a
+  negligible simplification.) The Doppler change of tau within a segment is ignored for the noise.
+* Additive noise: white Gaussian with single-sided ASD ``noise_asd_v_per_rthz`` (shot + RIN + thermal
+  + ambient of eqs. 2-16..2-21), per-sample std = ASD sqrt(fs / 2).
+* ADC: mid-tread quantizer with LSB = input_range_v / 2**bits; code k means k LSB volts; codes span
+  [-2**(bits-1), 2**(bits-1) - 1], i.e. full scale is +-input_range_v / 2 (the budget's V_ADC is the
+  full peak-to-peak range, eq. 2-19). Samples beyond are clipped and the channel flagged overrange.
+
+Cost model: work happens at the ADC rate passed in, only for the hits given (a segment without hits
+gets noise only), and every switched-off effect (linewidth 0, ASD 0, quantize False, no MZI) is
+skipped without drawing random numbers. Everything is vectorized over segments and hits; segments
+are processed in chunks to bound the temporaries, and hits of one segment are accumulated by rank
+(the r-th hit of every segment at once).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidard.physics.constants import C_M_PER_S
+from sim_devices.world.laser import DfbLaser, wiener_phase
+
+_CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
+_INTEGER_DELAY_TOL = 1e-6      # in ADC samples: a delay this close to m / fs is treated as exact
+
+
+class SynthError(ValueError):
+    """Invalid synthesis input; the message names the argument and the bad value."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Deterministic chirp
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ChirpTrajectory:
+    """The laser's deterministic optical frequency for one AWG period, and its phase.
+
+    ``nu_hz[k]`` = nu(k / fs_hz) - nu0 (Hz), k = 0..N-1, periodic with ``period_s`` = N / fs_hz and
+    linearly interpolated between samples (consistent with the laser model's first-order hold).
+    ``phase_rad[k]`` = 2 pi int_0^{k/fs} (nu - nu0) dt for k = 0..N (float64, exact for the
+    interpolated nu). ``nu0_hz`` = c / lambda enters through the Doppler term only.
+    """
+
+    fs_hz: float
+    nu_hz: np.ndarray
+    phase_rad: np.ndarray
+    period_s: float
+    nu0_hz: float
+    _cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def n(self) -> int:
+        return int(self.nu_hz.size)
+
+    @property
+    def mean_hz(self) -> float:
+        """Period average of nu - nu0 (the trapezoid mean of the interpolated nu)."""
+        return float(self._tables()[3])
+
+    def _tables(self):
+        """Coefficients of the periodic phase (mean frequency removed), one quadratic per interval."""
+        t = self._cache.get("tables")
+        if t is None:
+            nu = np.asarray(self.nu_hz, dtype=np.float64)
+            mean = float(np.mean(nu))            # trapezoid mean of a periodic, linearly interpolated nu
+            nup = nu - mean
+            nxt = np.roll(nup, -1)
+            dt = 1.0 / self.fs_hz
+            c1 = 2.0 * np.pi * dt * nup
+            c2 = np.pi * dt * (nxt - nup)
+            # accumulate in the trajectory's dtype (float32 only in the precision test)
+            acc_dtype = self.phase_rad.dtype
+            c0 = np.zeros(nu.size, dtype=acc_dtype)
+            np.cumsum((c1 + c2)[:-1].astype(acc_dtype), out=c0[1:], dtype=acc_dtype)
+            c0 = c0.astype(np.float64)
+            t = (c0, c1, c2, mean)
+            self._cache["tables"] = t
+        return t
+
+    def _tiled(self, periods: int):
+        key = ("tiled", periods)
+        t = self._cache.get(key)
+        if t is None:
+            c0, c1, c2, _ = self._tables()
+            t = tuple(np.tile(c, periods) for c in (c0, c1, c2))
+            self._cache[key] = t
+        return t
+
+    def periodic_phase_samples(self, x, periods: int | None = None) -> np.ndarray:
+        """Periodic phase (mean frequency removed) at AWG-sample positions ``x`` (float64)."""
+        x = np.asarray(x, dtype=np.float64)
+        n = self.n
+        if periods is None:
+            x = np.mod(x, n)
+            periods = 1
+        c0, c1, c2 = self._tiled(periods)
+        i = np.floor(x)
+        f = x - i
+        i = i.astype(np.intp)
+        return c0[i] + f * (c1[i] + f * c2[i])
+
+    def phase_at(self, t_s) -> np.ndarray:
+        """2 pi int_0^t (nu - nu0) dt' at arbitrary times (periodic extension of the period)."""
+        t = np.asarray(t_s, dtype=np.float64)
+        return self.periodic_phase_samples(t * self.fs_hz) + 2.0 * np.pi * self.mean_hz * t
+
+    def frequency_at(self, t_s) -> np.ndarray:
+        """nu(t) - nu0 at arbitrary times (linear interpolation, periodic)."""
+        x = np.mod(np.asarray(t_s, dtype=np.float64) * self.fs_hz, self.n)
+        i = np.floor(x).astype(np.intp)
+        f = x - i
+        nu = self.nu_hz
+        return nu[i] + f * (nu[(i + 1) % self.n] - nu[i])
+
+
+def trajectory(laser: DfbLaser, drive_v, fs_drive_hz: float, *, dtype=np.float64) -> ChirpTrajectory:
+    """Compute the chirp of ``laser`` under one period of the periodic AWG waveform ``drive_v``.
+
+    ``dtype`` exists for the precision test only (float32 shows why phases must be float64).
+    """
+    nu = laser.frequency_hz(drive_v, fs_drive_hz)
+    return trajectory_from_frequency(nu, fs_drive_hz, nu0_hz=laser.nu0_hz, dtype=dtype)
+
+
+def trajectory_from_frequency(nu_hz, fs_hz: float, *, nu0_hz: float = C_M_PER_S / 1.55e-6,
+                              dtype=np.float64) -> ChirpTrajectory:
+    """A :class:`ChirpTrajectory` from a given periodic nu(t) - nu0 (e.g. an ideal linear chirp)."""
+    nu = np.asarray(nu_hz, dtype=np.float64)
+    if nu.ndim != 1 or nu.size < 2 or not np.all(np.isfinite(nu)):
+        raise SynthError(f"trajectory: nu_hz must be a finite 1-D array of >= 2 samples, got shape {nu.shape}")
+    if not (math.isfinite(fs_hz) and fs_hz > 0):
+        raise SynthError(f"trajectory: fs_hz must be positive and finite, got {fs_hz!r}")
+    dtype = np.dtype(dtype)
+    if dtype not in (np.dtype(np.float64), np.dtype(np.float32)):
+        raise SynthError(f"trajectory: dtype must be float64 (or float32 for the precision test), got {dtype}")
+    seg = (np.pi / fs_hz) * (nu + np.roll(nu, -1))       # trapezoid: exact for linear interpolation
+    phase = np.zeros(nu.size + 1, dtype=dtype)
+    np.cumsum(seg.astype(dtype), out=phase[1:], dtype=dtype)
+    return ChirpTrajectory(fs_hz=float(fs_hz), nu_hz=nu, phase_rad=phase, period_s=nu.size / fs_hz,
+                           nu0_hz=float(nu0_hz))
+
+
+# --------------------------------------------------------------------------------------------------
+# Inputs and outputs
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AdcSpec:
+    """What the digitizer records per trigger: ``n_samples`` at ``sample_rate_hz``.
+
+    Full scale is +-input_range_v / 2 with 2**bits codes (see the module docstring). ``iq``: two
+    channels I and Q for the LiDAR beat. ``quantize=False`` returns clipped float volts.
+    """
+
+    sample_rate_hz: float
+    n_samples: int
+    bits: int = 8
+    input_range_v: float = 1.0
+    iq: bool = False
+    quantize: bool = True
+
+    def __post_init__(self):
+        if not (math.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
+            raise SynthError(f"AdcSpec: sample_rate_hz must be positive and finite, got {self.sample_rate_hz!r}")
+        if int(self.n_samples) != self.n_samples or self.n_samples < 1:
+            raise SynthError(f"AdcSpec: n_samples must be a positive integer, got {self.n_samples!r}")
+        if int(self.bits) != self.bits or not 1 <= self.bits <= 16:
+            raise SynthError(f"AdcSpec: bits must be an integer in 1..16, got {self.bits!r}")
+        if not (math.isfinite(self.input_range_v) and self.input_range_v > 0):
+            raise SynthError(f"AdcSpec: input_range_v must be positive and finite, got {self.input_range_v!r}")
+
+    @property
+    def lsb_v(self) -> float:
+        return self.input_range_v / 2.0 ** self.bits
+
+    @property
+    def code_min(self) -> int:
+        return -(1 << (self.bits - 1))
+
+    @property
+    def code_max(self) -> int:
+        return (1 << (self.bits - 1)) - 1
+
+    @classmethod
+    def from_config(cls, adc, sample_rate_hz: float, n_samples: int, *, quantize: bool = True) -> "AdcSpec":
+        """From a :class:`lidard.config.Adc` section."""
+        return cls(sample_rate_hz=float(sample_rate_hz), n_samples=int(n_samples), bits=int(adc.bits),
+                   input_range_v=float(adc.input_range_v), iq=bool(adc.iq), quantize=quantize)
+
+
+@dataclass(frozen=True)
+class HitBatch:
+    """Returns to synthesize: one entry per (segment, target) pair.
+
+    ``seg``: index of the segment (0..n_seg-1); ``tau_s``: round-trip delay 2 d / c at the segment's
+    start time; ``amplitude_v``: beat amplitude at the ADC input, G_TIA I_AC (eq. 2-11);
+    ``doppler_hz``: optical Doppler shift of the return, f_D = -2 v_radial / lambda with v_radial > 0
+    RECEDING (so f_D < 0 for a receding target, f_D = +2 V / lambda for an approaching speed V);
+    ``phase_rad``: optional constant beat phase (e.g. speckle); default 2 pi nu0 tau (mod 2 pi).
+    """
+
+    seg: np.ndarray
+    tau_s: np.ndarray
+    amplitude_v: np.ndarray
+    doppler_hz: np.ndarray | None = None
+    phase_rad: np.ndarray | None = None
+
+    @classmethod
+    def empty(cls) -> "HitBatch":
+        return cls(seg=np.zeros(0, np.intp), tau_s=np.zeros(0), amplitude_v=np.zeros(0))
+
+    @classmethod
+    def from_targets(cls, seg, distance_m, amplitude_v, *, radial_velocity_m_s=None,
+                     wavelength_m: float = 1.55e-6, phase_rad=None) -> "HitBatch":
+        """Convenience: distance (m) and radial velocity (m/s, positive receding) to tau and f_D."""
+        d = np.asarray(distance_m, dtype=np.float64)
+        dop = None
+        if radial_velocity_m_s is not None:
+            dop = -2.0 * np.asarray(radial_velocity_m_s, dtype=np.float64) / wavelength_m * np.ones_like(d)
+        return cls(seg=np.asarray(seg), tau_s=2.0 * d / C_M_PER_S,
+                   amplitude_v=np.asarray(amplitude_v, dtype=np.float64) * np.ones_like(d),
+                   doppler_hz=dop, phase_rad=phase_rad)
+
+    def validated(self, n_seg: int):
+        seg = np.asarray(self.seg)
+        if seg.ndim != 1:
+            raise SynthError(f"HitBatch.seg must be 1-D, got shape {seg.shape}")
+        n = seg.size
+        if n and not np.issubdtype(seg.dtype, np.integer):
+            raise SynthError(f"HitBatch.seg must hold integer segment indices, got dtype {seg.dtype}")
+        seg = seg.astype(np.intp)
+        if n and (seg.min() < 0 or seg.max() >= n_seg):
+            raise SynthError(f"HitBatch.seg: indices must be in 0..{n_seg - 1}, got {seg.min()}..{seg.max()}")
+
+        def arr(name, v, default):
+            a = np.full(n, default, dtype=np.float64) if v is None else np.asarray(v, dtype=np.float64)
+            if a.shape == ():
+                a = np.full(n, float(a))
+            if a.shape != (n,):
+                raise SynthError(f"HitBatch.{name}: expected shape ({n},) like seg, got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise SynthError(f"HitBatch.{name}: contains NaN or inf")
+            return a
+
+        tau = arr("tau_s", self.tau_s, 0.0)
+        if n and tau.min() < 0:
+            raise SynthError(f"HitBatch.tau_s: delays must be >= 0, got min {tau.min()!r}")
+        amp = arr("amplitude_v", self.amplitude_v, 0.0)
+        dop = arr("doppler_hz", self.doppler_hz, 0.0)
+        ph = None if self.phase_rad is None else arr("phase_rad", self.phase_rad, 0.0)
+        return seg, tau, amp, dop, ph
+
+
+@dataclass
+class Synthesized:
+    """Digitizer records for ``n_seg`` segments.
+
+    ``beat``: (n_seg, n) int16 codes (float64 volts if not quantized) -- the real beat, or I for I/Q;
+    ``beat_q``: Q channel or None; ``mzi``: monitor-MZI channel or None; ``overrange``: (n_seg,
+    len(channels)) bool, a channel clipped somewhere in that segment; ``channels`` names the columns.
+    ``volts`` (if ``return_volts``): the analog channels before clipping/quantization.
+    ``phase_noise_rad`` (if ``return_phase_noise``): the Wiener realization (n_seg, n_pre + n) on the
+    ADC grid, sample k of the record being column ``n_pre + k``; None when the linewidth is 0.
+    """
+
+    beat: np.ndarray
+    beat_q: np.ndarray | None
+    mzi: np.ndarray | None
+    overrange: np.ndarray
+    channels: tuple[str, ...]
+    lsb_v: float
+    volts: dict | None = None
+    phase_noise_rad: np.ndarray | None = None
+    phase_noise_pre: int = 0
+
+
+# --------------------------------------------------------------------------------------------------
+# Synthesis
+# --------------------------------------------------------------------------------------------------
+def _per_segment(name: str, v, n_seg: int) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape == ():
+        a = np.full(n_seg, float(a))
+    if a.shape != (n_seg,):
+        raise SynthError(f"synthesize: {name} must be a scalar or shape ({n_seg},), got {a.shape}")
+    if not np.all(np.isfinite(a)) or a.min(initial=0.0) < 0:
+        raise SynthError(f"synthesize: {name} must be finite and >= 0")
+    return a
+
+
+def _delay_split(tau_s: np.ndarray, fs: float):
+    """Delay in ADC samples -> (m = ceil, w = m - tau fs in [0, 1)); w < tol counts as integer."""
+    x = tau_s * fs
+    m = np.ceil(x - _INTEGER_DELAY_TOL)
+    w = m - x
+    w[w < _INTEGER_DELAY_TOL] = 0.0
+    return m.astype(np.intp), w
+
+
+def _delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng):
+    """phi(t_k - tau) for records `rows` of phi (n_rows, n_pre+n): exact for w == 0, else
+    linear interpolation + Brownian bridge between samples k - m and k - m + 1."""
+    k = np.arange(n)
+    idx = (n_pre + k)[None, :] - m[:, None]
+    out = phi[rows[:, None], idx]
+    frac = w > 0
+    if np.any(frac):
+        sel = np.nonzero(frac)[0]
+        ww = w[sel][:, None]
+        nxt = phi[rows[sel][:, None], idx[sel] + 1]
+        bridge = rng.standard_normal((sel.size, n))
+        bridge *= np.sqrt(var_step * ww * (1.0 - ww))
+        out[sel] = out[sel] + ww * (nxt - out[sel]) + bridge
+    return out
+
+
+def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | None, *,
+               noise_asd_v_per_rthz=0.0, linewidth_hz: float = 0.0, rng: np.random.Generator | None = None,
+               mzi_delay_s: float | None = None, mzi_amplitude_v: float | None = None,
+               mzi_noise_asd_v_per_rthz: float = 0.0, dc_v: float = 0.0,
+               return_volts: bool = False, return_phase_noise: bool = False) -> Synthesized:
+    """Synthesize the digitized LiDAR beat (and the monitor MZI) for ``len(t_start_s)`` segments.
+
+    ``t_start_s[s]`` is the time of segment s's first sample on the AWG's time axis (t = 0 at the
+    start of a drive period; the drive repeats every ``traj.period_s``). ``hits`` may be None or empty
+    (noise only). ``noise_asd_v_per_rthz``: scalar or per-segment white-noise ASD of the LiDAR channel.
+    ``rng`` is required only when something random is switched on.
+    """
+    t0 = np.asarray(t_start_s, dtype=np.float64)
+    if t0.ndim != 1 or not np.all(np.isfinite(t0)):
+        raise SynthError(f"synthesize: t_start_s must be a finite 1-D array, got shape {t0.shape}")
+    n_seg, n, fs = t0.size, int(adc.n_samples), float(adc.sample_rate_hz)
+    hits = hits if hits is not None else HitBatch.empty()
+    seg, tau, amp, dop, ph = hits.validated(n_seg)
+    asd = _per_segment("noise_asd_v_per_rthz", noise_asd_v_per_rthz, n_seg)
+    if not (math.isfinite(linewidth_hz) and linewidth_hz >= 0):
+        raise SynthError(f"synthesize: linewidth_hz must be >= 0 and finite, got {linewidth_hz!r}")
+    want_mzi = mzi_delay_s is not None
+    if want_mzi:
+        if not (math.isfinite(mzi_delay_s) and mzi_delay_s > 0):
+            raise SynthError(f"synthesize: mzi_delay_s must be positive and finite, got {mzi_delay_s!r}")
+        if mzi_amplitude_v is None or not (math.isfinite(mzi_amplitude_v) and mzi_amplitude_v >= 0):
+            raise SynthError(f"synthesize: mzi_amplitude_v must be given (>= 0) with mzi_delay_s, got {mzi_amplitude_v!r}")
+    if not (math.isfinite(mzi_noise_asd_v_per_rthz) and mzi_noise_asd_v_per_rthz >= 0):
+        raise SynthError(f"synthesize: mzi_noise_asd_v_per_rthz must be >= 0, got {mzi_noise_asd_v_per_rthz!r}")
+    if not math.isfinite(dc_v):
+        raise SynthError(f"synthesize: dc_v must be finite, got {dc_v!r}")
+    need_rng = (linewidth_hz > 0 and (seg.size or want_mzi)) or asd.max(initial=0) > 0 \
+        or (want_mzi and mzi_noise_asd_v_per_rthz > 0)
+    if need_rng and rng is None:
+        raise SynthError("synthesize: rng (numpy Generator) is required when noise or phase noise is on")
+
+    # -- sort hits by segment, rank them within their segment --------------------------------------
+    order = np.argsort(seg, kind="stable")
+    seg, tau, amp, dop = seg[order], tau[order], amp[order], dop[order]
+    if ph is None:
+        ph = 2.0 * np.pi * np.mod(traj.nu0_hz * tau, 1.0)
+    else:
+        ph = ph[order]
+    first = np.searchsorted(seg, seg, side="left")
+    rank = np.arange(seg.size) - first
+
+    # -- deterministic chirp phase on the record grid, once per distinct start offset --------------
+    n_awg = traj.n
+    ratio = traj.fs_hz / fs
+    x_start = np.mod(t0 * traj.fs_hz, n_awg)
+    x_start[x_start >= n_awg] = 0.0
+    u_start, u_inv = np.unique(x_start, return_inverse=True)
+    k = np.arange(n, dtype=np.float64)
+    max_tau_samples_awg = max(float(tau.max(initial=0.0)), mzi_delay_s or 0.0) * traj.fs_hz
+    # hits' x - tau fs may go back one period, and a record may span several: tile the tables
+    back = int(math.ceil(max_tau_samples_awg / n_awg)) + 1
+    periods = back + int(math.ceil((n * ratio + 1) / n_awg)) + 1
+    off = back * n_awg
+    mean_w = 2.0 * np.pi * traj.mean_hz
+    need_base = seg.size > 0 or want_mzi
+    base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
+
+    # -- phase-noise geometry ----------------------------------------------------------------------
+    pn_on = linewidth_hz > 0 and (seg.size > 0 or want_mzi)
+    var_step = 2.0 * np.pi * linewidth_hz / fs
+    m_hit, w_hit = _delay_split(tau, fs)
+    if want_mzi:
+        m_mzi, w_mzi = _delay_split(np.array([mzi_delay_s]), fs)
+    max_m = max(int(m_hit.max(initial=0)), int(m_mzi[0]) if want_mzi else 0)
+    n_pre = max_m + 1
+
+    channels = ["beat"] + (["beat_q"] if adc.iq else []) + (["mzi"] if want_mzi else [])
+    out_dtype = np.int16 if adc.quantize else np.float64
+    outs = {c: np.empty((n_seg, n), dtype=out_dtype) for c in channels}
+    overrange = np.zeros((n_seg, len(channels)), dtype=bool)
+    volts = {c: np.empty((n_seg, n)) for c in channels} if return_volts else None
+    pn_all = np.empty((n_seg, n_pre + n)) if (return_phase_noise and pn_on) else None
+
+    chunk = max(1, _CHUNK_ELEMENTS // max(n, 1))
+    seg_bounds = np.searchsorted(seg, np.arange(0, n_seg + chunk, chunk))
+    max_rank = int(rank.max(initial=-1))
+    noise_std = asd * math.sqrt(fs / 2.0)
+    for ci, s0 in enumerate(range(0, n_seg, chunk)):
+        s1 = min(n_seg, s0 + chunk)
+        nc = s1 - s0
+        h0, h1 = int(seg_bounds[ci]), int(seg_bounds[ci + 1])
+        phi = wiener_phase(linewidth_hz, n_pre + n, 1.0 / fs, rng, shape=(nc,)) if pn_on else None
+        if pn_all is not None:
+            pn_all[s0:s1] = phi
+
+        acc = {c: np.zeros((nc, n)) for c in channels if c != "mzi"}
+        if h1 > h0:
+            hs = slice(h0, h1)
+            lseg = seg[hs] - s0
+            # exact chirp phase difference, Doppler-varying delay tau(t) = tau0 - (f_D / nu0) t
+            t_loc = k / fs
+            tau_t = tau[hs, None] - (dop[hs, None] / traj.nu0_hz) * t_loc[None, :]
+            xd = (u_start[u_inv[seg[hs]]] + off)[:, None] + k[None, :] * ratio - tau_t * traj.fs_hz
+            dphi = base[u_inv[seg[hs]]] - traj.periodic_phase_samples(xd, periods)
+            dphi += mean_w * tau_t
+            dphi += ph[hs, None] - 2.0 * np.pi * dop[hs, None] * t_loc[None, :]
+            if phi is not None:
+                rows = lseg
+                dphi += phi[rows, n_pre:] - _delayed_noise(phi, rows, n_pre, n, m_hit[hs], w_hit[hs],
+                                                           var_step, rng)
+            a = amp[hs, None]
+            cos_part = np.cos(dphi) * a
+            sin_part = np.sin(dphi) * a if adc.iq else None
+            rk = rank[hs]
+            for r in range(max_rank + 1):
+                sel = np.nonzero(rk == r)[0]
+                if sel.size == 0:
+                    continue
+                acc["beat"][lseg[sel]] += cos_part[sel]
+                if adc.iq:
+                    acc["beat_q"][lseg[sel]] += sin_part[sel]
+        if want_mzi:
+            tau_m = float(mzi_delay_s)
+            ub = u_inv[s0:s1]
+            xm = (u_start[ub] + off)[:, None] + k[None, :] * ratio - tau_m * traj.fs_hz
+            mphi = base[ub] - traj.periodic_phase_samples(xm, periods)
+            mphi += mean_w * tau_m + 2.0 * np.pi * math.fmod(traj.nu0_hz * tau_m, 1.0)
+            if phi is not None:
+                rows = np.arange(nc)
+                mphi += phi[:, n_pre:] - _delayed_noise(phi, rows, n_pre, n, np.full(nc, m_mzi[0]),
+                                                        np.full(nc, w_mzi[0]), var_step, rng)
+            acc["mzi"] = np.cos(mphi) * mzi_amplitude_v
+
+        for c in channels:
+            v = acc[c]
+            if c == "mzi":
+                if mzi_noise_asd_v_per_rthz > 0:
+                    v += rng.standard_normal((nc, n)) * (mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
+            else:
+                if dc_v:
+                    v += dc_v
+                std = noise_std[s0:s1]
+                if std.max(initial=0.0) > 0:
+                    v += rng.standard_normal((nc, n)) * std[:, None]
+            if volts is not None:
+                volts[c][s0:s1] = v
+            j = channels.index(c)
+            if adc.quantize:
+                v *= 1.0 / adc.lsb_v
+                np.rint(v, out=v)
+                lo, hi = adc.code_min, adc.code_max
+            else:
+                lo, hi = -adc.input_range_v / 2.0, adc.input_range_v / 2.0
+            overrange[s0:s1, j] = (v.min(axis=1) < lo) | (v.max(axis=1) > hi)
+            np.clip(v, lo, hi, out=v)
+            outs[c][s0:s1] = v
+
+    return Synthesized(beat=outs["beat"], beat_q=outs.get("beat_q"), mzi=outs.get("mzi"),
+                       overrange=overrange, channels=tuple(channels), lsb_v=adc.lsb_v, volts=volts,
+                       phase_noise_rad=pn_all, phase_noise_pre=n_pre if pn_all is not None else 0)
+
+
+def sample_rate_for_range_hz(max_range_m: float, rate_hz_per_s: float, *, oversample: float = 2.5,
+                             max_doppler_hz: float = 0.0) -> float:
+    """ADC rate that captures beats up to 2 gamma d_max / c (+ Doppler) with ``oversample`` x Nyquist."""
+    if not (max_range_m > 0 and rate_hz_per_s > 0 and oversample >= 1):
+        raise SynthError("sample_rate_for_range_hz: max_range_m, rate_hz_per_s > 0 and oversample >= 1 required")
+    f_max = 2.0 * abs(rate_hz_per_s) * max_range_m / C_M_PER_S + abs(max_doppler_hz)
+    return oversample * 2.0 * f_max
