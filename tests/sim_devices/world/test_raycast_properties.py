@@ -209,7 +209,7 @@ def test_ray_at_sphere_centre_hits_at_distance_minus_radius(c, radius) -> None:
     d = center / np.linalg.norm(center)
     hits = scene.cast(d[None, :], max_hits=1)
     assert math.isclose(hits.range_m[0, 0], np.linalg.norm(center) - radius, rel_tol=1e-12)
-    assert hits.incidence_rad[0, 0] < 1e-6  # head-on
+    assert hits.incidence_rad[0, 0] < 1e-9  # head-on
 
 
 @SETTINGS

@@ -1,0 +1,115 @@
+"""Ray-casting throughput of sim_devices.world (rays per second, median of several runs).
+
+Two workloads:
+  1. 16,384 rays (a 128 x 128 FPSA beam grid) into a synthetic scene of 20 targets of mixed kinds
+     (5 planes, 5 boxes, 5 spheres, 5 non-convex 12-vertex polygons);
+  2. the dissertation's 3D-imaging scan (§4.4.3): 128 x 96 beams into config/scenes/cal_letters.toml.
+
+Beam directions follow eq. 4-1: antenna offset (x, y) behind a lens of focal length f = 25 mm
+points along (-x/f, -y/f, 1) normalised; the antenna pitch is chosen so that 128 antennas span the
+16 deg FoV (pitch = 2 f tan 8 deg / 128 = 55 um, resolution 0.126 deg ~ 0.13 deg).
+
+Usage: python benchmarks/raycast.py [--repeats N] [--max-hits K]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sim_devices.world.scene import Scene
+
+ROOT = Path(__file__).resolve().parents[1]
+FOCAL_M = 25e-3
+FOV_DEG = 16.0
+N_ANTENNAS = 128
+
+
+def lens_directions(nx: int, ny: int) -> np.ndarray:
+    pitch_m = 2 * FOCAL_M * math.tan(math.radians(FOV_DEG / 2)) / N_ANTENNAS
+    x = (np.arange(nx) - (nx - 1) / 2) * pitch_m
+    y = (np.arange(ny) - (ny - 1) / 2) * pitch_m
+    xx, yy = np.meshgrid(x, y)
+    d = np.column_stack([-xx.ravel() / FOCAL_M, -yy.ravel() / FOCAL_M, np.ones(xx.size)])
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def synthetic_scene(seed: int = 1) -> Scene:
+    """20 targets of mixed kinds spread over the FoV at 1-6 m (seeded)."""
+    rng = np.random.default_rng(seed)
+    t = math.tan(math.radians(FOV_DEG / 2))
+    targets = []
+    for i in range(20):
+        z = float(rng.uniform(1.0, 6.0))
+        c = [float(rng.uniform(-t, t) * z), float(rng.uniform(-t, t) * z), z]
+        common = {
+            "reflectivity": float(rng.uniform(0.05, 1.0)),
+            "transmission": float(rng.choice([0.0, 0.0, 0.5])),
+            "velocity": [0.0, 0.0, float(rng.uniform(-2, 2))],
+        }
+        kind = ("plane", "box", "sphere", "polygon")[i % 4]
+        if kind == "plane":
+            n = [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), -1.0]
+            tg = {"kind": "plane", "point": c, "normal": n, "size": [0.1 * z, 0.08 * z]}
+            if i == 0:
+                del tg["size"]  # one infinite back wall
+                tg["point"] = [0.0, 0.0, 7.0]
+                tg["normal"] = [0.0, 0.0, -1.0]
+        elif kind == "box":
+            tg = {"kind": "box", "center": c, "size": (rng.uniform(0.03, 0.1, 3) * z).tolist(),
+                  "rotation_deg": rng.uniform(-45, 45, 3).tolist()}
+        elif kind == "sphere":
+            tg = {"kind": "sphere", "center": c, "radius": float(rng.uniform(0.02, 0.06) * z)}
+        else:
+            m = 12
+            ang = np.sort(rng.uniform(0, 2 * math.pi, m))
+            r = rng.uniform(0.02, 0.06, m) * z
+            verts = [[c[0] + float(rr * math.cos(a)), c[1] + float(rr * math.sin(a)), z]
+                     for rr, a in zip(r, ang)]
+            tg = {"kind": "polygon", "vertices": verts}
+        targets.append({**tg, **common})
+    return Scene.from_dict({"name": "bench20", "target": targets}, source="benchmark")
+
+
+def measure(scene: Scene, d: np.ndarray, repeats: int, max_hits: int) -> tuple[float, float]:
+    scene.cast(d, max_hits=max_hits)  # warm-up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        scene.cast(d, max_hits=max_hits)
+        times.append(time.perf_counter() - t0)
+    med = statistics.median(times)
+    return med, d.shape[0] / med
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--max-hits", type=int, default=4)
+    args = ap.parse_args()
+
+    d128 = lens_directions(128, 128)
+    bench = synthetic_scene()
+    med, rate = measure(bench, d128, args.repeats, args.max_hits)
+    hits = bench.cast(d128, max_hits=args.max_hits)
+    print(f"mixed 20 targets : {d128.shape[0]:6d} rays  median {med * 1e3:8.2f} ms  "
+          f"{rate / 1e6:6.3f} Mrays/s  ({rate * len(bench):.3g} ray-target tests/s; "
+          f"{np.mean(hits.count):.2f} hits/ray)")
+
+    letters = Scene.from_toml(ROOT / "config" / "scenes" / "cal_letters.toml")
+    d96 = lens_directions(128, 96)
+    med, rate = measure(letters, d96, args.repeats, args.max_hits)
+    hits = letters.cast(d96, max_hits=args.max_hits)
+    on_letters = int(np.count_nonzero(hits.target_index[:, 0] < len(letters) - 1))
+    print(f"cal_letters 128x96: {d96.shape[0]:6d} rays  median {med * 1e3:8.2f} ms  "
+          f"{rate / 1e6:6.3f} Mrays/s  ({on_letters} beams on the letters)")
+    print(f"(median of {args.repeats} runs after one warm-up, max_hits = {args.max_hits})")
+
+
+if __name__ == "__main__":
+    main()
