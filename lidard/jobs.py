@@ -1,0 +1,381 @@
+"""The scan worker: the one thread that owns the instrument, and the FIFO queue in front of it.
+
+The FPSA, the AWG, the digitizer and the laser/HV controller form one optical path (§4.4, Fig. 4-33),
+so only one job can use them at a time. Every job (a scan or a chirp linearization, §2.2) goes through
+one FIFO queue served by one worker thread; nothing else calls the instrument's measuring methods.
+
+Policy (also in docs/api.md):
+
+* FIFO, one job at a time; at most ``max_queue`` jobs waiting (:class:`QueueFull` otherwise; the API
+  answers 503).
+* A scan uses the newest stored calibration of the configured laser; with none, the worker runs
+  ``instrument.linearize()`` first and stores the result.
+* Cancel: a queued scan becomes ``cancelled`` at once; a running scan's cancel event is set, the
+  instrument returns the points so far, which are written and marked ``partial``.
+* Failure: the state becomes ``failed`` and ``error`` holds the exception type, message and cause
+  (which names the device).
+* Progress updates the store at most every ``progress_interval_s`` (wall clock; it only throttles
+  database writes) and is published to subscribers (the SSE endpoint, the CLI's progress bar). The
+  last event of a scan is ``{"event": "end", ...}``.
+* Output: ``data_dir/scans/<id>/scan.<fmt>`` and ``scan.<fmt>.json`` per requested format.
+"""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import dataclasses
+import logging
+import threading
+import time
+from importlib import metadata
+from typing import Any, Callable
+
+from .errors import LidardError
+from .instrument_api import CalibrationResult, Instrument, ScanCancelled, ScanProgress, ScanRequest, ScanResult
+from .pointcloud import write_points
+from .store import ScanRecord, Store
+
+log = logging.getLogger(__name__)
+
+Event = dict[str, Any]
+Subscriber = Callable[[Event], None]
+
+
+class QueueFull(LidardError):
+    """The job queue is at its limit; try again after the running jobs finish."""
+
+
+class UnknownScan(LidardError):
+    """No scan with that id."""
+
+
+class WorkerStopped(LidardError):
+    """The worker is not running (daemon shutting down)."""
+
+
+def software_version() -> str:
+    try:
+        return metadata.version("lidard")
+    except metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def describe_error(exc: BaseException) -> str:
+    """One line: type, message and the chain of causes (the device error is usually the cause)."""
+    parts = [f"{type(exc).__name__}: {exc}"]
+    seen = {id(exc)}
+    cur = exc.__cause__ or exc.__context__
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        parts.append(f"caused by {type(cur).__name__}: {cur}")
+        cur = cur.__cause__ or cur.__context__
+    return "; ".join(parts)
+
+
+def request_to_dict(req: ScanRequest) -> dict[str, Any]:
+    d = dataclasses.asdict(req)
+    for k in ("rows", "cols"):
+        d[k] = None if d[k] is None else list(d[k])
+    d["pixels"] = None if d["pixels"] is None else [list(p) for p in d["pixels"]]
+    d["formats"] = list(d["formats"])
+    return d
+
+
+def request_from_dict(d: dict[str, Any]) -> ScanRequest:
+    return ScanRequest(
+        pattern=d.get("pattern", "raster"),
+        rows=None if d.get("rows") is None else tuple(d["rows"]),
+        cols=None if d.get("cols") is None else tuple(d["cols"]),
+        pixels=None if d.get("pixels") is None else tuple(tuple(p) for p in d["pixels"]),
+        averages=int(d.get("averages", 1)), max_range_m=float(d.get("max_range_m", 2.0)),
+        formats=tuple(d.get("formats", ("ply",))))
+
+
+@dataclasses.dataclass
+class _ScanJob:
+    id: str
+    request: ScanRequest
+    cancel: threading.Event = dataclasses.field(default_factory=threading.Event)
+    done: threading.Event = dataclasses.field(default_factory=threading.Event)
+
+
+@dataclasses.dataclass
+class _CalibrationJob:
+    future: concurrent.futures.Future = dataclasses.field(default_factory=concurrent.futures.Future)
+
+
+class ScanWorker:
+    """Owns ``instrument``; runs queued jobs one at a time in a daemon thread."""
+
+    def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
+                 progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
+                 pixels_planned: Callable[[ScanRequest], int] | None = None):
+        self.instrument = instrument
+        self.store = store
+        self.laser = laser
+        self.max_queue = max_queue
+        self.progress_interval_s = progress_interval_s
+        self.base_meta = dict(meta or {})
+        self._pixels_planned = pixels_planned
+        self._cv = threading.Condition()
+        self._queue: collections.deque = collections.deque()
+        self._jobs: dict[str, _ScanJob] = {}
+        self._current: _ScanJob | _CalibrationJob | None = None
+        self._subs: dict[str, list[Subscriber]] = collections.defaultdict(list)
+        self._subs_lock = threading.Lock()
+        self._stopping = False
+        self._thread: threading.Thread | None = None
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name="lidard-scan-worker", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float | None = 30.0) -> None:
+        """Cancel the running scan (its points are kept), mark queued ones interrupted, join."""
+        with self._cv:
+            self._stopping = True
+            pending = list(self._queue)
+            self._queue.clear()
+            cur = self._current
+            if isinstance(cur, _ScanJob):
+                cur.cancel.set()
+            self._cv.notify_all()
+        for job in pending:
+            if isinstance(job, _ScanJob):
+                self.store.transition(job.id, ("queued",), state="interrupted", stage="interrupted",
+                                      error="daemon stopped before the scan started", finished=time.time())
+                self._finish(job)
+            else:
+                job.future.set_exception(WorkerStopped("daemon stopped before the calibration ran"))
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            self._thread = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def queue_length(self) -> int:
+        with self._cv:
+            return len(self._queue)
+
+    def current_scan_id(self) -> str | None:
+        cur = self._current
+        return cur.id if isinstance(cur, _ScanJob) else None
+
+    # -- submitting ----------------------------------------------------------------------------
+    def _enqueue(self, job) -> None:
+        # called with self._cv held
+        if self._stopping:
+            raise WorkerStopped("the scan worker is stopping; no new jobs are accepted")
+        if len(self._queue) >= self.max_queue:
+            raise QueueFull(f"scan queue is full ({self.max_queue} jobs waiting); retry when one finishes")
+        self._queue.append(job)
+        self._cv.notify_all()
+
+    def submit_scan(self, request: ScanRequest) -> ScanRecord:
+        planned = self._pixels_planned(request) if self._pixels_planned else 0
+        with self._cv:
+            if self._stopping:
+                raise WorkerStopped("the scan worker is stopping; no new jobs are accepted")
+            if len(self._queue) >= self.max_queue:
+                raise QueueFull(f"scan queue is full ({self.max_queue} jobs waiting); "
+                                "retry when one finishes")
+            rec = self.store.create_scan(request_to_dict(request), pixels_planned=planned)
+            job = _ScanJob(rec.id, request)
+            self._jobs[rec.id] = job
+            self._enqueue(job)
+        return rec
+
+    def submit_calibration(self) -> concurrent.futures.Future:
+        job = _CalibrationJob()
+        with self._cv:
+            self._enqueue(job)
+        return job.future
+
+    def cancel(self, scan_id: str) -> ScanRecord:
+        """Cancel a queued or running scan; a finished one is returned unchanged."""
+        with self._cv:
+            job = self._jobs.get(scan_id)
+            if job is not None and job in self._queue:
+                self._queue.remove(job)
+                self.store.transition(scan_id, ("queued",), state="cancelled", stage="cancelled",
+                                      finished=time.time())
+                self._finish(job)
+            elif job is not None:
+                job.cancel.set()
+        rec = self.store.get_scan(scan_id)
+        if rec is None:
+            raise UnknownScan(f"scan {scan_id!r} not found")
+        return rec
+
+    def wait(self, scan_id: str, timeout_s: float | None = None) -> ScanRecord:
+        """Block until the scan reaches a terminal state (or the timeout) and return its record."""
+        job = self._jobs.get(scan_id)
+        if job is not None:
+            job.done.wait(timeout_s)
+        rec = self.store.get_scan(scan_id)
+        if rec is None:
+            raise UnknownScan(f"scan {scan_id!r} not found")
+        return rec
+
+    # -- subscribers ---------------------------------------------------------------------------
+    def subscribe(self, scan_id: str, fn: Subscriber) -> Callable[[], None]:
+        with self._subs_lock:
+            self._subs[scan_id].append(fn)
+
+        def unsubscribe() -> None:
+            with self._subs_lock:
+                lst = self._subs.get(scan_id, [])
+                if fn in lst:
+                    lst.remove(fn)
+                if not lst:
+                    self._subs.pop(scan_id, None)
+        return unsubscribe
+
+    def _publish(self, scan_id: str, event: Event) -> None:
+        with self._subs_lock:
+            subs = list(self._subs.get(scan_id, ()))
+        for fn in subs:
+            try:
+                fn(event)
+            except Exception:  # a broken subscriber must not stop the scan
+                log.exception("progress subscriber for scan %s failed", scan_id)
+
+    def _finish(self, job: _ScanJob) -> None:
+        rec = self.store.get_scan(job.id)
+        self._publish(job.id, {"event": "end", "id": job.id, "state": rec.state if rec else "unknown",
+                               "partial": bool(rec.partial) if rec else False,
+                               "error": rec.error if rec else None})
+        job.done.set()
+        self._jobs.pop(job.id, None)
+
+    # -- the worker ----------------------------------------------------------------------------
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._queue and not self._stopping:
+                    self._cv.wait()
+                if self._stopping and not self._queue:
+                    return
+                job = self._queue.popleft()
+                self._current = job
+            try:
+                if isinstance(job, _ScanJob):
+                    self._run_scan(job)
+                else:
+                    self._run_calibration(job)
+            except Exception:  # never let the worker thread die
+                log.exception("scan worker job failed unexpectedly")
+            finally:
+                with self._cv:
+                    self._current = None
+
+    def _run_calibration(self, job: _CalibrationJob) -> None:
+        if not job.future.set_running_or_notify_cancel():
+            return
+        try:
+            cal = self.instrument.linearize()
+            cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
+            job.future.set_result(cal)
+        except Exception as exc:
+            job.future.set_exception(exc)
+
+    def _calibration(self, job: _ScanJob) -> CalibrationResult:
+        cal = self.store.latest_calibration(self.laser)
+        if cal is None:
+            self.store.update_scan(job.id, stage="linearizing")
+            self._publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
+                                   "pixels_done": 0, "pixels_planned": 0, "points": 0,
+                                   "fraction": 0.0, "hardware_time_s": 0.0})
+            cal = self.instrument.linearize()
+            cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
+        return cal
+
+    def _run_scan(self, job: _ScanJob) -> None:
+        started = time.time()
+        t0 = time.monotonic()
+        if not self.store.transition(job.id, ("queued",), state="running", stage="preparing",
+                                     started=started):
+            self._finish(job)
+            return
+        last_store = [float("-inf")]
+
+        def progress(p: ScanProgress) -> None:
+            ev = {"event": "progress", "id": job.id, "stage": p.stage, "pixels_done": p.pixels_done,
+                  "pixels_planned": p.pixels_planned, "points": p.points, "fraction": p.fraction,
+                  "hardware_time_s": p.hardware_time_s}
+            now = time.monotonic()
+            if now - last_store[0] >= self.progress_interval_s or p.pixels_done >= p.pixels_planned:
+                last_store[0] = now
+                self.store.update_scan(job.id, progress=p.fraction, stage=p.stage,
+                                       pixels_scanned=p.pixels_done, pixels_planned=p.pixels_planned,
+                                       points=p.points, hardware_time_s=p.hardware_time_s)
+            self._publish(job.id, ev)
+
+        cal_id = None
+        try:
+            cal = self._calibration(job)
+            cal_id = cal.meta.get("id")
+            self.store.update_scan(job.id, stage="scanning", calibration_id=cal_id)
+            result = self.instrument.run_scan(job.request, progress, job.cancel, cal)
+        except ScanCancelled:
+            self.store.update_scan(job.id, state="cancelled", stage="cancelled", partial=True,
+                                   finished=time.time(), wall_time_s=time.monotonic() - t0)
+            self._finish(job)
+            return
+        except Exception as exc:
+            log.warning("scan %s failed: %s", job.id, describe_error(exc))
+            self.store.update_scan(job.id, state="failed", stage="failed", error=describe_error(exc),
+                                   finished=time.time(), wall_time_s=time.monotonic() - t0)
+            self._finish(job)
+            return
+        wall = time.monotonic() - t0
+        try:
+            files = self._write(job, result, cal_id, wall)
+        except Exception as exc:
+            self.store.update_scan(job.id, state="failed", stage="failed", finished=time.time(),
+                                   error=f"writing the point cloud failed: {describe_error(exc)}",
+                                   wall_time_s=wall)
+            self._finish(job)
+            return
+        partial = bool(result.partial or job.cancel.is_set())
+        if job.cancel.is_set():
+            state = "interrupted" if self._stopping else "cancelled"
+        else:
+            state = "done"
+        self.store.update_scan(
+            job.id, state=state, stage=state, partial=partial, files=files, finished=time.time(),
+            points=int(len(result.points)), pixels_scanned=int(result.pixels_scanned),
+            pixels_planned=int(result.pixels_planned), hardware_time_s=float(result.hardware_time_s),
+            wall_time_s=wall, progress=(result.pixels_scanned / result.pixels_planned
+                                        if result.pixels_planned else 1.0))
+        self._finish(job)
+
+    def _write(self, job: _ScanJob, result: ScanResult, cal_id: str | None, wall_s: float) -> dict[str, str]:
+        meta = {
+            **self.base_meta, **result.meta,
+            "scan_id": job.id,
+            "request": request_to_dict(job.request),
+            "calibration_id": cal_id,
+            "hardware_time_s": float(result.hardware_time_s),
+            "wall_time_s": float(wall_s),
+            "pixels_scanned": int(result.pixels_scanned),
+            "pixels_planned": int(result.pixels_planned),
+            "coverage": (result.pixels_scanned / result.pixels_planned) if result.pixels_planned else 0.0,
+            "software_version": software_version(),
+            "simulated": bool(getattr(self.instrument, "simulated", False)),
+            "partial": bool(result.partial or job.cancel.is_set()),
+        }
+        out_dir = self.store.scan_dir(job.id)
+        files = {}
+        for fmt in job.request.formats:
+            path = out_dir / f"scan.{fmt}"
+            write_points(path, result.points, meta, fmt)
+            files[fmt] = str(path.relative_to(self.store.data_dir))
+        return files

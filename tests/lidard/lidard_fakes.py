@@ -1,0 +1,91 @@
+"""A fake Instrument for daemon/API/CLI tests: synthetic points, honours cancel and progress.
+
+Not a test module (no test_ prefix); test files load it with ``sys.path`` pointing here.
+A scan can be held part-way (``hold_after`` pixels) until the test releases it or cancels it, so
+cancel and queue-order tests need no sleeps.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from lidard.config import load_profile
+from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress
+from lidard.scan import plan
+
+
+class DeviceFault(Exception):
+    pass
+
+
+class FakeInstrument:
+    def __init__(self, profile: str = "fpsa128", simulated: bool = True, hold_after: int | None = None,
+                 fail_with: Exception | None = None):
+        self.optics = load_profile(profile).optics()
+        self.simulated = simulated
+        self.hold_after = hold_after
+        self.fail_with = fail_with
+        self.reached = threading.Event()     # set when a held scan reaches hold_after
+        self.release = threading.Event()     # set by the test to let it continue
+        self.requests = []
+        self.calibrations_used = []
+        self.linearize_calls = 0
+        self.scenes = []
+        self.closed = False
+
+    def devices(self):
+        return [{"name": n, "connected": True, "identity": f"fake-{n}", "state": "ready", "faults": []}
+                for n in ("fpsa", "awg", "digitizer", "controller")]
+
+    def scanner(self):
+        return self.optics.summary()
+
+    def linearize(self, progress=None):
+        self.linearize_calls += 1
+        return CalibrationResult(
+            iterations=[{"up_rms_hz": 4e6, "down_rms_hz": 5e6}, {"up_rms_hz": 4e4, "down_rms_hz": 1e5}],
+            reduction={"up": 100.0, "down": 50.0}, converged=True, laser="dfb_default",
+            temperature_c=25.0, drive_v=np.linspace(-1, 1, 64), fs_drive_hz=1e8)
+
+    def run_scan(self, request, progress, cancel, calibration=None):
+        self.requests.append(request)
+        self.calibrations_used.append(calibration)
+        if self.fail_with is not None:
+            raise self.fail_with
+        pixels = plan(request, self.optics)
+        n = len(pixels)
+        dirs = self.optics.directions(pixels[:, 0], pixels[:, 1])
+        rng_m = 1.0 + 0.001 * pixels[:, 1]
+        pts = np.zeros(n, dtype=POINT_DTYPE)
+        xyz = dirs * rng_m[:, None]
+        pts["x"], pts["y"], pts["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        pts["range"], pts["intensity"], pts["snr_db"] = rng_m, 0.1, 30.0
+        pts["row"], pts["col"], pts["valid"] = pixels[:, 0], pixels[:, 1], 1
+        pixel_s = 100e-6 * request.averages
+        pts["t"] = np.arange(n) * pixel_s
+        done = 0
+        for i in range(n):
+            if cancel.is_set():
+                break
+            done = i + 1
+            if done % 16 == 0 or done == n:
+                progress(ScanProgress(done, n, done, done * pixel_s))
+            if self.hold_after is not None and done == self.hold_after:
+                progress(ScanProgress(done, n, done, done * pixel_s))
+                self.reached.set()
+                while not (self.release.is_set() or cancel.is_set()):
+                    self.release.wait(0.01)
+        from lidard.instrument_api import ScanResult
+        return ScanResult(points=pts[:done], meta={"fake": True, "chirp": {"ramp_s": 80e-6}},
+                          pixels_scanned=done, pixels_planned=n, hardware_time_s=done * pixel_s,
+                          partial=done < n)
+
+    def set_scene(self, scene):
+        if not self.simulated:
+            raise NotImplementedError("real hardware")
+        self.scenes.append(scene)
+
+    def close(self):
+        self.closed = True

@@ -1,0 +1,166 @@
+"""Scan worker: FIFO, calibration caching, cancel (queued / running, partial kept), failures, events."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from lidard_fakes import DeviceFault, FakeInstrument  # noqa: E402
+
+from lidard.instrument_api import ScanRequest  # noqa: E402
+from lidard.jobs import QueueFull, ScanWorker, UnknownScan  # noqa: E402
+from lidard.pointcloud import read_points, read_sidecar  # noqa: E402
+from lidard.store import Store  # noqa: E402
+
+T = 20.0  # guard timeout for waits; never reached when things work
+SMALL = dict(pattern="roi", rows=(0, 3), cols=(0, 20))   # 3 bonded rows x 20 = 60 pixels
+
+
+@pytest.fixture
+def rig(tmp_path):
+    made = []
+
+    def make(**kw):
+        inst = FakeInstrument(**kw)
+        store = Store(tmp_path / "data")
+        w = ScanWorker(inst, store, laser="dfb_default", max_queue=4,
+                       progress_interval_s=0.0, meta={"profile": "fpsa128"})
+        w.start()
+        made.append(w)
+        return inst, store, w
+    yield make
+    for w in made:
+        w.stop()
+
+
+def test_scan_done_files_sidecar_and_calibration_cached(rig):
+    inst, store, w = rig()
+    a = w.submit_scan(ScanRequest(**SMALL, formats=("ply", "npz")))
+    ra = w.wait(a.id, T)
+    assert ra.state == "done" and not ra.partial
+    assert (ra.points, ra.pixels_scanned, ra.pixels_planned) == (60, 60, 60)
+    assert ra.hardware_time_s == pytest.approx(60 * 100e-6)
+    assert set(ra.files) == {"ply", "npz"}
+    pts = read_points(store.data_dir / ra.files["ply"])
+    assert len(pts) == 60 and set(pts["row"].tolist()) == {0, 1, 2}
+    side = read_sidecar(store.data_dir / ra.files["ply"])
+    assert side["simulated"] is True and side["partial"] is False
+    assert side["coverage"] == 1.0 and side["profile"] == "fpsa128"
+    assert side["calibration_id"] == ra.calibration_id is not None
+    assert side["hardware_time_s"] == pytest.approx(6e-3) and side["wall_time_s"] >= 0
+    assert side["software_version"] and side["chirp"]["ramp_s"] == 80e-6
+    # second scan reuses the stored calibration: linearize ran once
+    b = w.submit_scan(ScanRequest(**SMALL))
+    assert w.wait(b.id, T).state == "done"
+    assert inst.linearize_calls == 1
+    assert [c.meta["id"] for c in inst.calibrations_used] == [ra.calibration_id] * 2
+
+
+def test_fifo_order(rig):
+    inst, store, w = rig(hold_after=5)
+    first = w.submit_scan(ScanRequest(**SMALL))
+    assert inst.reached.wait(T)
+    later = [w.submit_scan(ScanRequest(pattern="roi", rows=(0, 1), cols=(k, k + 1))) for k in range(3)]
+    assert w.queue_length() == 3
+    assert store.get_scan(later[0].id).state == "queued"
+    inst.release.set()
+    recs = [w.wait(r.id, T) for r in [first, *later]]
+    assert all(r.state == "done" for r in recs)
+    assert [rq.cols for rq in inst.requests[1:]] == [(0, 1), (1, 2), (2, 3)]
+    starts = [r.started for r in recs]
+    assert starts == sorted(starts)
+
+
+def test_queue_limit(rig):
+    inst, store, w = rig(hold_after=1)
+    w.submit_scan(ScanRequest(**SMALL))
+    assert inst.reached.wait(T)
+    for _ in range(4):
+        w.submit_scan(ScanRequest(**SMALL))
+    with pytest.raises(QueueFull, match="queue is full"):
+        w.submit_scan(ScanRequest(**SMALL))
+    inst.release.set()
+
+
+def test_cancel_queued_is_immediate_and_never_runs(rig):
+    inst, store, w = rig(hold_after=1)
+    a = w.submit_scan(ScanRequest(**SMALL))
+    assert inst.reached.wait(T)
+    b = w.submit_scan(ScanRequest(pattern="roi", rows=(4, 5), cols=(0, 2)))
+    rec = w.cancel(b.id)
+    assert rec.state == "cancelled" and rec.files == {}
+    inst.release.set()
+    assert w.wait(a.id, T).state == "done"
+    assert all(r.rows != (4, 5) for r in inst.requests)
+
+
+def test_cancel_running_keeps_partial_points(rig):
+    inst, store, w = rig(hold_after=25)
+    a = w.submit_scan(ScanRequest(**SMALL, formats=("las",)))
+    assert inst.reached.wait(T)
+    w.cancel(a.id)
+    rec = w.wait(a.id, T)
+    assert rec.state == "cancelled" and rec.partial
+    assert (rec.points, rec.pixels_scanned, rec.pixels_planned) == (25, 25, 60)
+    pts = read_points(store.data_dir / rec.files["las"])
+    assert len(pts) == 25
+    side = read_sidecar(store.data_dir / rec.files["las"])
+    assert side["partial"] is True and side["coverage"] == pytest.approx(25 / 60)
+
+
+def test_failure_stores_device_and_cause(rig):
+    try:
+        try:
+            raise TimeoutError("no trigger within 0.5 s")
+        except TimeoutError as cause:
+            raise DeviceFault("digitizer: capture failed") from cause
+    except DeviceFault as exc:
+        err = exc
+    inst, store, w = rig(fail_with=err)
+    a = w.submit_scan(ScanRequest(**SMALL))
+    rec = w.wait(a.id, T)
+    assert rec.state == "failed"
+    assert "digitizer" in rec.error and "DeviceFault" in rec.error and "no trigger" in rec.error
+    assert rec.files == {}
+
+
+def test_events_progress_then_end(rig):
+    inst, store, w = rig(hold_after=1)
+    blocker = w.submit_scan(ScanRequest(**SMALL))
+    assert inst.reached.wait(T)
+    a = w.submit_scan(ScanRequest(**SMALL))
+    events = []
+    w.subscribe(a.id, events.append)
+    inst.hold_after = None
+    inst.release.set()
+    w.wait(blocker.id, T)
+    w.wait(a.id, T)
+    kinds = [e["event"] for e in events]
+    assert kinds[-1] == "end" and kinds.count("end") == 1
+    prog = [e for e in events if e["event"] == "progress"]
+    assert len(prog) >= 3
+    fr = [e["fraction"] for e in prog]
+    assert fr == sorted(fr) and fr[-1] == 1.0
+    assert events[-1]["state"] == "done"
+
+
+def test_calibration_job_goes_through_worker(rig):
+    inst, store, w = rig()
+    cal = w.submit_calibration().result(T)
+    assert inst.linearize_calls == 1
+    assert store.latest_calibration("dfb_default").meta["id"] == cal.meta["id"]
+
+
+def test_stop_interrupts_queued_and_unknown_cancel(rig, tmp_path):
+    inst, store, w = rig(hold_after=1)
+    a = w.submit_scan(ScanRequest(**SMALL))
+    assert inst.reached.wait(T)
+    b = w.submit_scan(ScanRequest(**SMALL))
+    w.stop()
+    assert store.get_scan(b.id).state == "interrupted"
+    ra = store.get_scan(a.id)
+    assert ra.state == "interrupted" and ra.partial and ra.points == 1
+    with pytest.raises(UnknownScan):
+        w.cancel("0000")
