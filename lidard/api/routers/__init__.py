@@ -1,0 +1,1 @@
+"""One router per resource: health, devices/scanner, scans, calibration, sim."""

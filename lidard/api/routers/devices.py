@@ -1,0 +1,20 @@
+"""GET /devices (per-device state) and GET /scanner (FPSA optics figures, Table 4-1)."""
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from ..deps import InstrumentDep
+from ..schemas import DeviceList
+
+router = APIRouter(tags=["devices"])
+
+
+@router.get("/devices", response_model=DeviceList)
+def devices(instrument: InstrumentDep) -> DeviceList:
+    return DeviceList(devices=instrument.devices())
+
+
+@router.get("/scanner")
+def scanner(instrument: InstrumentDep) -> dict[str, Any]:
+    return instrument.scanner()

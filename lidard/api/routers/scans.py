@@ -1,0 +1,137 @@
+"""Scans: create (queue), list, show, fetch points, cancel, follow progress (server-sent events)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Literal
+
+from fastapi import APIRouter, HTTPException, Query, Response, status
+from fastapi.responses import FileResponse, StreamingResponse
+
+from ...jobs import QueueFull, UnknownScan, WorkerStopped
+from ...scan import ScanPlanError, plan
+from ..deps import OpticsDep, StoreDep, WorkerDep
+from ..schemas import ScanCreate, ScanList, ScanOut
+
+router = APIRouter(prefix="/scans", tags=["scans"])
+
+_MEDIA = {"ply": "application/octet-stream", "las": "application/vnd.las", "npz": "application/octet-stream"}
+
+
+def _not_found(scan_id: str) -> HTTPException:
+    return HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id!r} not found")
+
+
+@router.post("", response_model=ScanOut, status_code=status.HTTP_201_CREATED)
+def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics: OpticsDep) -> ScanOut:
+    req = body.to_request()
+    try:
+        plan(req, optics)  # validate against the device (bonded rows, array bounds) before queueing
+    except ScanPlanError as exc:
+        field = str(exc).split(":", 1)[0].split("[", 1)[0]
+        raise HTTPException(422, [{"loc": ["body", field], "msg": str(exc), "type": "value_error"}]) from None
+    try:
+        rec = worker.submit_scan(req)
+    except (QueueFull, WorkerStopped) as exc:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc),
+                            headers={"Retry-After": "5"}) from None
+    response.headers["Location"] = f"/scans/{rec.id}"
+    return ScanOut.from_record(rec)
+
+
+@router.get("", response_model=ScanList)
+def list_scans(store: StoreDep, worker: WorkerDep,
+               limit: int = Query(100, ge=1, le=1000),
+               state: Literal["queued", "running", "done", "failed", "cancelled", "interrupted"] | None = None,
+               ) -> ScanList:
+    return ScanList(scans=[ScanOut.from_record(r) for r in store.list_scans(limit, state)],
+                    queue_length=worker.queue_length(), running=worker.current_scan_id())
+
+
+@router.get("/{scan_id}", response_model=ScanOut)
+def get_scan(scan_id: str, store: StoreDep) -> ScanOut:
+    rec = store.get_scan(scan_id)
+    if rec is None:
+        raise _not_found(scan_id)
+    return ScanOut.from_record(rec)
+
+
+@router.get("/{scan_id}/points", response_class=FileResponse,
+            responses={404: {"description": "unknown scan or format not written"},
+                       409: {"description": "scan not finished"}})
+def get_points(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz"] = "ply") -> FileResponse:
+    rec = store.get_scan(scan_id)
+    if rec is None:
+        raise _not_found(scan_id)
+    if not rec.files:
+        if rec.terminal:
+            raise HTTPException(status.HTTP_404_NOT_FOUND,
+                                f"scan {scan_id} ended {rec.state} without a point cloud")
+        raise HTTPException(status.HTTP_409_CONFLICT, f"scan {scan_id} is {rec.state}; points are "
+                                                      "available when it is done")
+    if format not in rec.files:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id} has no {format} file; "
+                                                       f"written: {', '.join(sorted(rec.files))}")
+    path = store.data_dir / rec.files[format]
+    return FileResponse(path, media_type=_MEDIA[format], filename=f"{scan_id}.{format}",
+                        headers={"X-Lidard-Partial": "true" if rec.partial else "false"})
+
+
+@router.delete("/{scan_id}", response_model=ScanOut)
+def cancel_scan(scan_id: str, worker: WorkerDep) -> ScanOut:
+    """Cancel: queued -> cancelled at once; running -> stops, the points so far are kept (partial)."""
+    try:
+        rec = worker.cancel(scan_id)
+    except UnknownScan:
+        raise _not_found(scan_id) from None
+    return ScanOut.from_record(rec)
+
+
+def _sse(event: dict) -> bytes:
+    return f"event: {event['event']}\ndata: {json.dumps(event)}\n\n".encode()
+
+
+@router.get("/{scan_id}/events", response_class=StreamingResponse,
+            responses={200: {"content": {"text/event-stream": {}}}})
+async def scan_events(scan_id: str, store: StoreDep, worker: WorkerDep) -> StreamingResponse:
+    """Server-sent events: ``progress`` while the scan runs, then one ``end`` and the stream closes."""
+    if store.get_scan(scan_id) is None:
+        raise _not_found(scan_id)
+    loop = asyncio.get_running_loop()
+    queue: asyncio.Queue = asyncio.Queue()
+
+    def deliver(ev: dict) -> None:  # called on the worker thread
+        try:
+            loop.call_soon_threadsafe(queue.put_nowait, ev)
+        except RuntimeError:  # the event loop is gone (client or server went away)
+            pass
+
+    # Subscribe first, then look at the state: an end that happens in between is still delivered.
+    unsubscribe = worker.subscribe(scan_id, deliver)
+    rec = store.get_scan(scan_id)
+    if rec is not None and rec.terminal:
+        queue.put_nowait({"event": "end", "id": scan_id, "state": rec.state, "partial": rec.partial,
+                          "error": rec.error})
+    elif rec is not None:
+        queue.put_nowait({"event": "progress", "id": scan_id, "stage": rec.stage,
+                          "pixels_done": rec.pixels_scanned, "pixels_planned": rec.pixels_planned,
+                          "points": rec.points, "fraction": rec.progress,
+                          "hardware_time_s": rec.hardware_time_s or 0.0})
+
+    async def stream():
+        try:
+            while True:
+                try:
+                    ev = await asyncio.wait_for(queue.get(), timeout=15.0)
+                except asyncio.TimeoutError:
+                    yield b": keep-alive\n\n"
+                    continue
+                yield _sse(ev)
+                if ev["event"] == "end":
+                    return
+        finally:
+            unsubscribe()
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache"})

@@ -1,0 +1,148 @@
+"""Request and response bodies of the REST API (pydantic, unknown fields rejected).
+
+Request schemas are separate from response schemas (FastAPI full-stack template style) so that a
+client can never set server-owned fields such as ``state`` or ``files``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from ..instrument_api import OutputFormat, PatternKind, ScanRequest
+
+NonNegInt = Field(ge=0, le=65535)
+
+
+class _In(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ScanCreate(_In):
+    """POST /scans. ``rows``/``cols`` are [first, stop) ranges; ``pixels`` a list of [row, col]."""
+
+    pattern: PatternKind = "raster"
+    rows: tuple[int, int] | None = None
+    cols: tuple[int, int] | None = None
+    pixels: list[tuple[int, int]] | None = Field(default=None, min_length=1, max_length=1 << 20)
+    averages: int = Field(default=1, ge=1, le=100)
+    max_range_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False)
+    formats: list[OutputFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=3)
+
+    @field_validator("rows", "cols")
+    @classmethod
+    def _range(cls, v: tuple[int, int] | None) -> tuple[int, int] | None:
+        if v is not None and not (0 <= v[0] < v[1]):
+            raise ValueError(f"must be a non-empty [first, stop) range with 0 <= first < stop, got {list(v)}")
+        return v
+
+    @field_validator("formats")
+    @classmethod
+    def _unique(cls, v: list[str]) -> list[str]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"formats must not repeat, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _pixels_only_with_pixels(self) -> "ScanCreate":
+        if self.pattern == "pixels" and not self.pixels:
+            raise ValueError("pattern 'pixels' needs a non-empty 'pixels' list")
+        if self.pattern != "pixels" and self.pixels is not None:
+            raise ValueError(f"'pixels' is only allowed with pattern 'pixels', not {self.pattern!r}")
+        return self
+
+    def to_request(self) -> ScanRequest:
+        return ScanRequest(pattern=self.pattern, rows=self.rows, cols=self.cols,
+                           pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
+                           averages=self.averages, max_range_m=self.max_range_m,
+                           formats=tuple(self.formats))
+
+
+ScanState = Literal["queued", "running", "done", "failed", "cancelled", "interrupted"]
+
+
+class Timing(_Out):
+    created: float
+    started: float | None = None
+    finished: float | None = None
+    hardware_time_s: float | None = None
+    wall_time_s: float | None = None
+
+
+class Counts(_Out):
+    points: int
+    pixels_scanned: int
+    pixels_planned: int
+
+
+class ScanOut(_Out):
+    id: str
+    state: ScanState
+    stage: str
+    progress: float
+    partial: bool
+    error: str | None = None
+    request: dict[str, Any]
+    timing: Timing
+    counts: Counts
+    formats: list[str]
+    calibration_id: str | None = None
+
+    @classmethod
+    def from_record(cls, rec) -> "ScanOut":
+        return cls(id=rec.id, state=rec.state, stage=rec.stage, progress=rec.progress,
+                   partial=rec.partial, error=rec.error, request=rec.request,
+                   timing=Timing(created=rec.created, started=rec.started, finished=rec.finished,
+                                 hardware_time_s=rec.hardware_time_s, wall_time_s=rec.wall_time_s),
+                   counts=Counts(points=rec.points, pixels_scanned=rec.pixels_scanned,
+                                 pixels_planned=rec.pixels_planned),
+                   formats=sorted(rec.files), calibration_id=rec.calibration_id)
+
+
+class ScanList(_Out):
+    scans: list[ScanOut]
+    queue_length: int
+    running: str | None
+
+
+class Health(_Out):
+    status: Literal["ok", "degraded"]
+    version: str
+    simulated: bool
+    worker_running: bool
+    queue_length: int
+    running_scan: str | None
+
+
+class DeviceList(_Out):
+    devices: list[dict[str, Any]]
+
+
+class CalibrationOut(_Out):
+    id: str | None
+    laser: str
+    temperature_c: float | None
+    converged: bool
+    created: float | None
+    iterations: list[dict[str, float]]
+    reduction: dict[str, float]
+    fs_drive_hz: float
+    drive_samples: int
+
+    @classmethod
+    def from_result(cls, cal) -> "CalibrationOut":
+        return cls(id=cal.meta.get("id"), laser=cal.laser, temperature_c=cal.temperature_c,
+                   converged=bool(cal.converged), created=cal.meta.get("created"),
+                   iterations=[{k: float(v) for k, v in it.items()} for it in cal.iterations],
+                   reduction={k: float(v) for k, v in cal.reduction.items()},
+                   fs_drive_hz=float(cal.fs_drive_hz), drive_samples=int(len(cal.drive_v)))
+
+
+class SceneAccepted(_Out):
+    name: str | None
+    targets: int
