@@ -1,0 +1,1 @@
+"""Laser / TEC / HV controller on Modbus TCP: register map (protocol), typed errors, driver."""

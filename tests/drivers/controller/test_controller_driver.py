@@ -346,3 +346,10 @@ def test_bad_driver_configuration(kwargs):
 def test_enable_requires_bool(ctl):
     with pytest.raises(TypeError, match="laser enable expects a bool"):
         ctl.laser_enable(1)
+
+
+def test_wrong_unit_id_is_a_typed_device_failure(sim):
+    with LaserHvController("127.0.0.1", sim.port, device_id=7, timeout_s=TIMEOUT_S, limits=LIMITS) as c:
+        with pytest.raises(DeviceFailure) as ei:
+            c.tec_c()
+    assert ei.value.exception_code == 4 and ei.value.register == "TEC_TEMPERATURE"
