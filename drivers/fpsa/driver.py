@@ -1,0 +1,295 @@
+"""Host driver of the FPSA controller FPGA (§4.3.3, Fig. 4-22): typed methods over the wire
+codec in ``protocol.py`` and any byte channel from ``drivers.transport``.
+
+The same class drives the Cmod-S7 on ``/dev/ttyUSB1``, the simulated FPGA on a pty path, or a
+pre-opened serial-like object (tests pass the simulator's in-memory pipe). There is no simulator
+switch: the channel is configuration.
+
+Reliability (stop-and-wait with idempotent retries): every command gets a fresh ``seq``; a
+retry re-sends the *identical* frame (same seq) after a lone 0x00 that flushes any garbage the
+FPGA is holding, so the FPGA answers a duplicate from its response cache instead of executing it
+twice. No answer within ``timeout_s`` (an empty read), a garbled answer, or NAK BAD_CRC ->
+retry after ``backoff_s * 2**k``; after ``retries`` retries -> :class:`DeviceTimeout` naming the
+device and the command (or :class:`LinkError` if answers kept arriving garbled). Any other NAK is
+final and raised as :class:`NakError`.
+
+Patterns are validated before anything is sent: shape, range, and that every row is wire-bonded
+(§4.3.3: one row in four is not). The protocol can only ever address one row per pixel
+(SET_PIXEL and pattern entries are single (row, col) pairs), so the host never commands two
+rows at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from drivers.transport import DeviceTimeout, TracedChannel, open_channel
+
+from . import protocol as p
+from .errors import NakError, PatternError, ProtocolError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_BAUDRATE = 3_000_000  # see docs/protocols/fpsa.md, "Physical link"
+
+
+class LinkError(ProtocolError):
+    """Answers kept arriving corrupted (bad CRC both ways) through every retry."""
+
+
+class FpsaController:
+    """Typed, validated access to the FPSA controller over a byte channel."""
+
+    def __init__(
+        self,
+        url_or_serial: str | Any,
+        *,
+        timeout_s: float = 0.5,
+        retries: int = 3,
+        backoff_s: float = 0.01,
+        baudrate: int = DEFAULT_BAUDRATE,
+        bonded_rows: tuple[int, ...] | list[int] | np.ndarray | None = None,
+        rows: int | None = None,
+        cols: int | None = None,
+        trace: bool = False,
+        sleep: Callable[[float], None] = time.sleep,
+        monotonic: Callable[[], float] = time.monotonic,
+        chunk_pixels: int = 1024,
+        device: str = "fpsa",
+    ) -> None:
+        if not timeout_s > 0:
+            raise ValueError(f"{device}: timeout_s must be > 0, got {timeout_s!r}")
+        if not (isinstance(retries, int) and retries >= 0):
+            raise ValueError(f"{device}: retries must be an int >= 0, got {retries!r}")
+        if not backoff_s >= 0:
+            raise ValueError(f"{device}: backoff_s must be >= 0, got {backoff_s!r}")
+        if not 1 <= chunk_pixels <= p.MAX_CHUNK_PIXELS:
+            raise ValueError(f"{device}: chunk_pixels must be 1..{p.MAX_CHUNK_PIXELS}")
+        self.device = device
+        self.timeout_s = float(timeout_s)
+        self.retries = retries
+        self.backoff_s = float(backoff_s)
+        self.chunk_pixels = chunk_pixels
+        self._sleep = sleep
+        self._monotonic = monotonic
+        self.url = url_or_serial if isinstance(url_or_serial, str) else None
+        if isinstance(url_or_serial, str):
+            self._port = open_channel(url_or_serial, baudrate=baudrate, timeout_s=timeout_s,
+                                      trace=trace, device=device)
+            self._owns_port = True
+        else:
+            if not (hasattr(url_or_serial, "read") and hasattr(url_or_serial, "write")):
+                raise TypeError(f"{device}: expected a URL or a serial-like object with "
+                                f"read()/write(), got {type(url_or_serial).__name__}")
+            port = url_or_serial
+            if hasattr(port, "timeout"):
+                # an empty read must mean "timeout_s passed": never block forever
+                port.timeout = timeout_s
+            self._port = TracedChannel(port, device=device) if trace else port
+            self._owns_port = False
+        self._parser = p.FrameParser()
+        self._seq = 0
+        self._rows = rows
+        self._cols = cols
+        self._bonded: np.ndarray | None = None
+        if bonded_rows is not None:
+            self._set_bonded(bonded_rows)
+        self.tx_bytes = 0
+        self.rx_bytes = 0
+        self.retry_count = 0
+
+    # --- lifecycle ------------------------------------------------------------------------------
+    def close(self) -> None:
+        if self._owns_port:
+            self._port.close()
+
+    def __enter__(self) -> FpsaController:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- transactions ---------------------------------------------------------------------------
+    def _transact(self, cmd: p.Cmd, payload: bytes = b"") -> bytes:
+        self._seq = (self._seq + 1) & 0xFF
+        seq = self._seq
+        frame = p.encode_frame(seq, cmd, payload)
+        attempts = self.retries + 1
+        failure = "timeout"
+        for attempt in range(attempts):
+            if attempt:
+                self.retry_count += 1
+                delay = self.backoff_s * 2 ** (attempt - 1)
+                log.warning("%s: %s attempt %d/%d after %s (backoff %.3g s)", self.device,
+                            cmd.name, attempt + 1, attempts, failure, delay)
+                self._sleep(delay)
+            wire = (b"\x00" + frame) if attempt else frame
+            self._port.write(wire)
+            self.tx_bytes += len(wire)
+            outcome = self._await(seq, cmd)
+            if isinstance(outcome, p.Response):
+                if outcome.ok:
+                    return outcome.data
+                if outcome.code == p.NakCode.BAD_CRC:
+                    failure = "NAK BAD_CRC"
+                    continue
+                raise NakError(self.device, cmd.name, outcome.code, outcome.detail)
+            failure = outcome
+        if failure == "timeout":
+            raise DeviceTimeout(self.device, cmd.name, timeout_s=self.timeout_s,
+                                attempts=attempts, url=self.url)
+        raise LinkError(f"{self.device}: no valid answer to {cmd.name} after {attempts} "
+                        f"attempts (last: {failure})")
+
+    def _await(self, seq: int, cmd: p.Cmd) -> p.Response | str:
+        deadline = self._monotonic() + self.timeout_s
+        while True:
+            waiting = getattr(self._port, "in_waiting", 0) or 0
+            data = self._port.read(max(1, waiting))
+            if not data:
+                return "timeout"  # the port's read timeout (= timeout_s) expired
+            self.rx_bytes += len(data)
+            for item in self._parser.feed_all(data):
+                if isinstance(item, ProtocolError):
+                    log.info("%s: garbled answer to %s: %s", self.device, cmd.name, item)
+                    return "garbled answer"
+                try:
+                    resp = p.decode_response(item)
+                except ProtocolError as exc:
+                    log.info("%s: bad response to %s: %s", self.device, cmd.name, exc)
+                    return "garbled answer"
+                if resp.seq != seq or resp.request_cmd != cmd:
+                    log.debug("%s: ignoring stale response seq %d to %s", self.device, resp.seq,
+                              p.cmd_name(resp.request_cmd))
+                    continue
+                return resp
+            if self._monotonic() > deadline:
+                return "timeout"  # bytes kept trickling in, none of them our answer
+
+    # --- geometry -------------------------------------------------------------------------------
+    def _set_bonded(self, bonded: Any) -> None:
+        rows = self._rows if self._rows is not None else 128
+        mask = np.zeros(rows, bool)
+        idx = np.asarray(bonded, dtype=np.int64).ravel()
+        if idx.size and (idx.min() < 0 or idx.max() >= rows):
+            raise ValueError(f"{self.device}: bonded_rows must lie in 0..{rows - 1}")
+        mask[idx] = True
+        self._bonded = mask
+
+    def _geometry(self) -> tuple[int, int, np.ndarray]:
+        if self._rows is None or self._cols is None or self._bonded is None:
+            self.identify()
+        assert self._rows is not None and self._cols is not None and self._bonded is not None
+        return self._rows, self._cols, self._bonded
+
+    # --- commands -------------------------------------------------------------------------------
+    def identify(self) -> p.Identity:
+        ident = p.Identity.unpack(self._transact(p.Cmd.IDENTIFY))
+        # explicit constructor arguments win over what the board reports
+        if self._rows is None:
+            self._rows = ident.rows
+        if self._cols is None:
+            self._cols = ident.cols
+        if self._bonded is None:
+            self._set_bonded(ident.bonded_rows)
+        return ident
+
+    def reset(self) -> None:
+        self._transact(p.Cmd.RESET)
+
+    def clear(self) -> None:
+        self._transact(p.Cmd.CLEAR)
+
+    def _validate(self, pixels: Any, what: str) -> np.ndarray:
+        rows, cols, bonded = self._geometry()
+        arr = np.asarray(pixels)
+        if arr.ndim != 2 or arr.shape[1] != 2:
+            raise PatternError(f"{self.device}: {what} must have shape (n, 2), got {arr.shape}")
+        if arr.shape[0] == 0:
+            raise PatternError(f"{self.device}: {what} is empty")
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise PatternError(f"{self.device}: {what} must be integers, got dtype {arr.dtype}")
+        limit = min(rows * cols, 0xFFFF)
+        if arr.shape[0] > limit:
+            raise PatternError(f"{self.device}: {what} has {arr.shape[0]} pixels, more than "
+                               f"{limit} ({rows}x{cols})")
+        r = arr[:, 0].astype(np.int64)
+        c = arr[:, 1].astype(np.int64)
+        bad_r = (r < 0) | (r >= rows)
+        bad_c = (c < 0) | (c >= cols)
+        bad_b = ~bad_r & ~bonded[np.clip(r, 0, rows - 1)]
+        bad = bad_r | bad_c | bad_b
+        if bad.any():
+            i = int(np.argmax(bad))
+            ri, ci = int(r[i]), int(c[i])
+            if bad_r[i]:
+                why = f"row {ri} outside 0..{rows - 1}"
+            elif bad_c[i]:
+                why = f"column {ci} outside 0..{cols - 1}"
+            else:
+                why = f"row {ri} is not wire-bonded"
+            raise PatternError(f"{self.device}: {what} pixel {i} (row {ri}, col {ci}): {why}",
+                               index=i, row=ri, col=ci)
+        return np.stack([r, c], axis=1).astype(np.uint8)
+
+    def set_pixel(self, row: int, col: int) -> None:
+        """Statically steer to one pixel: exactly one row line and one column line high."""
+        px = self._validate(np.array([[row, col]], dtype=np.int64), "SET_PIXEL")
+        self._transact(p.Cmd.SET_PIXEL, p.encode_set_pixel(int(px[0, 0]), int(px[0, 1])))
+
+    def upload_pattern(self, pixels: np.ndarray) -> int:
+        """Validate and upload a scan pattern of (row, col) pixels; returns the chunk count.
+
+        PATTERN_BEGIN carries the CRC-32 of the whole pattern, every PATTERN_CHUNK its own
+        CRC-32, and PATTERN_END makes the FPGA check both (NAK PATTERN_CRC otherwise).
+        """
+        px = self._validate(pixels, "pattern")
+        data = p.pack_pixels(px)
+        n = px.shape[0]
+        self._transact(p.Cmd.PATTERN_BEGIN, p.encode_pattern_begin(n, p.crc32(data)))
+        chunks = 0
+        for off in range(0, n, self.chunk_pixels):
+            part = data[2 * off: 2 * min(n, off + self.chunk_pixels)]
+            self._transact(p.Cmd.PATTERN_CHUNK, p.encode_pattern_chunk(off, part))
+            chunks += 1
+        self._transact(p.Cmd.PATTERN_END)
+        return chunks
+
+    def set_timing(self, timing: p.Timing | None = None, *, settle_ns: int | None = None,
+                   dwell_ns: int | None = None, triggers_per_pixel: int | None = None,
+                   trigger_period_ns: int | None = None) -> p.Timing:
+        """Set the per-pixel schedule; unspecified fields keep the protocol defaults."""
+        base = timing or p.DEFAULT_TIMING
+        t = p.Timing(
+            settle_ns=base.settle_ns if settle_ns is None else settle_ns,
+            dwell_ns=base.dwell_ns if dwell_ns is None else dwell_ns,
+            triggers_per_pixel=(base.triggers_per_pixel if triggers_per_pixel is None
+                                else triggers_per_pixel),
+            trigger_period_ns=(base.trigger_period_ns if trigger_period_ns is None
+                               else trigger_period_ns),
+        )
+        try:
+            payload = t.pack()
+        except ProtocolError as exc:
+            raise ValueError(f"{self.device}: {exc}") from exc
+        if t.triggers_per_pixel < 1:
+            raise ValueError(f"{self.device}: triggers_per_pixel must be >= 1")
+        self._transact(p.Cmd.SET_TIMING, payload)
+        return t
+
+    def arm(self) -> None:
+        self._transact(p.Cmd.ARM)
+
+    def start(self) -> None:
+        self._transact(p.Cmd.START)
+
+    def stop(self) -> None:
+        self._transact(p.Cmd.STOP)
+
+    def status(self) -> p.Status:
+        return p.Status.unpack(self._transact(p.Cmd.STATUS))
