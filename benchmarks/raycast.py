@@ -3,7 +3,8 @@
 Two workloads:
   1. 16,384 rays (a 128 x 128 FPSA beam grid) into a synthetic scene of 20 targets of mixed kinds
      (5 planes, 5 boxes, 5 spheres, 5 non-convex 12-vertex polygons);
-  2. the dissertation's 3D-imaging scan (§4.4.3): 128 x 96 beams into config/scenes/cal_letters.toml.
+  2. the dissertation's 3D-imaging scan (§4.4.3): 128 x 96 beams into
+     config/scenes/cal_letters.toml.
 
 Beam directions follow eq. 4-1: antenna offset (x, y) behind a lens of focal length f = 25 mm
 points along (-x/f, -y/f, 1) normalised; the antenna pitch is chosen so that 128 antennas span the

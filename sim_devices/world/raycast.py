@@ -1,4 +1,4 @@
-"""Vectorized ray casting against a :class:`~sim_devices.world.scene.Scene` (numpy, no loop over rays).
+"""Vectorized ray casting into a :class:`~sim_devices.world.scene.Scene` (numpy, no loop over rays).
 
 Used by the simulated bench to find, for every beam direction of the FPSA scanner (eq. 4-1:
 antenna offset (x, y) behind a lens of focal length f -> direction (-x/f, -y/f, 1) normalised),
@@ -231,7 +231,8 @@ def _check_args(
     if np.any(off):
         bad = int(np.argmax(off))
         raise RayError(
-            f"cast: directions must be unit vectors; directions[{bad}] has norm {float(norms[bad])!r}"
+            "cast: directions must be unit vectors; "
+            f"directions[{bad}] has norm {float(norms[bad])!r}"
         )
     o = np.asarray(origin, dtype=np.float64)
     if o.shape != (3,) or not np.all(np.isfinite(o)):

@@ -1,9 +1,9 @@
-"""Scene model of the simulated world: targets in the sensor frame, loaded from TOML/dict, cast rays.
+"""Scene model of the simulated world: targets in the sensor frame, TOML/dict loading, ray casts.
 
 The simulated FPSA LiDAR looks at a static set of targets (planes, boxes, spheres, planar polygons),
 each with a Lambertian albedo (``reflectivity``; > 1 models the retro-reflective traffic-sign sheet
 of the dissertation's "CAL" letters, §4.4.3), a one-way power ``transmission`` (a glass pane gives a
-return *and* lets light through to what is behind it) and a ``velocity`` (for the FMCW Doppler term).
+return *and* lets light through to what is behind it) and a ``velocity`` (FMCW Doppler term).
 
 Sensor frame (used everywhere in this module): origin at the device-lens centre, +z along the
 optical axis toward the scene, +x right, +y up, metres and m/s. A beam for antenna offset (x, y) in
@@ -88,7 +88,7 @@ def rotation_matrix_deg(rotation_deg: np.ndarray | tuple[float, float, float]) -
 
 
 def _plane_axes(normal: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """In-plane unit axes (u, v): v = up projected into the plane, u = v x n (perpendicular to up)."""
+    """In-plane unit axes (u, v): v = up projected into the plane, u = v x n (across up)."""
     v = up - np.dot(up, normal) * normal
     v = v / np.linalg.norm(v)
     u = np.cross(v, normal)

@@ -1,4 +1,4 @@
-"""Scene loading: shipped scenes, defaults, round trip, and every SceneError path with its message."""
+"""Scene loading: shipped scenes, defaults, round trip, every SceneError path with its message."""
 
 from __future__ import annotations
 
@@ -77,7 +77,8 @@ def test_cal_letters_scene_matches_the_dissertation_setup() -> None:
     assert isinstance(background, PlaneTarget)
     assert background.reflectivity == pytest.approx(0.1)
     assert background.point[2] > 0.8
-    assert background.size is not None and np.all(background.size / 2 > 0.9 * math.tan(math.radians(8)))
+    assert background.size is not None
+    assert np.all(background.size / 2 > 0.9 * math.tan(math.radians(8)))
 
 
 def test_mixed_scene_contents() -> None:
@@ -170,38 +171,107 @@ ERROR_CASES = [
     ("description = [1]\n", "description: must be a string"),
     ("target = 3\n", "target: must be an array of tables"),
     (_two("radius = 1\n"), "target[1].kind: missing; allowed: plane, box, sphere, polygon"),
-    (_two('kind = "cone"\n'), "target[1].kind: unknown kind 'cone'; allowed: plane, box, sphere, polygon"),
+    (
+        _two('kind = "cone"\n'),
+        "target[1].kind: unknown kind 'cone'; allowed: plane, box, sphere, polygon",
+    ),
     (_two(SPHERE + "colour = 1\n"), "target[1].colour: unknown key for kind 'sphere'; allowed:"),
     (_two(SPHERE + "normal = [0, 0, 1]\n"), "target[1].normal: unknown key for kind 'sphere'"),
-    (_two('kind = "sphere"\ncenter = [0, 0, 1]\n'), "target[1].radius: missing (required for kind 'sphere')"),
-    (_two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = -1\n'), "target[1].radius: must be > 0, got -1"),
-    (_two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = 0\n'), "target[1].radius: must be > 0, got 0"),
-    (_two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = nan\n'), "target[1].radius: must be finite, got nan"),
-    (_two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = "1"\n'), "target[1].radius: must be a number, got '1'"),
-    (_two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = true\n'), "target[1].radius: must be a number, got True"),
-    (_two('kind = "sphere"\ncenter = [0, 1]\nradius = 1\n'), "target[1].center: must be a list of 3 numbers, got 2 values"),
-    (_two('kind = "sphere"\ncenter = [0, inf, 1]\nradius = 1\n'), "target[1].center: must contain finite numbers, element 1 is inf"),
-    (_two('kind = "sphere"\ncenter = 5\nradius = 1\n'), "target[1].center: must be a list of 3 numbers, got 5"),
-    (_two('kind = "sphere"\ncenter = [0, "a", 1]\nradius = 1\n'), "target[1].center: must be a list of 3 numbers, element 1 is 'a'"),
+    (
+        _two('kind = "sphere"\ncenter = [0, 0, 1]\n'),
+        "target[1].radius: missing (required for kind 'sphere')",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = -1\n'),
+        "target[1].radius: must be > 0, got -1",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = 0\n'),
+        "target[1].radius: must be > 0, got 0",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = nan\n'),
+        "target[1].radius: must be finite, got nan",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = "1"\n'),
+        "target[1].radius: must be a number, got '1'",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, 0, 1]\nradius = true\n'),
+        "target[1].radius: must be a number, got True",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, 1]\nradius = 1\n'),
+        "target[1].center: must be a list of 3 numbers, got 2 values",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, inf, 1]\nradius = 1\n'),
+        "target[1].center: must contain finite numbers, element 1 is inf",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = 5\nradius = 1\n'),
+        "target[1].center: must be a list of 3 numbers, got 5",
+    ),
+    (
+        _two('kind = "sphere"\ncenter = [0, "a", 1]\nradius = 1\n'),
+        "target[1].center: must be a list of 3 numbers, element 1 is 'a'",
+    ),
     (_two(SPHERE + "reflectivity = -0.1\n"), "target[1].reflectivity: must be >= 0, got -0.1"),
     (_two(SPHERE + "transmission = 1.5\n"), "target[1].transmission: must be in [0, 1], got 1.5"),
     (_two(SPHERE + "transmission = -0.5\n"), "target[1].transmission: must be in [0, 1], got -0.5"),
-    (_two(SPHERE + "velocity = [1, 2]\n"), "target[1].velocity: must be a list of 3 numbers, got 2 values"),
+    (
+        _two(SPHERE + "velocity = [1, 2]\n"),
+        "target[1].velocity: must be a list of 3 numbers, got 2 values",
+    ),
     (_two(SPHERE + "velocity = [1, 2, -inf]\n"), "target[1].velocity: must contain finite numbers"),
-    (_two(PLANE.replace("[0, 0, -1]", "[0, 0, 0]")), "target[1].normal: must be a non-zero vector, got [0.0, 0.0, 0.0]"),
-    (_two('kind = "plane"\npoint = [0, 0, 1]\n'), "target[1].normal: missing (required for kind 'plane')"),
+    (
+        _two(PLANE.replace("[0, 0, -1]", "[0, 0, 0]")),
+        "target[1].normal: must be a non-zero vector, got [0.0, 0.0, 0.0]",
+    ),
+    (
+        _two('kind = "plane"\npoint = [0, 0, 1]\n'),
+        "target[1].normal: missing (required for kind 'plane')",
+    ),
     (_two(PLANE + "size = [1, 0]\n"), "target[1].size: all elements must be > 0, got [1.0, 0.0]"),
-    (_two(PLANE + "size = [1, 2, 3]\n"), "target[1].size: must be a list of 2 numbers, got 3 values"),
-    (_two(PLANE + "size = [1, 1]\nup = [0, 0, 2]\n"), "target[1].up: must not be parallel to normal"),
+    (
+        _two(PLANE + "size = [1, 2, 3]\n"),
+        "target[1].size: must be a list of 2 numbers, got 3 values",
+    ),
+    (
+        _two(PLANE + "size = [1, 1]\nup = [0, 0, 2]\n"),
+        "target[1].up: must not be parallel to normal",
+    ),
     (_two(PLANE + "up = [0, 0, 0]\n"), "target[1].up: must be a non-zero vector"),
     (_two(PLANE + "center = [0, 0, 0]\n"), "target[1].center: unknown key for kind 'plane'"),
-    (_two(BOX.replace("[1, 1, 1]", "[1, -1, 1]")), "target[1].size: all elements must be > 0, got [1.0, -1.0, 1.0]"),
-    (_two(BOX + "rotation_deg = [0, 0]\n"), "target[1].rotation_deg: must be a list of 3 numbers, got 2 values"),
-    (_two(BOX + "rotation_deg = [0, nan, 0]\n"), "target[1].rotation_deg: must contain finite numbers"),
-    (_two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1]]\n'), "target[1].vertices: must be a list of >= 3 [x, y, z] vertices, got 2 vertices"),
-    (_two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1], [1, 1]]\n'), "target[1].vertices[2]: must be a list of 3 numbers, got 2 values"),
-    (_two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1], [2, 0, 1]]\n'), "target[1].vertices: polygon is degenerate"),
-    (_two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1.001]]\n'), "target[1].vertices: polygon must be planar (within 1e-09 m); vertex"),
+    (
+        _two(BOX.replace("[1, 1, 1]", "[1, -1, 1]")),
+        "target[1].size: all elements must be > 0, got [1.0, -1.0, 1.0]",
+    ),
+    (
+        _two(BOX + "rotation_deg = [0, 0]\n"),
+        "target[1].rotation_deg: must be a list of 3 numbers, got 2 values",
+    ),
+    (
+        _two(BOX + "rotation_deg = [0, nan, 0]\n"),
+        "target[1].rotation_deg: must contain finite numbers",
+    ),
+    (
+        _two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1]]\n'),
+        "target[1].vertices: must be a list of >= 3 [x, y, z] vertices, got 2 vertices",
+    ),
+    (
+        _two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1], [1, 1]]\n'),
+        "target[1].vertices[2]: must be a list of 3 numbers, got 2 values",
+    ),
+    (
+        _two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1], [2, 0, 1]]\n'),
+        "target[1].vertices: polygon is degenerate",
+    ),
+    (
+        _two('kind = "polygon"\nvertices = [[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1.001]]\n'),
+        "target[1].vertices: polygon must be planar (within 1e-09 m); vertex",
+    ),
 ]
 
 
