@@ -101,6 +101,13 @@ MAX_TRANSFER_SIZE = 64 * 1024 * 1024
 
 _HDR = struct.Struct("<BBBBIBBBB")
 
+# USBTMC class-specific control requests (bmRequestType 0xA1: class, interface, IN)
+REQTYPE_CLASS_INTERFACE_IN = 0xA1
+REQ_INITIATE_CLEAR = 5
+REQ_CHECK_CLEAR_STATUS = 6
+STATUS_SUCCESS = 0x01
+STATUS_PENDING = 0x02
+
 
 @dataclass(frozen=True)
 class UsbtmcHeader:

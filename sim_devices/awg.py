@@ -142,6 +142,14 @@ class SimAwg(SimUsbDevice):
         buf[:n] = frame[:n]
         return n
 
+    def handle_ctrl(self, bm, req, w_value, w_index, data, w_length):
+        if bm == usbtmc.REQTYPE_CLASS_INTERFACE_IN and req == usbtmc.REQ_INITIATE_CLEAR:
+            self.handle_reset()
+            return bytes([usbtmc.STATUS_SUCCESS])
+        if bm == usbtmc.REQTYPE_CLASS_INTERFACE_IN and req == usbtmc.REQ_CHECK_CLEAR_STATUS:
+            return bytes([usbtmc.STATUS_SUCCESS, 0])
+        return super().handle_ctrl(bm, req, w_value, w_index, data, w_length)
+
     def handle_clear_halt(self, ep: int) -> None:
         self._parser.reset()
         self._partial.clear()

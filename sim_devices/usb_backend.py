@@ -504,9 +504,11 @@ class UsbBridgeServer:
     def close(self) -> None:
         self._closed.set()
         try:
-            self._sock.close()
+            # shutdown (not just close) wakes the thread blocked in accept() on Linux
+            self._sock.shutdown(socket.SHUT_RDWR)
         except OSError:
             pass
+        self._sock.close()
         for c in list(self._conns):
             try:
                 c.shutdown(socket.SHUT_RDWR)

@@ -113,10 +113,26 @@ class AwgDriver:
                         self._clear_halts()
                     raise err from exc
                 last = exc
+                self._clear_buffers()
                 log.warning("awg: timeout on %r (attempt %d/%d)", name, attempt + 1, self._retries + 1)
             except ProtocolError as exc:
                 raise UsbDeviceError(DEVICE, name, f"bad reply: {exc}") from exc
         raise DeviceTimeout(DEVICE, name, f"no answer after {self._retries + 1} attempts") from last
+
+    def _clear_buffers(self) -> None:
+        """USBTMC INITIATE_CLEAR + CHECK_CLEAR_STATUS: the device drops partial input and unread
+        output, so a retried query cannot be answered by a stale reply."""
+        try:
+            st = self._dev.ctrl_transfer(usbtmc.REQTYPE_CLASS_INTERFACE_IN, usbtmc.REQ_INITIATE_CLEAR,
+                                         0, 0, 1, self._timeout_ms)
+            if len(st) and st[0] == usbtmc.STATUS_SUCCESS:
+                for _ in range(16):
+                    st = self._dev.ctrl_transfer(usbtmc.REQTYPE_CLASS_INTERFACE_IN,
+                                                 usbtmc.REQ_CHECK_CLEAR_STATUS, 0, 0, 2, self._timeout_ms)
+                    if not len(st) or st[0] != usbtmc.STATUS_PENDING:
+                        break
+        except usb.core.USBError as exc:
+            log.warning("awg: USBTMC clear failed: %s", exc)
 
     def _clear_halts(self) -> None:
         for ep in (self._ep_out, self._ep_in):
@@ -151,9 +167,9 @@ class AwgDriver:
         return p.parse_idn(self.query(p.cmd_idn()))
 
     def reset(self) -> None:
-        """*RST then *CLS: defaults restored, output off, error queue empty."""
-        self.write(p.cmd_rst())
-        self.write(p.cmd_cls())
+        """*CLS;*RST: error queue emptied first (so stale errors are not blamed on the reset),
+        then defaults restored, output off."""
+        self.write(p.cmd_cls() + b";" + p.cmd_rst())
 
     def errors(self) -> list[tuple[int, str]]:
         """Drain the device error queue: list of (code, text), oldest first."""
