@@ -13,7 +13,10 @@ from sim_devices.controller import ControllerSim
 LIMITS = p.Limits(max_laser_current_ma=200.0, max_hv_v=60.0, tec_range_c=(18.0, 35.0))
 # Wider than the hardware: lets a test push out-of-range values past the driver to the device.
 WIDE = p.Limits(max_laser_current_ma=600.0, max_hv_v=600.0, tec_range_c=(-100.0, 300.0))
-TIMEOUT_S = 0.05  # short: timeout tests wait (retries + 1) * TIMEOUT_S of real time
+# Replies from the local simulator take ~0.1 ms, so a generous timeout costs nothing unless a reply
+# is really lost; tests that lose replies on purpose use FAST_TIMEOUT_S (each loss waits that long).
+TIMEOUT_S = 2.0
+FAST_TIMEOUT_S = 0.1
 
 
 @pytest.fixture
@@ -40,6 +43,14 @@ def ctl(sim):
 @pytest.fixture
 def wide(sim):
     c = LaserHvController("127.0.0.1", sim.port, timeout_s=TIMEOUT_S, retries=0, limits=WIDE)
+    yield c
+    c.close()
+
+
+@pytest.fixture
+def fast(sim):
+    """Driver with a short timeout, for tests that drop replies on purpose."""
+    c = LaserHvController("127.0.0.1", sim.port, timeout_s=FAST_TIMEOUT_S, retries=2, limits=LIMITS)
     yield c
     c.close()
 

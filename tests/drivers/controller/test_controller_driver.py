@@ -28,7 +28,8 @@ from drivers.controller.errors import (
 
 # Same values as conftest.py (ranges asserted in messages below).
 LIMITS = p.Limits(max_laser_current_ma=200.0, max_hv_v=60.0, tec_range_c=(18.0, 35.0))
-TIMEOUT_S = 0.05
+TIMEOUT_S = 2.0
+FAST_TIMEOUT_S = 0.1
 
 
 # --- round trips ----------------------------------------------------------------------------------
@@ -273,7 +274,8 @@ def test_bring_up_hv_not_settling_names_hv_and_switches_outputs_off(clock):
 
 
 # --- timeouts and exception responses ------------------------------------------------------------
-def test_timeouts_retry_bounded_then_device_timeout(ctl, sim):
+def test_timeouts_retry_bounded_then_device_timeout(fast, sim):
+    ctl = fast
     ctl.identify()
     received = sim.requests_received
     sim.inject_timeout(3)  # retries=2 -> 3 attempts, all unanswered
@@ -287,26 +289,30 @@ def test_timeouts_retry_bounded_then_device_timeout(ctl, sim):
     assert ctl.interlock_closed() is True
 
 
-def test_timeouts_within_retry_budget_succeed(ctl, sim):
+def test_timeouts_within_retry_budget_succeed(fast, sim):
+    ctl = fast
     ctl.set_hv_v(12.5)
     sim.inject_timeout(2)
     assert ctl.hv_setpoint_v() == pytest.approx(12.5)
     assert sim.responses_dropped == 2
 
 
-def test_write_retried_after_lost_reply_is_applied_once_in_effect(ctl, sim):
+def test_write_retried_after_lost_reply_is_applied_once_in_effect(fast, sim):
+    ctl = fast
     sim.inject_timeout(1)  # the write executes, its reply is lost, the retry repeats it
     ctl.set_laser_current_ma(42.0)
     assert sim.state.laser_setpoint_ma == pytest.approx(42.0)
 
 
-def test_no_retries_means_one_attempt(wide, sim):
-    wide.identify()
+def test_no_retries_means_one_attempt(sim):
+    one_shot = LaserHvController("127.0.0.1", sim.port, timeout_s=FAST_TIMEOUT_S, retries=0, limits=LIMITS)
+    one_shot.identify()
     received = sim.requests_received
     sim.inject_timeout(1)
     with pytest.raises(DeviceTimeout) as ei:
-        wide.tec_c()
+        one_shot.tec_c()
     assert ei.value.attempts == 1 and sim.requests_received - received == 1
+    one_shot.close()
 
 
 @pytest.mark.parametrize(
