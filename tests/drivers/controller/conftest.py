@@ -16,7 +16,7 @@ WIDE = p.Limits(max_laser_current_ma=600.0, max_hv_v=600.0, tec_range_c=(-100.0,
 # Replies from the local simulator take ~0.1 ms, so a generous timeout costs nothing unless a reply
 # is really lost; tests that lose replies on purpose use FAST_TIMEOUT_S (each loss waits that long).
 TIMEOUT_S = 2.0
-FAST_TIMEOUT_S = 0.1
+FAST_TIMEOUT_S = 0.25
 
 
 @pytest.fixture
