@@ -37,9 +37,12 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Literal, Union
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, Union
 
 import numpy as np
+
+if TYPE_CHECKING:  # raycast imports this module; only the annotation needs Hits
+    from sim_devices.world.raycast import Hits
 
 __all__ = [
     "SceneError",
@@ -111,6 +114,12 @@ class _TargetBase:
     reflectivity: float
     transmission: float
     velocity: np.ndarray  # (3,) m/s
+
+    def __post_init__(self) -> None:
+        # Targets are shared between scenes (moved(), to_dict()); freeze their arrays too.
+        for value in vars(self).values():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
 
     def _common_dict(self) -> dict[str, Any]:
         return {
@@ -477,7 +486,7 @@ class Scene:
         directions: np.ndarray,
         max_hits: int = 4,
         origin: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
-    ):
+    ) -> Hits:
         """Cast rays from ``origin`` along unit ``directions`` (n, 3); see :func:`raycast.cast`."""
         from sim_devices.world.raycast import cast
 

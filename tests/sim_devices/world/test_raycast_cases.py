@@ -189,3 +189,38 @@ def test_zero_rays() -> None:
 def test_bad_cast_arguments(directions, kwargs, message) -> None:
     with pytest.raises(RayError, match=message):
         _scene(WALL).cast(directions, **kwargs)
+
+
+def test_target_arrays_are_read_only() -> None:
+    scene = _scene({"kind": "sphere", "center": [0, 0, 2.0], "radius": 0.5})
+    with pytest.raises(ValueError):
+        scene.targets[0].center[0] = 1.0
+
+
+def test_mixed_scene_in_a_16_deg_scan() -> None:
+    """Every target of mixed.toml is seen by a 128 x 128 beam grid over 16 x 16 deg (eq. 4-1)."""
+    from pathlib import Path
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[3] / "config/scenes/mixed.toml")
+    f_m = 25e-3
+    pitch_m = 2 * f_m * math.tan(math.radians(8.0)) / 128
+    x = (np.arange(128) - 63.5) * pitch_m
+    xx, yy = np.meshgrid(x, x)
+    d = np.column_stack([-xx.ravel() / f_m, -yy.ravel() / f_m, np.ones(xx.size)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hits = scene.cast(d)
+    seen = set(hits.target_index[hits.target_index >= 0].tolist())
+    assert seen == set(range(len(scene)))
+    assert np.all(hits.count >= 1)  # the back wall closes every ray
+    ranges = hits.range_m[np.isfinite(hits.range_m)]
+    assert ranges.min() >= 0.5 * 0.99 and ranges.max() <= 5.0 / math.cos(math.radians(8 * 1.5))
+    # The 50 % pane gives double returns; the second one carries half the power.
+    pane = [i for i, t in enumerate(scene.targets) if t.transmission == 0.5][0]
+    through = hits.target_index[:, 0] == pane
+    assert through.any() and np.all(hits.count[through] == 2)
+    assert np.all(hits.transmission[through, 1] == 0.5)
+    # The receding box (+z at 1.5 m/s) has a positive radial velocity v . d = 1.5 cos(angle).
+    mover = [i for i, t in enumerate(scene.targets) if t.velocity[2] > 0][0]
+    on = hits.target_index == mover
+    assert on.any()
+    assert np.allclose(hits.radial_velocity_mps[on], 1.5 * np.broadcast_to(d[:, 2:], on.shape)[on])
