@@ -4,9 +4,11 @@ Physics (dissertation §2.1 eqs. 2-1..2-5, §2.3, §2.4 eqs. 2-11, 2-13..2-15):
 
 * Laser phase Phi(t) = 2 pi int (nu - nu0) dt + phi_n(t) (+ 2 pi nu0 t, which only enters through the
   delay). The deterministic part comes from :class:`ChirpTrajectory`, computed once per AWG waveform
-  on the AWG grid; it is accumulated in float64 (a float32 accumulator loses the beat: with
-  gamma ~ 1e14 Hz/s the chirp phase reaches ~1e6 rad over a ramp, where float32 has a 0.06-0.12 rad
-  ulp; a test shows it).
+  on the AWG grid; it is accumulated and evaluated in float64. (With gamma ~ 1e14 Hz/s the chirp
+  phase reaches ~1e6 rad over a ramp, where float32 has a 0.06 rad ulp: a float32 pipeline corrupts
+  the beat phase by ~0.2 rad rms and up to ~1 rad on single samples; a test shows it. The periodic
+  phase is stored with its mean frequency removed so that even float64 never sees the ever-growing
+  absolute phase of a long-running virtual clock.)
 * An interferometer of delay tau beats Phi(t) against Phi(t - tau). A target at distance d(t) = d + v t
   (v > 0 receding) returns light delayed by tau(t) = 2 d(t) / c, so the LiDAR beat phase is::
 
@@ -105,8 +107,7 @@ class ChirpTrajectory:
             acc_dtype = self.phase_rad.dtype
             c0 = np.zeros(nu.size, dtype=acc_dtype)
             np.cumsum((c1 + c2)[:-1].astype(acc_dtype), out=c0[1:], dtype=acc_dtype)
-            c0 = c0.astype(np.float64)
-            t = (c0, c1, c2, mean)
+            t = (c0, c1.astype(acc_dtype), c2.astype(acc_dtype), mean)
             self._cache["tables"] = t
         return t
 
@@ -120,17 +121,24 @@ class ChirpTrajectory:
         return t
 
     def periodic_phase_samples(self, x, periods: int | None = None) -> np.ndarray:
-        """Periodic phase (mean frequency removed) at AWG-sample positions ``x`` (float64)."""
+        """Periodic phase (mean frequency removed) at AWG-sample positions ``x`` (float64 out).
+
+        The arithmetic runs in the trajectory's dtype: float64, or float32 for the precision test,
+        where both the sample position and the phase tables then carry float32 rounding.
+        """
+        dtype = self.phase_rad.dtype
         x = np.asarray(x, dtype=np.float64)
         n = self.n
         if periods is None:
             x = np.mod(x, n)
             periods = 1
+        if dtype != np.float64:
+            x = x.astype(dtype)
         c0, c1, c2 = self._tiled(periods)
         i = np.floor(x)
         f = x - i
         i = i.astype(np.intp)
-        return c0[i] + f * (c1[i] + f * c2[i])
+        return (c0[i] + f * (c1[i] + f * c2[i])).astype(np.float64, copy=False)
 
     def phase_at(self, t_s) -> np.ndarray:
         """2 pi int_0^t (nu - nu0) dt' at arbitrary times (periodic extension of the period)."""
