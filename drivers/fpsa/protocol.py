@@ -182,19 +182,18 @@ def encode_frame(seq: int, cmd: int, payload: bytes = b"") -> bytes:
 def decode_inner(inner: bytes) -> Frame:
     """Check CRC and length of a COBS-decoded frame; raises a :class:`ProtocolError` subclass."""
     n = len(inner)
-    seq = inner[0] if n >= 1 else None
-    cmd = inner[1] if n >= 2 else None
     if n < MIN_INNER_LEN:
-        raise LengthError(f"frame of {n} B is shorter than the minimum {MIN_INNER_LEN} B",
-                          seq=seq, cmd=cmd)
+        # too short to carry a CRC: nothing in it (not even seq) can be trusted or answered
+        raise LengthError(f"frame of {n} B is shorter than the minimum {MIN_INNER_LEN} B")
     body, (crc_rx,) = inner[:-CRC_LEN], struct.unpack("<H", inner[-CRC_LEN:])
     crc_calc = crc16_ccitt_false(body)
     if crc_rx != crc_calc:
-        raise CrcError(f"frame CRC 0x{crc_rx:04X} != computed 0x{crc_calc:04X}", seq=seq, cmd=cmd)
+        raise CrcError(f"frame CRC 0x{crc_rx:04X} != computed 0x{crc_calc:04X}",
+                       seq=inner[0], cmd=inner[1])
     (length,) = struct.unpack("<H", body[2:4])
     if length != n - MIN_INNER_LEN:
         raise LengthError(f"header length {length} B but {n - MIN_INNER_LEN} B of payload",
-                          seq=seq, cmd=cmd)
+                          seq=inner[0], cmd=inner[1])
     return Frame(seq=body[0], cmd=body[1], payload=bytes(body[HEADER_LEN:]))
 
 
