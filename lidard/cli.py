@@ -306,7 +306,6 @@ def _scan_daemon(args, body: dict[str, Any], bar) -> dict[str, Any]:
 def _embedded(args, **open_kw):
     """An embedded simulated instrument with a worker and a store (the daemon's own job path)."""
     from .jobs import ScanWorker
-    from .scan import planned_pixel_count
     from .store import Store
     cfg = _load_config(args.config, getattr(args, "profile", None))
     inst = _open_instrument(cfg, bench="embedded", **open_kw)
@@ -323,7 +322,7 @@ def _embedded(args, **open_kw):
                 "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
         worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1,
-                            pixels_planned=lambda req: planned_pixel_count(req, optics))
+                            optics=optics)
         worker.start()
         try:
             yield worker, store, inst

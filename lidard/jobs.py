@@ -17,6 +17,10 @@ Policy (also in docs/api.md):
 * Progress updates the store at most every ``progress_interval_s`` (wall clock; it only throttles
   database writes) and is published to subscribers (the SSE endpoint, the CLI's progress bar). The
   last event of a scan is ``{"event": "end", ...}``.
+* Adaptive scans (when the worker knows the optics) run as two ``pixels`` requests: the coarse pass
+  of :func:`lidard.scan.adaptive_plans`, whose points are fed back, then the dense pass; the points
+  are merged (``t`` of the second pass offset by the first pass's hardware time). The instrument
+  therefore never sees ``pattern="adaptive"``.
 * Output: ``data_dir/scans/<id>/scan.<fmt>`` and ``scan.<fmt>.json`` per requested format.
 """
 
@@ -33,7 +37,9 @@ from typing import Any, Callable
 
 from .errors import LidardError
 from .instrument_api import CalibrationResult, Instrument, ScanCancelled, ScanProgress, ScanRequest, ScanResult
+from .physics.optics import FpsaOptics
 from .pointcloud import write_points
+from .scan import adaptive_plans, planned_pixel_count
 from .store import ScanRecord, Store
 
 log = logging.getLogger(__name__)
@@ -110,7 +116,8 @@ class ScanWorker:
 
     def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
                  progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
-                 pixels_planned: Callable[[ScanRequest], int] | None = None):
+                 pixels_planned: Callable[[ScanRequest], int] | None = None,
+                 optics: FpsaOptics | None = None):
         self.instrument = instrument
         self.store = store
         self.laser = laser
@@ -118,6 +125,9 @@ class ScanWorker:
         self.progress_interval_s = progress_interval_s
         self.base_meta = dict(meta or {})
         self._pixels_planned = pixels_planned
+        if pixels_planned is None and optics is not None:
+            self._pixels_planned = lambda req: planned_pixel_count(req, optics)
+        self.optics = optics
         self._cv = threading.Condition()
         self._queue: collections.deque = collections.deque()
         self._jobs: dict[str, _ScanJob] = {}
@@ -323,7 +333,10 @@ class ScanWorker:
             cal = self._calibration(job)
             cal_id = cal.meta.get("id")
             self.store.update_scan(job.id, stage="scanning", calibration_id=cal_id)
-            result = self.instrument.run_scan(job.request, progress, job.cancel, cal)
+            if job.request.pattern == "adaptive" and self.optics is not None:
+                result = self._run_adaptive(job, progress, cal)
+            else:
+                result = self.instrument.run_scan(job.request, progress, job.cancel, cal)
         except ScanCancelled:
             self.store.update_scan(job.id, state="cancelled", stage="cancelled", partial=True,
                                    finished=time.time(), wall_time_s=time.monotonic() - t0)
@@ -356,6 +369,44 @@ class ScanWorker:
             wall_time_s=wall, progress=(result.pixels_scanned / result.pixels_planned
                                         if result.pixels_planned else 1.0))
         self._finish(job)
+
+    def _run_adaptive(self, job: _ScanJob, progress, cal: CalibrationResult) -> ScanResult:
+        import numpy as np
+        req = job.request
+        upper = planned_pixel_count(req, self.optics)
+        gen = adaptive_plans(req, self.optics)
+        coarse = next(gen)
+
+        def as_pixels(px) -> ScanRequest:
+            return dataclasses.replace(req, pattern="pixels", rows=None, cols=None,
+                                       pixels=tuple((int(r), int(c)) for r, c in px))
+
+        # the dense pass's size is unknown until the coarse points are in: report the ROI as the bound
+        def coarse_progress(p: ScanProgress) -> None:
+            progress(dataclasses.replace(p, pixels_planned=upper))
+
+        first = self.instrument.run_scan(as_pixels(coarse), coarse_progress, job.cancel, cal)
+        dense = gen.send(first.points)
+        planned = len(coarse) + len(dense)
+        if job.cancel.is_set() or first.partial or len(dense) == 0:
+            return dataclasses.replace(first, pixels_planned=planned,
+                                       partial=first.partial or job.cancel.is_set(),
+                                       meta={**first.meta, "adaptive": {"coarse": len(coarse), "dense": len(dense)}})
+        offset_s = first.hardware_time_s
+
+        def dense_progress(p: ScanProgress) -> None:
+            progress(ScanProgress(first.pixels_scanned + p.pixels_done, planned,
+                                  len(first.points) + p.points, offset_s + p.hardware_time_s, p.stage))
+
+        second = self.instrument.run_scan(as_pixels(dense), dense_progress, job.cancel, cal)
+        pts2 = second.points.copy()
+        pts2["t"] += offset_s
+        return ScanResult(points=np.concatenate([first.points, pts2]),
+                          meta={**first.meta, **second.meta,
+                                "adaptive": {"coarse": len(coarse), "dense": len(dense)}},
+                          pixels_scanned=first.pixels_scanned + second.pixels_scanned,
+                          pixels_planned=planned, hardware_time_s=offset_s + second.hardware_time_s,
+                          partial=second.partial)
 
     def _write(self, job: _ScanJob, result: ScanResult, cal_id: str | None, wall_s: float) -> dict[str, str]:
         meta = {

@@ -22,7 +22,6 @@ from ..config import Config
 from ..errors import LidardError
 from ..instrument_api import Instrument
 from ..jobs import ScanWorker, software_version
-from ..scan import planned_pixel_count
 from ..store import Store
 from .routers import calibration, devices, health, scans, sim
 
@@ -50,7 +49,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
         worker = ScanWorker(inst, store, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=meta,
-                            pixels_planned=lambda req: planned_pixel_count(req, optics))
+                            optics=optics)
         app.state.config, app.state.instrument, app.state.store = cfg, inst, store
         app.state.worker, app.state.optics = worker, optics
         worker.start()

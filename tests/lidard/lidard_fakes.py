@@ -22,11 +22,12 @@ class DeviceFault(Exception):
 
 class FakeInstrument:
     def __init__(self, profile: str = "fpsa128", simulated: bool = True, hold_after: int | None = None,
-                 fail_with: Exception | None = None):
+                 fail_with: Exception | None = None, hit=None):
         self.optics = load_profile(profile).optics()
         self.simulated = simulated
         self.hold_after = hold_after
         self.fail_with = fail_with
+        self.hit = hit                       # hit(row, col) -> bool: which pixels see a target
         self.reached = threading.Event()     # set when a held scan reaches hold_after
         self.release = threading.Event()     # set by the test to let it continue
         self.requests = []
@@ -65,6 +66,8 @@ class FakeInstrument:
         pts["row"], pts["col"], pts["valid"] = pixels[:, 0], pixels[:, 1], 1
         pixel_s = 100e-6 * request.averages
         pts["t"] = np.arange(n) * pixel_s
+        has_return = np.ones(n, dtype=bool) if self.hit is None else \
+            np.array([bool(self.hit(int(r), int(c))) for r, c in pixels], dtype=bool)
         done = 0
         for i in range(n):
             if cancel.is_set():
@@ -78,7 +81,7 @@ class FakeInstrument:
                 while not (self.release.is_set() or cancel.is_set()):
                     self.release.wait(0.01)
         from lidard.instrument_api import ScanResult
-        return ScanResult(points=pts[:done], meta={"fake": True, "chirp": {"ramp_s": 80e-6}},
+        return ScanResult(points=pts[:done][has_return[:done]], meta={"fake": True, "chirp": {"ramp_s": 80e-6}},
                           pixels_scanned=done, pixels_planned=n, hardware_time_s=done * pixel_s,
                           partial=done < n)
 

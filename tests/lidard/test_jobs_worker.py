@@ -164,3 +164,34 @@ def test_stop_interrupts_queued_and_unknown_cancel(rig, tmp_path):
     assert ra.state == "interrupted" and ra.partial and ra.points == 1
     with pytest.raises(UnknownScan):
         w.cancel("0000")
+
+
+def test_adaptive_scan_runs_coarse_then_dense_where_returns_were(tmp_path):
+    from lidard.config import load_profile
+    optics = load_profile("fpsa20").optics()
+    # a target covering only columns 8..11 and rows 4..7 (one 4x4 cell of the coarse grid)
+    inst = FakeInstrument(profile="fpsa20", hit=lambda r, c: 4 <= r < 8 and 8 <= c < 12)
+    store = Store(tmp_path)
+    w = ScanWorker(inst, store, laser="dfb_default", optics=optics, progress_interval_s=0.0)
+    w.start()
+    try:
+        events = []
+        rec = w.submit_scan(ScanRequest(pattern="adaptive", formats=("npz",)))
+        w.subscribe(rec.id, events.append)
+        assert rec.pixels_planned == 400
+        final = w.wait(rec.id, T)
+    finally:
+        w.stop()
+    assert final.state == "done" and not final.partial
+    assert [r.pattern for r in inst.requests] == ["pixels", "pixels"]
+    coarse, dense = inst.requests
+    assert len(coarse.pixels) == 25
+    # the hit cell plus its 8 neighbours (rows 0..11, cols 4..15) minus their 9 coarse pixels
+    assert len(dense.pixels) == 9 * 16 - 9
+    assert all(0 <= r < 12 and 4 <= c < 16 for r, c in dense.pixels)
+    assert final.pixels_planned == 25 + 135 and final.pixels_scanned == 160
+    pts = read_points(store.data_dir / final.files["npz"])
+    assert len(pts) == 16 and set(pts["col"].tolist()) == {8, 9, 10, 11}
+    # the dense pass's times follow the coarse pass's
+    assert pts["t"].max() >= 25 * 100e-6
+    assert [e["event"] for e in events][-1] == "end"
