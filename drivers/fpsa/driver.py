@@ -31,15 +31,13 @@ import numpy as np
 from drivers.transport import DeviceTimeout, TracedChannel, open_channel
 
 from . import protocol as p
-from .errors import NakError, PatternError, ProtocolError
+from .errors import LinkError, NakError, PatternError, ProtocolError
 
 log = logging.getLogger(__name__)
 
 DEFAULT_BAUDRATE = 3_000_000  # see docs/protocols/fpsa.md, "Physical link"
 
-
-class LinkError(ProtocolError):
-    """Answers kept arriving corrupted (bad CRC both ways) through every retry."""
+__all__ = ["DEFAULT_BAUDRATE", "FpsaController", "LinkError"]
 
 
 class FpsaController:

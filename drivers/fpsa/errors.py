@@ -38,6 +38,10 @@ class LengthError(ProtocolError):
         super().__init__(message)
 
 
+class LinkError(ProtocolError):
+    """Answers kept arriving corrupted (bad CRC either way) through every retry."""
+
+
 class PayloadError(ProtocolError):
     """A well-framed payload whose field values are impossible (e.g. an unknown enum value)."""
 
