@@ -290,7 +290,7 @@ class ScanWorker:
         if not job.future.set_running_or_notify_cancel():
             return
         try:
-            cal = self.instrument.linearize()
+            cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             job.future.set_result(cal)
         except Exception as exc:
@@ -303,8 +303,15 @@ class ScanWorker:
             self._publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
                                    "pixels_done": 0, "pixels_planned": 0, "points": 0,
                                    "fraction": 0.0, "hardware_time_s": 0.0})
-            cal = self.instrument.linearize()
+            cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
+        return cal
+
+    def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:
+        # Cache under the configured laser name, whatever the instrument calls it, so that the next
+        # scan finds it (latest_calibration looks up by the configured name).
+        if cal.laser != self.laser:
+            cal = dataclasses.replace(cal, laser=self.laser, meta={**cal.meta, "reported_laser": cal.laser})
         return cal
 
     def _run_scan(self, job: _ScanJob) -> None:

@@ -261,3 +261,12 @@ def test_lifespan_closes_instrument(tmp_path):
     with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
         assert c.get("/health").status_code == 200
     assert inst.closed
+
+
+def test_points_file_missing_on_disk_is_404_not_500(make_client):
+    c, inst, app = make_client()
+    sid = c.post("/scans", json=SMALL).json()["id"]
+    rec = wait_done(app, sid)
+    (app.state.store.data_dir / rec.files["ply"]).unlink()
+    r = c.get(f"/scans/{sid}/points")
+    assert r.status_code == 404 and "missing" in r.json()["detail"]

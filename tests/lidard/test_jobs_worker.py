@@ -153,6 +153,22 @@ def test_calibration_job_goes_through_worker(rig):
     assert store.latest_calibration("dfb_default").meta["id"] == cal.meta["id"]
 
 
+def test_calibration_cached_under_configured_laser_name(tmp_path):
+    inst = FakeInstrument()
+    orig = inst.linearize
+    inst.linearize = lambda progress=None: __import__("dataclasses").replace(orig(), laser="DFB-1550 SN42")
+    store = Store(tmp_path)
+    w = ScanWorker(inst, store, laser="dfb_default", progress_interval_s=0.0)
+    w.start()
+    try:
+        for _ in range(2):
+            assert w.wait(w.submit_scan(ScanRequest(**SMALL)).id, T).state == "done"
+    finally:
+        w.stop()
+    assert inst.linearize_calls == 1
+    assert store.latest_calibration("dfb_default").meta["reported_laser"] == "DFB-1550 SN42"
+
+
 def test_stop_interrupts_queued_and_unknown_cancel(rig, tmp_path):
     inst, store, w = rig(hold_after=1)
     a = w.submit_scan(ScanRequest(**SMALL))

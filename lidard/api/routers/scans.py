@@ -74,6 +74,9 @@ def get_points(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id} has no {format} file; "
                                                        f"written: {', '.join(sorted(rec.files))}")
     path = store.data_dir / rec.files[format]
+    if not path.is_file():
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id}: {format} file is missing from "
+                                                       f"the data directory ({rec.files[format]})")
     return FileResponse(path, media_type=_MEDIA[format], filename=f"{scan_id}.{format}",
                         headers={"X-Lidard-Partial": "true" if rec.partial else "false"})
 
