@@ -549,11 +549,19 @@ class RemoteUsbBackend(_DescriptorBackend):
     # one request, one response; returns the payload after the status byte
     def _call(self, *parts: bytes | bytearray | memoryview) -> bytearray:
         with self._lock:
-            _send_frame(self._sock, *parts)
-            n = _U32.unpack(_recv_exact(self._sock, 4))[0]
-            body = _recv_exact(self._sock, n)
+            try:
+                _send_frame(self._sock, *parts)
+                n = _U32.unpack(_recv_exact(self._sock, 4))[0]
+                body = _recv_exact(self._sock, n)
+            except OSError as exc:  # ConnectionError included
+                raise self._bench_gone(exc) from exc
         self._raise_if_error(body)
         return body
+
+    @staticmethod
+    def _bench_gone(exc: OSError) -> usb.core.USBError:
+        # the bench process went away: to the driver that is a device unplugged from the bus
+        return usb_nodev(f"USB bridge connection lost: {exc}")
 
     @staticmethod
     def _raise_if_error(body: bytearray) -> None:
@@ -585,15 +593,18 @@ class RemoteUsbBackend(_DescriptorBackend):
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
         mv = memoryview(buff).cast("B")
         with self._lock:
-            _send_frame(self._sock, _BULK.pack(OP_BULK_READ, dev_handle.index, ep, len(mv)))
-            n = _U32.unpack(_recv_exact(self._sock, 4))[0]
-            status = _recv_exact(self._sock, 1)
-            if status[0] != 0:
-                body = status + _recv_exact(self._sock, n - 1)
-            else:
-                # the payload lands straight in the caller's buffer: no intermediate copy
-                _recv_exact_into(self._sock, mv[:n - 1])
-                return n - 1
+            try:
+                _send_frame(self._sock, _BULK.pack(OP_BULK_READ, dev_handle.index, ep, len(mv)))
+                n = _U32.unpack(_recv_exact(self._sock, 4))[0]
+                status = _recv_exact(self._sock, 1)
+                if status[0] != 0:
+                    body = status + _recv_exact(self._sock, n - 1)
+                else:
+                    # the payload lands straight in the caller's buffer: no intermediate copy
+                    _recv_exact_into(self._sock, mv[:n - 1])
+                    return n - 1
+            except OSError as exc:
+                raise self._bench_gone(exc) from exc
         self._raise_if_error(body)
         return 0  # unreachable
 
