@@ -12,7 +12,6 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from ..instrument_api import OutputFormat, PatternKind, ScanRequest
 
-NonNegInt = Field(ge=0, le=65535)
 
 
 class _In(BaseModel):

@@ -270,3 +270,13 @@ def test_points_file_missing_on_disk_is_404_not_500(make_client):
     (app.state.store.data_dir / rec.files["ply"]).unlink()
     r = c.get(f"/scans/{sid}/points")
     assert r.status_code == 404 and "missing" in r.json()["detail"]
+
+
+def test_linearize_device_fault_is_503_naming_the_device(make_client):
+    c, inst, app = make_client()
+
+    def broken(progress=None):
+        raise RuntimeError("awg: drive waveform upload rejected")
+    inst.linearize = broken
+    r = c.post("/calibration/linearize")
+    assert r.status_code == 503 and "awg: drive waveform upload rejected" in r.json()["detail"]

@@ -7,7 +7,6 @@ import sys
 import threading
 from pathlib import Path
 
-import numpy as np
 import pytest
 import uvicorn
 
@@ -258,3 +257,17 @@ def test_live_server_scan_fetch_and_status(capsys, live, tmp_path):
     assert code == 1 and "404" in err and len(err.strip().splitlines()) == 1
     code, out, err = run(capsys, "linearize", "--url", url, "--json")
     assert code == 0 and one_json(out)["reduction"]["up"] == 100.0
+
+
+def test_progress_bar_draws_only_when_enabled(capsys):
+    bar = cli._ProgressBar(enabled=True, width=10)
+    bar({"event": "progress", "stage": "scanning", "fraction": 0.5, "pixels_done": 5, "pixels_planned": 10,
+         "points": 4})
+    bar({"event": "end"})
+    bar.close()
+    err = capsys.readouterr().err
+    assert "[#####.....]" in err and "50.0%" in err and "5/10 px" in err and err.endswith("\n")
+    quiet = cli._ProgressBar(enabled=False)
+    quiet({"event": "progress", "fraction": 1.0})
+    quiet.close()
+    assert capsys.readouterr().err == ""

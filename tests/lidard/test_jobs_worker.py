@@ -1,6 +1,5 @@
 """Scan worker: FIFO, calibration caching, cancel (queued / running, partial kept), failures, events."""
 
-import json
 import sys
 from pathlib import Path
 

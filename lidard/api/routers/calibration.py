@@ -4,6 +4,7 @@ import asyncio
 
 from fastapi import APIRouter, HTTPException, status
 
+from ...jobs import describe_error
 from ..deps import ConfigDep, StoreDep, WorkerDep
 from ..schemas import CalibrationOut
 
@@ -14,7 +15,11 @@ router = APIRouter(prefix="/calibration", tags=["calibration"])
 async def linearize(worker: WorkerDep) -> CalibrationOut:
     """Queue a linearization behind the scans already waiting and return its result."""
     future = worker.submit_calibration()
-    cal = await asyncio.wrap_future(future)
+    try:
+        cal = await asyncio.wrap_future(future)
+    except Exception as exc:  # a device fault during the ILC run: the daemon's state, not a crash
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                            f"linearization failed: {describe_error(exc)}") from None
     return CalibrationOut.from_result(cal)
 
 
