@@ -620,7 +620,8 @@ def _daemon(args) -> int:
         sock.close()
         raise
     app = create_app(cfg, instrument=instrument, data_dir=data_dir, token=token)
-    server = uvicorn.Server(uvicorn.Config(app, log_level=args.log_level))
+    # an open event stream must not hold shutdown (and the laser/HV power-down) hostage
+    server = uvicorn.Server(uvicorn.Config(app, log_level=args.log_level, timeout_graceful_shutdown=5))
     sys.stderr.write(f"lidard: serving on http://{host}:{sock.getsockname()[1]} (OpenAPI at /docs)\n")
     server.run(sockets=[sock])
     return 0
