@@ -190,3 +190,21 @@ def test_bad_inputs_raise_named_errors(ideal_traj):
         AdcSpec(10e6, 100, bits=20)
     with pytest.raises(SynthError, match="t_start_s"):
         synthesize(ideal_traj, adc, np.array([np.nan]), None)
+
+
+def test_dc_offset_and_codes_match_the_analog_volts_within_half_an_lsb(ideal_traj):
+    fs = 20e6
+    n = 1000
+    # 8 bits over 1 V: LSB = 1/256 V; 0.1 V -> code round(25.6) = 26
+    r = synthesize(ideal_traj, AdcSpec(fs, n, bits=8, input_range_v=1.0), np.zeros(2), None, dc_v=0.1)
+    assert np.all(r.beat == 26)
+    # quantized output (fast float32 trig) vs float64-trig volts of the same hits, 12 bits
+    adc = AdcSpec(fs, n, bits=12, input_range_v=1.0, iq=True)
+    hits = HitBatch.from_targets([0, 1, 1], [3.0, 7.5, 22.0], [0.2, 0.15, 0.1], radial_velocity_m_s=[0.5, -2.0, 0.0])
+    q = synthesize(ideal_traj, adc, np.array([0.0, 3e-5]), hits)
+    v = synthesize(ideal_traj, AdcSpec(fs, n, bits=12, input_range_v=1.0, iq=True, quantize=False),
+                   np.array([0.0, 3e-5]), hits)
+    for codes, volts in ((q.beat, v.beat), (q.beat_q, v.beat_q)):
+        # float32 trig errs by ~1e-7 x amplitude ~ 2e-4 LSB here: it may move a sample across a
+        # rounding boundary, never further
+        assert np.max(np.abs(codes * q.lsb_v - volts)) <= 0.501 * q.lsb_v
