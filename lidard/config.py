@@ -235,6 +235,9 @@ class ScanDefaults(_Model):
     pfa: float = Field(default=1e-6, gt=0, lt=0.1)
     max_returns: int = Field(default=2, ge=1, le=8)
     window: Literal["rectangular", "hann", "blackmanharris"] = "hann"
+    # A real (single-photodiode) beat cannot tell a Doppler shift from a range beat when the Doppler
+    # allowance exceeds the range beat (§2.1.2): the a-priori speed limit sets what is unambiguous.
+    max_speed_mps: float = Field(default=0.4, gt=0, le=100)
 
 
 class FpsaDevice(_Model):
