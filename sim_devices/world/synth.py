@@ -41,8 +41,13 @@ Physics (dissertation §2.1 eqs. 2-1..2-5, §2.3, §2.4 eqs. 2-11, 2-13..2-15):
 Cost model: work happens at the ADC rate passed in, only for the hits given (a segment without hits
 gets noise only), and every switched-off effect (linewidth 0, ASD 0, quantize False, no MZI) is
 skipped without drawing random numbers. Everything is vectorized over segments and hits; segments
-are processed in chunks to bound the temporaries, and hits of one segment are accumulated by rank
-(the r-th hit of every segment at once).
+are processed in chunks (~1 M samples) to bound the temporaries, and hits of one segment are
+accumulated by rank (the r-th hit of every segment at once). The deterministic chirp and MZI phases
+are computed once per distinct start offset within the drive period (usually one: triggers are
+period-aligned). With quantization on, cos/sin run in float32 after an exact float64 range reduction
+(error ~1e-7 of the amplitude, << 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
+so results are reproducible for the same inputs and seed (not across different chunk sizes).
+benchmarks/synthesis.py measures ~40 M samples/s per core without phase noise, ~20 M with it.
 """
 
 from __future__ import annotations
