@@ -146,7 +146,8 @@ class LidarInstrument:
         fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
                          max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
         r = int(round(fs * c.ramp_s))
-        return _AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r, bits=8 if a.bits <= 8 else 16)
+        # 16-bit records: the digitizer decimates its full-rate core on board (more bits at low rates)
+        return _AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r, bits=16)
 
     def _run_pattern(self, pixels: np.ndarray, triggers_per_pixel: int) -> None:
         period_ns = int(round(2 * self.cfg.chirp.ramp_s * 1e9))

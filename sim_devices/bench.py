@@ -12,6 +12,9 @@ budget), one DFB laser model and one :class:`~sim_devices.clock.VirtualClock`:
 * the digitizer (vendor bulk protocol over the pyusb backend) asks this bench, as its
   ``SegmentSource``, for the segments it streams: triggers from the FPGA, beams -> hits -> beat
   tones from the world, synthesized at the sample rate the host configured (never a fixed high rate).
+  A record format wider than the ADC core (16-bit records from the 8-bit core of Table 2-2) models
+  on-board decimation from the core's full rate: the core's quantization noise is added as white
+  noise over its full Nyquist band, then the record is quantized at the format's resolution.
 
 Each trigger starts one period (up + down ramp) of the AWG waveform, so every segment's record starts
 at t = 0 of the drive period. Segment noise is seeded from (bench seed, run, first segment index), so a
@@ -40,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from lidard.config import Config, ConfigError, load_config
-from lidard.physics.constants import C_M_PER_S
+from lidard.physics.budget import quantization_asd
 
 from .awg import SimAwg
 from .clock import VirtualClock
@@ -175,6 +178,13 @@ class Bench:
                                 amplitude_v=bh.amplitude_v,
                                 doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m)
         noise_asd = self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
+        core_bits = self.cfg.adc.bits
+        if eff.quantization and cfg.bits > core_bits:
+            # A 16-bit record from an 8-bit core: the digitizer samples at its full rate and
+            # decimates on board, so the core's quantization noise (LSB^2/12 over the full Nyquist
+            # band) lands in the record as white noise; the 16-bit format quantizes the rest.
+            q = quantization_asd(self.cfg.adc.input_range_v, core_bits, self.cfg.adc.max_sample_rate_hz)
+            noise_asd = float(np.hypot(noise_asd, q))
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
         rng = np.random.default_rng([self.seed, int(self.fpga.run_start_s * 1e9) if self.fpga.run_start_s
