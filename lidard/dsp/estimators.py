@@ -24,11 +24,11 @@ i.e. ``freq_hz = result * fs / (n_samples * zero_pad)``):
                 (which also models the tone's negative-frequency image).  DEFAULT: it reaches the Rife-Boorstyn bound (crlb.py) at
                 every sub-bin offset once the post-FFT SNR is past threshold.
 
-DTFT values at arbitrary frequency near bin k are evaluated through moments: with the ramp
-demodulated by bin k, z[n] = x[n] exp(-j 2 pi k n / N), and s = (n - (N-1)/2) / ((N-1)/2),
-X(k + delta) = exp(-j pi delta (N-1)/N) * sum_p mu_p (-j a delta)^p / p!,  mu_p = sum_n z[n] s^p,
-a = pi (N-1)/N.  The moments are one small matrix product per batch; afterwards X, dX/ddelta and
-d2X/ddelta2 at any offset are polynomial evaluations, so Newton steps cost O(terms) per ramp.
+DTFT values near a start frequency f0 (bins of the N-point grid) are evaluated through moments:
+with the ramp demodulated by f0, z[n] = x[n] exp(-j 2 pi f0 n / N), and s = (n - (N-1)/2) / ((N-1)/2),
+X(f0 + delta) = exp(-j pi delta (N-1)/N) * sum_p mu_p (-j a delta)^p / p!,  mu_p = sum_n z[n] s^p,
+a = pi (N-1)/N.  The moments are one small real matrix product per batch; afterwards X, dX/ddelta
+and d2X/ddelta2 at any offset are polynomial evaluations, so Newton steps cost O(terms) per ramp.
 
 Known limits: ``quinn2`` and ``aboutanios`` treat a real ramp's negative-frequency image as
 interference, so close to DC or Nyquist they carry a bias of order 1/(2 pi k) bins (``newton``
@@ -131,18 +131,11 @@ def _jacobsen_table(window: str, n: int, zero_pad: int) -> tuple[np.ndarray, np.
 
 @lru_cache(maxsize=32)
 def _moment_basis(n: int, n_terms: int) -> tuple[np.ndarray, np.ndarray]:
-    """Interleaved s^p basis (2n x 2 n_terms) and the (-j a)^p / p! coefficients.
-
-    The basis acts on a complex array viewed as interleaved float64 (re, im, re, im, ...), so one
-    real matrix product yields sum(Re z s^p) and sum(Im z s^p) without copying z apart.
-    """
+    """s^p basis (n x n_terms) and the (-j a)^p / p! coefficients of the Taylor expansion."""
     t = np.arange(n, dtype=np.float64)
     half = (n - 1) / 2.0
     s = (t - half) / half
-    v = np.vander(s, n_terms, increasing=True)
-    basis = np.zeros((2 * n, 2 * n_terms))
-    basis[0::2, :n_terms] = v
-    basis[1::2, n_terms:] = v
+    basis = np.ascontiguousarray(np.vander(s, n_terms, increasing=True))
     a = 2.0 * np.pi * half / n
     coef = np.array([(-1j * a) ** p / factorial(p) for p in range(n_terms)])
     for arr in (basis, coef):
@@ -151,30 +144,49 @@ def _moment_basis(n: int, n_terms: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _DtftNearBin:
-    """X(k + delta) and its first two delta-derivatives for many (ramp, k) pairs at once."""
+    """X(f0 + delta) and its first two delta-derivatives for many (ramp, f0) pairs at once.
 
-    def __init__(self, x: np.ndarray, rows: np.ndarray, k: np.ndarray, n_terms: int):
+    f0 is any (fractional) frequency in bins of the N-point grid; the ramp is demodulated by it
+    exactly, so the Taylor series in delta only has to cover the refinement, not the whole bin.
+    """
+
+    def __init__(self, x: np.ndarray, rows: np.ndarray | None, f0: np.ndarray, n_terms: int):
         n = x.shape[-1]
         self.n = n
+        self.f0 = f0
         basis, coef = _moment_basis(n, n_terms)
-        # exp(-j 2 pi k t / n) as an outer product over t = n2 a + b: n1 + n2 complex exponentials
+        # exp(-j 2 pi f0 t / n) as an outer product over t = n2 a + b: n1 + n2 complex exponentials
         # per ramp instead of n (the per-ramp twiddle dominated the cost otherwise).
         n2 = int(np.ceil(np.sqrt(n)))
         n1 = -(-n // n2)
         a_idx = np.arange(n1) * n2
         b_idx = np.arange(n2)
-        mu = np.empty((rows.size, 2 * n_terms))
-        kk = np.mod(k, n).astype(np.float64)
-        for i in range(0, rows.size, _CHUNK_ROWS):
-            sl = slice(i, i + _CHUNK_ROWS)
-            ph = -2.0 * np.pi / n * kk[sl, None]
+        mu = np.empty((f0.size, n_terms), dtype=np.complex128)
+        is_complex = x.dtype.kind == "c"
+        for i in range(0, f0.size, _CHUNK_ROWS):
+            sl = slice(i, min(i + _CHUNK_ROWS, f0.size))
+            m = sl.stop - sl.start
+            ph = (-2.0 * np.pi / n) * np.mod(f0[sl], n)[:, None]
             u = np.exp(1j * ph * a_idx)
             v = np.exp(1j * ph * b_idx)
-            tw = (u[:, :, None] * v[:, None, :]).reshape(-1, n1 * n2)[:, :n]
-            z = x[rows[sl]] * tw
-            np.matmul(z.view(np.float64), basis, out=mu[sl])
+            tw = (u[:, :, None] * v[:, None, :]).reshape(m, n1 * n2)[:, :n]
+            xs = x[sl] if rows is None else x[rows[sl]]
+            # Real and imaginary parts stacked as rows of one real matrix: one GEMM with half the
+            # flops of a complex or interleaved product.
+            z = np.empty((2, m, n))
+            if is_complex:
+                np.multiply(xs.real, tw.real, out=z[0])
+                z[0] -= xs.imag * tw.imag
+                np.multiply(xs.real, tw.imag, out=z[1])
+                z[1] += xs.imag * tw.real
+            else:
+                np.multiply(xs, tw.real, out=z[0])
+                np.multiply(xs, tw.imag, out=z[1])
+            r = z.reshape(2 * m, n) @ basis
+            mu[sl].real = r[:m]
+            mu[sl].imag = r[m:]
         # G(delta) = sum_p g[p] delta^p
-        self.g = (mu[:, :n_terms] + 1j * mu[:, n_terms:]) * coef
+        self.g = mu * coef
 
     def eval(self, delta: np.ndarray, derivs: int = 0):
         """G, G', G'' at ``delta`` by Horner; X = exp(-j pi delta (n-1)/n) G."""
@@ -252,25 +264,25 @@ def _est_quinn2(b: _Batch) -> np.ndarray:
     return (k + np.clip(d, -1.0, 1.0)) * b.zero_pad
 
 
-def _near_bin(b: _Batch, f0_bins: np.ndarray, max_abs_delta: float):
-    """Split original-grid frequencies into integer bin + offset and build the moment evaluator."""
-    k = np.rint(f0_bins).astype(np.int64)
-    rows = np.repeat(np.arange(b.x.shape[0]), b.pb.shape[1])
-    ev = _DtftNearBin(b.x, rows, k.ravel(), _terms_for(max_abs_delta))
-    return k.ravel(), (f0_bins - k).ravel(), ev
+def _near(b: _Batch, f0_bins: np.ndarray, max_abs_delta: float) -> _DtftNearBin:
+    """Moment evaluator around original-grid frequencies f0 (one per (ramp, peak))."""
+    k = b.pb.shape[1]
+    rows = None if k == 1 else np.repeat(np.arange(b.x.shape[0]), k)
+    return _DtftNearBin(b.x, rows, np.ascontiguousarray(f0_bins, dtype=np.float64).ravel(), _terms_for(max_abs_delta))
 
 
 def _est_aboutanios(b: _Batch) -> np.ndarray:
     f0 = b.pb / b.zero_pad
-    k, d, ev = _near_bin(b, f0, 1.25)
+    ev = _near(b, f0, 1.25)
+    d = np.zeros(ev.f0.shape)
     for _ in range(2):
         sp = ev.dtft(d + 0.5)
         sm = ev.dtft(d - 0.5)
         d = np.clip(d + 0.5 * np.real(_safe_ratio(sp + sm, sp - sm)), -0.75, 0.75)
-    return ((k + d) * b.zero_pad).reshape(b.pb.shape)
+    return ((ev.f0 + d) * b.zero_pad).reshape(b.pb.shape)
 
 
-def _real_tone_fit(ev: _DtftNearBin, k: np.ndarray, d: np.ndarray) -> np.ndarray:
+def _real_tone_fit(ev: _DtftNearBin, d: np.ndarray) -> np.ndarray:
     """Least-squares energy of the best real sinusoid a cos(wn) + b sin(wn) at w = 2 pi (k+d)/N.
 
     For a real ramp this (not |X|^2) is the likelihood: it accounts for the tone's own
@@ -279,15 +291,14 @@ def _real_tone_fit(ev: _DtftNearBin, k: np.ndarray, d: np.ndarray) -> np.ndarray
     n = ev.n
     X = ev.dtft(d)
     c, s = X.real, -X.imag
-    w = 2.0 * np.pi * (k + d) / n
-    e2 = np.exp(2j * w)
-    num = 1.0 - e2**n
-    den = 1.0 - e2
-    near = np.abs(den) < 1e-9
-    E = np.where(near, n + 0j, num / np.where(near, 1.0, den))  # sum_n exp(j 2 w n)
-    scc = 0.5 * (n + E.real)
-    sss = 0.5 * (n - E.real)
-    scs = 0.5 * E.imag
+    w = 2.0 * np.pi * (ev.f0 + d) / n
+    # sum_n exp(j 2 w n) = exp(j w (n-1)) sin(n w) / sin(w)  (-> +-n where sin(w) = 0)
+    sw = np.sin(w)
+    near = np.abs(sw) < 1e-12
+    dirichlet = np.where(near, n * np.cos(w * (n - 1)), np.sin(n * w) / np.where(near, 1.0, sw))
+    scc = 0.5 * (n + np.cos(w * (n - 1)) * dirichlet)
+    sss = 0.5 * (n - np.cos(w * (n - 1)) * dirichlet)
+    scs = 0.5 * np.sin(w * (n - 1)) * dirichlet
     det = scc * sss - scs**2
     ok = det > 1e-6 * n * n
     j_fit = _safe_ratio(sss * c * c - 2.0 * scs * c * s + scc * s * s, np.where(ok, det, 1.0))
@@ -296,9 +307,10 @@ def _real_tone_fit(ev: _DtftNearBin, k: np.ndarray, d: np.ndarray) -> np.ndarray
 
 
 def _est_newton(b: _Batch, iterations: int = 3) -> np.ndarray:
+    # Start from the window-aware three-bin estimate; Newton then moves at most _NEWTON_REACH.
     f0 = (b.pb + _jacobsen_offset(b)) / b.zero_pad
-    k, d, ev = _near_bin(b, f0, 0.85)
-    d = np.clip(d, -0.6, 0.6)
+    ev = _near(b, f0, _NEWTON_REACH + 0.01)
+    d = np.zeros(ev.f0.shape)
     h = 1e-3  # finite-difference step (bins) for the real-tone objective
     for _ in range(iterations):
         if b.iq:
@@ -307,13 +319,16 @@ def _est_newton(b: _Batch, iterations: int = 3) -> np.ndarray:
             dp = 2.0 * np.real(np.conj(G) * G1)
             dpp = 2.0 * (np.abs(G1) ** 2 + np.real(np.conj(G) * G2))
         else:
-            jm, j0, jp = (_real_tone_fit(ev, k, d + o) for o in (-h, 0.0, h))
+            jm, j0, jp = (_real_tone_fit(ev, d + o) for o in (-h, 0.0, h))
             dp = (jp - jm) / (2.0 * h)
             dpp = (jp - 2.0 * j0 + jm) / (h * h)
         # Concave: Newton step.  Not concave (start outside the lobe top): small uphill step.
         step = np.where(dpp < 0, -_safe_ratio(dp, dpp), 0.05 * np.sign(dp))
-        d = np.clip(d + np.clip(step, -0.25, 0.25), -0.8, 0.8)
-    return ((k + d) * b.zero_pad).reshape(b.pb.shape)
+        d = np.clip(d + np.clip(step, -0.25, 0.25), -_NEWTON_REACH, _NEWTON_REACH)
+    return ((ev.f0 + d) * b.zero_pad).reshape(b.pb.shape)
+
+
+_NEWTON_REACH = 0.5  # bins; the start is within a few CRLB std of the answer past threshold
 
 
 ESTIMATORS: dict[str, Callable[[_Batch], np.ndarray]] = {
