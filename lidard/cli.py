@@ -307,7 +307,11 @@ def _embedded(args, **open_kw):
     """An embedded simulated instrument with a worker and a store (the daemon's own job path)."""
     from .jobs import ScanWorker
     from .store import Store
-    cfg = _load_config(args.config, getattr(args, "profile", None))
+    # --sim without --config: the packaged simulated bench configuration
+    from .config import CONFIG_DIR
+    cfg = _load_config(args.config or str(CONFIG_DIR / "sim.toml"), getattr(args, "profile", None))
+    if not cfg.sim.enabled:
+        raise CliError(f"--sim needs a simulated configuration; {cfg.source} has sim.enabled = false")
     inst = _open_instrument(cfg, bench="embedded", **open_kw)
     tmp = None
     try:
