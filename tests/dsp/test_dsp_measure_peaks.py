@@ -1,7 +1,6 @@
 """The whole chain (RangeFFT -> CFAR -> sub-bin estimate) on synthetic ramps with known ranges."""
 
 import numpy as np
-import pytest
 
 from lidard.dsp.estimators import measure_peaks
 from lidard.dsp.rangefft import C_M_PER_S, RangeFFT
