@@ -22,21 +22,26 @@ def range_resolution_m(excursion_hz: float) -> float:
     return C_M_PER_S / (2.0 * excursion_hz)
 
 
-def triangle_drive_v(excursion_hz: float, ramp_s: float, fs_hz: float, tuning_hz_per_v: float) -> np.ndarray:
-    """One period (up ramp then down ramp of the optical frequency) of a plain triangular drive.
+def triangle_drive_v(excursion_hz: float, ramp_s: float, fs_hz: float, static_tuning_hz_per_v: float) -> np.ndarray:
+    """One period (2 ramp_s long) of a plain triangular drive: optical up-chirp, then down-chirp.
 
-    The amplitude is excursion / |tuning|; with a negative static tuning (a DFB's thermal tuning) the
-    drive voltage falls while the optical frequency rises.
+    The amplitude is excursion / |tuning| and the drive is centred on 0 V; its sign follows the
+    tuning so that the *optical* frequency rises during the first half (for a DFB, whose static
+    tuning is negative, the drive voltage falls during the optical up-chirp).
+    ``ramp_s * fs_hz`` must be (close to) an integer: the AWG period is a whole number of samples.
     """
     for name, v in (("excursion_hz", excursion_hz), ("ramp_s", ramp_s), ("fs_hz", fs_hz)):
         if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"triangle_drive_v: {name} must be positive and finite, got {v!r}")
-    if not math.isfinite(tuning_hz_per_v) or tuning_hz_per_v == 0:
-        raise ValueError(f"triangle_drive_v: tuning_hz_per_v must be non-zero, got {tuning_hz_per_v!r}")
-    n = int(round(ramp_s * fs_hz))
-    up = np.linspace(-0.5, 0.5, n, endpoint=False)
-    nu = np.concatenate([up, -up]) * excursion_hz        # optical frequency, centred on 0
-    return nu / tuning_hz_per_v
+            raise ValueError(f"triangle_drive: {name} must be positive and finite, got {v!r}")
+    if not math.isfinite(static_tuning_hz_per_v) or static_tuning_hz_per_v == 0:
+        raise ValueError(f"triangle_drive: static_tuning_hz_per_v must be finite and non-zero, got {static_tuning_hz_per_v!r}")
+    n_ramp_f = ramp_s * fs_hz
+    n_ramp = int(round(n_ramp_f))
+    if n_ramp < 2 or abs(n_ramp_f - n_ramp) > 1e-6 * max(1.0, n_ramp_f):
+        raise ValueError(f"triangle_drive: ramp_s * fs_hz = {n_ramp_f!r} must be an integer >= 2")
+    k = np.arange(2 * n_ramp, dtype=np.float64)
+    s = np.where(k <= n_ramp, k / n_ramp, (2 * n_ramp - k) / n_ramp)
+    return (excursion_hz / static_tuning_hz_per_v) * (s - 0.5)
 
 
 def adc_rate_hz(max_range_m: float, chirp_rate_hz_per_s: float, *, max_doppler_hz: float = 0.0,

@@ -34,6 +34,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from lidard.config import LaserPreset
+from lidard.physics.chirp import triangle_drive_v
 from lidard.physics.constants import C_M_PER_S
 
 
@@ -168,25 +169,8 @@ def wiener_phase(linewidth_hz: float, n: int, dt_s: float, rng: np.random.Genera
 
 
 def triangle_drive(excursion_hz: float, ramp_s: float, fs_hz: float, static_tuning_hz_per_v: float) -> np.ndarray:
-    """One period (2 ramp_s long) of a plain triangular drive: optical up-chirp, then down-chirp.
-
-    The amplitude is excursion / |static tuning| and the drive is centred on 0 V; its sign follows the
-    static tuning so that the *optical* frequency rises during the first half (for a DFB, whose
-    static tuning is negative, the drive voltage falls during the optical up-chirp).
-    ``ramp_s * fs_hz`` must be (close to) an integer: the AWG period is a whole number of samples.
-    """
-    for name, v in (("excursion_hz", excursion_hz), ("ramp_s", ramp_s), ("fs_hz", fs_hz)):
-        if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"triangle_drive: {name} must be positive and finite, got {v!r}")
-    if not math.isfinite(static_tuning_hz_per_v) or static_tuning_hz_per_v == 0:
-        raise ValueError(f"triangle_drive: static_tuning_hz_per_v must be finite and non-zero, got {static_tuning_hz_per_v!r}")
-    n_ramp_f = ramp_s * fs_hz
-    n_ramp = int(round(n_ramp_f))
-    if n_ramp < 2 or abs(n_ramp_f - n_ramp) > 1e-6 * max(1.0, n_ramp_f):
-        raise ValueError(f"triangle_drive: ramp_s * fs_hz = {n_ramp_f!r} must be an integer >= 2")
-    k = np.arange(2 * n_ramp, dtype=np.float64)
-    s = np.where(k <= n_ramp, k / n_ramp, (2 * n_ramp - k) / n_ramp)
-    return (excursion_hz / static_tuning_hz_per_v) * (s - 0.5)
+    """One period of the plain triangular drive; the host's own :func:`lidard.physics.chirp.triangle_drive_v`."""
+    return triangle_drive_v(excursion_hz, ramp_s, fs_hz, static_tuning_hz_per_v)
 
 
 def ramp_nonlinearity_hz(nu_hz, n_ramp: int, roi: float = 0.8) -> tuple[float, float]:
