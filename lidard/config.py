@@ -289,6 +289,8 @@ class Daemon(_Model):
     host: str = "127.0.0.1"
     port: int = Field(default=8470, ge=0, le=65535)
     data_dir: str = "~/.local/share/lidard"
+    # request body limit of the REST API (413 above it); scene uploads are the largest bodies
+    max_body_bytes: int = Field(default=1 << 20, ge=1024, le=1 << 30)
 
 
 class Config(_Model):

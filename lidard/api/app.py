@@ -10,11 +10,12 @@ See docs/api.md for the endpoints and the queue policy.
 from __future__ import annotations
 
 import contextlib
-import hmac
 import logging
+import time
+from collections.abc import Callable
 from pathlib import Path
 
-from fastapi import Depends, FastAPI, HTTPException, Request, status
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
@@ -23,6 +24,8 @@ from ..errors import LidardError
 from ..instrument_api import Instrument
 from ..jobs import ScanWorker, software_version
 from ..store import Store
+from . import control
+from .control import DEFAULT_LEASE_TTL_S, BodySizeLimit, ControlLock, LockHeld
 from .routers import calibration, devices, health, scans, sim
 
 log = logging.getLogger(__name__)
@@ -30,8 +33,14 @@ log = logging.getLogger(__name__)
 
 def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str | Path | None = None,
                *, token: str | None = None, max_queue: int = 16, progress_interval_s: float = 0.25,
-               close_instrument: bool = True) -> FastAPI:
-    """Build the daemon's app. ``token``: when set, every request needs ``Authorization: Bearer``."""
+               close_instrument: bool = True, lease_ttl_s: float = DEFAULT_LEASE_TTL_S,
+               clock: Callable[[], float] = time.monotonic, max_body_bytes: int | None = None) -> FastAPI:
+    """Build the daemon's app.
+
+    ``token``: when set, mutating requests (POST/PUT/PATCH/DELETE) need ``Authorization: Bearer``;
+    reads stay open. ``lease_ttl_s``/``clock``: the control lock (lidard.api.control).
+    ``max_body_bytes``: request body limit (413 above it), default ``cfg.daemon.max_body_bytes``.
+    """
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -64,17 +73,13 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
                     log.exception("closing the instrument failed")
             store.close()
 
-    async def check_token(request: Request) -> None:
-        if token is None:
-            return
-        got = request.headers.get("authorization", "")
-        if not hmac.compare_digest(got.encode(), f"Bearer {token}".encode()):
-            raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing or wrong bearer token",
-                                headers={"WWW-Authenticate": "Bearer"})
-
     app = FastAPI(title="lidard", version=software_version(), lifespan=lifespan,
                   description="Control daemon for an FMCW LiDAR with a MEMS FPSA beam scanner",
-                  dependencies=[Depends(check_token)])
+                  dependencies=[Depends(control.guard(token))])
+    app.state.control_lock = ControlLock(ttl_s=lease_ttl_s, clock=clock)
+    app.add_middleware(BodySizeLimit, max_body_bytes=int(
+        max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
+    app.include_router(control.router)
     for r in (health.router, devices.router, scans.router, calibration.router, sim.router):
         app.include_router(r)
 
@@ -83,6 +88,10 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         # Domain errors (config, device faults reported by the instrument) are the server's state,
         # not a crash: name them instead of answering a bare 500.
         return JSONResponse({"detail": f"{type(exc).__name__}: {exc}"}, status_code=503)
+
+    @app.exception_handler(LockHeld)
+    async def lock_held(request: Request, exc: LockHeld) -> JSONResponse:
+        return control.locked_response(exc)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -145,3 +145,28 @@ class CalibrationOut(_Out):
 class SceneAccepted(_Out):
     name: str | None
     targets: int
+
+
+class ControlAcquire(_In):
+    """POST /control: who wants to steer the instrument (shown to everyone else)."""
+
+    client: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9._@:+\- ]+$")
+
+
+class ControlLease(_Out):
+    """POST /control answer: ``lease`` goes in the ``X-Lidard-Lease`` header of mutating requests."""
+
+    lease: str
+    holder: str
+    expires_at: float = Field(description="Unix time at which the lease lapses unless used again")
+    ttl_s: float
+
+
+class ControlStatus(_Out):
+    """GET /control: who holds the lock (never the lease itself)."""
+
+    held: bool
+    holder: str | None = None
+    expires_at: float | None = None
+    expires_in_s: float | None = None
+    ttl_s: float

@@ -252,8 +252,10 @@ def test_token_required_when_configured(tmp_path):
     inst = FakeInstrument()
     app = create_app(load_config(), instrument=inst, data_dir=tmp_path, token="s3cret")
     with TestClient(app) as c:
-        assert c.get("/health").status_code == 401
-        assert c.get("/health", headers={"Authorization": "Bearer s3cret"}).status_code == 200
+        # issue 6: reads stay open to observers, mutating requests need the token
+        assert c.get("/health").status_code == 200
+        assert c.post("/scans", json=SMALL).status_code == 401
+        assert c.post("/scans", json=SMALL, headers={"Authorization": "Bearer s3cret"}).status_code == 201
 
 
 def test_lifespan_closes_instrument(tmp_path):

@@ -1,0 +1,144 @@
+"""Issue 6 control lock: one controlling client, read-only observers, leases on an injected clock."""
+
+import sys
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+sys.path.insert(0, str(Path(__file__).parent))
+from lidard_fakes import FakeInstrument  # noqa: E402
+
+from lidard.api.app import create_app  # noqa: E402
+from lidard.api.control import LEASE_HEADER, ControlLock, LockHeld  # noqa: E402
+from lidard.config import load_config  # noqa: E402
+
+SMALL = {"pattern": "roi", "rows": [0, 1], "cols": [0, 4]}
+TTL = 60.0
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self):
+        return self.t
+
+
+@pytest.fixture
+def env(tmp_path):
+    clock = FakeClock()
+    inst = FakeInstrument()
+    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, lease_ttl_s=TTL, clock=clock,
+                     progress_interval_s=0.0)
+    with TestClient(app) as c:
+        yield c, inst, app, clock
+
+
+def acquire(c, name, **headers):
+    return c.post("/control", json={"client": name}, headers=headers)
+
+
+def test_no_lease_means_mutations_pass(env):
+    c, inst, app, clock = env
+    assert c.get("/control").json() == {"held": False, "holder": None, "expires_at": None,
+                                        "expires_in_s": None, "ttl_s": TTL}
+    assert c.post("/scans", json=SMALL).status_code == 201
+
+
+def test_holder_steers_others_get_423_naming_holder(env):
+    c, inst, app, clock = env
+    r = acquire(c, "alice-laptop")
+    assert r.status_code == 201
+    lease = r.json()["lease"]
+    assert r.json()["holder"] == "alice-laptop" and r.json()["ttl_s"] == TTL and len(lease) >= 16
+    st = c.get("/control").json()
+    assert st["held"] is True and st["holder"] == "alice-laptop" and st["expires_in_s"] == pytest.approx(TTL)
+    assert lease not in c.get("/control").text  # observers never see the lease
+    # an observer reads freely
+    assert c.get("/scans").status_code == 200 and c.get("/health").status_code == 200
+    # but cannot mutate: no header, wrong header
+    for headers in ({}, {LEASE_HEADER: "not-the-lease"}, {LEASE_HEADER: lease[:-1]}):
+        for method, path, kw in [("POST", "/scans", {"json": SMALL}), ("DELETE", "/scans/X", {}),
+                                 ("POST", "/calibration/linearize", {}),
+                                 ("PUT", "/sim/scene", {"json": {"target": []}})]:
+            r = c.request(method, path, headers=headers, **kw)
+            assert r.status_code == 423, (method, path, headers)
+            assert r.json()["holder"] == "alice-laptop" and "alice-laptop" in r.json()["detail"]
+    assert inst.requests == [] and inst.linearize_calls == 0 and inst.scenes == []
+    # a second client cannot take the lock
+    r = acquire(c, "bob")
+    assert r.status_code == 423 and "alice-laptop" in r.json()["detail"]
+    # the holder can
+    r = c.post("/scans", json=SMALL, headers={LEASE_HEADER: lease})
+    assert r.status_code == 201
+    assert c.delete(f"/scans/{r.json()['id']}", headers={LEASE_HEADER: lease}).status_code == 200
+
+
+def test_release_needs_the_lease_then_lock_is_free(env):
+    c, inst, app, clock = env
+    lease = acquire(c, "alice").json()["lease"]
+    r = c.delete("/control")
+    assert r.status_code == 423 and c.get("/control").json()["held"] is True
+    r = c.delete("/control", headers={LEASE_HEADER: lease})
+    assert r.status_code == 200 and r.json()["held"] is False
+    assert c.get("/control").json()["held"] is False
+    assert c.post("/scans", json=SMALL).status_code == 201
+    # the old lease is worthless once released; a new holder gets a new one
+    lease2 = acquire(c, "bob").json()["lease"]
+    assert lease2 != lease
+    assert c.post("/scans", json=SMALL, headers={LEASE_HEADER: lease}).status_code == 423
+    # releasing when nobody holds it is a no-op
+    c.delete("/control", headers={LEASE_HEADER: lease2})
+    assert c.delete("/control").status_code == 200
+
+
+def test_lease_expires_after_ttl_and_any_use_renews_it(env):
+    c, inst, app, clock = env
+    lease = acquire(c, "alice").json()["lease"]
+    clock.t += TTL - 1
+    assert c.get("/health", headers={LEASE_HEADER: lease}).status_code == 200  # a read renews too
+    clock.t += TTL - 1
+    assert c.get("/control").json()["holder"] == "alice"
+    assert c.post("/scans", json=SMALL, headers={LEASE_HEADER: lease}).status_code == 201  # renews
+    clock.t += TTL - 1
+    assert c.get("/control").json()["expires_in_s"] == pytest.approx(1.0)
+    assert c.post("/scans", json=SMALL).status_code == 423
+    clock.t += 1.0  # now exactly TTL after the last use: lapsed
+    assert c.get("/control").json()["held"] is False
+    assert c.post("/scans", json=SMALL).status_code == 201
+    assert acquire(c, "bob").status_code == 201
+
+
+def test_holder_can_renew_and_rename_with_its_lease(env):
+    c, inst, app, clock = env
+    lease = acquire(c, "alice").json()["lease"]
+    clock.t += 30
+    r = acquire(c, "alice-2", **{LEASE_HEADER: lease})
+    assert r.status_code == 201 and r.json()["lease"] == lease and r.json()["holder"] == "alice-2"
+    assert c.get("/control").json()["expires_in_s"] == pytest.approx(TTL)
+
+
+@pytest.mark.parametrize("body", [{}, {"client": ""}, {"client": "x" * 65}, {"client": "a\nb"},
+                                  {"client": "ok", "extra": 1}, {"client": 5}])
+def test_bad_acquire_bodies_are_422(env, body):
+    c, *_ = env
+    assert c.post("/control", json=body).status_code == 422
+    assert c.get("/control").json()["held"] is False
+
+
+def test_lock_unit_expiry_boundary_and_bad_ttl():
+    clock = FakeClock()
+    lock = ControlLock(ttl_s=10.0, clock=clock)
+    lease = lock.acquire("a")
+    with pytest.raises(LockHeld, match="'a'"):
+        lock.check(None)
+    lock.check(lease.token)
+    clock.t += 9.999
+    assert lock.holder() is not None
+    clock.t += 0.001
+    assert lock.holder() is None
+    lock.check(None)
+    for bad in (0, -1, float("nan")):
+        with pytest.raises(ValueError, match="ttl_s"):
+            ControlLock(ttl_s=bad)

@@ -1,0 +1,175 @@
+"""Issue 6 security: loopback default, token only for mutating requests, request body limits.
+
+The non-loopback refusal is checked on the real entry point in a child process (``python -m
+lidard``), because what matters is the exit status and the one line a user sees.
+"""
+
+import asyncio
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+sys.path.insert(0, str(Path(__file__).parent))
+from lidard_fakes import FakeInstrument  # noqa: E402
+
+from lidard.api.app import create_app  # noqa: E402
+from lidard.api.control import BodySizeLimit, token_ok  # noqa: E402
+from lidard.cli import build_lidard_parser, is_loopback  # noqa: E402
+from lidard.config import Config, ConfigError, load_config  # noqa: E402
+
+SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20]}
+SCENE = 'name = "wall"\n[[target]]\nkind = "plane"\npoint = [0.0, 0.0, 2.0]\nnormal = [0.0, 0.0, -1.0]\n'
+AUTH = {"Authorization": "Bearer s3cret"}
+
+
+@pytest.fixture
+def app_with_token(tmp_path):
+    inst = FakeInstrument()
+    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, token="s3cret", max_body_bytes=4096)
+    with TestClient(app) as c:
+        yield c, inst, app
+
+
+def test_default_bind_is_loopback():
+    assert Config().daemon.host == "127.0.0.1"
+    assert build_lidard_parser().parse_args([]).host is None  # so the config default applies
+    assert load_config().daemon.host == "127.0.0.1"
+    assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.5") and not is_loopback("::")
+
+
+def _run_lidard(*args, env_extra=None):
+    env = {k: v for k, v in os.environ.items() if k not in ("LIDARD_API_TOKEN", "LIDARD_DEBUG")}
+    env.update(env_extra or {})
+    return subprocess.run([sys.executable, "-m", "lidard", *args], capture_output=True, text=True,
+                          timeout=60, env=env, stdin=subprocess.DEVNULL)
+
+
+def test_non_loopback_bind_without_token_exits_nonzero_with_one_clear_line(tmp_path):
+    r = _run_lidard("--host", "0.0.0.0", "--port", "0", "--data-dir", str(tmp_path))
+    assert r.returncode != 0
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1, r.stderr
+    assert "refusing to bind non-loopback address 0.0.0.0" in err[0]
+    assert "--token" in err[0] and "LIDARD_API_TOKEN" in err[0]
+    assert "serving" not in r.stderr and r.stdout == ""
+    # an empty token is no token
+    r = _run_lidard("--host", "0.0.0.0", "--port", "0", "--data-dir", str(tmp_path),
+                    env_extra={"LIDARD_API_TOKEN": ""})
+    assert r.returncode != 0 and "refusing to bind" in r.stderr
+
+
+def test_token_compare_is_exact():
+    assert token_ok("abc", "Bearer abc")
+    for bad in (None, "", "Bearer ab", "Bearer abcd", "bearer abc", "abc", "Bearer  abc"):
+        assert not token_ok("abc", bad), bad
+
+
+def test_reads_open_mutations_need_the_token(app_with_token):
+    c, inst, app = app_with_token
+    for path in ("/health", "/devices", "/scanner", "/scans", "/control", "/openapi.json"):
+        assert c.get(path).status_code == 200, path
+    mutations = [("POST", "/scans", {"json": SMALL}), ("POST", "/calibration/linearize", {}),
+                 ("PUT", "/sim/scene", {"content": SCENE, "headers": {"content-type": "application/toml"}}),
+                 ("DELETE", "/scans/NOPE", {}), ("POST", "/control", {"json": {"client": "x"}}),
+                 ("DELETE", "/control", {})]
+    for method, path, kw in mutations:
+        for bad in ({}, {"Authorization": "Bearer wrong"}, {"Authorization": "s3cret"}):
+            kw2 = dict(kw)
+            kw2["headers"] = {**kw.get("headers", {}), **bad}
+            r = c.request(method, path, **kw2)
+            assert r.status_code == 401, (method, path, bad)
+            assert r.headers["www-authenticate"] == "Bearer"
+            assert "Bearer" in r.json()["detail"]
+    # nothing reached the instrument or the store
+    assert inst.requests == [] and inst.scenes == [] and inst.linearize_calls == 0
+    assert c.get("/scans").json()["scans"] == []
+    # with the token they are served
+    assert c.post("/scans", json=SMALL, headers=AUTH).status_code == 201
+    assert c.put("/sim/scene", content=SCENE, headers={**AUTH, "content-type": "application/toml"}).status_code == 200
+    assert c.delete("/scans/NOPE", headers=AUTH).status_code == 404
+
+
+def test_declared_content_length_over_limit_is_413_before_reading(app_with_token):
+    c, inst, app = app_with_token
+    big = "# " + "x" * 5000 + "\n" + SCENE
+    r = c.put("/sim/scene", content=big, headers={**AUTH, "content-type": "application/toml"})
+    assert r.status_code == 413 and "4096" in r.json()["detail"]
+    assert inst.scenes == []
+    # just under the limit passes
+    ok = "# " + "x" * (4096 - len(SCENE) - 10) + "\n" + SCENE
+    assert len(ok.encode()) <= 4096
+    r = c.put("/sim/scene", content=ok, headers={**AUTH, "content-type": "application/toml"})
+    assert r.status_code == 200 and len(inst.scenes) == 1
+
+
+def test_streamed_body_over_limit_is_413(app_with_token):
+    """A chunked body (no Content-Length) is counted as it arrives."""
+    c, inst, app = app_with_token
+
+    def chunks():
+        yield SCENE.encode()
+        for _ in range(10):
+            yield b"# " + b"y" * 1000 + b"\n"
+    r = c.put("/sim/scene", content=chunks(), headers={**AUTH, "content-type": "application/toml"})
+    assert "content-length" not in {k.lower() for k in r.request.headers}
+    assert r.status_code == 413 and inst.scenes == []
+    r = c.post("/scans", content=chunks(), headers={**AUTH, "content-type": "application/json"})
+    assert r.status_code == 413 and inst.requests == []
+
+
+def _asgi_call(mw, headers, chunks):
+    """Drive the middleware by hand: returns (status, app_saw_bytes)."""
+    sent = []
+    seen = bytearray()
+
+    async def app(scope, receive, send):
+        while True:
+            m = await receive()
+            seen.extend(m.get("body", b""))
+            if not m.get("more_body"):
+                break
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        await send({"type": "http.response.body", "body": b"ok"})
+
+    msgs = [{"type": "http.request", "body": ch, "more_body": i < len(chunks) - 1} for i, ch in enumerate(chunks)]
+
+    async def receive():
+        return msgs.pop(0)
+
+    async def send(m):
+        sent.append(m)
+
+    scope = {"type": "http", "method": "POST", "path": "/x", "headers": headers}
+    asyncio.run(BodySizeLimit(app, max_body_bytes=10)(scope, receive, send) if mw is None else mw)
+    return sent[0]["status"], bytes(seen)
+
+
+def test_body_limit_middleware_lying_content_length_and_bad_header():
+    # declares 5 bytes but streams 12: counted, refused
+    status, _ = _asgi_call(None, [(b"content-length", b"5")], [b"123456", b"789012"])
+    assert status == 413
+    status, seen = _asgi_call(None, [(b"content-length", b"10")], [b"12345", b"67890"])
+    assert status == 200 and seen == b"1234567890"
+    status, seen = _asgi_call(None, [(b"content-length", b"11")], [b"12345678901"])
+    assert status == 413 and seen == b""
+    status, _ = _asgi_call(None, [(b"content-length", b"abc")], [b""])
+    assert status == 400
+    with pytest.raises(ValueError, match="max_body_bytes"):
+        BodySizeLimit(None, max_body_bytes=0)
+
+
+def test_max_body_bytes_comes_from_config(tmp_path):
+    cfg = Config.model_validate({**load_config().model_dump(), "daemon": {"max_body_bytes": 2048}})
+    app = create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path)
+    with TestClient(app) as c:
+        r = c.put("/sim/scene", content="#" * 3000, headers={"content-type": "application/toml"})
+        assert r.status_code == 413 and "2048" in r.json()["detail"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[daemon]\nmax_body_bytes = 0\n")
+    with pytest.raises(ConfigError, match="max_body_bytes"):
+        load_config(bad)
