@@ -10,12 +10,20 @@ no knowledge of simulation here.
 Every setting command is followed by ``SYST:ERR?`` so a device-side SCPI error is raised as
 ``AwgError`` naming the command that caused it. USB timeouts are retried a bounded number of times
 (the whole message is resent with a fresh bTag), then ``DeviceTimeout("awg", command)``.
+
+Reconnect: given a ``finder`` (a callable that runs ``usb.core.find`` for the AWG's VID:PID again), a
+transfer that fails because the device went away (ENODEV) makes the driver look for the device again
+(bounded, with ``backoff_s * 2**k`` between looks through the injected ``sleep``), set its
+configuration, and resend the message; a device that stays away ends in ``DeviceDisconnected``
+naming the command. Without a finder a disconnect is raised at once.
 """
 
 from __future__ import annotations
 
 import errno
 import logging
+import time
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
@@ -24,6 +32,7 @@ import usb.core
 from drivers import usbtmc
 from drivers.awg import protocol as p
 from drivers.usbtmc import (
+    DeviceDisconnected,
     DeviceTimeout,
     InvalidArgument,
     ProtocolError,
@@ -53,10 +62,16 @@ class AwgDriver:
     """Typed AWG control. ``device`` is a pyusb ``usb.core.Device``."""
 
     def __init__(self, device: usb.core.Device, *, timeout_ms: int = 2000, retries: int = 3,
-                 ep_out: int = p.AWG_EP_OUT, ep_in: int = p.AWG_EP_IN) -> None:
+                 ep_out: int = p.AWG_EP_OUT, ep_in: int = p.AWG_EP_IN,
+                 finder: Callable[[], usb.core.Device | None] | None = None,
+                 sleep: Callable[[float], object] = time.sleep, backoff_s: float = 0.05) -> None:
         if device is None:
             raise DeviceTimeout(DEVICE, "usb.core.find", "no AWG found on the USB backend")
         self._dev = device
+        self._finder = finder
+        self._sleep = sleep
+        self._backoff_s = float(backoff_s)
+        self.reconnect_count = 0
         self._timeout_ms = int(timeout_ms)
         self._retries = int(retries)
         self._ep_out = ep_out
@@ -98,6 +113,33 @@ class AwgDriver:
             if eom:
                 return b"".join(parts).rstrip(b"\r\n")
 
+    def reconnect(self, command: str = "reconnect") -> None:
+        """Find the device again (VID:PID, through ``finder``) and set its configuration.
+
+        Tries ``retries + 1`` times with exponential backoff; ``DeviceDisconnected`` if it stays away.
+        """
+        if self._finder is None:
+            raise DeviceDisconnected(DEVICE, command, "device disconnected and no finder to look for it")
+        cause = "not found on the bus"
+        for k in range(self._retries + 1):
+            if k:
+                self._sleep(self._backoff_s * 2 ** (k - 1))
+            try:
+                dev = self._finder()
+                if dev is None:
+                    continue
+                dev.set_configuration()
+            except usb.core.USBError as exc:
+                cause = f"{classify_usb_error(exc, DEVICE, 'set_configuration')}"
+                continue
+            self._dev = dev
+            self._btag = 0
+            self.reconnect_count += 1
+            log.warning("awg: reconnected after %s", command)
+            return
+        raise DeviceDisconnected(DEVICE, command, f"device gone and not back after "
+                                                  f"{self._retries + 1} looks ({cause})")
+
     def _transact(self, message: bytes, query: bool) -> bytes:
         name = message[:40].decode("ascii", "replace")
         last: Exception | None = None
@@ -107,6 +149,12 @@ class AwgDriver:
                 return self._receive() if query else b""
             except usb.core.USBError as exc:
                 err = classify_usb_error(exc, DEVICE, name)
+                if isinstance(err, DeviceDisconnected) and self._finder is not None:
+                    log.warning("awg: %s (attempt %d/%d); looking for the device again", err,
+                                attempt + 1, self._retries + 1)
+                    self.reconnect(name)
+                    last = exc
+                    continue
                 if not isinstance(err, DeviceTimeout):
                     if getattr(exc, "errno", None) == errno.EPIPE:
                         # a stalled bulk pipe stays halted until cleared; leave it usable

@@ -14,6 +14,10 @@ Guarantees:
   late reply to an abandoned request cannot be taken for the answer to the next one. All writes
   of this map are idempotent (setpoints, enables, CLEAR_FAULTS), so retrying a write is safe.
 - Modbus exception responses become typed errors (errors.modbus_exception).
+- Reconnect: a refused or dropped TCP connection (``ConnectionException``) is retried within the
+  same bounded budget, the client reconnecting on the next request (pymodbus' sync client connects
+  lazily), with ``backoff_s * 2**k`` between attempts through the injected ``sleep``; only then
+  ``DeviceUnreachable`` naming host, port and operation. ``reconnect()`` forces a fresh connection.
 - ``bring_up``/``bring_down`` command AND read back; waiting uses the injected
   ``SettleCheck.sleep`` (``time.sleep`` in the lab, ``VirtualClock.advance`` on the bench), so this
   module never decides what time is.
@@ -24,6 +28,7 @@ thread; an asyncio client would force a loop onto every caller.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -46,6 +51,11 @@ from drivers.controller.errors import (
     SettleError,
     modbus_exception,
 )
+
+log = logging.getLogger(__name__)
+
+#: Modbus exceptions that ask the client to come back later (5 ACKNOWLEDGE, 6 SERVER DEVICE BUSY)
+_TRANSIENT_CODES = frozenset({5, 6})
 
 
 @dataclass(frozen=True)
@@ -85,6 +95,9 @@ class LaserHvController:
         retries: int = 2,
         limits: p.Limits,
         settle_check: SettleCheck | None = None,
+        sleep: Callable[[float], object] | None = None,
+        backoff_s: float = 0.02,
+        busy_retries: int = 0,
     ) -> None:
         if not isinstance(limits, p.Limits):
             raise ConfigError(f"{DEVICE}: limits must be a protocol.Limits, got {limits!r}")
@@ -101,6 +114,13 @@ class LaserHvController:
         self.retries = retries
         self.limits = limits
         self.settle_check = settle_check
+        import time as _time
+        self._sleep = sleep if sleep is not None else _time.sleep
+        self.backoff_s = float(backoff_s)
+        if not (isinstance(busy_retries, int) and busy_retries >= 0):
+            raise ConfigError(f"{DEVICE}: busy_retries must be an int >= 0, got {busy_retries!r}")
+        self.busy_retries = busy_retries
+        self.reconnect_count = 0
         #: bytes handed to the socket so far (tests use it to prove that a refused write sent nothing)
         self.bytes_sent = 0
         # pymodbus' own retries are off: retries are counted and bounded here, with a reconnect
@@ -112,6 +132,13 @@ class LaserHvController:
     # -- lifecycle --------------------------------------------------------------------------
     def close(self) -> None:
         self._client.close()
+
+    def reconnect(self) -> None:
+        """Drop the TCP connection and open a new one (DeviceUnreachable if refused)."""
+        self._client.close()
+        if not self._client.connect():
+            raise DeviceUnreachable(DEVICE, self.host, self.port, "reconnect")
+        self.reconnect_count += 1
 
     def __enter__(self) -> "LaserHvController":
         return self
@@ -127,23 +154,44 @@ class LaserHvController:
     # -- transport core ---------------------------------------------------------------------
     def _call(self, operation: str, register: p.Register, value: object,
               request: Callable[..., ModbusPDU], *args: object, **kwargs: object) -> ModbusPDU:
-        attempts = 0
-        for _ in range(self.retries + 1):
-            attempts += 1
+        attempts = 0   # attempts that failed for want of an answer (timeout / no connection)
+        busy = 0       # "come back later" exception answers
+        unreachable: ConnectionException | None = None
+        while attempts < self.retries + 1:
+            if unreachable is not None:
+                self._sleep(self.backoff_s * 2 ** (attempts - 1))
             try:
                 rsp = request(*args, device_id=self.device_id, **kwargs)
             except ConnectionException as exc:
+                # the next request reconnects (lazy connect); bounded by the same retry budget
                 self._client.close()
-                raise DeviceUnreachable(DEVICE, self.host, self.port, operation) from exc
+                unreachable = exc
+                attempts += 1
+                continue
             except ModbusIOException:
                 self._client.close()  # drop any late reply before the next attempt
+                attempts += 1
+                log.warning("%s: no reply to %s (attempt %d/%d)", DEVICE, operation, attempts,
+                            self.retries + 1)
                 continue
             if rsp.isError():
                 code = getattr(rsp, "exception_code", None)
                 if not isinstance(code, int):
                     raise ProtocolError(f"{operation} reply", rsp, "error response without an exception code")
+                if code in _TRANSIENT_CODES and busy < self.busy_retries:
+                    # ACKNOWLEDGE / SERVER DEVICE BUSY mean "try again later": back off and repeat
+                    delay = self.backoff_s * 2 ** busy
+                    busy += 1
+                    log.warning("%s: %s answered Modbus exception %d; retry %d/%d in %.3g s", DEVICE,
+                                operation, code, busy, self.busy_retries, delay)
+                    self._sleep(delay)
+                    continue
                 raise modbus_exception(operation, register.name, value, code)
+            if unreachable is not None:
+                self.reconnect_count += 1
             return rsp
+        if unreachable is not None:
+            raise DeviceUnreachable(DEVICE, self.host, self.port, operation) from unreachable
         raise DeviceTimeout(DEVICE, operation, attempts)
 
     def _read_words(self, operation: str, register: p.Register, count: int) -> list[int]:

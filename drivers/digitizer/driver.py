@@ -9,12 +9,19 @@ Bulk data is read in large transfers (1 MiB by default) into one preallocated bu
 with a numpy record dtype (``np.frombuffer``): per-segment work is two crc32 calls, per-sample work
 is none in Python. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
 timeouts are retried a bounded number of times then ``DeviceTimeout("digitizer", command)``.
+
+Reconnect: with a ``finder`` (``usb.core.find`` for the digitizer's VID:PID again), a transfer that
+fails with ENODEV makes the driver find the device again (bounded, backoff through the injected
+``sleep``), set its configuration and repeat the transfer; ``DeviceDisconnected`` if it stays away.
+A multi-transfer operation (``read_segments``) is not resumed half-way by the driver: the caller
+re-reads the batch (segments are addressed by index, so a re-read is idempotent).
 """
 
 from __future__ import annotations
 
 import array
 import logging
+import time
 import zlib
 from collections.abc import Callable
 from typing import TypeVar
@@ -24,6 +31,7 @@ import usb.core
 
 from drivers.digitizer import protocol as p
 from drivers.usbtmc import (
+    DeviceDisconnected,
     DeviceStall,
     DeviceTimeout,
     InvalidArgument,
@@ -49,10 +57,15 @@ class DigitizerDriver:
     """Typed digitizer control. ``device`` is a pyusb ``usb.core.Device``."""
 
     def __init__(self, device: usb.core.Device, *, timeout_ms: int = 2000, retries: int = 3,
-                 chunk_bytes: int = 1 << 20) -> None:
+                 chunk_bytes: int = 1 << 20, finder: Callable[[], usb.core.Device | None] | None = None,
+                 sleep: Callable[[float], object] = time.sleep, backoff_s: float = 0.05) -> None:
         if device is None:
             raise DeviceTimeout(DEVICE, "usb.core.find", "no digitizer found on the USB backend")
         self._dev = device
+        self._finder = finder
+        self._sleep = sleep
+        self._backoff_s = float(backoff_s)
+        self.reconnect_count = 0
         self._timeout_ms = int(timeout_ms)
         self._retries = int(retries)
         self._chunk = array.array("B", bytes(chunk_bytes))
@@ -63,6 +76,32 @@ class DigitizerDriver:
 
     # -------------------------------------------------------------------- transport
 
+    def reconnect(self, command: str = "reconnect") -> None:
+        """Find the device again (VID:PID, through ``finder``) and set its configuration.
+
+        Tries ``retries + 1`` times with exponential backoff; ``DeviceDisconnected`` if it stays away.
+        """
+        if self._finder is None:
+            raise DeviceDisconnected(DEVICE, command, "device disconnected and no finder to look for it")
+        cause = "not found on the bus"
+        for k in range(self._retries + 1):
+            if k:
+                self._sleep(self._backoff_s * 2 ** (k - 1))
+            try:
+                dev = self._finder()
+                if dev is None:
+                    continue
+                dev.set_configuration()
+            except usb.core.USBError as exc:
+                cause = f"{classify_usb_error(exc, DEVICE, 'set_configuration')}"
+                continue
+            self._dev = dev
+            self.reconnect_count += 1
+            log.warning("digitizer: reconnected after %s", command)
+            return
+        raise DeviceDisconnected(DEVICE, command, f"device gone and not back after "
+                                                  f"{self._retries + 1} looks ({cause})")
+
     def _guard(self, command: str, fn: Callable[[], T], retry: bool = True) -> T:
         last: Exception | None = None
         for attempt in range(self._retries + 1 if retry else 1):
@@ -70,6 +109,11 @@ class DigitizerDriver:
                 return fn()
             except usb.core.USBError as exc:
                 err = classify_usb_error(exc, DEVICE, command)
+                if isinstance(err, DeviceDisconnected) and self._finder is not None and retry:
+                    log.warning("digitizer: %s (attempt %d); looking for the device again", err, attempt + 1)
+                    self.reconnect(command)
+                    last = exc
+                    continue
                 if isinstance(err, DeviceStall):
                     raise DigitizerError(DEVICE, command, "request refused (STALL)") from exc
                 if not isinstance(err, DeviceTimeout):

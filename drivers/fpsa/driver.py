@@ -13,6 +13,13 @@ retry after ``backoff_s * 2**k``; after ``retries`` retries -> :class:`DeviceTim
 device and the command (or :class:`LinkError` if answers kept arriving garbled). Any other NAK is
 final and raised as :class:`NakError`.
 
+Reconnect: when the port itself fails (the USB-serial adapter unplugged, the pty closed: pyserial
+raises ``SerialException``/``OSError``), a driver opened from a URL closes it and reopens the SAME
+URL before the next attempt. The URL should therefore be a stable name (``/dev/serial/by-id/...`` in
+the lab, the bench's symlink in simulation) that follows the device to its new node. The retry
+budget is shared with timeouts, so a port that stays away ends in :class:`DeviceTimeout` (or
+:class:`~drivers.transport.TransportError` when it cannot even be reopened) naming the device.
+
 Patterns are validated before anything is sent: shape, range, and that every row is wire-bonded
 (§4.3.3: one row in four is not). The protocol can only ever address one row per pixel
 (SET_PIXEL and pattern entries are single (row, col) pairs), so the host never commands two
@@ -27,8 +34,9 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import serial
 
-from drivers.transport import DeviceTimeout, TracedChannel, open_channel
+from drivers.transport import DeviceTimeout, TracedChannel, TransportError, open_channel
 
 from . import protocol as p
 from .errors import LinkError, NakError, PatternError, ProtocolError
@@ -76,6 +84,10 @@ class FpsaController:
         self._sleep = sleep
         self._monotonic = monotonic
         self.url = url_or_serial if isinstance(url_or_serial, str) else None
+        self._baudrate = baudrate
+        self._trace = trace
+        self.reconnect_count = 0
+        self._port_broken = False
         if isinstance(url_or_serial, str):
             self._port = open_channel(url_or_serial, baudrate=baudrate, timeout_s=timeout_s,
                                       trace=trace, device=device)
@@ -106,6 +118,24 @@ class FpsaController:
         if self._owns_port:
             self._port.close()
 
+    def reconnect(self) -> None:
+        """Close and reopen the port by its URL (raises TransportError if it cannot be opened).
+
+        A pre-opened serial-like object cannot be reopened: TransportError says so.
+        """
+        if not self._owns_port or self.url is None:
+            raise TransportError(self.device, "cannot reconnect a port that was passed in open")
+        try:
+            self._port.close()
+        except Exception:  # a vanished device may fail to close; the reopen is what matters
+            pass
+        self._port = open_channel(self.url, baudrate=self._baudrate, timeout_s=self.timeout_s,
+                                  trace=self._trace, device=self.device)
+        self._parser = p.FrameParser()
+        self._port_broken = False
+        self.reconnect_count += 1
+        log.warning("%s: reopened %s", self.device, self.url)
+
     def __enter__(self) -> FpsaController:
         return self
 
@@ -119,6 +149,7 @@ class FpsaController:
         frame = p.encode_frame(seq, cmd, payload)
         attempts = self.retries + 1
         failure = "timeout"
+        reopen_error: TransportError | None = None
         for attempt in range(attempts):
             if attempt:
                 self.retry_count += 1
@@ -126,10 +157,27 @@ class FpsaController:
                 log.warning("%s: %s attempt %d/%d after %s (backoff %.3g s)", self.device,
                             cmd.name, attempt + 1, attempts, failure, delay)
                 self._sleep(delay)
+            if self._port_broken and self._owns_port:
+                try:
+                    self.reconnect()
+                except TransportError as exc:
+                    reopen_error = exc
+                    failure = "port gone"
+                    continue
             wire = (b"\x00" + frame) if attempt else frame
-            self._port.write(wire)
-            self.tx_bytes += len(wire)
-            outcome = self._await(seq, cmd)
+            try:
+                self._port.write(wire)
+                self.tx_bytes += len(wire)
+                outcome = self._await(seq, cmd)
+            except (serial.SerialException, OSError) as exc:
+                # the port itself failed (device unplugged / pty closed): reopen before retrying
+                log.warning("%s: port error during %s: %s", self.device, cmd.name, exc)
+                self._port_broken = True
+                failure = "port error"
+                if not self._owns_port:
+                    raise TransportError(self.device, f"port error during {cmd.name}: {exc}",
+                                         url=self.url) from exc
+                continue
             if isinstance(outcome, p.Response):
                 if outcome.ok:
                     return outcome.data
@@ -138,7 +186,10 @@ class FpsaController:
                     continue
                 raise NakError(self.device, cmd.name, outcome.code, outcome.detail)
             failure = outcome
-        if failure == "timeout":
+        if failure == "port gone" and reopen_error is not None:
+            raise TransportError(self.device, f"{cmd.name}: port could not be reopened after "
+                                 f"{attempts} attempts ({reopen_error})", url=self.url) from reopen_error
+        if failure in ("timeout", "port error"):
             raise DeviceTimeout(self.device, cmd.name, timeout_s=self.timeout_s,
                                 attempts=attempts, url=self.url)
         raise LinkError(f"{self.device}: no valid answer to {cmd.name} after {attempts} "
