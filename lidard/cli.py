@@ -105,10 +105,13 @@ class _ProgressBar:
 
 # -------------------------------------------------------------------------------------- HTTP client
 class _Client:
-    def __init__(self, url: str, token: str | None, timeout_s: float = 30.0):
+    def __init__(self, url: str, token: str | None, timeout_s: float = 30.0, lease: str | None = None):
         import httpx
         self.url = url.rstrip("/")
+        self.lease = lease
         headers = {"Authorization": f"Bearer {token}"} if token else {}
+        if lease:  # the control lock (docs/api.md): mutating requests carry the holder's lease
+            headers["X-Lidard-Lease"] = lease
         self._http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout_s)
 
     def close(self) -> None:
@@ -162,7 +165,8 @@ class _Client:
 
 
 def _client(args) -> _Client:
-    return _Client(args.url, args.token or os.environ.get("LIDARD_API_TOKEN"))
+    return _Client(args.url, args.token or os.environ.get("LIDARD_API_TOKEN"),
+                   lease=getattr(args, "lease", None) or os.environ.get("LIDARD_LEASE") or None)
 
 
 def _write_bytes_atomic(path: str | Path, data: bytes) -> None:
@@ -442,6 +446,37 @@ def cmd_scans(args) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------------------- control
+def cmd_control(args) -> int:
+    """The control lock: ``acquire`` prints the lease (export it as LIDARD_LEASE), ``release``
+    gives it back, ``status`` shows the holder."""
+    c = _client(args)
+    try:
+        if args.action == "acquire":
+            import getpass
+            import socket
+            name = args.client or f"{getpass.getuser()}@{socket.gethostname()}"
+            out = c.request("POST", "/control", json={"client": name[:64]}).json()
+        elif args.action == "release":
+            if not c.lease:
+                raise CliError("control release: give the lease with --lease or LIDARD_LEASE")
+            out = c.request("DELETE", "/control").json()
+        else:
+            out = c.get_json("/control")
+    finally:
+        c.close()
+    if args.json:
+        _emit_json(out)
+    elif args.action == "acquire":
+        print(f"control lock held by {out['holder']} for {out['ttl_s']:g} s after each use; "
+              f"export LIDARD_LEASE={out['lease']}")
+    elif out.get("held"):
+        print(f"control lock held by {out['holder']} (lapses in {out['expires_in_s']:.0f} s unless used)")
+    else:
+        print("control lock free" + (" (released)" if args.action == "release" else ""))
+    return 0
+
+
 # --------------------------------------------------------------------------------------- linearize
 def cmd_linearize(args) -> int:
     if args.sim:
@@ -501,6 +536,8 @@ def build_lidarctl_parser() -> argparse.ArgumentParser:
         sp.add_argument("--url", default=os.environ.get("LIDARD_URL", DEFAULT_URL),
                         help=f"daemon URL (default {DEFAULT_URL} or $LIDARD_URL)")
         sp.add_argument("--token", default=None, help="API token (default $LIDARD_API_TOKEN)")
+        sp.add_argument("--lease", default=None, help="control lease to send as X-Lidard-Lease "
+                                                      "(default $LIDARD_LEASE; see `lidarctl control`)")
         sp.add_argument("--json", action="store_true", help="print exactly one JSON object")
         if sim:
             sp.add_argument("--sim", action="store_true",
@@ -555,6 +592,13 @@ def build_lidarctl_parser() -> argparse.ArgumentParser:
     daemon_opts(sp, sim=True)
     sp.add_argument("--plot", default=None, metavar="FILE.png")
     sp.set_defaults(fn=cmd_linearize)
+
+    sp = sub.add_parser("control", help="take, release or show the daemon's control lock")
+    daemon_opts(sp)
+    sp.add_argument("action", choices=["acquire", "release", "status"])
+    sp.add_argument("--client", default=None,
+                    help="name shown to other clients (default user@host)")
+    sp.set_defaults(fn=cmd_control)
     return p
 
 

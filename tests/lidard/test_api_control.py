@@ -142,3 +142,65 @@ def test_lock_unit_expiry_boundary_and_bad_ttl():
     for bad in (0, -1, float("nan")):
         with pytest.raises(ValueError, match="ttl_s"):
             ControlLock(ttl_s=bad)
+
+
+# -- lidarctl control / --lease against a live uvicorn server on a free loopback port
+@pytest.fixture
+def live(tmp_path):
+    import socket
+    import threading
+
+    import uvicorn
+    inst = FakeInstrument(profile="fpsa20")
+    app = create_app(load_config(), instrument=inst, data_dir=tmp_path / "data", progress_interval_s=0.0)
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    server = uvicorn.Server(uvicorn.Config(app, log_level="error", lifespan="on"))
+    t = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    t.start()
+    for _ in range(1000):  # readiness without sleeping: join with a short timeout
+        if server.started:
+            break
+        t.join(0.01)
+    assert server.started
+    yield f"http://127.0.0.1:{sock.getsockname()[1]}", inst
+    server.should_exit = True
+    t.join(10)
+    assert not t.is_alive()
+
+
+def lidarctl(capsys, *argv):
+    from lidard import cli
+    code = cli.lidarctl_main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_lidarctl_control_acquire_status_release_and_lease_header(live, capsys, monkeypatch):
+    import json
+    url, inst = live
+    monkeypatch.delenv("LIDARD_LEASE", raising=False)
+    code, out, err = lidarctl(capsys, "control", "status", "--url", url)
+    assert code == 0 and "free" in out
+    code, out, err = lidarctl(capsys, "control", "acquire", "--url", url, "--client", "rig-pc", "--json")
+    assert code == 0, err
+    lease = json.loads(out)["lease"]
+    code, out, err = lidarctl(capsys, "control", "status", "--url", url)
+    assert code == 0 and "rig-pc" in out and lease not in out
+    # a command without the lease is refused with one line naming the holder
+    code, out, err = lidarctl(capsys, "scan", "--url", url, "--rows", "0:1", "--cols", "0:2", "--json")
+    assert code == 1 and "423" in err and "rig-pc" in err and len(err.strip().splitlines()) == 1
+    assert inst.requests == []
+    # --lease, then LIDARD_LEASE, make it pass
+    code, out, err = lidarctl(capsys, "scan", "--url", url, "--rows", "0:1", "--cols", "0:2", "--json",
+                              "--lease", lease)
+    assert code == 0, err
+    assert json.loads(out)["state"] == "done" and len(inst.requests) == 1
+    code, out, err = lidarctl(capsys, "control", "release", "--url", url)
+    assert code == 1 and "--lease" in err
+    monkeypatch.setenv("LIDARD_LEASE", lease)
+    code, out, err = lidarctl(capsys, "control", "release", "--url", url)
+    assert code == 0 and "free" in out
+    monkeypatch.delenv("LIDARD_LEASE")
+    code, out, err = lidarctl(capsys, "control", "status", "--url", url, "--json")
+    assert json.loads(out)["held"] is False
