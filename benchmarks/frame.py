@@ -2,8 +2,12 @@
 
 Runs a full scan on the embedded simulated bench (bench included in the timing: synthesis, wire
 protocols, DSP) and prints the real-time factor (hardware frame time / wall time) and the peak RSS.
+The hardware time is the digitizer's trigger clock (virtual clock of the FPGA model, §4.3.3
+settle + triggers per pixel), so it is what the real instrument would take for the same frame.
 
     python benchmarks/frame.py [--averages 10] [--rows 0:128] [--max-range 2] [--scene ...]
+
+``run_frame(...)`` returns the figures as a dict (used by ``python -m benchmarks``).
 """
 
 from __future__ import annotations
@@ -17,36 +21,48 @@ from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import open_instrument
 from lidard.instrument_api import ScanRequest
 
+DEFAULT_SCENE = str(CONFIG_DIR / "scenes" / "cal_letters.toml")
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--averages", type=int, default=10)
-    ap.add_argument("--rows", default="0:128")
-    ap.add_argument("--cols", default="0:128")
-    ap.add_argument("--max-range", type=float, default=2.0)
-    ap.add_argument("--scene", default=str(CONFIG_DIR / "scenes" / "cal_letters.toml"))
-    args = ap.parse_args()
+
+def run_frame(averages: int = 10, rows: tuple[int, int] = (0, 128), cols: tuple[int, int] = (0, 128),
+              max_range_m: float = 2.0, scene: str = DEFAULT_SCENE) -> dict:
+    """One linearization and one ROI scan on a fresh embedded bench; wall and hardware times."""
     cfg = load_config(CONFIG_DIR / "sim.toml")
-    inst = open_instrument(cfg, scene_path=args.scene, bench="embedded")
+    inst = open_instrument(cfg, scene_path=scene, bench="embedded")
     try:
         t = time.perf_counter()
         cal = inst.linearize()
         t_cal = time.perf_counter() - t
-        r0, r1 = map(int, args.rows.split(":"))
-        c0, c1 = map(int, args.cols.split(":"))
-        req = ScanRequest(pattern="roi", rows=(r0, r1), cols=(c0, c1), averages=args.averages,
-                          max_range_m=args.max_range)
+        req = ScanRequest(pattern="roi", rows=tuple(rows), cols=tuple(cols), averages=averages,
+                          max_range_m=max_range_m)
         t = time.perf_counter()
         res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
         wall = time.perf_counter() - t
     finally:
         inst.close()
+    # ru_maxrss is the process high-water mark (KiB on Linux): it includes whatever ran before
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"pixels {res.pixels_scanned}  averages {args.averages}  max_range {args.max_range} m  "
-          f"adc {res.meta['adc']['sample_rate_hz'] / 1e6:.2f} MS/s x {res.meta['adc']['record_length']} samples")
-    print(f"points {len(res.points)}  linearization {t_cal:.2f} s wall")
-    print(f"hardware frame time {res.hardware_time_s:.3f} s  wall {wall:.3f} s  "
-          f"real-time factor {res.hardware_time_s / wall:.2f}  peak RSS {peak_mb:.0f} MB")
+    return {"pixels": res.pixels_scanned, "averages": averages, "max_range_m": max_range_m,
+            "adc_rate_hz": res.meta["adc"]["sample_rate_hz"], "record_length": res.meta["adc"]["record_length"],
+            "points": len(res.points), "linearization_wall_s": t_cal, "hardware_s": res.hardware_time_s,
+            "wall_s": wall, "realtime_factor": res.hardware_time_s / wall, "peak_rss_mb": peak_mb}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--averages", type=int, default=10)
+    ap.add_argument("--rows", default="0:128")
+    ap.add_argument("--cols", default="0:128")
+    ap.add_argument("--max-range", type=float, default=2.0)
+    ap.add_argument("--scene", default=DEFAULT_SCENE)
+    args = ap.parse_args(argv)
+    r = run_frame(args.averages, tuple(map(int, args.rows.split(":"))), tuple(map(int, args.cols.split(":"))),
+                  args.max_range, args.scene)
+    print(f"pixels {r['pixels']}  averages {r['averages']}  max_range {r['max_range_m']} m  "
+          f"adc {r['adc_rate_hz'] / 1e6:.2f} MS/s x {r['record_length']} samples")
+    print(f"points {r['points']}  linearization {r['linearization_wall_s']:.2f} s wall")
+    print(f"hardware frame time {r['hardware_s']:.3f} s  wall {r['wall_s']:.3f} s  "
+          f"real-time factor {r['realtime_factor']:.2f}  peak RSS {r['peak_rss_mb']:.0f} MB")
 
 
 if __name__ == "__main__":

@@ -54,28 +54,41 @@ def one_upload(baud: int, chunk: int, via_pty: bool) -> dict[str, float]:
             "fpga_to_host_B": sim.tx_bytes - tx0, "modelled_s": modelled, "wall_s": wall}
 
 
-def main() -> None:
+def run_upload(baud: int = 3_000_000, chunk: int = 1024, repeat: int = 3) -> dict:
+    """Wire bytes, modelled UART time and wall time (pty and pipe); modelled time at other bauds."""
+    n = raster().shape[0]
+    out: dict = {"pixels": n, "payload_B": 2 * n, "baud": baud, "chunk": chunk}
+    for via_pty in (True, False):
+        runs = [one_upload(baud, chunk, via_pty) for _ in range(repeat)]
+        r = runs[0]
+        walls = sorted(x["wall_s"] for x in runs)
+        total = r["host_to_fpga_B"] + r["fpga_to_host_B"]
+        out["pty" if via_pty else "pipe"] = {
+            **r, "overhead_pct": 100 * (total / (2 * n) - 1), "wall_median_s": walls[len(walls) // 2],
+            "wall_min_s": walls[0]}
+    out["modelled_s_by_baud"] = {b: one_upload(b, chunk, via_pty=False)["modelled_s"]
+                                 for b in (115_200, 1_000_000, 3_000_000, 12_000_000)}
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--baud", type=int, default=3_000_000)
     ap.add_argument("--chunk", type=int, default=1024, help="pixels per PATTERN_CHUNK")
     ap.add_argument("--repeat", type=int, default=3)
-    args = ap.parse_args()
-    n = raster().shape[0]
-    print(f"pattern: {n} pixels (96 bonded rows x 128 columns), payload {2 * n} B raw")
+    args = ap.parse_args(argv)
+    res = run_upload(args.baud, args.chunk, args.repeat)
+    print(f"pattern: {res['pixels']} pixels (96 bonded rows x 128 columns), payload {res['payload_B']} B raw")
     print(f"link: {args.baud} baud 8N1, {args.chunk} pixels per chunk")
-    for via_pty in (True, False):
-        runs = [one_upload(args.baud, args.chunk, via_pty) for _ in range(args.repeat)]
-        r = runs[0]
-        walls = sorted(x["wall_s"] for x in runs)
-        total = r["host_to_fpga_B"] + r["fpga_to_host_B"]
-        print(f"[{'pty ' if via_pty else 'pipe'}] chunks {r['chunks']}, host->fpga "
+    for key in ("pty", "pipe"):
+        r = res[key]
+        print(f"[{key:4s}] chunks {r['chunks']}, host->fpga "
               f"{r['host_to_fpga_B']} B, fpga->host {r['fpga_to_host_B']} B "
-              f"(overhead {100 * (total / (2 * n) - 1):.2f} %), modelled wire time "
-              f"{1e3 * r['modelled_s']:.2f} ms, wall median {1e3 * walls[len(walls) // 2]:.2f} ms "
-              f"(min {1e3 * walls[0]:.2f} ms)")
-    for baud in (115_200, 1_000_000, 3_000_000, 12_000_000):
-        r = one_upload(baud, args.chunk, via_pty=False)
-        print(f"modelled at {baud:>10} baud: {1e3 * r['modelled_s']:9.2f} ms")
+              f"(overhead {r['overhead_pct']:.2f} %), modelled wire time "
+              f"{1e3 * r['modelled_s']:.2f} ms, wall median {1e3 * r['wall_median_s']:.2f} ms "
+              f"(min {1e3 * r['wall_min_s']:.2f} ms)")
+    for baud, t in res["modelled_s_by_baud"].items():
+        print(f"modelled at {baud:>10} baud: {1e3 * t:9.2f} ms")
 
 
 if __name__ == "__main__":

@@ -88,27 +88,35 @@ def measure(scene: Scene, d: np.ndarray, repeats: int, max_hits: int) -> tuple[f
     return med, d.shape[0] / med
 
 
-def main() -> None:
+def run_raycast(repeats: int = 9, max_hits: int = 4) -> dict:
+    """Both workloads; rays per second (median of ``repeats`` after one warm-up)."""
+    d128 = lens_directions(128, 128)
+    bench = synthetic_scene()
+    med, rate = measure(bench, d128, repeats, max_hits)
+    hits = bench.cast(d128, max_hits=max_hits)
+    mixed = {"rays": int(d128.shape[0]), "median_s": med, "rays_per_s": rate,
+             "tests_per_s": rate * len(bench), "hits_per_ray": float(np.mean(hits.count))}
+    letters = Scene.from_toml(ROOT / "config" / "scenes" / "cal_letters.toml")
+    d96 = lens_directions(128, 96)
+    med, rate = measure(letters, d96, repeats, max_hits)
+    hits = letters.cast(d96, max_hits=max_hits)
+    on_letters = int(np.count_nonzero(hits.target_index[:, 0] < len(letters) - 1))
+    cal = {"rays": int(d96.shape[0]), "median_s": med, "rays_per_s": rate, "beams_on_letters": on_letters}
+    return {"mixed20": mixed, "cal_letters": cal, "repeats": repeats, "max_hits": max_hits}
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--max-hits", type=int, default=4)
-    args = ap.parse_args()
-
-    d128 = lens_directions(128, 128)
-    bench = synthetic_scene()
-    med, rate = measure(bench, d128, args.repeats, args.max_hits)
-    hits = bench.cast(d128, max_hits=args.max_hits)
-    print(f"mixed 20 targets : {d128.shape[0]:6d} rays  median {med * 1e3:8.2f} ms  "
-          f"{rate / 1e6:6.3f} Mrays/s  ({rate * len(bench):.3g} ray-target tests/s; "
-          f"{np.mean(hits.count):.2f} hits/ray)")
-
-    letters = Scene.from_toml(ROOT / "config" / "scenes" / "cal_letters.toml")
-    d96 = lens_directions(128, 96)
-    med, rate = measure(letters, d96, args.repeats, args.max_hits)
-    hits = letters.cast(d96, max_hits=args.max_hits)
-    on_letters = int(np.count_nonzero(hits.target_index[:, 0] < len(letters) - 1))
-    print(f"cal_letters 128x96: {d96.shape[0]:6d} rays  median {med * 1e3:8.2f} ms  "
-          f"{rate / 1e6:6.3f} Mrays/s  ({on_letters} beams on the letters)")
+    args = ap.parse_args(argv)
+    r = run_raycast(args.repeats, args.max_hits)
+    m, c = r["mixed20"], r["cal_letters"]
+    print(f"mixed 20 targets : {m['rays']:6d} rays  median {m['median_s'] * 1e3:8.2f} ms  "
+          f"{m['rays_per_s'] / 1e6:6.3f} Mrays/s  ({m['tests_per_s']:.3g} ray-target tests/s; "
+          f"{m['hits_per_ray']:.2f} hits/ray)")
+    print(f"cal_letters 128x96: {c['rays']:6d} rays  median {c['median_s'] * 1e3:8.2f} ms  "
+          f"{c['rays_per_s'] / 1e6:6.3f} Mrays/s  ({c['beams_on_letters']} beams on the letters)")
     print(f"(median of {args.repeats} runs after one warm-up, max_hits = {args.max_hits})")
 
 

@@ -136,21 +136,39 @@ def plot(results: dict, path: pathlib.Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer trials and offsets (~15 s)")
-    args = ap.parse_args(argv)
+def run_speed_vs_error(quick: bool = False, png: pathlib.Path | None = OUT) -> dict:
+    """Accuracy and timing of every estimator at N = 512 and 4096; writes the PNG if ``png``.
+
+    Returns {"results": {n: (stats, times)}, "trials": {n: trials}, "offsets": [...], "default": name,
+    "accuracy_met": bool, "speed_met": bool, "ratio_uncertainty": float}.
+    """
     cfg = {
-        512: dict(trials=600 if args.quick else 4000, batch=5000 if args.quick else 20000),
-        4096: dict(trials=150 if args.quick else 2000, batch=800 if args.quick else 3000),
+        512: dict(trials=600 if quick else 4000, batch=5000 if quick else 20000),
+        4096: dict(trials=150 if quick else 2000, batch=800 if quick else 3000),
     }
-    offsets = np.linspace(0, 0.5, 3 if args.quick else 6)
-    t_start = time.perf_counter()
+    offsets = np.linspace(0, 0.5, 3 if quick else 6)
     results = {}
     for n, c in cfg.items():
         stats = accuracy(n, offsets, c["trials"], seed=n)
         times = timing(n, c["batch"], seed=n + 1)
         results[n] = (stats, times)
+    if png is not None:
+        plot(results, pathlib.Path(png))
+    ok_acc = all(results[n][0][DEFAULT_METHOD][s]["worst_ratio"] <= 1.1 for n in results for s in SNRS_DB if s >= 20)
+    ok_speed = 1 / results[512][1][DEFAULT_METHOD][0] >= 100_000
+    unc = max(2.0 / np.sqrt(2.0 * c["trials"]) for c in cfg.values())  # ~2 sigma of an RMSE ratio
+    return {"results": results, "trials": {n: c["trials"] for n, c in cfg.items()},
+            "offsets": offsets.tolist(), "default": DEFAULT_METHOD, "accuracy_met": ok_acc,
+            "speed_met": ok_speed, "ratio_uncertainty": float(unc)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer trials and offsets (~15 s)")
+    args = ap.parse_args(argv)
+    t_start = time.perf_counter()
+    out = run_speed_vs_error(args.quick, OUT)
+    results, offsets = out["results"], np.array(out["offsets"])
 
     print(f"post-FFT SNR = on-bin peak power / noise power per bin (rectangular window); offsets {np.round(offsets, 2).tolist()} bin")
     print("RMSE/CRLB = worst-offset inlier RMSE / sqrt(CRLB); bias = max |bias| / sqrt(CRLB); out = outlier rate")
@@ -172,14 +190,11 @@ def main(argv: list[str] | None = None) -> int:
         for s in SNRS_DB:
             print(f"  N={n:<5} {s:>2} dB: " + " ".join(f"{r:.3f}" for r in stats[DEFAULT_METHOD][s]["ratios"]))
     d512 = results[512]
-    ok_acc = all(results[n][0][DEFAULT_METHOD][s]["worst_ratio"] <= 1.1 for n in results for s in SNRS_DB if s >= 20)
-    ok_speed = 1 / d512[1][DEFAULT_METHOD][0] >= 100_000
-    unc = max(2.0 / np.sqrt(2.0 * c["trials"]) for c in cfg.values())  # ~2 sigma of an RMSE ratio
+    ok_acc, ok_speed, unc = out["accuracy_met"], out["speed_met"], out["ratio_uncertainty"]
     print(f"\ntarget RMSE <= 1.1 sqrt(CRLB) at >= 20 dB, every offset: {'MET' if ok_acc else 'NOT MET'}"
           f" (each ratio carries about +-{unc:.3f} statistical error at 2 sigma{'; --quick is not conclusive' if args.quick else ''})")
     print(f"target >= 100k ramps/s at N=512 (estimator only): {'MET' if ok_speed else 'NOT MET'} "
           f"({1 / d512[1][DEFAULT_METHOD][0]:.0f}/s; pipeline {1 / d512[1][DEFAULT_METHOD][1]:.0f}/s)")
-    plot(results, OUT)
     print(f"wrote {OUT}  ({time.perf_counter() - t_start:.1f} s)")
     return 0
 

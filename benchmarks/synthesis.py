@@ -45,30 +45,27 @@ def _time(fn, repeats: int) -> float:
     return statistics.median(ts)
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=5)
-    args = ap.parse_args(argv)
+def run_synthesis(repeats: int = 5, quick: bool = False) -> dict:
+    """Every workload of the module docstring; M samples/s per core (median CPU time).
 
+    ``quick`` shrinks the segment counts 8x (same per-sample work, noisier figure).
+    """
     chirp = Chirp()
     laser = DfbLaser(load_laser("dfb_default"))
     t0 = time.perf_counter()
     traj = trajectory(laser, triangle_drive(chirp.excursion_hz, chirp.ramp_s, FS_AWG_HZ,
                                             laser.static_tuning_hz_per_v), FS_AWG_HZ)
     t_traj = time.perf_counter() - t0
-    print(f"trajectory (dfb_default, AWG {FS_AWG_HZ / 1e6:.0f} MS/s, {traj.n} samples/period): "
-          f"{t_traj * 1e3:.1f} ms (once per drive waveform)")
     period = traj.period_s
     rng = np.random.default_rng(1)
+    div = 8 if quick else 1
 
-    workloads = []
-    workloads.append(("typical", 1024, 640 / period, 640, 2.0))
-    for d_max, n_seg in ((2.0, 1024), (150.0, 32)):
+    workloads = [("typical", 1024 // div, 640 / period, 640, 2.0)]
+    for d_max, n_seg in ((2.0, 1024 // div), (150.0, max(1, 32 // div))):
         fs = sample_rate_for_range_hz(d_max, chirp.rate_hz_per_s, oversample=2.5)
         workloads.append((f"{d_max:g} m", n_seg, fs, int(round(fs * period)), d_max))
 
-    print(f"{'workload':>9} {'segments':>8} {'fs MS/s':>8} {'samples':>8} {'phase noise':>11} "
-          f"{'quantize':>8} {'M samples/s':>12}")
+    rows = []
     for name, n_seg, fs, n, d_max in workloads:
         d = rng.uniform(0.2 * d_max, 0.9 * d_max, n_seg)
         hits = HitBatch.from_targets(np.arange(n_seg), d, 0.2, radial_velocity_m_s=rng.normal(0, 1, n_seg))
@@ -81,23 +78,45 @@ def main(argv=None) -> None:
                     synthesize(traj, adc, t_start, hits, noise_asd_v_per_rthz=2e-8,
                                linewidth_hz=laser.linewidth_hz if pn else 0.0, rng=rng)
 
-                dt = _time(run, args.repeats)
-                print(f"{name:>9} {n_seg:>8} {fs / 1e6:>8.2f} {n:>8} {'on' if pn else 'off':>11} "
-                      f"{'on' if q else 'off':>8} {n_seg * n / dt / 1e6:>12.1f}")
+                dt = _time(run, repeats)
+                rows.append({"workload": name, "segments": n_seg, "fs_hz": fs, "samples": n,
+                             "phase_noise": pn, "quantize": q, "msamples_per_s": n_seg * n / dt / 1e6})
 
     fs = sample_rate_for_range_hz(150.0, chirp.rate_hz_per_s, oversample=2.5)
     n = int(round(fs * period))
-    n_seg = 64
+    n_seg = 64 // div
     adc = AdcSpec(fs, n, bits=12, input_range_v=1.0)
+    mzi = []
     for pn in (False, True):
         def run_mzi():
             synthesize(traj, adc, np.arange(n_seg) * period, None, linewidth_hz=laser.linewidth_hz if pn else 0.0,
                        rng=rng, mzi_delay_s=10e-9, mzi_amplitude_v=0.3)
 
-        dt = _time(run_mzi, args.repeats)
-        print(f"MZI only (ILC measurement), {n_seg} x {n} at {fs / 1e6:.0f} MS/s, phase noise {'on' if pn else 'off'}: "
-              f"{n_seg * n / dt / 1e6:.1f} M samples/s (2 channels written)")
-    print(f"(max range check: 2 gamma d / c at 150 m = {2 * chirp.rate_hz_per_s * 150 / C_M_PER_S / 1e6:.1f} MHz)")
+        dt = _time(run_mzi, repeats)
+        mzi.append({"segments": n_seg, "samples": n, "fs_hz": fs, "phase_noise": pn,
+                    "msamples_per_s": n_seg * n / dt / 1e6})
+    return {"trajectory_s": t_traj, "trajectory_samples": traj.n, "rows": rows, "mzi": mzi,
+            "beat_150m_hz": 2 * chirp.rate_hz_per_s * 150 / C_M_PER_S}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args(argv)
+    r = run_synthesis(args.repeats)
+    print(f"trajectory (dfb_default, AWG {FS_AWG_HZ / 1e6:.0f} MS/s, {r['trajectory_samples']} samples/period): "
+          f"{r['trajectory_s'] * 1e3:.1f} ms (once per drive waveform)")
+    print(f"{'workload':>9} {'segments':>8} {'fs MS/s':>8} {'samples':>8} {'phase noise':>11} "
+          f"{'quantize':>8} {'M samples/s':>12}")
+    for w in r["rows"]:
+        print(f"{w['workload']:>9} {w['segments']:>8} {w['fs_hz'] / 1e6:>8.2f} {w['samples']:>8} "
+              f"{'on' if w['phase_noise'] else 'off':>11} {'on' if w['quantize'] else 'off':>8} "
+              f"{w['msamples_per_s']:>12.1f}")
+    for m in r["mzi"]:
+        print(f"MZI only (ILC measurement), {m['segments']} x {m['samples']} at {m['fs_hz'] / 1e6:.0f} MS/s, "
+              f"phase noise {'on' if m['phase_noise'] else 'off'}: {m['msamples_per_s']:.1f} M samples/s "
+              f"(2 channels written)")
+    print(f"(max range check: 2 gamma d / c at 150 m = {r['beat_150m_hz'] / 1e6:.1f} MHz)")
 
 
 if __name__ == "__main__":

@@ -75,48 +75,56 @@ def serve() -> None:
     server.close()
 
 
-def main() -> None:
+def run_usb(segments: int = 2000, per_read: int = 256, subprocess_bench: bool = True) -> dict:
+    """MB/s in-process, across a bridge thread and (optionally) across a bench subprocess."""
+    out = {"segment_kb": p.segment_bytes(len(CHANNELS), RECORD, 16) / 1e3, "segments": segments,
+           "per_read": per_read}
+    dev = usb.core.find(idVendor=p.DIGITIZER_VID, idProduct=p.DIGITIZER_PID,
+                        backend=SimUsbBackend([make_sim()]))
+    out["inproc_mb_s"], out["mb"] = measure(DigitizerDriver(dev), segments, per_read)
+
+    server = UsbBridgeServer([make_sim()])
+    backend = RemoteUsbBackend(f"tcp://127.0.0.1:{server.port}")
+    try:
+        dev = usb.core.find(idVendor=p.DIGITIZER_VID, idProduct=p.DIGITIZER_PID, backend=backend)
+        out["bridge_thread_mb_s"], _ = measure(DigitizerDriver(dev), segments, per_read)
+    finally:
+        backend.close()
+        server.close()
+
+    if subprocess_bench:
+        proc = subprocess.Popen([sys.executable, __file__, "--serve"], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True)
+        try:
+            port = int(proc.stdout.readline())
+            backend = RemoteUsbBackend(f"tcp://127.0.0.1:{port}")
+            dev = usb.core.find(idVendor=p.DIGITIZER_VID, idProduct=p.DIGITIZER_PID, backend=backend)
+            out["bridge_subprocess_mb_s"], _ = measure(DigitizerDriver(dev), segments, per_read)
+            backend.close()
+        finally:
+            proc.stdin.close()
+            proc.wait(timeout=30)
+    out["frame_128x128_gb"] = 128 * 128 * out["segment_kb"] / 1e6
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--serve", action="store_true", help="internal: run the bench side")
     ap.add_argument("--segments", type=int, default=2000)
     ap.add_argument("--per-read", type=int, default=256)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.serve:
         serve()
         return
-
-    seg_kb = p.segment_bytes(len(CHANNELS), RECORD, 16) / 1e3
-    print(f"segment: {len(CHANNELS)} ch x {RECORD} samples int16 = {seg_kb:.1f} kB; "
+    print(f"segment: {len(CHANNELS)} ch x {RECORD} samples int16 = "
+          f"{p.segment_bytes(len(CHANNELS), RECORD, 16) / 1e3:.1f} kB; "
           f"{args.segments} segments, {args.per_read} per read_segments call")
-
-    dev = usb.core.find(idVendor=p.DIGITIZER_VID, idProduct=p.DIGITIZER_PID,
-                        backend=SimUsbBackend([make_sim()]))
-    mbps, mb = measure(DigitizerDriver(dev), args.segments, args.per_read)
-    print(f"in-process (SimUsbBackend):            {mbps:8.1f} MB/s  ({mb:.0f} MB)  target >= 200")
-
-    server = UsbBridgeServer([make_sim()])
-    backend = RemoteUsbBackend(f"tcp://127.0.0.1:{server.port}")
-    dev = usb.core.find(idVendor=p.DIGITIZER_VID, idProduct=p.DIGITIZER_PID, backend=backend)
-    mbps, mb = measure(DigitizerDriver(dev), args.segments, args.per_read)
-    print(f"bridge, server thread same process:   {mbps:8.1f} MB/s  ({mb:.0f} MB)")
-    backend.close()
-    server.close()
-
-    proc = subprocess.Popen([sys.executable, __file__, "--serve"], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True)
-    try:
-        port = int(proc.stdout.readline())
-        backend = RemoteUsbBackend(f"tcp://127.0.0.1:{port}")
-        dev = usb.core.find(idVendor=p.DIGITIZER_VID, idProduct=p.DIGITIZER_PID, backend=backend)
-        mbps, mb = measure(DigitizerDriver(dev), args.segments, args.per_read)
-        print(f"bridge, bench in a subprocess (TCP):  {mbps:8.1f} MB/s  ({mb:.0f} MB)")
-        backend.close()
-    finally:
-        proc.stdin.close()
-        proc.wait(timeout=30)
-
-    frame_gb = 128 * 128 * seg_kb / 1e6
-    print(f"a 128x128 frame is {frame_gb:.2f} GB of samples at this record length")
+    r = run_usb(args.segments, args.per_read)
+    print(f"in-process (SimUsbBackend):            {r['inproc_mb_s']:8.1f} MB/s  ({r['mb']:.0f} MB)  target >= 200")
+    print(f"bridge, server thread same process:   {r['bridge_thread_mb_s']:8.1f} MB/s  ({r['mb']:.0f} MB)")
+    print(f"bridge, bench in a subprocess (TCP):  {r['bridge_subprocess_mb_s']:8.1f} MB/s  ({r['mb']:.0f} MB)")
+    print(f"a 128x128 frame is {r['frame_128x128_gb']:.2f} GB of samples at this record length")
 
 
 if __name__ == "__main__":
