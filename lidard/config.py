@@ -283,6 +283,21 @@ class Sim(_Model):
     seed: int = 1
     bench: Literal["child", "embedded"] = "child"
     effects: Effects = Effects()
+    # [[sim.faults]] tables: injected by the bench at start (catalogue: sim_devices/faults.py)
+    faults: list[dict] = []
+
+    @field_validator("faults")
+    @classmethod
+    def _faults_in_catalogue(cls, v: list[dict]) -> list[dict]:
+        from sim_devices.faults import validate_fault  # pure catalogue, no bench
+
+        out = []
+        for i, entry in enumerate(v):
+            try:
+                out.append(validate_fault(entry.get("kind"), entry))
+            except ValueError as exc:
+                raise ValueError(f"entry {i}: {exc}") from None
+        return out
 
 
 class Daemon(_Model):

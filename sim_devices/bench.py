@@ -23,7 +23,25 @@ re-read of the same batch gives the same bytes.
 Modes: in-process (``Bench(...).start(usb="inproc")``, the embedded default of ``lidarctl scan --sim``)
 or as its own process (``lidar-sim --json``: prints its endpoints as one JSON line and serves until
 stdin closes or it gets SIGTERM), with the USB transfers carried over a local socket and a small JSON
-control socket (set_scene, set_interlock, advance, ground_truth, ping).
+control socket (set_scene, set_interlock, advance, ground_truth, ping, inject, clear_faults, faults).
+
+The FPGA's serial port is published as a STABLE path, a symlink in the bench's temp dir (like
+``/dev/serial/by-id/...``) that points at the current pty slave: after a ``serial_disconnect`` fault
+is cleared the FPGA comes back on a NEW pty and the symlink is re-pointed, so a driver reopens the
+same ``fpsa_url``.
+
+Fault injection (issue 6; catalogue and parameters in ``sim_devices.faults``):
+``inject_fault(kind, **params) -> dict``, ``clear_faults(kind=None) -> int``, ``active_faults()``;
+``[[sim.faults]]`` tables of the configuration are injected by :meth:`Bench.start`. Faults of the
+kinds ``serial_drop``, ``serial_flip``, ``digitizer_overrange``, ``hv_fault``, ``serial_disconnect``
+and ``interlock_open`` are one per bench: injecting one again replaces the earlier one (its ``id``
+changes). Count-limited faults (``n``) drop out of ``active_faults()`` once used up.
+
+Tap channel (self-test): digitizer channel ``tap`` is a monitor photodiode on the light leaving the
+FPSA: V = G_tap R eta_tap P_tx sum_beams T_beam (+ white detector noise), where P_tx is the power
+one fully-open path emits (the link's P_tx), T_beam the mean switch-path transmission of every beam
+that actually emits in the capture window (MEMS states incl. stuck switches): one beam for a
+healthy pixel, two when a row or column line is stuck on, none when one is stuck off.
 
 This module is a composition root of the simulator; like the world it reads ``lidard.config``.
 """
@@ -32,16 +50,23 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import itertools
 import json
+import math
+import os
+import shutil
 import signal
 import socket
 import sys
+import tempfile
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from drivers.controller import protocol as ctl_p
 from lidard.config import Config, ConfigError, load_config
 from lidard.physics.budget import quantization_asd
 
@@ -49,6 +74,7 @@ from .awg import SimAwg
 from .clock import VirtualClock
 from .controller import ControllerSim
 from .digitizer import CaptureConfig, CapturedSegments, SimDigitizer
+from .faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from .fpga import FpgaConfig, FpgaSim
 from .usb_backend import SimUsbBackend, UsbBridgeServer
 from .world.laser import DfbLaser
@@ -56,6 +82,21 @@ from .world.mems import SwitchDynamics
 from .world.scene import Scene, SceneError
 from .world.synth import AdcSpec, HitBatch, synthesize, trajectory
 from .world.world import World
+
+
+@dataclass(frozen=True)
+class TapSpec:
+    """Monitor photodiode on the FPSA's emission (the digitizer's ``tap`` channel)."""
+
+    fraction: float = 0.01          # 1 % tap coupler on the emitted light
+    gain_v_per_a: float = 1.0e4     # monitor TIA
+    noise_v_rms: float = 1.0e-3     # white detector + TIA noise per sample
+
+
+# Faults of which a bench holds at most one: a second injection replaces the first.
+_SINGLETONS = ("serial_drop", "serial_flip", "serial_disconnect", "digitizer_overrange", "hv_fault",
+               "interlock_open")
+_USB_KIND = {"usb_timeout": "timeout", "usb_stall": "stall", "usb_disconnect": "disconnect"}
 
 
 class Bench:
@@ -91,11 +132,27 @@ class Bench:
         self._control: _ControlServer | None = None
         self.usb_backend = None
         self.segments_synthesized = 0
+        self.tap = TapSpec()
+        # Serial line noise seeded from the bench seed: a run with faults repeats byte for byte.
+        self.serial_line = SerialLineNoise((self.seed, 0x5E71A1))
+        self._tmpdir: str | None = None
+        self.fpsa_link: str | None = None
+        self._faults: dict[int, dict[str, Any]] = {}
+        self._fault_ids = itertools.count(1)
+        self._fault_lock = threading.RLock()
+        self._timers: dict[int, int] = {}          # fault id -> clock timer handle
+        self._overrange_gain = 1.0
+        self._interlock_at_s: float | None = None      # a timed opening not yet reached
+        self._interlock_after: int | None = None       # open when segments_synthesized reaches this
+        self._interlock_fid: int | None = None
 
     # -- lifecycle ----------------------------------------------------------------------------------
     def start(self, *, usb: str = "inproc", control: bool = False) -> dict[str, Any]:
-        """Serve the FPGA on a pty, the controller on Modbus TCP and the USB devices; return endpoints."""
-        self._pty = self.fpga.serve_pty()
+        """Serve the FPGA on a pty, the controller on Modbus TCP and the USB devices; apply the
+        configuration's ``[[sim.faults]]``; return endpoints."""
+        self._tmpdir = tempfile.mkdtemp(prefix="lidard-bench-")
+        self.fpsa_link = os.path.join(self._tmpdir, "fpsa")
+        self._open_pty()
         self.controller.start()
         if usb == "inproc":
             self.usb_backend = SimUsbBackend([self.awg, self.digitizer])
@@ -107,11 +164,14 @@ class Bench:
             raise ValueError(f"Bench.start: usb must be 'inproc' or 'tcp', got {usb!r}")
         if control:
             self._control = _ControlServer(self)
+        for entry in self.cfg.sim.faults:
+            entry = dict(entry)
+            self.inject_fault(entry.pop("kind", None), **entry)
         return self.endpoints(usb_url)
 
     def endpoints(self, usb_url: str | None = None) -> dict[str, Any]:
         return {
-            "fpsa_url": self._pty.path if self._pty else None,
+            "fpsa_url": self.fpsa_link,
             "controller_host": self.controller.host,
             "controller_port": self.controller.port,
             "usb_url": usb_url or (self._bridge.url if self._bridge else "sim-usb://inproc"),
@@ -119,6 +179,9 @@ class Bench:
         }
 
     def close(self) -> None:
+        for handle in list(self._timers.values()):
+            self.clock.cancel(handle)
+        self._timers.clear()
         for thing in (self._control, self._bridge, self._pty):
             if thing is not None:
                 try:
@@ -129,6 +192,175 @@ class Bench:
             self.controller.stop()
         except Exception:
             pass
+        if self._tmpdir is not None:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            self._tmpdir = None
+
+    # -- the FPGA's serial port behind a stable path ------------------------------------------------
+    def _open_pty(self) -> None:
+        self._pty = self.fpga.serve_pty(self.serial_line)
+        assert self.fpsa_link is not None
+        tmp = self.fpsa_link + ".new"
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
+        os.symlink(self._pty.path, tmp)
+        os.replace(tmp, self.fpsa_link)  # atomic: a reader sees the old or the new target
+
+    def _drop_pty(self) -> None:
+        if self._pty is not None:
+            self._pty.close()
+            self._pty = None
+        if self.fpsa_link is not None and os.path.lexists(self.fpsa_link):
+            os.unlink(self.fpsa_link)  # the device node vanishes, as /dev/serial/by-id/* does
+        self.fpga.reset_link()
+
+    # -- fault injection ------------------------------------------------------------------------------
+    def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
+        """Inject a fault (catalogue: ``sim_devices.faults``); returns it as a dict with an ``id``.
+
+        Raises ``ValueError`` naming the kind or parameter if it is unknown or bad (nothing is
+        changed then)."""
+        spec = validate_fault(kind, params)
+        with self._fault_lock:
+            if kind == "stuck_switch":
+                n = self.profile.rows if spec["line"] == "row" else self.profile.cols
+                if spec["index"] >= n:
+                    raise ValueError(f"fault stuck_switch: index must be 0..{n - 1} for a "
+                                     f"{spec['line']}, got {spec['index']}")
+            if kind in _SINGLETONS:
+                for fid, rec in list(self._faults.items()):
+                    if rec["kind"] == kind:
+                        self._undo(fid, rec, replacing=True)
+            fid = next(self._fault_ids)
+            rec = {"id": fid, **spec, "since_s": self.clock.now()}
+            self._faults[fid] = rec
+            self._apply(fid, rec)
+            return dict(rec)
+
+    def clear_faults(self, kind: str | None = None) -> int:
+        """Clear active faults of ``kind`` (all if None) and restore normal behaviour; returns
+        how many were cleared."""
+        if kind is not None and kind not in FAULT_KINDS:
+            raise ValueError(f"unknown fault kind {kind!r}; known: {', '.join(FAULT_KINDS)}")
+        with self._fault_lock:
+            self._prune()
+            n = 0
+            for fid, rec in list(self._faults.items()):
+                if kind is None or rec["kind"] == kind:
+                    self._undo(fid, rec)
+                    n += 1
+            return n
+
+    def active_faults(self) -> list[dict[str, Any]]:
+        with self._fault_lock:
+            self._prune()
+            return [dict(r) for r in self._faults.values()]
+
+    def _usb_device(self, name: str):
+        return self.awg if name == "awg" else self.digitizer
+
+    def _prune(self) -> None:
+        """Forget count-limited faults whose count is used up (their effect is over)."""
+        for fid, rec in list(self._faults.items()):
+            k = rec["kind"]
+            done = False
+            if k in _USB_KIND and rec["n"] is not None:
+                dev = self._usb_device(rec["device"])
+                if k == "usb_disconnect":
+                    done = dev.connected
+                else:
+                    done = not any(f[0] == _USB_KIND[k] for f in dev._faults)
+            elif k == "modbus_exception" and rec["n"] is not None:
+                done = not self.controller._pending_exceptions
+            elif k == "modbus_timeout" and rec["n"] is not None:
+                done = self.controller._pending_timeouts == 0
+            if done:
+                del self._faults[fid]
+
+    def _apply(self, fid: int, rec: dict[str, Any]) -> None:
+        k = rec["kind"]
+        if k == "serial_drop":
+            self.serial_line.drop_rate = rec["rate"]
+        elif k == "serial_flip":
+            self.serial_line.flip_rate = rec["rate"]
+        elif k == "serial_disconnect":
+            self._drop_pty()
+            if rec["reconnect_after_s"] is not None:
+                self._timers[fid] = self.clock.call_at(
+                    rec["since_s"] + rec["reconnect_after_s"], lambda: self._expire(fid))
+        elif k in _USB_KIND:
+            dev = self._usb_device(rec["device"])
+            if k == "usb_disconnect":
+                dev.disconnect(rec["n"])
+            else:
+                dev.inject_fault(_USB_KIND[k], "any", rec["n"])
+        elif k == "digitizer_overrange":
+            self._overrange_gain = rec["gain"]
+        elif k == "modbus_exception":
+            self.controller.inject_exception(rec["code"], rec["n"])
+        elif k == "modbus_timeout":
+            self.controller.inject_timeout(rec["n"])
+        elif k == "interlock_open":
+            self._interlock_fid = fid
+            now = self.clock.now()
+            if rec["after_segments"] is not None:
+                self._interlock_after = self.segments_synthesized + rec["after_segments"]
+            elif rec["at_s"] is not None and rec["at_s"] > now:
+                self._interlock_at_s = rec["at_s"]
+                self._timers[fid] = self.clock.call_at(rec["at_s"], self._open_interlock)
+            else:
+                self._open_interlock()
+        elif k == "stuck_switch":
+            self.fpga.stick_switch(rec["line"], rec["index"], rec["state"] == "on")
+        elif k == "hv_fault":
+            self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, True)
+
+    def _undo(self, fid: int, rec: dict[str, Any], *, replacing: bool = False) -> None:
+        self._faults.pop(fid, None)
+        handle = self._timers.pop(fid, None)
+        if handle is not None:
+            self.clock.cancel(handle)
+        k = rec["kind"]
+        if k == "serial_drop":
+            self.serial_line.drop_rate = 0.0
+        elif k == "serial_flip":
+            self.serial_line.flip_rate = 0.0
+        elif k == "serial_disconnect":
+            if self._pty is None and self.fpsa_link is not None:
+                self._open_pty()
+        elif k in _USB_KIND:
+            dev = self._usb_device(rec["device"])
+            if k == "usb_disconnect":
+                dev.reconnect()
+            else:
+                dev.clear_faults(_USB_KIND[k])
+        elif k == "digitizer_overrange":
+            self._overrange_gain = 1.0
+        elif k == "modbus_exception":
+            self.controller.clear_injected("exception")
+        elif k == "modbus_timeout":
+            self.controller.clear_injected("timeout")
+        elif k == "interlock_open":
+            self._interlock_at_s = self._interlock_after = self._interlock_fid = None
+            if not replacing:
+                self.controller.set_interlock(True)
+        elif k == "stuck_switch":
+            self.fpga.release_switch(rec["line"], rec["index"])
+        elif k == "hv_fault":
+            self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, False)
+
+    def _expire(self, fid: int) -> None:
+        """A fault that ends by itself (``reconnect_after_s``)."""
+        with self._fault_lock:
+            rec = self._faults.get(fid)
+            if rec is not None:
+                self._timers.pop(fid, None)
+                self._undo(fid, rec)
+
+    def _open_interlock(self) -> None:
+        self._interlock_at_s = None
+        self._interlock_after = None
+        self.controller.set_interlock(False)
 
     # -- world control ------------------------------------------------------------------------------
     def set_scene(self, scene: Scene) -> None:
@@ -150,6 +382,37 @@ class Bench:
             self._traj_key = key
         return self._traj
 
+    def _interlock_cut_s(self, t_s: np.ndarray) -> float | None:
+        """Trigger time from which an interlock opening darkens this batch (None: it does not)."""
+        with self._fault_lock:
+            if self._interlock_after is not None and len(t_s):
+                k = self._interlock_after - self.segments_synthesized
+                if k < len(t_s):
+                    cut = float(t_s[max(k, 0)])
+                    self._open_interlock()  # the loop opens now: later batches see it tripped
+                    return cut
+            if self._interlock_at_s is not None and len(t_s) and t_s[-1] >= self._interlock_at_s:
+                return self._interlock_at_s  # the clock timer trips the controller at at_s
+            return None
+
+    def _tap_codes(self, path_sum: np.ndarray, adc: AdcSpec, first: int):
+        """Monitor photodiode codes: a DC level per segment (sum of emitting path transmissions)
+        plus white noise, quantized like every channel; clipped segments are flagged."""
+        volts_per_path = self.tap_volts_per_beam()
+        rng = np.random.default_rng([self.seed, 0x7A9, int(first)])
+        v = (volts_per_path * path_sum)[:, None] + self.tap.noise_v_rms * rng.standard_normal(
+            (path_sum.size, adc.n_samples))
+        lo_code, hi_code = -(2 ** (adc.bits - 1)), 2 ** (adc.bits - 1) - 1
+        raw = np.rint(v / adc.lsb_v)
+        over = (raw < lo_code).any(axis=1) | (raw > hi_code).any(axis=1)
+        return np.clip(raw, lo_code, hi_code).astype(np.int16), over
+
+    def tap_volts_per_beam(self) -> float:
+        """Tap level of one fully open beam (what a healthy pixel reads), V."""
+        link = self.world.link
+        return (self.tap.gain_v_per_a * self.cfg.detector.responsivity_a_per_w * self.tap.fraction
+                * link.source_power_w * link.tx_fraction)
+
     def capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
         with self._lock:
             return self._capture(first, count, cfg)
@@ -162,22 +425,32 @@ class Bench:
         st = self.controller.state
         light = bool(st.laser_on and st.interlock_closed)
         switches = bool(st.hv_on and st.hv_v >= self.profile.pull_in_v)
+        # Light per segment: an interlock that opens inside this batch (at a virtual time or after
+        # a number of segments) darkens the segments from that trigger on.
+        lit = np.full(n, light)
+        cut_s = self._interlock_cut_s(trig.t_s)
+        if cut_s is not None:
+            lit &= np.asarray(trig.t_s) < cut_s
+        gain = self._overrange_gain
         iq = "beat_i" in cfg.channels
         adc = AdcSpec(sample_rate_hz=cfg.sample_rate_hz, n_samples=cfg.record_length, bits=cfg.bits,
                       input_range_v=cfg.input_range_v, iq=iq, quantize=True)
         hits = None
-        if light and switches and n:
-            if eff.mems_dynamics:
-                rows, cols, trans, beam_seg = (trig.beam_row, trig.beam_col, trig.beam_transmission,
-                                               trig.beam_trigger)
-            else:
-                rows, cols, trans, beam_seg = trig.row, trig.col, np.ones(n), np.arange(n)
-            bh = self.world.beam_hits(rows, cols, trans)
+        # a stuck switch only shows through the switch dynamics (which beams actually emit)
+        beams_from_dynamics = eff.mems_dynamics or bool(self.fpga.stuck_switches)
+        if beams_from_dynamics:
+            rows, cols, trans, beam_seg = (trig.beam_row, trig.beam_col, trig.beam_transmission,
+                                           np.asarray(trig.beam_trigger, np.intp))
+        else:
+            rows, cols, trans, beam_seg = trig.row, trig.col, np.ones(n), np.arange(n)
+        emitting = lit[beam_seg] & switches
+        if light and switches and n and emitting.any():
+            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting])
             if bh.beam.size:
-                hits = HitBatch(seg=np.asarray(beam_seg)[bh.beam].astype(np.intp), tau_s=bh.tau_s,
-                                amplitude_v=bh.amplitude_v,
+                hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
+                                tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain,
                                 doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m)
-        noise_asd = self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
+        noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
         core_bits = self.cfg.adc.bits
         if eff.quantization and cfg.bits > core_bits:
             # A 16-bit record from an 8-bit core: the digitizer samples at its full rate and
@@ -202,6 +475,14 @@ class Bench:
                 codes[:, j] = data
                 if name in syn.channels:
                     over[:, j] = syn.overrange[:, syn.channels.index(name)]
+                if name == "mzi" and not lit.all():
+                    codes[~lit, j] = 0  # no light, no MZI fringes
+        if "tap" in cfg.channels and n:
+            j = cfg.channels.index("tap")
+            power = np.zeros(n)
+            if switches:
+                np.add.at(power, beam_seg, np.where(lit[beam_seg], trans, 0.0))
+            codes[:, j], over[:, j] = self._tap_codes(power, adc, first)
         self.segments_synthesized += n
         return CapturedSegments(trigger_time_s=np.asarray(trig.t_s, dtype=np.float64), codes=codes,
                                 overrange=over)
@@ -249,6 +530,13 @@ class _ControlServer:
         if cmd == "set_interlock":
             b.controller.set_interlock(bool(msg["closed"]))
             return {}
+        if cmd == "inject":
+            params = {k: v for k, v in msg.items() if k not in ("cmd", "kind")}
+            return {"fault": b.inject_fault(msg.get("kind"), **params)}
+        if cmd == "clear_faults":
+            return {"cleared": b.clear_faults(msg.get("kind"))}
+        if cmd == "faults":
+            return {"faults": b.active_faults()}
         if cmd == "ground_truth":
             truth = b.ground_truth(np.asarray(msg["rows"]), np.asarray(msg["cols"]))
             return {"range_m": [None if not np.isfinite(x) else float(x) for x in truth]}

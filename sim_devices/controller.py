@@ -15,8 +15,10 @@ wire format in docs/protocols/controller.md). What it models:
   COMMAND=CLEAR_FAULTS clears latched faults whose cause is gone (INTERLOCK_OPEN stays while open).
 - Fault injection for tests/bench: ``inject_exception(code, n)`` answers the next n requests with
   that exception, ``inject_timeout(n)`` swallows the next n responses (the request is still
-  executed, like a reply lost on the wire), ``inject_fault(fault)`` latches a fault and trips the
-  outputs.
+  executed, like a reply lost on the wire); ``n=None`` means until ``clear_injected()``.
+  ``inject_fault(fault)`` latches a fault and trips the outputs; ``set_fault_cause(fault, True)``
+  also keeps its cause present, so CLEAR_FAULTS cannot clear it until the cause goes away
+  (``set_fault_cause(fault, False)``), like the interlock loop for INTERLOCK_OPEN.
 
 Start/stop from a thread (``start()``/``stop()``, or ``with ControllerSim(...) as sim``) or from a
 running asyncio loop (``await start_async()``/``await stop_async()``). Port 0 binds a free port,
@@ -114,6 +116,7 @@ class ControllerModel:
         self._t0_s = clock.now()
         self._t_last_s = self._t0_s
         self._state = ControllerState(tec_c=dynamics.ambient_c, tec_setpoint_c=dynamics.ambient_c)
+        self._causes: set[p.Fault] = set()  # faults whose cause is still present
         self.heartbeat = 0
 
     # -- time -------------------------------------------------------------------------------
@@ -158,6 +161,18 @@ class ControllerModel:
             self._advance()
             self._state.faults.add(fault)
             self._trip()
+
+    def set_fault_cause(self, fault: p.Fault, present: bool) -> None:
+        """A persistent cause (an HV supply that keeps tripping): while present the fault is
+        latched, the outputs are off and CLEAR_FAULTS leaves it latched."""
+        with self._lock:
+            self._advance()
+            if present:
+                self._causes.add(fault)
+                self._state.faults.add(fault)
+                self._trip()
+            else:
+                self._causes.discard(fault)
 
     # -- register images --------------------------------------------------------------------
     def image(self, table: p.Table) -> list[int] | list[bool]:
@@ -245,6 +260,7 @@ class ControllerModel:
                 s.last_command = int(value)
                 if value is p.Command.CLEAR_FAULTS:
                     s.faults = {p.Fault.INTERLOCK_OPEN} if not s.interlock_closed else set()
+                    s.faults |= self._causes
         return None
 
 
@@ -279,6 +295,8 @@ class ControllerSim:
         self._inject_lock = threading.Lock()
         self._pending_exceptions: list[int] = []
         self._pending_timeouts = 0
+        self._sticky_exception: int | None = None  # every request, until clear_injected()
+        self._sticky_timeout = False
         self._current_exception: int | None = None
         self.requests_received = 0
         self.responses_dropped = 0
@@ -298,16 +316,45 @@ class ControllerSim:
     def inject_fault(self, fault: p.Fault) -> None:
         self.model.inject_fault(fault)
 
-    def inject_exception(self, code: int, n: int = 1) -> None:
-        """Answer the next ``n`` requests with Modbus exception ``code`` (nothing executed)."""
+    def set_fault_cause(self, fault: p.Fault, present: bool) -> None:
+        self.model.set_fault_cause(fault, present)
+
+    def inject_exception(self, code: int, n: int | None = 1) -> None:
+        """Answer the next ``n`` requests (``None``: all until :meth:`clear_injected`) with Modbus
+        exception ``code`` (nothing executed)."""
         ExcCodes(code)  # ValueError for a code Modbus does not define
         with self._inject_lock:
-            self._pending_exceptions.extend([int(code)] * n)
+            if n is None:
+                self._sticky_exception = int(code)
+            else:
+                self._pending_exceptions.extend([int(code)] * n)
 
-    def inject_timeout(self, n: int = 1) -> None:
-        """Swallow the responses to the next ``n`` requests (the requests still execute)."""
+    def inject_timeout(self, n: int | None = 1) -> None:
+        """Swallow the responses to the next ``n`` requests (``None``: all until
+        :meth:`clear_injected`); the requests still execute."""
         with self._inject_lock:
-            self._pending_timeouts += int(n)
+            if n is None:
+                self._sticky_timeout = True
+            else:
+                self._pending_timeouts += int(n)
+
+    def clear_injected(self, what: str | None = None) -> int:
+        """Drop pending injected ``"exception"`` / ``"timeout"`` faults (both if None); returns
+        how many requests' worth were pending (a persistent one counts 1)."""
+        if what not in (None, "exception", "timeout"):
+            raise ValueError(f"controller: clear_injected what must be 'exception' or 'timeout', "
+                             f"got {what!r}")
+        n = 0
+        with self._inject_lock:
+            if what in (None, "exception"):
+                n += len(self._pending_exceptions) + (self._sticky_exception is not None)
+                self._pending_exceptions.clear()
+                self._sticky_exception = None
+            if what in (None, "timeout"):
+                n += self._pending_timeouts + int(self._sticky_timeout)
+                self._pending_timeouts = 0
+                self._sticky_timeout = False
+        return n
 
     # -- pymodbus hooks ---------------------------------------------------------------------
     async def _action(self, function_code: int, start_address: int, address: int, count: int,
@@ -336,12 +383,18 @@ class ControllerSim:
             self.model.heartbeat += 1
             # Decide per request (not per datastore call: a write calls the action twice).
             with self._inject_lock:
-                self._current_exception = self._pending_exceptions.pop(0) if self._pending_exceptions else None
+                if self._pending_exceptions:
+                    self._current_exception = self._pending_exceptions.pop(0)
+                else:
+                    self._current_exception = self._sticky_exception
         return pdu
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
         if sending:
             with self._inject_lock:
+                if self._sticky_timeout:
+                    self.responses_dropped += 1
+                    return b""
                 if self._pending_timeouts > 0:
                     self._pending_timeouts -= 1
                     self.responses_dropped += 1

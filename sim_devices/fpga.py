@@ -24,6 +24,13 @@ Hardware modelled:
 * The firmware steps an uploaded pattern on the virtual clock (``sim_devices.triggers``). During a
   transition the old row/column is still partly on, so the capture windows see ghost beams
   exactly as the dynamics predict; :meth:`FpgaSim.triggers` reports them.
+
+Faults (``sim_devices.faults``): :meth:`FpgaSim.stick_switch` makes one MEMS switch ignore its
+drive from a virtual moment on (stuck on: every pixel of that row/column line emits whenever its
+partner line is on; stuck off: its pixels never emit) until :meth:`FpgaSim.release_switch`; the
+drive log itself is untouched (the HV583 still drives the line, the switch does not follow). The
+transports take a :class:`~sim_devices.faults.SerialLineNoise` (byte drops, bit flips, both
+directions), and :meth:`PtyServer.close` makes the device vanish from the host's point of view.
 """
 
 from __future__ import annotations
@@ -42,6 +49,7 @@ from drivers.fpsa import protocol as p
 from drivers.fpsa.errors import LengthError, PayloadError, ProtocolError
 
 from .clock import VirtualClock
+from .faults import SerialLineNoise
 from .triggers import PixelSchedule, TriggerBatch
 from .world.mems import (
     COLUMN_SWITCH,
@@ -202,6 +210,8 @@ class FpgaSim:
         self.executed = 0  # commands executed (cached retries are not counted)
         self._events = _Events()
         self._banks: tuple[SwitchBank, SwitchBank] | None = None
+        # (kind, line) -> [(t_from, t_to, on)]: intervals in which that switch ignores its drive
+        self._stuck: dict[tuple[int, int], list[list]] = {}
         self._power_up()
 
     # --- power-up and line bookkeeping ----------------------------------------------------------
@@ -613,21 +623,103 @@ class FpgaSim:
     def _switch_banks(self) -> tuple[SwitchBank, SwitchBank]:
         if self._banks is None:
             kinds, lines, ts, vs = self._events.arrays()
-            r, c = kinds == ROW, kinds == COL
-            self._banks = (
-                SwitchBank(self.config.rows, self.config.row_dynamics, lines[r], ts[r], vs[r]),
-                SwitchBank(self.config.cols, self.config.col_dynamics, lines[c], ts[c], vs[c]),
-            )
+            banks = []
+            for k, n, dyn in ((ROW, self.config.rows, self.config.row_dynamics),
+                              (COL, self.config.cols, self.config.col_dynamics)):
+                m = kinds == k
+                ln, t, v = self._with_stuck(k, lines[m], ts[m], vs[m])
+                banks.append(SwitchBank(n, dyn, ln, t, v))
+            self._banks = (banks[0], banks[1])
         return self._banks
+
+    # --- stuck switches (fault injection) -------------------------------------------------------
+    def _with_stuck(self, kind: int, lines: np.ndarray, ts: np.ndarray, vs: np.ndarray):
+        """The drive events a switch actually follows: inside a stuck interval [t0, t1) its own
+        events are ignored and it is held on (infinite drive) or off (0 V); at t1 it picks up the
+        drive the HV583 holds at that moment."""
+        extra_l, extra_t, extra_v = [], [], []
+        keep = np.ones(lines.size, bool)
+        for (k, line), intervals in self._stuck.items():
+            if k != kind:
+                continue
+            mine = lines == line
+            for t0, t1, on in intervals:
+                keep &= ~(mine & (ts >= t0) & (ts < t1))
+                extra_l.append(line)
+                extra_t.append(t0)
+                extra_v.append(math.inf if on else 0.0)
+                if math.isfinite(t1):
+                    before = np.flatnonzero(mine & (ts < t1))
+                    drive = 0.0
+                    if before.size:
+                        last = before[np.argsort(ts[before], kind="stable")[-1]]
+                        drive = float(vs[last])
+                    extra_l.append(line)
+                    extra_t.append(t1)
+                    extra_v.append(drive)
+        if not extra_l:
+            return lines, ts, vs
+        # the added events go first: at equal times SwitchBank keeps the given order, so the
+        # stuck/release event precedes any drive event logged for the same instant
+        return (np.concatenate([np.asarray(extra_l, np.int64), lines[keep]]),
+                np.concatenate([np.asarray(extra_t, np.float64), ts[keep]]),
+                np.concatenate([np.asarray(extra_v, np.float64), vs[keep]]))
+
+    def _line_kind(self, line: str, index: int) -> int:
+        if line not in ("row", "col"):
+            raise ValueError(f"fpga: switch line must be 'row' or 'col', got {line!r}")
+        n = self.config.rows if line == "row" else self.config.cols
+        if not (isinstance(index, (int, np.integer)) and 0 <= index < n):
+            raise ValueError(f"fpga: {line} index must be 0..{n - 1}, got {index!r}")
+        return ROW if line == "row" else COL
+
+    def stick_switch(self, line: str, index: int, on: bool, t_s: float | None = None) -> None:
+        """From ``t_s`` (default now) the MEMS switch of ``line`` ``index`` stays on/off."""
+        kind = self._line_kind(line, index)
+        with self._lock:
+            t = self.clock.now() if t_s is None else float(t_s)
+            intervals = self._stuck.setdefault((kind, int(index)), [])
+            if intervals and math.isinf(intervals[-1][1]):
+                intervals[-1][1] = t  # re-sticking ends the previous interval
+            intervals.append([t, math.inf, bool(on)])
+            self._banks = None
+
+    def release_switch(self, line: str, index: int, t_s: float | None = None) -> None:
+        """From ``t_s`` (default now) the switch follows its drive again."""
+        kind = self._line_kind(line, index)
+        with self._lock:
+            t = self.clock.now() if t_s is None else float(t_s)
+            for iv in self._stuck.get((kind, int(index)), []):
+                if math.isinf(iv[1]):
+                    iv[1] = max(t, iv[0])
+            self._banks = None
+
+    @property
+    def stuck_switches(self) -> list[tuple[str, int, bool]]:
+        """(line, index, on) of the switches stuck right now."""
+        with self._lock:
+            return [("row" if k == ROW else "col", line, iv[-1][2])
+                    for (k, line), iv in self._stuck.items() if iv and math.isinf(iv[-1][1])]
+
+    def _candidate_rows(self) -> np.ndarray:
+        # unbonded rows have no drive, but a row switch stuck on still passes light
+        extra = [line for (k, line), ivs in self._stuck.items()
+                 if k == ROW and any(on for _, _, on in ivs)]
+        return np.asarray(sorted(set(self._bonded) | set(extra)), np.int64)
+
+    def reset_link(self) -> None:
+        """The serial link went away: a frame half-received is lost."""
+        with self._lock:
+            self._parser = p.FrameParser()
 
     def _beams(self, t0: np.ndarray, t1: np.ndarray):
         """(window, row, col, transmission) of every beam above the floor in each window."""
         rows_bank, cols_bank = self._switch_banks()
         floor = self.config.beam_floor
-        row_lit = np.stack([rows_bank.possibly_lit(r, t0, t1, floor) for r in self._bonded], 1)
+        bonded = self._candidate_rows()
+        row_lit = np.stack([rows_bank.possibly_lit(int(r), t0, t1, floor) for r in bonded], 1)
         col_lit = np.stack([cols_bank.possibly_lit(c, t0, t1, floor)
                             for c in range(self.config.cols)], 1)
-        bonded = np.asarray(self._bonded, np.int64)
         rk, ri = np.nonzero(row_lit)
         ck, cc = np.nonzero(col_lit)
         n = t0.size
@@ -677,11 +769,11 @@ class FpgaSim:
                 beam_transmission=bt.astype(np.float64), capture_s=float(capture_s))
 
     # --- transports ---------------------------------------------------------------------------
-    def open_pipe(self) -> SimSerial:
-        return SimSerial(self)
+    def open_pipe(self, line: SerialLineNoise | None = None) -> SimSerial:
+        return SimSerial(self, line)
 
-    def serve_pty(self) -> PtyServer:
-        return PtyServer(self)
+    def serve_pty(self, line: SerialLineNoise | None = None) -> PtyServer:
+        return PtyServer(self, line)
 
 
 class SimSerial:
@@ -691,8 +783,9 @@ class SimSerial:
     timeout expires, so a driver's timeout logic runs without any wall-clock wait.
     """
 
-    def __init__(self, sim: FpgaSim) -> None:
+    def __init__(self, sim: FpgaSim, line: SerialLineNoise | None = None) -> None:
         self.sim = sim
+        self.line = line
         self.timeout: float | None = 0.0
         self.is_open = True
         self._rx = bytearray()
@@ -700,7 +793,11 @@ class SimSerial:
     def write(self, data: bytes) -> int:
         if not self.is_open:
             raise OSError("SimSerial is closed")
-        self._rx += self.sim.feed(bytes(data))
+        data = bytes(data)
+        if self.line is None:
+            self._rx += self.sim.feed(data)
+        else:
+            self._rx += self.line.apply(self.sim.feed(self.line.apply(data)))
         return len(data)
 
     def read(self, size: int = 1) -> bytes:
@@ -727,10 +824,13 @@ class PtyServer:
 
     A thread reads the master side, feeds the simulator and writes its answers back. The slave
     fd stays open here so the pty does not hang up when the driver closes and reopens it.
+    ``line`` (optional) corrupts the bytes of both directions. :meth:`close` closes the master:
+    the device is gone, and host reads/writes on the slave fail (EIO) from then on.
     """
 
-    def __init__(self, sim: FpgaSim) -> None:
+    def __init__(self, sim: FpgaSim, line: SerialLineNoise | None = None) -> None:
         self.sim = sim
+        self.line = line
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         self.path = os.ttyname(self._slave)
@@ -751,7 +851,12 @@ class PtyServer:
                 return
             if not data:
                 return
-            resp = self.sim.feed(data)
+            line = self.line
+            if line is not None:
+                data = line.apply(data)
+            resp = self.sim.feed(data) if data else b""
+            if line is not None:
+                resp = line.apply(resp)
             view = memoryview(resp)
             while view:
                 n = os.write(self._master, view)

@@ -144,28 +144,70 @@ class SimUsbDevice:
     def __init__(self) -> None:
         self._lock = threading.RLock()
         self._faults: list[tuple[FaultKind, FaultOp]] = []
+        self._persistent: list[tuple[FaultKind, FaultOp]] = []  # until cleared
         self.connected = True
+        self._gone_for: int | None = None  # transfers left before a timed disconnect ends
+        self.faulted_transfers = 0
 
     # -- fault injection (tests and bench reliability scenarios)
-    def inject_fault(self, kind: FaultKind, op: FaultOp = "any", count: int = 1) -> None:
-        """Make the next ``count`` transfers of type ``op`` fail with ``kind``."""
+    def inject_fault(self, kind: FaultKind, op: FaultOp = "any", count: int | None = 1) -> None:
+        """Make the next ``count`` transfers of type ``op`` fail with ``kind``
+        (``count=None``: every such transfer until :meth:`clear_faults`)."""
         if kind not in ("timeout", "stall", "disconnect"):
             raise ValueError(f"unknown USB fault kind {kind!r}")
+        if op not in ("ctrl", "bulk_out", "bulk_in", "any"):
+            raise ValueError(f"unknown USB transfer type {op!r}")
+        if count is not None and (isinstance(count, bool) or int(count) != count or count < 1):
+            raise ValueError(f"USB fault count must be an integer >= 1 or None, got {count!r}")
         with self._lock:
-            self._faults.extend([(kind, op)] * count)
+            if count is None:
+                self._persistent.append((kind, op))
+            else:
+                self._faults.extend([(kind, op)] * int(count))
 
-    def disconnect(self) -> None:
-        self.connected = False
+    def clear_faults(self, kind: FaultKind | None = None) -> int:
+        """Forget injected faults of ``kind`` (all if None); returns how many were pending."""
+        with self._lock:
+            n = 0
+            for lst in (self._faults, self._persistent):
+                keep = [f for f in lst if kind is not None and f[0] != kind]
+                n += len(lst) - len(keep)
+                lst[:] = keep
+            return n
+
+    def disconnect(self, transfers: int | None = None) -> None:
+        """Unplug: off the bus (not enumerated), every transfer fails with ENODEV. With
+        ``transfers`` the device is plugged back in after that many failed transfers."""
+        with self._lock:
+            self.connected = False
+            self._gone_for = None if transfers is None else int(transfers)
 
     def reconnect(self) -> None:
-        self.connected = True
+        with self._lock:
+            self.connected = True
+            self._gone_for = None
 
     def _check(self, op: FaultOp, what: str) -> None:
         if not self.connected:
+            self.faulted_transfers += 1
+            if self._gone_for is not None:
+                self._gone_for -= 1
+                if self._gone_for <= 0:
+                    self.reconnect()
             raise usb_nodev(what)
+        for kind, fop in self._persistent:
+            if fop in ("any", op):
+                self.faulted_transfers += 1
+                if kind == "timeout":
+                    raise usb_timeout(what)
+                if kind == "stall":
+                    raise usb_stall(what)
+                self.connected = False
+                raise usb_nodev(what)
         for i, (kind, fop) in enumerate(self._faults):
             if fop in ("any", op):
                 del self._faults[i]
+                self.faulted_transfers += 1
                 if kind == "timeout":
                     raise usb_timeout(what)
                 if kind == "stall":

@@ -15,13 +15,16 @@ payload (channel-major: all samples of channel 0, then channel 1, ...; little-en
       0   4  magic b"DGSG"
       4   1  version (1)
       5   1  bits per sample (8 | 16)
-      6   1  channel mask (bit0 beat, bit1 beat_i, bit2 beat_q, bit3 mzi)
+      6   1  channel mask (bit0 beat, bit1 beat_i, bit2 beat_q, bit3 mzi, bit4 tap)
       7   1  overrange flags, bit i = i-th channel present in the mask (ascending bit order)
       8   4  segment index (u32)
      12   4  samples per channel (u32)
      16   8  trigger timestamp (u64, ns since bench/device power-up)
      24   4  crc32 of the payload (zlib.crc32)
      28   4  crc32 of header bytes 0..27 (makes resync after garbage reliable)
+
+Channel ``tap`` (bit 4, added for the FPSA self-test; older masks are unchanged) is the monitor
+photodiode on the light leaving the FPSA chip: a DC level proportional to the total emitted power.
 
 All integers little endian. This module is PURE; parsers raise only ``DigitizerProtocolError``.
 Golden bytes: docs/protocols/digitizer.md.
@@ -61,7 +64,8 @@ class Req(enum.IntEnum):
     READ_SEGMENTS = 0x40   # OUT, data u32 first, u32 count -> stream on EP 0x81
 
 
-CHANNEL_BITS = {"beat": 0x01, "beat_i": 0x02, "beat_q": 0x04, "mzi": 0x08}
+CHANNEL_BITS = {"beat": 0x01, "beat_i": 0x02, "beat_q": 0x04, "mzi": 0x08, "tap": 0x10}
+ALL_CHANNELS_MASK = 0x1F
 MAGIC = b"DGSG"
 VERSION = 1
 HEADER = struct.Struct("<4sBBBBIIQII")
@@ -98,7 +102,7 @@ def channel_mask(channels: tuple[str, ...] | list[str]) -> int:
 
 
 def validate_mask(mask: int) -> None:
-    if mask <= 0 or mask & ~0x0F:
+    if mask <= 0 or mask & ~ALL_CHANNELS_MASK:
         raise DigitizerProtocolError(f"digitizer channel mask 0x{mask:02x} invalid")
     iq = mask & 0x06
     if iq and iq != 0x06:
