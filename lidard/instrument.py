@@ -12,11 +12,32 @@ triggers the AWG and digitizer: there is no PC round trip per pixel.
 for a simulated configuration it first starts the simulated bench (embedded in this process or as a
 child process) and takes the device addresses from it. This is the only place on the host side that
 knows about the simulator.
+
+Faults (issue 6; docs/reliability.md):
+
+* Transient faults are retried where they happen: each driver retries its own transfers (FPSA
+  resend, USB retry and re-find, Modbus reconnect); on top of that a whole batch of segments whose
+  read fails (timeout, disconnect, bad CRC) is re-read up to ``BATCH_RETRIES`` times with
+  exponential backoff (segments are addressed by index, so a re-read is idempotent), each retry
+  logged and counted in the scan meta (``faults.batch_retries``). A device that stays down fails
+  the scan with :class:`ScanFailed` naming the device and the cause; the points measured so far
+  ride on the exception and are written by the worker (nothing measured is lost).
+* Safety between batches: batches are limited to ``SAFETY_CHECK_S`` of hardware time, and after
+  each batch one Modbus request reads the controller's flags (interlock, outputs, fault summary).
+  Interlock open or a latched fault (HV fault) -> laser off and HV off are COMMANDED FIRST, then
+  read back to 0 (:meth:`LidarInstrument._safe_state`), and only then the FPGA is stopped; the batch
+  in flight when it happened is discarded (its light is unknown), the points before it are kept and
+  the result is ``partial`` with ``stop_reason`` naming the cause and the readbacks.
+* Digitizer overrange: points from pixels with a clipped segment get ``valid = 0`` and the meta
+  counts the clipped segments and pixels (never reported as good points).
+* :meth:`LidarInstrument.selftest` toggles every bonded row and every column through the monitor
+  "tap" channel and reports stuck-on / stuck-off switches.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -32,6 +53,7 @@ from drivers.controller.driver import LaserHvController, SettleCheck
 from drivers.controller.protocol import Limits
 from drivers.digitizer.driver import DigitizerDriver
 from drivers.fpsa.driver import FpsaController
+from drivers.usbtmc import DeviceDisconnected, DeviceStall, DeviceTimeout as UsbTimeout, UsbDeviceError
 
 from .config import Config
 from .dsp.frame import FrameDsp
@@ -43,10 +65,43 @@ from .scan import plan
 
 AWG_RATE_HZ = 100e6          # drive samples: 16,000 per 160 us period
 BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
+# Hardware time per batch: the interlock/fault flags are read between batches, so this bounds the
+# host's reaction time (the controller's own hardware interlock drops the outputs at once anyway).
+SAFETY_CHECK_S = 0.01
+BATCH_RETRIES = 3            # re-reads of a failed batch of segments
+BATCH_BACKOFF_S = 0.005      # first backoff between batch re-reads (doubles)
+
+log = logging.getLogger(__name__)
 
 
 class InstrumentError(LidardError):
     """A scan or calibration could not run; the message names the device and the cause."""
+
+
+class ScanFailed(InstrumentError):
+    """A device stayed down mid-scan. ``partial`` holds the points measured before (may be None)."""
+
+    def __init__(self, message: str, partial: ScanResult | None = None):
+        super().__init__(message)
+        self.partial = partial
+
+
+class NotSimulated(InstrumentError):
+    """A simulation-only operation (scene, fault injection) was asked of real hardware."""
+
+
+class SimFaultError(InstrumentError, ValueError):
+    """The simulated bench refused a fault (unknown kind or bad parameter); names it."""
+
+
+@dataclass
+class SimHooks:
+    """What the composition root gives the instrument to reach a simulated bench."""
+
+    set_scene: Callable[[dict], None]
+    inject_fault: Callable[..., dict]
+    clear_faults: Callable[[str | None], int]
+    active_faults: Callable[[], list]
 
 
 @dataclass
@@ -60,7 +115,8 @@ class _AdcPlan:
 class LidarInstrument:
     def __init__(self, cfg: Config, *, fpsa: FpsaController, awg: AwgDriver, digitizer: DigitizerDriver,
                  controller: LaserHvController, simulated: bool, sleep: Callable[[float], object] = time.sleep,
-                 set_scene: Callable[[dict], None] | None = None, on_close: Callable[[], None] | None = None):
+                 set_scene: Callable[[dict], None] | None = None, on_close: Callable[[], None] | None = None,
+                 now: Callable[[], float] = time.monotonic, sim: SimHooks | None = None):
         self.cfg = cfg
         self.profile = cfg.load_profile()
         self.laser = cfg.load_laser()
@@ -68,7 +124,9 @@ class LidarInstrument:
         self.fpsa, self.awg, self.digitizer, self.controller = fpsa, awg, digitizer, controller
         self.simulated = simulated
         self._sleep = sleep
-        self._set_scene = set_scene
+        self._now = now
+        self._sim = sim
+        self._set_scene = set_scene if set_scene is not None else (sim.set_scene if sim else None)
         self._on_close = on_close
         self._lock = threading.RLock()
         self._identity: dict[str, Any] = {}
@@ -90,19 +148,46 @@ class LidarInstrument:
                 self._identity[name] = f"unreachable: {exc}"
 
     def devices(self) -> list[dict[str, Any]]:
+        """Per device: connected true/false and the cause. A device that does not answer is
+        reconnected once (serial port reopened, USB device re-found, Modbus reconnected) and asked
+        again, so GET /devices both shows and heals a lost connection."""
         out = []
-        checks = (("fpsa", lambda: self.fpsa.status()), ("awg", lambda: self.awg.errors()),
-                  ("digitizer", lambda: self.digitizer.status()), ("controller", lambda: self.controller.status()))
+        checks = (("fpsa", self.fpsa, lambda: self.fpsa.status()), ("awg", self.awg, lambda: self.awg.errors()),
+                  ("digitizer", self.digitizer, lambda: self.digitizer.status()),
+                  ("controller", self.controller, lambda: self.controller.status()))
         with self._lock:
-            for name, fn in checks:
+            for name, dev, fn in checks:
+                entry: dict[str, Any] = {"name": name, "reconnected": False}
                 try:
                     state = fn()
-                    out.append({"name": name, "connected": True, "identity": self._identity.get(name),
-                                "state": repr(state), "faults": _faults_of(state)})
                 except Exception as exc:
-                    out.append({"name": name, "connected": False, "identity": self._identity.get(name),
-                                "state": "unreachable", "faults": [f"{type(exc).__name__}: {exc}"]})
+                    first = f"{type(exc).__name__}: {exc}"
+                    try:
+                        dev.reconnect()
+                        state = fn()
+                        entry["reconnected"] = True
+                        log.warning("%s: reconnected (was: %s)", name, first)
+                        if name not in self._identity or str(self._identity[name]).startswith("unreachable"):
+                            self._identify_one(name)
+                    except Exception as exc2:
+                        entry.update(connected=False, identity=self._identity.get(name), state="unreachable",
+                                     faults=[first] + ([f"reconnect: {type(exc2).__name__}: {exc2}"]
+                                                       if str(exc2) != str(exc) else []))
+                        out.append(entry)
+                        continue
+                entry.update(connected=True, identity=self._identity.get(name), state=repr(state),
+                             faults=_faults_of(state))
+                out.append(entry)
         return out
+
+    def _identify_one(self, name: str) -> None:
+        fn = {"fpsa": self.fpsa.identify, "awg": self.awg.identify, "digitizer": self.digitizer.identify,
+              "controller": self.controller.identify}[name]
+        try:
+            ident = fn()
+            self._identity[name] = ident if isinstance(ident, str) else repr(ident)
+        except Exception as exc:
+            self._identity[name] = f"unreachable: {exc}"
 
     def scanner(self) -> dict[str, Any]:
         return self.optics.summary()
@@ -176,7 +261,31 @@ class LidarInstrument:
         hw_t0 = None
         hw_last = 0.0
         partial = False
+        stop_reason: str | None = None
+        faults: dict[str, Any] = {"batch_retries": 0, "overrange_segments": 0, "overrange_pixels": 0}
+        safe: dict[str, Any] | None = None
+
+        def result() -> ScanResult:
+            points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
+            meta = {
+                "adc": {"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
+                        "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
+                "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
+                        "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction},
+                "simulated": self.simulated,
+                "calibration_id": (calibration.meta or {}).get("id") if calibration else None,
+                "faults": dict(faults),
+            }
+            if safe is not None:
+                meta["safe_state"] = safe
+            if stop_reason is not None:
+                meta["stop_reason"] = stop_reason
+            return ScanResult(points=points, meta=meta, pixels_scanned=done, pixels_planned=n_pix,
+                              hardware_time_s=hw_last, partial=partial or stop_reason is not None,
+                              stop_reason=stop_reason)
+
         self._bring_up()
+        stopped_safe = False
         try:
             drive = calibration.drive_v if (calibration is not None and calibration.drive_v.size) else self._plain_drive()
             self._load_drive(drive)
@@ -189,13 +298,33 @@ class LidarInstrument:
             self.fpsa.arm()
             self.fpsa.start()
             bytes_per_pix = avg * adc.record_length * (1 if adc.bits == 8 else 2)
-            batch_pix = max(1, min(n_pix, BATCH_BYTES // max(1, bytes_per_pix)))
+            pixel_s = avg * 2 * self.cfg.chirp.ramp_s + self.cfg.scan.settle_s
+            batch_pix = max(1, min(n_pix, BATCH_BYTES // max(1, bytes_per_pix), int(SAFETY_CHECK_S / pixel_s)))
             while done < n_pix:
                 if cancel.is_set():
                     partial = True
                     break
                 bp = min(batch_pix, n_pix - done)
-                headers, samples = self.digitizer.read_segments(done * avg, bp * avg, cfgd)
+                try:
+                    headers, samples = self._read_batch(done * avg, bp * avg, cfgd, faults)
+                except InstrumentError as exc:
+                    # before blaming the digitizer: did the interlock or a fault stop the light?
+                    reason = self._safety_trip()
+                    if reason is not None:
+                        safe = self._safe_state()
+                        stopped_safe = True
+                        stop_reason = f"{reason}; {_describe_safe(safe)}"
+                        break
+                    raise ScanFailed(str(exc), result()) from exc
+                reason = self._safety_trip()
+                if reason is not None:
+                    # Outputs first; the batch in flight is discarded (when the light went is unknown).
+                    safe = self._safe_state()
+                    stopped_safe = True
+                    stop_reason = f"{reason}; {_describe_safe(safe)}"
+                    faults["discarded_pixels"] = bp
+                    log.warning("scan stopped after %d of %d pixels: %s", done, n_pix, stop_reason)
+                    break
                 t_ns = np.array([h.trigger_time_ns for h in headers], dtype=np.float64)
                 if hw_t0 is None:
                     hw_t0 = t_ns[0]
@@ -203,26 +332,118 @@ class LidarInstrument:
                 res = dsp.process(beat, lsb)
                 px = pixels[done:done + bp]
                 t_pix = (t_ns.reshape(bp, avg)[:, 0] - hw_t0) * 1e-9
-                chunks.append(self._points(res, px, t_pix))
+                pts = self._points(res, px, t_pix)
+                over = np.array([h.overrange for h in headers], dtype=np.int64).reshape(bp, avg) != 0
+                if over.any():
+                    # a clipped beat puts harmonics and a wrong amplitude into the spectrum
+                    clipped_pix = over.any(axis=1)
+                    faults["overrange_segments"] += int(over.sum())
+                    faults["overrange_pixels"] += int(clipped_pix.sum())
+                    local = clipped_pix[_pixel_index(pts, px)]
+                    pts["valid"][local] = 0
+                chunks.append(pts)
                 done += bp
                 hw_last = (t_ns[-1] - hw_t0) * 1e-9 + adc.record_length / adc.fs_hz
                 progress(ScanProgress(done, n_pix, int(sum(len(c) for c in chunks)), hw_last))
+        except ScanFailed:
+            raise
+        except Exception as exc:
+            raise ScanFailed(f"{_device_of(exc)}: {type(exc).__name__}: {exc}", result()) from exc
         finally:
+            if not stopped_safe:
+                try:
+                    self.fpsa.stop()
+                finally:
+                    try:
+                        self._abort_digitizer(done, n_pix)
+                    finally:
+                        self._bring_down()
+            else:
+                try:
+                    self.fpsa.stop()
+                except Exception as exc:  # outputs are already safe; report, do not mask the stop
+                    log.warning("fpsa stop after a safety stop failed: %s", exc)
+                self._abort_digitizer(done, n_pix)
+        return result()
+
+    def _abort_digitizer(self, done: int, n_pix: int) -> None:
+        # An acquisition left armed locks the digitizer's configuration for the next job.
+        if done >= n_pix:
+            return
+        try:
+            self.digitizer.abort()
+        except Exception as exc:
+            log.warning("digitizer abort after an early stop failed: %s", exc)
+
+    def _read_batch(self, first: int, count: int, cfgd, faults: dict[str, Any]):
+        """Read one batch of segments; transient failures re-read the whole batch (bounded)."""
+        last: Exception | None = None
+        for attempt in range(BATCH_RETRIES + 1):
+            if attempt:
+                faults["batch_retries"] += 1
+                delay = BATCH_BACKOFF_S * 2 ** (attempt - 1)
+                log.warning("digitizer: re-reading segments %d..%d (attempt %d/%d) after %s",
+                            first, first + count - 1, attempt + 1, BATCH_RETRIES + 1, last)
+                self._sleep(delay)
             try:
-                self.fpsa.stop()
-            finally:
-                self._bring_down()
-        points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
-        meta = {
-            "adc": {"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
-                    "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
-            "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
-                    "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction},
-            "simulated": self.simulated,
-            "calibration_id": (calibration.meta or {}).get("id") if calibration else None,
-        }
-        return ScanResult(points=points, meta=meta, pixels_scanned=done, pixels_planned=n_pix,
-                          hardware_time_s=hw_last, partial=partial)
+                return self.digitizer.read_segments(first, count, cfgd)
+            except DeviceStall as exc:
+                raise InstrumentError(f"digitizer: refused READ_SEGMENTS({first},{count}): {exc}") from exc
+            except DeviceDisconnected as exc:
+                last = exc
+                try:
+                    self.digitizer.reconnect(f"READ_SEGMENTS({first},{count})")
+                except Exception as exc2:
+                    last = exc2
+            except (UsbTimeout, UsbDeviceError) as exc:
+                last = exc
+        raise InstrumentError(f"digitizer: segments {first}..{first + count - 1} could not be read after "
+                              f"{BATCH_RETRIES + 1} attempts: {type(last).__name__}: {last}") from last
+
+    def _safety_trip(self) -> str | None:
+        """One Modbus request: None when the interlock is closed and no fault is latched."""
+        try:
+            flags = self.controller.flags()
+        except Exception as exc:
+            # cannot see the interlock: treat as unsafe (fail safe)
+            return f"controller: interlock state unreadable ({type(exc).__name__}: {exc})"
+        if not flags.interlock_closed:
+            return "controller: interlock opened mid-scan"
+        if flags.fault_active:
+            try:
+                names = sorted(f.name for f in self.controller.faults())
+            except Exception:
+                names = ["unknown"]
+            return f"controller: fault latched mid-scan ({', '.join(names)})"
+        return None
+
+    def _safe_state(self) -> dict[str, Any]:
+        """Laser off and HV off commanded FIRST, then both read back; returns the readbacks."""
+        t_cmd = float(self._now())
+        errors = []
+        for what, fn in (("laser off", lambda: self.controller.laser_enable(False)),
+                         ("HV off", lambda: self.controller.hv_enable(False))):
+            try:
+                fn()
+            except Exception as exc:
+                errors.append(f"{what}: {type(exc).__name__}: {exc}")
+        try:
+            self.controller.bring_down(settle_check=self._settle())
+        except Exception as exc:
+            errors.append(f"bring down: {type(exc).__name__}: {exc}")
+        out: dict[str, Any] = {"commanded_at_s": t_cmd}
+        try:
+            out["laser_ma"] = float(self.controller.laser_current_ma())
+            out["hv_v"] = float(self.controller.hv_v())
+            out["laser_on"] = bool(self.controller.laser_is_on())
+            out["hv_on"] = bool(self.controller.hv_is_on())
+        except Exception as exc:
+            errors.append(f"readback: {type(exc).__name__}: {exc}")
+        out["safe_at_s"] = float(self._now())
+        out["errors"] = errors
+        out["safe"] = (not errors and not out.get("laser_on") and not out.get("hv_on")
+                       and out.get("laser_ma", 1.0) <= 0.5 and out.get("hv_v", 1.0) <= 0.25)
+        return out
 
     def _points(self, res, px: np.ndarray, t_pix: np.ndarray) -> np.ndarray:
         pi, ki = np.nonzero(res.present)
@@ -300,11 +521,95 @@ class LidarInstrument:
                                  drive_v=np.asarray(res.drive_v, dtype=np.float64), fs_drive_hz=AWG_RATE_HZ,
                                  meta={"mzi_delay_s": tau_m, "adc_rate_hz": fs})
 
+    # -- self-test -------------------------------------------------------------------------------------
+    def selftest(self, progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+        with self._lock:
+            return self._selftest(progress)
+
+    def _selftest(self, progress) -> dict[str, Any]:
+        """Toggle every bonded row (partner: one fixed column) and every column (partner: one fixed
+        row) through a pattern, one pixel per line, and read the monitor "tap" (DC photodiode on the
+        light leaving the chip, proportional to the number of emitting beams).
+
+        Each reading becomes a beam count ``n = round(v / v1)`` with ``v1`` the single-beam level
+        (median of the lowest cluster). A healthy line gives 1. A line reading 0 while its family
+        reads >= 1 is stuck OFF. A stuck-ON line adds a beam to every OTHER measurement of its own
+        family and of the other family, so the family reads 2 while the stuck line itself reads 1:
+        a line reading fewer beams than its family's majority (but not 0) is stuck ON. A family that
+        reads 0 throughout blames its fixed partner (stuck off).
+        """
+        bonded = [int(r) for r in self.optics.bonded_rows]
+        cols = list(range(int(self.optics.cols)))
+        r0 = bonded[len(bonded) // 2]
+        c0 = cols[len(cols) // 2]
+        pixels = np.array([(r, c0) for r in bonded] + [(r0, c) for c in cols], dtype=np.int64)
+        n = len(pixels)
+        fs = float(self.cfg.adc.min_sample_rate_hz) if self.cfg.adc.min_sample_rate_hz else 10e6
+        rec = 64
+        bits = 16
+        if progress is not None:
+            progress({"stage": "preparing", "lines": n})
+        self._bring_up()
+        try:
+            self._load_drive(self._plain_drive())
+            self._run_pattern(pixels, 1)
+            cfgd = self.digitizer.configure(channels=("tap",), sample_rate_hz=fs, record_length=rec,
+                                            segments=n, bits=bits, input_range_v=self.cfg.adc.input_range_v)
+            self.digitizer.arm()
+            self.fpsa.arm()
+            self.fpsa.start()
+            faults: dict[str, Any] = {"batch_retries": 0}
+            volts = np.zeros(n)
+            lsb = self.cfg.adc.input_range_v / 2 ** bits
+            step = 256
+            for first in range(0, n, step):
+                cnt = min(step, n - first)
+                _, samples = self._read_batch(first, cnt, cfgd, faults)
+                volts[first:first + cnt] = samples[:, 0, :].astype(np.float64).mean(axis=1) * lsb
+                if progress is not None:
+                    progress({"stage": "measuring", "done": first + cnt, "lines": n})
+            reason = self._safety_trip()
+            if reason is not None:
+                raise InstrumentError(f"self-test stopped: {reason}")
+        finally:
+            try:
+                self.fpsa.stop()
+            finally:
+                self._bring_down()
+        return analyse_selftest(volts[:len(bonded)], volts[len(bonded):], bonded, cols, r0, c0)
+
     # -- simulation ------------------------------------------------------------------------------------
+    def _hooks(self, what: str) -> SimHooks:
+        if self._sim is None:
+            raise NotSimulated(f"{what}: the instrument is real hardware; only a simulated bench has this")
+        return self._sim
+
     def set_scene(self, scene: dict[str, Any]) -> None:
         if self._set_scene is None:
             raise NotImplementedError("set_scene: only a simulated bench has a scene")
         self._set_scene(scene)
+
+    def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
+        """Simulation only: inject a bench fault (sim_devices.faults catalogue); returns it with its id."""
+        hooks = self._hooks("inject_fault")
+        try:
+            return hooks.inject_fault(kind, **params)
+        except SimFaultError:
+            raise
+        except (ValueError, TypeError) as exc:
+            raise SimFaultError(f"fault {kind!r}: {exc}") from None
+
+    def clear_faults(self, kind: str | None = None) -> int:
+        hooks = self._hooks("clear_faults")
+        try:
+            return int(hooks.clear_faults(kind))
+        except SimFaultError:
+            raise
+        except (ValueError, TypeError) as exc:
+            raise SimFaultError(f"clear faults {kind!r}: {exc}") from None
+
+    def active_faults(self) -> list[dict[str, Any]]:
+        return list(self._hooks("active_faults").active_faults())
 
     def close(self) -> None:
         with self._lock:
@@ -319,6 +624,74 @@ class LidarInstrument:
                     pass
             if self._on_close is not None:
                 self._on_close()
+
+
+def analyse_selftest(row_v: np.ndarray, col_v: np.ndarray, rows: list[int], cols: list[int],
+                     r0: int, c0: int) -> dict[str, Any]:
+    """Beam counts and stuck lines from the tap readings (see LidarInstrument._selftest)."""
+    row_v = np.asarray(row_v, np.float64)
+    col_v = np.asarray(col_v, np.float64)
+    allv = np.concatenate([row_v, col_v])
+    top = float(np.max(allv)) if allv.size else 0.0
+    lit = allv[allv > 0.3 * top] if top > 0 else allv[:0]
+    if lit.size == 0:
+        v1 = float("nan")
+    else:
+        low = lit[lit < 1.5 * lit.min()]
+        v1 = float(np.median(low))
+    stuck: list[dict[str, Any]] = []
+    counts = {}
+    for fam, volts, lines, partner in (("row", row_v, rows, ("col", c0)), ("col", col_v, cols, ("row", r0))):
+        if not np.isfinite(v1) or v1 <= 0:
+            n = np.zeros(len(volts), np.int64)
+        else:
+            n = np.rint(volts / v1).astype(np.int64)
+        counts[fam] = n
+        majority = int(np.bincount(np.clip(n, 0, None)).argmax()) if len(n) else 0
+        if majority == 0:
+            stuck.append({"line": partner[0], "index": int(partner[1]), "state": "off",
+                          "evidence": f"every {fam} read dark with this fixed partner"})
+            continue
+        for i, k in enumerate(n):
+            if k == 0:
+                stuck.append({"line": fam, "index": int(lines[i]), "state": "off",
+                              "evidence": f"tap {volts[i]:.4g} V, no beam (family reads {majority})"})
+            elif majority >= 2 and k < majority:
+                stuck.append({"line": fam, "index": int(lines[i]), "state": "on",
+                              "evidence": f"tap {volts[i]:.4g} V = {k} beam(s) while the other {fam}s read "
+                                          f"{majority}: this line's extra beam is always there"})
+    return {"ok": not stuck, "stuck": stuck, "single_beam_v": v1, "partner_row": int(r0), "partner_col": int(c0),
+            "rows_tested": len(rows), "cols_tested": len(cols),
+            "row_tap_v": [float(v) for v in row_v], "col_tap_v": [float(v) for v in col_v]}
+
+
+def _describe_safe(safe: dict[str, Any]) -> str:
+    if safe.get("safe"):
+        return (f"laser and HV brought down and read back (laser {safe['laser_ma']:.2f} mA, "
+                f"HV {safe['hv_v']:.2f} V)")
+    return "SAFE STATE NOT CONFIRMED: " + "; ".join(safe.get("errors") or ["readback out of tolerance"])
+
+
+def _pixel_index(pts: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Index into ``px`` of each point's pixel (a pixel appears once per batch)."""
+    if not len(pts):
+        return np.zeros(0, np.intp)
+    key_px = px[:, 0].astype(np.int64) * 65536 + px[:, 1].astype(np.int64)
+    key_pt = pts["row"].astype(np.int64) * 65536 + pts["col"].astype(np.int64)
+    order = np.argsort(key_px, kind="stable")
+    pos = np.searchsorted(key_px[order], key_pt)
+    return order[np.clip(pos, 0, len(order) - 1)]
+
+
+def _device_of(exc: BaseException) -> str:
+    dev = getattr(exc, "device", None)
+    if isinstance(dev, str) and dev:
+        return dev
+    mod = type(exc).__module__ or ""
+    for name in ("fpsa", "awg", "digitizer", "controller"):
+        if f"drivers.{name}" in mod:
+            return name
+    return "instrument"
 
 
 def _faults_of(state: Any) -> list[str]:
@@ -336,20 +709,29 @@ def _faults_of(state: Any) -> list[str]:
 # --------------------------------------------------------------------------------------------------
 # Composition root
 # --------------------------------------------------------------------------------------------------
-def _usb_device(backend, spec: str, default_ids: tuple[int, int], who: str):
+def _usb_ids(spec: str, default_ids: tuple[int, int], who: str) -> tuple[int, int]:
+    if spec == "bench":
+        return default_ids
+    try:
+        vid_s, pid_s = spec.split(":")
+        return int(vid_s, 16), int(pid_s, 16)
+    except ValueError:
+        raise InstrumentError(f"{who}: usb address {spec!r} is not VID:PID (hex)") from None
+
+
+def _usb_finder(backend, ids: tuple[int, int]):
     import usb.core
 
-    if spec == "bench":
-        vid, pid = default_ids
-    else:
-        try:
-            vid_s, pid_s = spec.split(":")
-            vid, pid = int(vid_s, 16), int(pid_s, 16)
-        except ValueError:
-            raise InstrumentError(f"{who}: usb address {spec!r} is not VID:PID (hex)") from None
-    dev = usb.core.find(idVendor=vid, idProduct=pid, backend=backend)
+    def find():
+        return usb.core.find(idVendor=ids[0], idProduct=ids[1], backend=backend)
+    return find
+
+
+def _usb_device(backend, spec: str, default_ids: tuple[int, int], who: str):
+    ids = _usb_ids(spec, default_ids, who)
+    dev = _usb_finder(backend, ids)()
     if dev is None:
-        raise InstrumentError(f"{who}: no USB device {vid:04x}:{pid:04x} found")
+        raise InstrumentError(f"{who}: no USB device {ids[0]:04x}:{ids[1]:04x} found")
     return dev
 
 
@@ -361,13 +743,19 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     fpsa_url = endpoints["fpsa_url"] if endpoints and d.fpsa.url == "bench" else d.fpsa.url
     host = endpoints["controller_host"] if endpoints and d.controller.host == "bench" else d.controller.host
     port = endpoints["controller_port"] if endpoints and d.controller.host == "bench" else d.controller.port
-    fpsa = FpsaController(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate)
+    # Backoffs go through ``sleep`` (the virtual clock on a bench) so a device that comes back after
+    # some virtual time is found again without any wall-clock wait.
+    fpsa = FpsaController(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
     ctrl = LaserHvController(host, port, device_id=d.controller.device_id, timeout_s=d.controller.timeout_s,
                              limits=Limits(max_laser_current_ma=d.controller.max_laser_current_ma,
-                                           max_hv_v=d.controller.max_hv_v, tec_range_c=(15.0, 40.0)))
-    awg = AwgDriver(_usb_device(usb_backend, d.awg.usb, (awg_p.AWG_VID, awg_p.AWG_PID), "awg"))
-    dig = DigitizerDriver(_usb_device(usb_backend, d.digitizer.usb,
-                                      (dig_p.DIGITIZER_VID, dig_p.DIGITIZER_PID), "digitizer"))
+                                           max_hv_v=d.controller.max_hv_v, tec_range_c=(15.0, 40.0)),
+                             sleep=sleep, busy_retries=3)
+    awg_ids = _usb_ids(d.awg.usb, (awg_p.AWG_VID, awg_p.AWG_PID), "awg")
+    dig_ids = _usb_ids(d.digitizer.usb, (dig_p.DIGITIZER_VID, dig_p.DIGITIZER_PID), "digitizer")
+    awg = AwgDriver(_usb_device(usb_backend, d.awg.usb, awg_ids, "awg"),
+                    finder=_usb_finder(usb_backend, awg_ids), sleep=sleep)
+    dig = DigitizerDriver(_usb_device(usb_backend, d.digitizer.usb, dig_ids, "digitizer"),
+                          finder=_usb_finder(usb_backend, dig_ids), sleep=sleep)
     return {"fpsa": fpsa, "controller": ctrl, "awg": awg, "digitizer": dig}
 
 
@@ -396,8 +784,11 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
         parts = _connect(cfg, ep, b.usb_backend, b.clock.advance)
         from sim_devices.world.scene import Scene as _Scene
 
-        return LidarInstrument(cfg, simulated=True, sleep=b.clock.advance,
-                               set_scene=lambda d: b.set_scene(_Scene.from_dict(d, source="<request>")),
+        hooks = SimHooks(set_scene=lambda d: b.set_scene(_Scene.from_dict(d, source="<request>")),
+                         inject_fault=lambda kind, **params: b.inject_fault(kind, **params),
+                         clear_faults=lambda kind=None: b.clear_faults(kind),
+                         active_faults=lambda: b.active_faults())
+        return LidarInstrument(cfg, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
                                on_close=b.close, **parts)
     if mode != "child":
         raise InstrumentError(f"sim.bench must be 'embedded' or 'child', got {mode!r}")
@@ -428,6 +819,16 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
         except Exception:
             proc.kill()
 
+    def call(cmd: str, **kw) -> dict:
+        try:
+            return ctl.call(cmd, **kw)
+        except ValueError as exc:   # the bench refused (unknown kind, bad parameter): say so
+            raise SimFaultError(str(exc)) from None
+
+    hooks = SimHooks(set_scene=lambda d: ctl.call("set_scene", scene=d),
+                     inject_fault=lambda kind, **params: call("inject", kind=kind, **params)["fault"],
+                     clear_faults=lambda kind=None: int(call("clear_faults", kind=kind)["cleared"]),
+                     active_faults=lambda: call("faults")["faults"])
     parts = _connect(cfg, ep, backend_from_url(ep["usb_url"]), advance)
-    return LidarInstrument(cfg, simulated=True, sleep=advance,
-                           set_scene=lambda d: ctl.call("set_scene", scene=d), on_close=stop_child, **parts)
+    return LidarInstrument(cfg, simulated=True, sleep=advance, now=lambda: float(ctl.call("ping")["t_s"]),
+                           sim=hooks, on_close=stop_child, **parts)

@@ -62,6 +62,7 @@ class ScanResult:
     pixels_planned: int
     hardware_time_s: float
     partial: bool = False                            # cancelled / interlock / fault part-way
+    stop_reason: str | None = None                   # why a scan stopped early (interlock, fault)
 
 
 @dataclass
@@ -100,6 +101,11 @@ class Instrument(Protocol):
 
     def linearize(self, progress: Callable[[dict[str, Any]], None] | None = None) -> CalibrationResult:
         """Run the ILC chirp linearization through the monitor MZI."""
+
+    def selftest(self) -> dict[str, Any]:
+        """Toggle every bonded row and every column against the monitor tap; report stuck switches:
+        ``{"ok": bool, "stuck": [{"line": "row"|"col", "index", "state": "on"|"off", "evidence"}],
+        "single_beam_v", "partner_row", "partner_col", "rows_tested", "cols_tested", ...}``."""
 
     def set_scene(self, scene: dict[str, Any]) -> None:
         """Simulation only: replace the scene (raises NotImplementedError on real hardware)."""

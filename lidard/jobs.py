@@ -13,7 +13,11 @@ Policy (also in docs/api.md):
 * Cancel: a queued scan becomes ``cancelled`` at once; a running scan's cancel event is set, the
   instrument returns the points so far, which are written and marked ``partial``.
 * Failure: the state becomes ``failed`` and ``error`` holds the exception type, message and cause
-  (which names the device).
+  (which names the device). When the instrument hands back the points measured before the failure
+  (``ScanFailed.partial``), they are written like any partial scan: nothing measured is lost.
+* Safety stop (interlock opened, HV fault mid-scan): the instrument returns ``stop_reason``; the scan
+  is written with ``partial`` and ends ``failed`` with that reason as its ``error``.
+* Self-test (``submit_selftest``) is queued like a linearization and resolves to the report.
 * Progress updates the store at most every ``progress_interval_s`` (wall clock; it only throttles
   database writes) and is published to subscribers (the SSE endpoint, the CLI's progress bar). The
   last event of a scan is ``{"event": "end", ...}``.
@@ -108,6 +112,11 @@ class _ScanJob:
 
 @dataclasses.dataclass
 class _CalibrationJob:
+    future: concurrent.futures.Future = dataclasses.field(default_factory=concurrent.futures.Future)
+
+
+@dataclasses.dataclass
+class _SelftestJob:
     future: concurrent.futures.Future = dataclasses.field(default_factory=concurrent.futures.Future)
 
 
@@ -208,6 +217,13 @@ class ScanWorker:
             self._enqueue(job)
         return job.future
 
+    def submit_selftest(self) -> concurrent.futures.Future:
+        """Queue a switch self-test (``instrument.selftest()``); the future resolves to its report."""
+        job = _SelftestJob()
+        with self._cv:
+            self._enqueue(job)
+        return job.future
+
     def cancel(self, scan_id: str) -> ScanRecord:
         """Cancel a queued or running scan; a finished one is returned unchanged."""
         with self._cv:
@@ -278,6 +294,8 @@ class ScanWorker:
             try:
                 if isinstance(job, _ScanJob):
                     self._run_scan(job)
+                elif isinstance(job, _SelftestJob):
+                    self._run_selftest(job)
                 else:
                     self._run_calibration(job)
             except Exception:  # never let the worker thread die
@@ -293,6 +311,17 @@ class ScanWorker:
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             job.future.set_result(cal)
+        except Exception as exc:
+            job.future.set_exception(exc)
+
+    def _run_selftest(self, job: _SelftestJob) -> None:
+        if not job.future.set_running_or_notify_cancel():
+            return
+        try:
+            report = self.instrument.selftest()
+            log.info("self-test: %s", "all switches respond" if report.get("ok") else
+                     f"stuck switches: {report.get('stuck')}")
+            job.future.set_result(report)
         except Exception as exc:
             job.future.set_exception(exc)
 
@@ -351,8 +380,24 @@ class ScanWorker:
             return
         except Exception as exc:
             log.warning("scan %s failed: %s", job.id, describe_error(exc))
+            partial_result = getattr(exc, "partial", None)
+            files: dict[str, str] = {}
+            counts: dict[str, Any] = {}
+            if isinstance(partial_result, ScanResult) and partial_result.pixels_scanned > 0:
+                # keep what was measured before the device went down
+                try:
+                    files = self._write(job, dataclasses.replace(partial_result, partial=True), cal_id,
+                                        time.monotonic() - t0)
+                    counts = dict(points=int(len(partial_result.points)),
+                                  pixels_scanned=int(partial_result.pixels_scanned),
+                                  pixels_planned=int(partial_result.pixels_planned),
+                                  hardware_time_s=float(partial_result.hardware_time_s))
+                except Exception:
+                    log.exception("writing the partial points of failed scan %s failed", job.id)
+                    files, counts = {}, {}
             self.store.update_scan(job.id, state="failed", stage="failed", error=describe_error(exc),
-                                   finished=time.time(), wall_time_s=time.monotonic() - t0)
+                                   finished=time.time(), wall_time_s=time.monotonic() - t0,
+                                   partial=bool(files), files=files, **counts)
             self._finish(job)
             return
         wall = time.monotonic() - t0
@@ -365,12 +410,17 @@ class ScanWorker:
             self._finish(job)
             return
         partial = bool(result.partial or job.cancel.is_set())
-        if job.cancel.is_set():
+        stop_reason = getattr(result, "stop_reason", None)
+        if stop_reason:
+            state = "failed"
+            log.warning("scan %s stopped: %s", job.id, stop_reason)
+        elif job.cancel.is_set():
             state = "interrupted" if self._stopping else "cancelled"
         else:
             state = "done"
         self.store.update_scan(
             job.id, state=state, stage=state, partial=partial, files=files, finished=time.time(),
+            error=(f"SafetyStop: {stop_reason}" if stop_reason else None),
             points=int(len(result.points)), pixels_scanned=int(result.pixels_scanned),
             pixels_planned=int(result.pixels_planned), hardware_time_s=float(result.hardware_time_s),
             wall_time_s=wall, progress=(result.pixels_scanned / result.pixels_planned
@@ -429,6 +479,7 @@ class ScanWorker:
             "software_version": software_version(),
             "simulated": bool(getattr(self.instrument, "simulated", False)),
             "partial": bool(result.partial or job.cancel.is_set()),
+            "stop_reason": getattr(result, "stop_reason", None),
         }
         out_dir = self.store.scan_dir(job.id)
         files = {}
