@@ -274,3 +274,40 @@ def guard(token: str | None) -> Callable[[Request], None]:
 
 def locked_response(exc: LockHeld) -> JSONResponse:
     return JSONResponse({"detail": str(exc), "holder": exc.holder}, status_code=423)
+
+
+_GATE_RESPONSES = {
+    "400": "the request body could not be decoded (not UTF-8) or Content-Length is malformed",
+    "401": "the daemon has an API token and the request lacks 'Authorization: Bearer <token>'",
+    "413": "request body larger than the daemon's max_body_bytes",
+    "423": "another client holds the control lock (POST /control); send its X-Lidard-Lease",
+}
+
+
+def document_gates(app) -> None:
+    """Add the answers of the gates above (400/401/413/423) to every mutating operation's OpenAPI entry.
+
+    The gates are app-wide dependencies and middleware, which FastAPI cannot see per route; a
+    client generated from the schema should still know these answers exist.
+    """
+    base = app.openapi
+    done = False
+
+    def openapi() -> dict[str, Any]:
+        nonlocal done
+        schema = base()
+        if not done:
+            for path, ops in schema.get("paths", {}).items():
+                for method, op in ops.items():
+                    if method.upper() not in MUTATING_METHODS:
+                        continue
+                    for code, text in _GATE_RESPONSES.items():
+                        if code == "423" and path == router.prefix:
+                            text = "the request does not carry the current lease (another client holds it)"
+                        op.setdefault("responses", {}).setdefault(code, {"description": text})
+                    if "requestBody" in op:  # a body that decodes but does not validate
+                        op["responses"].setdefault("422", {"description": "invalid request body"})
+            done = True
+        return schema
+
+    app.openapi = openapi

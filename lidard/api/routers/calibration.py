@@ -11,7 +11,8 @@ from ..schemas import CalibrationOut
 router = APIRouter(prefix="/calibration", tags=["calibration"])
 
 
-@router.post("/linearize", response_model=CalibrationOut, status_code=status.HTTP_201_CREATED)
+@router.post("/linearize", response_model=CalibrationOut, status_code=status.HTTP_201_CREATED,
+             responses={503: {"description": "the linearization failed on a device fault (named)"}})
 async def linearize(worker: WorkerDep) -> CalibrationOut:
     """Queue a linearization behind the scans already waiting and return its result."""
     future = worker.submit_calibration()
@@ -23,7 +24,8 @@ async def linearize(worker: WorkerDep) -> CalibrationOut:
     return CalibrationOut.from_result(cal)
 
 
-@router.get("", response_model=CalibrationOut)
+@router.get("", response_model=CalibrationOut,
+            responses={404: {"description": "no calibration stored for the configured laser yet"}})
 def latest(store: StoreDep, cfg: ConfigDep) -> CalibrationOut:
     cal = store.latest_calibration(cfg.laser)
     if cal is None:

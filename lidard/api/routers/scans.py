@@ -19,11 +19,15 @@ router = APIRouter(prefix="/scans", tags=["scans"])
 _MEDIA = {"ply": "application/octet-stream", "las": "application/vnd.las", "npz": "application/octet-stream"}
 
 
+_404 = {404: {"description": "no scan with this id"}}
+
+
 def _not_found(scan_id: str) -> HTTPException:
     return HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id!r} not found")
 
 
-@router.post("", response_model=ScanOut, status_code=status.HTTP_201_CREATED)
+@router.post("", response_model=ScanOut, status_code=status.HTTP_201_CREATED,
+             responses={503: {"description": "the queue is full or the daemon is shutting down (Retry-After)"}})
 def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics: OpticsDep) -> ScanOut:
     req = body.to_request()
     try:
@@ -49,7 +53,7 @@ def list_scans(store: StoreDep, worker: WorkerDep,
                     queue_length=worker.queue_length(), running=worker.current_scan_id())
 
 
-@router.get("/{scan_id}", response_model=ScanOut)
+@router.get("/{scan_id}", response_model=ScanOut, responses=_404)
 def get_scan(scan_id: str, store: StoreDep) -> ScanOut:
     rec = store.get_scan(scan_id)
     if rec is None:
@@ -81,7 +85,7 @@ def get_points(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz
                         headers={"X-Lidard-Partial": "true" if rec.partial else "false"})
 
 
-@router.delete("/{scan_id}", response_model=ScanOut)
+@router.delete("/{scan_id}", response_model=ScanOut, responses=_404)
 def cancel_scan(scan_id: str, worker: WorkerDep) -> ScanOut:
     """Cancel: queued -> cancelled at once; running -> stops, the points so far are kept (partial)."""
     try:
@@ -96,7 +100,7 @@ def _sse(event: dict) -> bytes:
 
 
 @router.get("/{scan_id}/events", response_class=StreamingResponse,
-            responses={200: {"content": {"text/event-stream": {}}}})
+            responses={200: {"content": {"text/event-stream": {}}}, **_404})
 async def scan_events(scan_id: str, store: StoreDep, worker: WorkerDep) -> StreamingResponse:
     """Server-sent events: ``progress`` while the scan runs, then one ``end`` and the stream closes."""
     if store.get_scan(scan_id) is None:

@@ -1,0 +1,77 @@
+"""schemathesis (4.x) over the daemon's OpenAPI schema, in process against create_app + FakeInstrument.
+
+What counts as a failure: ANY 5xx, including 503. The daemon answers 503 only for its own state
+(queue full, shutting down, a device fault), never for bad input, and this run arranges that state
+not to happen (a healthy fake instrument, a queue too long to fill), so every 5xx here would be
+bad input that escaped validation. Also checked: documented status codes, response bodies against
+their schemas, content types, and that schema-violating requests are rejected with a 4xx.
+
+Not checked, on purpose:
+- ``positive_data_acceptance``: ``POST /scans`` validates against the device (``first < stop``,
+  wire-bonded rows, pixels only with pattern ``pixels``), which JSON Schema cannot express, so a
+  schema-valid body may rightly be a 422 naming the field.
+- ``allow_header_conformance``: Starlette's 405 lists only the methods of the route it matched.
+- ``negative_data_rejection`` for ``PUT /sim/scene``: an empty body is an empty TOML scene, which
+  the simulator accepts (a valid empty world), although the schema marks the body required.
+
+The control lock is released after every case so that a generated ``POST /control`` does not turn
+the rest of the run into 423s.
+"""
+
+import sys
+from pathlib import Path
+
+import pytest
+import schemathesis
+from fastapi.testclient import TestClient
+from hypothesis import HealthCheck, settings
+
+sys.path.insert(0, str(Path(__file__).parent))
+from lidard_fakes import FakeInstrument  # noqa: E402
+
+from lidard.api.app import create_app  # noqa: E402
+from lidard.config import load_config  # noqa: E402
+
+_APP = {}
+
+
+@pytest.fixture(scope="module")
+def lidard_openapi(tmp_path_factory):
+    app = create_app(load_config(), instrument=FakeInstrument(), data_dir=tmp_path_factory.mktemp("st"),
+                     max_queue=1_000_000, progress_interval_s=0.0)
+    _APP["app"] = app
+    with TestClient(app):  # runs the lifespan: store, worker
+        yield schemathesis.openapi.from_asgi("/openapi.json", app)
+
+
+schema = schemathesis.pytest.from_fixture("lidard_openapi")
+
+
+@schema.parametrize()
+@settings(max_examples=50, derandomize=True, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
+                                 HealthCheck.function_scoped_fixture])
+def test_api_has_no_5xx_and_conforms(case):
+    excluded = [schemathesis.checks.positive_data_acceptance, schemathesis.checks.allow_header_conformance]
+    if case.operation.label == "PUT /sim/scene":
+        excluded.append(schemathesis.checks.negative_data_rejection)
+    try:
+        response = case.call_and_validate(excluded_checks=excluded)
+        assert response.status_code < 500, (case.operation.label, response.status_code, response.text)
+    finally:
+        lock = _APP["app"].state.control_lock
+        held = lock.holder()
+        if held is not None:
+            lock.release(held.token)
+
+
+def test_openapi_documents_the_gates(lidard_openapi):
+    """Every mutating operation lists 401/413/423; reads do not (they are never locked)."""
+    app = _APP["app"]
+    paths = app.openapi()["paths"]
+    mutating = [(p, m) for p, ops in paths.items() for m in ops if m in ("post", "put", "patch", "delete")]
+    assert ("/scans", "post") in mutating and ("/sim/scene", "put") in mutating and ("/control", "post") in mutating
+    for p, m in mutating:
+        assert {"401", "413", "423"} <= set(paths[p][m]["responses"]), (p, m)
+    assert "423" not in paths["/scans"]["get"]["responses"]
+    assert "404" in paths["/scans/{scan_id}"]["get"]["responses"]
