@@ -506,6 +506,35 @@ def cmd_linearize(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------- selftest
+EXIT_STUCK = 3   # the self-test ran and found a stuck switch
+
+
+def cmd_selftest(args) -> int:
+    """Toggle every row and column against the monitor tap; exit 3 if a switch is stuck."""
+    if args.sim:
+        with _embedded(args) as (worker, store, inst):
+            report = worker.submit_selftest().result()
+    else:
+        c = _client(args)
+        try:
+            report = c.request("POST", "/selftest", timeout=None).json()
+        finally:
+            c.close()
+    if args.json:
+        _emit_json(report)
+    else:
+        v1 = report.get("single_beam_v")
+        print(f"self-test: {report['rows_tested']} rows (partner column {report['partner_col']}), "
+              f"{report['cols_tested']} columns (partner row {report['partner_row']}); "
+              f"one beam = {v1:.4g} V at the tap" if isinstance(v1, (int, float)) else "no light at the tap")
+        if report["ok"]:
+            print("all switches respond: none stuck")
+        for st in report["stuck"]:
+            print(f"STUCK {st['state'].upper():<3} {st['line']} {st['index']}: {st.get('evidence', '')}")
+    return 0 if report["ok"] else EXIT_STUCK
+
+
 def _plot_linearization(its: list[dict[str, float]], path: str) -> None:
     import io
 
@@ -587,6 +616,10 @@ def build_lidarctl_parser() -> argparse.ArgumentParser:
     sp.add_argument("--format", choices=["ply", "las", "npz"], default=None)
     sp.add_argument("--out", default=None)
     sp.set_defaults(fn=cmd_scans)
+
+    sp = sub.add_parser("selftest", help="toggle every FPSA row/column, report stuck switches (exit 3)")
+    daemon_opts(sp, sim=True)
+    sp.set_defaults(fn=cmd_selftest)
 
     sp = sub.add_parser("linearize", help="run the chirp linearization (ILC)")
     daemon_opts(sp, sim=True)

@@ -26,7 +26,7 @@ from ..jobs import ScanWorker, software_version
 from ..store import Store
 from . import control
 from .control import DEFAULT_LEASE_TTL_S, BodySizeLimit, ControlLock, LockHeld
-from .routers import calibration, devices, health, scans, sim
+from .routers import calibration, devices, health, scans, selftest, sim
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
     app.add_middleware(BodySizeLimit, max_body_bytes=int(
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)
-    for r in (health.router, devices.router, scans.router, calibration.router, sim.router):
+    for r in (health.router, devices.router, scans.router, calibration.router, sim.router, selftest.router):
         app.include_router(r)
 
     @app.exception_handler(LidardError)

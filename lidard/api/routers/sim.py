@@ -1,8 +1,15 @@
-"""PUT /sim/scene: replace the simulated bench's scene (simulation only)."""
+"""Simulation only: PUT /sim/scene replaces the bench's scene; /sim/faults injects, lists and clears
+bench faults (issue 6: the catalogue and parameters are those of ``sim_devices.faults``).
+
+On a real instrument every endpoint here answers 409 (the request is fine, the daemon's state, real
+hardware, does not allow it). A fault the bench refuses (unknown kind, bad parameter) is 422 naming it.
+"""
 
 import json
+from typing import Any
 
-from fastapi import APIRouter, HTTPException, Request, status
+from fastapi import APIRouter, HTTPException, Query, Request, status
+from pydantic import BaseModel, ConfigDict, Field
 
 from ..deps import InstrumentDep
 from ..schemas import SceneAccepted
@@ -47,3 +54,59 @@ async def put_scene(request: Request, instrument: InstrumentDep) -> SceneAccepte
         raise HTTPException(422, [{"loc": ["body"], "msg": str(exc), "type": "scene_error"}]) from None
     instrument.set_scene(data)
     return SceneAccepted(name=scene.name, targets=len(scene))
+
+
+class FaultIn(BaseModel):
+    """``{"kind": "<fault kind>", <its parameters>...}``, e.g. ``{"kind": "usb_timeout", "device":
+    "digitizer", "n": 2}``; the kinds and parameters are listed in docs/reliability.md."""
+
+    model_config = ConfigDict(extra="allow")
+    kind: str = Field(min_length=1, max_length=64)
+
+
+class FaultList(BaseModel):
+    faults: list[dict[str, Any]]
+
+
+class FaultsCleared(BaseModel):
+    cleared: int
+
+
+def _require_sim(instrument) -> None:
+    if not getattr(instrument, "simulated", False) or not hasattr(instrument, "inject_fault"):
+        raise HTTPException(status.HTTP_409_CONFLICT, "the instrument is real hardware; faults can only "
+                                                      "be injected into a simulated bench")
+
+
+def _refused(exc: Exception) -> HTTPException:
+    return HTTPException(422, [{"loc": ["body"], "msg": str(exc), "type": "fault_error"}])
+
+
+@router.post("/faults", response_model=dict[str, Any], status_code=status.HTTP_201_CREATED,
+             responses={409: {"description": "real hardware"}, 422: {"description": "unknown kind or bad parameter"}})
+def inject_fault(body: FaultIn, instrument: InstrumentDep) -> dict[str, Any]:
+    """Inject one fault into the simulated bench; answers the active fault with its ``id``."""
+    _require_sim(instrument)
+    params = dict(body.model_extra or {})
+    try:
+        return instrument.inject_fault(body.kind, **params)
+    except (ValueError, TypeError) as exc:  # SimFaultError is a ValueError
+        raise _refused(exc) from None
+
+
+@router.get("/faults", response_model=FaultList, responses={409: {"description": "real hardware"}})
+def list_faults(instrument: InstrumentDep) -> FaultList:
+    _require_sim(instrument)
+    return FaultList(faults=instrument.active_faults())
+
+
+@router.delete("/faults", response_model=FaultsCleared,
+               responses={409: {"description": "real hardware"}, 422: {"description": "unknown kind"}})
+def clear_faults(instrument: InstrumentDep,
+                 kind: str | None = Query(None, min_length=1, max_length=64)) -> FaultsCleared:
+    """Clear every fault, or only those of ``kind``; normal behaviour is restored (ports reconnect)."""
+    _require_sim(instrument)
+    try:
+        return FaultsCleared(cleared=instrument.clear_faults(kind))
+    except (ValueError, TypeError) as exc:
+        raise _refused(exc) from None
