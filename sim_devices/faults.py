@@ -14,9 +14,11 @@ kind                      parameters (``*`` required)
 ``usb_stall``             cleared); timeout = the transfer times out, stall = EPIPE;
 ``usb_disconnect``        disconnect = ENODEV and the device leaves the bus enumeration
                           (with ``n``: it comes back after n failed transfers).
-``digitizer_overrange``   ``gain`` (default 20): the analog front end scales the beat (signal and
-                          noise) by ``gain``; it clips at full scale and the segment header's
-                          overrange flag is set on clipped segments.
+``digitizer_overrange``   ``gain`` (linear, default 1000): the analog front end scales the beat
+                          (signal and noise) by ``gain``; it clips at full scale and the segment
+                          header's overrange flag is set on clipped segments. NOTE: a paper
+                          target at 0.9 m gives a ~0.75 mV beat on sim.toml's 1 V range, so a
+                          gain of 20 does NOT clip it; ~700 or more does.
 ``modbus_exception``      ``code``* (a Modbus exception code), ``n`` requests (omitted: until
                           cleared) answered with it, nothing executed.
 ``modbus_timeout``        ``n`` responses swallowed (omitted: until cleared); requests execute.
@@ -125,7 +127,7 @@ CATALOGUE: dict[str, dict[str, tuple[_Checker, Any]]] = {
     "usb_timeout": dict(_USB),
     "usb_stall": dict(_USB),
     "usb_disconnect": dict(_USB),
-    "digitizer_overrange": {"gain": (_positive, 20.0)},
+    "digitizer_overrange": {"gain": (_positive, 1000.0)},
     "modbus_exception": {"code": (_modbus_code, _REQUIRED), "n": (_count, None)},
     "modbus_timeout": {"n": (_count, None)},
     "interlock_open": {"at_s": (_non_negative, None), "after_segments": (_index, None)},

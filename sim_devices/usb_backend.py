@@ -187,14 +187,18 @@ class SimUsbDevice:
             self.connected = True
             self._gone_for = None
 
+    def _gone(self, what: str) -> usb.core.USBError:
+        """An access while unplugged: counts toward a timed disconnect's end."""
+        self.faulted_transfers += 1
+        if self._gone_for is not None:
+            self._gone_for -= 1
+            if self._gone_for <= 0:
+                self.reconnect()
+        return usb_nodev(what)
+
     def _check(self, op: FaultOp, what: str) -> None:
         if not self.connected:
-            self.faulted_transfers += 1
-            if self._gone_for is not None:
-                self._gone_for -= 1
-                if self._gone_for <= 0:
-                    self.reconnect()
-            raise usb_nodev(what)
+            raise self._gone(what)
         for kind, fop in self._persistent:
             if fop in ("any", op):
                 self.faulted_transfers += 1
@@ -217,8 +221,9 @@ class SimUsbDevice:
 
     # -- called by the backends
     def usb_open(self) -> None:
-        if not self.connected:
-            raise usb_nodev("open")
+        with self._lock:
+            if not self.connected:
+                raise self._gone("open")
 
     def usb_ctrl(self, bm_request_type: int, b_request: int, w_value: int, w_index: int,
                  data: bytes | None, w_length: int) -> bytes | int:

@@ -1,0 +1,72 @@
+"""Shared set-up for the fault-injection tests: a started bench (in-process USB), real drivers
+(imported by the test modules; a unique basename, not a conftest, so it never shadows another)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.awg import protocol as awg_p
+from drivers.controller.driver import LaserHvController, SettleCheck
+from drivers.controller.protocol import Limits
+from drivers.fpsa.driver import FpsaController
+from lidard.config import load_config
+from lidard.physics.chirp import triangle_drive_v
+from sim_devices.bench import Bench
+
+SIM_TOML = Path(__file__).resolve().parents[3] / "config" / "sim.toml"
+LIMITS = Limits(max_laser_current_ma=150.0, max_hv_v=60.0, tec_range_c=(15.0, 40.0))
+
+
+@pytest.fixture
+def bench():
+    b = Bench(load_config(SIM_TOML))
+    b.start(usb="inproc")
+    yield b
+    b.close()
+
+
+def controller(bench: Bench, **kw) -> LaserHvController:
+    ep = bench.endpoints()
+    kw.setdefault("timeout_s", 1.0)
+    return LaserHvController(ep["controller_host"], ep["controller_port"], limits=LIMITS,
+                             settle_check=SettleCheck(sleep=bench.clock.advance), **kw)
+
+
+def fpsa(bench: Bench, **kw) -> FpsaController:
+    kw.setdefault("timeout_s", 0.5)
+    return FpsaController(bench.endpoints()["fpsa_url"], **kw)
+
+
+def power_up(bench: Bench) -> LaserHvController:
+    ctl = controller(bench)
+    ctl.bring_up(100.0, 50.0)
+    return ctl
+
+
+def chirp_on(bench: Bench, fs_hz: float = 100e6) -> None:
+    """Put a plain triangle on the simulated AWG's output (bench-side set-up, not a fault)."""
+    cfg = bench.cfg
+    drive = triangle_drive_v(cfg.chirp.excursion_hz, cfg.chirp.ramp_s, fs_hz,
+                             bench.laser_preset.static_tuning_hz_per_v)
+    amp = float(np.abs(drive).max())
+    bench.awg.codes = awg_p.codes_from_normalized(drive / amp)
+    bench.awg.amplitude_v = amp
+    bench.awg.sample_rate_hz = fs_hz
+    bench.awg.output_on = True
+
+
+def run_pattern(fp: FpsaController, pixels, *, triggers_per_pixel: int = 1,
+                trigger_period_ns: int = 200_000, settle_ns: int = 20_000) -> None:
+    """Upload ``pixels`` and start a run (settled switches: 20 us >> the 2.7 us column response)."""
+    fp.upload_pattern(np.asarray(pixels, dtype=np.int64))
+    fp.set_timing(settle_ns=settle_ns, dwell_ns=0, triggers_per_pixel=triggers_per_pixel,
+                  trigger_period_ns=trigger_period_ns)
+    fp.arm()
+    fp.start()
+
+
+def restart(fp: FpsaController) -> None:
+    fp.stop()
+    fp.arm()
+    fp.start()
