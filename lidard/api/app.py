@@ -80,6 +80,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
     app.add_middleware(BodySizeLimit, max_body_bytes=int(
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)
+    control.document_gates(app)
     for r in (health.router, devices.router, scans.router, calibration.router, sim.router, selftest.router):
         app.include_router(r)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
 from ..instrument_api import OutputFormat, PatternKind, ScanRequest
 
@@ -25,12 +25,14 @@ class _Out(BaseModel):
 class ScanCreate(_In):
     """POST /scans. ``rows``/``cols`` are [first, stop) ranges; ``pixels`` a list of [row, col]."""
 
+    # Strict numbers: lax coercion would take ``true`` for 1.0 or "3" for 3 (found by schemathesis);
+    # a body is what the client meant or a 422, never a guess.
     pattern: PatternKind = "raster"
-    rows: tuple[int, int] | None = None
-    cols: tuple[int, int] | None = None
-    pixels: list[tuple[int, int]] | None = Field(default=None, min_length=1, max_length=1 << 20)
-    averages: int = Field(default=1, ge=1, le=100)
-    max_range_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False)
+    rows: tuple[StrictInt, StrictInt] | None = None
+    cols: tuple[StrictInt, StrictInt] | None = None
+    pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
+    averages: StrictInt = Field(default=1, ge=1, le=100)
+    max_range_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False, strict=True)
     formats: list[OutputFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=3)
 
     @field_validator("rows", "cols")

@@ -35,9 +35,19 @@ from lidard.config import load_config  # noqa: E402
 _APP = {}
 
 
+class HealthyInstrument(FakeInstrument):
+    """The fake plus a self-test that finds nothing stuck (POST /selftest)."""
+
+    def selftest(self):
+        n_rows, n_cols = self.optics.summary()["pixels"]
+        return {"ok": True, "stuck": [], "single_beam_v": 0.5, "partner_row": 0, "partner_col": 0,
+                "rows_tested": n_rows, "cols_tested": n_cols, "row_tap_v": [0.5] * n_rows,
+                "col_tap_v": [0.5] * n_cols}
+
+
 @pytest.fixture(scope="module")
 def lidard_openapi(tmp_path_factory):
-    app = create_app(load_config(), instrument=FakeInstrument(), data_dir=tmp_path_factory.mktemp("st"),
+    app = create_app(load_config(), instrument=HealthyInstrument(), data_dir=tmp_path_factory.mktemp("st"),
                      max_queue=1_000_000, progress_interval_s=0.0)
     _APP["app"] = app
     with TestClient(app):  # runs the lifespan: store, worker
@@ -75,3 +85,22 @@ def test_openapi_documents_the_gates(lidard_openapi):
         assert {"401", "413", "423"} <= set(paths[p][m]["responses"]), (p, m)
     assert "423" not in paths["/scans"]["get"]["responses"]
     assert "404" in paths["/scans/{scan_id}"]["get"]["responses"]
+
+
+@pytest.mark.parametrize("body, field", [
+    ({"max_range_m": True}, "max_range_m"),      # found by schemathesis: lax mode read true as 1.0
+    ({"averages": True}, "averages"),
+    ({"averages": 2.0}, "averages"),
+    ({"averages": "2"}, "averages"),
+    ({"rows": [False, 3], "pattern": "roi"}, "rows"),
+    ({"pattern": "pixels", "pixels": [["1", 2]]}, "pixels"),
+])
+def test_lax_coercions_are_422(tmp_path, body, field):
+    inst = FakeInstrument()
+    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
+        r = c.post("/scans", json=body)
+        assert r.status_code == 422 and field in str(r.json()["detail"])
+        assert inst.requests == []
+        # the same fields with proper JSON types are accepted
+        assert c.post("/scans", json={"pattern": "roi", "rows": [0, 1], "cols": [0, 2], "averages": 2,
+                                      "max_range_m": 3}).status_code == 201
