@@ -1,0 +1,585 @@
+"""The one-command performance and accuracy report (issue 7): ``python -m benchmarks``.
+
+Runs every benchmark in this folder in one process, one run per comparison (the variants of a
+comparison are measured side by side in the same run, so their ratios survive a noisy shared
+machine), and writes ``<out>/benchmarks.md`` (generated; tables, targets of issues 3 and 6, the
+dissertation's figures) and PNG plots under ``<out>/img/``. The markdown is written to a temporary
+file and renamed, so a failed run never leaves half a report.
+
+    python -m benchmarks [--quick] [--out DIR] [--only SECTION ...]
+
+``--quick`` runs tiny sizes (the test and development); its figures are not conclusive. ``--out``
+defaults to the repository's ``docs/``. Every section's wall time is printed and recorded. A
+section whose provider is missing (another module not delivered yet) or that fails is written as
+such in the report, named with the error, and the command exits with status 1.
+
+BLAS is pinned to one thread (set before numpy loads, in ``benchmarks/__main__.py``), so every
+figure here is per core unless stated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import importlib
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = ROOT / "docs"
+C_M_PER_S = 299_792_458.0
+
+
+class SectionUnavailable(RuntimeError):
+    """A section's provider (a function another module must supply) is not there."""
+
+
+@dataclass
+class Section:
+    key: str
+    title: str
+    markdown: str = ""
+    data: dict = field(default_factory=dict)
+    headline: list[tuple[str, str, str]] = field(default_factory=list)   # (what, measured, target)
+    seconds: float = 0.0
+    error: str | None = None
+
+
+# --------------------------------------------------------------------------------------------- helpers
+def need(module: str, name: str) -> Callable:
+    """benchmarks.<module>.<name>, or a SectionUnavailable that says what is missing."""
+    try:
+        mod = importlib.import_module(f"benchmarks.{module}")
+    except ImportError as exc:
+        raise SectionUnavailable(f"benchmarks/{module}.py cannot be imported: {exc}") from None
+    fn = getattr(mod, name, None)
+    if not callable(fn):
+        raise SectionUnavailable(f"benchmarks/{module}.py has no function {name}() yet "
+                                 f"(the stated interface of issue 7)")
+    return fn
+
+
+def fmt(x: Any, spec: str = ".3g") -> str:
+    if isinstance(x, (bool, np.bool_)):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        return f"{int(x):,}"
+    if isinstance(x, (float, np.floating)):
+        if not math.isfinite(float(x)):
+            return "n/a"
+        return format(float(x), spec)
+    return str(x)
+
+
+def table(header: list[str], rows: list[list[Any]]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for r in rows:
+        out.append("| " + " | ".join(c if isinstance(c, str) else fmt(c) for c in r) + " |")
+    return "\n".join(out) + "\n"
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(fig, img_dir: Path, name: str) -> str:
+    img_dir.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(img_dir / name, dpi=100)
+    _plt().close(fig)
+    return f"img/{name}"
+
+
+def machine_facts() -> dict:
+    import scipy
+
+    model = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return {"date_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+            "cpus": os.cpu_count(), "cpu_model": model, "python": platform.python_version(),
+            "numpy": np.__version__, "scipy": scipy.__version__, "platform": platform.platform(),
+            "commit": commit, "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset")}
+
+
+# -------------------------------------------------------------------------------------------- sections
+def sec_estimators(quick: bool, img: Path, log) -> Section:
+    from benchmarks import speed_vs_error as sve
+
+    s = Section("estimators", "1. Speed against error: the estimator ladder")
+    out = sve.run_speed_vs_error(quick, img / "speed_vs_error.png")
+    res = out["results"]
+    rows = []
+    for n, (st, times) in res.items():
+        for m in sve.ESTIMATOR_NAMES:
+            te, tp = times[m]
+            rows.append([n, m + (" (default)" if m == out["default"] else ""), 1 / te, 1 / tp]
+                        + [st[m][snr]["worst_ratio"] for snr in sve.SNRS_DB]
+                        + [st[m][20]["bias"], st[m][10]["outliers"]])
+    d = res[512][1][out["default"]]
+    worst20 = max(res[n][0][out["default"]][snr]["worst_ratio"] for n in res for snr in sve.SNRS_DB if snr >= 20)
+    s.data = {"default": out["default"], "ramps_per_s_512": 1 / d[0], "pipeline_ramps_per_s_512": 1 / d[1],
+              "worst_ratio_ge20db": worst20, "accuracy_met": out["accuracy_met"], "speed_met": out["speed_met"],
+              "rows": rows}
+    s.headline = [("default estimator RMSE / sqrt(CRLB), worst offset, >= 20 dB", f"{worst20:.3f}", "<= 1.1"),
+                  ("default estimator ramps/s, N = 512, one core", f"{1 / d[0]:,.0f}", ">= 100,000")]
+    s.markdown = (
+        "Post-FFT SNR = on-bin peak power over noise power per bin; ratio = RMSE / sqrt(CRLB) at the worst of "
+        f"{len(out['offsets'])} sub-bin offsets ({out['trials'][512]} / {out['trials'][4096]} trials per point at "
+        f"N = 512 / 4096, each ratio +-{out['ratio_uncertainty']:.3f} at 2 sigma). Estimator-only and full-chain "
+        "(Hann rFFT + argmax + estimator) throughput on one core. `benchmarks/speed_vs_error.py`.\n\n"
+        + table(["N", "estimator", "ramps/s (estimator)", "ramps/s (chain)"]
+                + [f"ratio @ {x} dB" for x in sve.SNRS_DB] + ["max bias/sqrt(CRLB) @ 20 dB", "outliers @ 10 dB"], rows)
+        + f"\n![speed vs error](img/speed_vs_error.png)\n")
+    return s
+
+
+ILC_PAPER = {"up": 140.0, "down": 600.0, "iterations": 14}
+
+
+def sec_ilc(quick: bool, img: Path, log) -> Section:
+    s = Section("ilc", "2. Chirp linearization (ILC) per laser preset")
+    convergence = need("ilc", "convergence")
+    from lidard.config import load_lasers
+
+    presets = ["dfb_default"] if quick else list(load_lasers())
+    runs = []
+    for p in presets:
+        t = time.perf_counter()
+        r = convergence(p, seed=1)
+        runs.append(r)
+        log(f"  {p}: reduction {r['reduction_up']:.0f}x / {r['reduction_down']:.0f}x, "
+            f"{len(r['iterations']) - 1} updates ({time.perf_counter() - t:.1f} s)")
+    rows = []
+    plt = _plt()
+    fig, ax = plt.subplots(1, 1, figsize=(8, 5))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, r in enumerate(runs):
+        exc = float(r["excursion_hz"])
+        it = r["iterations"]
+        k = np.arange(len(it))
+        ax.semilogy(k, [x["up_rms_hz"] / exc for x in it], "-o", color=colors[i % len(colors)], ms=3,
+                    label=f"{r['preset']} up")
+        ax.semilogy(k, [x["down_rms_hz"] / exc for x in it], "--s", color=colors[i % len(colors)], ms=3,
+                    label=f"{r['preset']} down")
+        rows.append([r["preset"], f"{float(r['plain_nonlinearity_pct']):.2f} %", r["reduction_up"], r["reduction_down"],
+                     len(it) - 1, r["true_residual_up"], r["true_residual_down"], bool(r["converged"])])
+    ax.set(xlabel="iteration (0 = plain triangle)", ylabel="RMS nonlinearity over the ROI / excursion (MZI)",
+           title="ILC convergence per laser preset")
+    ax.axhline(5e-5, color="k", lw=0.8, ls=":", label="5e-5 (true-residual target)")
+    ax.legend(fontsize=7, ncol=2)
+    png = save(fig, img, "ilc_convergence.png")
+    d = next((r for r in runs if r["preset"] == "dfb_default"), runs[0])
+    s.data = {"runs": runs, "rows": rows}
+    s.headline = [
+        ("ILC reduction on dfb_default, up / down (MZI)",
+         f"{d['reduction_up']:.0f}x / {d['reduction_down']:.0f}x in {len(d['iterations']) - 1} iterations",
+         ">= 600x both in <= 10 (dissertation: 140x / 600x in 14)"),
+        ("ILC true residual / excursion, dfb_default", f"{max(d['true_residual_up'], d['true_residual_down']):.2g}",
+         "<= 5e-5")]
+    s.markdown = (
+        "`benchmarks.ilc.convergence(preset, seed=1)` per preset: RMS nonlinearity over the ROI as the daemon "
+        "measures it through the monitor MZI, per iteration; the true residual comes from the laser model's nu(t).\n\n"
+        + table(["preset", "plain triangle RMS / swing", "reduction up", "reduction down", "iterations",
+                 "true residual up", "true residual down", "converged"], rows)
+        + f"| dissertation §2.2 (Fig. 2-4) | | {ILC_PAPER['up']:.0f}x | {ILC_PAPER['down']:.0f}x | "
+          f"{ILC_PAPER['iterations']} | | | |\n"
+        + f"\n![ILC convergence]({png})\n")
+    return s
+
+
+def sec_phase_noise(quick: bool, img: Path, log) -> Section:
+    s = Section("phase_noise", "3. Laser phase-noise compensation")
+    detection_curves = need("phase_noise", "detection_curves")
+    ranges = (30.0, 150.0) if quick else (15.0, 30.0, 50.0, 75.0, 100.0, 150.0, 200.0)
+    r = detection_curves(ranges, tau_c_s=(0.64e-6, 0.1e-6), trials=2 if quick else 20, seed=1)
+    curves = phase_noise_curves(r)
+    plt = _plt()
+    fig, ax = plt.subplots(1, 1, figsize=(8, 5))
+    rows = []
+    for i, c in enumerate(curves):
+        col = f"C{i}"
+        lab = f"tau_c {c['tau_c_s'] * 1e6:.2f} us"
+        ax.plot(c["ranges_m"], c["pd_raw"], "--o", color=col, label=f"{lab}, raw")
+        ax.plot(c["ranges_m"], c["pd_comp"], "-s", color=col, label=f"{lab}, compensated")
+        for j, d in enumerate(c["ranges_m"]):
+            rows.append([f"{c['tau_c_s'] * 1e6:.2f}", d, c["pd_raw"][j], c["pd_comp"][j],
+                         c["loss_raw_db"][j], c["loss_comp_db"][j], c["snr_db"][j]])
+    ax.set(xlabel="range (m)", ylabel="detection probability", title="Pd with and without MZI compensation",
+           ylim=(-0.05, 1.05))
+    ax.legend(fontsize=8)
+    png = save(fig, img, "phase_noise_pd.png")
+    s.data = {"raw": r, "curves": curves}
+    far = [c for c in curves if c["ranges_m"]]
+    if far:
+        c0 = far[0]
+        s.headline = [("Pd at the longest range, raw -> compensated "
+                       f"(tau_c {c0['tau_c_s'] * 1e6:.2f} us, {c0['ranges_m'][-1]:g} m)",
+                       f"{c0['pd_raw'][-1]:.2f} -> {c0['pd_comp'][-1]:.2f}",
+                       "a target the raw spectrum misses is detected")]
+    s.markdown = (
+        "`benchmarks.phase_noise.detection_curves(ranges_m, tau_c_s=(0.64e-6, 0.1e-6), ...)`: detection probability "
+        "without and with compensation from the monitor MZI (§2.3, Fig. 2-6), peak loss against a zero-linewidth "
+        "laser, and the link-budget SNR at each range (§2.4.1).\n\n"
+        + table(["tau_c (us)", "range (m)", "Pd raw", "Pd compensated", "peak loss raw (dB)",
+                 "peak loss compensated (dB)", "link-budget SNR (dB)"], rows)
+        + f"\n![phase-noise Pd]({png})\n")
+    return s
+
+
+def phase_noise_curves(r: dict) -> list[dict]:
+    """Normalize detection_curves()'s dict to one list entry per coherence time."""
+    need_keys = ("ranges_m", "curves")
+    if not all(k in r for k in need_keys):
+        raise SectionUnavailable(f"detection_curves() returned keys {sorted(r)}; the report expects "
+                                 f"{list(need_keys)} (curves: one dict per tau_c)")
+    ranges = [float(x) for x in r["ranges_m"]]
+    snr = r.get("snr_db", r.get("budget_snr_db", [float("nan")] * len(ranges)))
+    out = []
+    for c in r["curves"]:
+        out.append({"tau_c_s": float(c["tau_c_s"]), "ranges_m": ranges,
+                    "pd_raw": [float(x) for x in c["pd_raw"]], "pd_comp": [float(x) for x in c["pd_comp"]],
+                    "loss_raw_db": [float(x) for x in c.get("loss_raw_db", [np.nan] * len(ranges))],
+                    "loss_comp_db": [float(x) for x in c.get("loss_comp_db", [np.nan] * len(ranges))],
+                    "snr_db": [float(x) for x in c.get("snr_db", snr)]})
+    return out
+
+
+def sec_scaling(quick: bool, img: Path, log) -> Section:
+    from benchmarks.scaling import run_scaling
+
+    s = Section("scaling", "4. End-to-end frame: wall time against hardware time, and how it scales")
+    r = run_scaling(quick, repeats=1 if quick else 2, log=log)
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5))
+    for ax, key, xkey, xl in ((axes[0], "pixels", "pixels", "pixels (1 average, 2 m)"),
+                              (axes[1], "averages", "averages", "averages")):
+        rows = r[key]["rows"]
+        x = np.array([q[xkey] for q in rows], float)
+        for yk, mk, lab in (("wall_s", "o", "wall"), ("cpu_s", "^", "process CPU"), ("hardware_s", "s", "hardware (modelled)")):
+            ax.loglog(x, [q[yk] for q in rows], mk + "-", label=lab)
+        f = r[key]["fit"]
+        ax.loglog(x, f["prefactor"] * x ** f["slope"], "k:", lw=0.8,
+                  label=f"fit wall ~ x^{f['slope']:.2f}+-{f['slope_stderr']:.2f}")
+        ax.set(xlabel=xl, ylabel="time per frame (s)")
+        ax.legend(fontsize=7)
+    rows = r["range"]["rows"]
+    x = np.array([q["max_range_m"] for q in rows])
+    axes[2].loglog(x, [q["wall_per_pixel_s"] * 1e3 for q in rows], "o-", label="wall per pixel")
+    axes[2].loglog(x, [q["cpu_per_pixel_s"] * 1e3 for q in rows], "^-", label="CPU per pixel")
+    axes[2].loglog(x, [q["hardware_per_pixel_s"] * 1e3 for q in rows], "s-", label="hardware per pixel")
+    f = r["range"]["fit_range"]
+    axes[2].loglog(x, 1e3 * f["prefactor"] * x ** f["slope"], "k:", lw=0.8,
+                   label=f"fit wall ~ range^{f['slope']:.2f}+-{f['slope_stderr']:.2f}")
+    axes[2].set(xlabel="maximum range (m)", ylabel="ms per pixel")
+    axes[2].legend(fontsize=7)
+    png = save(fig, img, "scaling.png")
+
+    def rowsof(key, extra=()):
+        return [[q["pixels"], q["averages"], q["max_range_m"], f"{q['adc_rate_hz'] / 1e6:.2f}", q["record_length"],
+                 q["hardware_s"], q["wall_s"], q["cpu_s"], q["realtime_factor"], q["points"]]
+                + [q[e] for e in extra] for q in r[key]["rows"]]
+
+    hdr = ["pixels", "averages", "max range (m)", "ADC MS/s", "record", "hardware (s)", "wall (s)", "CPU (s)",
+           "real-time factor", "points"]
+    fp, fa, frr, frg = r["pixels"]["fit"], r["averages"]["fit"], r["range"]["fit_record"], r["range"]["fit_range"]
+    hl = r["averages"]["hw_linear"]
+    law = (f"**Growth laws measured** (least squares in log-log, slope +- standard error): wall time ~ pixels^"
+           f"{fp['slope']:.2f} +- {fp['slope_stderr']:.2f} (CPU ~ pixels^{r['pixels']['cpu_fit']['slope']:.2f} +- "
+           f"{r['pixels']['cpu_fit']['slope_stderr']:.2f}); wall ~ averages^{fa['slope']:.2f} +- {fa['slope_stderr']:.2f} "
+           f"(hardware time = {hl['intercept']:.3g} s + {hl['slope']:.3g} s x averages, linear to "
+           f"{100 * hl['max_rel_residual']:.2f} %); wall per pixel ~ record length^{frr['slope']:.2f} +- "
+           f"{frr['slope_stderr']:.2f} ~ range^{frg['slope']:.2f} +- {frg['slope_stderr']:.2f}.\n")
+    s.data = r
+    s.headline = [("frame wall time growth with pixels (1 average, 2 m)",
+                   f"~ pixels^{fp['slope']:.2f} +- {fp['slope_stderr']:.2f}", "issue 7: state the law"),
+                  ("frame wall time growth with averages (2 m)",
+                   f"~ averages^{fa['slope']:.2f} +- {fa['slope_stderr']:.2f}", "issue 7: state the law"),
+                  (f"wall per pixel growth with maximum range ({r['range']['rows'][0]['max_range_m']:g} -> "
+                   f"{r['range']['rows'][-1]['max_range_m']:g} m)",
+                   f"~ range^{frg['slope']:.2f} +- {frg['slope_stderr']:.2f}", "issue 7: state the law")]
+    s.markdown = (
+        "One embedded simulated bench (world, synthesis, the four wire protocols, frame DSP all inside the timed "
+        "region), one linearization, explicit pixel lists (fpsa128 has 12,288 bonded pixels; larger frames revisit "
+        "pixels). Hardware time = the digitizer's trigger clock on the FPGA model's virtual clock (settle + "
+        "triggers x 160 us triangle period): the time the real instrument would take. Real-time factor = hardware / "
+        f"wall (>= 1: the simulation keeps up). Best of {r['repeats']} runs; CPU = process CPU time (all threads), "
+        f"robust to other jobs on the machine. Bench start + linearization: {r['setup_s']:.2f} s. "
+        "`benchmarks/scaling.py`.\n\n" + law
+        + "\n**Pixels** (1 average, max range 2 m)\n\n" + table(hdr, rowsof("pixels"))
+        + "\n**Averages**\n\n" + table(hdr, rowsof("averages"))
+        + "\n**Maximum range** (a wall at 0.7 x the maximum range; the ADC rate and record length follow the range; "
+          "fewer pixels at long range; first-scan overhead = one-off DSP tables at a new record length)\n\n"
+        + table(hdr + ["ms/pixel wall", "first-scan overhead (s)"],
+                [row + [q["wall_per_pixel_s"] * 1e3, q["first_scan_overhead_s"]]
+                 for row, q in zip(rowsof("range"), r["range"]["rows"])])
+        + f"\n![scaling]({png})\n")
+    return s
+
+
+def sec_frame(quick: bool, img: Path, log) -> Section:
+    from benchmarks.frame import run_frame
+
+    s = Section("frame", "4b. The reference frame (CAL letters, 128 x 96)")
+    shapes = [((40, 56), (40, 72), 2), ((40, 56), (40, 72), 1)] if quick else \
+        [((0, 128), (0, 128), 10), ((0, 128), (0, 128), 1)]
+    rows, runs = [], []
+    for r_, c_, avg in shapes:
+        f = run_frame(avg, r_, c_)
+        runs.append(f)
+        rows.append([f["pixels"], avg, f["hardware_s"], f["wall_s"], f["realtime_factor"], f["linearization_wall_s"],
+                     f["peak_rss_mb"]])
+        log(f"  {f['pixels']} px x {avg} avg: hardware {f['hardware_s']:.2f} s wall {f['wall_s']:.2f} s")
+    s.data = {"runs": runs}
+    f0 = runs[0]
+    s.headline = [(f"real-time factor, {f0['pixels']} pixels x {f0['averages']} averages (CAL letters, 2 m)",
+                   f"{f0['realtime_factor']:.2f}", ">= 1"),
+                  ("peak RSS of the whole report process at that point", f"{f0['peak_rss_mb']:.0f} MB", "< 2 GB")]
+    s.markdown = (
+        "`benchmarks/frame.py`: a fresh embedded bench per frame, default profile (fpsa128, 25 mm lens), CAL "
+        "scene, max range 2 m (ADC 5 MS/s, 800 samples per trigger), 16-bit records. Peak RSS is the process "
+        "high-water mark (it includes the sections that ran before).\n\n"
+        + table(["pixels", "averages", "hardware frame time (s)", "wall (s)", "real-time factor",
+                 "linearization wall (s)", "peak RSS (MB)"], rows))
+    return s
+
+
+def sec_fidelity(quick: bool, img: Path, log) -> Section:
+    from benchmarks.fidelity import run_fidelity
+
+    s = Section("fidelity", "5. Simulator fidelity against cost")
+    r = run_fidelity(quick, rounds=1 if quick else 3, log=log)
+    plt = _plt()
+    names = list(next(iter(r["scenes"].values()))["variants"])
+    fig, axes = plt.subplots(1, 2, figsize=(14, 5))
+    w = 0.8 / len(r["scenes"])
+    for i, (sc, v) in enumerate(r["scenes"].items()):
+        x = np.arange(len(names)) + i * w
+        axes[0].bar(x, [v["variants"][n]["cpu_ratio"] for n in names], w, label=sc)
+        axes[1].bar(x, [1e3 * np.nan_to_num(v["variants"][n].get("rms_diff_vs_all_on_m", 0.0), nan=0.0)
+                        for n in names], w, label=sc)
+    for ax, yl in ((axes[0], "scan CPU time / all effects on"), (axes[1], "RMS range change vs all on (mm)")):
+        ax.set_xticks(np.arange(len(names)) + 0.4 - w / 2, names, rotation=20, fontsize=8)
+        ax.set_ylabel(yl)
+        ax.legend(fontsize=8)
+    axes[0].axhline(1.0, color="k", lw=0.8)
+    png = save(fig, img, "fidelity.png")
+    parts = []
+    for sc, v in r["scenes"].items():
+        rows = []
+        for n, q in v["variants"].items():
+            rows.append([n, q["wall_s"], q["wall_ratio"], q["cpu_s"], q["cpu_ratio"], 100 * q["ranged_fraction"],
+                         1e3 * q["rms_err_truth_m"], 1e3 * q["max_err_truth_m"],
+                         "reference" if n == "all on" else 1e3 * q["rms_diff_vs_all_on_m"],
+                         "reference" if n == "all on" else q["ranged_only_one_side"], q["extra_returns"]])
+        parts.append(f"\n**{sc}** (max range {v['max_range_m']:g} m, {v['pixels']} pixels)\n\n"
+                     + table(["variant", "wall (s)", "wall ratio", "CPU (s)", "CPU ratio", "pixels ranged (%)",
+                              "RMS error vs truth (mm)", "max error vs truth (mm)", "RMS change vs all on (mm)",
+                              "pixels ranged by only one", "extra returns"], rows))
+    s.data = r
+    s.markdown = (
+        "Each effect of `lidard.config.Effects` switched off alone (and all together) on its own embedded bench, "
+        f"interleaved over {r['rounds']} round(s) with the all-on bench; one calibration for all. Cost = best-of-rounds "
+        "scan time and its ratio to all on; error = first valid return per pixel against the world's ray-cast "
+        "truth and against the all-on scan. 'n/a' = no pixel ranged. "
+        + "".join(f"Not modelled: {k} ({v}). " for k, v in r["not_modelled"].items())
+        + "`benchmarks/fidelity.py`.\n" + "".join(parts) + f"\n![fidelity]({png})\n")
+    letters = r["scenes"].get("CAL letters", {}).get("variants", {}).get("all on")
+    if letters:
+        s.headline = [("CAL letters, all effects on: RMS range error vs ray-cast truth",
+                       f"{1e3 * letters['rms_err_truth_m']:.3f} mm ({100 * letters['ranged_fraction']:.1f} % ranged)",
+                       "<= 1 mm")]
+    return s
+
+
+def sec_load(quick: bool, img: Path, log) -> Section:
+    s = Section("load", "6. Daemon latency under load")
+    run_load = need("load", "run_load")
+    clients, per = (5, 4) if quick else (50, 40)
+    r = run_load(clients=clients, requests_per_client=per, seed=1)
+    s.data = r
+    s.headline = [(f"daemon latency, {r['clients']} clients x {per} requests during a scan",
+                   f"p50 {r['p50_ms']:.1f} ms, p99 {r['p99_ms']:.1f} ms, {r['errors']} errors", "no errors")]
+    s.markdown = ("`benchmarks.load.run_load(clients, requests_per_client, seed=1)`: concurrent clients polling "
+                  "status and listing scans on loopback while a scan runs.\n\n"
+                  + table(["clients", "requests", "errors", "p50 (ms)", "p99 (ms)"],
+                          [[r["clients"], r["requests"], r["errors"], r["p50_ms"], r["p99_ms"]]]))
+    return s
+
+
+def sec_kernels(quick: bool, img: Path, log) -> Section:
+    from benchmarks.pattern_upload import run_upload
+    from benchmarks.raycast import run_raycast
+    from benchmarks.synthesis import run_synthesis
+    from benchmarks.usb_throughput import run_usb
+
+    s = Section("kernels", "7. Simulator and transport kernels")
+    rc = run_raycast(repeats=2 if quick else 9)
+    sy = run_synthesis(repeats=1 if quick else 5, quick=quick)
+    usb = run_usb(segments=100 if quick else 2000, per_read=64 if quick else 256)
+    up = run_upload(repeat=1 if quick else 3)
+    rows = [["ray casting, 16,384 rays x 20 mixed targets", f"{rc['mixed20']['rays_per_s'] / 1e6:.3f} M rays/s", ""],
+            ["ray casting, CAL letters 128 x 96", f"{rc['cal_letters']['rays_per_s'] / 1e6:.3f} M rays/s", ""]]
+    for q in sy["rows"]:
+        rows.append([f"beat synthesis, {q['workload']} ({q['segments']} x {q['samples']} at {q['fs_hz'] / 1e6:.1f} MS/s), "
+                     f"phase noise {'on' if q['phase_noise'] else 'off'}, quantize {'on' if q['quantize'] else 'off'}",
+                     f"{q['msamples_per_s']:.1f} M samples/s per core", ""])
+    for q in sy["mzi"]:
+        rows.append([f"MZI-only capture (ILC), phase noise {'on' if q['phase_noise'] else 'off'}",
+                     f"{q['msamples_per_s']:.1f} M samples/s per core", ""])
+    rows += [["digitizer through the simulated USB path, in-process", f"{usb['inproc_mb_s']:.0f} MB/s", ">= 200 MB/s"],
+             ["same, USB bridge (server thread)", f"{usb['bridge_thread_mb_s']:.0f} MB/s", ""],
+             ["same, bench in a subprocess (TCP)", f"{usb['bridge_subprocess_mb_s']:.0f} MB/s", ""],
+             [f"{up['pixels']:,}-pixel pattern upload at {up['baud'] / 1e6:g} Mbaud",
+              f"{up['pty']['host_to_fpga_B']:,} B, {up['pty']['overhead_pct']:.2f} % framing, "
+              f"{1e3 * up['pty']['modelled_s']:.1f} ms modelled wire time, {1e3 * up['pty']['wall_median_s']:.2f} ms "
+              f"wall through a pty", ""]]
+    s.data = {"raycast": rc, "synthesis": sy, "usb": usb, "upload": up}
+    s.headline = [("digitizer transfer through the simulated USB path (in-process)", f"{usb['inproc_mb_s']:.0f} MB/s",
+                   ">= 200 MB/s")]
+    s.markdown = ("`benchmarks/raycast.py`, `synthesis.py` (median CPU time), `usb_throughput.py`, "
+                  "`pattern_upload.py`.\n\n" + table(["what", "figure", "target"], rows))
+    return s
+
+
+def sec_budget(quick: bool, img: Path, log) -> Section:
+    from lidard.config import CONFIG_DIR, load_config
+    from lidard.physics.budget import LinkParams, budget_report, max_range_m, shot_limited_ref_window_w
+
+    s = Section("budget", "8. Link budget (§2.4.1, `lidard.physics.budget`)")
+    lp = LinkParams.table_2_2()
+    d_shot = max_range_m(lp, against="shot")
+    lo, hi = shot_limited_ref_window_w(lp)
+    sim = load_config(CONFIG_DIR / "sim.toml")
+    rep = budget_report(sim.link_params(), 0.8)
+    s.data = {"shot_crossing_m": d_shot, "ref_window_w": (lo, hi), "sim_snr_0p8m_db": rep["snr_db"]}
+    s.markdown = table(["quantity", "computed", "dissertation"], [
+        ["signal = shot noise (Table 2-2 parameters)", f"{d_shot:.1f} m", "Fig. 2-8: ~220 m"],
+        ["shot-noise-limited reference window", f"{lo * 1e6:.2f} uW < P_ref < {hi * 1e6:.0f} uW",
+         "eqs. 4-29, 4-33"],
+        ["SNR at 0.8 m, config/sim.toml (§4.4 set-up, rho 0.1)", f"{rep['snr_db']:.1f} dB", "Fig. 4-32: ~28 dB"]])
+    return s
+
+
+SECTIONS: dict[str, Callable[[bool, Path, Callable], Section]] = {
+    "estimators": sec_estimators, "ilc": sec_ilc, "phase_noise": sec_phase_noise, "scaling": sec_scaling,
+    "frame": sec_frame, "fidelity": sec_fidelity, "load": sec_load, "kernels": sec_kernels, "budget": sec_budget,
+}
+
+
+# ---------------------------------------------------------------------------------------------- report
+def render(sections: list[Section], facts: dict, quick: bool, total_s: float) -> str:
+    head = [
+        "# Benchmarks\n",
+        f"_Generated by `python -m benchmarks{' --quick' if quick else ''}` on {facts['date_utc']} "
+        f"(commit {facts['commit'] or 'unknown'}); do not edit by hand, re-run the command._\n",
+        f"Machine: {facts['cpus']} CPUs ({facts['cpu_model']}), Python {facts['python']}, numpy {facts['numpy']}, "
+        f"scipy {facts['scipy']}, {facts['platform']}; BLAS threads {facts['blas_threads']}. The machine is shared "
+        "and noisy: read ratios measured side by side and orders of magnitude, not the last digit.\n",
+    ]
+    if quick:
+        head.append("**--quick run: tiny sizes, figures not conclusive.**\n")
+    head.append(f"Total run time {total_s / 60:.1f} min; per section: "
+                + ", ".join(f"{s.key} {s.seconds:.0f} s" for s in sections) + ".\n")
+    hl = [[w, m, t] for s in sections for (w, m, t) in s.headline]
+    head.append("\n## Headline figures\n\n" + table(["what", "measured", "target"], hl))
+    failed = [s for s in sections if s.error]
+    if failed:
+        head.append("\n**Sections not run:** " + "; ".join(f"{s.key}: {s.error}" for s in failed) + "\n")
+    body = []
+    for s in sections:
+        body.append(f"\n## {s.title}\n\n")
+        body.append(f"_Not run: {s.error}_\n" if s.error else s.markdown)
+    return "\n".join(head) + "".join(body)
+
+
+def _jsonable(o):
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    return repr(o)
+
+
+def run(quick: bool = False, out: Path = DEFAULT_OUT, only: list[str] | None = None, log=print) -> dict:
+    """Run the sections, write ``out/benchmarks.md`` and ``out/img/*.png``; return every section."""
+    out = Path(out)
+    img = out / "img"
+    img.mkdir(parents=True, exist_ok=True)
+    facts = machine_facts()
+    t_all = time.perf_counter()
+    sections = []
+    for key, fn in SECTIONS.items():
+        if only and key not in only:
+            continue
+        log(f"[{key}] ...")
+        t = time.perf_counter()
+        try:
+            sec = fn(quick, img, log)
+        except SectionUnavailable as exc:
+            sec = Section(key, key, error=str(exc))
+        except Exception as exc:   # a broken section is reported, the others still run
+            tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+            sec = Section(key, key, error=f"failed: {tb}")
+            traceback.print_exc()
+        sec.seconds = time.perf_counter() - t
+        sections.append(sec)
+        log(f"[{key}] {'NOT RUN: ' + sec.error if sec.error else 'done'} ({sec.seconds:.1f} s)")
+    total = time.perf_counter() - t_all
+    text = render(sections, facts, quick, total)
+    data = {"facts": facts, "quick": quick, "total_s": total,
+            "sections": {s.key: {"seconds": s.seconds, "error": s.error, "headline": s.headline, "data": s.data}
+                         for s in sections}}
+    # JSON next to the markdown: the same figures for tools and tests; both renamed into place
+    for name, content in (("benchmarks.json", json.dumps(data, indent=1, default=_jsonable)),
+                          ("benchmarks.md", text)):
+        tmp = out / f".{name}.tmp"
+        tmp.write_text(content)
+        os.replace(tmp, out / name)
+    log(f"wrote {out / 'benchmarks.md'} and {len(list(img.glob('*.png')))} PNGs in {img} ({total / 60:.1f} min)")
+    return {"sections": {s.key: s for s in sections}, "facts": facts, "total_s": total,
+            "markdown": out / "benchmarks.md", "img": img}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="tiny sizes (tests, development); not conclusive")
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default: docs/)")
+    ap.add_argument("--only", nargs="+", choices=list(SECTIONS), help="run only these sections")
+    args = ap.parse_args(argv)
+    res = run(args.quick, args.out, args.only)
+    bad = [k for k, s in res["sections"].items() if s.error]
+    if bad:
+        print(f"sections not run: {', '.join(bad)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
