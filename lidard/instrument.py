@@ -158,8 +158,11 @@ class LidarInstrument:
         with self._lock:
             for name, dev, fn in checks:
                 entry: dict[str, Any] = {"name": name, "reconnected": False}
+                n_before = getattr(dev, "reconnect_count", 0)
                 try:
                     state = fn()
+                    # the driver may have reopened its link by itself while answering
+                    entry["reconnected"] = getattr(dev, "reconnect_count", 0) != n_before
                 except Exception as exc:
                     first = f"{type(exc).__name__}: {exc}"
                     try:
@@ -290,6 +293,7 @@ class LidarInstrument:
             drive = calibration.drive_v if (calibration is not None and calibration.drive_v.size) else self._plain_drive()
             self._load_drive(drive)
             self._run_pattern(pixels, avg)
+            self.digitizer.abort()   # an acquisition a failed job left armed would lock the settings
             cfgd = self.digitizer.configure(channels=("beat",), sample_rate_hz=adc.fs_hz,
                                             record_length=adc.record_length, segments=n_pix * avg,
                                             bits=adc.bits, input_range_v=self.cfg.adc.input_range_v)
@@ -494,6 +498,7 @@ class LidarInstrument:
             def measure(drive_v: np.ndarray, n_avg: int) -> np.ndarray:
                 self._load_drive(drive_v)
                 self._run_pattern(centre, n_avg)
+                self.digitizer.abort()
                 cfgd = self.digitizer.configure(channels=("mzi",), sample_rate_hz=fs, record_length=2 * r,
                                                 segments=n_avg, bits=bits, input_range_v=self.cfg.adc.input_range_v)
                 self.digitizer.arm()
@@ -553,6 +558,7 @@ class LidarInstrument:
         try:
             self._load_drive(self._plain_drive())
             self._run_pattern(pixels, 1)
+            self.digitizer.abort()
             cfgd = self.digitizer.configure(channels=("tap",), sample_rate_hz=fs, record_length=rec,
                                             segments=n, bits=bits, input_range_v=self.cfg.adc.input_range_v)
             self.digitizer.arm()

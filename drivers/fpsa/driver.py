@@ -44,6 +44,7 @@ from .errors import LinkError, NakError, PatternError, ProtocolError
 log = logging.getLogger(__name__)
 
 DEFAULT_BAUDRATE = 3_000_000  # see docs/protocols/fpsa.md, "Physical link"
+_MIN_CHUNK_PIXELS = 32        # smallest chunk the upload falls back to on a noisy line
 
 __all__ = ["DEFAULT_BAUDRATE", "FpsaController", "LinkError"]
 
@@ -302,9 +303,22 @@ class FpsaController:
         n = px.shape[0]
         self._transact(p.Cmd.PATTERN_BEGIN, p.encode_pattern_begin(n, p.crc32(data)))
         chunks = 0
-        for off in range(0, n, self.chunk_pixels):
-            part = data[2 * off: 2 * min(n, off + self.chunk_pixels)]
-            self._transact(p.Cmd.PATTERN_CHUNK, p.encode_pattern_chunk(off, part))
+        size = self.chunk_pixels
+        off = 0
+        while off < n:
+            part = data[2 * off: 2 * min(n, off + size)]
+            try:
+                self._transact(p.Cmd.PATTERN_CHUNK, p.encode_pattern_chunk(off, part))
+            except (LinkError, DeviceTimeout):
+                # A noisy line corrupts long frames far more often than short ones (P(ok) falls
+                # exponentially with the length): halve the chunk and resend the same offset.
+                if size <= _MIN_CHUNK_PIXELS:
+                    raise
+                size = max(_MIN_CHUNK_PIXELS, size // 2)
+                log.warning("%s: PATTERN_CHUNK at %d failed; retrying with %d-pixel chunks",
+                            self.device, off, size)
+                continue
+            off += len(part) // 2
             chunks += 1
         self._transact(p.Cmd.PATTERN_END)
         return chunks
