@@ -183,9 +183,15 @@ class SimUsbDevice:
             self._gone_for = None if transfers is None else int(transfers)
 
     def reconnect(self) -> None:
+        """Plug back in. Re-enumeration resets the device's USB-side state (``handle_reset``:
+        a USBTMC session, a digitizer stream or armed acquisition); instrument settings (AWG
+        waveform, digitizer configuration) survive, as on a self-powered instrument."""
         with self._lock:
+            was_gone = not self.connected
             self.connected = True
             self._gone_for = None
+            if was_gone:
+                self.handle_reset()
 
     def _gone(self, what: str) -> usb.core.USBError:
         """An access while unplugged: counts toward a timed disconnect's end."""

@@ -108,3 +108,22 @@ def test_disconnect_across_the_socket_bridge():
         backend.close()
     finally:
         b.close()
+
+
+def test_replug_resets_the_usb_session_but_keeps_the_settings(bench):
+    dig = _find(bench.usb_backend, bench.digitizer)
+    dig.ctrl_transfer(dig_p.REQTYPE_OUT, int(dig_p.Req.SET_SEGMENTS), 0, 0, dig_p.enc_u32(7))
+    dig.ctrl_transfer(dig_p.REQTYPE_OUT, int(dig_p.Req.ARM), 0, 0, b"")
+    assert bench.digitizer.state == dig_p.State.ARMED
+    bench.inject_fault("usb_disconnect", device="digitizer")
+    bench.clear_faults("usb_disconnect")
+    again = _find(bench.usb_backend, bench.digitizer)
+    status = dig_p.decode_status(bytes(again.ctrl_transfer(
+        dig_p.REQTYPE_IN, int(dig_p.Req.GET_STATUS), 0, 0, 16)))
+    assert status.state == dig_p.State.IDLE            # the armed acquisition did not survive
+    cfg = dig_p.decode_config(bytes(again.ctrl_transfer(
+        dig_p.REQTYPE_IN, int(dig_p.Req.GET_CONFIG), 0, 0, 24)))
+    assert cfg.segments == 7                           # the configuration did
+    # and a setting is accepted again (it is refused while armed)
+    again.ctrl_transfer(dig_p.REQTYPE_OUT, int(dig_p.Req.SET_SEGMENTS), 0, 0, dig_p.enc_u32(9))
+    assert bench.digitizer.config.segments == 9
