@@ -344,7 +344,7 @@ def _target(ctx: _Ctx, raw: Any) -> Target:
     kind = raw.get("kind")
     if kind is None:
         raise ctx.error("kind", f"missing; allowed: {', '.join(_KIND_KEYS)}")
-    if kind not in _KIND_KEYS:
+    if not isinstance(kind, str) or kind not in _KIND_KEYS:  # a list/table kind is unhashable
         raise ctx.error("kind", f"unknown kind {kind!r}; allowed: {', '.join(_KIND_KEYS)}")
     required, optional = _KIND_KEYS[kind]
     allowed = (*_COMMON_KEYS, *required, *optional)

@@ -104,3 +104,17 @@ def test_lax_coercions_are_422(tmp_path, body, field):
         # the same fields with proper JSON types are accepted
         assert c.post("/scans", json={"pattern": "roi", "rows": [0, 1], "cols": [0, 2], "averages": 2,
                                       "max_range_m": 3}).status_code == 201
+
+
+@pytest.mark.parametrize("scene", [
+    {"target": [{"kind": [1]}]},           # found by the scene fuzzer: an unhashable kind was a 500
+    {"target": [{"kind": {"a": 1}}]},
+    {"target": "plane"},
+    [1, 2],
+])
+def test_put_scene_odd_json_is_422_not_500(tmp_path, scene):
+    inst = FakeInstrument()
+    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
+        r = c.put("/sim/scene", json=scene)
+        assert r.status_code == 422, r.text
+        assert inst.scenes == []
