@@ -10,7 +10,8 @@ One connection guarded by a lock serves all threads (the scan worker and the API
 SQLite in WAL mode lets outside readers (``sqlite3`` shell, a second daemon refusing to start) read
 while the daemon writes. A scan left ``queued`` or ``running`` by a process that died is marked
 ``interrupted`` when the store is opened again: its hardware state is unknown, so it is never
-resumed silently.
+resumed silently. Temporary files of an interrupted atomic write (``.<name>.<random>.tmp``) are
+removed at the same moment: they were never renamed into place, so nothing refers to them.
 
 Scan ids are 16 characters of Crockford base32: 10 for the millisecond timestamp (so ids sort by
 creation time) and 6 random, URL-safe and short enough to type.
@@ -156,6 +157,20 @@ class Store:
                 "UPDATE scans SET state='interrupted', stage='interrupted', "
                 "error=COALESCE(error, 'daemon stopped while the scan was ' || state) "
                 "WHERE state IN ('queued', 'running')").rowcount
+        self.swept_tmp = self._sweep_temp_files()
+
+    def _sweep_temp_files(self) -> int:
+        """Remove temporary files a killed process left behind (``atomic_write``'s ``.<name>.*.tmp``):
+        they were never renamed into place, so no record points at them and they hold no data."""
+        n = 0
+        for sub in ("scans", "calibrations"):
+            for p in (self.data_dir / sub).rglob(".*.tmp"):
+                try:
+                    p.unlink()
+                    n += 1
+                except OSError:
+                    pass
+        return n
 
     # -- lifecycle -----------------------------------------------------------------------------
     def close(self) -> None:
