@@ -23,7 +23,7 @@ from _toml_emit import dumps  # noqa: E402
 from lidard.config import CONFIG_DIR, Config, ConfigError, load_config  # noqa: E402
 from sim_devices.world.scene import Scene, SceneError  # noqa: E402
 
-FUZZ = settings(max_examples=150, derandomize=True, deadline=None,
+FUZZ = settings(max_examples=100, derandomize=True, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
 SIM_TOML = (CONFIG_DIR / "sim.toml").read_text()
