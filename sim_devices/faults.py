@@ -1,6 +1,21 @@
 """Fault catalogue of the simulated bench: which faults can be injected, their parameters, and the
 serial line-noise filter (issue 6, "Deliver 1").
 
+Where this deviates from / adds to the task brief (read this first):
+
+* ``digitizer_overrange`` ``gain`` is a linear factor on the beat (signal and front-end noise),
+  default **1000**, not 20: the beat of a paper target at 0.9 m is ~0.75 mV on sim.toml's 1 V
+  range, so a gain of 20 does not clip anything (about 700 or more does).
+* ``n`` of ``usb_disconnect``: the device is gone for n failed accesses (opens included), then
+  plugged back by itself; omitted = until cleared. A re-plugged device resets its USB-side state
+  (an armed digitizer acquisition, a USBTMC session), its settings survive. Old pyusb handles
+  work again after a re-plug (a real host would need a re-find; drivers should re-find anyway).
+* ``serial_drop``, ``serial_flip``, ``serial_disconnect``, ``digitizer_overrange``, ``hv_fault``
+  and ``interlock_open`` are one per bench: injecting again replaces the earlier one. Faults with a
+  count ``n`` leave ``Bench.active_faults()`` once the count is used up.
+* ``interlock_open`` ``after_segments`` counts segments the bench synthesizes (a host re-read of
+  earlier segments counts too, and re-reads after the opening come back dark).
+
 Every fault is a *physical or wire-level* event on the bench, never a flag the daemon could read:
 
 ========================  =======================================================================
