@@ -120,7 +120,8 @@ class LaserHvController:
         if not (isinstance(busy_retries, int) and busy_retries >= 0):
             raise ConfigError(f"{DEVICE}: busy_retries must be an int >= 0, got {busy_retries!r}")
         self.busy_retries = busy_retries
-        self.reconnect_count = 0
+        self.reconnect_count = 0    # connections re-established after a loss
+        self._lost = False
         #: bytes handed to the socket so far (tests use it to prove that a refused write sent nothing)
         self.bytes_sent = 0
         # pymodbus' own retries are off: retries are counted and bounded here, with a reconnect
@@ -166,6 +167,7 @@ class LaserHvController:
                 # the next request reconnects (lazy connect); bounded by the same retry budget
                 self._client.close()
                 unreachable = exc
+                self._lost = True
                 attempts += 1
                 continue
             except ModbusIOException:
@@ -187,7 +189,8 @@ class LaserHvController:
                     self._sleep(delay)
                     continue
                 raise modbus_exception(operation, register.name, value, code)
-            if unreachable is not None:
+            if self._lost:
+                self._lost = False
                 self.reconnect_count += 1
             return rsp
         if unreachable is not None:
