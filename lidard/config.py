@@ -223,7 +223,7 @@ class Link(_Model):
 class Monitor(_Model):
     """Monitor MZI used for chirp linearization and phase-noise compensation (§2.2, §2.3)."""
 
-    delay_s: PosFloat = 10e-9
+    delay_s: PosFloat = 200e-9
     amplitude_v: PosFloat = 0.3
 
 

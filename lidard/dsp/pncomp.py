@@ -39,36 +39,67 @@ class MziPhaseNoise:
     valid: np.ndarray           # samples away from the Hilbert edge transients
 
 
-def mzi_phase_noise(mzi, *, fs_hz: float, edge_s: float) -> MziPhaseNoise:
-    """Estimate Delta phi_m(t) from one ramp of the monitor-MZI beat (1-D, one ramp)."""
+def mzi_phase_noise(mzi, *, fs_hz: float, edge_s: float, bandwidth_hz: float | None = None,
+                    beat_hz: float | None = None) -> MziPhaseNoise:
+    """Estimate Delta phi_m(t) from one ramp of the monitor-MZI beat (1-D, one ramp).
+
+    Complex demodulation, not a Hilbert phase: the beat is mixed down by its own (measured) mean
+    frequency and low-passed (Gaussian, -3 dB at ``bandwidth_hz``, default half the beat frequency)
+    *as a complex signal* before its angle is taken. With a broad linewidth the phase deviation of a
+    long MZI is of order a radian and reaches far above the beat frequency; the Hilbert phase of a
+    band-passed real beat then mixes that wide-band part non-linearly into the band (Bedrosian fails)
+    and the errors no longer cancel in the sum over M. Averaging exp(j theta) instead keeps the
+    in-band phase (what is lost is the out-of-band part of phi(t) - phi(t - tau_m), which telescopes
+    in the sum to phi(t) - phi(t - M tau_m) and so stays bounded whatever M) and a fade of the
+    averaged phasor costs a few samples, not a 2 pi slip that tilts a fitted line: the mean beat
+    frequency comes from lag products of the phasor, which slips cannot bias.
+
+    ``beat_hz``: the known MZI beat ``gamma tau_m`` (chirp rate times delay, e.g. after ILC
+    linearization to a known slope). Prefer it: a frequency measured from the MZI includes the
+    realised mean of the laser's frequency noise over the ramp, which belongs to Delta phi_m, and
+    removing it would move every compensated peak by M times that mean.
+    """
     x = check_finite_array("mzi", mzi, ndim=(1,))
     fs_hz = check_positive("fs_hz", fs_hz)
     n_edge = int(math.ceil(edge_s * fs_hz))
     if 2 * n_edge + 16 > x.size:
         raise ValueError(f"mzi: {x.size} samples are too few for edge_s={edge_s!r} at fs_hz={fs_hz!r}")
-    # A real beat carries the phase noise only as far as its positive and negative frequency
-    # sidebands do not overlap: keep |f - f_mzi| < f_mzi (Bedrosian), otherwise the broadband
-    # phase noise folds through 0 Hz and the Hilbert phase is wrong. The noise beyond that is lost,
-    # which is why a longer monitor delay (higher beat frequency) compensates better.
-    spec = np.abs(np.fft.rfft((x - x.mean()) * np.hanning(x.size)))
-    f_peak = float(np.argmax(spec[1:]) + 1) * fs_hz / x.size
-    xb = _band(x - x.mean(), fs_hz, f_peak, 0.9 * f_peak)
-    phase, _ = analytic_phase(xb, pad=n_edge)
-    valid = np.zeros(x.size, dtype=bool)
-    valid[n_edge:x.size - n_edge] = True
-    k = np.arange(x.size, dtype=np.float64)
-    # A 2 pi slip (where the band-limited beat fades) is harmless in exp(-j sum delta) but tilts a
-    # least-squares line, and every compensated tone moves by M times the tilt: the slope is the
-    # median of the phase advances over windows of 1/8 of the ramp, which a few slips cannot move
-    # much (many slips still can: see the known weakness in the tests).
-    kv, pv = k[valid], phase[valid]
-    lag = max(1, kv.size // 8)
-    slope = float(np.median((pv[lag:] - pv[:-lag]) / lag))
-    r = pv - slope * kv
-    icpt = float(np.median(r - 2 * np.pi * np.rint((r - np.median(r)) / (2 * np.pi))))
-    delta = phase - (slope * k + icpt)
+    x = x - x.mean()
+    n = x.size
+    nfft = 8 * n
+    if beat_hz is None:
+        spec = np.abs(np.fft.rfft(x * np.hanning(n), nfft))
+        f_mzi = float(np.argmax(spec[8:]) + 8) * fs_hz / nfft
+    else:
+        f_mzi = check_positive("beat_hz", beat_hz)
+    if bandwidth_hz is None:
+        bandwidth_hz = 0.5 * f_mzi
+    bandwidth_hz = check_positive("bandwidth_hz", bandwidth_hz)
+    k = np.arange(n, dtype=np.float64)
+    valid = np.zeros(n, dtype=bool)
+    valid[n_edge:n - n_edge] = True
+    z = None
+    # demodulate, refine the mean frequency from lag products, demodulate again: a ladder of lags,
+    # each 4x the last, so that every refinement is well inside the next one's alias-free range
+    # without a known beat: short lags only (longer ones alias once the MZI decorrelates, tau_m ~ tau_c)
+    lags = () if beat_hz is not None else (16, 64)
+    for lag in lags:
+        y = x * np.exp(-2j * np.pi * f_mzi / fs_hz * k)
+        f = np.fft.fftfreq(n, d=1.0 / fs_hz)
+        z = np.fft.ifft(np.fft.fft(y) * np.exp(-0.5 * np.log(2.0) * (f / bandwidth_hz) ** 2))
+        zv = z[valid]
+        if zv.size <= 2 * lag:
+            break
+        f_mzi += float(np.angle(np.sum(zv[lag:] * np.conj(zv[:-lag])))) * fs_hz / (2 * np.pi * lag)
+    y = x * np.exp(-2j * np.pi * f_mzi / fs_hz * k)
+    f = np.fft.fftfreq(n, d=1.0 / fs_hz)
+    z = np.fft.ifft(np.fft.fft(y) * np.exp(-0.5 * np.log(2.0) * (f / bandwidth_hz) ** 2))
+    # a constant phase is harmless (it multiplies the compensated beat by a unit phasor); take the
+    # circular mean so that delta is centred on 0 for the zero-linewidth case
+    c = float(np.angle(np.sum(z[valid] / np.maximum(np.abs(z[valid]), 1e-300))))
+    delta = np.unwrap(np.angle(z * np.exp(-1j * c)))
     delta[~valid] = 0.0
-    return MziPhaseNoise(delta_rad=delta, f_mzi_hz=float(slope * fs_hz / (2 * np.pi)), valid=valid)
+    return MziPhaseNoise(delta_rad=delta, f_mzi_hz=f_mzi, valid=valid)
 
 
 def _band(x: np.ndarray, fs_hz: float, center_hz: float, half_width_hz: float) -> np.ndarray:
@@ -130,7 +161,8 @@ class CompensatedSpectrum:
 
 def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_delay_s: float,
                          window: str = "hann", edge_s: float | None = None,
-                         nfft: int | None = None) -> CompensatedSpectrum:
+                         nfft: int | None = None, bandwidth_hz: float | None = None,
+                         chirp_rate_hz_per_s: float | None = None) -> CompensatedSpectrum:
     """Phase-noise compensated spectrum of one ramp of a LiDAR beat (real, 1-D) using the monitor MZI.
 
     ``beat`` and ``mzi`` are the same ramp, sample-aligned. Targets up to ``max_delay_s`` round trip
@@ -146,7 +178,8 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
     max_delay_s = check_positive("max_delay_s", max_delay_s)
     if edge_s is None:
         edge_s = max(20.0 / fs_hz, 1e-6)
-    pn = mzi_phase_noise(m_arr, fs_hz=fs_hz, edge_s=edge_s)
+    beat = None if chirp_rate_hz_per_s is None else check_positive("chirp_rate_hz_per_s", chirp_rate_hz_per_s) * mzi_delay_s
+    pn = mzi_phase_noise(m_arr, fs_hz=fs_hz, edge_s=edge_s, bandwidth_hz=bandwidth_hz, beat_hz=beat)
     if not pn.f_mzi_hz > 0:
         raise ValueError("mzi: no positive beat frequency found (is the laser chirping?)")
     d = mzi_delay_s * fs_hz

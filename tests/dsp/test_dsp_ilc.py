@@ -274,3 +274,16 @@ def test_end_to_end_through_h2_synthesizer():
     final = np.array(ramp_nonlinearity_hz(laser.frequency_hz(res.drive_v, FS), n // 2)) / EXC_HZ
     assert np.all(final <= 5e-5)
     assert min(res.reduction.values()) >= 200
+
+
+def test_default_preset_at_the_shipped_monitor_delay():
+    """The delay chosen for phase-noise compensation (200 ns, beat 21.5 MHz) still linearizes the
+    default DFB: >= 600x on both ramps within 10 updates, true residual <= 5e-5 of the excursion."""
+    from lidard.config import Monitor
+    tau_m = Monitor().delay_s
+    assert tau_m == 200e-9
+    b = Bench("dfb_default", seed=12, tau_m=tau_m)
+    res = run(b, averages=128)
+    assert len(res.iterations) - 1 <= 10
+    assert min(res.reduction.values()) >= 600
+    assert np.all(true_rms(b, res.drive_v) / EXC_HZ <= 5e-5)
