@@ -19,7 +19,9 @@ Faults (issue 6; docs/reliability.md):
   resend, USB retry and re-find, Modbus reconnect); on top of that a whole batch of segments whose
   read fails (timeout, disconnect, bad CRC) is re-read up to ``BATCH_RETRIES`` times with
   exponential backoff (segments are addressed by index, so a re-read is idempotent), each retry
-  logged and counted in the scan meta (``faults.batch_retries``). A device that stays down fails
+  logged and counted in the scan meta (``faults.batch_retries``). When the acquisition itself is
+  lost (a replugged digitizer forgets it), the rest of the pattern is started as a new acquisition
+  from the first pixel not yet read (``faults.resumes``, at most ``RESUMES``). A device that stays down fails
   the scan with :class:`ScanFailed` naming the device and the cause; the points measured so far
   ride on the exception and are written by the worker (nothing measured is lost).
 * Safety between batches: batches are limited to ``SAFETY_CHECK_S`` of hardware time, and after
@@ -70,6 +72,7 @@ BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
 SAFETY_CHECK_S = 0.01
 BATCH_RETRIES = 3            # re-reads of a failed batch of segments
 BATCH_BACKOFF_S = 0.005      # first backoff between batch re-reads (doubles)
+RESUMES = 2                  # new acquisitions for the rest of a scan after one was lost
 
 log = logging.getLogger(__name__)
 
@@ -265,7 +268,10 @@ class LidarInstrument:
         hw_last = 0.0
         partial = False
         stop_reason: str | None = None
-        faults: dict[str, Any] = {"batch_retries": 0, "overrange_segments": 0, "overrange_pixels": 0}
+        faults: dict[str, Any] = {"batch_retries": 0, "resumes": 0, "overrange_segments": 0,
+                                  "overrange_pixels": 0}
+        base = 0            # first pixel of the current acquisition (> 0 after a resume)
+        t_shift_s = 0.0
         safe: dict[str, Any] | None = None
 
         def result() -> ScanResult:
@@ -310,7 +316,7 @@ class LidarInstrument:
                     break
                 bp = min(batch_pix, n_pix - done)
                 try:
-                    headers, samples = self._read_batch(done * avg, bp * avg, cfgd, faults)
+                    headers, samples = self._read_batch((done - base) * avg, bp * avg, cfgd, faults)
                 except InstrumentError as exc:
                     # before blaming the digitizer: did the interlock or a fault stop the light?
                     reason = self._safety_trip()
@@ -319,7 +325,21 @@ class LidarInstrument:
                         stopped_safe = True
                         stop_reason = f"{reason}; {_describe_safe(safe)}"
                         break
-                    raise ScanFailed(str(exc), result()) from exc
+                    if faults["resumes"] >= RESUMES:
+                        raise ScanFailed(str(exc), result()) from exc
+                    # The acquisition itself is lost (a replugged digitizer resets it): run the rest
+                    # of the pattern as a new acquisition from the first pixel not yet read.
+                    faults["resumes"] += 1
+                    log.warning("scan: resuming from pixel %d of %d after %s", done, n_pix, exc)
+                    try:
+                        cfgd = self._resume(pixels[done:], avg, adc)
+                    except Exception as exc2:
+                        raise ScanFailed(f"{_device_of(exc2)}: resume after '{exc}' failed: "
+                                         f"{type(exc2).__name__}: {exc2}", result()) from exc2
+                    base = done
+                    t_shift_s = hw_last
+                    hw_t0 = None
+                    continue
                 reason = self._safety_trip()
                 if reason is not None:
                     # Outputs first; the batch in flight is discarded (when the light went is unknown).
@@ -331,7 +351,8 @@ class LidarInstrument:
                     break
                 t_ns = np.array([h.trigger_time_ns for h in headers], dtype=np.float64)
                 if hw_t0 is None:
-                    hw_t0 = t_ns[0]
+                    # after a resume the new run's clock continues where the last pixel read ended
+                    hw_t0 = t_ns[0] - t_shift_s * 1e9
                 beat = samples[:, 0, :].reshape(bp, avg, adc.record_length)
                 res = dsp.process(beat, lsb)
                 px = pixels[done:done + bp]
@@ -378,6 +399,22 @@ class LidarInstrument:
             self.digitizer.abort()
         except Exception as exc:
             log.warning("digitizer abort after an early stop failed: %s", exc)
+
+    def _resume(self, rest: np.ndarray, avg: int, adc: _AdcPlan):
+        """Stop what is left of the run and start a new acquisition for the pixels ``rest``."""
+        try:
+            self.fpsa.stop()
+        except Exception as exc:  # the restart below is what matters; it fails loudly if needed
+            log.warning("fpsa stop before resume failed: %s", exc)
+        self.digitizer.abort()
+        self._run_pattern(rest, avg)
+        cfgd = self.digitizer.configure(channels=("beat",), sample_rate_hz=adc.fs_hz,
+                                        record_length=adc.record_length, segments=len(rest) * avg,
+                                        bits=adc.bits, input_range_v=self.cfg.adc.input_range_v)
+        self.digitizer.arm()
+        self.fpsa.arm()
+        self.fpsa.start()
+        return cfgd
 
     def _read_batch(self, first: int, count: int, cfgd, faults: dict[str, Any]):
         """Read one batch of segments; transient failures re-read the whole batch (bounded)."""

@@ -82,6 +82,16 @@ def _assert_nothing_lost(rig, rec):
         assert rec.files, f"scan {rec.id} measured {rec.pixels_scanned} pixels but wrote no file"
 
 
+def _assert_complete(rig, rec):
+    """Every pixel measured and (nearly) every pixel ranged on the CAL letters / card at 0.8-0.9 m.
+    (Not an exact count: the noise is seeded by the run's virtual start time, which faults shift.)"""
+    assert rec.pixels_scanned == N_PIX
+    pts = _points(rig, rec)
+    good = np.asarray(pts["valid"]) == 1
+    assert good.sum() >= 0.98 * N_PIX
+    assert np.all(np.abs(np.asarray(pts["range"])[good] - 0.85) < 0.06)
+
+
 def _sidecar(rig, rec) -> dict:
     return json.loads((rig["store"].data_dir / (rec.files["ply"] + ".json")).read_text())
 
@@ -99,7 +109,7 @@ def test_serial_line_noise_is_retried_and_the_scan_completes(r, kind):
     rec = _scan(r)
     assert rec.state == "done", rec.error
     assert fpsa.retry_count > retries0                     # the noise was really there and retried
-    assert rec.points == r["ref_points"] and rec.pixels_scanned == N_PIX
+    _assert_complete(r, rec)
     _assert_nothing_lost(r, rec)
 
 
@@ -114,7 +124,8 @@ def test_serial_disconnect_reconnects_through_the_stable_path(r):
     assert fpsa["connected"] is True and fpsa["reconnected"] is True   # no daemon restart
     assert inst.fpsa.reconnect_count == n0 + 1
     rec = _scan(r)
-    assert rec.state == "done" and rec.points == r["ref_points"]
+    assert rec.state == "done", rec.error
+    _assert_complete(r, rec)
     _assert_nothing_lost(r, rec)
 
 
@@ -124,7 +135,7 @@ def test_serial_disconnect_that_comes_back_by_itself_mid_transaction(r):
     inst.inject_fault("serial_disconnect", reconnect_after_s=0.015)
     rec = _scan(r)
     assert rec.state == "done", rec.error
-    assert rec.points == r["ref_points"]
+    _assert_complete(r, rec)
     _assert_nothing_lost(r, rec)
 
 
@@ -134,7 +145,7 @@ def test_usb_timeouts_are_retried_by_the_driver(r):
     r["inst"].inject_fault("usb_timeout", device="awg", n=1)
     rec = _scan(r)
     assert rec.state == "done", rec.error
-    assert rec.points == r["ref_points"]
+    _assert_complete(r, rec)
     _assert_nothing_lost(r, rec)
 
 
@@ -147,7 +158,8 @@ def test_usb_device_that_stays_down_fails_the_scan_naming_it_then_recovers(r):
     _assert_nothing_lost(r, rec)
     inst.clear_faults()
     rec = _scan(r)
-    assert rec.state == "done" and rec.points == r["ref_points"]
+    assert rec.state == "done", rec.error
+    _assert_complete(r, rec)
 
 
 def test_usb_stall_is_a_clean_failure_naming_the_device(r):
@@ -167,7 +179,7 @@ def test_usb_disconnect_is_found_again_by_vid_pid(r):
     rec = _scan(r)
     assert rec.state == "done", rec.error
     assert inst.digitizer.reconnect_count == n0 + 1
-    assert rec.points == r["ref_points"]
+    _assert_complete(r, rec)
     _assert_nothing_lost(r, rec)
 
 
@@ -216,7 +228,7 @@ def test_modbus_busy_is_retried_with_backoff(r):
     r["inst"].inject_fault("modbus_exception", code=6, n=2)
     rec = _scan(r)
     assert rec.state == "done", rec.error
-    assert rec.points == r["ref_points"]
+    _assert_complete(r, rec)
 
 
 def test_modbus_device_failure_is_a_clean_failure_naming_the_controller(r):
@@ -234,7 +246,7 @@ def test_modbus_timeouts_are_retried_with_a_reconnect(r):
     r["inst"].inject_fault("modbus_timeout", n=2)
     rec = _scan(r)
     assert rec.state == "done", rec.error
-    assert rec.points == r["ref_points"]
+    _assert_complete(r, rec)
 
 
 def test_controller_unreachable_then_back_is_shown_by_devices(r):
@@ -309,3 +321,23 @@ def test_stuck_switch_is_found_by_the_selftest_job(r):
     assert [(s["line"], s["index"], s["state"]) for s in report["stuck"]] == [("col", 50, "off")]
     r["inst"].clear_faults()
     assert r["worker"].submit_selftest().result(timeout=60)["ok"]
+
+
+def test_digitizer_replugged_mid_scan_resumes_and_completes(r):
+    inst = r["inst"]
+    fired = []
+
+    def replug(ev):
+        if ev.get("event") == "progress" and ev.get("pixels_done", 0) >= 100 and not fired:
+            # unplugged for 2 transfers; re-enumeration drops the armed acquisition
+            fired.append(inst.inject_fault("usb_disconnect", device="digitizer", n=2))
+
+    rec = _scan(r, on_progress=replug)
+    assert fired
+    assert rec.state == "done", rec.error
+    _assert_complete(r, rec)
+    side = _sidecar(r, rec)
+    assert side["faults"]["resumes"] >= 1
+    t = np.asarray(_points(r, rec)["t"])
+    assert np.all(np.diff(np.sort(t)) >= 0) and t.max() < 1.0     # one continuous time axis
+    _assert_nothing_lost(r, rec)
