@@ -1,0 +1,227 @@
+"""Reliability table (issue 6): every bench fault, injected at a stated rate or moment into a scan that
+goes through the daemon's own job path, with its outcome, what was lost, and for the interlock the
+time to safe state on the virtual clock.
+
+Rig: the real instrument (``open_instrument(config/sim.toml, bench="embedded")``: real drivers over a
+pty, Modbus TCP and pyusb), a ScanWorker and a Store in a temp dir, scene ``cal_letters``. Each row
+runs one 12 x 32-pixel ROI scan (384 bonded pixels, 1 average, 2 m) unless stated, then checks, like
+tests/e2e/test_e2e_faults.py:
+
+* data lost = pixels measured (``pixels_scanned``) whose points are not in a parsable file with the
+  stored count, plus any temp file left behind. It must be 0 in every row.
+* time to safe state (interlock, HV fault): from the virtual moment the interlock opened (set from a
+  progress event as "now + delta", delta swept over one safety batch) to the virtual moment laser
+  and HV are both read back off (``safe_state.safe_at_s`` in the scan sidecar). The host checks the
+  controller's flags between batches of at most ``SAFETY_CHECK_S`` of hardware time; the controller's
+  own hardware interlock drops the outputs at once (the host's path is the second line of defence).
+
+    python benchmarks/reliability.py [--sweep 10] [--json]
+
+``run_reliability(...)`` returns the rows and the interlock figures as a dict.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from lidard.config import CONFIG_DIR, load_config
+from lidard.instrument import SAFETY_CHECK_S, open_instrument
+from lidard.instrument_api import ScanRequest
+from lidard.jobs import ScanWorker
+from lidard.store import Store
+
+ROI = ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0)
+N_PIX = 12 * 32
+ENV = {"LIDARD__DEVICES__CONTROLLER__TIMEOUT_S": "0.2", "LIDARD__DEVICES__FPSA__TIMEOUT_S": "0.1"}
+
+
+class Rig:
+    def __init__(self, data_dir: str):
+        cfg = load_config(CONFIG_DIR / "sim.toml", environ=ENV)
+        self.inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"),
+                                    bench="embedded")
+        self.bench = self.inst._on_close.__self__
+        self.store = Store(data_dir)
+        self.worker = ScanWorker(self.inst, self.store, laser=cfg.laser, optics=cfg.optics(),
+                                 progress_interval_s=0.0)
+        self.worker.start()
+
+    def scan(self, on_progress: Callable[[dict], None] | None = None):
+        rec = self.worker.submit_scan(ROI)
+        if on_progress is not None:
+            self.worker.subscribe(rec.id, on_progress)
+        return self.worker.wait(rec.id, timeout_s=300)
+
+    def reset(self) -> None:
+        self.inst.clear_faults()
+        self.inst.controller.clear_faults()
+
+    def close(self) -> None:
+        self.worker.stop()
+        self.store.close()
+        self.inst.close()
+
+    def lost(self, rec) -> int:
+        """Measured pixels not safely on disk (0 when nothing was lost) + temp files left."""
+        from plyfile import PlyData
+        d = self.store.data_dir
+        tmp = [p for p in d.rglob("*.tmp")]
+        if rec.pixels_scanned == 0:
+            return len(tmp)
+        if "ply" not in rec.files:
+            return rec.pixels_scanned + len(tmp)
+        n = len(PlyData.read(str(d / rec.files["ply"]))["vertex"])
+        side = json.loads((d / (rec.files["ply"] + ".json")).read_text())
+        ok = n == rec.points and side["pixels_scanned"] == rec.pixels_scanned
+        return (0 if ok else rec.pixels_scanned) + len(tmp)
+
+    def sidecar(self, rec) -> dict:
+        if "ply" not in rec.files:
+            return {}
+        return json.loads((self.store.data_dir / (rec.files["ply"] + ".json")).read_text())
+
+
+def _at_pixel(rig: Rig, pixels: int, action: Callable[[], Any]) -> Callable[[dict], None]:
+    fired: list = []
+
+    def cb(ev: dict) -> None:
+        if ev.get("event") == "progress" and ev.get("pixels_done", 0) >= pixels and not fired:
+            fired.append(action())
+    return cb
+
+
+def _outcome(rig: Rig, rec, t_wall: float) -> dict[str, Any]:
+    side = rig.sidecar(rec)
+    f = side.get("faults", {})
+    valid = 0
+    if "ply" in rec.files:
+        from plyfile import PlyData
+        valid = int(np.sum(np.asarray(PlyData.read(str(rig.store.data_dir / rec.files["ply"]))["vertex"]["valid"])))
+    return {"state": rec.state, "partial": rec.partial, "pixels": f"{rec.pixels_scanned}/{N_PIX}",
+            "valid_points": valid, "error": (rec.error or "")[:110], "batch_retries": f.get("batch_retries", 0),
+            "resumes": f.get("resumes", 0), "overrange_pixels": f.get("overrange_pixels", 0),
+            "fpsa_retries": rig.inst.fpsa.retry_count, "lost": rig.lost(rec), "wall_s": round(t_wall, 2)}
+
+
+def run_reliability(sweep: int = 10) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory(prefix="lidard-reliability-") as tmp:
+        rig = Rig(tmp)
+        try:
+            ref = rig.scan()                       # linearizes first; the reference scan
+            rows: list[dict[str, Any]] = []
+            inst = rig.inst
+
+            def row(fault: str, moment: str, setup: Callable[[], Any] | None = None,
+                    on_progress_factory: Callable[[], Any] | None = None) -> None:
+                rig.reset()
+                r0 = inst.fpsa.retry_count
+                if setup is not None:
+                    setup()
+                t0 = time.perf_counter()
+                rec = rig.scan(on_progress_factory() if on_progress_factory else None)
+                out = _outcome(rig, rec, time.perf_counter() - t0)
+                out["fpsa_retries"] -= r0
+                rows.append({"fault": fault, "rate_or_moment": moment, **out})
+
+            row("none (reference)", "-")
+            for rate in (1e-4, 1e-3, 5e-3):
+                row("serial_drop", f"rate {rate:g}/byte", lambda r=rate: inst.inject_fault("serial_drop", rate=r))
+                row("serial_flip", f"rate {rate:g}/byte", lambda r=rate: inst.inject_fault("serial_flip", rate=r))
+            row("serial_disconnect", "before the scan, back after 15 ms (virtual)",
+                lambda: inst.inject_fault("serial_disconnect", reconnect_after_s=0.015))
+            row("usb_timeout", "digitizer, 2 transfers", lambda: inst.inject_fault("usb_timeout", device="digitizer", n=2))
+            row("usb_timeout", "digitizer, until cleared", lambda: inst.inject_fault("usb_timeout", device="digitizer"))
+            row("usb_stall", "awg, 1 transfer", lambda: inst.inject_fault("usb_stall", device="awg", n=1))
+            row("usb_disconnect", "digitizer, 1 transfer (before arm)",
+                lambda: inst.inject_fault("usb_disconnect", device="digitizer", n=1))
+            row("usb_disconnect", "digitizer replugged at pixel 100 (2 transfers)", None,
+                lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("usb_disconnect", device="digitizer", n=2)))
+            row("usb_disconnect", "digitizer unplugged at pixel 100, stays away", None,
+                lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("usb_disconnect", device="digitizer")))
+            row("digitizer_overrange", "gain 2000", lambda: inst.inject_fault("digitizer_overrange", gain=2000))
+            row("modbus_exception", "code 6 (busy) x2", lambda: inst.inject_fault("modbus_exception", code=6, n=2))
+            row("modbus_exception", "code 4 (device failure) x1", lambda: inst.inject_fault("modbus_exception", code=4, n=1))
+            row("modbus_timeout", "2 responses", lambda: inst.inject_fault("modbus_timeout", n=2))
+            row("interlock_open", "at pixel 100 + 4 ms", None,
+                lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("interlock_open", at_s=rig.bench.clock.now() + 0.004)))
+            row("hv_fault", "at pixel 100", None, lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("hv_fault")))
+            row("stuck_switch", "col 50 off (scan)", lambda: inst.inject_fault("stuck_switch", line="col", index=50, state="off"))
+
+            # self-test rows
+            rig.reset()
+            for st in ({"line": "row", "index": 21, "state": "on"}, {"line": "col", "index": 50, "state": "off"}):
+                rig.reset()
+                inst.inject_fault("stuck_switch", **st)
+                rep = rig.worker.submit_selftest().result(timeout=120)
+                found = [(s["line"], s["index"], s["state"]) for s in rep["stuck"]]
+                rows.append({"fault": "stuck_switch", "rate_or_moment": f"{st['line']} {st['index']} {st['state']} (self-test)",
+                             "state": "reported" if found == [(st["line"], st["index"], st["state"])] else f"WRONG {found}",
+                             "partial": False, "pixels": "-", "valid_points": 0, "error": "", "batch_retries": 0,
+                             "resumes": 0, "overrange_pixels": 0, "fpsa_retries": 0, "lost": 0, "wall_s": 0.0})
+
+            # time to safe state: interlock opening swept across one safety batch
+            t_safe = []
+            for k in range(sweep):
+                rig.reset()
+                delta = (k + 0.5) / sweep * SAFETY_CHECK_S
+                when: dict[str, float] = {}
+
+                def trip(d=delta):
+                    when["at_s"] = rig.bench.clock.now() + d
+                    return inst.inject_fault("interlock_open", at_s=when["at_s"])
+                rec = rig.scan(_at_pixel(rig, 100, trip))
+                safe = rig.sidecar(rec).get("safe_state", {})
+                if safe.get("safe") and "at_s" in when:
+                    t_safe.append(safe["safe_at_s"] - when["at_s"])
+            rig.reset()
+        finally:
+            rig.close()
+    ts = np.array(t_safe)
+    return {"rows": rows, "reference_points": ref.points,
+            "interlock": {"safety_check_s": SAFETY_CHECK_S, "trials": int(len(ts)), "of": sweep,
+                          "time_to_safe_ms_median": float(np.median(ts) * 1e3) if ts.size else None,
+                          "time_to_safe_ms_max": float(ts.max() * 1e3) if ts.size else None,
+                          "time_to_safe_ms_min": float(ts.min() * 1e3) if ts.size else None}}
+
+
+def print_table(res: dict[str, Any]) -> None:
+    hdr = ("fault", "rate or moment", "outcome", "pixels", "valid pts", "retries", "lost")
+    print(" | ".join(hdr))
+    print(" | ".join("---" for _ in hdr))
+    for r in res["rows"]:
+        outcome = r["state"] + (" (partial)" if r["partial"] else "")
+        if r["error"]:
+            outcome += f": {r['error']}"
+        retries = (f"fpsa {r['fpsa_retries']}, batch {r['batch_retries']}, resume {r['resumes']}"
+                   + (f", overrange px {r['overrange_pixels']}" if r["overrange_pixels"] else ""))
+        print(" | ".join(str(x) for x in (r["fault"], r["rate_or_moment"], outcome, r["pixels"],
+                                           r["valid_points"], retries, r["lost"])))
+    il = res["interlock"]
+    print(f"\ninterlock: time to safe state (virtual) over {il['trials']}/{il['of']} openings spread over one "
+          f"{il['safety_check_s'] * 1e3:g} ms safety batch: median {il['time_to_safe_ms_median']:.2f} ms, "
+          f"min {il['time_to_safe_ms_min']:.2f} ms, max {il['time_to_safe_ms_max']:.2f} ms")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sweep", type=int, default=10, help="interlock openings across one safety batch")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    res = run_reliability(args.sweep)
+    if args.json:
+        print(json.dumps(res, indent=1))
+    else:
+        print_table(res)
+    lost = sum(r["lost"] for r in res["rows"])
+    return 0 if lost == 0 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
