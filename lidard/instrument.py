@@ -531,6 +531,7 @@ class LidarInstrument:
         centre = np.array([[self.optics.bonded_rows[len(self.optics.bonded_rows) // 2], self.optics.cols // 2]])
         self._bring_up()
         history: list[dict[str, float]] = []
+        lin_faults: dict[str, Any] = {"batch_retries": 0}
         try:
             def measure(drive_v: np.ndarray, n_avg: int) -> np.ndarray:
                 self._load_drive(drive_v)
@@ -541,8 +542,13 @@ class LidarInstrument:
                 self.digitizer.arm()
                 self.fpsa.arm()
                 self.fpsa.start()
-                _, samples = self.digitizer.read_segments(0, n_avg, cfgd)
+                _, samples = self._read_batch(0, n_avg, cfgd, lin_faults)
                 self.fpsa.stop()
+                reason = self._safety_trip()
+                if reason is not None:
+                    # the same safe path as a scan: outputs first, then give up the calibration
+                    safe = self._safe_state()
+                    raise InstrumentError(f"linearization stopped: {reason}; {_describe_safe(safe)}")
                 history.append({})
                 if progress is not None:
                     progress({"measurements": len(history)})

@@ -341,3 +341,30 @@ def test_digitizer_replugged_mid_scan_resumes_and_completes(r):
     t = np.asarray(_points(r, rec)["t"])
     assert np.all(np.diff(np.sort(t)) >= 0) and t.max() < 1.0     # one continuous time axis
     _assert_nothing_lost(r, rec)
+
+
+def test_interlock_during_linearization_fails_it_safely(r):
+    inst, bench = r["inst"], r["bench"]
+    inst.inject_fault("interlock_open", after_segments=40)        # inside the first ILC measurements
+    with pytest.raises(Exception, match="interlock") as ei:
+        r["worker"].submit_calibration().result(timeout=60)
+    assert "read back" in str(ei.value) or "interlock" in str(ei.value)
+    st = bench.controller.state
+    assert not st.laser_on and not st.hv_on and st.hv_v < 0.25
+
+
+def test_child_bench_faults_travel_over_the_control_socket():
+    cfg = load_config("config/sim.toml", environ=ENV)
+    inst = open_instrument(cfg, bench="child")
+    try:
+        f = inst.inject_fault("usb_timeout", device="digitizer", n=1)
+        assert f["kind"] == "usb_timeout" and "id" in f
+        assert [x["kind"] for x in inst.active_faults()] == ["usb_timeout"]
+        with pytest.raises(ValueError, match="gremlins"):
+            inst.inject_fault("gremlins")
+        assert inst.clear_faults() == 1 and inst.active_faults() == []
+        inst.inject_fault("stuck_switch", line="row", index=9, state="off")
+        rep = inst.selftest()
+        assert [(s["line"], s["index"], s["state"]) for s in rep["stuck"]] == [("row", 9, "off")]
+    finally:
+        inst.close()

@@ -150,3 +150,21 @@ def test_kill_9_mid_scan_then_restart_loses_nothing(tmp_path):
     with np.load(data_dir / files["npz"]) as z:
         assert len(z[z.files[0]]) == points
     assert _assert_every_file_parses(data_dir) >= 4
+
+
+def test_restart_removes_temp_files_of_an_interrupted_write(tmp_path):
+    from lidard.store import Store
+    # what a kill -9 inside atomic_write leaves: a hidden temp file next to where the file would go
+    scan_dir = tmp_path / "scans" / "01M8ZZZZZZZZZZZZ"
+    scan_dir.mkdir(parents=True)
+    (scan_dir / ".scan.ply.k3j4h5.tmp").write_bytes(b"ply\nformat binary_little_endian 1.0\n")
+    (tmp_path / "calibrations").mkdir()
+    (tmp_path / "calibrations" / ".01M8.npy.abc.tmp").write_bytes(b"\x93NUMPY")
+    keep = scan_dir / "notes.txt"
+    keep.write_text("not ours to delete")
+    store = Store(tmp_path)
+    try:
+        assert store.swept_tmp == 2
+        assert not list(tmp_path.rglob("*.tmp")) and keep.exists()
+    finally:
+        store.close()
