@@ -4,19 +4,19 @@ The monitor MZI (delay tau_m) sees the laser phase difference ``Delta phi_m(t) =
 on top of its deterministic chirp phase. A target at round trip ``tau = M tau_m`` sees
 ``phi(t) - phi(t - M tau_m) = sum_{m<M} Delta phi_m(t - m tau_m)`` -- exactly, whatever the chirp. So:
 
-1. Hilbert phase of the monitor beat, minus its best-fit line per ramp (the linear chirp part):
-   ``delta(t)`` = phase noise + whatever nonlinearity the chirp still has. Removing only a line is
-   deliberate: a low-order smooth fit would also remove the slow part of the phase noise, which the
-   sum over M multiplies by M; the line itself only shifts the compensated tone's frequency by
-   M times the MZI beat, i.e. back to where the target is. Residual chirp nonlinearity is then
-   compensated too (it adds up over M exactly like the noise).
+1. The monitor beat is mixed down by its beat frequency ``gamma tau_m`` (given as the known chirp
+   rate, or measured) and low-passed as a complex phasor; its angle is ``delta(t)`` = phase noise +
+   whatever nonlinearity the chirp still has (see :func:`mzi_phase_noise` for why not a Hilbert
+   phase). Only the deterministic line is removed: a smooth fit would also remove the slow part of
+   the phase noise, which the sum over M multiplies by M. Residual chirp nonlinearity is compensated
+   too (it adds up over M exactly like the noise).
 2. The analytic LiDAR beat is multiplied by ``exp(-j sum_{m<M} delta(t - m tau_m))`` (no effect on the
    Doppler shift, so velocity survives, §2.3).
 3. Every range uses its nearest M: the spectrum is computed once per M and the bins whose beat
    frequency is nearest ``M f_mzi`` (``f_mzi`` = the MZI beat frequency, measured) are stitched.
 
-The sign of the chirp does not matter: on a ramp where the optical frequency falls, both Hilbert
-phases (MZI and LiDAR) are the negatives of the optical ones, consistently.
+The sign of the chirp does not matter: on a ramp where the optical frequency falls, both measured
+phases (MZI and LiDAR, positive beat frequency) are the negatives of the optical ones, consistently.
 
 Pure numpy/scipy: no I/O, no clock, no logging.
 """
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import get_window, hilbert
 
-from .instfreq import analytic_phase, check_finite_array, check_positive
+from .instfreq import check_finite_array, check_positive
 
 
 @dataclass(frozen=True)
@@ -100,18 +100,6 @@ def mzi_phase_noise(mzi, *, fs_hz: float, edge_s: float, bandwidth_hz: float | N
     delta = np.unwrap(np.angle(z * np.exp(-1j * c)))
     delta[~valid] = 0.0
     return MziPhaseNoise(delta_rad=delta, f_mzi_hz=f_mzi, valid=valid)
-
-
-def _band(x: np.ndarray, fs_hz: float, center_hz: float, half_width_hz: float) -> np.ndarray:
-    """Keep center +- half_width (skirts 10 % wide), zero-phase."""
-    spec = np.fft.rfft(x)
-    f = np.fft.rfftfreq(x.size, d=1.0 / fs_hz)
-    center = center_hz
-    dist = np.abs(f - center)
-    edge = 0.1 * half_width_hz
-    mask = np.clip((half_width_hz + edge - dist) / edge, 0.0, 1.0)
-    mask = 0.5 * (1 - np.cos(np.pi * mask))
-    return np.fft.irfft(spec * mask, n=x.size)
 
 
 def _delayed(x: np.ndarray, shift: float) -> np.ndarray:
