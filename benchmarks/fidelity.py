@@ -58,7 +58,7 @@ def scenes(quick: bool, far_m: float) -> list[dict]:
                                cols=(40, 56) if quick else (32, 96), max_range_m=2.0)}
     wall = {"name": f"wall at {far_m:g} m", "scene": {"name": "far wall", "target": [
         {"kind": "plane", "point": [0.0, 0.0, far_m], "normal": [0.0, 0.0, -1.0], "reflectivity": 1.0}]},
-        "request": dict(pattern="roi", rows=(60, 62) if quick else (60, 64), cols=(60, 68) if quick else (56, 72),
+        "request": dict(pattern="roi", rows=(60, 62) if quick else (56, 72), cols=(60, 68) if quick else (56, 72),
                         max_range_m=far_m / 0.6)}
     return [letters, wall]
 

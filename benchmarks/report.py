@@ -175,7 +175,7 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
         r = convergence(p, seed=1)
         runs.append(r)
         log(f"  {p}: reduction {r['reduction_up']:.0f}x / {r['reduction_down']:.0f}x, "
-            f"{len(r['iterations']) - 1} updates ({time.perf_counter() - t:.1f} s)")
+            f"{r.get('updates', len(r['iterations']) - 1)} updates ({time.perf_counter() - t:.1f} s)")
     rows = []
     plt = _plt()
     fig, ax = plt.subplots(1, 1, figsize=(8, 5))
@@ -189,7 +189,8 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
         ax.semilogy(k, [x["down_rms_hz"] / exc for x in it], "--s", color=colors[i % len(colors)], ms=3,
                     label=f"{r['preset']} down")
         rows.append([r["preset"], f"{float(r['plain_nonlinearity_pct']):.2f} %", r["reduction_up"], r["reduction_down"],
-                     len(it) - 1, r["true_residual_up"], r["true_residual_down"], bool(r["converged"])])
+                     r.get("updates", len(it) - 1), r["true_residual_up"], r["true_residual_down"],
+                     bool(r["converged"]), str(r.get("stop_reason", ""))])
     ax.set(xlabel="iteration (0 = plain triangle)", ylabel="RMS nonlinearity over the ROI / excursion (MZI)",
            title="ILC convergence per laser preset")
     ax.axhline(5e-5, color="k", lw=0.8, ls=":", label="5e-5 (true-residual target)")
@@ -199,17 +200,19 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
     s.data = {"runs": runs, "rows": rows}
     s.headline = [
         ("ILC reduction on dfb_default, up / down (MZI)",
-         f"{d['reduction_up']:.0f}x / {d['reduction_down']:.0f}x in {len(d['iterations']) - 1} iterations",
+         f"{d['reduction_up']:.0f}x / {d['reduction_down']:.0f}x in {d.get('updates', len(d['iterations']) - 1)} "
+         f"iterations",
          ">= 600x both in <= 10 (dissertation: 140x / 600x in 14)"),
         ("ILC true residual / excursion, dfb_default", f"{max(d['true_residual_up'], d['true_residual_down']):.2g}",
          "<= 5e-5")]
     s.markdown = (
         "`benchmarks.ilc.convergence(preset, seed=1)` per preset: RMS nonlinearity over the ROI as the daemon "
-        "measures it through the monitor MZI, per iteration; the true residual comes from the laser model's nu(t).\n\n"
+        "measures it through the monitor MZI, per iteration; the true residual (RMS over the ROI / excursion) comes "
+        f"from the laser model's nu(t). Monitor MZI delay {runs[0].get('mzi_delay_s', float('nan')) * 1e9:.0f} ns.\n\n"
         + table(["preset", "plain triangle RMS / swing", "reduction up", "reduction down", "iterations",
-                 "true residual up", "true residual down", "converged"], rows)
+                 "true residual up", "true residual down", "converged", "stop"], rows)
         + f"| dissertation §2.2 (Fig. 2-4) | | {ILC_PAPER['up']:.0f}x | {ILC_PAPER['down']:.0f}x | "
-          f"{ILC_PAPER['iterations']} | | | |\n"
+          f"{ILC_PAPER['iterations']} | | | | |\n"
         + f"\n![ILC convergence]({png})\n")
     return s
 
@@ -229,26 +232,32 @@ def sec_phase_noise(quick: bool, img: Path, log) -> Section:
         ax.plot(c["ranges_m"], c["pd_raw"], "--o", color=col, label=f"{lab}, raw")
         ax.plot(c["ranges_m"], c["pd_comp"], "-s", color=col, label=f"{lab}, compensated")
         for j, d in enumerate(c["ranges_m"]):
-            rows.append([f"{c['tau_c_s'] * 1e6:.2f}", d, c["pd_raw"][j], c["pd_comp"][j],
-                         c["loss_raw_db"][j], c["loss_comp_db"][j], c["snr_db"][j]])
+            rows.append([f"{c['tau_c_s'] * 1e6:.2f}", d, f"{2 * d / C_M_PER_S / c['tau_c_s']:.1f}", c["pd_raw"][j],
+                         c["pd_comp"][j], c["loss_raw_db"][j], c["loss_comp_db"][j], c["max_loss_comp_db"][j],
+                         c["snr_db"][j]])
     ax.set(xlabel="range (m)", ylabel="detection probability", title="Pd with and without MZI compensation",
            ylim=(-0.05, 1.05))
     ax.legend(fontsize=8)
     png = save(fig, img, "phase_noise_pd.png")
     s.data = {"raw": r, "curves": curves}
-    far = [c for c in curves if c["ranges_m"]]
-    if far:
-        c0 = far[0]
-        s.headline = [("Pd at the longest range, raw -> compensated "
-                       f"(tau_c {c0['tau_c_s'] * 1e6:.2f} us, {c0['ranges_m'][-1]:g} m)",
-                       f"{c0['pd_raw'][-1]:.2f} -> {c0['pd_comp'][-1]:.2f}",
-                       "a target the raw spectrum misses is detected")]
+    hard = min(curves, key=lambda c: c["tau_c_s"])
+    j = len(hard["ranges_m"]) - 1
+    # issue 3: within 3 dB of zero linewidth where tau_c <= tau / 6
+    deep = [(c["loss_comp_db"][k], c["loss_raw_db"][k]) for c in curves for k, d in enumerate(c["ranges_m"])
+            if c["tau_c_s"] <= 2 * d / C_M_PER_S / 6]
+    s.headline = [(f"Pd raw -> compensated, tau_c {hard['tau_c_s'] * 1e6:.2f} us at {hard['ranges_m'][j]:g} m",
+                   f"{hard['pd_raw'][j]:.2f} -> {hard['pd_comp'][j]:.2f}", "a target the raw spectrum misses is detected")]
+    if deep:
+        s.headline.append(("worst mean peak loss vs zero linewidth where tau_c <= tau/6, raw -> compensated",
+                           f"{max(x[1] for x in deep):.1f} dB -> {max(x[0] for x in deep):.1f} dB", "<= 3 dB"))
     s.markdown = (
         "`benchmarks.phase_noise.detection_curves(ranges_m, tau_c_s=(0.64e-6, 0.1e-6), ...)`: detection probability "
         "without and with compensation from the monitor MZI (§2.3, Fig. 2-6), peak loss against a zero-linewidth "
         "laser, and the link-budget SNR at each range (§2.4.1).\n\n"
-        + table(["tau_c (us)", "range (m)", "Pd raw", "Pd compensated", "peak loss raw (dB)",
-                 "peak loss compensated (dB)", "link-budget SNR (dB)"], rows)
+        + f"Monitor MZI {r['mzi_delay_s'] * 1e9:.0f} ns, {r['trials']} trials per point, target at the nearest "
+          "M tau_m.\n\n"
+        + table(["tau_c (us)", "range (m)", "tau / tau_c", "Pd raw", "Pd compensated", "peak loss raw (dB)",
+                 "peak loss compensated (dB)", "worst compensated (dB)", "link-budget SNR (dB)"], rows)
         + f"\n![phase-noise Pd]({png})\n")
     return s
 
@@ -267,6 +276,7 @@ def phase_noise_curves(r: dict) -> list[dict]:
                     "pd_raw": [float(x) for x in c["pd_raw"]], "pd_comp": [float(x) for x in c["pd_comp"]],
                     "loss_raw_db": [float(x) for x in c.get("loss_raw_db", [np.nan] * len(ranges))],
                     "loss_comp_db": [float(x) for x in c.get("loss_comp_db", [np.nan] * len(ranges))],
+                    "max_loss_comp_db": [float(x) for x in c.get("max_loss_comp_db", [np.nan] * len(ranges))],
                     "snr_db": [float(x) for x in c.get("snr_db", snr)]})
     return out
 
@@ -353,20 +363,93 @@ def sec_frame(quick: bool, img: Path, log) -> Section:
     for r_, c_, avg in shapes:
         f = run_frame(avg, r_, c_)
         runs.append(f)
-        rows.append([f["pixels"], avg, f["hardware_s"], f["wall_s"], f["realtime_factor"], f["linearization_wall_s"],
-                     f["peak_rss_mb"]])
+        rows.append([f["pixels"], avg, f["hardware_s"], f["wall_s"], f["cpu_s"], f["realtime_factor"],
+                     f["realtime_factor_cpu"], f["linearization_wall_s"], f["peak_rss_mb"]])
         log(f"  {f['pixels']} px x {avg} avg: hardware {f['hardware_s']:.2f} s wall {f['wall_s']:.2f} s")
     s.data = {"runs": runs}
     f0 = runs[0]
     s.headline = [(f"real-time factor, {f0['pixels']} pixels x {f0['averages']} averages (CAL letters, 2 m)",
-                   f"{f0['realtime_factor']:.2f}", ">= 1"),
+                   f"{f0['realtime_factor']:.2f} on wall time ({f0['realtime_factor_cpu']:.2f} on process CPU time)",
+                   ">= 1"),
                   ("peak RSS of the whole report process at that point", f"{f0['peak_rss_mb']:.0f} MB", "< 2 GB")]
     s.markdown = (
         "`benchmarks/frame.py`: a fresh embedded bench per frame, default profile (fpsa128, 25 mm lens), CAL "
         "scene, max range 2 m (ADC 5 MS/s, 800 samples per trigger), 16-bit records. Peak RSS is the process "
-        "high-water mark (it includes the sections that ran before).\n\n"
-        + table(["pixels", "averages", "hardware frame time (s)", "wall (s)", "real-time factor",
-                 "linearization wall (s)", "peak RSS (MB)"], rows))
+        "high-water mark (it includes the sections that ran before). Real-time factor = hardware frame time / wall "
+        "time; on CPU time it is what an unloaded machine would reach (the scan runs on one thread; other jobs "
+        "on a shared machine stretch wall time only).\n\n"
+        + table(["pixels", "averages", "hardware frame time (s)", "wall (s)", "CPU (s)", "real-time factor (wall)",
+                 "real-time factor (CPU)", "linearization wall (s)", "peak RSS (MB)"], rows))
+    return s
+
+
+def sec_accuracy(quick: bool, img: Path, log) -> Section:
+    """The end-to-end accuracy figures of tests/e2e, measured (not asserted) on embedded benches."""
+    import threading
+
+    from lidard.config import CONFIG_DIR, load_config
+    from lidard.instrument import open_instrument
+    from lidard.instrument_api import ScanRequest
+    from sim_devices.world.scene import Scene
+
+    s = Section("accuracy", "4c. Accuracy on the simulated bench (the scenes of tests/e2e)")
+    scenes = CONFIG_DIR / "scenes"
+
+    def scan(inst, req, cal):
+        return inst.run_scan(req, lambda p: None, threading.Event(), cal)
+
+    rows = []
+    inst = open_instrument(load_config(CONFIG_DIR / "sim.toml"), scene_path=str(scenes / "cal_letters.toml"),
+                           bench="embedded")
+    try:
+        bench = inst._on_close.__self__        # the embedded Bench: ground truth comes from its world
+        cal = inst.linearize()
+        res = scan(inst, ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0), cal)
+        pts = res.points[res.points["valid"] == 1]
+        err = pts["range"] - bench.ground_truth(pts["row"], pts["col"])
+        letters = {"pixels": res.pixels_planned, "ranged": int(len(np.unique(pts["row"] * 4096 + pts["col"]))),
+                   "rms_m": float(np.sqrt(np.mean(err ** 2))), "max_m": float(np.max(np.abs(err))),
+                   "snr_db_range": (float(np.min(pts["snr_db"])), float(np.max(pts["snr_db"])))}
+        rows.append(["CAL letters, 12 x 32 ROI, 1 average",
+                     f"RMS range error {1e3 * letters['rms_m']:.3f} mm, max {1e3 * letters['max_m']:.3f} mm, "
+                     f"{letters['ranged']}/{letters['pixels']} pixels; beat SNR {letters['snr_db_range'][0]:.0f}-"
+                     f"{letters['snr_db_range'][1]:.0f} dB", "<= 1 mm RMS (SNR: Fig. 4-32 ~28 dB)"])
+        bench.set_scene(Scene.from_dict({"target": []}))
+        res = scan(inst, ScanRequest(pattern="roi", rows=(0, 32), cols=(0, 32), max_range_m=2.0), cal)
+        empty = {"pixels": res.pixels_planned, "valid_points": int(res.points["valid"].sum())}
+        rows.append([f"empty scene, {empty['pixels']} pixels", f"{empty['valid_points']} valid points",
+                     "none beyond the false-alarm rate (pfa 1e-6)"])
+    finally:
+        inst.close()
+    # a moving box: 1.5 m/s at 4.5 m needs a 2 m/s Doppler allowance (see tests/e2e)
+    cfg = load_config(CONFIG_DIR / "sim.toml", environ={"LIDARD__SCAN__MAX_SPEED_MPS": "2.0"})
+    inst = open_instrument(cfg, scene_path=str(scenes / "mixed.toml"), bench="embedded")
+    try:
+        bench = inst._on_close.__self__
+        cal = inst.linearize()
+        scene = bench.world.scene
+        box = next(i for i, t in enumerate(scene.targets) if np.linalg.norm(t.velocity) > 0)
+        px = inst.optics.bonded_pixels()
+        on_box = px[scene.cast(inst.optics.directions(px[:, 0], px[:, 1]), max_hits=1).target_index[:, 0] == box]
+        res = scan(inst, ScanRequest(pattern="pixels", pixels=tuple(map(tuple, on_box.tolist())), max_range_m=6.0), cal)
+        pts = res.points[res.points["valid"] == 1]
+        v_true = inst.optics.directions(pts["row"], pts["col"]) @ np.asarray(scene.targets[box].velocity)
+        dv = pts["velocity"] - v_true
+        moving = {"pixels": int(len(on_box)), "valid_points": int(len(pts)), "max_abs_dv_mps": float(np.max(np.abs(dv))),
+                  "rms_dv_mps": float(np.sqrt(np.mean(dv ** 2))), "speed_mps": float(np.linalg.norm(scene.targets[box].velocity))}
+        rows.append([f"moving box, {moving['speed_mps']:.1f} m/s, {moving['pixels']} pixels on it",
+                     f"radial velocity error RMS {moving['rms_dv_mps'] * 1e3:.1f} mm/s, max "
+                     f"{moving['max_abs_dv_mps'] * 1e3:.1f} mm/s ({moving['valid_points']} valid points)",
+                     "every point within 0.05 m/s"])
+    finally:
+        inst.close()
+    s.data = {"letters": letters, "empty": empty, "moving_box": moving}
+    s.headline = [("CAL letters end to end (384-pixel ROI): RMS range error vs ray-cast truth",
+                   f"{1e3 * letters['rms_m']:.3f} mm", "<= 1 mm"),
+                  ("moving box: worst radial-velocity error", f"{moving['max_abs_dv_mps']:.3f} m/s", "<= 0.05 m/s")]
+    s.markdown = ("The scenes of `tests/e2e/test_e2e_scan.py`, measured here (the tests assert the targets): "
+                  "embedded bench, ILC calibration first, all simulator effects on.\n\n"
+                  + table(["scene", "measured", "target"], rows))
     return s
 
 
@@ -489,7 +572,7 @@ def sec_budget(quick: bool, img: Path, log) -> Section:
 
 SECTIONS: dict[str, Callable[[bool, Path, Callable], Section]] = {
     "estimators": sec_estimators, "ilc": sec_ilc, "phase_noise": sec_phase_noise, "scaling": sec_scaling,
-    "frame": sec_frame, "fidelity": sec_fidelity, "load": sec_load, "kernels": sec_kernels, "budget": sec_budget,
+    "frame": sec_frame, "accuracy": sec_accuracy, "fidelity": sec_fidelity, "load": sec_load, "kernels": sec_kernels, "budget": sec_budget,
 }
 
 
