@@ -251,7 +251,7 @@ def _scan_summary(rec: dict[str, Any], out: str | None, simulated: bool) -> dict
     planned = rec.get("pixels_planned") or 0
     return {
         "id": rec["id"], "state": rec["state"], "partial": bool(rec.get("partial")),
-        "points": rec.get("points", 0), "out": out,
+        "points": rec.get("points", 0), "out": out, "error": rec.get("error"),
         "hardware_time_s": hw, "wall_time_s": wall,
         "realtime_factor": (hw / wall) if hw is not None and wall else None,
         "coverage": (rec.get("pixels_scanned", 0) / planned) if planned else 0.0,
