@@ -65,9 +65,7 @@ USB_DEVICES = ("awg", "digitizer")
 MODBUS_EXCEPTION_CODES = (1, 2, 3, 4, 5, 6, 8, 10, 11)
 
 _REQUIRED = object()
-
-# kind -> {param: (checker, default)}
-_Checker = Any
+_Checker = Any  # (kind, name, value) -> normalised value, or ValueError
 
 
 def _rate(kind: str, name: str, v: Any) -> float:
@@ -135,6 +133,7 @@ def _modbus_code(kind: str, name: str, v: Any) -> int:
 
 _USB = {"device": (_choice(*USB_DEVICES), _REQUIRED), "n": (_count, None)}
 
+# kind -> {param: (checker, default)}; default _REQUIRED = must be given, None = absent / until cleared
 CATALOGUE: dict[str, dict[str, tuple[_Checker, Any]]] = {
     "serial_drop": {"rate": (_rate, _REQUIRED)},
     "serial_flip": {"rate": (_rate, _REQUIRED)},
