@@ -488,7 +488,13 @@ class Bench:
 
 
 class _ControlServer:
-    """JSON-lines control socket on 127.0.0.1 for a bench running as its own process."""
+    """JSON-lines control socket on 127.0.0.1 for a bench running as its own process.
+
+    Every reply is ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``. Fault commands:
+    ``{"cmd": "inject", "kind": K, **params}`` -> ``{"fault": {...}}``,
+    ``{"cmd": "clear_faults", "kind": K | null}`` -> ``{"cleared": n}``,
+    ``{"cmd": "faults"}`` -> ``{"faults": [...]}``.
+    """
 
     def __init__(self, bench: Bench) -> None:
         self.bench = bench
