@@ -44,7 +44,7 @@ from lidard.instrument_api import ScanRequest
 FULL = {"pixels": (1024, 2048, 4096, 8192, 16384), "averages": (1, 2, 5, 10), "avg_pixels": 1024,
         "ranges_m": (2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 150.0), "samples_budget": 2.0e7,
         "range_pixels_max": 1024}
-QUICK = {"pixels": (128, 256, 512, 1024), "averages": (1, 2, 5), "avg_pixels": 128,
+QUICK = {"pixels": (64, 128, 256, 512), "averages": (1, 2, 5), "avg_pixels": 64,
          "ranges_m": (2.0, 5.0, 10.0), "samples_budget": 2.0e5, "range_pixels_max": 128}
 
 

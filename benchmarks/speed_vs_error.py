@@ -136,8 +136,10 @@ def plot(results: dict, path: pathlib.Path) -> None:
     plt.close(fig)
 
 
-def run_speed_vs_error(quick: bool = False, png: pathlib.Path | None = OUT) -> dict:
+def run_speed_vs_error(quick: bool = False, png: pathlib.Path | None = OUT, sizes: dict | None = None) -> dict:
     """Accuracy and timing of every estimator at N = 512 and 4096; writes the PNG if ``png``.
+
+    ``sizes`` overrides the trials/batch per N ({512: dict(trials=..., batch=...), 4096: ...}).
 
     Returns {"results": {n: (stats, times)}, "trials": {n: trials}, "offsets": [...], "default": name,
     "accuracy_met": bool, "speed_met": bool, "ratio_uncertainty": float}.
@@ -145,7 +147,7 @@ def run_speed_vs_error(quick: bool = False, png: pathlib.Path | None = OUT) -> d
     cfg = {
         512: dict(trials=600 if quick else 4000, batch=5000 if quick else 20000),
         4096: dict(trials=150 if quick else 2000, batch=800 if quick else 3000),
-    }
+    } if sizes is None else sizes
     offsets = np.linspace(0, 0.5, 3 if quick else 6)
     results = {}
     for n, c in cfg.items():
