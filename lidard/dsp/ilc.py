@@ -21,7 +21,11 @@ Noise handling: laser phase noise makes the MZI phase noisy (Var = 2 pi linewidt
 worse relative to the signal the shorter the MZI), so ramps are averaged (``n_avg`` records averaged
 coherently before the Hilbert transform), the frequency estimate is low-passed at
 ``meas_cutoff_hz``, and Q keeps the drive from learning what is left. The noise floor of each
-measurement is estimated model-free by splitting the averages into two halves. Phase slips (2 pi
+measurement is estimated model-free by splitting the averages into two halves. The frequency is
+then re-estimated narrow-band (short-time-spectrum ridge as a reference phase, complex low-pass of
+the demodulated beat, ``refine=True``): with a long monitor MZI and a broad linewidth
+(tau_m ~ tau_c, where averaging shrinks the beat by exp(-pi linewidth tau_m)) the wide-band Hilbert
+phase alone is noise. Phase slips (2 pi
 steps at low MZI SNR) are counted and reported. A step that makes the error grow is rejected: the
 previous best drive is restored and beta halved (back off instead of diverging).
 
@@ -38,11 +42,17 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy.signal import hilbert
 
 from .instfreq import (best_fit_residual, check_finite_array, check_positive, fft_filter,
                        lowpass_padded, ramp_frequency)
 
 MeasureFn = Callable[[np.ndarray, int], np.ndarray]
+
+# narrow-band refinement of the MZI phase (see _Analyzer._refine)
+_RIDGE_WINDOW_S = 2e-6
+_RIDGE_LOWPASS_HZ = 200e3
+_REFINE_BANDS_HZ = (1e6, 300e3)
 
 
 @dataclass(frozen=True)
@@ -98,13 +108,14 @@ class _Analyzer:
     """Everything about turning one averaged MZI record into errors; fixed geometry per run."""
 
     def __init__(self, *, fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s, roi, learn,
-                 meas_cutoff_hz, directions):
+                 meas_cutoff_hz, directions, refine=True):
         self.fs_d, self.fs_a, self.T = fs_drive_hz, fs_adc_hz, ramp_s
         self.tau_m, self.roi, self.learn = mzi_delay_s, roi, learn
         self.slope = excursion_hz / ramp_s
         self.f_beat = self.slope * mzi_delay_s
         self.meas_cutoff = meas_cutoff_hz
         self.directions = directions
+        self.refine = refine
         self.n_adc = int(round(2 * ramp_s * fs_adc_hz))
         self.n_drive = int(round(2 * ramp_s * fs_drive_hz))
         self.t_drive = np.arange(self.n_drive) / fs_drive_hz
@@ -123,9 +134,48 @@ class _Analyzer:
                                 t0_s=r * self.T, direction=self.directions[r], edge_s=self.edge_s,
                                 trend_hz=0.5 * self.f_beat)
             t = rf.t_s[rf.valid]
-            nu = lowpass_padded(rf.nu_hz[rf.valid], self.fs_a, self.meas_cutoff)
+            nu = self._refine(xb[r * n_r:(r + 1) * n_r], rf) if self.refine else rf.nu_hz[rf.valid]
+            nu = lowpass_padded(nu, self.fs_a, self.meas_cutoff)
             out.append((t, nu, rf.phase_slips))
         return out
+
+    def _refine(self, seg: np.ndarray, rf) -> np.ndarray:
+        """Narrow-band re-estimate of one ramp's drive-frame nu (valid samples).
+
+        The Hilbert phase of the averaged beat takes the whole pass band's noise non-linearly. With a
+        long MZI and a broad linewidth (tau_m ~ tau_c) averaging shrinks the beat by
+        exp(-pi linewidth tau_m) while the residual noise stays broadband, and that phase slips and
+        wanders by MHz. Here the local beat frequency is read off the ridge of a short-time spectrum
+        (a 2 us window integrates the noise away), integrated to a reference phase, and the beat is
+        demodulated by it and low-passed *as a complex phasor* (1 MHz, then 300 kHz) before its angle
+        corrects the reference: the noise enters only through that narrow band.
+        """
+        n = seg.size
+        pad = min(n - 1, max(1, int(math.ceil(self.edge_s * self.fs_a))))
+        ext = np.concatenate([seg[pad:0:-1], seg, seg[-2:-pad - 2:-1]])
+        a = hilbert(ext - ext.mean())[pad:pad + n]
+        lw = min(n, max(16, int(round(_RIDGE_WINDOW_S * self.fs_a))))
+        hop = max(1, lw // 4)
+        nfft = 8 * lw
+        frames = np.lib.stride_tricks.sliding_window_view(a, lw)[::hop] * np.hanning(lw)
+        sp = np.abs(np.fft.fft(frames, nfft, axis=1))
+        sp[:, nfft // 2:] = 0.0                  # positive beat frequencies only
+        sp[:, 0] = 0.0
+        k = np.argmax(sp, axis=1)
+        kk = np.clip(k, 1, nfft - 2)
+        rows = np.arange(k.size)
+        y0, y1, y2 = (np.log(sp[rows, kk + d] + 1e-300) for d in (-1, 0, 1))
+        den = y0 - 2 * y1 + y2
+        dk = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
+        centers = np.arange(k.size) * hop + 0.5 * (lw - 1)
+        f_ridge = np.interp(np.arange(n), centers, (kk + dk) * self.fs_a / nfft)
+        f_ridge = lowpass_padded(f_ridge, self.fs_a, _RIDGE_LOWPASS_HZ)
+        psi = 2 * np.pi * np.cumsum(f_ridge) / self.fs_a
+        for bw in _REFINE_BANDS_HZ:
+            z = a * np.exp(-1j * psi)
+            psi = psi + np.unwrap(np.arctan2(lowpass_padded(z.imag, self.fs_a, bw),
+                                             lowpass_padded(z.real, self.fs_a, bw)))
+        return rf.direction * psi[rf.valid] / (2 * np.pi * self.tau_m)
 
     def _roi(self, t: np.ndarray, r: int, frac: float) -> np.ndarray:
         tr = t - r * self.T
@@ -214,7 +264,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
               roi: float = 0.8, averages: int = 128, learn: float = 0.92,
               q_cutoff_hz: float = 1.0e6, meas_cutoff_hz: float = 400e3,
               rel_tol: float = 0.02, grow_tol: float = 0.2, min_beta: float = 0.05,
-              abs_tol_frac: float = 1e-6) -> IlcResult:
+              abs_tol_frac: float = 1e-6, refine: bool = True) -> IlcResult:
     """Iteratively pre-distort ``drive0_v`` so that the MZI-measured chirp becomes linear (§2.2).
 
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
@@ -246,7 +296,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
         raise ValueError(f"drive0_v has {u0.size} samples; one period 2 ramp_s fs_drive_hz is {n_drive:g}")
     an = _Analyzer(fs_drive_hz=fs_drive_hz, fs_adc_hz=fs_adc_hz, ramp_s=ramp_s, excursion_hz=excursion_hz,
                    mzi_delay_s=mzi_delay_s, roi=roi, learn=learn, meas_cutoff_hz=meas_cutoff_hz,
-                   directions=_directions(u0))
+                   directions=_directions(u0), refine=bool(refine))
     if an.f_beat * ramp_s < 10:
         raise ValueError(f"MZI beat {an.f_beat:g} Hz gives < 10 fringes per ramp: mzi_delay_s too short")
 
@@ -287,6 +337,9 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
         iters.append(IlcIteration(index=k, up_rms_hz=a.rms[0], down_rms_hz=a.rms[1], up_error_hz=a.err_rms[0],
                                   down_error_hz=a.err_rms[1], noise_floor_hz=a.noise, tuning_hz_per_v=a.tuning,
                                   beta=b, phase_slips=a.slips, accepted=accepted))
+        if k == 0 and max(a.rms) <= abs_tol_frac * excursion_hz:
+            converged, reason = True, "already linear: nonlinearity below abs_tol_frac of the excursion"
+            break
         if k > 0 and accepted:
             if math.isfinite(a.noise) and max(a.rms) <= 2.0 * a.noise:
                 converged, reason = True, "reached the measurement noise floor"
