@@ -704,6 +704,10 @@ def _daemon(args) -> int:
     # an open event stream must not hold shutdown (and the laser/HV power-down) hostage
     server = uvicorn.Server(uvicorn.Config(app, log_level=args.log_level, timeout_graceful_shutdown=5))
     sys.stderr.write(f"lidard: serving on http://{host}:{sock.getsockname()[1]} (OpenAPI at /docs)\n")
+    if not is_loopback(host):
+        # the daemon speaks plain HTTP: the bearer token crosses the network in clear text
+        sys.stderr.write("lidard: warning: plain HTTP on a non-loopback address; the API token is sent in "
+                         "clear text, so put a TLS proxy or an SSH tunnel in front for untrusted networks\n")
     server.run(sockets=[sock])
     return 0
 
@@ -715,6 +719,9 @@ def _bind(host: str, port: int):
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind((host.strip("[]"), port))
+        # listen now: a client that connects once "serving on" is printed waits in the backlog
+        # until the app has started instead of being refused
+        sock.listen(2048)
     except OSError as exc:
         sock.close()
         raise CliError(f"cannot bind {host}:{port}: {exc.strerror or exc}") from None

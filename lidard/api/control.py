@@ -265,7 +265,8 @@ def guard(token: str | None) -> Callable[[Request], None]:
         if token is not None and not token_ok(token, request.headers.get("authorization")):
             raise HTTPException(401, "mutating requests need 'Authorization: Bearer <token>' "
                                      "(missing or wrong token)", headers={"WWW-Authenticate": "Bearer"})
-        if request.url.path.rstrip("/") == router.prefix:
+        route = request.scope.get("route")
+        if getattr(route, "path", None) == router.prefix:
             return  # /control itself decides (acquire, renew, release)
         _lock(request).check(presented)
 

@@ -173,3 +173,109 @@ def test_max_body_bytes_comes_from_config(tmp_path):
     bad.write_text("[daemon]\nmax_body_bytes = 0\n")
     with pytest.raises(ConfigError, match="max_body_bytes"):
         load_config(bad)
+
+
+# -- the same limits on a live uvicorn server, with raw sockets (what a hostile client would send)
+def _live(tmp_path, **kw):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+    from benchmarks.load import serve
+    inst = FakeInstrument()
+    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, max_body_bytes=4096, **kw)
+    return serve(app), inst
+
+
+def _raw_http(url, head: bytes, body_chunks=()) -> tuple[int, bytes]:
+    import socket
+    host, port = url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=20) as s:
+        s.sendall(head)
+        for ch in body_chunks:
+            try:
+                s.sendall(ch)
+            except OSError:  # the server may close as soon as it has answered 413
+                break
+        data = b""
+        while True:  # headers, then exactly Content-Length bytes of body (or until the server closes)
+            if b"\r\n\r\n" in data:
+                head_part, body = data.split(b"\r\n\r\n", 1)
+                length = [int(h.split(b":")[1]) for h in head_part.lower().split(b"\r\n")
+                          if h.startswith(b"content-length:")]
+                if length and len(body) >= length[0]:
+                    break
+            got = s.recv(65536)
+            if not got:
+                break
+            data += got
+    status = int(data.split(b" ", 2)[1])
+    return status, data
+
+
+def test_live_declared_length_over_limit_is_answered_without_waiting_for_the_body(tmp_path):
+    server, inst = _live(tmp_path)
+    with server as url:
+        # 100 MB announced, not one body byte sent: the answer must come anyway (no read, no wait)
+        head = (b"PUT /sim/scene HTTP/1.1\r\nHost: x\r\nContent-Type: application/toml\r\n"
+                b"Content-Length: 100000000\r\n\r\n")
+        status, data = _raw_http(url, head)
+        assert status == 413 and b"4096" in data
+    assert inst.scenes == []
+
+
+def test_live_chunked_body_over_limit_is_413(tmp_path):
+    server, inst = _live(tmp_path)
+    with server as url:
+        head = (b"PUT /sim/scene HTTP/1.1\r\nHost: x\r\nContent-Type: application/toml\r\n"
+                b"Transfer-Encoding: chunked\r\n\r\n")
+        piece = b"# " + b"z" * 1021 + b"\n"  # 1 KiB of TOML comment per chunk
+        chunks = [b"%x\r\n%s\r\n" % (len(piece), piece) for _ in range(8)] + [b"0\r\n\r\n"]
+        status, _ = _raw_http(url, head, chunks)
+        assert status == 413
+        # under the limit, chunked, is served
+        small = SCENE.encode()
+        status, _ = _raw_http(url, head, [b"%x\r\n%s\r\n" % (len(small), small), b"0\r\n\r\n"])
+        assert status == 200
+    assert len(inst.scenes) == 1
+
+
+def test_real_daemon_with_token_on_all_interfaces_reads_open_writes_need_token(tmp_path):
+    """`python -m lidard --host 0.0.0.0 --token T` on the simulated bench: serves, warns about plain
+    HTTP, GET is open, POST without the token is 401 and with it 201."""
+    import threading
+
+    import httpx
+    env = {k: v for k, v in os.environ.items() if k not in ("LIDARD_API_TOKEN", "LIDARD_DEBUG")}
+    env["LIDARD__SIM__BENCH"] = "embedded"  # no child process to start: quicker, same API
+    cfg = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
+    proc = subprocess.Popen([sys.executable, "-m", "lidard", "--config", str(cfg), "--host", "0.0.0.0",
+                             "--port", "0", "--token", "T0ken", "--data-dir", str(tmp_path / "data"),
+                             "--log-level", "warning"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    watchdog = threading.Timer(120.0, proc.kill)  # a hung daemon fails the test instead of hanging it
+    watchdog.start()
+    try:
+        lines = []
+        while not any("serving on" in ln for ln in lines):
+            ln = proc.stderr.readline()
+            assert ln, f"lidard exited: {''.join(lines)}"
+            lines.append(ln)
+        port = int(lines[-1].split("0.0.0.0:")[1].split()[0])
+        warning = proc.stderr.readline()
+        assert "clear text" in warning and "TLS" in warning
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as c:
+            assert c.get("/health").status_code == 200
+            assert c.get("/control").json()["held"] is False
+            assert c.post("/scans", json=SMALL).status_code == 401
+            assert c.post("/control", json={"client": "x"}, headers={"Authorization": "Bearer nope"}).status_code == 401
+            r = c.post("/scans", json={**SMALL, "formats": ["npz"]}, headers={"Authorization": "Bearer T0ken"})
+            assert r.status_code == 201
+            assert c.delete(f"/scans/{r.json()['id']}", headers={"Authorization": "Bearer T0ken"}).status_code == 200
+    finally:
+        watchdog.cancel()
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+    assert proc.returncode is not None
