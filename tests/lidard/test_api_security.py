@@ -279,3 +279,29 @@ def test_real_daemon_with_token_on_all_interfaces_reads_open_writes_need_token(t
             proc.kill()
             proc.wait(10)
     assert proc.returncode is not None
+
+
+def test_daemon_socket_gets_tcp_nodelay_on_every_connection():
+    """lidard binds its own socket; asyncio turns Nagle off on accepted connections only for a
+    socket whose proto is TCP (with proto 0 every response waited ~40 ms for a delayed ACK)."""
+    import socket
+
+    from lidard.cli import _bind
+    sock = _bind("127.0.0.1", 0)
+    assert sock.proto == socket.IPPROTO_TCP
+    seen = []
+
+    class Probe(asyncio.Protocol):
+        def connection_made(self, transport):
+            seen.append(transport.get_extra_info("socket").getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
+            transport.close()
+
+    async def main():
+        server = await asyncio.get_running_loop().create_server(Probe, sock=sock)
+        async with server:
+            _, writer = await asyncio.open_connection("127.0.0.1", sock.getsockname()[1])
+            while not seen:
+                await asyncio.sleep(0)
+            writer.close()
+    asyncio.run(asyncio.wait_for(main(), 20))
+    assert len(seen) == 1 and seen[0] != 0
