@@ -153,7 +153,7 @@ def live(tmp_path):
     import uvicorn
     inst = FakeInstrument(profile="fpsa20")
     app = create_app(load_config(), instrument=inst, data_dir=tmp_path / "data", progress_interval_s=0.0)
-    sock = socket.socket()
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)  # TCP_NODELAY per connection
     sock.bind(("127.0.0.1", 0))
     server = uvicorn.Server(uvicorn.Config(app, log_level="error", lifespan="on"))
     t = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
