@@ -5,7 +5,7 @@ protocols, DSP) and prints the real-time factor (hardware frame time / wall time
 The hardware time is the digitizer's trigger clock (virtual clock of the FPGA model, §4.3.3
 settle + triggers per pixel), so it is what the real instrument would take for the same frame.
 
-    python benchmarks/frame.py [--averages 10] [--rows 0:128] [--max-range 2] [--scene ...]
+    python benchmarks/frame.py [--averages 10] [--rows 0:128] [--max-range 2] [--scene ...] [--json]
 
 ``run_frame(...)`` returns the figures as a dict (used by ``python -m benchmarks``).
 """
@@ -13,6 +13,7 @@ settle + triggers per pixel), so it is what the real instrument would take for t
 from __future__ import annotations
 
 import argparse
+import json
 import resource
 import threading
 import time
@@ -56,9 +57,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cols", default="0:128")
     ap.add_argument("--max-range", type=float, default=2.0)
     ap.add_argument("--scene", default=DEFAULT_SCENE)
+    ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     args = ap.parse_args(argv)
     r = run_frame(args.averages, tuple(map(int, args.rows.split(":"))), tuple(map(int, args.cols.split(":"))),
                   args.max_range, args.scene)
+    if args.json:
+        print(json.dumps(r))
+        return
     print(f"pixels {r['pixels']}  averages {r['averages']}  max_range {r['max_range_m']} m  "
           f"adc {r['adc_rate_hz'] / 1e6:.2f} MS/s x {r['record_length']} samples")
     print(f"points {r['points']}  linearization {r['linearization_wall_s']:.2f} s wall")

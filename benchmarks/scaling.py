@@ -44,7 +44,7 @@ from lidard.instrument_api import ScanRequest
 FULL = {"pixels": (1024, 2048, 4096, 8192, 16384), "averages": (1, 2, 5, 10), "avg_pixels": 1024,
         "ranges_m": (2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 150.0), "samples_budget": 2.0e7,
         "range_pixels_max": 1024}
-QUICK = {"pixels": (64, 128, 256, 512), "averages": (1, 2, 5), "avg_pixels": 64,
+QUICK = {"pixels": (256, 512, 1024, 2048), "averages": (1, 2, 5), "avg_pixels": 128,
          "ranges_m": (2.0, 5.0, 10.0), "samples_budget": 2.0e5, "range_pixels_max": 128}
 
 
@@ -135,6 +135,7 @@ def run_scaling(quick: bool = False, repeats: int = 2, log=print) -> dict:
             log(f"  pixels {n:6d}: wall {rows[-1]['wall_s']:.3f} s  hardware {rows[-1]['hardware_s']:.3f} s")
         out["pixels"] = {"rows": rows, "fit": fit_growth([r["pixels"] for r in rows], [r["wall_s"] for r in rows]),
                          "cpu_fit": fit_growth([r["pixels"] for r in rows], [r["cpu_s"] for r in rows]),
+                         "cpu_affine": fit_linear([r["pixels"] for r in rows], [r["cpu_s"] for r in rows]),
                          "hw_fit": fit_growth([r["pixels"] for r in rows], [r["hardware_s"] for r in rows])}
 
         px = cycled_pixels(sizes["avg_pixels"], optics)
@@ -166,6 +167,8 @@ def run_scaling(quick: bool = False, repeats: int = 2, log=print) -> dict:
                 f"wall {r['wall_s']:.3f} s ({1e3 * r['wall_per_pixel_s']:.2f} ms/pixel), first scan {cold:.2f} s")
         out["range"] = {"rows": rows,
                         "fit_record": fit_growth([r["record_length"] for r in rows], [r["wall_per_pixel_s"] for r in rows]),
+                        "cpu_affine_record": fit_linear([r["record_length"] for r in rows],
+                                                        [r["cpu_per_pixel_s"] for r in rows]),
                         "cpu_fit_record": fit_growth([r["record_length"] for r in rows], [r["cpu_per_pixel_s"] for r in rows]),
                         "fit_range": fit_growth([r["max_range_m"] for r in rows], [r["wall_per_pixel_s"] for r in rows])}
     finally:
