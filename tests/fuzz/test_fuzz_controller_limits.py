@@ -107,3 +107,33 @@ def test_device_refuses_raw_over_limit_words_on_the_wire(raw, sim, which, word, 
     else:
         assert rsp.isError() and rsp.exception_code == p.ExceptionCode.ILLEGAL_DATA_VALUE
         assert new == old and after.tec_setpoint_c == before.tec_setpoint_c
+
+
+@settings(max_examples=60, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(garbage=st.one_of(
+    st.binary(min_size=1, max_size=64),
+    # a valid MBAP header (protocol 0, unit 1) around a random PDU: reaches the PDU decoder
+    st.builds(lambda tid, pdu: tid.to_bytes(2, "big") + b"\x00\x00" + (len(pdu) + 1).to_bytes(2, "big") + b"\x01" + pdu,
+              st.integers(0, 0xFFFF), st.binary(min_size=1, max_size=20))))
+def test_sim_controller_survives_raw_garbage_and_keeps_serving(sim, raw, garbage):
+    """Raw bytes at the Modbus TCP port must not take the simulated device down."""
+    import socket
+    before = sim.state
+    with socket.create_connection(("127.0.0.1", sim.port), timeout=2.0) as s:
+        s.sendall(garbage)
+        s.shutdown(socket.SHUT_WR)
+        try:
+            while s.recv(4096):  # whatever it answers (an exception response, or it closes)
+                pass
+        except OSError:
+            pass
+    after = sim.state
+    assert (after.hv_setpoint_v, after.laser_setpoint_ma, after.hv_on, after.laser_on) == \
+        (before.hv_setpoint_v, before.laser_setpoint_ma, before.hv_on, before.laser_on) or _was_a_valid_write(garbage)
+    rsp = raw.read_input_registers(p.MAP_VERSION_REG.address, count=1, device_id=1)
+    assert not rsp.isError() and rsp.registers == [p.MAP_VERSION]
+
+
+def _was_a_valid_write(frame: bytes) -> bool:
+    """A random PDU can be a well-formed write (fc 5/6/15/16); then a state change is legitimate."""
+    return len(frame) >= 8 and frame[2:4] == b"\x00\x00" and frame[7] in (5, 6, 15, 16)
