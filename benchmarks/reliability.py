@@ -15,7 +15,10 @@ tests/e2e/test_e2e_faults.py:
   controller's flags between batches of at most ``SAFETY_CHECK_S`` of hardware time; the controller's
   own hardware interlock drops the outputs at once (the host's path is the second line of defence).
 
-    python benchmarks/reliability.py [--sweep 10] [--json]
+    python benchmarks/reliability.py [--sweep 10] [--json] [--tradeoff]
+
+``--tradeoff`` adds the throughput cost of the safety-check interval (CPU-time real-time factor of a
+48 x 128-pixel scan per ``SAFETY_CHECK_S`` value).
 
 ``run_reliability(...)`` returns the rows and the interlock figures as a dict.
 """
@@ -39,6 +42,8 @@ from lidard.store import Store
 
 ROI = ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0)
 N_PIX = 12 * 32
+# the interlock sweep needs a scan that is still running one safety batch after the trigger
+SWEEP_ROI = ScanRequest(pattern="roi", rows=(40, 72), cols=(0, 128), max_range_m=2.0)
 ENV = {"LIDARD__DEVICES__CONTROLLER__TIMEOUT_S": "0.2", "LIDARD__DEVICES__FPSA__TIMEOUT_S": "0.1"}
 
 
@@ -53,8 +58,8 @@ class Rig:
                                  progress_interval_s=0.0)
         self.worker.start()
 
-    def scan(self, on_progress: Callable[[dict], None] | None = None):
-        rec = self.worker.submit_scan(ROI)
+    def scan(self, on_progress: Callable[[dict], None] | None = None, req: ScanRequest = ROI):
+        rec = self.worker.submit_scan(req)
         if on_progress is not None:
             self.worker.subscribe(rec.id, on_progress)
         return self.worker.wait(rec.id, timeout_s=300)
@@ -141,17 +146,17 @@ def run_reliability(sweep: int = 10) -> dict[str, Any]:
             row("usb_stall", "awg, 1 transfer", lambda: inst.inject_fault("usb_stall", device="awg", n=1))
             row("usb_disconnect", "digitizer, 1 transfer (before arm)",
                 lambda: inst.inject_fault("usb_disconnect", device="digitizer", n=1))
-            row("usb_disconnect", "digitizer replugged at pixel 100 (2 transfers)", None,
+            row("usb_disconnect", "digitizer replugged after the first read (2 transfers)", None,
                 lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("usb_disconnect", device="digitizer", n=2)))
-            row("usb_disconnect", "digitizer unplugged at pixel 100, stays away", None,
+            row("usb_disconnect", "digitizer unplugged after the first read, stays away", None,
                 lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("usb_disconnect", device="digitizer")))
             row("digitizer_overrange", "gain 2000", lambda: inst.inject_fault("digitizer_overrange", gain=2000))
             row("modbus_exception", "code 6 (busy) x2", lambda: inst.inject_fault("modbus_exception", code=6, n=2))
             row("modbus_exception", "code 4 (device failure) x1", lambda: inst.inject_fault("modbus_exception", code=4, n=1))
             row("modbus_timeout", "2 responses", lambda: inst.inject_fault("modbus_timeout", n=2))
-            row("interlock_open", "at pixel 100 + 4 ms", None,
+            row("interlock_open", "first read done (pixel >= 100) + 4 ms", None,
                 lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("interlock_open", at_s=rig.bench.clock.now() + 0.004)))
-            row("hv_fault", "at pixel 100", None, lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("hv_fault")))
+            row("hv_fault", "first read done (pixel >= 100)", None, lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("hv_fault")))
             row("stuck_switch", "col 50 off (scan)", lambda: inst.inject_fault("stuck_switch", line="col", index=50, state="off"))
 
             # self-test rows
@@ -176,7 +181,7 @@ def run_reliability(sweep: int = 10) -> dict[str, Any]:
                 def trip(d=delta):
                     when["at_s"] = rig.bench.clock.now() + d
                     return inst.inject_fault("interlock_open", at_s=when["at_s"])
-                rec = rig.scan(_at_pixel(rig, 100, trip))
+                rec = rig.scan(_at_pixel(rig, 100, trip), SWEEP_ROI)
                 safe = rig.sidecar(rec).get("safe_state", {})
                 if safe.get("safe") and "at_s" in when:
                     t_safe.append(safe["safe_at_s"] - when["at_s"])
@@ -189,6 +194,33 @@ def run_reliability(sweep: int = 10) -> dict[str, Any]:
                           "time_to_safe_ms_median": float(np.median(ts) * 1e3) if ts.size else None,
                           "time_to_safe_ms_max": float(ts.max() * 1e3) if ts.size else None,
                           "time_to_safe_ms_min": float(ts.min() * 1e3) if ts.size else None}}
+
+
+def safety_tradeoff(values_s=(0.01, 0.02, 0.05, 0.2, None), averages: int = 1) -> list[dict[str, Any]]:
+    """Cost of the safety check: CPU-time real-time factor (hardware time / process CPU time, bench
+    included) of one 48 x 128-pixel scan per ``SAFETY_CHECK_S`` value (None: reads bounded only by
+    BATCH_BYTES). CPU time, not wall time, so other load on the machine does not enter."""
+    import threading
+
+    import lidard.instrument as li
+    cfg = load_config(CONFIG_DIR / "sim.toml")
+    inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"), bench="embedded")
+    saved = li.SAFETY_CHECK_S
+    out = []
+    try:
+        cal = inst.linearize()
+        req = ScanRequest(pattern="roi", rows=(0, 64), cols=(0, 128), averages=averages, max_range_m=2.0)
+        for v in values_s:
+            li.SAFETY_CHECK_S = 1e9 if v is None else v
+            c0 = time.process_time()
+            res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
+            cpu = time.process_time() - c0
+            out.append({"safety_check_s": v, "hardware_s": res.hardware_time_s, "cpu_s": cpu,
+                        "rtf_cpu": res.hardware_time_s / cpu, "points": len(res.points)})
+    finally:
+        li.SAFETY_CHECK_S = saved
+        inst.close()
+    return out
 
 
 def print_table(res: dict[str, Any]) -> None:
@@ -213,12 +245,20 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sweep", type=int, default=10, help="interlock openings across one safety batch")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--tradeoff", action="store_true",
+                    help="also measure the throughput cost of the safety-check interval")
     args = ap.parse_args(argv)
     res = run_reliability(args.sweep)
+    if args.tradeoff:
+        res["tradeoff"] = safety_tradeoff()
     if args.json:
         print(json.dumps(res, indent=1))
     else:
         print_table(res)
+        for t in res.get("tradeoff", []):
+            label = "unbounded" if t["safety_check_s"] is None else f"{t['safety_check_s'] * 1e3:g} ms"
+            print(f"safety check every {label:>9}: hardware {t['hardware_s']:.3f} s, CPU {t['cpu_s']:.2f} s, "
+                  f"real-time factor on CPU time {t['rtf_cpu']:.2f}")
     lost = sum(r["lost"] for r in res["rows"])
     return 0 if lost == 0 else 1
 

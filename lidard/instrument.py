@@ -24,8 +24,9 @@ Faults (issue 6; docs/reliability.md):
   from the first pixel not yet read (``faults.resumes``, at most ``RESUMES``). A device that stays down fails
   the scan with :class:`ScanFailed` naming the device and the cause; the points measured so far
   ride on the exception and are written by the worker (nothing measured is lost).
-* Safety between batches: batches are limited to ``SAFETY_CHECK_S`` of hardware time, and after
-  each batch one Modbus request reads the controller's flags (interlock, outputs, fault summary).
+* Safety between batches: reads are limited to ``SAFETY_CHECK_S`` of hardware time (the DSP still
+  runs on batches of up to ``BATCH_BYTES``, collected from several reads), and after each read one
+  Modbus request reads the controller's flags (interlock, outputs, fault summary).
   Interlock open or a latched fault (HV fault) -> laser off and HV off are COMMANDED FIRST, then
   read back to 0 (:meth:`LidarInstrument._safe_state`), and only then the FPGA is stopped; the batch
   in flight when it happened is discarded (its light is unknown), the points before it are kept and
@@ -67,9 +68,12 @@ from .scan import plan
 
 AWG_RATE_HZ = 100e6          # drive samples: 16,000 per 160 us period
 BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
-# Hardware time per batch: the interlock/fault flags are read between batches, so this bounds the
+# Hardware time per read: the interlock/fault flags are read between reads, so this bounds the
 # host's reaction time (the controller's own hardware interlock drops the outputs at once anyway).
-SAFETY_CHECK_S = 0.01
+# Each read has a fixed cost (in the simulator mostly the FPGA model's per-call beam bookkeeping):
+# 50 ms reads cost ~15-20 % of the simulated bench's throughput against unbounded reads, 10 ms ~50 %
+# (benchmarks/reliability.py --tradeoff, docs/reliability.md).
+SAFETY_CHECK_S = 0.05
 BATCH_RETRIES = 3            # re-reads of a failed batch of segments
 BATCH_BACKOFF_S = 0.005      # first backoff between batch re-reads (doubles)
 RESUMES = 2                  # new acquisitions for the rest of a scan after one was lost
@@ -273,8 +277,29 @@ class LidarInstrument:
         base = 0            # first pixel of the current acquisition (> 0 after a resume)
         t_shift_s = 0.0
         safe: dict[str, Any] | None = None
+        lsb = self.cfg.adc.input_range_v / 2 ** adc.bits
+        # Raw batches wait here until BATCH_BYTES are together: the safety check wants short reads,
+        # the DSP wants long batches (its per-call set-up costs as much as many pixels).
+        pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        pending_bytes = [0]
+
+        def flush() -> None:
+            if not pending:
+                return
+            beat = np.concatenate([p[0] for p in pending])
+            px = np.concatenate([p[1] for p in pending])
+            t_pix = np.concatenate([p[2] for p in pending])
+            clipped = np.concatenate([p[3] for p in pending])
+            pending.clear()
+            pending_bytes[0] = 0
+            res = dsp.process(beat, lsb)
+            chunks.append(self._points(res, px, t_pix, clipped))
 
         def result() -> ScanResult:
+            try:
+                flush()
+            except Exception as exc:  # report what can be reported; the cause is already failing
+                log.warning("processing the last batch failed: %s", exc)
             points = np.concatenate(chunks) if chunks else np.zeros(0, POINT_DTYPE)
             meta = {
                 "adc": {"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
@@ -303,7 +328,6 @@ class LidarInstrument:
             cfgd = self.digitizer.configure(channels=("beat",), sample_rate_hz=adc.fs_hz,
                                             record_length=adc.record_length, segments=n_pix * avg,
                                             bits=adc.bits, input_range_v=self.cfg.adc.input_range_v)
-            lsb = self.cfg.adc.input_range_v / 2 ** adc.bits
             self.digitizer.arm()
             self.fpsa.arm()
             self.fpsa.start()
@@ -354,21 +378,18 @@ class LidarInstrument:
                     # after a resume the new run's clock continues where the last pixel read ended
                     hw_t0 = t_ns[0] - t_shift_s * 1e9
                 beat = samples[:, 0, :].reshape(bp, avg, adc.record_length)
-                res = dsp.process(beat, lsb)
-                px = pixels[done:done + bp]
                 t_pix = (t_ns.reshape(bp, avg)[:, 0] - hw_t0) * 1e-9
-                pts = self._points(res, px, t_pix)
+                # a clipped beat puts harmonics and a wrong amplitude into the spectrum
                 over = np.array([h.overrange for h in headers], dtype=np.int64).reshape(bp, avg) != 0
-                if over.any():
-                    # a clipped beat puts harmonics and a wrong amplitude into the spectrum
-                    clipped_pix = over.any(axis=1)
-                    faults["overrange_segments"] += int(over.sum())
-                    faults["overrange_pixels"] += int(clipped_pix.sum())
-                    local = clipped_pix[_pixel_index(pts, px)]
-                    pts["valid"][local] = 0
-                chunks.append(pts)
+                clipped = over.any(axis=1)
+                faults["overrange_segments"] += int(over.sum())
+                faults["overrange_pixels"] += int(clipped.sum())
+                pending.append((beat, pixels[done:done + bp], t_pix, clipped))
+                pending_bytes[0] += beat.nbytes
                 done += bp
                 hw_last = (t_ns[-1] - hw_t0) * 1e-9 + adc.record_length / adc.fs_hz
+                if pending_bytes[0] >= BATCH_BYTES or done >= n_pix:
+                    flush()
                 progress(ScanProgress(done, n_pix, int(sum(len(c) for c in chunks)), hw_last))
         except ScanFailed:
             raise
@@ -486,7 +507,7 @@ class LidarInstrument:
                        and out.get("laser_ma", 1.0) <= 0.5 and out.get("hv_v", 1.0) <= 0.25)
         return out
 
-    def _points(self, res, px: np.ndarray, t_pix: np.ndarray) -> np.ndarray:
+    def _points(self, res, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None) -> np.ndarray:
         pi, ki = np.nonzero(res.present)
         out = np.zeros(len(pi), POINT_DTYPE)
         if not len(pi):
@@ -511,6 +532,8 @@ class LidarInstrument:
         out["return_index"] = ri
         out["t"] = t_pix[pi]
         out["valid"] = res.valid[pi, ki]
+        if clipped is not None:
+            out["valid"][clipped[pi]] = 0       # never report a point from a clipped record as good
         return out
 
     # -- calibration ------------------------------------------------------------------------------------
@@ -719,17 +742,6 @@ def _describe_safe(safe: dict[str, Any]) -> str:
         return (f"laser and HV brought down and read back (laser {safe['laser_ma']:.2f} mA, "
                 f"HV {safe['hv_v']:.2f} V)")
     return "SAFE STATE NOT CONFIRMED: " + "; ".join(safe.get("errors") or ["readback out of tolerance"])
-
-
-def _pixel_index(pts: np.ndarray, px: np.ndarray) -> np.ndarray:
-    """Index into ``px`` of each point's pixel (a pixel appears once per batch)."""
-    if not len(pts):
-        return np.zeros(0, np.intp)
-    key_px = px[:, 0].astype(np.int64) * 65536 + px[:, 1].astype(np.int64)
-    key_pt = pts["row"].astype(np.int64) * 65536 + pts["col"].astype(np.int64)
-    order = np.argsort(key_px, kind="stable")
-    pos = np.searchsorted(key_px[order], key_pt)
-    return order[np.clip(pos, 0, len(order) - 1)]
 
 
 def _device_of(exc: BaseException) -> str:
