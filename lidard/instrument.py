@@ -481,7 +481,6 @@ class LidarInstrument:
 
     def _safe_state(self) -> dict[str, Any]:
         """Laser off and HV off commanded FIRST, then both read back; returns the readbacks."""
-        t_cmd = float(self._now())
         errors = []
         for what, fn in (("laser off", lambda: self.controller.laser_enable(False)),
                          ("HV off", lambda: self.controller.hv_enable(False))):
@@ -489,11 +488,12 @@ class LidarInstrument:
                 fn()
             except Exception as exc:
                 errors.append(f"{what}: {type(exc).__name__}: {exc}")
+        t_cmd = float(self._now())      # read after the commands: nothing may delay them
         try:
             self.controller.bring_down(settle_check=self._settle())
         except Exception as exc:
             errors.append(f"bring down: {type(exc).__name__}: {exc}")
-        out: dict[str, Any] = {"commanded_at_s": t_cmd}
+        out: dict[str, Any] = {"off_commanded_at_s": t_cmd}
         try:
             out["laser_ma"] = float(self.controller.laser_current_ma())
             out["hv_v"] = float(self.controller.hv_v())
