@@ -104,6 +104,17 @@ def test_post_selftest_finds_an_injected_stuck_switch_and_clearing_heals_it(clie
     assert rep["ok"] is True and rep["stuck"] == []
 
 
+def test_get_devices_shows_a_lost_device_with_its_cause_and_its_return(client):
+    assert client.post("/sim/faults", json={"kind": "usb_disconnect", "device": "digitizer"}).status_code == 201
+    devs = {d["name"]: d for d in client.get("/devices").json()["devices"]}
+    assert devs["digitizer"]["connected"] is False
+    assert any("digitizer" in f and "disconnect" in f.lower() for f in devs["digitizer"]["faults"])
+    assert all(devs[n]["connected"] for n in ("fpsa", "awg", "controller"))
+    client.delete("/sim/faults")
+    devs = {d["name"]: d for d in client.get("/devices").json()["devices"]}
+    assert all(d["connected"] for d in devs.values())     # back without a daemon restart
+
+
 def test_sim_faults_refuses_unknown_kinds_and_bad_parameters_by_name(client):
     r = client.post("/sim/faults", json={"kind": "gremlins"})
     assert r.status_code == 422 and "gremlins" in r.text
