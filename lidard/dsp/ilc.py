@@ -53,6 +53,11 @@ MeasureFn = Callable[[np.ndarray, int], np.ndarray]
 _RIDGE_WINDOW_S = 2e-6
 _RIDGE_LOWPASS_HZ = 200e3
 _REFINE_BANDS_HZ = (1e6, 300e3)
+# fold detection (see _Analyzer._unfold): search the outer 10 % of a ramp for a slope below 0.3 gamma
+_FOLD_SEARCH = 0.1
+_FOLD_SLOPE = 0.3
+# the correction across a turning-point gap switches sides within this time (see _to_drive)
+_GAP_SWITCH_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -136,7 +141,7 @@ class _Analyzer:
             t = rf.t_s[rf.valid]
             nu = self._refine(xb[r * n_r:(r + 1) * n_r], rf) if self.refine else rf.nu_hz[rf.valid]
             nu = lowpass_padded(nu, self.fs_a, self.meas_cutoff)
-            out.append((t, nu, rf.phase_slips))
+            out.append((t, self._unfold(nu, self.directions[r]), rf.phase_slips))
         return out
 
     def _refine(self, seg: np.ndarray, rf) -> np.ndarray:
@@ -177,6 +182,31 @@ class _Analyzer:
                                              lowpass_padded(z.real, self.fs_a, bw)))
         return rf.direction * psi[rf.valid] / (2 * np.pi * self.tau_m)
 
+    def _unfold(self, nu: np.ndarray, direction: int) -> np.ndarray:
+        """Undo the fold of a real beat where the optical chirp turns *after* the drive does.
+
+        A laser with slow thermal terms keeps chirping the old way for microseconds after the drive
+        turns. The real MZI beat cannot show that: its frequency dips to zero at the optical turning
+        point and the Hilbert phase, which always increases, folds the wrong-way part over (drive
+        frame: ``nu_meas = 2 nu(t_turn) - nu_true`` before the turn). Learning from the folded part
+        pushes with the wrong sign and drags the turning point later every iteration. A fold is an
+        *interior* minimum of the drive-frame slope near a ramp end, close to zero, with the slope
+        rising again towards the end; there the folded part is reflected back.
+        """
+        slope = direction * np.gradient(nu) * self.fs_a
+        n = nu.size
+        q = max(2, int(_FOLD_SEARCH * n))
+        floor = _FOLD_SLOPE * self.slope
+        i = int(np.argmin(slope[:q]))
+        if 0 < i and slope[i] < floor and slope[:i].max() > 2 * max(slope[i], 0.0) + 0.05 * self.slope:
+            nu = nu.copy()
+            nu[:i] = 2 * nu[i] - nu[:i]
+        j = n - q + int(np.argmin(slope[n - q:]))
+        if j < n - 1 and slope[j] < floor and slope[j + 1:].max() > 2 * max(slope[j], 0.0) + 0.05 * self.slope:
+            nu = nu.copy()
+            nu[j + 1:] = 2 * nu[j] - nu[j + 1:]
+        return nu
+
     def _roi(self, t: np.ndarray, r: int, frac: float) -> np.ndarray:
         tr = t - r * self.T
         return (tr >= 0.5 * (1 - frac) * self.T) & (tr <= 0.5 * (1 + frac) * self.T)
@@ -214,9 +244,9 @@ class _Analyzer:
                          tuning=tuning, slips=slips, err_drive=self._to_drive(ramps_e))
 
     def _to_drive(self, ramps: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-        """Error on the drive grid: interpolated over each learning region, and across the gaps
-        around the turning points (no reliable measurement there) blended smoothly from one learning
-        edge to the next, so the correction never forces a fast step into the drive."""
+        """Error on the drive grid: interpolated over each learning region; across the gaps around
+        the turning points (no reliable measurement there) each edge value is held and the two are
+        joined by a raised cosine 1 us wide at the drive's turning point (Q limits the step)."""
         period = 2 * self.T
         knots_t, knots_e = [], []
         for r, (t, e) in enumerate(ramps):
@@ -237,7 +267,12 @@ class _Analyzer:
             tg = np.where(td < ti[-1] - 0.5 * period, td + period, td) if r == 1 else td
             g = (tg > t_a) & (tg < t_b)
             s = (tg[g] - t_a) / (t_b - t_a)
-            out[g] = e_a + (e_b - e_a) * 0.5 * (1 - np.cos(np.pi * s))
+            # hold each side's edge value and switch over within _GAP_SWITCH_S around the drive's
+            # turning point: the correction a ramp's start asks for (the pre-emphasis that makes
+            # a slow laser turn quickly) is then applied right after the turn, not smeared into
+            # the end of the other ramp
+            x = np.clip((s - 0.5) * (t_b - t_a) / _GAP_SWITCH_S + 0.5, 0.0, 1.0)
+            out[g] = e_a + (e_b - e_a) * 0.5 * (1 - np.cos(np.pi * x))
         return out
 
 

@@ -94,7 +94,7 @@ def test_default_preset_linearized_through_the_mzi_and_in_truth():
 @pytest.mark.parametrize("preset,min_reduction,max_true", [
     ("dfb_strong_nonlinear", 300, 5e-5),
     ("dfb_broad_linewidth", 100, 5e-5),
-    ("dfb_slow_thermal", 30, 5e-4),          # slow tail couples the ramps: converges, but slowly
+    ("dfb_slow_thermal", 150, 1e-4),         # optical turn lags the drive's by ~4 us: slower
 ])
 def test_converges_on_other_presets(preset, min_reduction, max_true):
     b = Bench(preset, seed=5)
@@ -302,3 +302,49 @@ def test_broad_linewidth_at_the_shipped_delay_needs_the_narrow_band_refinement()
     assert res.iterations[0].noise_floor_hz < plain.iterations[0].noise_floor_hz / 3
     assert np.all(true_rms(b, res.drive_v) / EXC_HZ <= 5e-5)
     assert res.converged and len(res.iterations) - 1 <= 10
+
+
+# --- pitfall: the optical chirp turns after the drive does (slow thermal tail): the beat folds ------
+def test_fold_after_a_late_optical_turn_is_unfolded():
+    """dfb_slow_thermal with a plain triangle: the optical chirp keeps going the old way for ~3.5 us
+    after the drive turns; the real beat folds that part over. Compared with the laser model's nu
+    (drive frame = -nu, the tuning is negative) over the first 8 us of each ramp."""
+    from lidard.dsp import ilc as ilc_mod
+    tau_m = 200e-9
+    b = Bench("dfb_slow_thermal", tau_m=tau_m, linewidth=0.0)
+    u = b.drive0()
+    nu = b.nu(u)
+    n = nu.size // 2
+    x = mzi_beat(nu, FS, tau_m, 0.0, 1, None)
+    an = ilc_mod._Analyzer(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ, mzi_delay_s=tau_m,
+                           roi=0.8, learn=0.92, meas_cutoff_hz=400e3, directions=ilc_mod._directions(u))
+    t_all = np.arange(2 * n) / FS
+    # the plain triangle really does turn late (what makes this case)
+    dn = np.diff(nu)
+    assert np.all(np.sign(dn[n + 10:n + 300]) == np.sign(dn[n - 300:n - 10]))
+
+    def worst_error(out):
+        errs = []
+        for r, (t, v, _) in enumerate(out):
+            truth = -np.interp(t, t_all, nu)
+            m = (t - r * RAMP_S > 0.5e-6) & (t - r * RAMP_S < 8e-6)
+            d = v[m] - truth[m]
+            errs.append(np.abs(d - np.median(d)).max())
+        return max(errs)
+    unfolded = worst_error(an._ramp_nu(x[0]))
+    an._unfold = lambda v, direction: v                  # what the learner saw before the fix
+    folded = worst_error(an._ramp_nu(x[0]))
+    assert folded > 100e6
+    assert unfolded < folded / 3
+
+
+def test_slow_thermal_at_the_shipped_delay_keeps_improving():
+    """dfb_slow_thermal (optical turn ~4 us after the drive's): stable learning, no divergence, and
+    true residual <= 1e-4 in 10 updates (it is still improving there; 600x is not reached)."""
+    b = Bench("dfb_slow_thermal", seed=1, tau_m=200e-9)
+    res = run(b, averages=128)
+    errs = [math.hypot(i.up_error_hz, i.down_error_hz) for i in res.iterations]
+    assert all(i.accepted for i in res.iterations)
+    assert errs[-1] < errs[5] < errs[1]
+    assert min(res.reduction.values()) >= 200
+    assert np.all(true_rms(b, res.drive_v) / EXC_HZ <= 1e-4)
