@@ -6,9 +6,10 @@ one client steers the instrument. Three independent gates, applied in this order
 1. ``BodySizeLimit`` (pure ASGI middleware): a body larger than ``max_body_bytes`` is answered 413,
    whether the client declared it in ``Content-Length`` or streamed it chunk by chunk. Nothing is
    handed to the route, so no half-read body can reach the instrument.
-2. Bearer token (only when the daemon has one): POST/PUT/PATCH/DELETE need
-   ``Authorization: Bearer <token>`` (401 otherwise, compared in constant time); GET/HEAD/OPTIONS
-   stay open so observers can watch without the secret.
+2. Same origin, then the bearer token, for POST/PUT/PATCH/DELETE only: a browser request from
+   another origin is 403 (``cross_origin_refusal``: no web page may steer a loopback daemon);
+   with a token, ``Authorization: Bearer <token>`` is needed (401 otherwise, compared in constant
+   time). GET/HEAD/OPTIONS stay open so observers can watch without the secret.
 3. The control lock (``ControlLock``): ``POST /control`` takes a lease for one named client. While
    a lease is held, a mutating request without the matching ``X-Lidard-Lease`` header is 423
    (Locked) naming the holder. With no lease held mutating requests pass (single-user lab default).
@@ -21,12 +22,14 @@ The lock guards the HTTP side only; the one scan worker that owns the hardware i
 from __future__ import annotations
 
 import hmac
+import ipaddress
 import secrets
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import JSONResponse
@@ -254,14 +257,47 @@ def control_release(request: Request) -> ControlStatus:
     return ControlStatus(held=False, ttl_s=lock.ttl_s)
 
 
+def _host_is_loopback(host_header: str) -> bool:
+    host = host_header.rsplit("]", 1)[0].lstrip("[") if host_header.startswith("[") else host_header.split(":")[0]
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def cross_origin_refusal(origin: str | None, host: str | None, token_set: bool) -> str | None:
+    """Why a mutating request from a web page must be refused, or None.
+
+    Browsers send ``Origin`` on cross-origin POSTs, and a "simple" POST (no body, or text/plain)
+    needs no CORS preflight, so without this any page the lab user opens could start a scan or a
+    linearization (laser and HV on) on a loopback daemon that has no token. Command-line clients
+    send no ``Origin``. Same-origin pages (the daemon's own /docs) pass. Without a token the Host
+    must also be a loopback name or address, so a DNS-rebinding page (its own name resolving to
+    127.0.0.1, hence "same origin") is refused as well.
+    """
+    if origin is None:
+        return None
+    origin_host = urlsplit(origin).netloc if "://" in origin else ""
+    if not origin_host or origin_host.lower() != (host or "").lower():
+        return f"cross-origin request from {origin!r} refused (Host {host!r})"
+    if not token_set and not _host_is_loopback(origin_host):
+        return f"browser request for {origin_host!r} refused: without an API token only loopback pages may steer"
+    return None
+
+
 def guard(token: str | None) -> Callable[[Request], None]:
-    """App-wide dependency: token for mutating requests, then the control lock."""
+    """App-wide dependency: same-origin check and token for mutating requests, then the control lock."""
 
     def check(request: Request) -> None:
         presented = request.headers.get(LEASE_HEADER)
         if request.method not in MUTATING_METHODS:
             _lock(request).renew(presented)
             return
+        why = cross_origin_refusal(request.headers.get("origin"), request.headers.get("host"), token is not None)
+        if why is not None:
+            raise HTTPException(403, why)
         if token is not None and not token_ok(token, request.headers.get("authorization")):
             raise HTTPException(401, "mutating requests need 'Authorization: Bearer <token>' "
                                      "(missing or wrong token)", headers={"WWW-Authenticate": "Bearer"})
@@ -278,6 +314,7 @@ def locked_response(exc: LockHeld) -> JSONResponse:
 
 
 _GATE_RESPONSES = {
+    "403": "a browser request from another origin (Origin header not matching Host)",
     "400": "the request body could not be decoded (not UTF-8) or Content-Length is malformed",
     "401": "the daemon has an API token and the request lacks 'Authorization: Bearer <token>'",
     "413": "request body larger than the daemon's max_body_bytes",
@@ -286,7 +323,7 @@ _GATE_RESPONSES = {
 
 
 def document_gates(app) -> None:
-    """Add the answers of the gates above (400/401/413/423) to every mutating operation's OpenAPI entry.
+    """Add the answers of the gates above (400/401/403/413/423) to every mutating operation's OpenAPI entry.
 
     The gates are app-wide dependencies and middleware, which FastAPI cannot see per route; a
     client generated from the schema should still know these answers exist.

@@ -5,6 +5,7 @@ lidard``), because what matters is the exit status and the one line a user sees.
 """
 
 import asyncio
+import json
 import os
 import subprocess
 import sys
@@ -305,3 +306,41 @@ def test_daemon_socket_gets_tcp_nodelay_on_every_connection():
             writer.close()
     asyncio.run(asyncio.wait_for(main(), 20))
     assert len(seen) == 1 and seen[0] != 0
+
+
+@pytest.mark.parametrize("origin, host, token_set, refused", [
+    (None, "127.0.0.1:8470", False, False),                          # lidarctl, curl: no Origin
+    ("http://127.0.0.1:8470", "127.0.0.1:8470", False, False),       # the daemon's own /docs page
+    ("http://localhost:8470", "localhost:8470", False, False),
+    ("http://[::1]:8470", "[::1]:8470", False, False),
+    ("https://evil.example", "127.0.0.1:8470", False, True),         # classic CSRF
+    ("https://evil.example", "127.0.0.1:8470", True, True),
+    ("null", "127.0.0.1:8470", False, True),                         # sandboxed iframe / file://
+    ("http://evil.example:8470", "evil.example:8470", False, True),  # DNS rebinding, no token
+    ("http://labpc:8470", "labpc:8470", True, False),                # same-origin page, token set
+    ("http://127.0.0.1:9999", "127.0.0.1:8470", False, True),        # another port is another origin
+])
+def test_cross_origin_rule(origin, host, token_set, refused):
+    from lidard.api.control import cross_origin_refusal
+    why = cross_origin_refusal(origin, host, token_set)
+    assert (why is not None) == refused, why
+    if refused:
+        assert "refused" in why
+
+
+def test_web_page_cannot_steer_a_loopback_daemon(tmp_path):
+    """A 'simple' cross-origin POST (no preflight) must not start a linearization (laser on)."""
+    inst = FakeInstrument()
+    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path),
+                    base_url="http://127.0.0.1:8470") as c:
+        r = c.post("/calibration/linearize", headers={"Origin": "https://evil.example"})
+        assert r.status_code == 403 and "evil.example" in r.json()["detail"]
+        r = c.post("/scans", content=json.dumps(SMALL), headers={"Origin": "https://evil.example",
+                                                                  "content-type": "text/plain"})
+        assert r.status_code == 403
+        assert inst.linearize_calls == 0 and inst.requests == []
+        # reads are not refused (no side effects; the browser's same-origin policy hides the answer)
+        assert c.get("/health", headers={"Origin": "https://evil.example"}).status_code == 200
+        # the daemon's own page and command-line clients steer as before
+        assert c.post("/scans", json=SMALL, headers={"Origin": "http://127.0.0.1:8470"}).status_code == 201
+        assert c.post("/scans", json=SMALL).status_code == 201
