@@ -76,13 +76,13 @@ def test_api_has_no_5xx_and_conforms(case):
 
 
 def test_openapi_documents_the_gates(lidard_openapi):
-    """Every mutating operation lists 401/413/423; reads do not (they are never locked)."""
+    """Every mutating operation lists 401/403/413/423; reads do not (they are never locked)."""
     app = _APP["app"]
     paths = app.openapi()["paths"]
     mutating = [(p, m) for p, ops in paths.items() for m in ops if m in ("post", "put", "patch", "delete")]
     assert ("/scans", "post") in mutating and ("/sim/scene", "put") in mutating and ("/control", "post") in mutating
     for p, m in mutating:
-        assert {"401", "413", "423"} <= set(paths[p][m]["responses"]), (p, m)
+        assert {"401", "403", "413", "423"} <= set(paths[p][m]["responses"]), (p, m)
     assert "423" not in paths["/scans"]["get"]["responses"]
     assert "404" in paths["/scans/{scan_id}"]["get"]["responses"]
 
