@@ -455,15 +455,25 @@ class ScanWorker:
             progress(ScanProgress(first.pixels_scanned + p.pixels_done, planned,
                                   len(first.points) + p.points, offset_s + p.hardware_time_s, p.stage))
 
-        second = self.instrument.run_scan(as_pixels(dense), dense_progress, job.cancel, cal)
-        pts2 = second.points.copy()
-        pts2["t"] += offset_s
-        return ScanResult(points=np.concatenate([first.points, pts2]),
-                          meta={**first.meta, **second.meta,
-                                "adaptive": {"coarse": len(coarse), "dense": len(dense)}},
-                          pixels_scanned=first.pixels_scanned + second.pixels_scanned,
-                          pixels_planned=planned, hardware_time_s=offset_s + second.hardware_time_s,
-                          partial=second.partial)
+        def merged(second: ScanResult) -> ScanResult:
+            pts2 = second.points.copy()
+            pts2["t"] += offset_s
+            return ScanResult(points=np.concatenate([first.points, pts2]),
+                              meta={**first.meta, **second.meta,
+                                    "adaptive": {"coarse": len(coarse), "dense": len(dense)}},
+                              pixels_scanned=first.pixels_scanned + second.pixels_scanned,
+                              pixels_planned=planned, hardware_time_s=offset_s + second.hardware_time_s,
+                              partial=second.partial, stop_reason=second.stop_reason)
+
+        try:
+            second = self.instrument.run_scan(as_pixels(dense), dense_progress, job.cancel, cal)
+        except Exception as exc:
+            # the coarse pass is measured data: it rides on the failure like any partial result
+            part = getattr(exc, "partial", None)
+            exc.partial = merged(part if isinstance(part, ScanResult) else dataclasses.replace(
+                first, points=first.points[:0], pixels_scanned=0, hardware_time_s=0.0, meta={}))
+            raise
+        return merged(second)
 
     def _write(self, job: _ScanJob, result: ScanResult, cal_id: str | None, wall_s: float) -> dict[str, str]:
         meta = {

@@ -368,3 +368,31 @@ def test_child_bench_faults_travel_over_the_control_socket():
         assert [(s["line"], s["index"], s["state"]) for s in rep["stuck"]] == [("row", 9, "off")]
     finally:
         inst.close()
+
+
+def test_adaptive_scan_failing_in_its_dense_pass_keeps_the_coarse_points(tmp_path):
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "lidard"))
+    from lidard_fakes import FakeInstrument
+
+    class DenseFails(FakeInstrument):
+        def run_scan(self, request, progress, cancel, calibration=None):
+            if len(self.requests) == 1:           # the second run_scan is the dense pass
+                self.requests.append(request)
+                raise RuntimeError("digitizer: unplugged during the dense pass")
+            return super().run_scan(request, progress, cancel, calibration)
+
+    inst = DenseFails(hit=lambda r, c: True)
+    store = Store(tmp_path)
+    w = ScanWorker(inst, store, laser="dfb_default", optics=inst.optics)
+    w.start()
+    try:
+        rec = w.wait(w.submit_scan(ScanRequest(pattern="adaptive", rows=(0, 16), cols=(0, 16))).id, 30)
+    finally:
+        w.stop()
+    coarse = len(inst.requests[0].pixels)
+    assert rec.state == "failed" and "dense pass" in rec.error
+    assert rec.partial and rec.pixels_scanned == coarse and rec.points == coarse   # one hit per pixel
+    assert len(PlyData.read(str(tmp_path / rec.files["ply"]))["vertex"]) == coarse
+    store.close()
