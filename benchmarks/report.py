@@ -539,7 +539,10 @@ def sec_fidelity(quick: bool, img: Path, log) -> Section:
         "Each effect of `lidard.config.Effects` switched off alone (and all together) on its own embedded bench, "
         f"interleaved over {r['rounds']} round(s) with the all-on bench; one calibration for all. Cost = best-of-rounds "
         "scan time and its ratio to all on; error = first valid return per pixel against the world's ray-cast "
-        "truth and against the all-on scan. 'n/a' = no pixel ranged. "
+        "truth and against the all-on scan. 'n/a' = no pixel ranged. With every effect off the spectrum has no "
+        "noise floor, so the CFAR's noise estimate is window sidelobes and leakage and it reports some of them as "
+        "valid returns ('extra returns'; they are nearer than the target, hence the metre-scale error of 'all off'): "
+        "switching everything off is not a cheaper stand-in for the simulation. "
         + "".join(f"Not modelled: {k} ({v}). " for k, v in r["not_modelled"].items())
         + "`benchmarks/fidelity.py`.\n" + "".join(parts) + f"\n![fidelity]({png})\n")
     letters = r["scenes"].get("CAL letters", {}).get("variants", {}).get("all on")
