@@ -6,7 +6,7 @@ machine), and writes ``<out>/benchmarks.md`` (generated; tables, targets of issu
 dissertation's figures) and PNG plots under ``<out>/img/``. The markdown is written to a temporary
 file and renamed, so a failed run never leaves half a report.
 
-    python -m benchmarks [--quick] [--out DIR] [--only SECTION ...]
+    python -m benchmarks [--quick] [--out DIR] [--only SECTION ...] [--json FILE]
 
 ``--quick`` runs tiny sizes (the test and development); its figures are not conclusive. ``--out``
 defaults to the repository's ``docs/``. Every section's wall time is printed and recorded. A
@@ -663,8 +663,9 @@ def _jsonable(o):
     return repr(o)
 
 
-def run(quick: bool = False, out: Path = DEFAULT_OUT, only: list[str] | None = None, log=print) -> dict:
-    """Run the sections, write ``out/benchmarks.md`` and ``out/img/*.png``; return every section."""
+def run(quick: bool = False, out: Path = DEFAULT_OUT, only: list[str] | None = None, log=print,
+        json_path: Path | None = None) -> dict:
+    """Run the sections, write ``out/benchmarks.md``, ``out/img/*.png`` and (if asked) the figures as JSON."""
     out = Path(out)
     img = out / "img"
     img.mkdir(parents=True, exist_ok=True)
@@ -693,12 +694,14 @@ def run(quick: bool = False, out: Path = DEFAULT_OUT, only: list[str] | None = N
     data = {"facts": facts, "quick": quick, "total_s": total,
             "sections": {s.key: {"seconds": s.seconds, "rss_mb": s.rss_mb, "error": s.error, "headline": s.headline, "data": s.data}
                          for s in sections}}
-    # JSON next to the markdown: the same figures for tools and tests; both renamed into place
-    for name, content in (("benchmarks.json", json.dumps(data, indent=1, default=_jsonable)),
-                          ("benchmarks.md", text)):
-        tmp = out / f".{name}.tmp"
+    # the JSON holds the same figures for tools and tests; every file is renamed into place
+    files = [(out / "benchmarks.md", text)]
+    if json_path is not None:
+        files.insert(0, (Path(json_path), json.dumps(data, indent=1, default=_jsonable)))
+    for path, content in files:
+        tmp = path.with_name(f".{path.name}.tmp")
         tmp.write_text(content)
-        os.replace(tmp, out / name)
+        os.replace(tmp, path)
     log(f"wrote {out / 'benchmarks.md'} and {len(list(img.glob('*.png')))} PNGs in {img} ({total / 60:.1f} min)")
     return {"sections": {s.key: s for s in sections}, "facts": facts, "total_s": total,
             "markdown": out / "benchmarks.md", "img": img}
@@ -709,8 +712,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="tiny sizes (tests, development); not conclusive")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default: docs/)")
     ap.add_argument("--only", nargs="+", choices=list(SECTIONS), help="run only these sections")
+    ap.add_argument("--json", type=Path, default=None, help="also write every figure as JSON to this file")
     args = ap.parse_args(argv)
-    res = run(args.quick, args.out, args.only)
+    res = run(args.quick, args.out, args.only, json_path=args.json)
     bad = [k for k, s in res["sections"].items() if s.error]
     if bad:
         print(f"sections not run: {', '.join(bad)}", file=sys.stderr)

@@ -26,7 +26,8 @@ def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench_report")
     docs_md = ROOT / "docs" / "benchmarks.md"
     before = docs_md.stat().st_mtime_ns if docs_md.exists() else None
-    proc = subprocess.run([sys.executable, "-m", "benchmarks", "--quick", "--out", str(out)], cwd=ROOT,
+    proc = subprocess.run([sys.executable, "-m", "benchmarks", "--quick", "--out", str(out),
+                           "--json", str(out / "benchmarks.json")], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
     after = docs_md.stat().st_mtime_ns if docs_md.exists() else None
     return {"out": out, "proc": proc, "docs_untouched": before == after,
