@@ -344,7 +344,13 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
     aff = r["range"]["cpu_affine_record"]
     n_x = aff["intercept"] / aff["slope"] if aff["slope"] > 0 else float("inf")   # fixed = per-sample part
     rr = r["range"]["rows"]
-    d_x = float(np.interp(n_x, [q["record_length"] for q in rr], [q["max_range_m"] for q in rr]))
+    if n_x <= rr[0]["record_length"]:
+        where = "shorter than every record of this sweep"
+    elif n_x >= rr[-1]["record_length"]:
+        where = "longer than every record of this sweep"
+    else:
+        where = (f"max range below about "
+                 f"{float(np.interp(n_x, [q['record_length'] for q in rr], [q['max_range_m'] for q in rr])):.0f} m")
     law = (f"**Growth laws measured** (least squares in log-log, slope +- standard error): wall time ~ pixels^"
            f"{fp['slope']:.2f} +- {fp['slope_stderr']:.2f} (CPU ~ pixels^{r['pixels']['cpu_fit']['slope']:.2f} +- "
            f"{r['pixels']['cpu_fit']['slope_stderr']:.2f}); wall ~ averages^{fa['slope']:.2f} +- {fa['slope_stderr']:.2f} "
@@ -353,12 +359,15 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
            f"{frr['slope_stderr']:.2f} (CPU ~ record length^{r['range']['cpu_fit_record']['slope']:.2f} +- "
            f"{r['range']['cpu_fit_record']['slope_stderr']:.2f}) ~ range^{frg['slope']:.2f} +- {frg['slope_stderr']:.2f}. Read as affine laws "
            f"(CPU time): a frame costs {r['pixels']['cpu_affine']['intercept']:.3g} s + "
-           f"{1e3 * r['pixels']['cpu_affine']['slope']:.3g} ms x pixels at 2 m, and a pixel costs "
+           f"{1e3 * r['pixels']['cpu_affine']['slope']:.3g} ms x pixels at 2 m; a {r['averages']['rows'][0]['pixels']}-"
+           f"pixel frame costs {r['averages']['cpu_affine']['intercept']:.3g} s + "
+           f"{r['averages']['cpu_affine']['slope']:.3g} s x averages (averaging adds synthesis and transfer, the "
+           "per-pixel DSP runs once on the averaged spectrum); a pixel costs "
            f"{1e3 * r['range']['cpu_affine_record']['intercept']:.3g} ms + "
            f"{1e9 * r['range']['cpu_affine_record']['slope']:.3g} ns x record samples (largest residual "
            f"{100 * r['range']['cpu_affine_record']['max_rel_residual']:.0f} %): the fixed per-pixel part dominates "
-           f"records shorter than {n_x:,.0f} samples (max range below about {d_x:.0f} m in this sweep); beyond that "
-           "the cost grows linearly with the record length, i.e. with the range.\n")
+           f"records shorter than {n_x:,.0f} samples ({where}); beyond that the cost grows linearly with the record "
+           "length, i.e. with the range.\n")
     s.data = r
     def both(key, fit_key, cpu_key):
         f, c = r[key][fit_key], r[key][cpu_key]

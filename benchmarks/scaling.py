@@ -146,6 +146,7 @@ def run_scaling(quick: bool = False, repeats: int = 2, log=print) -> dict:
         xs = [r["averages"] for r in rows]
         out["averages"] = {"rows": rows, "fit": fit_growth(xs, [r["wall_s"] for r in rows]),
                            "cpu_fit": fit_growth(xs, [r["cpu_s"] for r in rows]),
+                           "cpu_affine": fit_linear(xs, [r["cpu_s"] for r in rows]),
                            "hw_linear": fit_linear(xs, [r["hardware_s"] for r in rows]),
                            "wall_linear": fit_linear(xs, [r["wall_s"] for r in rows])}
 
