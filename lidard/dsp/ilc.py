@@ -4,12 +4,22 @@ Procedure (Fig. 2-3): send a drive period, record the monitor-MZI beat, turn it 
 frequency (Hilbert transform, :mod:`lidard.dsp.instfreq`), compare with the *ideal* linear chirp
 (target slope excursion / ramp and free offset) over the learning region of each ramp, and update
 
-    u_{k+1} = Q[ u_k + beta e_k / K ]
+    u_{k+1} = Q[ u_k + beta F^-1{ E_k(f) / H(f) } ]
 
-with K the tuning slope (Hz/V) fitted each iteration from the measured frequency against the drive,
-and Q a zero-phase low pass (FFT mask over the periodic drive). The figure of merit that is reported
+with H(f) the drive-to-frequency response fitted each iteration from the drive that was sent and the
+frequency that was measured (:func:`fit_fm_response`: a generic bank of first-order low passes, no
+laser model), and Q a zero-phase low pass (FFT mask over the periodic drive). ``update="scalar"``
+is the plain law of the issue, ``u_k + beta e_k / K`` with K the fitted tuning slope (Hz/V); one K
+is right for a DFB's slow response and several times too large for its fast one, and blind to the
+thermal lag, so a laser with a large slow tail (dfb_slow_thermal) learns slowly with it. The figure of merit that is reported
 (and that Fig. 2-4 plots) is the RMS chirp *nonlinearity*: the residual after removing the best-fit
 line over the region of interest (ROI, the middle 80 % of each ramp).
+
+A laser whose slow thermal terms keep it chirping the old way for microseconds after the drive turns
+folds the real MZI beat (its Hilbert phase always increases); the fold is found and undone before
+learning (:meth:`_Analyzer._unfold`), otherwise the learner pushes the turning point later every
+iteration. A step that would take the drive beyond ``max_drive_factor`` times its initial peak is
+never sent.
 
 Model-free: the learner only sees the drive it sends and the MZI samples it gets back, through
 ``measure(drive_v, n_avg) -> (n_avg, n)``; it never touches a laser model. It needs no sign of the
@@ -38,8 +48,8 @@ Pure numpy/scipy: no I/O, no clock, no logging.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Callable
+from dataclasses import dataclass, field, replace
+from typing import Callable, Literal
 
 import numpy as np
 from scipy.signal import hilbert
@@ -58,6 +68,11 @@ _FOLD_SEARCH = 0.1
 _FOLD_SLOPE = 0.3
 # the correction across a turning-point gap switches sides within this time (see _to_drive)
 _GAP_SWITCH_S = 1e-6
+# inverse-response update (see fit_fm_response): a generic first-order basis, log-spaced
+_BASIS_TAUS_S = (10e-9, 30e-9, 100e-9, 300e-9, 1e-6, 3e-6, 10e-6, 30e-6, 100e-6, 300e-6, 1e-3, 3e-3)
+_BASIS_RIDGE = 1e-2
+_BASIS_DECIMATE = 4
+_INVERSE_FLOOR = 0.1
 
 
 @dataclass(frozen=True)
@@ -107,6 +122,7 @@ class _Analysis:
     tuning: float
     slips: int
     err_drive: np.ndarray                  # error (Hz, drive frame) on the drive grid, tapered
+    ramps_nu: list                         # per ramp (t, drive-frame nu) as measured, for the plant fit
 
 
 class _Analyzer:
@@ -224,6 +240,7 @@ class _Analyzer:
             noise = max(nf)
         rms, err_rms, slips = [], [], 0
         ramps_e = []
+        ramps_nu = []
         su = sv = suu = 0.0
         for r, (t, nu, s) in enumerate(full):
             slips += s
@@ -239,9 +256,10 @@ class _Analyzer:
             su += float(np.dot(uc, vc))
             suu += float(np.dot(uc, uc))
             ramps_e.append((t, e))
+            ramps_nu.append((t, nu))
         tuning = su / suu if suu > 0 else float("nan")
         return _Analysis(rms=(rms[0], rms[1]), err_rms=(err_rms[0], err_rms[1]), noise=noise,
-                         tuning=tuning, slips=slips, err_drive=self._to_drive(ramps_e))
+                         tuning=tuning, slips=slips, err_drive=self._to_drive(ramps_e), ramps_nu=ramps_nu)
 
     def _to_drive(self, ramps: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         """Error on the drive grid: interpolated over each learning region; across the gaps around
@@ -276,6 +294,50 @@ class _Analyzer:
         return out
 
 
+def fit_fm_response(drive_v, ramps_nu, *, fs_drive_hz: float, ramp_s: float, learn: float,
+                    floor_hz_per_v: float) -> np.ndarray:
+    """Model-free estimate of the FM response H(f) (Hz/V, drive frame) on the drive's rfft grid.
+
+    The measured drive-frame frequency over the learning regions is regressed on the drive passed
+    through a fixed, generic bank of first-order low passes (log-spaced 10 ns .. 3 ms, plus the
+    direct term) with a free offset per ramp; ridge-regularised least squares. Nothing about the
+    laser goes in: only the drive that was sent and what the MZI saw. ``|H|`` is floored at
+    ``floor_hz_per_v`` so that dividing by it never blows up where the fit is poor.
+
+    Why: one scalar K is right for the slow part of a DFB's response and 5-10x too large for its fast
+    part (the carrier and thermal terms cancel at high frequency), and it ignores the thermal phase
+    lag, so fine features learn slowly and a slow tail couples the ramps. Dividing the error by the
+    fitted H(f) is the classic inverse-model ILC update.
+    """
+    u = np.asarray(drive_v, dtype=np.float64)
+    n = u.size
+    f = np.fft.rfftfreq(n, d=1.0 / fs_drive_hz)
+    spec = np.fft.rfft(u)
+    resp = [np.ones_like(f, dtype=complex)] + [1.0 / (1.0 + 2j * np.pi * f * tau) for tau in _BASIS_TAUS_S]
+    basis = [np.fft.irfft(spec * r, n=n) for r in resp]
+    td = np.arange(n) / fs_drive_hz
+    rows, ys = [], []
+    for r, (t, nu) in enumerate(ramps_nu):
+        tr = t - r * ramp_s
+        m = (tr >= 0.5 * (1 - learn) * ramp_s) & (tr <= 0.5 * (1 + learn) * ramp_s)
+        tm = t[m][::_BASIS_DECIMATE]
+        cols = [np.interp(tm, td, b, period=2 * ramp_s) for b in basis]
+        cols += [np.full(tm.size, 1.0 if q == r else 0.0) for q in range(len(ramps_nu))]
+        rows.append(np.stack(cols, axis=1))
+        ys.append(nu[m][::_BASIS_DECIMATE])
+    a = np.concatenate(rows)
+    y = np.concatenate(ys)
+    scale = np.abs(a).max(axis=0)
+    scale[scale == 0] = 1.0
+    an = a / scale
+    gram = an.T @ an
+    lam = _BASIS_RIDGE * np.trace(gram) / gram.shape[0]
+    g = np.linalg.solve(gram + lam * np.eye(gram.shape[0]), an.T @ y) / scale
+    h = sum(gk * rk for gk, rk in zip(g[:len(resp)], resp))
+    mag = np.abs(h)
+    return np.where(mag < floor_hz_per_v, h / np.maximum(mag, 1e-300) * floor_hz_per_v, h)
+
+
 def _norm(pair: tuple[float, float]) -> float:
     return math.hypot(pair[0], pair[1])
 
@@ -299,7 +361,8 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
               roi: float = 0.8, averages: int = 128, learn: float = 0.92,
               q_cutoff_hz: float = 1.0e6, meas_cutoff_hz: float = 400e3,
               rel_tol: float = 0.02, grow_tol: float = 0.2, min_beta: float = 0.05,
-              abs_tol_frac: float = 1e-6, refine: bool = True) -> IlcResult:
+              abs_tol_frac: float = 1e-6, refine: bool = True,
+              update: Literal["inverse", "scalar"] = "inverse", max_drive_factor: float = 4.0) -> IlcResult:
     """Iteratively pre-distort ``drive0_v`` so that the MZI-measured chirp becomes linear (§2.2).
 
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
@@ -324,6 +387,10 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
         raise ValueError(f"need 0 < roi < learn <= 1, got roi={roi!r}, learn={learn!r}")
     if int(max_iter) != max_iter or max_iter < 0:
         raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
+    if update not in ("inverse", "scalar"):
+        raise ValueError(f"update must be 'inverse' or 'scalar', got {update!r}")
+    if not (math.isfinite(max_drive_factor) and max_drive_factor >= 1):
+        raise ValueError(f"max_drive_factor must be >= 1, got {max_drive_factor!r}")
     if int(averages) != averages or averages < 1:
         raise ValueError(f"averages must be a positive integer, got {averages!r}")
     n_drive = 2 * ramp_s * fs_drive_hz
@@ -346,6 +413,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
 
     iters: list[IlcIteration] = []
     u = u0
+    peak0 = float(np.abs(u0).max())
     a = run(u)
     first = a
     cur_u, cur_a = u, a                    # the drive the next update starts from
@@ -395,7 +463,24 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
             reason = "tuning slope not measurable"
             break
         k += 1
-        u = fft_filter(cur_u + b * cur_a.err_drive / K, fs_drive_hz, hi_hz=q_cutoff_hz)
+        if update == "inverse":
+            h = fit_fm_response(cur_u, cur_a.ramps_nu, fs_drive_hz=fs_drive_hz, ramp_s=ramp_s, learn=learn,
+                                floor_hz_per_v=_INVERSE_FLOOR * K)
+            step = np.fft.irfft(np.fft.rfft(cur_a.err_drive) / h, n=cur_u.size)
+        else:
+            step = cur_a.err_drive / K
+        u = fft_filter(cur_u + b * step, fs_drive_hz, hi_hz=q_cutoff_hz)
+        if np.abs(u).max() > max_drive_factor * peak0:
+            # a step this large is a broken measurement or fit, never a linearization: do not send it
+            b *= 0.5
+            iters[-1] = replace(iters[-1], beta=b)
+            if b < min_beta:
+                reason = "beta backed off below min_beta"
+                break
+            u = fft_filter(cur_u + b * cur_a.err_drive / K, fs_drive_hz, hi_hz=q_cutoff_hz)
+            if np.abs(u).max() > max_drive_factor * peak0:
+                reason = f"update would exceed {max_drive_factor:g} x the initial drive peak"
+                break
         a = run(u)
         slips += a.slips
     red = {"up": first.rms[0] / best_a.rms[0] if best_a.rms[0] > 0 else math.inf,
