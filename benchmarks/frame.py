@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import threading
 import time
 
@@ -23,6 +22,32 @@ from lidard.instrument import open_instrument
 from lidard.instrument_api import ScanRequest
 
 DEFAULT_SCENE = str(CONFIG_DIR / "scenes" / "cal_letters.toml")
+
+
+def reset_peak_rss() -> None:
+    """Start a new resident-set high-water mark for this process (Linux: clear_refs 5)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass
+
+
+def peak_rss_mb() -> float:
+    """This process's resident-set high-water mark (VmHWM) in MB.
+
+    Not ru_maxrss: on Linux that survives fork and exec, so a child would report its parent's peak.
+    """
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def run_frame(averages: int = 10, rows: tuple[int, int] = (0, 128), cols: tuple[int, int] = (0, 128),
@@ -41,8 +66,8 @@ def run_frame(averages: int = 10, rows: tuple[int, int] = (0, 128), cols: tuple[
         wall, cpu = time.perf_counter() - t, time.process_time() - c
     finally:
         inst.close()
-    # ru_maxrss is the process high-water mark (KiB on Linux): it includes whatever ran before
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    # the high-water mark of this process's memory (VmHWM): it includes whatever ran before in it
+    peak_mb = peak_rss_mb()
     return {"pixels": res.pixels_scanned, "averages": averages, "max_range_m": max_range_m,
             "adc_rate_hz": res.meta["adc"]["sample_rate_hz"], "record_length": res.meta["adc"]["record_length"],
             "points": len(res.points), "linearization_wall_s": t_cal, "hardware_s": res.hardware_time_s,

@@ -334,11 +334,11 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
 
     def rowsof(key, extra=()):
         return [[q["pixels"], q["averages"], q["max_range_m"], f"{q['adc_rate_hz'] / 1e6:.2f}", q["record_length"],
-                 q["hardware_s"], q["wall_s"], q["cpu_s"], q["realtime_factor"], q["points"]]
+                 q["hardware_s"], q["wall_s"], q["cpu_s"], q["realtime_factor"], q["points"], f"{q['peak_rss_mb']:.0f}"]
                 + [q[e] for e in extra] for q in r[key]["rows"]]
 
     hdr = ["pixels", "averages", "max range (m)", "ADC MS/s", "record", "hardware (s)", "wall (s)", "CPU (s)",
-           "real-time factor", "points"]
+           "real-time factor", "points", "peak RSS (MB)"]
     fp, fa, frr, frg = r["pixels"]["fit"], r["averages"]["fit"], r["range"]["fit_record"], r["range"]["fit_range"]
     hl = r["averages"]["hw_linear"]
     aff = r["range"]["cpu_affine_record"]
@@ -382,14 +382,19 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
                    f"{r['range']['rows'][-1]['max_range_m']:g} m max range)",
                    both("range", "fit_record", "cpu_fit_record")
                    + f"; CPU {1e3 * aff['intercept']:.2g} ms + {1e9 * aff['slope']:.3g} ns x samples",
-                   "issue 7: state the law")]
+                   "issue 7: state the law"),
+                  ("peak RSS of the largest scans (during the scan, whole process)",
+                   f"{r['pixels']['rows'][-1]['peak_rss_mb']:.0f} MB at {r['pixels']['rows'][-1]['pixels']:,} pixels "
+                   f"x 1 average; {rr[-1]['peak_rss_mb']:.0f} MB at {rr[-1]['pixels']} pixels, {rr[-1]['max_range_m']:g} m",
+                   "< 2 GB (the frame target)")]
     s.markdown = (
         "One embedded simulated bench (world, synthesis, the four wire protocols, frame DSP all inside the timed "
         "region), one linearization, explicit pixel lists (fpsa128 has 12,288 bonded pixels; larger frames revisit "
         "pixels). Hardware time = the digitizer's trigger clock on the FPGA model's virtual clock (settle + "
         "triggers x 160 us triangle period): the time the real instrument would take. Real-time factor = hardware / "
         f"wall (>= 1: the simulation keeps up). Best of {r['repeats']} runs; CPU = process CPU time (all threads), "
-        f"robust to other jobs on the machine. Bench start + linearization: {r['setup_s']:.2f} s. "
+        f"robust to other jobs on the machine; peak RSS = the process's resident high-water mark during the scan "
+        f"(reset before each scan, so it includes the bench and the interpreter). Bench start + linearization: {r['setup_s']:.2f} s. "
         "`benchmarks/scaling.py`.\n\n" + law
         + "\n**Pixels** (1 average, max range 2 m)\n\n" + table(hdr, rowsof("pixels"))
         + "\n**Averages**\n\n" + table(hdr, rowsof("averages"))

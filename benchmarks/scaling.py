@@ -37,6 +37,7 @@ import time
 import numpy as np
 from scipy import stats
 
+from benchmarks.frame import peak_rss_mb, reset_peak_rss
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import open_instrument
 from lidard.instrument_api import ScanRequest
@@ -105,15 +106,17 @@ class FrameRig:
         return time.perf_counter() - t, res
 
     def best_of(self, repeats: int, pixels, averages: int = 1, max_range_m: float = 2.0) -> dict:
-        walls, cpus = [], []
+        walls, cpus, rss = [], [], []
         for _ in range(max(1, repeats)):
+            reset_peak_rss()
             c0 = time.process_time()
             wall, res = self.scan(pixels, averages, max_range_m)
             cpus.append(time.process_time() - c0)
             walls.append(wall)
+            rss.append(peak_rss_mb())
         wall = min(walls)
         return {"pixels": len(pixels), "averages": int(averages), "max_range_m": float(max_range_m),
-                "wall_s": wall, "cpu_s": min(cpus), "hardware_s": float(res.hardware_time_s),
+                "wall_s": wall, "cpu_s": min(cpus), "peak_rss_mb": max(rss), "hardware_s": float(res.hardware_time_s),
                 "realtime_factor": float(res.hardware_time_s) / wall, "points": int(len(res.points)),
                 "adc_rate_hz": float(res.meta["adc"]["sample_rate_hz"]),
                 "record_length": int(res.meta["adc"]["record_length"])}

@@ -96,8 +96,9 @@ def test_pngs_exist_and_are_valid(report):
 def test_growth_laws_and_hardware_time_physics(report):
     sc = report["data"]["sections"]["scaling"]["data"]
     cfg = load_config(CONFIG_DIR / "sim.toml")
-    assert 0.5 <= sc["pixels"]["fit"]["slope"] <= 1.5
-    assert sc["pixels"]["fit"]["slope_stderr"] > 0
+    # the growth law on process CPU time: other jobs on a shared machine stretch wall time, not CPU time
+    assert 0.5 <= sc["pixels"]["cpu_fit"]["slope"] <= 1.5, sc["pixels"]
+    assert sc["pixels"]["fit"]["slope"] > 0 and sc["pixels"]["fit"]["slope_stderr"] > 0
     # hardware time is modelled, not measured: exactly one (settle + triangle period) per trigger
     per_trigger = cfg.scan.settle_s + 2 * cfg.chirp.ramp_s
     for r in sc["pixels"]["rows"]:
@@ -147,7 +148,7 @@ def test_external_sections_carry_their_keys(report):
     for c in secs["phase_noise"]["data"]["curves"]:
         assert all(0.0 <= p <= 1.0 for p in c["pd_raw"] + c["pd_comp"])
     load = secs["load"]["data"]
-    assert load["errors"] == 0 and 0 < load["p50_ms"] <= load["p99_ms"]
+    assert load["errors"] == 0 and 0 < load["p50_ms"] <= load["p99_ms"], load
 
 
 def test_estimator_and_budget_figures(report):
