@@ -58,9 +58,10 @@ def fit_growth(x, y) -> dict:
 
 
 def fit_linear(x, y) -> dict:
-    """y = a + b x; the largest residual relative to y says how linear it is."""
+    """y = a + b x, least squares on relative residuals (weights 1/y, so the small-x points count as much
+    as the large ones); the largest residual relative to y says how well the line holds."""
     x, y = np.asarray(x, float), np.asarray(y, float)
-    b, a = np.polyfit(x, y, 1)
+    b, a = np.polyfit(x, y, 1, w=1.0 / y)
     resid = y - (a + b * x)
     return {"intercept": float(a), "slope": float(b), "max_rel_residual": float(np.max(np.abs(resid) / y))}
 
