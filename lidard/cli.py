@@ -652,7 +652,26 @@ def _run(fn, args, prog: str) -> int:
         return EXIT_ERROR
 
 
+def _glue_secret_values(argv: list[str]) -> list[str]:
+    """``--lease -Xy`` -> ``--lease=-Xy`` (and ``--token``): a secret may start with "-" (a lease of an
+    older daemon, a token the user generated with ``token_urlsafe``), which argparse would otherwise
+    take for an option and fail with "expected one argument". ``--lease --json`` stays an error."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if (a in ("--lease", "--token") and i + 1 < len(argv) and argv[i + 1].startswith("-")
+                and not argv[i + 1].startswith("--") and argv[i + 1] != "-h"):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def lidarctl_main(argv: list[str] | None = None) -> int:
+    argv = _glue_secret_values(list(sys.argv[1:] if argv is None else argv))
     args = build_lidarctl_parser().parse_args(argv)
     return _run(args.fn, args, "lidarctl")
 

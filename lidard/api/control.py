@@ -15,6 +15,9 @@ one client steers the instrument. Three independent gates, applied in this order
    (Locked) naming the holder. With no lease held mutating requests pass (single-user lab default).
    A lease expires ``ttl_s`` after its last use; every request that carries it renews it. The lock
    reads time from an injected clock (``time.monotonic`` by default) so tests advance it by hand.
+   Lease tokens are hex (``new_lease_token``): never a leading "-" (``token_urlsafe`` gives one in
+   1/32 of leases, and ``lidarctl ... --lease <token>`` then reads it as an option), nothing a
+   shell or an HTTP header would mangle.
 
 The lock guards the HTTP side only; the one scan worker that owns the hardware is unchanged.
 """
@@ -50,6 +53,11 @@ class Lease:
     holder: str
     acquired_at: float
     expires_at: float
+
+
+def new_lease_token() -> str:
+    """A fresh lease: 192 random bits as 48 lower-case hex digits (never starts with "-")."""
+    return secrets.token_hex(24)
 
 
 class LockHeld(Exception):
@@ -95,7 +103,7 @@ class ControlLock:
                     raise LockHeld(cur.holder, cur.expires_at - now, "release it or wait for it to expire")
                 self._lease = Lease(cur.token, client, cur.acquired_at, now + self.ttl_s)
             else:
-                self._lease = Lease(secrets.token_urlsafe(24), client, now, now + self.ttl_s)
+                self._lease = Lease(new_lease_token(), client, now, now + self.ttl_s)
             return self._lease
 
     def release(self, presented: str | None) -> Lease | None:

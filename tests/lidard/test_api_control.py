@@ -1,5 +1,6 @@
 """Issue 6 control lock: one controlling client, read-only observers, leases on an injected clock."""
 
+import re
 import sys
 from pathlib import Path
 
@@ -193,7 +194,7 @@ def test_lidarctl_control_acquire_status_release_and_lease_header(live, capsys, 
     assert inst.requests == []
     # --lease, then LIDARD_LEASE, make it pass
     code, out, err = lidarctl(capsys, "scan", "--url", url, "--rows", "0:1", "--cols", "0:2", "--json",
-                              "--lease", lease)
+                              f"--lease={lease}")
     assert code == 0, err
     assert json.loads(out)["state"] == "done" and len(inst.requests) == 1
     code, out, err = lidarctl(capsys, "control", "release", "--url", url)
@@ -204,3 +205,44 @@ def test_lidarctl_control_acquire_status_release_and_lease_header(live, capsys, 
     monkeypatch.delenv("LIDARD_LEASE")
     code, out, err = lidarctl(capsys, "control", "status", "--url", url, "--json")
     assert json.loads(out)["held"] is False
+
+
+def test_lease_tokens_never_start_with_a_dash():
+    # token_urlsafe starts with "-" once in 32 leases; argparse then reads `--lease <it>` as an option
+    from lidard.api.control import new_lease_token
+    clock = FakeClock()
+    lock = ControlLock(ttl_s=10.0, clock=clock)
+    tokens = set()
+    for _ in range(200):
+        t = lock.acquire("a").token
+        lock.release(t)
+        tokens.add(t)
+        assert re.fullmatch(r"[0-9a-f]{48}", t), t      # 192 random bits, hex: no "-" anywhere
+    assert len(tokens) == 200
+    assert re.fullmatch(r"[0-9a-f]{48}", new_lease_token())
+
+
+def test_lidarctl_accepts_a_lease_that_starts_with_a_dash(live, capsys, monkeypatch):
+    """A daemon that issues "-..." leases (an older one used token_urlsafe) still works with lidarctl
+    in both spellings, ``--lease <token>`` and ``--lease=<token>``; ``--lease --json`` stays an error."""
+    import json
+
+    from lidard.api import control
+    url, inst = live
+    monkeypatch.delenv("LIDARD_LEASE", raising=False)
+    monkeypatch.setattr(control, "new_lease_token", lambda: "-Zq_9-dash-first-lease-token")
+    code, out, err = lidarctl(capsys, "control", "acquire", "--url", url, "--client", "rig", "--json")
+    assert code == 0, err
+    lease = json.loads(out)["lease"]
+    assert lease == "-Zq_9-dash-first-lease-token"
+    for spelling in (["--lease", lease], [f"--lease={lease}"]):
+        code, out, err = lidarctl(capsys, "scan", "--url", url, "--rows", "0:1", "--cols", "0:2", "--json",
+                                  *spelling)
+        assert code == 0, (spelling, err)
+        assert json.loads(out)["state"] == "done"
+    assert len(inst.requests) == 2
+    with pytest.raises(SystemExit) as ex:
+        lidarctl(capsys, "control", "status", "--url", url, "--lease", "--json")
+    assert ex.value.code != 0 and "--lease" in capsys.readouterr().err
+    code, out, err = lidarctl(capsys, "control", "release", "--url", url, "--lease", lease)
+    assert code == 0 and "free" in out, err
