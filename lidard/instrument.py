@@ -39,6 +39,7 @@ Faults (issue 6; docs/reliability.md):
 
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import os
@@ -101,11 +102,15 @@ class SimFaultError(InstrumentError, ValueError):
     """The simulated bench refused a fault (unknown kind or bad parameter); names it."""
 
 
+class SceneRejected(InstrumentError, ValueError):
+    """The simulated bench refused a scene; the message names the key or target that is wrong."""
+
+
 @dataclass
 class SimHooks:
     """What the composition root gives the instrument to reach a simulated bench."""
 
-    set_scene: Callable[[dict], None]
+    set_scene: Callable[[dict], dict]
     inject_fault: Callable[..., dict]
     clear_faults: Callable[[str | None], int]
     active_faults: Callable[[], list]
@@ -656,10 +661,15 @@ class LidarInstrument:
             raise NotSimulated(f"{what}: the instrument is real hardware; only a simulated bench has this")
         return self._sim
 
-    def set_scene(self, scene: dict[str, Any]) -> None:
+    def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
+        """Simulation only: replace the bench's scene (the scene-file structure as a dict).
+
+        Returns ``{"name", "targets"}``; a scene the bench refuses raises :class:`SceneRejected`
+        naming what is wrong (the bench parses it: the daemon side does not know the scene format).
+        """
         if self._set_scene is None:
-            raise NotImplementedError("set_scene: only a simulated bench has a scene")
-        self._set_scene(scene)
+            raise NotSimulated("set_scene: only a simulated bench has a scene")
+        return self._set_scene(scene)
 
     def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
         """Simulation only: inject a bench fault (sim_devices.faults catalogue); returns it with its id."""
@@ -845,7 +855,17 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
         parts = _connect(cfg, ep, b.usb_backend, b.clock.advance)
         from sim_devices.world.scene import Scene as _Scene
 
-        hooks = SimHooks(set_scene=lambda d: b.set_scene(_Scene.from_dict(d, source="<request>")),
+        from sim_devices.world.scene import SceneError
+
+        def set_scene(d: dict) -> dict:
+            try:
+                scene = _Scene.from_dict(d, source="<request>")
+            except SceneError as exc:
+                raise SceneRejected(str(exc)) from None
+            b.set_scene(scene)
+            return {"name": scene.name, "targets": len(scene)}
+
+        hooks = SimHooks(set_scene=set_scene,
                          inject_fault=lambda kind, **params: b.inject_fault(kind, **params),
                          clear_faults=lambda kind=None: b.clear_faults(kind),
                          active_faults=lambda: b.active_faults())
@@ -861,11 +881,24 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
         cmd = cmd[:-2]
     if scene_path:
         cmd += ["--scene", str(scene_path)]
-    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=os.environ.copy())
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=os.environ.copy())
+    stderr_tail: collections.deque[str] = collections.deque(maxlen=20)
+
+    def forward_stderr() -> None:   # the child's complaints go to our log, the last ones into errors
+        for raw in proc.stderr:
+            text = raw.decode("utf-8", "replace").rstrip()
+            stderr_tail.append(text)
+            log.warning("%s", text if text.startswith("lidar-sim") else f"lidar-sim: {text}")
+
+    reader = threading.Thread(target=forward_stderr, name="lidar-sim-stderr", daemon=True)
+    reader.start()
     line = proc.stdout.readline()
     if not line:
         proc.kill()
-        raise InstrumentError("simulated bench: the lidar-sim child process did not start")
+        reader.join(timeout=5)
+        why = stderr_tail[-1] if stderr_tail else "no message"
+        raise InstrumentError(f"simulated bench: the lidar-sim child process did not start: {why}")
     ep = json.loads(line)
     ctl = BenchControlClient(ep["control_port"])
 
@@ -886,7 +919,14 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
         except ValueError as exc:   # the bench refused (unknown kind, bad parameter): say so
             raise SimFaultError(str(exc)) from None
 
-    hooks = SimHooks(set_scene=lambda d: ctl.call("set_scene", scene=d),
+    def set_scene(d: dict) -> dict:
+        try:
+            reply = ctl.call("set_scene", scene=d)
+        except ValueError as exc:   # the bench's SceneError, named
+            raise SceneRejected(str(exc)) from None
+        return {"name": reply.get("name"), "targets": int(reply.get("targets", 0))}
+
+    hooks = SimHooks(set_scene=set_scene,
                      inject_fault=lambda kind, **params: call("inject", kind=kind, **params)["fault"],
                      clear_faults=lambda kind=None: int(call("clear_faults", kind=kind)["cleared"]),
                      active_faults=lambda: call("faults")["faults"])

@@ -103,6 +103,12 @@ class Bench:
 
     def __init__(self, cfg: Config, scene: Scene | None = None, *, seed: int | None = None) -> None:
         self.cfg = cfg
+        for i, entry in enumerate(cfg.sim.faults):   # fail before anything starts, naming the entry
+            params = {k: v for k, v in entry.items() if k != "kind"}
+            try:
+                validate_fault(entry.get("kind"), params)
+            except ValueError as exc:
+                raise ConfigError(f"{cfg.source}: sim.faults: entry {i}: {exc}") from None
         self.profile = cfg.load_profile()
         self.laser_preset = cfg.load_laser()
         if scene is None:
@@ -530,8 +536,9 @@ class _ControlServer:
         if cmd == "advance":
             return {"t_s": b.clock.advance(float(msg["dt_s"]))}
         if cmd == "set_scene":
-            b.set_scene(Scene.from_dict(msg["scene"], source="<control>"))
-            return {}
+            scene = Scene.from_dict(msg["scene"], source="<control>")
+            b.set_scene(scene)
+            return {"name": scene.name, "targets": len(scene)}
         if cmd == "set_interlock":
             b.controller.set_interlock(bool(msg["closed"]))
             return {}

@@ -15,6 +15,8 @@ def test_import_contracts_hold():
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out
     assert "broken" not in out.lower() or "0 broken" in out.lower(), out
+    # the daemon side reaches the simulator only through the composition root
+    assert "Only the composition root starts the simulator KEPT" in out, out
 
 
 def test_pure_core_has_no_io_imports_even_indirectly_in_source():

@@ -86,9 +86,17 @@ class FakeInstrument:
                           partial=done < n)
 
     def set_scene(self, scene):
+        # like the real instrument: the simulator's parser decides, a refusal is a ValueError
+        from sim_devices.world.scene import Scene, SceneError
+
         if not self.simulated:
             raise NotImplementedError("real hardware")
+        try:
+            parsed = Scene.from_dict(scene, source="<request>")
+        except SceneError as exc:
+            raise ValueError(str(exc)) from None
         self.scenes.append(scene)
+        return {"name": parsed.name, "targets": len(parsed)}
 
     def close(self):
         self.closed = True

@@ -11,8 +11,6 @@ Not checked, on purpose:
   wire-bonded rows, pixels only with pattern ``pixels``), which JSON Schema cannot express, so a
   schema-valid body may rightly be a 422 naming the field.
 - ``allow_header_conformance``: Starlette's 405 lists only the methods of the route it matched.
-- ``negative_data_rejection`` for ``PUT /sim/scene``: an empty body is an empty TOML scene, which
-  the simulator accepts (a valid empty world), although the schema marks the body required.
 
 The control lock is released after every case so that a generated ``POST /control`` does not turn
 the rest of the run into 423s.
@@ -63,8 +61,6 @@ schema = schemathesis.pytest.from_fixture("lidard_openapi")
                                  HealthCheck.function_scoped_fixture])
 def test_api_has_no_5xx_and_conforms(case):
     excluded = [schemathesis.checks.positive_data_acceptance, schemathesis.checks.allow_header_conformance]
-    if case.operation.label == "PUT /sim/scene":
-        excluded.append(schemathesis.checks.negative_data_rejection)
     try:
         response = case.call_and_validate(excluded_checks=excluded)
         assert response.status_code < 500, (case.operation.label, response.status_code, response.text)

@@ -6,6 +6,7 @@ hardware, does not allow it). A fault the bench refuses (unknown kind, bad param
 """
 
 import json
+import tomllib
 from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request, status
@@ -36,24 +37,22 @@ async def put_scene(request: Request, instrument: InstrumentDep) -> SceneAccepte
     except UnicodeDecodeError:
         raise HTTPException(422, [{"loc": ["body"], "msg": "scene body is not UTF-8 text",
                                    "type": "value_error"}]) from None
-    from sim_devices.world.scene import Scene, SceneError  # lazily: only a simulated daemon needs it
-
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     try:
-        if ctype.endswith("json"):
-            try:
-                data = json.loads(text)
-            except json.JSONDecodeError as exc:
-                raise SceneError(f"<body>: invalid JSON: {exc}") from None
-            scene = Scene.from_dict(data, source="<body>")
-        else:
-            import tomllib
-            scene = Scene.from_toml_text(text, source="<body>")
-            data = tomllib.loads(text)
-    except SceneError as exc:
+        data = json.loads(text) if ctype.endswith("json") else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        kind = "JSON" if ctype.endswith("json") else "TOML"
+        raise HTTPException(422, [{"loc": ["body"], "msg": f"<body>: invalid {kind}: {exc}",
+                                   "type": "scene_error"}]) from None
+    if not data:
+        raise HTTPException(422, [{"loc": ["body"], "msg": "<body>: the scene is empty; send at least "
+                                   "a name and a [[target]]", "type": "scene_error"}])
+    try:
+        # the bench parses and checks it (the scene format belongs to the simulator)
+        summary = instrument.set_scene(data)
+    except ValueError as exc:
         raise HTTPException(422, [{"loc": ["body"], "msg": str(exc), "type": "scene_error"}]) from None
-    instrument.set_scene(data)
-    return SceneAccepted(name=scene.name, targets=len(scene))
+    return SceneAccepted(name=summary["name"], targets=summary["targets"])
 
 
 class FaultIn(BaseModel):

@@ -119,7 +119,14 @@ def _write(tmp_path, body: str) -> Path:
 def test_config_faults_are_validated_naming_the_entry(tmp_path):
     p = _write(tmp_path, '\n[[sim.faults]]\nkind = "serial_flip"\nrate = 0.01\n'
                          '\n[[sim.faults]]\nkind = "stuck_switch"\nline = "row"\nindex = 2\n')
+    cfg = load_config(p)      # the daemon side checks only the shape; the simulator owns the catalogue
     with pytest.raises(ConfigError, match=r"sim\.faults.*entry 1.*stuck_switch.*'state' is required"):
+        Bench(cfg)
+
+
+def test_config_fault_without_a_kind_is_refused_at_load(tmp_path):
+    p = _write(tmp_path, '\n[[sim.faults]]\nrate = 0.01\n')
+    with pytest.raises(ConfigError, match=r"sim\.faults.*entry 0.*kind"):
         load_config(p)
 
 
