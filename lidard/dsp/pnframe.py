@@ -1,0 +1,294 @@
+"""Batched laser phase-noise compensation in the scan DSP (dissertation §2.3, Fig. 2-6, Fig. 2-7).
+
+:mod:`lidard.dsp.pncomp` compensates one record; this module does the same for a whole batch of
+pixels x averages x ramps at once, and feeds the result to the frame DSP's detection chain:
+
+1. per ramp (up and down separately: the MZI beat passes through zero at the turning points) the
+   monitor-MZI beat is complex-demodulated at its *nominal* beat ``gamma tau_m`` and low-passed
+   (:func:`mzi_phase_noise_batch`, the batched form of :func:`pncomp.mzi_phase_noise` with a known
+   beat): ``delta(t)`` = phase noise + residual chirp nonlinearity seen through the delay tau_m;
+2. the cumulative sums ``S_M(t) = sum_{m<M} delta(t - m tau_m)`` for M = 0..M_max are built once
+   (M_max = ceil(max round trip / tau_m));
+3. the analytic LiDAR beat of the analysed window is multiplied by ``exp(-j S_M)`` for every M and
+   Fourier transformed; every range bin takes its value from its nearest M (bin frequency / (gamma
+   tau_m), rounded): the *composite spectrum*, on the same grid and with the same scale as the
+   plain :class:`lidard.dsp.frame.FrameDsp` spectrum (a real cosine of amplitude A puts A/2 in its bin);
+4. OS-CFAR runs on the composite power averaged over the averages, and the sub-bin estimator runs
+   on the real compensated ramp ``Re(z exp(-j S_M))`` of the M of each detection (the estimator's
+   time-domain path, so ``newton`` still models the negative-frequency image), then the usual
+   up/down pairing.
+
+Why the nominal beat and not a measured one: the mean frequency of one ramp's MZI beat includes the
+realised mean of the laser's frequency noise, which belongs to ``delta``; removing it would shift
+every compensated peak by M times that mean (tens of bins for a 3 MHz linewidth). With the nominal
+beat the compensation also maps a chirp slope error onto the nominal slope at tau = M tau_m, which
+is what the ranging (nominal gamma) assumes anyway; a scan without linearization (a slope several
+per cent off) therefore gets range jumps at the M boundaries: compensate linearized chirps.
+
+Pure numpy/scipy (no per-pixel Python loops: loops run over M and over the two ramps only).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import hilbert
+
+from .cfar import cfar_detect
+from .estimators import estimate
+from .frame import FrameDsp, FrameResult, _paired
+from .instfreq import check_positive
+from .rangefft import C_M_PER_S
+from .velocity import pair_up_down
+from .window import DspInputError, get_window
+
+
+def mzi_phase_noise_batch(mzi: np.ndarray, *, fs_hz: float, edge_s: float, beat_hz: float,
+                          bandwidth_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``delta`` (rad, float64, shape of ``mzi``) and the valid-sample mask (last axis) of ramps of MZI beat.
+
+    Batched over leading axes; one ramp per row on the last axis. Same algorithm as
+    :func:`lidard.dsp.pncomp.mzi_phase_noise` with ``beat_hz`` given: remove the mean, mix down by
+    ``beat_hz``, Gaussian low-pass (-3 dB at ``bandwidth_hz``, default beat/2) as a complex signal,
+    angle about its circular mean, unwrapped; samples within ``edge_s`` of either end are zero.
+    """
+    x = np.asarray(mzi, dtype=np.float64)
+    if x.ndim < 1 or x.shape[-1] == 0:
+        raise DspInputError(f"mzi: expected ramps on the last axis, got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise DspInputError("mzi: contains NaN or inf")
+    fs_hz = check_positive("fs_hz", fs_hz)
+    beat_hz = check_positive("beat_hz", beat_hz)
+    if beat_hz >= fs_hz / 2:
+        raise DspInputError(f"beat_hz={beat_hz!r}: the MZI beat is above Nyquist at fs_hz={fs_hz!r}")
+    bandwidth_hz = check_positive("bandwidth_hz", 0.5 * beat_hz if bandwidth_hz is None else bandwidth_hz)
+    n = x.shape[-1]
+    n_edge = int(math.ceil(edge_s * fs_hz))
+    if 2 * n_edge + 16 > n:
+        raise DspInputError(f"mzi: {n} samples per ramp are too few for edge_s={edge_s!r} at fs_hz={fs_hz!r}")
+    valid = np.zeros(n, dtype=bool)
+    valid[n_edge:n - n_edge] = True
+    k = np.arange(n, dtype=np.float64)
+    lo = np.exp(-2j * np.pi * beat_hz / fs_hz * k)
+    f = np.fft.fftfreq(n, d=1.0 / fs_hz)
+    g = np.exp(-0.5 * np.log(2.0) * (f / bandwidth_hz) ** 2)
+    z = np.fft.ifft(np.fft.fft((x - x.mean(axis=-1, keepdims=True)) * lo, axis=-1) * g, axis=-1)
+    zv = z[..., valid]
+    c = np.angle(np.sum(zv / np.maximum(np.abs(zv), 1e-300), axis=-1, keepdims=True))
+    delta = np.unwrap(np.angle(z * np.exp(-1j * c)), axis=-1)
+    delta[..., ~valid] = 0.0
+    return delta, valid
+
+
+def _delayed_batch(x: np.ndarray, shift: float) -> np.ndarray:
+    """x(k - shift) along the last axis, zero before the start; linear interpolation between samples."""
+    n = x.shape[-1]
+    i = int(math.floor(shift))
+    frac = shift - i
+    out = np.zeros_like(x)
+    if i < n:
+        out[..., i:] = x[..., :n - i]
+    if frac > 1e-9:
+        nxt = np.zeros_like(x)
+        if i + 1 < n:
+            nxt[..., i + 1:] = x[..., :n - i - 1]
+        out = (1.0 - frac) * out + frac * nxt
+    return out
+
+
+@dataclass(frozen=True)
+class PhaseNoiseCompensator:
+    """Geometry of the compensation: monitor delay, deepest M, known chirp rate, ADC rate.
+
+    ``max_delay_s``: the largest round trip to compensate (2 max_range / c); M runs 0..ceil(max/tau_m).
+    ``edge_s``: samples at each end of a ramp whose MZI phase is not trusted (filter transients);
+    default max(20 samples, 1 us) as in :func:`pncomp.compensated_spectrum`.
+    """
+
+    fs_hz: float
+    mzi_delay_s: float
+    max_delay_s: float
+    chirp_rate_hz_per_s: float
+    edge_s: float | None = None
+    bandwidth_hz: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("fs_hz", "mzi_delay_s", "max_delay_s", "chirp_rate_hz_per_s"):
+            check_positive(name, getattr(self, name))
+        if self.edge_s is not None and not (math.isfinite(self.edge_s) and self.edge_s >= 0):
+            raise DspInputError(f"edge_s={self.edge_s!r} must be >= 0")
+
+    @property
+    def m_max(self) -> int:
+        return int(math.ceil(self.max_delay_s / self.mzi_delay_s - 1e-9))
+
+    @property
+    def mzi_beat_hz(self) -> float:
+        return self.chirp_rate_hz_per_s * self.mzi_delay_s
+
+    @property
+    def delay_samples(self) -> float:
+        return self.mzi_delay_s * self.fs_hz
+
+    @property
+    def edge_seconds(self) -> float:
+        return max(20.0 / self.fs_hz, 1e-6) if self.edge_s is None else float(self.edge_s)
+
+    @property
+    def edge_samples(self) -> int:
+        return int(math.ceil(self.edge_seconds * self.fs_hz))
+
+    @property
+    def min_start(self) -> int:
+        """First sample of a ramp an analysis window may start at (all delayed MZI history exists)."""
+        return self.edge_samples + int(math.ceil(self.m_max * self.delay_samples))
+
+    def m_of_freq(self, freq_hz: np.ndarray) -> np.ndarray:
+        """Nearest M for beat frequencies (the target round trip is f / gamma)."""
+        return np.clip(np.rint(np.asarray(freq_hz) / self.mzi_beat_hz), 0, self.m_max).astype(np.int64)
+
+    def prepare(self, beat: np.ndarray, mzi: np.ndarray, start: int, n: int) -> "CompensatedRamps":
+        """Analytic beat and cumulative MZI phases of the window [start, start + n) of every ramp.
+
+        ``beat``, ``mzi``: (..., ramp_samples) real, sample-aligned (same trigger, same record).
+        """
+        b = np.asarray(beat, dtype=np.float64)
+        m = np.asarray(mzi, dtype=np.float64)
+        if b.shape != m.shape:
+            raise DspInputError(f"beat and mzi must have the same shape, got {b.shape} and {m.shape}")
+        r = b.shape[-1]
+        stop = r - self.edge_samples
+        if start < self.min_start or start + n > stop or n < 16:
+            raise DspInputError(
+                f"analysis window [{start}, {start + n}) of a {r}-sample ramp does not fit the phase-noise "
+                f"compensation: it needs start >= {self.min_start} (M up to {self.m_max} x {self.mzi_delay_s * 1e9:.0f} ns "
+                f"+ edge) and end <= {stop}; lower max_range_m or raise use_fraction's margin")
+        if not np.all(np.isfinite(b)):
+            raise DspInputError("beat contains NaN or inf")
+        delta, _ = mzi_phase_noise_batch(m, fs_hz=self.fs_hz, edge_s=self.edge_seconds,
+                                         beat_hz=self.mzi_beat_hz, bandwidth_hz=self.bandwidth_hz)
+        z = hilbert(b - b.mean(axis=-1, keepdims=True), axis=-1)[..., start:start + n]
+        d = self.delay_samples
+        s = np.empty((self.m_max + 1,) + b.shape[:-1] + (n,))
+        acc = np.zeros_like(delta)
+        s[0] = 0.0
+        for mm in range(self.m_max):
+            acc += _delayed_batch(delta, mm * d)
+            s[mm + 1] = acc[..., start:start + n]
+        return CompensatedRamps(z=z, s=s, comp=self)
+
+
+@dataclass(frozen=True)
+class CompensatedRamps:
+    """Analytic beat ``z`` (..., n) and cumulative phases ``s`` (M_max + 1, ..., n) of one ramp window."""
+
+    z: np.ndarray
+    s: np.ndarray
+    comp: PhaseNoiseCompensator
+
+    def composite_spectrum(self, window: np.ndarray, n_fft: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(spectrum (..., n_fft // 2 + 1) complex, m_of_bin (n_fft // 2 + 1,)).
+
+        Scale as :class:`RangeFFT` for a real ramp: FFT(z e^{-j S_M} w) / (2 sum w), so that the
+        compensated spectrum of a zero-linewidth beat matches the plain one.
+        """
+        n = self.z.shape[-1]
+        n_fft = int(n_fft or n)
+        nb = n_fft // 2 + 1
+        # fftfreq's arithmetic, so that ties (bins exactly half-way between two M) break as in pncomp
+        freq = np.arange(nb) * (1.0 / (n_fft * (1.0 / self.comp.fs_hz)))
+        m_of_bin = self.comp.m_of_freq(freq)
+        zw = self.z * window
+        out = np.empty(self.z.shape[:-1] + (nb,), dtype=np.complex128)
+        for mm in np.unique(m_of_bin):
+            sel = m_of_bin == mm
+            y = zw if mm == 0 else zw * np.exp(-1j * self.s[mm])
+            out[..., sel] = np.fft.fft(y, n_fft, axis=-1)[..., :nb][..., sel]
+        out *= 1.0 / (2.0 * np.sum(window))
+        return out, m_of_bin
+
+    def real_signals(self, m_idx: np.ndarray) -> np.ndarray:
+        """Re(z exp(-j S_M)) for each M in ``m_idx`` (..., K): shape (..., K, n)."""
+        m_idx = np.asarray(m_idx, dtype=np.int64)
+        lead = self.z.shape[:-1]
+        if m_idx.shape[:-1] != lead:
+            raise DspInputError(f"m_idx shape {m_idx.shape} does not match the ramps {lead} + (K,)")
+        rows = np.indices(m_idx.shape)[:-1]
+        s = self.s[(m_idx,) + tuple(rows)]            # (..., K, n)
+        return (self.z[..., None, :] * np.exp(-1j * s)).real
+
+
+@dataclass(frozen=True)
+class CompensatedFrameInfo:
+    m_max: int
+    m_min_used: int          # smallest M that a bin inside the range gate uses
+    m_max_used: int          # largest M that a bin inside the range gate uses
+    mzi_beat_hz: float
+
+
+def compensator_for(dsp: FrameDsp, mzi_delay_s: float) -> PhaseNoiseCompensator:
+    """The compensator a frame DSP needs: every range up to its gate (plus Doppler) gets its nearest M."""
+    doppler = 2 * dsp.max_speed_mps / dsp.wavelength_m
+    max_delay = (2 * dsp.max_range_m / C_M_PER_S) + doppler / dsp.chirp_rate_hz_per_s
+    return PhaseNoiseCompensator(fs_hz=dsp.fs_hz, mzi_delay_s=mzi_delay_s, max_delay_s=max_delay,
+                                 chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s)
+
+
+def process_compensated(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
+                        mzi_delay_s: float, mzi_lsb_v: float = 1.0,
+                        comp: PhaseNoiseCompensator | None = None) -> tuple[FrameResult, CompensatedFrameInfo]:
+    """:meth:`FrameDsp.process` with phase-noise compensation from the monitor MZI recorded alongside.
+
+    ``beat``, ``mzi``: (n_pix, averages, >= 2 * ramp_samples), the same segments (same trigger).
+    """
+    x = np.asarray(beat)
+    mz = np.asarray(mzi)
+    if x.ndim != 3 or x.shape[-1] < 2 * dsp.ramp_samples:
+        raise DspInputError(f"beat must be (n_pix, averages, >= {2 * dsp.ramp_samples}), got {x.shape}")
+    if mz.shape != x.shape:
+        raise DspInputError(f"mzi must have the beat's shape {x.shape}, got {mz.shape}")
+    if dsp.iq:
+        raise DspInputError("phase-noise compensation of I/Q ramps is not implemented (real beat only)")
+    comp = comp or compensator_for(dsp, mzi_delay_s)
+    n_pix, n_avg = x.shape[:2]
+    a, n, r = dsp.offset, dsp.n_used, dsp.ramp_samples
+    rf = dsp.rfft
+    w = get_window(dsp.window, n)
+    lo_bin, hi_bin = dsp._bin_range(rf)
+    out_f, out_det = [], []
+    m_used = None
+    for r0 in (0, r):
+        ramps = comp.prepare(x[..., r0:r0 + r].astype(np.float64) * lsb_v,
+                             mz[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v, a, n)
+        spec, m_of_bin = ramps.composite_spectrum(w, rf.n_fft)
+        m_used = m_of_bin[lo_bin:hi_bin + 1]
+        p = (spec.real**2 + spec.imag**2).mean(axis=1)
+        det = cfar_detect(p, method="os", pfa=dsp.pfa, max_detections=dsp.max_returns,
+                          window=dsp.window, bin_range=(lo_bin, hi_bin))
+        bins = np.where(det.valid, det.index, 1)                          # (n_pix, K)
+        k = bins.shape[-1]
+        pb = np.broadcast_to(bins[:, None, :], (n_pix, n_avg, k))
+        y = ramps.real_signals(m_of_bin[pb])                               # (n_pix, n_avg, K, n)
+        frac = estimate(y, pb, method=dsp.estimator, window=dsp.window)
+        out_f.append(frac.mean(axis=1) * rf.delta_f)
+        out_det.append(det)
+    # The pairing and flagging below are FrameDsp.process's, unchanged (same inputs, same meaning).
+    du, dd = out_det
+    rng_m, vel, ok = pair_up_down(out_f[0], out_f[1], du.valid, dd.valid, dsp.chirp_rate_hz_per_s,
+                                  dsp.wavelength_m, iq=dsp.iq, max_speed_mps=dsp.max_speed_mps)
+    paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, dsp.max_speed_mps, dsp.wavelength_m)
+    present = (ok | paired_any) & du.valid
+    flagged = du.harmonic | du.unresolved
+    valid = ok & ~flagged
+    rng_fallback = C_M_PER_S * out_f[0] / (2 * dsp.chirp_rate_hz_per_s)
+    rng_m = np.where(ok, rng_m, rng_fallback)
+    intensity = 2.0 * np.sqrt(du.power)
+    in_gate = (rng_m >= dsp.min_range_m) & (rng_m <= dsp.max_range_m * 1.05)
+    present &= in_gate
+    res = FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
+                      snr_db=du.snr_db, intensity_v=intensity)
+    info = CompensatedFrameInfo(m_max=comp.m_max, m_min_used=int(m_used.min()), m_max_used=int(m_used.max()),
+                                mzi_beat_hz=comp.mzi_beat_hz)
+    return res, info
