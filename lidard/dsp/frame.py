@@ -20,6 +20,7 @@ Only paired detections become points; unpaired peaks (mostly noise) are dropped.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -71,9 +72,17 @@ class FrameDsp:
     def offset(self) -> int:
         return (self.ramp_samples - self.n_used) // 2
 
-    @property
+    # What depends only on the geometry is built once per FrameDsp (the instrument calls process()
+    # on every batch of reads): the RangeFFT with its window, and the searched bin range.
+    # cached_property writes the instance __dict__ directly, so it works on a frozen dataclass.
+    @cached_property
     def rfft(self) -> RangeFFT:
         return RangeFFT(self.n_used, self.fs_hz, self.chirp_rate_hz_per_s, window=self.window, iq=self.iq)
+
+    @cached_property
+    def bin_range(self) -> tuple[int, int]:
+        """(first, last) spectrum index searched by CFAR: the range gate plus the Doppler allowance."""
+        return self._bin_range(self.rfft)
 
     @property
     def range_resolution_m(self) -> float:
@@ -105,7 +114,7 @@ class FrameDsp:
             spec = rf(ramp)                                    # (n_pix, n_avg, n_bins)
             p = (spec.real**2 + spec.imag**2).mean(axis=1)     # incoherent average
             det = cfar_detect(p, method="os", pfa=self.pfa, max_detections=self.max_returns,
-                              window=self.window, bin_range=self._bin_range(rf))
+                              window=self.window, bin_range=self.bin_range)
             bins = np.where(det.valid, det.index, 1)           # (n_pix, K)
             pb = np.broadcast_to(bins[:, None, :], (n_pix, n_avg, bins.shape[-1]))
             frac = estimate(ramp, pb, method=self.estimator, window=self.window, spectrum=spec)
