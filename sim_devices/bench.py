@@ -137,6 +137,9 @@ class Bench:
         self._control: _ControlServer | None = None
         self.usb_backend = None
         self.segments_synthesized = 0
+        # FPGA run start (virtual s) -> 1, 2, ... in the order runs are first captured: the noise seed
+        # (see _run_index)
+        self._run_ids: dict[float, int] = {}
         self.tap = TapSpec()
         # Serial line noise seeded from the bench seed: a run with faults repeats byte for byte.
         self.serial_line = SerialLineNoise((self.seed, 0x5E71A1))
@@ -418,6 +421,19 @@ class Bench:
         return (self.tap.gain_v_per_a * self.cfg.detector.responsivity_a_per_w * self.tap.fraction
                 * link.source_power_w * link.tx_fraction)
 
+    def _run_index(self) -> int:
+        """Which captured run this is (0 before any run), for the noise seed.
+
+        Not the run's virtual start time: the host's retry backoffs advance the virtual clock, and
+        those depend on wall-clock timeouts (a loaded machine), so a seed from the start time gave
+        different noise, a different ILC drive and different ranges from one run of the same
+        programme to the next. The count of runs captured is the same however long they waited.
+        """
+        start = self.fpga.run_start_s
+        if start is None:
+            return 0
+        return self._run_ids.setdefault(float(start), len(self._run_ids) + 1)
+
     def capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
         with self._lock:
             return self._capture(first, count, cfg)
@@ -465,8 +481,7 @@ class Bench:
             noise_asd = float(np.hypot(noise_asd, q))
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
-        rng = np.random.default_rng([self.seed, int(self.fpga.run_start_s * 1e9) if self.fpga.run_start_s
-                                     else 0, int(first)])
+        rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
                          linewidth_hz=linewidth, rng=rng,
                          mzi_delay_s=self.cfg.monitor.delay_s if want_mzi else None,

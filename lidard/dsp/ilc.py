@@ -18,8 +18,8 @@ line over the region of interest (ROI, the middle 80 % of each ramp).
 A laser whose slow thermal terms keep it chirping the old way for microseconds after the drive turns
 folds the real MZI beat (its Hilbert phase always increases); the fold is found and undone before
 learning (:meth:`_Analyzer._unfold`), otherwise the learner pushes the turning point later every
-iteration. A step that would take the drive beyond ``max_drive_factor`` times its initial peak is
-never sent.
+iteration. A step that would take the drive beyond ``max_drive_factor`` times its initial peak, or
+beyond ``max_drive_v`` (the AWG's output range, given by the instrument), is never sent.
 
 Model-free: the learner only sees the drive it sends and the MZI samples it gets back, through
 ``measure(drive_v, n_avg) -> (n_avg, n)``; it never touches a laser model. It needs no sign of the
@@ -264,7 +264,12 @@ class _Analyzer:
     def _to_drive(self, ramps: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         """Error on the drive grid: interpolated over each learning region; across the gaps around
         the turning points (no reliable measurement there) each edge value is held and the two are
-        joined by a raised cosine 1 us wide at the drive's turning point (Q limits the step)."""
+        joined by a raised cosine 1 us wide at the drive's turning point (Q limits the step).
+
+        Every drive sample gets a value: a sample that falls on a region's edge, where the masks
+        below meet with strict and non-strict comparisons of float times, is interpolated from its
+        neighbours. (It used to keep whatever ``np.empty`` left there: garbage that changed with the
+        process's allocation history, at times 1e300, which Q spread into a drive of ~100 V.)"""
         period = 2 * self.T
         knots_t, knots_e = [], []
         for r, (t, e) in enumerate(ramps):
@@ -272,7 +277,7 @@ class _Analyzer:
             inside = (tr >= 0.5 * (1 - self.learn) * self.T) & (tr <= 0.5 * (1 + self.learn) * self.T)
             knots_t.append(t[inside])
             knots_e.append(e[inside])
-        out = np.empty(self.n_drive)
+        out = np.full(self.n_drive, np.nan)
         td = self.t_drive
         for r in range(2):
             ti, ei = knots_t[r], knots_e[r]
@@ -291,6 +296,9 @@ class _Analyzer:
             # the end of the other ramp
             x = np.clip((s - 0.5) * (t_b - t_a) / _GAP_SWITCH_S + 0.5, 0.0, 1.0)
             out[g] = e_a + (e_b - e_a) * 0.5 * (1 - np.cos(np.pi * x))
+        hole = np.isnan(out)
+        if hole.any():
+            out[hole] = np.interp(td[hole], td[~hole], out[~hole], period=period)
         return out
 
 
@@ -362,7 +370,8 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
               q_cutoff_hz: float = 1.0e6, meas_cutoff_hz: float = 400e3,
               rel_tol: float = 0.02, grow_tol: float = 0.2, min_beta: float = 0.05,
               abs_tol_frac: float = 1e-6, refine: bool = True,
-              update: Literal["inverse", "scalar"] = "inverse", max_drive_factor: float = 4.0) -> IlcResult:
+              update: Literal["inverse", "scalar"] = "inverse", max_drive_factor: float = 4.0,
+              max_drive_v: float | None = None) -> IlcResult:
     """Iteratively pre-distort ``drive0_v`` so that the MZI-measured chirp becomes linear (§2.2).
 
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
@@ -391,6 +400,8 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
         raise ValueError(f"update must be 'inverse' or 'scalar', got {update!r}")
     if not (math.isfinite(max_drive_factor) and max_drive_factor >= 1):
         raise ValueError(f"max_drive_factor must be >= 1, got {max_drive_factor!r}")
+    if max_drive_v is not None and not (math.isfinite(max_drive_v) and max_drive_v > 0):
+        raise ValueError(f"max_drive_v must be a finite voltage > 0, got {max_drive_v!r}")
     if int(averages) != averages or averages < 1:
         raise ValueError(f"averages must be a positive integer, got {averages!r}")
     n_drive = 2 * ramp_s * fs_drive_hz
@@ -414,6 +425,10 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     iters: list[IlcIteration] = []
     u = u0
     peak0 = float(np.abs(u0).max())
+    if max_drive_v is not None and peak0 > max_drive_v:
+        raise ValueError(f"drive0_v peaks at {peak0:.4g} V, beyond max_drive_v = {max_drive_v:.4g} V")
+    # the largest |drive| ever sent: relative to the plain drive, and the output stage's range
+    cap_v = max_drive_factor * peak0 if max_drive_v is None else min(max_drive_factor * peak0, max_drive_v)
     a = run(u)
     first = a
     cur_u, cur_a = u, a                    # the drive the next update starts from
@@ -470,7 +485,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
         else:
             step = cur_a.err_drive / K
         u = fft_filter(cur_u + b * step, fs_drive_hz, hi_hz=q_cutoff_hz)
-        if np.abs(u).max() > max_drive_factor * peak0:
+        if not np.abs(u).max() <= cap_v:
             # a step this large is a broken measurement or fit, never a linearization: do not send it
             b *= 0.5
             iters[-1] = replace(iters[-1], beta=b)
@@ -478,8 +493,9 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
                 reason = "beta backed off below min_beta"
                 break
             u = fft_filter(cur_u + b * cur_a.err_drive / K, fs_drive_hz, hi_hz=q_cutoff_hz)
-            if np.abs(u).max() > max_drive_factor * peak0:
-                reason = f"update would exceed {max_drive_factor:g} x the initial drive peak"
+            if not np.abs(u).max() <= cap_v:
+                reason = (f"update would exceed {cap_v:.4g} V peak ({max_drive_factor:g} x the initial drive "
+                          f"peak{'' if max_drive_v is None else f' or max_drive_v = {max_drive_v:.4g} V'})")
                 break
         a = run(u)
         slips += a.slips
