@@ -238,6 +238,12 @@ class ScanDefaults(_Model):
     # A real (single-photodiode) beat cannot tell a Doppler shift from a range beat when the Doppler
     # allowance exceeds the range beat (§2.1.2): the a-priori speed limit sets what is unambiguous.
     max_speed_mps: float = Field(default=0.4, gt=0, le=100)
+    # Laser phase-noise compensation from the monitor MZI recorded with the beat (§2.3,
+    # lidard.dsp.pnframe). "auto": on when the round trip of the scan's max_range_m is at least twice the
+    # monitor delay (60 m at 200 ns), i.e. where the gate holds bins whose nearest M is >= 2; below
+    # that the daemon cannot know the laser's coherence time and the MZI channel doubles the data
+    # for little gain. "on"/"off" force it.
+    phase_noise_compensation: Literal["auto", "on", "off"] = "auto"
 
 
 class FpsaDevice(_Model):

@@ -62,6 +62,8 @@ from drivers.usbtmc import DeviceDisconnected, DeviceStall, DeviceTimeout as Usb
 from .config import Config
 from .dsp.frame import FrameDsp
 from .dsp.ilc import linearize as ilc_linearize
+from .dsp.pnframe import compensator_for, process_compensated
+from .dsp.rangefft import C_M_PER_S
 from .errors import LidardError
 from .instrument_api import (POINT_DTYPE, CalibrationResult, ScanProgress, ScanRequest, ScanResult)
 from .physics.chirp import adc_rate_hz, triangle_drive_v
@@ -267,6 +269,16 @@ class LidarInstrument:
                              triggers_per_pixel=int(triggers_per_pixel), trigger_period_ns=period_ns)
 
     # -- scan -------------------------------------------------------------------------------------------
+    def _phase_noise_on(self, request: ScanRequest) -> bool:
+        """Resolve scan.phase_noise_compensation (or the request's override): "auto" is on when the
+        round trip of max_range_m is at least twice the monitor delay (config.ScanDefaults)."""
+        mode = getattr(request, "phase_noise_compensation", None) or self.cfg.scan.phase_noise_compensation
+        if mode not in ("auto", "on", "off"):
+            raise InstrumentError(f"scan: phase_noise_compensation={mode!r} is not one of 'auto', 'on', 'off'")
+        if mode == "auto":
+            return 2 * float(request.max_range_m) / C_M_PER_S >= 2 * self.cfg.monitor.delay_s
+        return mode == "on"
+
     def run_scan(self, request: ScanRequest, progress, cancel: threading.Event,
                  calibration: CalibrationResult | None = None) -> ScanResult:
         with self._lock:
@@ -276,7 +288,13 @@ class LidarInstrument:
         pixels = plan(request, self.optics)
         n_pix = len(pixels)
         avg = int(request.averages)
-        adc = self._adc_plan(request.max_range_m)
+        tau_m = self.cfg.monitor.delay_s
+        pn_on = self._phase_noise_on(request)
+        # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
+        adc = self._adc_plan(max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on
+                             else request.max_range_m)
+        channels = ("beat", "mzi") if pn_on else ("beat",)
+        pn_info: list[Any] = []
         dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz,
                        chirp_rate_hz_per_s=self.cfg.chirp.rate_hz_per_s, wavelength_m=self.cfg.chirp.wavelength_m,
                        max_range_m=request.max_range_m, max_speed_mps=self.cfg.scan.max_speed_mps,
@@ -296,7 +314,7 @@ class LidarInstrument:
         lsb = self.cfg.adc.input_range_v / 2 ** adc.bits
         # Raw batches wait here until BATCH_BYTES are together: the safety check wants short reads,
         # the DSP wants long batches (its per-call set-up costs as much as many pixels).
-        pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
         pending_bytes = [0]
 
         def flush() -> None:
@@ -306,9 +324,14 @@ class LidarInstrument:
             px = np.concatenate([p[1] for p in pending])
             t_pix = np.concatenate([p[2] for p in pending])
             clipped = np.concatenate([p[3] for p in pending])
+            mzi = np.concatenate([p[4] for p in pending]) if pn_on else None
             pending.clear()
             pending_bytes[0] = 0
-            res = dsp.process(beat, lsb)
+            if mzi is None:
+                res = dsp.process(beat, lsb)
+            else:
+                res, info = process_compensated(dsp, beat, mzi, lsb, mzi_delay_s=tau_m, mzi_lsb_v=lsb)
+                pn_info[:] = [info]
             chunks.append(self._points(res, px, t_pix, clipped))
 
         def result() -> ScanResult:
@@ -321,11 +344,18 @@ class LidarInstrument:
                 "adc": {"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
                         "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
                 "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
-                        "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction},
+                        "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction,
+                        "phase_noise_compensation": pn_on},
                 "simulated": self.simulated,
                 "calibration_id": (calibration.meta or {}).get("id") if calibration else None,
                 "faults": dict(faults),
             }
+            if pn_on:
+                comp = compensator_for(dsp, tau_m)
+                meta["dsp"]["phase_noise"] = {
+                    "mzi_delay_s": tau_m, "mzi_beat_hz": comp.mzi_beat_hz, "m_max": comp.m_max,
+                    # nearest M of the bins inside the range gate (0 = uncompensated near ranges)
+                    "m_range": ([pn_info[0].m_min_used, pn_info[0].m_max_used] if pn_info else None)}
             if safe is not None:
                 meta["safe_state"] = safe
             if stop_reason is not None:
@@ -341,13 +371,13 @@ class LidarInstrument:
             self._load_drive(drive)
             self._run_pattern(pixels, avg)
             self.digitizer.abort()   # an acquisition a failed job left armed would lock the settings
-            cfgd = self.digitizer.configure(channels=("beat",), sample_rate_hz=adc.fs_hz,
+            cfgd = self.digitizer.configure(channels=channels, sample_rate_hz=adc.fs_hz,
                                             record_length=adc.record_length, segments=n_pix * avg,
                                             bits=adc.bits, input_range_v=self.cfg.adc.input_range_v)
             self.digitizer.arm()
             self.fpsa.arm()
             self.fpsa.start()
-            bytes_per_pix = avg * adc.record_length * (1 if adc.bits == 8 else 2)
+            bytes_per_pix = avg * adc.record_length * (1 if adc.bits == 8 else 2) * len(channels)
             pixel_s = avg * 2 * self.cfg.chirp.ramp_s + self.cfg.scan.settle_s
             batch_pix = max(1, min(n_pix, BATCH_BYTES // max(1, bytes_per_pix), int(SAFETY_CHECK_S / pixel_s)))
             while done < n_pix:
@@ -372,7 +402,7 @@ class LidarInstrument:
                     faults["resumes"] += 1
                     log.warning("scan: resuming from pixel %d of %d after %s", done, n_pix, exc)
                     try:
-                        cfgd = self._resume(pixels[done:], avg, adc)
+                        cfgd = self._resume(pixels[done:], avg, adc, channels)
                     except Exception as exc2:
                         raise ScanFailed(f"{_device_of(exc2)}: resume after '{exc}' failed: "
                                          f"{type(exc2).__name__}: {exc2}", result()) from exc2
@@ -393,15 +423,18 @@ class LidarInstrument:
                 if hw_t0 is None:
                     # after a resume the new run's clock continues where the last pixel read ended
                     hw_t0 = t_ns[0] - t_shift_s * 1e9
-                beat = samples[:, 0, :].reshape(bp, avg, adc.record_length)
+                # the record lists channels in the digitizer's order (channel bits), not ours
+                beat = samples[:, cfgd.channels.index("beat"), :].reshape(bp, avg, adc.record_length)
+                mzi_s = (samples[:, cfgd.channels.index("mzi"), :].reshape(bp, avg, adc.record_length)
+                         if pn_on else None)
                 t_pix = (t_ns.reshape(bp, avg)[:, 0] - hw_t0) * 1e-9
                 # a clipped beat puts harmonics and a wrong amplitude into the spectrum
                 over = np.array([h.overrange for h in headers], dtype=np.int64).reshape(bp, avg) != 0
                 clipped = over.any(axis=1)
                 faults["overrange_segments"] += int(over.sum())
                 faults["overrange_pixels"] += int(clipped.sum())
-                pending.append((beat, pixels[done:done + bp], t_pix, clipped))
-                pending_bytes[0] += beat.nbytes
+                pending.append((beat, pixels[done:done + bp], t_pix, clipped, mzi_s))
+                pending_bytes[0] += beat.nbytes * len(channels)
                 done += bp
                 hw_last = (t_ns[-1] - hw_t0) * 1e-9 + adc.record_length / adc.fs_hz
                 if pending_bytes[0] >= BATCH_BYTES or done >= n_pix:
@@ -437,7 +470,7 @@ class LidarInstrument:
         except Exception as exc:
             log.warning("digitizer abort after an early stop failed: %s", exc)
 
-    def _resume(self, rest: np.ndarray, avg: int, adc: _AdcPlan):
+    def _resume(self, rest: np.ndarray, avg: int, adc: _AdcPlan, channels: tuple[str, ...] = ("beat",)):
         """Stop what is left of the run and start a new acquisition for the pixels ``rest``."""
         try:
             self.fpsa.stop()
@@ -445,7 +478,7 @@ class LidarInstrument:
             log.warning("fpsa stop before resume failed: %s", exc)
         self.digitizer.abort()
         self._run_pattern(rest, avg)
-        cfgd = self.digitizer.configure(channels=("beat",), sample_rate_hz=adc.fs_hz,
+        cfgd = self.digitizer.configure(channels=channels, sample_rate_hz=adc.fs_hz,
                                         record_length=adc.record_length, segments=len(rest) * avg,
                                         bits=adc.bits, input_range_v=self.cfg.adc.input_range_v)
         self.digitizer.arm()

@@ -39,6 +39,8 @@ class ScanRequest:
     averages: int = 1
     max_range_m: float = 2.0
     formats: tuple[OutputFormat, ...] = ("ply",)
+    # None: the configuration's scan.phase_noise_compensation ("auto" | "on" | "off")
+    phase_noise_compensation: Literal["auto", "on", "off"] | None = None
 
 
 @dataclass
