@@ -62,3 +62,22 @@ def test_drop_sidelobes_pairs_equal_dense_on_random_candidates(zero_pad, monkeyp
     d = np.abs(others - k)
     ok = (d > null) & (d <= max_dist)
     assert np.any(p2[r, others[ok]] * env[d[ok] // zero_pad] * margin >= p2[r, k])
+
+
+@pytest.mark.parametrize("shape", [(3, 40), (2, 5, 33), (130, 50)])
+def test_os_noise_equals_a_per_cell_sort(shape):
+    # k-th smallest of the n_ref reference cells (guard cells skipped, mirrored at the edges)
+    rng = np.random.default_rng(sum(shape))
+    p = rng.exponential(1.0, shape)
+    n_side, guard, k = 4, 2, 6
+    noise, _ = cfar._noise_os(p, n_side, guard, 1e-4, k)
+    n = shape[-1]
+    mean_kth = np.sum(1.0 / np.arange(2 * n_side - k + 1, 2 * n_side + 1))
+    flat, got = p.reshape(-1, n), noise.reshape(-1, n)
+    for r in range(flat.shape[0]):
+        for i in range(n):
+            offs = [o for o in range(-guard - n_side, guard + n_side + 1) if abs(o) > guard]
+            j = [i + o for o in offs]
+            j = [-x if x < 0 else (2 * (n - 1) - x if x >= n else x) for x in j]  # reflect
+            want = np.sort(flat[r, j])[k - 1] / mean_kth
+            assert got[r, i] == pytest.approx(want, rel=1e-15)
