@@ -62,7 +62,7 @@ from drivers.usbtmc import DeviceDisconnected, DeviceStall, DeviceTimeout as Usb
 from .config import Config
 from .dsp.frame import FrameDsp
 from .dsp.ilc import linearize as ilc_linearize
-from .dsp.pnframe import compensator_for, process_compensated
+from .dsp.pnframe import compensator_for, gate_m_range
 from .dsp.rangefft import C_M_PER_S
 from .errors import LidardError
 from .instrument_api import (POINT_DTYPE, CalibrationResult, ScanProgress, ScanRequest, ScanResult)
@@ -294,7 +294,6 @@ class LidarInstrument:
         adc = self._adc_plan(max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on
                              else request.max_range_m)
         channels = ("beat", "mzi") if pn_on else ("beat",)
-        pn_info: list[Any] = []
         dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz,
                        chirp_rate_hz_per_s=self.cfg.chirp.rate_hz_per_s, wavelength_m=self.cfg.chirp.wavelength_m,
                        max_range_m=request.max_range_m, max_speed_mps=self.cfg.scan.max_speed_mps,
@@ -327,11 +326,7 @@ class LidarInstrument:
             mzi = np.concatenate([p[4] for p in pending]) if pn_on else None
             pending.clear()
             pending_bytes[0] = 0
-            if mzi is None:
-                res = dsp.process(beat, lsb)
-            else:
-                res, info = process_compensated(dsp, beat, mzi, lsb, mzi_delay_s=tau_m, mzi_lsb_v=lsb)
-                pn_info[:] = [info]
+            res = dsp.process(beat, lsb, mzi=mzi, mzi_delay_s=tau_m, mzi_lsb_v=lsb)
             chunks.append(self._points(res, px, t_pix, clipped))
 
         def result() -> ScanResult:
@@ -355,7 +350,7 @@ class LidarInstrument:
                 meta["dsp"]["phase_noise"] = {
                     "mzi_delay_s": tau_m, "mzi_beat_hz": comp.mzi_beat_hz, "m_max": comp.m_max,
                     # nearest M of the bins inside the range gate (0 = uncompensated near ranges)
-                    "m_range": ([pn_info[0].m_min_used, pn_info[0].m_max_used] if pn_info else None)}
+                    "m_range": list(gate_m_range(dsp, tau_m))}
             if safe is not None:
                 meta["safe_state"] = safe
             if stop_reason is not None:

@@ -98,8 +98,13 @@ class FrameDsp:
         hi = min(int(np.ceil(f_hi / df)) + 2, n_bins - 1)
         return lo, hi
 
-    def process(self, beat: np.ndarray, lsb_v: float = 1.0) -> FrameResult:
-        """``beat``: (n_pix, averages, 2 * ramp_samples) real samples (codes or volts)."""
+    def process(self, beat: np.ndarray, lsb_v: float = 1.0, *, mzi: np.ndarray | None = None,
+                mzi_delay_s: float | None = None, mzi_lsb_v: float = 1.0) -> FrameResult:
+        """``beat``: (n_pix, averages, 2 * ramp_samples) real samples (codes or volts).
+
+        ``mzi``: the monitor MZI recorded in the same segments (same shape): laser phase-noise
+        compensation (§2.3, :mod:`lidard.dsp.pnframe`) with the monitor delay ``mzi_delay_s``.
+        """
         x = np.asarray(beat)
         if x.ndim != 3 or x.shape[-1] < 2 * self.ramp_samples:
             raise ValueError(f"beat must be (n_pix, averages, >= {2 * self.ramp_samples}), got {x.shape}")
@@ -110,7 +115,12 @@ class FrameDsp:
         down = x[..., r + a:r + a + n].astype(np.float64) * lsb_v
         rf = self.rfft
         out_f, out_det = [], []
-        for ramp in (up, down):
+        if mzi is not None:     # same CFAR, estimator and pairing on the compensated spectrum
+            from .pnframe import compensated_front_end   # pnframe builds on this module
+            if mzi_delay_s is None:
+                raise ValueError("mzi given without mzi_delay_s (the monitor MZI delay)")
+            out_f, out_det = compensated_front_end(self, x, mzi, lsb_v, mzi_delay_s=mzi_delay_s, mzi_lsb_v=mzi_lsb_v)
+        for ramp in ((up, down) if mzi is None else ()):
             spec = rf(ramp)                                    # (n_pix, n_avg, n_bins)
             p = (spec.real**2 + spec.imag**2).mean(axis=1)     # incoherent average
             det = cfar_detect(p, method="os", pfa=self.pfa, max_detections=self.max_returns,

@@ -38,10 +38,9 @@ from scipy.signal import hilbert
 
 from .cfar import cfar_detect
 from .estimators import estimate
-from .frame import FrameDsp, FrameResult, _paired
+from .frame import FrameDsp, FrameResult
 from .instfreq import check_positive
 from .rangefft import C_M_PER_S
-from .velocity import pair_up_down
 from .window import DspInputError, get_window
 
 
@@ -236,10 +235,19 @@ def compensator_for(dsp: FrameDsp, mzi_delay_s: float) -> PhaseNoiseCompensator:
                                  chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s)
 
 
-def process_compensated(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
-                        mzi_delay_s: float, mzi_lsb_v: float = 1.0,
-                        comp: PhaseNoiseCompensator | None = None) -> tuple[FrameResult, CompensatedFrameInfo]:
-    """:meth:`FrameDsp.process` with phase-noise compensation from the monitor MZI recorded alongside.
+def gate_m_range(dsp: FrameDsp, mzi_delay_s: float) -> tuple[int, int]:
+    """Smallest and largest nearest-M over the bins a frame DSP searches (its gate plus Doppler)."""
+    comp = compensator_for(dsp, mzi_delay_s)
+    lo, hi = dsp.bin_range
+    m = comp.m_of_freq(np.arange(lo, hi + 1) * dsp.rfft.delta_f)
+    return int(m.min()), int(m.max())
+
+
+def compensated_front_end(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
+                          mzi_delay_s: float, mzi_lsb_v: float = 1.0,
+                          comp: PhaseNoiseCompensator | None = None) -> tuple[list, list]:
+    """Per ramp (up, down): refined beat frequencies (n_pix, K) and CFAR detections of the composite
+    compensated spectrum; :meth:`FrameDsp.process` pairs them as it pairs its own.
 
     ``beat``, ``mzi``: (n_pix, averages, >= 2 * ramp_samples), the same segments (same trigger).
     """
@@ -256,14 +264,12 @@ def process_compensated(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v:
     a, n, r = dsp.offset, dsp.n_used, dsp.ramp_samples
     rf = dsp.rfft
     w = get_window(dsp.window, n)
-    lo_bin, hi_bin = dsp._bin_range(rf)
+    lo_bin, hi_bin = dsp.bin_range
     out_f, out_det = [], []
-    m_used = None
     for r0 in (0, r):
         ramps = comp.prepare(x[..., r0:r0 + r].astype(np.float64) * lsb_v,
                              mz[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v, a, n)
         spec, m_of_bin = ramps.composite_spectrum(w, rf.n_fft)
-        m_used = m_of_bin[lo_bin:hi_bin + 1]
         p = (spec.real**2 + spec.imag**2).mean(axis=1)
         det = cfar_detect(p, method="os", pfa=dsp.pfa, max_detections=dsp.max_returns,
                           window=dsp.window, bin_range=(lo_bin, hi_bin))
@@ -274,21 +280,14 @@ def process_compensated(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v:
         frac = estimate(y, pb, method=dsp.estimator, window=dsp.window)
         out_f.append(frac.mean(axis=1) * rf.delta_f)
         out_det.append(det)
-    # The pairing and flagging below are FrameDsp.process's, unchanged (same inputs, same meaning).
-    du, dd = out_det
-    rng_m, vel, ok = pair_up_down(out_f[0], out_f[1], du.valid, dd.valid, dsp.chirp_rate_hz_per_s,
-                                  dsp.wavelength_m, iq=dsp.iq, max_speed_mps=dsp.max_speed_mps)
-    paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, dsp.max_speed_mps, dsp.wavelength_m)
-    present = (ok | paired_any) & du.valid
-    flagged = du.harmonic | du.unresolved
-    valid = ok & ~flagged
-    rng_fallback = C_M_PER_S * out_f[0] / (2 * dsp.chirp_rate_hz_per_s)
-    rng_m = np.where(ok, rng_m, rng_fallback)
-    intensity = 2.0 * np.sqrt(du.power)
-    in_gate = (rng_m >= dsp.min_range_m) & (rng_m <= dsp.max_range_m * 1.05)
-    present &= in_gate
-    res = FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
-                      snr_db=du.snr_db, intensity_v=intensity)
-    info = CompensatedFrameInfo(m_max=comp.m_max, m_min_used=int(m_used.min()), m_max_used=int(m_used.max()),
-                                mzi_beat_hz=comp.mzi_beat_hz)
-    return res, info
+    return out_f, out_det
+
+
+def process_compensated(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
+                        mzi_delay_s: float, mzi_lsb_v: float = 1.0) -> tuple[FrameResult, CompensatedFrameInfo]:
+    """``dsp.process(beat, lsb_v, mzi=mzi, ...)`` and which M the gate used."""
+    res = dsp.process(beat, lsb_v, mzi=mzi, mzi_delay_s=mzi_delay_s, mzi_lsb_v=mzi_lsb_v)
+    comp = compensator_for(dsp, mzi_delay_s)
+    m_lo, m_hi = gate_m_range(dsp, mzi_delay_s)
+    return res, CompensatedFrameInfo(m_max=comp.m_max, m_min_used=m_lo, m_max_used=m_hi,
+                                     mzi_beat_hz=comp.mzi_beat_hz)

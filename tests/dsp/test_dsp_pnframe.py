@@ -125,3 +125,13 @@ def test_bad_inputs_name_what_is_wrong():
                      max_range_m=160.0, use_fraction=0.95)
     with pytest.raises(DspInputError, match="start >="):
         process_compensated(short, beat, mzi, mzi_delay_s=TAU_M)
+
+
+def test_frame_dsp_takes_the_mzi_and_needs_its_delay():
+    dsp = _dsp(160.0)
+    beat, mzi = _segments(2, 1, 4 * TAU_M, 1 / (math.pi * 0.1e-6), seed=4, noise_v=0.5)
+    with pytest.raises(ValueError, match="mzi_delay_s"):
+        dsp.process(beat, mzi=mzi)
+    res = dsp.process(beat, mzi=mzi, mzi_delay_s=TAU_M)
+    assert res.valid[:, 0].all()
+    assert np.all(np.abs(res.range_m[:, 0] - C * 4 * TAU_M / 2) <= dsp.range_resolution_m)
