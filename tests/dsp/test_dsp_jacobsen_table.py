@@ -84,3 +84,14 @@ def test_frame_dsp_builds_its_range_fft_once():
     assert r1.present[:, 0].all()
     # a 1.2 MHz beat of a static target is at c f / (2 gamma) = 1.799 m
     np.testing.assert_allclose(r1.range_m[:, 0], 299_792_458.0 * 1.2e6 / 2e14, atol=2e-3)
+
+
+@pytest.mark.parametrize("rows,n,k", [(1, 8, 3), (61, 360, 19), (200, 360, 19), (7, 12_000, 21)])
+def test_blocked_moment_product_equals_the_plain_product(rows, n, k):
+    rng = np.random.default_rng(rows + n)
+    a = rng.normal(size=(rows, n))
+    b = rng.normal(size=(n, k))
+    want = np.einsum("ij,jk->ik", a, b)  # no BLAS: an independent summation
+    got = est._small_gemm(a, b)
+    assert got.shape == (rows, k)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.sqrt(n))
