@@ -197,16 +197,20 @@ class SwitchBank:
             raise ValueError(f"t0_s and t1_s must have the same length, got {t0.size} and {t1.size}")
         if sw1.size and (sw1.min() < 0 or sw1.max() >= self.n):
             raise ValueError(f"switch index outside 0..{self.n - 1}: {sw1.min()}..{sw1.max()}")
-        shape = (t0.size, sw1.size)
-        sw = np.broadcast_to(sw1[None, :], shape).ravel()
-        t0b = np.broadcast_to(t0[:, None], shape).ravel()
-        t1b = np.broadcast_to(t1[:, None], shape).ravel()
-        i0 = self._last_event(sw, t0b)
-        i1 = self._last_event(sw, t1b)
+        # Switch-major (S, W) layout: the rank of a time is shared by all switches, and with the
+        # windows in time order the query keys come sorted, which keeps searchsorted in cache.
+        shape = (sw1.size, t0.size)
+        base = (sw1 * self._stride)[:, None]
+        t0b = np.broadcast_to(t0[None, :], shape).ravel()
+        t1b = np.broadcast_to(t1[None, :], shape).ravel()
+        r0 = np.searchsorted(self._t_all, t0, side="right")
+        r1 = np.searchsorted(self._t_all, t1, side="right")
+        i0 = np.searchsorted(self._key, (base + r0).ravel(), side="right") - 1
+        i1 = np.searchsorted(self._key, (base + r1).ravel(), side="right") - 1
         a0, b0, _ = self._state(i0, t0b)
         a1, b1, _ = self._state(i1, t1b)
         on_inside = (self._cum_on[i1] - self._cum_on[i0]) > 0
-        return ((a0 + b0 > floor) | (a1 + b1 > floor) | on_inside).reshape(shape)
+        return ((a0 + b0 > floor) | (a1 + b1 > floor) | on_inside).reshape(shape).T
 
 
 def mean_path_transmission(rows: SwitchBank, row: np.ndarray, cols: SwitchBank, col: np.ndarray,
