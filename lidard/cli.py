@@ -242,6 +242,8 @@ def _scan_request_dict(args, fmt: str) -> dict[str, Any]:
         body["averages"] = args.averages
     if args.max_range is not None:
         body["max_range_m"] = args.max_range
+    if args.phase_noise is not None:
+        body["phase_noise_compensation"] = args.phase_noise
     return body
 
 
@@ -598,6 +600,8 @@ def build_lidarctl_parser() -> argparse.ArgumentParser:
     sp.add_argument("--cols", default=None, metavar="A:B", help="columns [A, B)")
     sp.add_argument("--averages", type=int, default=None)
     sp.add_argument("--max-range", type=float, default=None, help="m")
+    sp.add_argument("--phase-noise", choices=["auto", "on", "off"], default=None,
+                    help="laser phase-noise compensation from the monitor MZI (default: config scan.*)")
     sp.add_argument("--out", default=None, help="output FILE.ply|.las|.npz")
     sp.set_defaults(fn=cmd_scan)
 

@@ -99,7 +99,8 @@ def request_from_dict(d: dict[str, Any]) -> ScanRequest:
         cols=None if d.get("cols") is None else tuple(d["cols"]),
         pixels=None if d.get("pixels") is None else tuple(tuple(p) for p in d["pixels"]),
         averages=int(d.get("averages", 1)), max_range_m=float(d.get("max_range_m", 2.0)),
-        formats=tuple(d.get("formats", ("ply",))))
+        formats=tuple(d.get("formats", ("ply",))),
+        phase_noise_compensation=d.get("phase_noise_compensation"))
 
 
 @dataclasses.dataclass

@@ -34,6 +34,8 @@ class ScanCreate(_In):
     averages: StrictInt = Field(default=1, ge=1, le=100)
     max_range_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False, strict=True)
     formats: list[OutputFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=3)
+    # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
+    phase_noise_compensation: Literal["auto", "on", "off"] | None = None
 
     @field_validator("rows", "cols")
     @classmethod
@@ -61,7 +63,8 @@ class ScanCreate(_In):
         return ScanRequest(pattern=self.pattern, rows=self.rows, cols=self.cols,
                            pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
                            averages=self.averages, max_range_m=self.max_range_m,
-                           formats=tuple(self.formats))
+                           formats=tuple(self.formats),
+                           phase_noise_compensation=self.phase_noise_compensation)
 
 
 ScanState = Literal["queued", "running", "done", "failed", "cancelled", "interrupted"]

@@ -282,3 +282,18 @@ def test_linearize_device_fault_is_503_naming_the_device(make_client):
     inst.linearize = broken
     r = c.post("/calibration/linearize")
     assert r.status_code == 503 and "awg: drive waveform upload rejected" in r.json()["detail"]
+
+
+def test_phase_noise_compensation_choice_reaches_the_instrument(make_client):
+    c, inst, app = make_client()
+    sids = []
+    for choice in ("on", "off", None):
+        body = dict(SMALL) if choice is None else {**SMALL, "phase_noise_compensation": choice}
+        r = c.post("/scans", json=body)
+        assert r.status_code == 201, r.text
+        sids.append(r.json()["id"])
+    for sid in sids:
+        wait_done(app, sid)
+    assert [q.phase_noise_compensation for q in inst.requests] == ["on", "off", None]
+    r = c.post("/scans", json={**SMALL, "phase_noise_compensation": "sometimes"})
+    assert r.status_code == 422 and "phase_noise_compensation" in r.text

@@ -192,6 +192,21 @@ def test_scan_sim_writes_out_and_json(capsys, monkeypatch, tmp_path):
     assert err == ""  # no progress bar when stderr is not a terminal
 
 
+def test_scan_sim_phase_noise_option_reaches_the_request(capsys, monkeypatch, tmp_path):
+    made = []
+
+    def fake_open(cfg, **kw):
+        made.append(FakeInstrument(profile=cfg.profile))
+        return made[-1]
+    monkeypatch.setattr(cli, "_open_instrument", fake_open)
+    code, out, err = run(capsys, "scan", "--sim", "--profile", "fpsa20", "--rows", "0:2", "--cols", "0:2",
+                         "--phase-noise", "on", "--out", str(tmp_path / "pn.npz"), "--json")
+    assert code == 0, err
+    assert [q.phase_noise_compensation for q in made[0].requests] == ["on"]
+    code, out, err = run(capsys, "scan", "--sim", "--phase-noise", "maybe")
+    assert code != 0 and "--phase-noise" in err
+
+
 def test_scan_sim_bad_rows_is_one_line(capsys, monkeypatch):
     monkeypatch.setattr(cli, "_open_instrument", lambda cfg, **kw: FakeInstrument(profile=cfg.profile))
     code, out, err = run(capsys, "scan", "--sim", "--profile", "fpsa20", "--rows", "0:99")
