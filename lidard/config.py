@@ -257,6 +257,11 @@ class UsbDevice(_Model):
     timeout_s: PosFloat = 2.0
 
 
+class AwgDevice(UsbDevice):
+    # the output stage's limit |offset| + amplitude (docs/protocols/awg.md); no drive beyond it is sent
+    max_output_v: float = Field(default=5.0, gt=0, le=50)
+
+
 class ControllerDevice(_Model):
     host: str = "bench"
     port: int = Field(default=502, ge=0, le=65535)
@@ -269,7 +274,7 @@ class ControllerDevice(_Model):
 
 class Devices(_Model):
     fpsa: FpsaDevice = FpsaDevice()
-    awg: UsbDevice = UsbDevice()
+    awg: AwgDevice = AwgDevice()
     digitizer: UsbDevice = UsbDevice()
     controller: ControllerDevice = ControllerDevice()
 

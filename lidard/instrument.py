@@ -70,9 +70,9 @@ from .physics.chirp import adc_rate_hz, triangle_drive_v
 from .scan import plan
 
 AWG_RATE_HZ = 100e6          # drive samples: 16,000 per 160 us period
-# The AWG's output stage: |offset| + amplitude <= 5 V (docs/protocols/awg.md), i.e. |drive| <= 5 V.
-# No drive beyond it is ever uploaded: the ILC is capped at it and _load_drive refuses first.
-AWG_OUTPUT_MAX_V = 5.0
+# The AWG's output stage: |offset| + amplitude <= devices.awg.max_output_v (default 5 V,
+# docs/protocols/awg.md), i.e. |drive| <= that. No drive beyond it is ever uploaded: the ILC is capped at
+# it and _load_drive refuses first.
 BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
 # Hardware time per read: the interlock/fault flags are read between reads, so this bounds the
 # host's reaction time (the controller's own hardware interlock drops the outputs at once anyway).
@@ -241,14 +241,13 @@ class LidarInstrument:
     def _load_drive(self, drive_v: np.ndarray) -> None:
         d = np.asarray(drive_v, dtype=np.float64)
         peak = float(np.max(np.abs(d))) if d.size else 0.0
-        if not (d.ndim == 1 and d.size >= 2 and np.all(np.isfinite(d)) and peak <= AWG_OUTPUT_MAX_V):
+        limit = self.cfg.devices.awg.max_output_v
+        if not (d.ndim == 1 and d.size >= 2 and np.all(np.isfinite(d)) and peak <= limit):
             raise InstrumentError(f"awg: refusing drive waveform (shape {d.shape}, peak {peak:.4g} V): it must be "
-                                  f"finite and within the output range of +-{AWG_OUTPUT_MAX_V:g} V; nothing uploaded")
+                                  f"finite and within the output range of +-{limit:g} V "
+                                  "(devices.awg.max_output_v); nothing uploaded")
         self.awg.output(False)
         self.awg.set_sample_rate(AWG_RATE_HZ)
-        # offset 0 first: the driver sets the new amplitude before the new offset, and the old offset
-        # with the new amplitude can exceed |offset| + amplitude <= 5 V although both drives fit
-        self.awg.set_offset(0.0)
         self.awg.upload_waveform(d, units="volts")
         self.awg.set_trigger_external(True)
         self.awg.output(True)
@@ -623,7 +622,7 @@ class LidarInstrument:
 
             res = ilc_linearize(measure, self._plain_drive(), fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=fs,
                                 ramp_s=c.ramp_s, excursion_hz=c.excursion_hz, mzi_delay_s=tau_m, averages=32,
-                                max_drive_v=AWG_OUTPUT_MAX_V)
+                                max_drive_v=self.cfg.devices.awg.max_output_v)
         finally:
             self._bring_down()
         iters = [{"up_rms_hz": float(it["up_rms_hz"]), "down_rms_hz": float(it["down_rms_hz"])}

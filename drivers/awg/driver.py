@@ -280,6 +280,10 @@ class AwgDriver:
             if amp <= 0:
                 raise InvalidArgument("awg waveform in volts is constant: amplitude would be 0 V")
             s = np.clip((s - off) / amp, -1.0, 1.0)
+            # The output stage checks |offset| + amplitude on every setting, so go through offset 0:
+            # (0, old amp) and (0, new amp) are valid whenever the old and the new settings are, while
+            # (old offset, new amp) need not be.
+            self.set_offset(0.0)
             self.set_amplitude(amp)
             self.set_offset(off)
         elif units != "normalized":

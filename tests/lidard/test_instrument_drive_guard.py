@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from lidard.config import CONFIG_DIR, load_config
-from lidard.instrument import AWG_OUTPUT_MAX_V, InstrumentError, open_instrument
+from lidard.instrument import InstrumentError, open_instrument
+
+AWG_OUTPUT_MAX_V = 5.0      # docs/protocols/awg.md; the default of devices.awg.max_output_v
 
 
 @pytest.fixture(scope="module")
@@ -44,3 +46,12 @@ def test_any_drive_within_the_range_loads_after_any_other(inst):
         assert got.shape == d.shape
         assert np.max(np.abs(got - d)) <= 2 * (hi - lo) / 65534 + 1e-9      # 16-bit codes
         assert abs(bench.awg.offset_v) + bench.awg.amplitude_v <= AWG_OUTPUT_MAX_V + 1e-9
+
+
+def test_the_drive_limit_follows_the_configuration(inst, monkeypatch):
+    assert inst.cfg.devices.awg.max_output_v == AWG_OUTPUT_MAX_V
+    d = inst.cfg.devices
+    lower = d.model_copy(update={"awg": d.awg.model_copy(update={"max_output_v": 2.0})})
+    monkeypatch.setattr(inst, "cfg", inst.cfg.model_copy(update={"devices": lower}))
+    with pytest.raises(InstrumentError, match=r"\+-2 V \(devices.awg.max_output_v\)"):
+        inst._load_drive(_triangle(-1.0, 2.5))

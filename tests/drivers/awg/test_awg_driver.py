@@ -57,6 +57,19 @@ def test_upload_in_volts_sets_amplitude_and_offset(awg_pair):
     assert np.max(np.abs(volts - v)) < 0.3 / 32767
 
 
+def test_volts_upload_after_a_far_offset_goes_through_offset_zero(awg_pair):
+    # old setting 4.0 V +- 0.5 V, new 0 V +- 4.5 V: both fit the 5 V output stage, but the new amplitude
+    # with the old offset (8.5 V) does not, so a naive amplitude-then-offset order is refused (-222)
+    drv, sim = awg_pair
+    drv.upload_waveform(4.0 + 0.5 * np.sin(np.linspace(0, 2 * np.pi, 501)), units="volts")
+    assert sim.offset_v == pytest.approx(4.0) and sim.amplitude_v == pytest.approx(0.5)
+    v = 4.5 * np.sin(np.linspace(0, 2 * np.pi, 501))
+    drv.upload_waveform(v, units="volts")
+    assert sim.offset_v == pytest.approx(0.0, abs=1e-9) and sim.amplitude_v == pytest.approx(4.5, rel=1e-6)
+    volts, _ = sim.drive_volts()
+    assert np.max(np.abs(volts - v)) < 4.5 / 32767 * 2
+
+
 def test_large_waveform_is_split_into_several_transfers(awg_pair):
     drv, sim = awg_pair
     rng = np.random.default_rng(7)
