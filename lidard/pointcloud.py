@@ -45,6 +45,16 @@ class PointCloudError(ValueError):
     """A point-cloud file cannot be written or read; the message names the file and the problem."""
 
 
+def _read_umask() -> int:
+    # Reading the umask means setting it; do it once, at import, not while worker threads create files.
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
     """Yield a binary file in ``path``'s directory; on success fsync and ``os.replace`` it into place.
@@ -58,6 +68,8 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
         with os.fdopen(fd, "wb") as f:
             yield f
             f.flush()
+            # mkstemp makes the file 0600; a point cloud gets the permissions of any new file
+            os.fchmod(f.fileno(), 0o666 & ~_UMASK)
             os.fsync(f.fileno())
         os.replace(tmp, target)
     except BaseException:

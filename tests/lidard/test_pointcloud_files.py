@@ -124,3 +124,15 @@ def test_atomic_write_failure_keeps_previous_version(tmp_path, monkeypatch):
 def test_wrong_dtype_rejected(tmp_path):
     with pytest.raises(pc.PointCloudError, match="POINT_DTYPE"):
         pc.write_ply(tmp_path / "a.ply", np.zeros(3))
+
+
+def test_written_files_get_ordinary_permissions_not_mkstemps_0600(tmp_path, monkeypatch):
+    monkeypatch.setattr(pc, "_UMASK", 0o022)
+    target = tmp_path / "perm.bin"
+    with pc.atomic_write(target) as f:
+        f.write(b"x")
+    assert (target.stat().st_mode & 0o777) == 0o644
+    monkeypatch.setattr(pc, "_UMASK", 0o077)
+    with pc.atomic_write(target) as f:
+        f.write(b"y")
+    assert (target.stat().st_mode & 0o777) == 0o600
