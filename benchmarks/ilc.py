@@ -23,7 +23,7 @@ TAU_M = Monitor().delay_s
 DISSERTATION = {"reduction_up": 140.0, "reduction_down": 600.0, "iterations": 14}
 
 
-def _run(preset, seed=1, averages=128, max_iter=10):
+def _run(preset, seed=1, averages=128, max_iter=14):
     laser = DfbLaser(preset)
     rng = np.random.default_rng(seed)
     n = int(2 * RAMP_S * FS)

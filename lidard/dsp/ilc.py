@@ -365,7 +365,7 @@ def _directions(u: np.ndarray) -> tuple[int, int]:
 
 
 def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
-              excursion_hz: float, mzi_delay_s: float, beta: float = 0.8, max_iter: int = 10,
+              excursion_hz: float, mzi_delay_s: float, beta: float = 0.8, max_iter: int = 14,
               roi: float = 0.8, averages: int = 128, learn: float = 0.92,
               q_cutoff_hz: float = 1.0e6, meas_cutoff_hz: float = 400e3,
               rel_tol: float = 0.02, grow_tol: float = 0.2, min_beta: float = 0.05,
