@@ -622,6 +622,7 @@ class LidarInstrument:
 
             res = ilc_linearize(measure, self._plain_drive(), fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=fs,
                                 ramp_s=c.ramp_s, excursion_hz=c.excursion_hz, mzi_delay_s=tau_m, averages=32,
+                                max_averages=512,
                                 max_drive_v=self.cfg.devices.awg.max_output_v)
         finally:
             self._bring_down()

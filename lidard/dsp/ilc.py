@@ -83,7 +83,8 @@ class IlcIteration:
     ``up_error_hz``/``down_error_hz``: RMS error against the ideal chirp (what is learned);
     ``noise_floor_hz``: estimated measurement-noise contribution to the RMS nonlinearity (NaN if n_avg < 2);
     ``beta``: the learning gain used for the update that *follows* this measurement;
-    ``accepted``: False if this drive made the error grow and was rolled back.
+    ``accepted``: False if this drive made the error grow and was rolled back;
+    ``averages``: the periods averaged (more when the noise floor stopped learning early).
     """
 
     index: int
@@ -96,6 +97,7 @@ class IlcIteration:
     beta: float
     phase_slips: int
     accepted: bool
+    averages: int = 0          # periods averaged for this measurement
 
     def __getitem__(self, key: str):  # allow it["up_rms_hz"] as in the task's dict notation
         return getattr(self, key)
@@ -371,7 +373,8 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
               rel_tol: float = 0.02, grow_tol: float = 0.2, min_beta: float = 0.05,
               abs_tol_frac: float = 1e-6, refine: bool = True,
               update: Literal["inverse", "scalar"] = "inverse", max_drive_factor: float = 4.0,
-              max_drive_v: float | None = None) -> IlcResult:
+              max_drive_v: float | None = None, max_averages: int | None = None,
+              target_frac: float = 2e-5) -> IlcResult:
     """Iteratively pre-distort ``drive0_v`` so that the MZI-measured chirp becomes linear (§2.2).
 
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
@@ -379,6 +382,12 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     each aligned with the start of the drive period. Stops when the nonlinearity reaches twice the
     measured noise floor or stops improving by ``rel_tol``; a step whose error grows by more than
     ``grow_tol`` is rolled back and beta halved. Returns the best drive seen.
+
+    Averaging: when the noise floor stops it while the nonlinearity is still above ``target_frac`` of
+    the excursion, the same drive is measured again with twice the averages (up to ``max_averages``;
+    default: no growth) and learning goes on. A broad-linewidth laser on a long MZI needs this: its
+    averaged beat shrinks by exp(-pi linewidth tau_m) while the noise does not, and a narrow laser
+    never pays for it.
     """
     if not callable(measure):
         raise TypeError("measure must be callable as measure(drive_v, n_avg)")
@@ -404,6 +413,12 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
         raise ValueError(f"max_drive_v must be a finite voltage > 0, got {max_drive_v!r}")
     if int(averages) != averages or averages < 1:
         raise ValueError(f"averages must be a positive integer, got {averages!r}")
+    max_avg = int(averages) if max_averages is None else max_averages
+    if int(max_avg) != max_avg or max_avg < averages:
+        raise ValueError(f"max_averages must be an integer >= averages ({averages}), got {max_averages!r}")
+    if not (math.isfinite(target_frac) and target_frac >= 0):
+        raise ValueError(f"target_frac must be finite and >= 0, got {target_frac!r}")
+    n_avg = [int(averages)]                # grows when the noise floor stops learning too early
     n_drive = 2 * ramp_s * fs_drive_hz
     if abs(n_drive - u0.size) > 0.5:
         raise ValueError(f"drive0_v has {u0.size} samples; one period 2 ramp_s fs_drive_hz is {n_drive:g}")
@@ -414,7 +429,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
         raise ValueError(f"MZI beat {an.f_beat:g} Hz gives < 10 fringes per ramp: mzi_delay_s too short")
 
     def run(u: np.ndarray) -> _Analysis:
-        y = np.asarray(measure(u.copy(), int(averages)), dtype=np.float64)
+        y = np.asarray(measure(u.copy(), n_avg[0]), dtype=np.float64)
         if y.ndim == 1:
             y = y[None, :]
         if y.ndim != 2 or y.shape[1] != an.n_adc:
@@ -454,11 +469,23 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
                     best_u, best_a, best_k = u, a, k
         iters.append(IlcIteration(index=k, up_rms_hz=a.rms[0], down_rms_hz=a.rms[1], up_error_hz=a.err_rms[0],
                                   down_error_hz=a.err_rms[1], noise_floor_hz=a.noise, tuning_hz_per_v=a.tuning,
-                                  beta=b, phase_slips=a.slips, accepted=accepted))
+                                  beta=b, phase_slips=a.slips, accepted=accepted, averages=n_avg[0]))
         if k == 0 and max(a.rms) <= abs_tol_frac * excursion_hz:
             converged, reason = True, "already linear: nonlinearity below abs_tol_frac of the excursion"
             break
         if k > 0 and accepted:
+            while (math.isfinite(a.noise) and max(a.rms) <= 2.0 * a.noise
+                   and max(a.rms) > target_frac * excursion_hz and 2 * n_avg[0] <= max_avg):
+                n_avg[0] *= 2                  # the same drive, measured with less noise
+                a = run(u)
+                slips += a.slips
+                cur_a = a
+                if _norm(a.err_rms) <= _norm(best_a.err_rms) or best_k == k:
+                    best_u, best_a, best_k = u, a, k
+                iters[-1] = replace(iters[-1], up_rms_hz=a.rms[0], down_rms_hz=a.rms[1],
+                                    up_error_hz=a.err_rms[0], down_error_hz=a.err_rms[1],
+                                    noise_floor_hz=a.noise, tuning_hz_per_v=a.tuning, phase_slips=a.slips,
+                                    averages=n_avg[0])
             if math.isfinite(a.noise) and max(a.rms) <= 2.0 * a.noise:
                 converged, reason = True, "reached the measurement noise floor"
                 break
@@ -504,5 +531,5 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     return IlcResult(drive_v=best_u, iterations=iters, reduction=red, converged=converged,
                      tuning_hz_per_v=best_a.tuning, best_iteration=best_k, phase_slips=slips,
                      stop_reason=reason,
-                     meta={"meas_cutoff_hz": meas_cutoff_hz, "q_cutoff_hz": q_cutoff_hz, "averages": averages,
+                     meta={"meas_cutoff_hz": meas_cutoff_hz, "q_cutoff_hz": q_cutoff_hz, "averages": n_avg[0],
                            "roi": roi, "learn": learn, "mzi_beat_hz": an.f_beat})

@@ -303,6 +303,26 @@ def test_broad_linewidth_at_the_shipped_delay_needs_the_narrow_band_refinement()
     assert res.converged and len(res.iterations) - 1 <= 10
 
 
+def test_noise_floor_too_early_doubles_the_averages_not_for_a_narrow_laser():
+    """32 averages stop a broad-linewidth laser at its noise floor far above the goal; with room to
+    average more (max_averages) the same drive is re-measured with 2x, 4x ... the periods and learning
+    goes on. A narrow laser reaches its goal at 32 and never pays for more."""
+    tau_m = 200e-9
+    fixed = run(Bench("dfb_broad_linewidth", seed=13, tau_m=tau_m), averages=32)
+    b = Bench("dfb_broad_linewidth", seed=13, tau_m=tau_m)
+    grown = run(b, averages=32, max_averages=512)
+    assert {it.averages for it in fixed.iterations} == {32}
+    assert max(it.averages for it in grown.iterations) >= 64
+    assert [it.averages for it in grown.iterations] == sorted(it.averages for it in grown.iterations)
+    assert grown.meta["averages"] == grown.iterations[-1].averages
+    assert min(grown.reduction.values()) > 3 * min(fixed.reduction.values())
+    assert np.max(true_rms(b, grown.drive_v)) < np.max(true_rms(b, fixed.drive_v)) / 3
+    narrow = run(Bench("dfb_default", seed=13, tau_m=tau_m), averages=32, max_averages=512)
+    assert {it.averages for it in narrow.iterations} == {32} and narrow.converged
+    with pytest.raises(ValueError, match="max_averages"):
+        run(Bench("dfb_default", tau_m=tau_m), averages=32, max_averages=16)
+
+
 # --- pitfall: the optical chirp turns after the drive does (slow thermal tail): the beat folds ------
 def test_fold_after_a_late_optical_turn_is_unfolded():
     """dfb_slow_thermal with a plain triangle: the optical chirp keeps going the old way for ~3.5 us
