@@ -221,7 +221,9 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
     s.markdown = (
         "`benchmarks.ilc.convergence(preset, seed=1)` per preset: RMS nonlinearity over the ROI as the daemon "
         "measures it through the monitor MZI, per iteration; the true residual (RMS over the ROI / excursion) comes "
-        f"from the laser model's nu(t). Monitor MZI delay {runs[0].get('mzi_delay_s', float('nan')) * 1e9:.0f} ns.\n\n"
+        f"from the laser model's nu(t). Monitor MZI delay {runs[0].get('mzi_delay_s', float('nan')) * 1e9:.0f} ns; "
+        "32 averaged periods per measurement, doubled (up to 512) when the noise floor stops learning above "
+        "2e-5 of the excursion, as the instrument does.\n\n"
         + table(["preset", "plain triangle RMS / swing", "reduction up", "reduction down", "iterations",
                  "true residual up", "true residual down", "converged", "stop"], rows)
         + f"| dissertation §2.2 (Fig. 2-4) | | {ILC_PAPER['up']:.0f}x | {ILC_PAPER['down']:.0f}x | "
