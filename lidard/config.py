@@ -315,6 +315,8 @@ class Daemon(_Model):
     data_dir: str = "~/.local/share/lidard"
     # request body limit of the REST API (413 above it); scene uploads are the largest bodies
     max_body_bytes: int = Field(default=1 << 20, ge=1024, le=1 << 30)
+    # the control lock's lease lapses this long after the holder's last request (POST /control)
+    lease_ttl_s: float = Field(default=300.0, gt=0, le=86_400)
 
 
 class Config(_Model):

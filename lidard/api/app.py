@@ -25,7 +25,7 @@ from ..instrument_api import Instrument
 from ..jobs import ScanWorker, software_version
 from ..store import Store
 from . import control
-from .control import DEFAULT_LEASE_TTL_S, BodySizeLimit, ControlLock, LockHeld
+from .control import BodySizeLimit, ControlLock, LockHeld
 from .routers import calibration, devices, health, scans, selftest, sim
 
 log = logging.getLogger(__name__)
@@ -33,12 +33,13 @@ log = logging.getLogger(__name__)
 
 def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str | Path | None = None,
                *, token: str | None = None, max_queue: int = 16, progress_interval_s: float = 0.25,
-               close_instrument: bool = True, lease_ttl_s: float = DEFAULT_LEASE_TTL_S,
+               close_instrument: bool = True, lease_ttl_s: float | None = None,
                clock: Callable[[], float] = time.monotonic, max_body_bytes: int | None = None) -> FastAPI:
     """Build the daemon's app.
 
     ``token``: when set, mutating requests (POST/PUT/PATCH/DELETE) need ``Authorization: Bearer``;
-    reads stay open. ``lease_ttl_s``/``clock``: the control lock (lidard.api.control).
+    reads stay open. ``lease_ttl_s`` (default ``cfg.daemon.lease_ttl_s``)/``clock``: the control lock
+    (lidard.api.control).
     ``max_body_bytes``: request body limit (413 above it), default ``cfg.daemon.max_body_bytes``.
     """
 
@@ -76,7 +77,8 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
     app = FastAPI(title="lidard", version=software_version(), lifespan=lifespan,
                   description="Control daemon for an FMCW LiDAR with a MEMS FPSA beam scanner",
                   dependencies=[Depends(control.guard(token))])
-    app.state.control_lock = ControlLock(ttl_s=lease_ttl_s, clock=clock)
+    app.state.control_lock = ControlLock(ttl_s=cfg.daemon.lease_ttl_s if lease_ttl_s is None else lease_ttl_s,
+                                         clock=clock)
     app.add_middleware(BodySizeLimit, max_body_bytes=int(
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)

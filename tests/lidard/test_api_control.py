@@ -12,7 +12,7 @@ from lidard_fakes import FakeInstrument  # noqa: E402
 
 from lidard.api.app import create_app  # noqa: E402
 from lidard.api.control import LEASE_HEADER, ControlLock, LockHeld  # noqa: E402
-from lidard.config import load_config  # noqa: E402
+from lidard.config import ConfigError, load_config  # noqa: E402
 
 SMALL = {"pattern": "roi", "rows": [0, 1], "cols": [0, 4]}
 TTL = 60.0
@@ -246,3 +246,14 @@ def test_lidarctl_accepts_a_lease_that_starts_with_a_dash(live, capsys, monkeypa
     assert ex.value.code != 0 and "--lease" in capsys.readouterr().err
     code, out, err = lidarctl(capsys, "control", "release", "--url", url, "--lease", lease)
     assert code == 0 and "free" in out, err
+
+
+def test_lease_ttl_comes_from_the_config(tmp_path, monkeypatch):
+    monkeypatch.setenv("LIDARD__DAEMON__LEASE_TTL_S", "42")
+    cfg = load_config()
+    assert cfg.daemon.lease_ttl_s == 42.0
+    with TestClient(create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path)) as c:
+        assert c.get("/control").json()["ttl_s"] == 42.0
+    monkeypatch.setenv("LIDARD__DAEMON__LEASE_TTL_S", "-1")
+    with pytest.raises(ConfigError, match="lease_ttl_s"):
+        load_config()
