@@ -152,7 +152,8 @@ def run_reliability(sweep: int = 10) -> dict[str, Any]:
                 lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("usb_disconnect", device="digitizer")))
             row("digitizer_overrange", "gain 2000", lambda: inst.inject_fault("digitizer_overrange", gain=2000))
             row("modbus_exception", "code 6 (busy) x2", lambda: inst.inject_fault("modbus_exception", code=6, n=2))
-            row("modbus_exception", "code 4 (device failure) x1", lambda: inst.inject_fault("modbus_exception", code=4, n=1))
+            row("modbus_exception", "code 4 (device failure) x2 (temperature check, bring-up)",
+                lambda: inst.inject_fault("modbus_exception", code=4, n=2))
             row("modbus_timeout", "2 responses", lambda: inst.inject_fault("modbus_timeout", n=2))
             row("interlock_open", "first read done (pixel >= 100) + 4 ms", None,
                 lambda: _at_pixel(rig, 100, lambda: inst.inject_fault("interlock_open", at_s=rig.bench.clock.now() + 0.004)))

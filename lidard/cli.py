@@ -332,7 +332,7 @@ def _embedded(args, **open_kw):
                 "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
         worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1,
-                            optics=optics)
+                            optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
         worker.start()
         try:
             yield worker, store, inst

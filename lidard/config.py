@@ -244,6 +244,9 @@ class ScanDefaults(_Model):
     # that the daemon cannot know the laser's coherence time and the MZI channel doubles the data
     # for little gain. "on"/"off" force it.
     phase_noise_compensation: Literal["auto", "on", "off"] = "auto"
+    # A stored chirp linearization is reused only while the laser's TEC temperature stays within this
+    # of the temperature it was made at: a DFB's tuning (and so the learned drive) moves with it.
+    recalibrate_delta_c: float = Field(default=0.5, gt=0, le=50)
 
 
 class FpsaDevice(_Model):

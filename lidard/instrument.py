@@ -164,6 +164,14 @@ class LidarInstrument:
             except Exception as exc:  # reported by devices(); a scan will fail with the cause
                 self._identity[name] = f"unreachable: {exc}"
 
+    def laser_temperature_c(self) -> float:
+        with self._lock:
+            try:
+                return float(self.controller.tec_c())
+            except Exception as exc:   # the caller decides what an unknown temperature means
+                log.warning("controller: TEC temperature unreadable: %s", exc)
+                return float("nan")
+
     def devices(self) -> list[dict[str, Any]]:
         """Per device: connected true/false and the cause. A device that does not answer is
         reconnected once (serial port reopened, USB device re-found, Modbus reconnected) and asked

@@ -104,6 +104,9 @@ class Instrument(Protocol):
     def linearize(self, progress: Callable[[dict[str, Any]], None] | None = None) -> CalibrationResult:
         """Run the ILC chirp linearization through the monitor MZI."""
 
+    def laser_temperature_c(self) -> float:
+        """The laser's TEC temperature readback now (NaN when it cannot be read)."""
+
     def selftest(self) -> dict[str, Any]:
         """Toggle every bonded row and every column against the monitor tap; report stuck switches:
         ``{"ok": bool, "stuck": [{"line": "row"|"col", "index", "state": "on"|"off", "evidence"}],

@@ -8,8 +8,9 @@ Policy (also in docs/api.md):
 
 * FIFO, one job at a time; at most ``max_queue`` jobs waiting (:class:`QueueFull` otherwise; the API
   answers 503).
-* A scan uses the newest stored calibration of the configured laser; with none, the worker runs
-  ``instrument.linearize()`` first and stores the result.
+* A scan uses the newest stored calibration of the configured laser; with none, or when the laser's
+  TEC temperature is now more than ``recalibrate_delta_c`` (``scan.recalibrate_delta_c``) away from the
+  calibration's, the worker runs ``instrument.linearize()`` first and stores the result.
 * Cancel: a queued scan becomes ``cancelled`` at once; a running scan's cancel event is set, the
   instrument returns the points so far, which are written and marked ``partial``.
 * Failure: the state becomes ``failed`` and ``error`` holds the exception type, message and cause
@@ -34,6 +35,7 @@ import collections
 import concurrent.futures
 import dataclasses
 import logging
+import math
 import threading
 import time
 from importlib import metadata
@@ -127,7 +129,7 @@ class ScanWorker:
     def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
                  progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
                  pixels_planned: Callable[[ScanRequest], int] | None = None,
-                 optics: FpsaOptics | None = None):
+                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5):
         self.instrument = instrument
         self.store = store
         self.laser = laser
@@ -138,6 +140,7 @@ class ScanWorker:
         if pixels_planned is None and optics is not None:
             self._pixels_planned = lambda req: planned_pixel_count(req, optics)
         self.optics = optics
+        self.recalibrate_delta_c = float(recalibrate_delta_c)
         self._cv = threading.Condition()
         self._queue: collections.deque = collections.deque()
         self._jobs: dict[str, _ScanJob] = {}
@@ -326,9 +329,27 @@ class ScanWorker:
         except Exception as exc:
             job.future.set_exception(exc)
 
+    def _stale_reason(self, cal: CalibrationResult) -> str | None:
+        """Why a stored calibration must not be reused (the laser's temperature moved), or None."""
+        try:
+            now_c = float(self.instrument.laser_temperature_c())
+        except Exception as exc:
+            log.warning("laser temperature unreadable (%s); reusing calibration %s", exc, cal.meta.get("id"))
+            return None
+        then_c = float(cal.temperature_c)
+        if not (math.isfinite(now_c) and math.isfinite(then_c)):
+            return None
+        if abs(now_c - then_c) > self.recalibrate_delta_c:
+            return (f"laser at {now_c:.2f} C, calibration {cal.meta.get('id')} made at {then_c:.2f} C "
+                    f"(more than {self.recalibrate_delta_c:g} C apart)")
+        return None
+
     def _calibration(self, job: _ScanJob) -> CalibrationResult:
         cal = self.store.latest_calibration(self.laser)
-        if cal is None:
+        stale = None if cal is None else self._stale_reason(cal)
+        if stale is not None:
+            log.info("re-linearizing: %s", stale)
+        if cal is None or stale is not None:
             self.store.update_scan(job.id, stage="linearizing")
             self._publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
                                    "pixels_done": 0, "pixels_planned": 0, "points": 0,

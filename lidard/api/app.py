@@ -59,7 +59,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
         worker = ScanWorker(inst, store, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=meta,
-                            optics=optics)
+                            optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
         app.state.config, app.state.instrument, app.state.store = cfg, inst, store
         app.state.worker, app.state.optics = worker, optics
         worker.start()

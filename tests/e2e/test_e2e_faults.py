@@ -232,7 +232,9 @@ def test_modbus_busy_is_retried_with_backoff(r):
 
 
 def test_modbus_device_failure_is_a_clean_failure_naming_the_controller(r):
-    r["inst"].inject_fault("modbus_exception", code=4, n=1)
+    # the worker's first controller request is the TEC temperature read that decides whether the stored
+    # calibration still holds (an unreadable temperature keeps it); the second, the scan's bring-up, fails
+    r["inst"].inject_fault("modbus_exception", code=4, n=2)
     rec = _scan(r)
     assert rec.state == "failed"
     assert "controller" in rec.error.lower() or "DeviceFailure" in rec.error

@@ -35,6 +35,10 @@ class FakeInstrument:
         self.linearize_calls = 0
         self.scenes = []
         self.closed = False
+        self.temperature_c = 25.0            # the TEC readback laser_temperature_c() reports
+
+    def laser_temperature_c(self):
+        return self.temperature_c
 
     def devices(self):
         return [{"name": n, "connected": True, "identity": f"fake-{n}", "state": "ready", "faults": []}
@@ -48,7 +52,7 @@ class FakeInstrument:
         return CalibrationResult(
             iterations=[{"up_rms_hz": 4e6, "down_rms_hz": 5e6}, {"up_rms_hz": 4e4, "down_rms_hz": 1e5}],
             reduction={"up": 100.0, "down": 50.0}, converged=True, laser="dfb_default",
-            temperature_c=25.0, drive_v=np.linspace(-1, 1, 64), fs_drive_hz=1e8)
+            temperature_c=self.temperature_c, drive_v=np.linspace(-1, 1, 64), fs_drive_hz=1e8)
 
     def run_scan(self, request, progress, cancel, calibration=None):
         self.requests.append(request)

@@ -210,3 +210,29 @@ def test_adaptive_scan_runs_coarse_then_dense_where_returns_were(tmp_path):
     # the dense pass's times follow the coarse pass's
     assert pts["t"].max() >= 25 * 100e-6
     assert [e["event"] for e in events][-1] == "end"
+
+
+def test_calibration_is_redone_when_the_laser_temperature_moved(tmp_path):
+    """A DFB's tuning moves with its temperature: a stored drive is reused within recalibrate_delta_c
+    of the temperature it was learned at and re-learned beyond it (the new one is stored)."""
+    inst = FakeInstrument()
+    store = Store(tmp_path)
+    w = ScanWorker(inst, store, laser="dfb_default", progress_interval_s=0.0, recalibrate_delta_c=0.5)
+    w.start()
+    try:
+        def scan():
+            assert w.wait(w.submit_scan(ScanRequest(**SMALL)).id, T).state == "done"
+        scan()                                  # no calibration yet: learn at 25.0 C
+        inst.temperature_c = 25.4
+        scan()                                  # 0.4 C away: reused
+        assert inst.linearize_calls == 1
+        inst.temperature_c = 25.6
+        scan()                                  # 0.6 C away: learned again, at 25.6 C
+        assert inst.linearize_calls == 2
+        assert store.latest_calibration("dfb_default").temperature_c == pytest.approx(25.6)
+        inst.temperature_c = float("nan")       # unreadable: the newest calibration is used
+        scan()
+        assert inst.linearize_calls == 2
+        assert inst.calibrations_used[-1].temperature_c == pytest.approx(25.6)
+    finally:
+        w.stop()
