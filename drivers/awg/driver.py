@@ -31,6 +31,7 @@ import usb.core
 
 from drivers import usbtmc
 from drivers.awg import protocol as p
+from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
     DeviceTimeout,
@@ -118,27 +119,11 @@ class AwgDriver:
 
         Tries ``retries + 1`` times with exponential backoff; ``DeviceDisconnected`` if it stays away.
         """
-        if self._finder is None:
-            raise DeviceDisconnected(DEVICE, command, "device disconnected and no finder to look for it")
-        cause = "not found on the bus"
-        for k in range(self._retries + 1):
-            if k:
-                self._sleep(self._backoff_s * 2 ** (k - 1))
-            try:
-                dev = self._finder()
-                if dev is None:
-                    continue
-                dev.set_configuration()
-            except usb.core.USBError as exc:
-                cause = f"{classify_usb_error(exc, DEVICE, 'set_configuration')}"
-                continue
-            self._dev = dev
-            self._btag = 0
-            self.reconnect_count += 1
-            log.warning("awg: reconnected after %s", command)
-            return
-        raise DeviceDisconnected(DEVICE, command, f"device gone and not back after "
-                                                  f"{self._retries + 1} looks ({cause})")
+        self._dev = refind_device(self._finder, device=DEVICE, command=command, attempts=self._retries + 1,
+                                  backoff_s=self._backoff_s, sleep=self._sleep)
+        self._btag = 0
+        self.reconnect_count += 1
+        log.warning("awg: reconnected after %s", command)
 
     def _transact(self, message: bytes, query: bool) -> bytes:
         name = message[:40].decode("ascii", "replace")
