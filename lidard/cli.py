@@ -117,6 +117,12 @@ class _Client:
     def close(self) -> None:
         self._http.close()
 
+    def __enter__(self) -> "_Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     def request(self, method: str, path: str, **kw):
         import httpx
         try:
@@ -284,8 +290,7 @@ def cmd_scan(args) -> int:
 
 
 def _scan_daemon(args, body: dict[str, Any], bar) -> dict[str, Any]:
-    c = _client(args)
-    try:
+    with _client(args) as c:
         rec = c.request("POST", "/scans", json=body).json()
         sid = rec["id"]
         try:
@@ -304,8 +309,6 @@ def _scan_daemon(args, body: dict[str, Any], bar) -> dict[str, Any]:
         summary = _scan_summary(flat, out, bool(c.get_json("/health").get("simulated")))
         summary["error"] = rec.get("error")
         return summary
-    finally:
-        c.close()
 
 
 @contextlib.contextmanager
@@ -386,11 +389,8 @@ def _copy_atomic(src: Path, dst: str | Path) -> None:
 
 # ------------------------------------------------------------------------------- daemon status etc.
 def cmd_status(args) -> int:
-    c = _client(args)
-    try:
+    with _client(args) as c:
         h = c.get_json("/health")
-    finally:
-        c.close()
     if args.json:
         _emit_json(h)
     else:
@@ -401,11 +401,8 @@ def cmd_status(args) -> int:
 
 
 def cmd_devices(args) -> int:
-    c = _client(args)
-    try:
+    with _client(args) as c:
         devs = c.get_json("/devices")["devices"]
-    finally:
-        c.close()
     if args.json:
         _emit_json({"devices": devs})
         return 0
@@ -417,8 +414,7 @@ def cmd_devices(args) -> int:
 
 
 def cmd_scans(args) -> int:
-    c = _client(args)
-    try:
+    with _client(args) as c:
         if args.action == "list":
             data = c.get_json("/scans")
             if args.json:
@@ -443,8 +439,6 @@ def cmd_scans(args) -> int:
                 _emit_json({"id": args.id, "out": str(args.out), "bytes": len(r.content)})
             else:
                 print(f"wrote {args.out} ({len(r.content)} bytes)")
-    finally:
-        c.close()
     return 0
 
 
@@ -452,8 +446,7 @@ def cmd_scans(args) -> int:
 def cmd_control(args) -> int:
     """The control lock: ``acquire`` prints the lease (export it as LIDARD_LEASE), ``release``
     gives it back, ``status`` shows the holder."""
-    c = _client(args)
-    try:
+    with _client(args) as c:
         if args.action == "acquire":
             import getpass
             import socket
@@ -465,8 +458,6 @@ def cmd_control(args) -> int:
             out = c.request("DELETE", "/control").json()
         else:
             out = c.get_json("/control")
-    finally:
-        c.close()
     if args.json:
         _emit_json(out)
     elif args.action == "acquire":
@@ -487,11 +478,8 @@ def cmd_linearize(args) -> int:
         iterations, reduction = cal.iterations, cal.reduction
         converged = bool(cal.converged)
     else:
-        c = _client(args)
-        try:
+        with _client(args) as c:
             body = c.request("POST", "/calibration/linearize", timeout=None).json()
-        finally:
-            c.close()
         iterations, reduction, converged = body["iterations"], body["reduction"], body["converged"]
     its = [{"up_rms_hz": float(it["up_rms_hz"]), "down_rms_hz": float(it["down_rms_hz"])} for it in iterations]
     if args.plot:
@@ -518,11 +506,8 @@ def cmd_selftest(args) -> int:
         with _embedded(args) as (worker, store, inst):
             report = worker.submit_selftest().result()
     else:
-        c = _client(args)
-        try:
+        with _client(args) as c:
             report = c.request("POST", "/selftest", timeout=None).json()
-        finally:
-            c.close()
     if args.json:
         _emit_json(report)
     else:
