@@ -207,23 +207,20 @@ class SimUsbDevice:
             raise self._gone(what)
         for kind, fop in self._persistent:
             if fop in ("any", op):
-                self.faulted_transfers += 1
-                if kind == "timeout":
-                    raise usb_timeout(what)
-                if kind == "stall":
-                    raise usb_stall(what)
-                self.connected = False
-                raise usb_nodev(what)
+                self._fail(kind, what)
         for i, (kind, fop) in enumerate(self._faults):
             if fop in ("any", op):
-                del self._faults[i]
-                self.faulted_transfers += 1
-                if kind == "timeout":
-                    raise usb_timeout(what)
-                if kind == "stall":
-                    raise usb_stall(what)
-                self.connected = False
-                raise usb_nodev(what)
+                del self._faults[i]               # a one-shot fault is used up
+                self._fail(kind, what)
+
+    def _fail(self, kind: str, what: str) -> None:
+        self.faulted_transfers += 1
+        if kind == "timeout":
+            raise usb_timeout(what)
+        if kind == "stall":
+            raise usb_stall(what)
+        self.connected = False
+        raise usb_nodev(what)
 
     # -- called by the backends
     def usb_open(self) -> None:
