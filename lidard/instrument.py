@@ -73,7 +73,9 @@ AWG_RATE_HZ = 100e6          # drive samples: 16,000 per 160 us period
 # The AWG's output stage: |offset| + amplitude <= devices.awg.max_output_v (default 5 V,
 # docs/protocols/awg.md), i.e. |drive| <= that. No drive beyond it is ever uploaded: the ILC is capped at
 # it and _load_drive refuses first.
-BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
+BATCH_BYTES = 8 << 20
+DEVICE_NAMES = ("fpsa", "awg", "digitizer", "controller")
+DEVICES_WAIT_S = 0.5         # GET /devices waits this long for the instrument before answering "busy"        # raw samples per DSP batch (bounded memory)
 # Hardware time per read: the interlock/fault flags are read between reads, so this bounds the
 # host's reaction time (the controller's own hardware interlock drops the outputs at once anyway).
 # Each read has a fixed cost (in the simulator mostly the FPGA model's per-call beam bookkeeping):
@@ -147,6 +149,7 @@ class LidarInstrument:
         self._on_close = on_close
         self._lock = threading.RLock()
         self._identity: dict[str, Any] = {}
+        self._last_devices: list[dict[str, Any]] = []
         self._identify_all()
         # The HV583 registers power up with random contents (ghost beams): clear them first.
         try:
@@ -176,36 +179,50 @@ class LidarInstrument:
         """Per device: connected true/false and the cause. A device that does not answer is
         reconnected once (serial port reopened, USB device re-found, Modbus reconnected) and asked
         again, so GET /devices both shows and heals a lost connection."""
+        # The drivers are not thread-safe, so the checks need the instrument; while a scan holds it,
+        # answer from the last check instead of blocking the caller for the whole scan.
+        if not self._lock.acquire(timeout=DEVICES_WAIT_S):
+            return [{**e, "state": "busy: in use by the running job (last check shown)", "reconnected": False}
+                    for e in self._last_devices] or [
+                {"name": n, "connected": not str(self._identity.get(n, "")).startswith("unreachable"),
+                 "reconnected": False, "identity": self._identity.get(n),
+                 "state": "busy: in use by the running job", "faults": []} for n in DEVICE_NAMES]
+        try:
+            self._last_devices = self._check_devices()
+            return self._last_devices
+        finally:
+            self._lock.release()
+
+    def _check_devices(self) -> list[dict[str, Any]]:
         out = []
         checks = (("fpsa", self.fpsa, lambda: self.fpsa.status()), ("awg", self.awg, lambda: self.awg.errors()),
                   ("digitizer", self.digitizer, lambda: self.digitizer.status()),
                   ("controller", self.controller, lambda: self.controller.status()))
-        with self._lock:
-            for name, dev, fn in checks:
-                entry: dict[str, Any] = {"name": name, "reconnected": False}
-                n_before = getattr(dev, "reconnect_count", 0)
+        for name, dev, fn in checks:
+            entry: dict[str, Any] = {"name": name, "reconnected": False}
+            n_before = getattr(dev, "reconnect_count", 0)
+            try:
+                state = fn()
+                # the driver may have reopened its link by itself while answering
+                entry["reconnected"] = getattr(dev, "reconnect_count", 0) != n_before
+            except Exception as exc:
+                first = f"{type(exc).__name__}: {exc}"
                 try:
+                    dev.reconnect()
                     state = fn()
-                    # the driver may have reopened its link by itself while answering
-                    entry["reconnected"] = getattr(dev, "reconnect_count", 0) != n_before
-                except Exception as exc:
-                    first = f"{type(exc).__name__}: {exc}"
-                    try:
-                        dev.reconnect()
-                        state = fn()
-                        entry["reconnected"] = True
-                        log.warning("%s: reconnected (was: %s)", name, first)
-                        if name not in self._identity or str(self._identity[name]).startswith("unreachable"):
-                            self._identify_one(name)
-                    except Exception as exc2:
-                        entry.update(connected=False, identity=self._identity.get(name), state="unreachable",
-                                     faults=[first] + ([f"reconnect: {type(exc2).__name__}: {exc2}"]
-                                                       if str(exc2) != str(exc) else []))
-                        out.append(entry)
-                        continue
-                entry.update(connected=True, identity=self._identity.get(name), state=repr(state),
-                             faults=_faults_of(state))
-                out.append(entry)
+                    entry["reconnected"] = True
+                    log.warning("%s: reconnected (was: %s)", name, first)
+                    if name not in self._identity or str(self._identity[name]).startswith("unreachable"):
+                        self._identify_one(name)
+                except Exception as exc2:
+                    entry.update(connected=False, identity=self._identity.get(name), state="unreachable",
+                                 faults=[first] + ([f"reconnect: {type(exc2).__name__}: {exc2}"]
+                                                   if str(exc2) != str(exc) else []))
+                    out.append(entry)
+                    continue
+            entry.update(connected=True, identity=self._identity.get(name), state=repr(state),
+                         faults=_faults_of(state))
+            out.append(entry)
         return out
 
     def _identify_one(self, name: str) -> None:
