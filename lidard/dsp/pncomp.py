@@ -39,6 +39,25 @@ class MziPhaseNoise:
     valid: np.ndarray           # samples away from the Hilbert edge transients
 
 
+def demodulated_phase(x: np.ndarray, *, fs_hz: float, beat_hz: float, bandwidth_hz: float,
+                      valid: np.ndarray) -> np.ndarray:
+    """Delta phi_m of zero-mean MZI ramps (last axis; batched over leading ones): mix down by
+    ``beat_hz``, Gaussian low-pass (-3 dB at ``bandwidth_hz``) as a complex signal, angle about its
+    circular mean over ``valid``, unwrapped; zero outside ``valid``. See :func:`mzi_phase_noise`."""
+    n = x.shape[-1]
+    k = np.arange(n, dtype=np.float64)
+    f = np.fft.fftfreq(n, d=1.0 / fs_hz)
+    z = np.fft.ifft(np.fft.fft(x * np.exp(-2j * np.pi * beat_hz / fs_hz * k), axis=-1)
+                    * np.exp(-0.5 * np.log(2.0) * (f / bandwidth_hz) ** 2), axis=-1)
+    # a constant phase is harmless (it multiplies the compensated beat by a unit phasor); take the
+    # circular mean so that delta is centred on 0 for the zero-linewidth case
+    zv = z[..., valid]
+    c = np.angle(np.sum(zv / np.maximum(np.abs(zv), 1e-300), axis=-1, keepdims=True))
+    delta = np.unwrap(np.angle(z * np.exp(-1j * c)), axis=-1)
+    delta[..., ~valid] = 0.0
+    return delta
+
+
 def mzi_phase_noise(mzi, *, fs_hz: float, edge_s: float, bandwidth_hz: float | None = None,
                     beat_hz: float | None = None) -> MziPhaseNoise:
     """Estimate Delta phi_m(t) from one ramp of the monitor-MZI beat (1-D, one ramp).
@@ -91,14 +110,7 @@ def mzi_phase_noise(mzi, *, fs_hz: float, edge_s: float, bandwidth_hz: float | N
         if zv.size <= 2 * lag:
             break
         f_mzi += float(np.angle(np.sum(zv[lag:] * np.conj(zv[:-lag])))) * fs_hz / (2 * np.pi * lag)
-    y = x * np.exp(-2j * np.pi * f_mzi / fs_hz * k)
-    f = np.fft.fftfreq(n, d=1.0 / fs_hz)
-    z = np.fft.ifft(np.fft.fft(y) * np.exp(-0.5 * np.log(2.0) * (f / bandwidth_hz) ** 2))
-    # a constant phase is harmless (it multiplies the compensated beat by a unit phasor); take the
-    # circular mean so that delta is centred on 0 for the zero-linewidth case
-    c = float(np.angle(np.sum(z[valid] / np.maximum(np.abs(z[valid]), 1e-300))))
-    delta = np.unwrap(np.angle(z * np.exp(-1j * c)))
-    delta[~valid] = 0.0
+    delta = demodulated_phase(x, fs_hz=fs_hz, beat_hz=f_mzi, bandwidth_hz=bandwidth_hz, valid=valid)
     return MziPhaseNoise(delta_rad=delta, f_mzi_hz=f_mzi, valid=valid)
 
 

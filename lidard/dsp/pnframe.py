@@ -40,6 +40,7 @@ from .cfar import cfar_detect
 from .estimators import estimate
 from .frame import FrameDsp, FrameResult
 from .instfreq import check_positive
+from .pncomp import demodulated_phase
 from .rangefft import C_M_PER_S
 from .window import DspInputError, get_window
 
@@ -69,15 +70,8 @@ def mzi_phase_noise_batch(mzi: np.ndarray, *, fs_hz: float, edge_s: float, beat_
         raise DspInputError(f"mzi: {n} samples per ramp are too few for edge_s={edge_s!r} at fs_hz={fs_hz!r}")
     valid = np.zeros(n, dtype=bool)
     valid[n_edge:n - n_edge] = True
-    k = np.arange(n, dtype=np.float64)
-    lo = np.exp(-2j * np.pi * beat_hz / fs_hz * k)
-    f = np.fft.fftfreq(n, d=1.0 / fs_hz)
-    g = np.exp(-0.5 * np.log(2.0) * (f / bandwidth_hz) ** 2)
-    z = np.fft.ifft(np.fft.fft((x - x.mean(axis=-1, keepdims=True)) * lo, axis=-1) * g, axis=-1)
-    zv = z[..., valid]
-    c = np.angle(np.sum(zv / np.maximum(np.abs(zv), 1e-300), axis=-1, keepdims=True))
-    delta = np.unwrap(np.angle(z * np.exp(-1j * c)), axis=-1)
-    delta[..., ~valid] = 0.0
+    delta = demodulated_phase(x - x.mean(axis=-1, keepdims=True), fs_hz=fs_hz, beat_hz=beat_hz,
+                              bandwidth_hz=bandwidth_hz, valid=valid)
     return delta, valid
 
 
