@@ -1,0 +1,46 @@
+"""Suite-wide checks and fixtures.
+
+The test toolchain is pinned in pyproject.toml (``[project.optional-dependencies] test``) because
+plugins break across minor releases of pytest (schemathesis 4.32.5 under pytest 9.2 fails deep inside
+one test with ``'Function' object has no attribute '_nodeid'``). A drifted environment is refused at
+start-up with one line naming the package, the pin and what is installed.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+from packaging.requirements import Requirement
+
+_PYPROJECT = Path(__file__).resolve().parents[1] / "pyproject.toml"
+
+
+def pinned_test_requirements() -> list[Requirement]:
+    data = tomllib.loads(_PYPROJECT.read_text())
+    return [Requirement(r) for r in data["project"]["optional-dependencies"]["test"]]
+
+
+def toolchain_mismatches(requirements: list[Requirement], version_of=metadata.version) -> list[str]:
+    """One message per test dependency whose installed version is outside its pin (or missing)."""
+    problems = []
+    for req in requirements:
+        try:
+            installed = version_of(req.name)
+        except metadata.PackageNotFoundError:
+            problems.append(f"{req.name} is not installed (pyproject.toml asks for {req})")
+            continue
+        if req.specifier and not req.specifier.contains(installed, prereleases=True):
+            problems.append(f"{req.name} {installed} is installed but pyproject.toml pins {req}")
+    return problems
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    problems = toolchain_mismatches(pinned_test_requirements())
+    if problems:
+        raise pytest.UsageError(
+            "incompatible test toolchain: " + "; ".join(problems)
+            + ' (run: pip install -e ".[test]")'
+        )
