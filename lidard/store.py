@@ -19,6 +19,7 @@ creation time) and 6 random, URL-safe and short enough to type.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import secrets
@@ -83,6 +84,32 @@ class StoreError(LidardError):
     """The data directory or database cannot be used; the message names the path."""
 
 
+class DataDirLocked(StoreError):
+    """Another process (a daemon or a one-shot ``lidarctl scan --sim``) holds the data directory."""
+
+
+LOCK_NAME = "lidard.lock"
+
+
+def _lock_data_dir(data_dir: Path) -> int:
+    """Take the OS lock that makes a process the one owner of ``data_dir`` (``flock``: released by
+    the kernel when the process dies, so a ``kill -9`` never leaves a stale lock). The holder's PID is
+    written into the lock file so that a refused second process can name it."""
+    path = data_dir / LOCK_NAME
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        os.close(fd)
+        raise DataDirLocked(
+            f"data directory {data_dir} is in use by another lidard process (PID {holder}); "
+            "stop it or choose another --data-dir") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    return fd
+
+
 def new_id(now_s: float | None = None) -> str:
     """Short, URL-safe, time-sortable id: 48-bit ms timestamp + 30 random bits, Crockford base32."""
     global _last_id_value
@@ -140,6 +167,9 @@ class Store:
         try:
             (self.data_dir / "scans").mkdir(parents=True, exist_ok=True)
             (self.data_dir / "calibrations").mkdir(parents=True, exist_ok=True)
+            # Before anything is read or changed: only the lock's holder may mark another
+            # process's running scans interrupted.
+            self._lock_fd = _lock_data_dir(self.data_dir)
             self.db_path = self.data_dir / "lidard.sqlite3"
             self._conn = sqlite3.connect(self.db_path, check_same_thread=False, isolation_level=None,
                                          timeout=10.0)
@@ -176,6 +206,9 @@ class Store:
     def close(self) -> None:
         with self._lock:
             self._conn.close()
+            if self._lock_fd is not None:
+                os.close(self._lock_fd)   # releases the flock
+                self._lock_fd = None
 
     def journal_mode(self) -> str:
         with self._lock:

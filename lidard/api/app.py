@@ -1,7 +1,7 @@
 """FastAPI application factory of the lidard daemon.
 
-``create_app(cfg, instrument=None, data_dir=None)`` builds an app whose lifespan opens the store,
-builds the instrument if none was given (``lidard.instrument.open_instrument``, imported lazily),
+``create_app(cfg, instrument=None, data_dir=None)`` builds an app whose lifespan opens the store
+(or takes an open one: ``store=``; the store holds the data directory's lock), builds the instrument if none was given (``lidard.instrument.open_instrument``, imported lazily),
 starts the scan worker and, on shutdown, stops the worker and closes the instrument. Nothing is
 created at import time. Routers know nothing of hardware; they talk to the worker and the store.
 See docs/api.md for the endpoints and the queue policy.
@@ -34,7 +34,8 @@ log = logging.getLogger(__name__)
 def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str | Path | None = None,
                *, token: str | None = None, max_queue: int = 16, progress_interval_s: float = 0.25,
                close_instrument: bool = True, lease_ttl_s: float | None = None,
-               clock: Callable[[], float] = time.monotonic, max_body_bytes: int | None = None) -> FastAPI:
+               clock: Callable[[], float] = time.monotonic, max_body_bytes: int | None = None,
+               store: Store | None = None) -> FastAPI:
     """Build the daemon's app.
 
     ``token``: when set, mutating requests (POST/PUT/PATCH/DELETE) need ``Authorization: Bearer``;
@@ -45,22 +46,28 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
+        # The store first: it takes the data directory's lock, so a second daemon on the same
+        # directory is refused before it starts a bench or touches the hardware.
+        st = store if store is not None else Store(data_dir if data_dir is not None else cfg.daemon.data_dir)
         inst = instrument
         if inst is None:
             from ..instrument import open_instrument  # the composition root; heavy, so lazily
-            inst = open_instrument(cfg)
-        store = Store(data_dir if data_dir is not None else cfg.daemon.data_dir)
-        if store.recovered:
-            log.warning("%d scan(s) from a previous run marked interrupted", store.recovered)
+            try:
+                inst = open_instrument(cfg)
+            except BaseException:
+                st.close()
+                raise
+        if st.recovered:
+            log.warning("%d scan(s) from a previous run marked interrupted", st.recovered)
         optics = cfg.optics()
         profile = cfg.load_profile()
         meta = {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
                 "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
-        worker = ScanWorker(inst, store, laser=cfg.laser, max_queue=max_queue,
+        worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=meta,
                             optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
-        app.state.config, app.state.instrument, app.state.store = cfg, inst, store
+        app.state.config, app.state.instrument, app.state.store = cfg, inst, st
         app.state.worker, app.state.optics = worker, optics
         worker.start()
         try:
@@ -72,7 +79,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
                     inst.close()
                 except Exception:
                     log.exception("closing the instrument failed")
-            store.close()
+            st.close()
 
     app = FastAPI(title="lidard", version=software_version(), lifespan=lifespan,
                   description="Control daemon for an FMCW LiDAR with a MEMS FPSA beam scanner",

@@ -107,6 +107,8 @@ def _assert_every_file_parses(data_dir: Path) -> int:
                 assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
         elif p.name.startswith("lidard.sqlite3-"):
             pass        # WAL / shared-memory companions of the database
+        elif p.name == "lidard.lock":
+            assert p.read_text().strip().isdigit()   # the holder's PID (flock dies with it)
         else:
             pytest.fail(f"unexpected file under the data dir: {p}")
     return n

@@ -48,8 +48,28 @@ def lidard_openapi(tmp_path_factory):
     app = create_app(load_config(), instrument=HealthyInstrument(), data_dir=tmp_path_factory.mktemp("st"),
                      max_queue=1_000_000, progress_interval_s=0.0)
     _APP["app"] = app
-    with TestClient(app):  # runs the lifespan: store, worker
-        yield schemathesis.openapi.from_asgi("/openapi.json", app)
+    with TestClient(app) as client:  # runs the lifespan once: store (it holds the data dir), worker
+        # from_asgi would run the lifespan a second time on the same data directory, which the
+        # store's directory lock rightly refuses: load the schema through this client instead.
+        schema = schemathesis.openapi.from_dict(client.get("/openapi.json").json())
+        schema.app = _without_lifespan(app)   # each case's client would start another lifespan too
+        yield schema
+
+
+def _without_lifespan(app):
+    """The app with its lifespan already running: lifespan events of further clients are answered
+    here, everything else reaches the app (its store and worker stay the fixture's)."""
+    async def asgi(scope, receive, send):
+        if scope["type"] != "lifespan":
+            return await app(scope, receive, send)
+        while True:
+            message = await receive()
+            if message["type"] == "lifespan.startup":
+                await send({"type": "lifespan.startup.complete"})
+            elif message["type"] == "lifespan.shutdown":
+                await send({"type": "lifespan.shutdown.complete"})
+                return
+    return asgi
 
 
 schema = schemathesis.pytest.from_fixture("lidard_openapi")
