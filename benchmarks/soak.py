@@ -1,0 +1,248 @@
+"""Soak of a REAL daemon (issue 11, item 5): faults from the catalogue injected at random before small
+scans, cleared (and latched controller faults acknowledged) after each, for a stated wall time.
+
+Rig: ``python -m lidard --config config/sim.toml`` in its own process (child-process simulated bench,
+temp data dir, an ephemeral port), driven over HTTP like a lab client: it holds the control lock,
+posts 4 x 8-pixel ROI scans of the CAL scene, and between scans injects one random fault (or none)
+from a mix that covers every catalogue kind that can be cleared (stuck switches are left out: they
+only change self-test answers, not scans).
+
+Reported (and checked at the end):
+
+* scans by outcome, and how many started with no active fault and still did not end ``done``
+  (target 0: after its acknowledgement the instrument must be usable again);
+* faults injected by kind; acknowledgements (``POST /controller/acknowledge``) and their answers;
+* files checked against the store: every ``done``/partial scan's PLY parses and holds exactly the
+  stored point count (data lost = 0);
+* HTTP 5xx answers (target 0), temporary files left under the data dir (target 0);
+* the daemon's memory (VmRSS of the daemon process, sampled once per scan): the median of the last
+  5 minutes against the median of minutes 2-6 (target: within 10 MB over a 15-minute run).
+
+    python benchmarks/soak.py --minutes 15 [--seed 1] [--json out.json]
+
+The figures of a run go to docs/reliability.md by hand, with the machine and the command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import random
+import re
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import httpx
+from plyfile import PlyData
+
+REPO = Path(__file__).resolve().parents[1]
+
+# kind -> parameters; scans are injected into before they start, and cleared after they end
+FAULT_MIX: list[tuple[str, dict[str, Any]]] = [
+    ("serial_drop", {"rate": 1e-3}),
+    ("serial_flip", {"rate": 1e-3}),
+    ("serial_disconnect", {"reconnect_after_s": 0.05}),
+    ("usb_timeout", {"device": "digitizer", "n": 2}),
+    ("usb_timeout", {"device": "awg", "n": 1}),
+    ("usb_stall", {"device": "awg", "n": 1}),
+    ("usb_disconnect", {"device": "digitizer", "n": 1}),
+    ("digitizer_overrange", {}),
+    ("modbus_exception", {"code": 6, "n": 2}),
+    ("modbus_exception", {"code": 4, "n": 1}),
+    ("modbus_timeout", {"n": 1}),
+    ("interlock_open", {"after_segments": 3}),
+    ("hv_fault", {}),
+]
+SCAN_BODY = {"pattern": "roi", "rows": [40, 44], "cols": [48, 56], "max_range_m": 2.0, "averages": 1}
+SCAN_TIMEOUT_S = 120.0
+
+
+def start_daemon(data_dir: Path) -> tuple[subprocess.Popen, str]:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1",
+           # short device timeouts: an injected timeout costs a fraction of a second, not seconds
+           "LIDARD__DEVICES__CONTROLLER__TIMEOUT_S": "0.2", "LIDARD__DEVICES__FPSA__TIMEOUT_S": "0.2"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lidard", "--config", str(REPO / "config" / "sim.toml"), "--port", "0",
+         "--data-dir", str(data_dir), "--log-level", "warning"],
+        cwd=REPO, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        start_new_session=True)
+    deadline = time.monotonic() + 90.0
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline().decode(errors="replace")
+        if not line and proc.poll() is not None:
+            break
+        m = re.search(r"serving on (http://[\d.]+:\d+)", line)
+        if m:
+            url = m.group(1)
+            while time.monotonic() < deadline:
+                try:
+                    if httpx.get(url + "/health", timeout=2.0).status_code == 200:
+                        # keep draining stderr so the daemon never blocks on a full pipe
+                        _drain(proc)
+                        return proc, url
+                except httpx.TransportError:
+                    time.sleep(0.1)
+    stop_daemon(proc)
+    raise RuntimeError("lidard did not come up")
+
+
+def _drain(proc: subprocess.Popen) -> None:
+    import threading
+
+    def run():
+        for _ in iter(lambda: proc.stderr.readline(), b""):
+            pass
+    threading.Thread(target=run, daemon=True).start()
+
+
+def stop_daemon(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=30)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=30)
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+class Client:
+    """HTTP with the control lease (every request carrying it renews it); counts answers by class."""
+
+    def __init__(self, url: str):
+        self.http = httpx.Client(base_url=url, timeout=30.0)
+        self.status = Counter()
+        r = self.http.post("/control", json={"client": "soak@bench"})
+        r.raise_for_status()
+        self.http.headers["X-Lidard-Lease"] = r.json()["lease"]
+
+    def call(self, method: str, path: str, **kw) -> httpx.Response:
+        r = self.http.request(method, path, **kw)
+        self.status[r.status_code // 100 * 100] += 1
+        return r
+
+
+def wait_scan(c: Client, sid: str) -> dict[str, Any]:
+    deadline = time.monotonic() + SCAN_TIMEOUT_S
+    while time.monotonic() < deadline:
+        rec = c.call("GET", f"/scans/{sid}").json()
+        if rec["state"] in ("done", "failed", "cancelled", "interrupted"):
+            return rec
+        time.sleep(0.05)
+    c.call("DELETE", f"/scans/{sid}")
+    return {"state": "timeout", "id": sid}
+
+
+def check_files(data_dir: Path, rec: dict[str, Any]) -> int:
+    """Points lost for one ended scan: measured points not in a parsable file with the stored count."""
+    files = rec.get("files") or {}
+    if not files.get("ply"):
+        return rec.get("points", 0)
+    n = len(PlyData.read(str(data_dir / files["ply"]))["vertex"])
+    return abs(n - rec["points"])
+
+
+def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
+    rng = random.Random(seed)
+    tmp = tempfile.TemporaryDirectory(prefix="lidard-soak-")
+    data_dir = Path(tmp.name)
+    proc, url = start_daemon(data_dir)
+    c = Client(url)
+    outcomes: Counter = Counter()
+    injected: Counter = Counter()
+    acks: Counter = Counter()
+    clean_not_done: list[dict[str, Any]] = []
+    rss: list[tuple[float, float]] = []
+    lost = scans = 0
+    t0 = time.monotonic()
+    try:
+        while time.monotonic() - t0 < minutes * 60.0:
+            fault = rng.choice(FAULT_MIX) if rng.random() < p_fault else None
+            if fault is not None:
+                kind, params = fault
+                r = c.call("POST", "/sim/faults", json={"kind": kind, **params})
+                if r.status_code == 201:
+                    injected[kind] += 1
+            r = c.call("POST", "/scans", json=SCAN_BODY)
+            if r.status_code == 409:          # a latched fault: acknowledge and go on
+                outcomes["refused_latched"] += 1
+            elif r.status_code == 201:
+                rec = wait_scan(c, r.json()["id"])
+                scans += 1
+                outcomes[rec["state"]] += 1
+                if rec["state"] in ("done", "failed"):
+                    lost += check_files(data_dir, rec)
+                if fault is None and rec["state"] != "done":
+                    clean_not_done.append({"id": rec.get("id"), "state": rec["state"],
+                                           "error": rec.get("error")})
+            c.call("DELETE", "/sim/faults")
+            a = c.call("POST", "/controller/acknowledge")
+            acks[a.status_code] += 1
+            rss.append((time.monotonic() - t0, rss_mb(proc.pid)))
+    finally:
+        tmp_left = [str(p) for p in data_dir.rglob("*.tmp")]
+        stop_daemon(proc)
+        tmp.cleanup()
+    return {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
+        "minutes": minutes, "seed": seed, "scans": scans, "outcomes": dict(outcomes),
+        "faults_injected": dict(injected), "acknowledgements": {str(k): v for k, v in acks.items()},
+        "clean_scans_not_done": clean_not_done, "points_lost": lost,
+        "http": {str(k): v for k, v in c.status.items()}, "http_5xx": c.status.get(500, 0),
+        "temp_files_left": tmp_left, "rss_mb": memory_figures(rss),
+    }
+
+
+def memory_figures(rss: list[tuple[float, float]]) -> dict[str, Any]:
+    """Medians of the daemon's RSS: minutes 2-6 against the last 5 minutes (the issue's target)."""
+    if not rss:
+        return {}
+    end = rss[-1][0]
+    early = [m for t, m in rss if 120.0 <= t < 360.0]
+    late = [m for t, m in rss if t >= end - 300.0]
+    out = {"first": rss[0][1], "last": rss[-1][1], "max": max(m for _, m in rss),
+           "samples": len(rss)}
+    if early and late:
+        out.update(median_min_2_6=statistics.median(early), median_last_5=statistics.median(late),
+                   drift=statistics.median(late) - statistics.median(early))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--minutes", type=float, default=15.0, help="wall time to run (minutes)")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the fault choice")
+    ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    args = ap.parse_args(argv)
+    res = soak(args.minutes, args.seed)
+    print(json.dumps(res, indent=2))
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=2))
+    ok = (not res["clean_scans_not_done"] and res["points_lost"] == 0 and res["http_5xx"] == 0
+          and not res["temp_files_left"])
+    mem = res["rss_mb"]
+    if "drift" in mem:
+        ok = ok and abs(mem["drift"]) <= 10.0
+    print("soak targets", "MET" if ok else "NOT MET")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
