@@ -1,0 +1,150 @@
+"""Run the scan's DSP again on a raw capture, optionally with other settings (issue 16, item 4).
+
+The scan loop turns each batch of digitizer segments into points with :class:`FrameDsp` (range FFT,
+OS-CFAR, sub-bin estimator, up/down pairing: dissertation §2.1, §4.4.3; with the monitor MZI, the
+phase-noise compensation of §2.3) and :func:`lidard.raw.points.frame_points`. Replaying a capture
+builds the same :class:`FrameDsp` from the capture's attributes and feeds it the same int16
+records, so the original settings reproduce the original points exactly (the DSP treats every
+pixel on its own: the result does not depend on how pixels are batched).
+
+One chunk of the capture is one independent task: :func:`reprocess_chunk` takes a path, a chunk
+index and the settings (all picklable) and returns that chunk's points, so a process pool or a
+Dask cluster can map it over ``range(chunk_count(path))``; concatenating the results in chunk
+order gives the whole cloud (:func:`reprocess`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, get_args
+
+import numpy as np
+
+from ..dsp.estimators import EstimatorName
+from ..dsp.frame import FrameDsp
+from ..dsp.window import WINDOW_NAMES
+from ..instrument_api import POINT_DTYPE
+from .capture import RawCapture, RawCaptureError, RawChunk
+from .points import frame_points
+
+ESTIMATORS: tuple[str, ...] = get_args(EstimatorName)
+
+
+@dataclass(frozen=True)
+class ReprocessSettings:
+    """Overrides of the recorded DSP settings; ``None`` keeps what the scan used."""
+
+    estimator: str | None = None
+    pfa: float | None = None
+    window: str | None = None
+    phase_noise: bool | None = None   # True needs a capture that recorded the monitor MZI
+
+    def __post_init__(self) -> None:
+        if self.estimator is not None and self.estimator not in ESTIMATORS:
+            raise RawCaptureError(f"estimator={self.estimator!r} is not one of {', '.join(ESTIMATORS)}")
+        if self.window is not None and self.window not in WINDOW_NAMES:
+            raise RawCaptureError(f"window={self.window!r} is not one of {', '.join(WINDOW_NAMES)}")
+        if self.pfa is not None and not (isinstance(self.pfa, (int, float)) and 0 < self.pfa < 0.1):
+            raise RawCaptureError(f"pfa={self.pfa!r} must lie strictly between 0 and 0.1")
+        if self.phase_noise is not None and not isinstance(self.phase_noise, bool):
+            raise RawCaptureError(f"phase_noise={self.phase_noise!r} must be true or false")
+
+    def overrides(self) -> dict[str, Any]:
+        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+
+
+def frame_dsp_attrs(dsp: FrameDsp) -> dict[str, Any]:
+    """Every field of a :class:`FrameDsp`, JSON-ready: what a capture stores under ``dsp``."""
+    return {f.name: getattr(dsp, f.name) for f in dataclasses.fields(FrameDsp)}
+
+
+@dataclass(frozen=True)
+class ReplayDsp:
+    """What processes a capture: the frame DSP, the ADC scale and the phase-noise choice."""
+
+    dsp: FrameDsp
+    lsb_v: float
+    phase_noise: bool
+    mzi_delay_s: float | None
+
+    def meta(self) -> dict[str, Any]:
+        """The ``dsp`` block of a scan's sidecar, as the scan loop writes it."""
+        return {"window": self.dsp.window, "estimator": self.dsp.estimator, "pfa": self.dsp.pfa,
+                "range_resolution_m": self.dsp.range_resolution_m, "use_fraction": self.dsp.use_fraction,
+                "phase_noise_compensation": self.phase_noise}
+
+    def points(self, chunk: RawChunk, channels: list[str], averages: int) -> np.ndarray:
+        beat = chunk.channel("beat", channels, averages)
+        mzi = chunk.channel("mzi", channels, averages) if self.phase_noise else None
+        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v)
+        return frame_points(res, chunk.pixels, chunk.t_s, chunk.directions, chunk.clipped)
+
+
+def replay_dsp(attrs: dict[str, Any], settings: ReprocessSettings | None = None) -> ReplayDsp:
+    """The DSP a capture was processed with, with ``settings`` applied over it."""
+    s = settings or ReprocessSettings()
+    try:
+        fields_ = dict(attrs["dsp"])
+        lsb_v = float(attrs["adc"]["lsb_v"])
+        pn = dict(attrs.get("phase_noise") or {})
+    except (KeyError, TypeError) as exc:
+        raise RawCaptureError(f"raw capture attributes lack {exc} (needed to reprocess)") from None
+    over = s.overrides()
+    pn_on = bool(over.pop("phase_noise", pn.get("on", False)))
+    if pn_on and "mzi" not in attrs.get("channels", []):
+        raise RawCaptureError("phase_noise=on: this capture has no monitor 'mzi' channel "
+                              f"(recorded: {attrs.get('channels')}); reprocess with phase_noise off")
+    known = {f.name for f in dataclasses.fields(FrameDsp)}
+    unknown = set(fields_) - known
+    if unknown:
+        raise RawCaptureError(f"raw capture dsp attributes {sorted(unknown)} are not FrameDsp settings "
+                              "(written by another lidard version?)")
+    fields_.update(over)
+    try:
+        dsp = FrameDsp(**fields_)
+    except (TypeError, ValueError) as exc:
+        raise RawCaptureError(f"raw capture dsp settings rejected: {exc}") from None
+    delay = pn.get("mzi_delay_s")
+    if pn_on and delay is None:
+        raise RawCaptureError("phase_noise=on: the capture does not record the monitor delay (phase_noise.mzi_delay_s)")
+    return ReplayDsp(dsp=dsp, lsb_v=lsb_v, phase_noise=pn_on, mzi_delay_s=None if delay is None else float(delay))
+
+
+def chunk_count(raw_path: str | Path) -> int:
+    """Committed chunks of a capture: the tasks of a reprocessing."""
+    return RawCapture(raw_path).n_chunks
+
+
+def reprocess_chunk(raw_path: str | Path, chunk_index: int,
+                    settings: ReprocessSettings | None = None) -> np.ndarray:
+    """Points (POINT_DTYPE) of one chunk. Pure apart from reading the capture; picklable arguments."""
+    cap = RawCapture(raw_path)
+    return replay_dsp(cap.attrs, settings).points(cap.chunk(int(chunk_index)), cap.channels, cap.averages)
+
+
+@dataclass
+class Reprocessed:
+    points: np.ndarray
+    meta: dict[str, Any]                 # dsp (as used), settings overrides, chunks, pixels, wall time
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def reprocess(raw_path: str | Path, settings: ReprocessSettings | None = None, *,
+              map_fn: Callable[..., Iterable[np.ndarray]] = map) -> Reprocessed:
+    """All committed chunks of a capture through the DSP (``map_fn`` may be a pool's or a cluster's map).
+
+    A crashed capture (``complete: false``) reprocesses its committed prefix; ``meta`` says so.
+    """
+    t0 = time.perf_counter()
+    cap = RawCapture(raw_path)
+    replay = replay_dsp(cap.attrs, settings)       # validate before any task runs
+    n = cap.n_chunks
+    parts = list(map_fn(reprocess_chunk, [str(cap.path)] * n, range(n), [settings] * n))
+    points = np.concatenate(parts) if parts else np.zeros(0, POINT_DTYPE)
+    meta = {"dsp": replay.meta(), "overrides": (settings or ReprocessSettings()).overrides(),
+            "chunks": n, "pixels": cap.n_pixels, "raw_complete": cap.complete,
+            "calibration_id": cap.attrs.get("calibration_id")}
+    return Reprocessed(points=points, meta=meta, timings={"wall_s": time.perf_counter() - t0})
