@@ -1,0 +1,98 @@
+"""Recording a scan's raw segments as it runs: the scan loop's side of a raw capture (issue 16, item 3).
+
+:class:`ScanRecorder` is created when an acquisition is ready (the digitizer has told its channel
+order), fed every batch of segments the scan loop accepts (the same records its DSP gets; a batch
+discarded after a safety stop is not recorded either) and closed with the scan's outcome. It
+writes what :mod:`lidard.raw.reprocess` needs to run the same DSP again: the frame DSP's settings,
+the ADC scale, the phase-noise choice and monitor delay (§2.3), the chirp and the calibration id
+(§2.2), the pixel order and each beam's direction (§4.3.4 optics), the hardware time stamps.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..dsp.frame import FrameDsp
+from .capture import RawWriter, chunk_pixels_for
+from .reprocess import frame_dsp_attrs
+
+# Raw bytes per chunk (one reprocessing task). The scan's DSP batches are about as large
+# (lidard.instrument.scan_loop.BATCH_BYTES); the DSP treats pixels independently, so the two need
+# not coincide. Tests lower it to get several chunks from a small scan.
+RAW_CHUNK_BYTES = 8 << 20
+
+log = logging.getLogger(__name__)
+
+
+class ScanRecorder:
+    """Writes one scan's raw capture; every call is safe to make after a failure of the writer
+    (a recording problem is logged and stops the recording, never the scan)."""
+
+    def __init__(self, writer: RawWriter | None, channels: tuple[str, ...]):
+        self.writer = writer
+        self.channels = channels
+        self.error: str | None = None
+
+    @classmethod
+    def start(cls, path: str | Path, *, pixels: np.ndarray, directions: np.ndarray, averages: int,
+              channels: Sequence[str], record_length: int, dsp: FrameDsp, lsb_v: float, phase_noise: bool,
+              mzi_delay_s: float, adc: dict[str, Any], chirp: dict[str, Any], calibration_id: Any,
+              scan: dict[str, Any] | None = None, drive_v: np.ndarray | None = None,
+              chunk_bytes: int | None = None) -> "ScanRecorder":
+        """``channels``: the digitizer's order (how records arrive); ``adc``/``chirp``/``scan``:
+        JSON-ready descriptions stored as attributes."""
+        ch = tuple(channels)
+        bytes_per_pixel = int(averages) * int(record_length) * 2 * len(ch)
+        attrs = {
+            "adc": {**adc, "lsb_v": float(lsb_v)},
+            "dsp": frame_dsp_attrs(dsp),
+            "phase_noise": {"on": bool(phase_noise), "mzi_delay_s": float(mzi_delay_s)},
+            "chirp": chirp,
+            "calibration_id": calibration_id,
+            "scan": scan or {},
+            "pixel_order": "pixels[i] is the i-th pixel scanned; segment i * averages + k is its k-th chirp",
+            "time_base": "t_s: the points' t (s since the scan's first trigger, continued across resumes); "
+                         "trigger_time_ns: the digitizer's own time stamps",
+        }
+        writer = RawWriter.create(path, pixels=pixels, directions=directions, averages=int(averages), channels=ch,
+                                  record_length=int(record_length),
+                                  chunk_pixels=chunk_pixels_for(bytes_per_pixel, chunk_bytes or RAW_CHUNK_BYTES),
+                                  attrs=attrs, drive_v=drive_v)
+        return cls(writer, ch)
+
+    def add(self, samples: np.ndarray, headers: Sequence[Any], t_pix_s: np.ndarray,
+            channel_order: Sequence[str]) -> None:
+        """One accepted batch: ``samples`` (segments, channels, record) in ``channel_order`` as read,
+        the segment ``headers`` (``trigger_time_ns``, ``overrange``) and the pixels' times."""
+        if self.writer is None:
+            return
+        try:
+            s = np.asarray(samples)
+            order = tuple(channel_order)
+            if order != self.channels:   # a resumed acquisition may list its channels otherwise
+                s = s[:, [order.index(c) for c in self.channels], :]
+            if s.dtype != np.int16 and s.dtype.kind == "i" and s.dtype.itemsize < 2:
+                s = s.astype(np.int16)   # 8-bit records: widened without change
+            tt = np.array([int(h.trigger_time_ns) for h in headers], dtype=np.int64)
+            ov = np.array([bool(h.overrange) for h in headers], dtype=np.uint8)
+            self.writer.append(s, tt, ov, t_pix_s)
+        except Exception as exc:
+            self._fail(exc)
+
+    def close(self, **final: Any) -> None:
+        if self.writer is None:
+            return
+        try:
+            self.writer.close(**final)
+        except Exception as exc:
+            self._fail(exc)
+
+    def _fail(self, exc: Exception) -> None:
+        self.error = f"{type(exc).__name__}: {exc}"
+        log.warning("raw capture %s: recording stopped: %s (the committed chunks stay readable)",
+                    self.writer.path if self.writer else "?", self.error)
+        self.writer = None
