@@ -4,6 +4,7 @@ Layout under the data directory::
 
     lidard.sqlite3                  WAL mode; tables ``scans`` and ``calibrations``
     scans/<id>/scan.<fmt>[.json]    point clouds and sidecars (written by lidard.jobs)
+    scans/<id>/raw.zarr/            the digitizer's raw segments of a scan with record_raw (lidard.raw)
     calibrations/<id>.npy           the linearized drive waveform u(t) of §2.2 (ILC, Fig. 2-5)
 
 One connection guarded by a lock serves all threads (the scan worker and the API's threadpool);
@@ -23,6 +24,7 @@ import fcntl
 import json
 import os
 import secrets
+import shutil
 import sqlite3
 import threading
 import time
@@ -58,7 +60,9 @@ CREATE TABLE IF NOT EXISTS scans (
     error TEXT,
     partial INTEGER NOT NULL DEFAULT 0,
     files TEXT NOT NULL DEFAULT '{}',
-    calibration_id TEXT
+    calibration_id TEXT,
+    raw_bytes INTEGER,
+    reprocessed_from TEXT
 );
 CREATE TABLE IF NOT EXISTS calibrations (
     id TEXT PRIMARY KEY,
@@ -146,6 +150,8 @@ class ScanRecord:
     partial: bool = False
     files: dict[str, str] = field(default_factory=dict)
     calibration_id: str | None = None
+    raw_bytes: int | None = None          # size of scans/<id>/raw.zarr (record_raw), None without one
+    reprocessed_from: str | None = None   # the scan whose raw capture this one was computed from
 
     @property
     def terminal(self) -> bool:
@@ -157,6 +163,8 @@ class ScanRecord:
 
 _SCAN_COLUMNS = tuple(ScanRecord.__dataclass_fields__)
 _JSON_COLUMNS = {"request", "files"}
+# columns added after the first release: a data directory made before gets them on open
+_ADDED_COLUMNS = {"raw_bytes": "INTEGER", "reprocessed_from": "TEXT"}
 
 
 class Store:
@@ -183,6 +191,10 @@ class Store:
                 raise StoreError(f"{self.db_path}: cannot switch SQLite to WAL mode (got {mode})")
             self._conn.execute("PRAGMA synchronous=NORMAL")
             self._conn.executescript(_SCHEMA)
+            have = {r["name"] for r in self._conn.execute("PRAGMA table_info(scans)")}
+            for col, typ in _ADDED_COLUMNS.items():
+                if col not in have:
+                    self._conn.execute(f"ALTER TABLE scans ADD COLUMN {col} {typ}")
             self.recovered = self._conn.execute(
                 "UPDATE scans SET state='interrupted', stage='interrupted', "
                 "error=COALESCE(error, 'daemon stopped while the scan was ' || state) "
@@ -193,13 +205,15 @@ class Store:
         """Remove temporary files a killed process left behind (``atomic_write``'s ``.<name>.*.tmp``):
         they were never renamed into place, so no record points at them and they hold no data."""
         n = 0
-        for sub in ("scans", "calibrations"):
-            for p in (self.data_dir / sub).rglob(".*.tmp"):
-                try:
-                    p.unlink()
-                    n += 1
-                except OSError:
-                    pass
+        # zarr's LocalStore (raw captures) writes <key>.<uuid>.partial and renames it the same way
+        leftovers = [p for sub in ("scans", "calibrations") for p in (self.data_dir / sub).rglob(".*.tmp")]
+        leftovers += list((self.data_dir / "scans").glob("*/raw.zarr/**/*.partial"))
+        for p in leftovers:
+            try:
+                p.unlink()
+                n += 1
+            except OSError:
+                pass
         return n
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -260,6 +274,29 @@ class Store:
         d["files"] = json.loads(d["files"])
         d["partial"] = bool(d["partial"])
         return ScanRecord(**d)
+
+    def remove_raw(self, scan_id: str, raw_dir: Path) -> bool:
+        """Delete a scan's raw capture directory and forget its size; True when there was one."""
+        existed = raw_dir.exists()
+        if existed:
+            shutil.rmtree(raw_dir)
+        self.update_scan(scan_id, raw_bytes=None)
+        return existed
+
+    def delete_scan(self, scan_id: str) -> bool:
+        """Delete a finished scan: its record and everything under ``scans/<id>/`` (point clouds,
+        sidecars, raw capture). A queued or running scan is refused (cancel it first)."""
+        rec = self.get_scan(scan_id)
+        if rec is None:
+            return False
+        if not rec.terminal:
+            raise StoreError(f"scan {scan_id} is {rec.state}; cancel it before deleting it")
+        d = self.scan_dir(scan_id)
+        if d.exists():
+            shutil.rmtree(d)
+        with self._lock:
+            self._conn.execute("DELETE FROM scans WHERE id = ?", (scan_id,))
+        return True
 
     def get_scan(self, scan_id: str) -> ScanRecord | None:
         with self._lock:

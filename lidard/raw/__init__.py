@@ -5,11 +5,11 @@
 pixel's spectra with the CFAR threshold.
 """
 
-from .capture import RawCapture, RawCaptureError, RawChunk, RawWriter, capture_size_bytes, chunk_pixels_for, remove_capture
+from .capture import PixelNotRecorded, RawCapture, RawCaptureError, RawChunk, RawWriter, capture_size_bytes, chunk_pixels_for, remove_capture
 from .points import frame_points
 from .reprocess import (ReplayDsp, Reprocessed, ReprocessSettings, chunk_count, frame_dsp_attrs, replay_dsp,
                         reprocess, reprocess_chunk)
 
-__all__ = ["RawCapture", "RawCaptureError", "RawChunk", "RawWriter", "ReplayDsp", "Reprocessed",
+__all__ = ["PixelNotRecorded", "RawCapture", "RawCaptureError", "RawChunk", "RawWriter", "ReplayDsp", "Reprocessed",
            "ReprocessSettings", "capture_size_bytes", "chunk_count", "chunk_pixels_for", "frame_dsp_attrs",
            "frame_points", "remove_capture", "replay_dsp", "reprocess", "reprocess_chunk"]

@@ -53,6 +53,10 @@ class RawCaptureError(LidardError):
     """A raw capture is missing, malformed, or asked for something it does not hold; names it."""
 
 
+class PixelNotRecorded(RawCaptureError):
+    """The capture holds no committed record of the pixel asked for."""
+
+
 def _software() -> dict[str, str]:
     def version(pkg: str) -> str:
         try:
@@ -261,7 +265,7 @@ class RawCapture:
         px = self._g["pixels"][: self.n_pixels]
         hit = np.flatnonzero((px[:, 0] == row) & (px[:, 1] == col))
         if not len(hit):
-            raise RawCaptureError(f"raw capture {self.path}: pixel ({row}, {col}) was not recorded")
+            raise PixelNotRecorded(f"raw capture {self.path}: pixel ({row}, {col}) was not recorded")
         return int(hit[0])
 
     def drive_v(self) -> np.ndarray | None:

@@ -18,7 +18,8 @@ import numpy as np
 from ..dsp.cfar import _noise_os, cfar_detect   # the kernel cfar_detect thresholds with (no public twin)
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
-from .capture import RawCapture, RawCaptureError
+from ..instrument_api import POINT_DTYPE
+from .capture import PixelNotRecorded, RawCapture, RawCaptureError
 from .reprocess import ReplayDsp, ReprocessSettings, replay_dsp
 
 # cfar_detect's defaults, which FrameDsp uses (n_ref cells in total, n_guard per side)
@@ -43,7 +44,19 @@ class PixelSpectrum:
                 "power_v2": {k: v.tolist() for k, v in self.power.items()},
                 "threshold_v2": {k: v.tolist() for k, v in self.threshold.items()},
                 "gate_bins": list(self.gate), "detections": self.detections, "dsp": self.dsp,
-                "points": [{k: v.item() for k, v in zip(p.dtype.names, p)} for p in self.points]}
+                "points": [{k: p[k].item() for k in p.dtype.names} for p in self.points]}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "PixelSpectrum":
+        """Inverse of :meth:`to_dict` (what a client gets from ``GET /scans/{id}/spectrum``)."""
+        pts = np.zeros(len(d["points"]), POINT_DTYPE)
+        for i, p in enumerate(d["points"]):
+            for k in POINT_DTYPE.names:
+                pts[i][k] = p[k]
+        return cls(row=int(d["row"]), col=int(d["col"]), range_m=np.asarray(d["range_m"], np.float64),
+                   power={k: np.asarray(v, np.float64) for k, v in d["power_v2"].items()},
+                   threshold={k: np.asarray(v, np.float64) for k, v in d["threshold_v2"].items()},
+                   gate=tuple(d["gate_bins"]), detections=list(d["detections"]), points=pts, dsp=dict(d["dsp"]))
 
 
 def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, start: int) -> np.ndarray:
@@ -68,7 +81,7 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
     i = cap.pixel_index(row, col)
     ci = i // cap.chunk_pixels
     if ci >= cap.n_chunks:
-        raise RawCaptureError(f"raw capture {cap.path}: pixel ({row}, {col}) is past the committed chunks")
+        raise PixelNotRecorded(f"raw capture {cap.path}: pixel ({row}, {col}) is past the committed chunks")
     chunk = cap.chunk(ci)
     k = i - ci * cap.chunk_pixels
     s0, s1 = k * cap.averages, (k + 1) * cap.averages

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from lidard.dsp.cfar import os_cfar_alpha
 from lidard.raw import RawCaptureError, ReprocessSettings, reprocess
-from lidard.raw.spectrum import pixel_spectrum, plot_pixel_spectrum
+from lidard.raw.spectrum import PixelSpectrum, pixel_spectrum, plot_pixel_spectrum
 
 plt = pytest.importorskip("matplotlib.pyplot")
 
@@ -69,5 +71,9 @@ def test_plot_writes_a_png_with_content(capture, tmp_path):
     img = plt.imread(out)
     assert img.shape[0] == 600 and img.shape[1] == 800
     assert img[..., :3].std() > 0.05                 # not a blank canvas
-    d = pixel_spectrum(capture.path, row, col).to_dict()
+    spec = pixel_spectrum(capture.path, row, col)
+    d = json.loads(json.dumps(spec.to_dict()))
     assert len(d["power_v2"]["up"]) == len(d["range_m"]) and d["detections"]
+    back = PixelSpectrum.from_dict(d)
+    assert np.array_equal(back.points, spec.points) and np.array_equal(back.threshold["down"], spec.threshold["down"])
+    assert back.gate == spec.gate and back.detections == spec.detections
