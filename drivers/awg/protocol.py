@@ -33,6 +33,8 @@ CODE_FULL_SCALE = 32767
 class AwgProtocolError(ProtocolError):
     """AWG bytes (SCPI text, block, reply) that cannot be decoded."""
 
+    DEVICE = "awg"
+
 
 class ScpiSyntaxError(AwgProtocolError):
     """A SCPI message that is not well formed."""

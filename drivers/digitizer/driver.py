@@ -30,6 +30,7 @@ import numpy as np
 import usb.core
 
 from drivers.digitizer import protocol as p
+from drivers.errors import ProtocolError
 from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
@@ -50,7 +51,7 @@ class DigitizerError(DeviceStall):
     """The digitizer refused a request (stalled the control pipe): bad value or wrong state."""
 
 
-class DigitizerDataError(UsbDeviceError):
+class DigitizerDataError(UsbDeviceError, ProtocolError):
     """Segment stream that fails validation (magic, index, crc) for the named read."""
 
 
@@ -125,33 +126,33 @@ class DigitizerDriver:
         try:
             mask = p.channel_mask(tuple(channels))
         except p.DigitizerProtocolError as exc:
-            raise InvalidArgument(f"digitizer channels {channels!r}: {exc}") from None
+            raise InvalidArgument(DEVICE, "set_channels", f"digitizer channels {channels!r}: {exc}") from None
         self._out(p.Req.SET_CHANNELS, mask)
 
     def set_sample_rate(self, hz: float) -> None:
         if not (np.isfinite(hz) and hz >= 1):
-            raise InvalidArgument(f"digitizer sample rate must be >= 1 Hz, got {hz!r}")
+            raise InvalidArgument(DEVICE, "set_sample_rate", f"digitizer sample rate must be >= 1 Hz, got {hz!r}")
         self._out(p.Req.SET_SAMPLE_RATE, data=p.enc_u64(int(round(hz))))
 
     def set_record_length(self, n: int) -> None:
         if not 1 <= int(n) <= 0xFFFFFFFF:
-            raise InvalidArgument(f"digitizer record length {n!r} out of u32 range")
+            raise InvalidArgument(DEVICE, "set_record_length", f"digitizer record length {n!r} out of u32 range")
         self._out(p.Req.SET_RECORD_LENGTH, data=p.enc_u32(int(n)))
 
     def set_segments(self, n: int) -> None:
         if not 1 <= int(n) <= 0xFFFFFFFF:
-            raise InvalidArgument(f"digitizer segment count {n!r} out of u32 range")
+            raise InvalidArgument(DEVICE, "set_segments", f"digitizer segment count {n!r} out of u32 range")
         self._out(p.Req.SET_SEGMENTS, data=p.enc_u32(int(n)))
 
     def set_format(self, bits: int) -> None:
         if bits not in (8, 16):
-            raise InvalidArgument(f"digitizer sample format must be 8 or 16 bits, got {bits!r}")
+            raise InvalidArgument(DEVICE, "set_format", f"digitizer sample format must be 8 or 16 bits, got {bits!r}")
         self._out(p.Req.SET_FORMAT, bits)
 
     def set_input_range(self, volts: float) -> None:
         mv = int(round(volts * 1000.0)) if np.isfinite(volts) else -1
         if not 1 <= mv <= 0xFFFFFFFF:
-            raise InvalidArgument(f"digitizer input range {volts!r} V out of range")
+            raise InvalidArgument(DEVICE, "set_input_range", f"digitizer input range {volts!r} V out of range")
         self._out(p.Req.SET_RANGE, data=p.enc_u32(mv))
 
     def configure(self, *, channels: tuple[str, ...], sample_rate_hz: float, record_length: int,
@@ -186,7 +187,7 @@ class DigitizerDriver:
         round trip when the caller already has it.
         """
         if count < 1 or first < 0:
-            raise InvalidArgument(f"digitizer read_segments(first={first}, count={count}) invalid")
+            raise InvalidArgument(DEVICE, "read_segments", f"digitizer read_segments(first={first}, count={count}) invalid")
         cfg = cfg or self.config()
         n_ch = len(cfg.channels)
         rec = p.segment_dtype(n_ch, cfg.record_length, cfg.bits)

@@ -76,6 +76,8 @@ assert HEADER_LEN == 32
 class DigitizerProtocolError(ProtocolError):
     """Digitizer bytes that cannot be decoded (bad magic, CRC, field values, lengths)."""
 
+    DEVICE = "digitizer"
+
 
 class State(enum.IntEnum):
     IDLE = 0

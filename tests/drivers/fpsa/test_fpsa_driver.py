@@ -78,7 +78,7 @@ def test_every_command_over_a_real_pty():
     clock = VirtualClock()
     sim = FpgaSim(clock, FpgaConfig(seed=3))
     with sim.serve_pty() as server:
-        with FpsaController(server.path, timeout_s=2.0, retries=1) as drv:
+        with FpsaController.from_url(server.path, timeout_s=2.0, retries=1) as drv:
             exercise_every_command(drv, sim, clock)
 
 
@@ -86,7 +86,7 @@ def test_full_12288_pixel_pattern_over_pty_and_run_completes():
     clock = VirtualClock()
     sim = FpgaSim(clock)
     pattern = full_raster()
-    with sim.serve_pty() as server, FpsaController(server.path, timeout_s=2.0) as drv:
+    with sim.serve_pty() as server, FpsaController.from_url(server.path, timeout_s=2.0) as drv:
         drv.reset()
         assert drv.upload_pattern(pattern) == 12
         drv.set_timing(settle_ns=8000, trigger_period_ns=10_000)
