@@ -82,8 +82,8 @@ class DeviceError(Exception):
 
 
 def _rebuild(cls: type, state: dict, message: str) -> DeviceError:
-    exc = Exception.__new__(cls)
-    Exception.__init__(exc, message)
+    exc = cls.__new__(cls)  # not __init__: subclasses have their own signatures
+    exc.args = (message,)
     exc.__dict__.update(state)
     return exc
 

@@ -8,6 +8,7 @@ import pytest
 from drivers.fpsa import protocol as p
 from drivers.fpsa.driver import FpsaController, LinkError
 from drivers.fpsa.errors import NakError, PatternError
+from drivers.errors import DeviceGone, TransportError
 from drivers.transport import DeviceTimeout
 from sim_devices.clock import VirtualClock
 from sim_devices.fpga import FpgaConfig, FpgaSim
@@ -289,3 +290,43 @@ def test_constructor_rejects_bad_arguments():
         FpsaController(DeadPort(), timeout_s=0)
     with pytest.raises(ValueError):
         FpsaController(DeadPort(), retries=-1)
+
+
+def test_channel_seam_reopen_and_from_url():
+    # A port that fails once: the driver closes it and asks ``reopen`` for a fresh channel.
+    sim = FpgaSim(VirtualClock())
+
+    class Unplugged:
+        timeout = None
+
+        def write(self, data):
+            raise OSError("device unplugged")
+
+        def read(self, size=1):
+            return b""
+
+        def close(self):
+            pass
+
+    opened = []
+
+    def reopen():
+        opened.append(sim.open_pipe())
+        return opened[-1]
+
+    drv = FpsaController(Unplugged(), reopen=reopen, sleep=lambda s: None)
+    assert drv.identify().rows == 128
+    assert drv.reconnect_count == 1 and len(opened) == 1 and opened[0].timeout == drv.timeout_s
+    # without ``reopen`` a failed port is final, typed, and names device and command
+    with pytest.raises(DeviceGone) as ei:
+        FpsaController(Unplugged(), sleep=lambda s: None).status()
+    assert (ei.value.device, ei.value.command) == ("fpsa", "STATUS")
+    with pytest.raises(TransportError):
+        FpsaController.from_url("nosuch://x")
+
+
+def test_url_constructor_still_works_for_one_release():
+    with pytest.warns(DeprecationWarning, match="from_url"):
+        drv = FpsaController("loop://", timeout_s=0.05, retries=0)
+    assert drv.url == "loop://" and drv._reopen is not None
+    drv.close()
