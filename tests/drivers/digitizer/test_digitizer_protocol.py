@@ -81,8 +81,8 @@ def test_decoders_raise_only_protocol_errors(data):
                p.dec_read_segments, p.dec_u32, p.dec_u64):
         try:
             fn(data)
-        except p.DigitizerProtocolError:
-            pass
+        except p.DigitizerProtocolError as exc:
+            assert exc.device == "digitizer" and exc.command == "decode"
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)
