@@ -10,6 +10,18 @@ shared ``VirtualClock``: before a segment is served the clock moves to its trigg
 record duration (the capture must have happened), and every bulk-IN transfer advances it by
 bytes / ``usb_rate_bytes_s`` (the modelled bus throughput, 40 MB/s by default).
 
+Front end (SET_RESOLUTION, SET_BANDWIDTH): the source's codes stand for the analog input (16-bit
+codes are 15 uV steps on a 1 V range). The digitizer band-limits every channel with its anti-alias
+filter (signal and noise alike, since both are in the codes) and then quantizes to the requested
+resolution, as the converter does: filter first, quantizer last. The filter stands in for a
+digitizer's decimation filter: zero phase (linear-phase like an FIR decimator, so a trigger-aligned
+record keeps its timing and the range does not shift), steep (an 8th-order Butterworth run forward
+and backward). Its power response, the formula docs/protocols/digitizer.md gives, is
+
+    |H(f)|^2 = 1 / (1 + (tan(pi f / fs) / tan(pi f_c / fs)) ** (2 * ANTI_ALIAS_ORDER))
+
+(-3.01 dB at f_c, about -48 dB at 2 f_c). A corner at or above fs / 2 leaves the record as it is.
+
 Wire format: drivers/digitizer/protocol.py and docs/protocols/digitizer.md.
 """
 
@@ -20,6 +32,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.signal import butter, sosfiltfilt
 
 from drivers.digitizer import protocol as p
 from sim_devices.clock import VirtualClock
@@ -31,6 +44,8 @@ RECORD_LENGTH_MAX = 16 * 1024 * 1024
 SEGMENTS_MAX = 1 << 24
 RANGE_MV_MIN = 10
 RANGE_MV_MAX = 10_000
+#: Butterworth order of the anti-alias filter, run forward and backward (zero phase)
+ANTI_ALIAS_ORDER = 8
 
 
 @dataclass(frozen=True)
@@ -40,6 +55,9 @@ class CaptureConfig:
     channels: tuple[str, ...]
     bits: int
     input_range_v: float
+    #: ADC resolution and anti-alias corner the digitizer applies after the source (information)
+    resolution_bits: int = 16
+    bandwidth_hz: float = 0.0
 
 
 @dataclass
@@ -95,7 +113,7 @@ class SimDigitizer(SimUsbDevice):
     def capture_config(self, c: p.Config | None = None) -> CaptureConfig:
         c = c or self.config
         return CaptureConfig(float(c.sample_rate_hz), c.record_length, c.channels, c.bits,
-                             c.input_range_mv / 1000.0)
+                             c.input_range_mv / 1000.0, c.resolution_bits, float(c.bandwidth_hz))
 
     # ------------------------------------------------------------------------ control
 
@@ -120,7 +138,8 @@ class SimDigitizer(SimUsbDevice):
             raise self._refuse(req, "not an IN request")
         if self.state in (p.State.ARMED, p.State.CAPTURING) and r in (
                 p.Req.SET_CHANNELS, p.Req.SET_SAMPLE_RATE, p.Req.SET_RECORD_LENGTH,
-                p.Req.SET_SEGMENTS, p.Req.SET_FORMAT, p.Req.SET_RANGE):
+                p.Req.SET_SEGMENTS, p.Req.SET_FORMAT, p.Req.SET_RANGE, p.Req.SET_RESOLUTION,
+                p.Req.SET_BANDWIDTH):
             raise self._refuse(req, "configuration locked while armed")
         c = self.config
         try:
@@ -144,7 +163,16 @@ class SimDigitizer(SimUsbDevice):
                 self.config = _replace(c, segments=v)
             elif r is p.Req.SET_FORMAT:
                 p.bytes_per_sample(w_value)
-                self.config = _replace(c, bits=w_value)
+                # a new format starts at its full resolution (SET_RESOLUTION may lower it)
+                self.config = _replace(c, bits=w_value, resolution_bits=w_value)
+            elif r is p.Req.SET_RESOLUTION:
+                p.check_resolution(w_value, c.bits)
+                self.config = _replace(c, resolution_bits=w_value)
+            elif r is p.Req.SET_BANDWIDTH:
+                v = p.dec_u64(data or b"")
+                if v > p.MAX_BANDWIDTH_HZ:
+                    raise self._refuse(req, f"bandwidth {v} Hz")
+                self.config = _replace(c, bandwidth_hz=v)
             elif r is p.Req.SET_RANGE:
                 v = p.dec_u32(data or b"")
                 if not RANGE_MV_MIN <= v <= RANGE_MV_MAX:
@@ -184,6 +212,8 @@ class SimDigitizer(SimUsbDevice):
             raise ValueError(f"SegmentSource returned codes {codes.shape}, expected "
                              f"{(count, n_ch, cfg.record_length)}")
         lo, hi = (-128, 127) if cfg.bits == 8 else (-32768, 32767)
+        if cfg.bandwidth_hz or cfg.resolution_bits < cfg.bits:
+            codes, hi = front_end(codes, cfg)
         clipped = (codes < lo) | (codes > hi)
         over = np.asarray(cap.overrange, dtype=bool) | clipped.any(axis=2)
         recs = np.zeros(count, dtype=rec)
@@ -196,7 +226,7 @@ class SimDigitizer(SimUsbDevice):
         recs["n_samples"] = cfg.record_length
         t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
         recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
-        recs["data"] = np.clip(codes, lo, hi) if clipped.any() else codes
+        recs["data"] = (np.clip(codes, lo, hi) if clipped.any() else codes).astype(p.sample_dtype(cfg.bits))
         raw = recs.view(np.uint8)
         mv = memoryview(raw)
         size = rec.itemsize
@@ -248,6 +278,37 @@ class SimDigitizer(SimUsbDevice):
 
     def handle_reset(self):
         self._reset_acquisition()
+
+
+def band_limit(x: np.ndarray, bandwidth_hz: float, sample_rate_hz: float) -> np.ndarray:
+    """The anti-alias filter along the last axis (module docstring); float64 out.
+
+    A corner of 0 or at/above fs/2 returns ``x`` unfiltered (as float64).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if not 0 < bandwidth_hz < sample_rate_hz / 2 or x.shape[-1] < 2:
+        return x
+    sos = butter(ANTI_ALIAS_ORDER, bandwidth_hz, fs=sample_rate_hz, output="sos")
+    # odd extension as long as the record allows: keeps the record ends free of start-up transients
+    pad = min(x.shape[-1] - 1, 3 * (2 * len(sos) + 1))
+    return sosfiltfilt(sos, x, axis=-1, padlen=pad)
+
+
+def quantize_codes(x: np.ndarray, resolution_bits: int, format_bits: int) -> tuple[np.ndarray, int]:
+    """Mid-tread quantizer of ``resolution_bits`` inside the ``format_bits`` container.
+
+    Returns (codes as float64 multiples of the step 2**(format - resolution), highest code of the
+    resolution). Values beyond full scale are left for the caller to clip and flag.
+    """
+    step = 1 << (format_bits - resolution_bits)
+    hi = (1 << (format_bits - 1)) - step
+    return np.round(np.asarray(x, dtype=np.float64) / step) * step, hi
+
+
+def front_end(codes: np.ndarray, cfg: p.Config) -> tuple[np.ndarray, int]:
+    """Band limit then quantize the source's codes (both channels alike); (codes, highest code)."""
+    x = band_limit(codes, float(cfg.bandwidth_hz), float(cfg.sample_rate_hz))
+    return quantize_codes(x, cfg.resolution_bits, cfg.bits)
 
 
 def _replace(c: p.Config, **kw) -> p.Config:

@@ -155,19 +155,52 @@ class DigitizerDriver:
             raise InvalidArgument(DEVICE, "set_input_range", f"digitizer input range {volts!r} V out of range")
         self._out(p.Req.SET_RANGE, data=p.enc_u32(mv))
 
+    def set_resolution(self, bits: int) -> None:
+        """Quantize the samples to ``bits`` (8 .. the sample format's bits; set the format first).
+
+        A 12-bit resolution in the 16-bit format gives codes that are multiples of 16.
+        """
+        if isinstance(bits, bool) or not isinstance(bits, int) or not p.MIN_RESOLUTION_BITS <= bits <= 16:
+            raise InvalidArgument(DEVICE, "set_resolution",
+                                  f"digitizer resolution must be an integer of {p.MIN_RESOLUTION_BITS}..16 "
+                                  f"bits, got {bits!r}")
+        self._out(p.Req.SET_RESOLUTION, bits)
+
+    def set_bandwidth(self, hz: float | None) -> None:
+        """Anti-alias low-pass corner in Hz (the -3 dB point); ``None`` or 0 = full bandwidth.
+
+        The response is documented in docs/protocols/digitizer.md ("Bandwidth limit"); a corner at
+        or above half the sample rate leaves the record unfiltered.
+        """
+        value = 0.0 if hz is None else hz
+        if not (np.isfinite(value) and (value == 0 or 1 <= value <= p.MAX_BANDWIDTH_HZ)):
+            raise InvalidArgument(DEVICE, "set_bandwidth",
+                                  f"digitizer bandwidth must be 0 (full) or 1 .. {p.MAX_BANDWIDTH_HZ:g} Hz, "
+                                  f"got {hz!r}")
+        self._out(p.Req.SET_BANDWIDTH, data=p.enc_u64(int(round(value))))
+
     def configure(self, *, channels: tuple[str, ...], sample_rate_hz: float, record_length: int,
-                  segments: int, bits: int = 16, input_range_v: float = 1.0) -> p.Config:
-        """All settings in one call; returns the device's read-back configuration."""
+                  segments: int, bits: int = 16, input_range_v: float = 1.0,
+                  resolution_bits: int | None = None, bandwidth_hz: float | None = None) -> p.Config:
+        """All settings in one call; returns the device's read-back configuration.
+
+        ``bits`` is the sample format (8 or 16); ``resolution_bits`` the ADC resolution the samples
+        are quantized to (default: the format's bits); ``bandwidth_hz`` the anti-alias corner
+        (default: full bandwidth). Every call sets all of them, so nothing is left over from a
+        previous configuration.
+        """
         self.set_channels(channels)
         self.set_sample_rate(sample_rate_hz)
         self.set_record_length(record_length)
         self.set_segments(segments)
         self.set_format(bits)
+        self.set_resolution(bits if resolution_bits is None else resolution_bits)
+        self.set_bandwidth(bandwidth_hz)
         self.set_input_range(input_range_v)
         return self.config()
 
     def config(self) -> p.Config:
-        return p.decode_config(self._in(p.Req.GET_CONFIG, 24))
+        return p.decode_config(self._in(p.Req.GET_CONFIG, p.CONFIG_LEN))
 
     def arm(self) -> None:
         self._out(p.Req.ARM)
