@@ -1,9 +1,13 @@
 """Host driver of the FPSA controller FPGA (§4.3.3, Fig. 4-22): typed methods over the wire
-codec in ``protocol.py`` and any byte channel from ``drivers.transport``.
+codec in ``protocol.py`` and a :class:`drivers.transport.ByteChannel`.
 
-The same class drives the Cmod-S7 on ``/dev/ttyUSB1``, the simulated FPGA on a pty path, or a
-pre-opened serial-like object (tests pass the simulator's in-memory pipe). There is no simulator
-switch: the channel is configuration.
+The seam is the channel (pyserial's idea; httpx's transport seam is the model): the driver takes
+any object with ``read``/``write``/``timeout`` (``FpsaController(channel, reopen=...)``), and
+``FpsaController.from_url(url)`` opens one through :func:`drivers.transport.open_channel`. The same
+class drives the Cmod-S7 on ``/dev/ttyUSB1``, the simulated FPGA on a pty path, or the simulator's
+in-memory pipe; tests wrap a channel to drop or corrupt bytes. There is no simulator switch: the
+channel is configuration. (``FpsaController(url)`` still works for one release, with a
+DeprecationWarning.)
 
 Reliability (stop-and-wait with idempotent retries): every command gets a fresh ``seq``; a
 retry re-sends the *identical* frame (same seq) after a lone 0x00 that flushes any garbage the
@@ -14,11 +18,12 @@ device and the command (or :class:`LinkError` if answers kept arriving garbled).
 final and raised as :class:`NakError`.
 
 Reconnect: when the port itself fails (the USB-serial adapter unplugged, the pty closed: pyserial
-raises ``SerialException``/``OSError``), a driver opened from a URL closes it and reopens the SAME
-URL before the next attempt. The URL should therefore be a stable name (``/dev/serial/by-id/...`` in
+raises ``SerialException``/``OSError``), a driver with ``reopen`` closes it and opens a fresh
+channel before the next attempt (``from_url`` reopens the SAME URL); without ``reopen`` the failure
+is final, a :class:`~drivers.errors.DeviceGone` naming device and command. The URL should therefore be a stable name (``/dev/serial/by-id/...`` in
 the lab, the bench's symlink in simulation) that follows the device to its new node. The retry
 budget is shared with timeouts, so a port that stays away ends in :class:`DeviceTimeout` (or
-:class:`~drivers.transport.TransportError` when it cannot even be reopened) naming the device.
+:class:`~drivers.errors.DeviceGone` when it cannot even be reopened) naming the device.
 
 Patterns are validated before anything is sent: shape, range, and that every row is wire-bonded
 (§4.3.3: one row in four is not). The protocol can only ever address one row per pixel
