@@ -132,57 +132,12 @@ class SimDigitizer(SimUsbDevice):
         except ValueError:
             raise self._refuse(req, "unknown request") from None
         if bm & 0x80:
-            if r is p.Req.IDENTIFY:
-                s = self.spec
-                return f"{s.manufacturer},{s.product},{s.serial},1.0".encode()[:w_length]
-            if r is p.Req.GET_STATUS:
-                return p.encode_status(p.Status(self.state, self.segments_captured, self.overrange_count,
-                                                self.last_refused_request, self.segments_sent))
-            if r is p.Req.GET_CONFIG:
-                return p.encode_config(self.config)
-            raise self._refuse(req, "not an IN request")
-        if self.state in (p.State.ARMED, p.State.CAPTURING) and r in (
-                p.Req.SET_CHANNELS, p.Req.SET_SAMPLE_RATE, p.Req.SET_RECORD_LENGTH,
-                p.Req.SET_SEGMENTS, p.Req.SET_FORMAT, p.Req.SET_RANGE, p.Req.SET_RESOLUTION,
-                p.Req.SET_BANDWIDTH):
+            return self._answer_in(r, req, w_length)
+        if self.state in (p.State.ARMED, p.State.CAPTURING) and r in _SETTINGS:
             raise self._refuse(req, "configuration locked while armed")
-        c = self.config
         try:
-            if r is p.Req.SET_CHANNELS:
-                p.validate_mask(w_value)
-                self.config = _replace(c, channel_mask=w_value)
-            elif r is p.Req.SET_SAMPLE_RATE:
-                v = p.dec_u64(data or b"")
-                if not SAMPLE_RATE_MIN_HZ <= v <= SAMPLE_RATE_MAX_HZ:
-                    raise self._refuse(req, f"sample rate {v} Hz")
-                self.config = _replace(c, sample_rate_hz=v)
-            elif r is p.Req.SET_RECORD_LENGTH:
-                v = p.dec_u32(data or b"")
-                if not 1 <= v <= RECORD_LENGTH_MAX:
-                    raise self._refuse(req, f"record length {v}")
-                self.config = _replace(c, record_length=v)
-            elif r is p.Req.SET_SEGMENTS:
-                v = p.dec_u32(data or b"")
-                if not 1 <= v <= SEGMENTS_MAX:
-                    raise self._refuse(req, f"segments {v}")
-                self.config = _replace(c, segments=v)
-            elif r is p.Req.SET_FORMAT:
-                p.bytes_per_sample(w_value)
-                # a new format starts at its full resolution (SET_RESOLUTION may lower it)
-                self.config = _replace(c, bits=w_value, resolution_bits=w_value)
-            elif r is p.Req.SET_RESOLUTION:
-                p.check_resolution(w_value, c.bits)
-                self.config = _replace(c, resolution_bits=w_value)
-            elif r is p.Req.SET_BANDWIDTH:
-                v = p.dec_u64(data or b"")
-                if v > p.MAX_BANDWIDTH_HZ:
-                    raise self._refuse(req, f"bandwidth {v} Hz")
-                self.config = _replace(c, bandwidth_hz=v)
-            elif r is p.Req.SET_RANGE:
-                v = p.dec_u32(data or b"")
-                if not RANGE_MV_MIN <= v <= RANGE_MV_MAX:
-                    raise self._refuse(req, f"range {v} mV")
-                self.config = _replace(c, input_range_mv=v)
+            if r in _SETTINGS:
+                self.config = self._setting(r, req, w_value, data or b"")
             elif r is p.Req.ARM:
                 self._reset_acquisition()
                 self.state = p.State.ARMED
@@ -201,6 +156,36 @@ class SimDigitizer(SimUsbDevice):
         except p.DigitizerProtocolError as exc:
             raise self._refuse(req, str(exc)) from None
         return len(data or b"")
+
+    def _answer_in(self, r: p.Req, req: int, w_length: int) -> bytes:
+        if r is p.Req.IDENTIFY:
+            s = self.spec
+            return f"{s.manufacturer},{s.product},{s.serial},1.0".encode()[:w_length]
+        if r is p.Req.GET_STATUS:
+            return p.encode_status(p.Status(self.state, self.segments_captured, self.overrange_count,
+                                            self.last_refused_request, self.segments_sent))
+        if r is p.Req.GET_CONFIG:
+            return p.encode_config(self.config)
+        raise self._refuse(req, "not an IN request")
+
+    def _setting(self, r: p.Req, req: int, w_value: int, data: bytes) -> p.Config:
+        """The configuration after setting request ``r`` (refused: a STALL naming the value)."""
+        c = self.config
+        if r is p.Req.SET_CHANNELS:
+            p.validate_mask(w_value)
+            return _replace(c, channel_mask=w_value)
+        if r is p.Req.SET_FORMAT:
+            p.bytes_per_sample(w_value)
+            # a new format starts at its full resolution (SET_RESOLUTION may lower it)
+            return _replace(c, bits=w_value, resolution_bits=w_value)
+        if r is p.Req.SET_RESOLUTION:
+            p.check_resolution(w_value, c.bits)
+            return _replace(c, resolution_bits=w_value)
+        field, decode, low, high, unit = _NUMERIC[r]
+        v = decode(data)
+        if not low <= v <= high:
+            raise self._refuse(req, f"{field} {v} {unit}")
+        return _replace(c, **{field: v})
 
     # ------------------------------------------------------------------------ bulk-IN
 
@@ -283,6 +268,19 @@ class SimDigitizer(SimUsbDevice):
 
     def handle_reset(self):
         self._reset_acquisition()
+
+
+#: requests that change the configuration (refused while armed)
+_SETTINGS = frozenset({p.Req.SET_CHANNELS, p.Req.SET_SAMPLE_RATE, p.Req.SET_RECORD_LENGTH, p.Req.SET_SEGMENTS,
+                       p.Req.SET_FORMAT, p.Req.SET_RANGE, p.Req.SET_RESOLUTION, p.Req.SET_BANDWIDTH})
+#: numeric settings: request -> (Config field, data-stage decoder, lowest, highest, unit)
+_NUMERIC = {
+    p.Req.SET_SAMPLE_RATE: ("sample_rate_hz", p.dec_u64, SAMPLE_RATE_MIN_HZ, SAMPLE_RATE_MAX_HZ, "Hz"),
+    p.Req.SET_RECORD_LENGTH: ("record_length", p.dec_u32, 1, RECORD_LENGTH_MAX, "samples"),
+    p.Req.SET_SEGMENTS: ("segments", p.dec_u32, 1, SEGMENTS_MAX, "segments"),
+    p.Req.SET_RANGE: ("input_range_mv", p.dec_u32, RANGE_MV_MIN, RANGE_MV_MAX, "mV"),
+    p.Req.SET_BANDWIDTH: ("bandwidth_hz", p.dec_u64, 0, p.MAX_BANDWIDTH_HZ, "Hz"),
+}
 
 
 def band_limit(x: np.ndarray, bandwidth_hz: float, sample_rate_hz: float) -> np.ndarray:
