@@ -86,3 +86,15 @@ def test_errors_survive_pickling_with_their_context(err):
     back = pickle.loads(pickle.dumps(err))
     assert type(back) is type(err) and str(back) == str(err)
     assert (back.device, back.command) == (err.device, err.command)
+
+
+def test_channel_errors_name_device_command_and_url(tmp_path):
+    from drivers.transport import open_channel
+
+    with pytest.raises(e.TransportError) as ei:
+        open_channel("nosuch://x", device="fpsa")
+    assert (ei.value.device, ei.value.command, ei.value.url) == ("fpsa", "open", "nosuch://x")
+    missing = str(tmp_path / "no-such-tty")
+    with pytest.raises(e.DeviceGone) as ei:  # a port that is not there: gone, not a bad URL
+        open_channel(missing, device="fpsa")
+    assert ei.value.url == missing and isinstance(ei.value, ConnectionError)
