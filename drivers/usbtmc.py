@@ -20,8 +20,11 @@ followed (MSG_OUT, MSG_IN) by TransferSize message bytes padded with zeros to a 
 This module is PURE (no I/O). Decoders raise only ``UsbtmcProtocolError`` (a ``ProtocolError``).
 Golden byte vectors are in docs/protocols/awg.md.
 
-The typed driver errors (``DeviceTimeout`` etc.) live here too because both USB drivers raise them
-and both map pyusb's ``USBError`` the same way (errno ETIMEDOUT/EPIPE/ENODEV).
+The typed USB driver errors (``DeviceTimeout`` etc.) live here too because both USB drivers raise
+them and both map pyusb's ``USBError`` the same way (errno ETIMEDOUT/EPIPE/ENODEV). They are
+subclasses of the shared tree in :mod:`drivers.errors` (``DeviceTimeout`` of its DeviceTimeout,
+``DeviceStall`` of CommandRefused, ``DeviceDisconnected`` of DeviceGone, codec errors of its
+ProtocolError), so every one carries ``device`` and ``command``.
 """
 
 from __future__ import annotations
