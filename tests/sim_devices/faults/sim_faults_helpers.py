@@ -35,7 +35,7 @@ def controller(bench: Bench, **kw) -> LaserHvController:
 
 def fpsa(bench: Bench, **kw) -> FpsaController:
     kw.setdefault("timeout_s", 0.5)
-    return FpsaController(bench.endpoints()["fpsa_url"], **kw)
+    return FpsaController.from_url(bench.endpoints()["fpsa_url"], **kw)
 
 
 def power_up(bench: Bench) -> LaserHvController:

@@ -122,7 +122,7 @@ def test_replug_resets_the_usb_session_but_keeps_the_settings(bench):
         dig_p.REQTYPE_IN, int(dig_p.Req.GET_STATUS), 0, 0, 16)))
     assert status.state == dig_p.State.IDLE            # the armed acquisition did not survive
     cfg = dig_p.decode_config(bytes(again.ctrl_transfer(
-        dig_p.REQTYPE_IN, int(dig_p.Req.GET_CONFIG), 0, 0, 24)))
+        dig_p.REQTYPE_IN, int(dig_p.Req.GET_CONFIG), 0, 0, dig_p.CONFIG_LEN)))
     assert cfg.segments == 7                           # the configuration did
     # and a setting is accepted again (it is refused while armed)
     again.ctrl_transfer(dig_p.REQTYPE_OUT, int(dig_p.Req.SET_SEGMENTS), 0, 0, dig_p.enc_u32(9))
