@@ -2,18 +2,14 @@
 
 import io
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard.api.app import create_app  # noqa: E402
-from lidard.config import load_config  # noqa: E402
+from lidard.api.app import create_app
+from lidard.config import load_config
+from tests.helpers.fakes import FakeInstrument
 
 T = 20.0
 SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20]}

@@ -16,19 +16,15 @@ The control lock is released after every case so that a generated ``POST /contro
 the rest of the run into 423s.
 """
 
-import sys
-from pathlib import Path
 
 import pytest
 import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard.api.app import create_app  # noqa: E402
-from lidard.config import load_config  # noqa: E402
+from lidard.api.app import create_app
+from lidard.config import load_config
+from tests.helpers.fakes import FakeInstrument
 
 _APP = {}
 

@@ -14,13 +14,11 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard.api.app import create_app  # noqa: E402
-from lidard.api.control import BodySizeLimit, token_ok  # noqa: E402
-from lidard.cli import build_lidard_parser, is_loopback  # noqa: E402
-from lidard.config import Config, ConfigError, load_config  # noqa: E402
+from lidard.api.app import create_app
+from lidard.api.control import BodySizeLimit, token_ok
+from lidard.cli import build_lidard_parser, is_loopback
+from lidard.config import Config, ConfigError, load_config
+from tests.helpers.fakes import FakeInstrument
 
 SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20]}
 SCENE = 'name = "wall"\n[[target]]\nkind = "plane"\npoint = [0.0, 0.0, 2.0]\nnormal = [0.0, 0.0, -1.0]\n'
@@ -178,7 +176,6 @@ def test_max_body_bytes_comes_from_config(tmp_path):
 
 # -- the same limits on a live uvicorn server, with raw sockets (what a hostile client would send)
 def _live(tmp_path, **kw):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     from benchmarks.load import serve
     inst = FakeInstrument()
     app = create_app(load_config(), instrument=inst, data_dir=tmp_path, max_body_bytes=4096, **kw)
@@ -287,8 +284,8 @@ def test_daemon_socket_gets_tcp_nodelay_on_every_connection():
     socket whose proto is TCP (with proto 0 every response waited ~40 ms for a delayed ACK)."""
     import socket
 
-    from lidard.cli import _bind
-    sock = _bind("127.0.0.1", 0)
+    from lidard.cli.daemon import bind
+    sock = bind("127.0.0.1", 0)
     assert sock.proto == socket.IPPROTO_TCP
     seen = []
 

@@ -19,6 +19,7 @@ from lidard.api.app import create_app
 from lidard.cli import lidarctl_main
 from lidard.config import load_config
 from lidard.instrument import analyse_selftest, open_instrument
+from tests.helpers.fakes import FakeInstrument
 
 REPO = Path(__file__).resolve().parents[2]
 ROWS = [0, 1, 2, 4, 5, 6, 8, 9]          # bonded rows of a small array (every 4th row missing)
@@ -124,10 +125,6 @@ def test_sim_faults_refuses_unknown_kinds_and_bad_parameters_by_name(client):
 
 
 def test_sim_faults_on_real_hardware_is_a_conflict(tmp_path):
-    import sys
-    sys.path.insert(0, str(Path(__file__).parent))
-    from lidard_fakes import FakeInstrument
-
     cfg = load_config(REPO / "config" / "sim.toml")
     app = create_app(cfg, instrument=FakeInstrument(simulated=False), data_dir=str(tmp_path))
     with TestClient(app) as c:
