@@ -109,7 +109,7 @@ def readable(value: Any) -> str:
     for k, v in fields.items():
         if k in ("faults",) and (v in ("NONE", []) or not v):
             continue  # "no faults" is said by the FAULTS column
-        if k == "firmware" and isinstance(v, list):
+        if k == "firmware" and isinstance(v, (list, tuple)):
             v = ".".join(str(x) for x in v)
         if k == "state" and isinstance(v, str):
             parts.insert(0, v.lower())

@@ -24,6 +24,7 @@ from hypothesis import HealthCheck, settings
 
 from lidard.api.app import create_app
 from lidard.config import load_config
+from tests.helpers.api import app_client
 from tests.helpers.fakes import FakeInstrument
 
 _APP = {}
@@ -89,7 +90,7 @@ def test_openapi_documents_the_gates(lidard_openapi):
 ])
 def test_lax_coercions_are_422(tmp_path, body, field):
     inst = FakeInstrument()
-    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
+    with app_client(tmp_path, inst) as c:
         r = c.post("/scans", json=body)
         assert r.status_code == 422 and field in str(r.json()["detail"])
         assert inst.requests == []
@@ -106,7 +107,7 @@ def test_lax_coercions_are_422(tmp_path, body, field):
 ])
 def test_put_scene_odd_json_is_422_not_500(tmp_path, scene):
     inst = FakeInstrument()
-    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
+    with app_client(tmp_path, inst) as c:
         r = c.put("/sim/scene", json=scene)
         assert r.status_code == 422, r.text
         assert inst.scenes == []
