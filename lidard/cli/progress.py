@@ -60,10 +60,17 @@ class Progress:
     def _draw_bar(self, ev: dict[str, Any]) -> None:
         from tqdm import tqdm
         stage, total = str(ev.get("stage", "")), int(ev.get("pixels_planned") or 0)
+        if not total:  # a stage with no pixel count (linearizing, preparing): a bar would say "0/?"
+            if stage != self._stage:
+                self._close_bar()
+                self._stage = stage
+                self._write(f"{stage}...\n")
+            return
         if self._bar is None or stage != self._stage or (total and self._bar.total != total):
             self._close_bar()
             self._stage = stage
-            self._bar = tqdm(total=total or None, file=self.file, desc=f"{stage:>11}", unit="px",
+            self._bar = tqdm(total=total, file=self.file, desc=f"{stage:>11}", unit="px",
+                             postfix=f"{int(ev.get('points') or 0)} pts",
                              ascii=".#", dynamic_ncols=False, leave=True, mininterval=0.1,
                              bar_format="{desc} [{bar:WIDTH}] {percentage:5.1f}% {n_fmt}/{total_fmt} px"
                                         "{postfix}  ETA {remaining}, {rate_fmt}".replace("WIDTH", str(self.width)))

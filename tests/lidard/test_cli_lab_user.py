@@ -223,6 +223,20 @@ def test_progress_lines_one_per_decile_and_json_one_per_event(capsys):
         {"event": "end", "state": "done"}]
 
 
+def test_bar_shows_an_eta_and_says_stages_without_pixels_in_words(capsys):
+    import re
+    bar = Progress("bar", width=10)
+    bar({"event": "progress", "stage": "linearizing", "fraction": 0.0, "pixels_done": 0, "pixels_planned": 0,
+         "points": 0})
+    for done in (0, 40):
+        bar({"event": "progress", "stage": "scanning", "fraction": done / 100, "pixels_done": done,
+             "pixels_planned": 100, "points": done})
+    bar.close()
+    err = capsys.readouterr().err
+    assert err.startswith("linearizing...\n") and "0/?" not in err
+    assert re.search(r"40/100 px, 40 pts  ETA \d\d:\d\d", err), err
+
+
 # -- plot without matplotlib: the error names the package
 def test_linearize_plot_without_matplotlib_names_it(capsys, monkeypatch, tmp_path):
     import sys
