@@ -22,9 +22,7 @@ import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
 
-from lidard.api.app import create_app
-from lidard.config import load_config
-from tests.helpers.api import app_client
+from tests.helpers.api import app_client, make_app
 from tests.helpers.fakes import FakeInstrument
 
 _APP = {}
@@ -42,8 +40,8 @@ class HealthyInstrument(FakeInstrument):
 
 @pytest.fixture(scope="module")
 def lidard_openapi(tmp_path_factory):
-    app = create_app(load_config(), instrument=HealthyInstrument(), data_dir=tmp_path_factory.mktemp("st"),
-                     max_queue=1_000_000, progress_interval_s=0.0)
+    app = make_app(tmp_path_factory.mktemp("st"), HealthyInstrument(),
+                   max_queue=1_000_000, progress_interval_s=0.0)
     _APP["app"] = app
     with TestClient(app):  # runs the lifespan: store, worker
         yield schemathesis.openapi.from_asgi("/openapi.json", app)

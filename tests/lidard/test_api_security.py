@@ -13,11 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from lidard.api.app import create_app
 from lidard.api.control import BodySizeLimit, token_ok
 from lidard.cli import build_lidard_parser, is_loopback
 from lidard.config import Config, ConfigError, load_config
-from tests.helpers.api import app_client
+from tests.helpers.api import app_client, make_app
 from tests.helpers.fakes import FakeInstrument
 
 SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20]}
@@ -176,7 +175,7 @@ def test_max_body_bytes_comes_from_config(tmp_path):
 def _live(tmp_path, **kw):
     from benchmarks.load import serve
     inst = FakeInstrument()
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, max_body_bytes=4096, **kw)
+    app = make_app(tmp_path, inst, max_body_bytes=4096, **kw)
     return serve(app), inst
 
 
