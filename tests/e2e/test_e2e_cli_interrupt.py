@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from lidard.pointcloud import read_points, read_sidecar
 
 REPO = Path(__file__).resolve().parents[2]
@@ -20,6 +22,7 @@ def _lidarctl() -> list[str]:
     return [sys.executable, "-c", "import sys; from lidard.cli import lidarctl_main; sys.exit(lidarctl_main())"]
 
 
+@pytest.mark.slow  # a real process: bench start and chirp linearization first (~10 s on an idle machine)
 def test_sigint_after_first_progress_line_exits_130_with_partial_points(tmp_path):
     out_file = tmp_path / "part.ply"
     cmd = _lidarctl() + ["scan", "--sim", "--scene", str(REPO / "config/scenes/cal_letters.toml"),
