@@ -282,3 +282,31 @@ def test_phase_noise_compensation_choice_reaches_the_instrument(fake_api):
     assert [q.phase_noise_compensation for q in inst.requests] == ["on", "off", None]
     r = c.post("/scans", json={**SMALL, "phase_noise_compensation": "sometimes"})
     assert r.status_code == 422 and "phase_noise_compensation" in r.text
+
+
+def test_sidecar_endpoint_names_the_config_scene_then_an_uploaded_one(make_client):
+    import hashlib
+
+    from lidard.config import CONFIG_DIR, load_config
+    cfg = load_config(CONFIG_DIR / "sim.toml")
+    c = make_client(FakeInstrument(profile="fpsa128"), cfg=cfg, progress_interval_s=0.0)
+    scene_file = cfg.resolve_path(cfg.sim.scene)
+
+    def scan_sidecar():
+        sid = c.post("/scans", json={**SMALL, "formats": ["ply"]}).json()["id"]
+        c.app.state.worker.wait(sid, T)
+        return sid, c.get(f"/scans/{sid}/sidecar", params={"format": "ply"})
+
+    sid, r = scan_sidecar()
+    assert r.status_code == 200
+    side = r.json()
+    assert side["scan_id"] == sid and side["format"] == "ply"
+    assert side["scene"] == {"path": str(scene_file.resolve()),
+                             "sha256": hashlib.sha256(scene_file.read_bytes()).hexdigest()}
+    assert c.get(f"/scans/{sid}/sidecar", params={"format": "las"}).status_code == 404
+    assert c.get("/scans/NOPE/sidecar").status_code == 404
+    # a scene uploaded with PUT /sim/scene has no file: later sidecars carry the hash of the body sent
+    assert c.put("/sim/scene", content=SCENE_TOML, headers={"content-type": "application/toml"}).status_code == 200
+    _, r = scan_sidecar()
+    assert r.json()["scene"] == {"path": None, "source": "PUT /sim/scene", "name": "wall",
+                                 "sha256": hashlib.sha256(SCENE_TOML.encode()).hexdigest()}
