@@ -9,19 +9,15 @@ targets can be cast against).
 """
 
 import copy
-import sys
 import tomllib
-from pathlib import Path
 
 import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-sys.path.insert(0, str(Path(__file__).parent))
-from _toml_emit import dumps  # noqa: E402
-
-from lidard.config import CONFIG_DIR, Config, ConfigError, load_config  # noqa: E402
-from sim_devices.world.scene import Scene, SceneError  # noqa: E402
+from lidard.config import CONFIG_DIR, Config, ConfigError, load_config
+from sim_devices.world.scene import Scene, SceneError
+from tests.helpers.toml_emit import dumps
 
 FUZZ = settings(max_examples=100, derandomize=True, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

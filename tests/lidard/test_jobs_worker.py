@@ -1,17 +1,13 @@
 """Scan worker: FIFO, calibration caching, cancel (queued / running, partial kept), failures, events."""
 
-import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import DeviceFault, FakeInstrument  # noqa: E402
-
-from lidard.instrument_api import ScanRequest  # noqa: E402
-from lidard.jobs import QueueFull, ScanWorker, UnknownScan  # noqa: E402
-from lidard.pointcloud import read_points, read_sidecar  # noqa: E402
-from lidard.store import Store  # noqa: E402
+from lidard.instrument_api import ScanRequest
+from lidard.jobs import QueueFull, ScanWorker, UnknownScan
+from lidard.pointcloud import read_points, read_sidecar
+from lidard.store import Store
+from tests.helpers.fakes import DeviceFault, FakeInstrument
 
 T = 20.0  # guard timeout for waits; never reached when things work
 SMALL = dict(pattern="roi", rows=(0, 3), cols=(0, 20))   # 3 bonded rows x 20 = 60 pixels

@@ -2,19 +2,15 @@
 number of transfers or until cleared, in-process and across the socket bridge."""
 
 import errno
-import sys
-from pathlib import Path
 
 import pytest
 import usb.core
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sim_faults_helpers import SIM_TOML, bench  # noqa: E402,F401
-
-from drivers.digitizer import protocol as dig_p  # noqa: E402
-from lidard.config import load_config  # noqa: E402
-from sim_devices.bench import Bench  # noqa: E402
-from sim_devices.usb_backend import backend_from_url  # noqa: E402
+from drivers.digitizer import protocol as dig_p
+from lidard.config import load_config
+from sim_devices.bench import Bench
+from sim_devices.usb_backend import backend_from_url
+from tests.helpers.sim_bench import SIM_TOML
 
 
 def _find(backend, dev):
