@@ -5,7 +5,8 @@ A scan's points are :data:`lidard.instrument_api.POINT_DTYPE` records (x, y, z i
 per-pixel output of the FMCW processing of §2.1/§4.4 (Fig. 4-35 shows such a frame). Float32 is used
 only here, at the file edge.
 
-* PLY: binary little-endian, one ``vertex`` element carrying every POINT_DTYPE field unchanged.
+* PLY: binary little-endian, one ``vertex`` element carrying every POINT_DTYPE field, with ``row``
+  and ``col`` stored as ``int`` (int32) because Open3D skips ``ushort`` properties.
 * LAS 1.4, point format 6: x/y/z as scaled integers with a 0.1 mm scale (mm precision with margin)
   and the offsets at the cloud's minimum; LAS ``intensity`` (uint16) holds the amplitude scaled to
   the largest one, ``return_number``/``number_of_returns`` the per-pixel return ordering and
@@ -34,6 +35,10 @@ import numpy as np
 from .instrument_api import POINT_DTYPE
 
 FORMATS = ("ply", "las", "npz")
+# PLY vertex properties: POINT_DTYPE with the pixel indices widened to int32. Open3D drops ``ushort``
+# properties ("unsupported datatype"); ``int`` is kept by Open3D, PCL and CloudCompare alike.
+PLY_DTYPE = np.dtype([(name, "<i4" if name in ("row", "col") else POINT_DTYPE[name].newbyteorder("<"))
+                      for name in POINT_DTYPE.names])
 LAS_SCALE_M = 1e-4
 # Extra-bytes dimensions of the LAS file and their POINT_DTYPE source field.
 _LAS_EXTRA = (("range", "range", np.float32), ("velocity", "velocity", np.float32),
@@ -113,7 +118,7 @@ def write_ply(path: str | os.PathLike, points: np.ndarray) -> Path:
     from plyfile import PlyData, PlyElement
 
     pts = _as_points(points)
-    el = PlyElement.describe(pts, "vertex")
+    el = PlyElement.describe(pts.astype(PLY_DTYPE), "vertex")
     with atomic_write(path) as f:
         PlyData([el], text=False, byte_order="<").write(f)
     return Path(path)
@@ -211,6 +216,19 @@ def write_sidecar(path: str | os.PathLike, meta: dict[str, Any]) -> Path:
     with atomic_write(side) as f:
         f.write(text.encode("utf-8"))
     return side
+
+
+def scene_identity(path: str | os.PathLike) -> dict[str, str]:
+    """The sidecar's ``scene`` entry on a simulated bench: the scene file's absolute path and the
+    sha256 of its bytes, so a point cloud names exactly the world it was measured in."""
+    import hashlib
+
+    p = Path(path).resolve()
+    try:
+        digest = hashlib.sha256(p.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise PointCloudError(f"scene {p}: cannot be read for the sidecar ({exc.strerror or exc})") from None
+    return {"path": str(p), "sha256": digest}
 
 
 def read_sidecar(path: str | os.PathLike) -> dict[str, Any]:

@@ -23,6 +23,7 @@ from ..config import Config
 from ..errors import LidardError
 from ..instrument_api import Instrument
 from ..jobs import ScanWorker, software_version
+from ..pointcloud import scene_identity
 from ..store import Store
 from . import control
 from .control import BodySizeLimit, ControlLock, LockHeld
@@ -64,6 +65,9 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         meta = {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
                 "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
+        if getattr(inst, "simulated", False) and cfg.sim.enabled:
+            # the sidecar names the world a simulated scan saw (PUT /sim/scene replaces this entry)
+            meta["scene"] = scene_identity(cfg.resolve_path(cfg.sim.scene))
         worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=meta,
                             optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)

@@ -13,6 +13,35 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 from ..instrument_api import OutputFormat, PatternKind, ScanRequest
 
 
+def describe_errors(errors: list[dict[str, Any]]) -> str:
+    """One line for a list of validation errors (pydantic's, or the daemon's 422 ``detail``):
+    ``averages: Input should be greater than or equal to 1; ...``.
+
+    The single formatter for the daemon's 422 bodies and for lidarctl's own check of a request
+    before it starts a bench, so both say the same words. The ``body`` location prefix and
+    pydantic's "Value error, " are dropped, and a message that already names its field (the scan
+    planner's "rows: ...") is not prefixed twice.
+    """
+    parts = []
+    for e in errors:
+        loc = [str(x) for x in (e.get("loc") or ())]
+        if loc and loc[0] == "body":
+            loc = loc[1:]
+        where = ".".join(loc)
+        msg = str(e.get("msg", "")).removeprefix("Value error, ")
+        parts.append(msg if not where or msg.startswith(where) else f"{where}: {msg}")
+    return "; ".join(parts)
+
+
+def check_scan_body(body: dict[str, Any]) -> "ScanCreate":
+    """Validate a POST /scans body exactly as the daemon will; ``ValueError`` carries
+    :func:`describe_errors`' line."""
+    from pydantic import ValidationError
+    try:
+        return ScanCreate.model_validate(body)
+    except ValidationError as exc:
+        raise ValueError(describe_errors(exc.errors())) from None
+
 
 class _In(BaseModel):
     model_config = ConfigDict(extra="forbid")

@@ -111,12 +111,9 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
 
 def plot_pixel_spectrum(spec: PixelSpectrum, path: str | Path) -> Path:
     """Both ramps' spectra (dB), CFAR threshold, the searched gate, detections and point ranges; PNG."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise RawCaptureError("plotting a spectrum needs matplotlib (pip install 'lidard[plot]')") from None
+    import matplotlib
+    matplotlib.use("Agg")           # files only: no display needed (a daemon, CI)
+    import matplotlib.pyplot as plt
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     lo, hi = spec.gate
     x = spec.range_m

@@ -35,7 +35,9 @@ def embedded():
 
 def test_linearization_through_the_mzi_reduces_nonlinearity(embedded):
     _, _, cal = embedded
-    assert cal.converged or len(cal.iterations) <= 11
+    # the ILC stops on its own criterion (noise floor / no further improvement), well before max_iter
+    assert cal.converged, cal
+    assert len(cal.iterations) <= 11
     assert cal.reduction["up"] > 100 and cal.reduction["down"] > 100
 
 

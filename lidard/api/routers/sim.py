@@ -5,6 +5,7 @@ On a real instrument every endpoint here answers 409 (the request is fine, the d
 hardware, does not allow it). A fault the bench refuses (unknown kind, bad parameter) is 422 naming it.
 """
 
+import hashlib
 import json
 import tomllib
 from typing import Any
@@ -52,6 +53,11 @@ async def put_scene(request: Request, instrument: InstrumentDep) -> SceneAccepte
         summary = instrument.set_scene(data)
     except ValueError as exc:
         raise HTTPException(422, [{"loc": ["body"], "msg": str(exc), "type": "scene_error"}]) from None
+    # later sidecars name this scene: it has no file, so the uploaded body's hash identifies it
+    worker = getattr(request.app.state, "worker", None)
+    if worker is not None:
+        worker.base_meta["scene"] = {"path": None, "source": "PUT /sim/scene", "name": summary["name"],
+                                     "sha256": hashlib.sha256(body).hexdigest()}
     return SceneAccepted(name=summary["name"], targets=summary["targets"])
 
 

@@ -1,6 +1,6 @@
 """A fake Instrument for daemon/API/CLI tests: synthetic points, honours cancel and progress.
 
-Not a test module (no test_ prefix); test files load it with ``sys.path`` pointing here.
+Import it as ``from tests.helpers.fakes import FakeInstrument`` (pyproject sets pytest's pythonpath).
 A scan can be held part-way (``hold_after`` pixels) until the test releases it or cancels it, so
 cancel and queue-order tests need no sleeps.
 """
