@@ -41,6 +41,8 @@ class ScanRequest:
     formats: tuple[OutputFormat, ...] = ("ply",)
     # None: the configuration's scan.phase_noise_compensation ("auto" | "on" | "off")
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
+    # keep the digitizer's raw segments (lidard.raw) where the caller of run_scan says (raw_path)
+    record_raw: bool = False
 
 
 @dataclass

@@ -45,6 +45,7 @@ from .errors import LidardError
 from .instrument_api import CalibrationResult, Instrument, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from .physics.optics import FpsaOptics
 from .pointcloud import write_points
+from .raw.capture import RAW_NAME, capture_size_bytes
 from .scan import adaptive_plans, planned_pixel_count
 from .store import ScanRecord, Store
 
@@ -102,7 +103,8 @@ def request_from_dict(d: dict[str, Any]) -> ScanRequest:
         pixels=None if d.get("pixels") is None else tuple(tuple(p) for p in d["pixels"]),
         averages=int(d.get("averages", 1)), max_range_m=float(d.get("max_range_m", 2.0)),
         formats=tuple(d.get("formats", ("ply",))),
-        phase_noise_compensation=d.get("phase_noise_compensation"))
+        phase_noise_compensation=d.get("phase_noise_compensation"),
+        record_raw=bool(d.get("record_raw", False)))
 
 
 @dataclasses.dataclass
@@ -278,6 +280,9 @@ class ScanWorker:
                 log.exception("progress subscriber for scan %s failed", scan_id)
 
     def _finish(self, job: _ScanJob) -> None:
+        if job.request.record_raw:   # whatever the outcome: a capture (maybe a partial prefix) is on disk
+            size = capture_size_bytes(self._raw_path(job))
+            self.store.update_scan(job.id, raw_bytes=size or None)
         rec = self.store.get_scan(job.id)
         self._publish(job.id, {"event": "end", "id": job.id, "state": rec.state if rec else "unknown",
                                "partial": bool(rec.partial) if rec else False,
@@ -394,7 +399,9 @@ class ScanWorker:
             if job.request.pattern == "adaptive" and self.optics is not None:
                 result = self._run_adaptive(job, progress, cal)
             else:
-                result = self.instrument.run_scan(job.request, progress, job.cancel, cal)
+                # the raw capture goes next to the point clouds; only asked of the instrument when wanted
+                raw = {"raw_path": self._raw_path(job)} if job.request.record_raw else {}
+                result = self.instrument.run_scan(job.request, progress, job.cancel, cal, **raw)
         except ScanCancelled:
             self.store.update_scan(job.id, state="cancelled", stage="cancelled", partial=True,
                                    finished=time.time(), wall_time_s=time.monotonic() - t0)
@@ -448,6 +455,9 @@ class ScanWorker:
             wall_time_s=wall, progress=(result.pixels_scanned / result.pixels_planned
                                         if result.pixels_planned else 1.0))
         self._finish(job)
+
+    def _raw_path(self, job: _ScanJob):
+        return self.store.scan_dir(job.id) / RAW_NAME
 
     def _run_adaptive(self, job: _ScanJob, progress, cal: CalibrationResult) -> ScanResult:
         import numpy as np

@@ -27,7 +27,7 @@ from ..pointcloud import scene_identity
 from ..store import Store
 from . import control
 from .control import BodySizeLimit, ControlLock, LockHeld
-from .routers import calibration, devices, health, scans, selftest, sim
+from .routers import calibration, devices, health, raw, scans, selftest, sim
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,8 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)
     control.document_gates(app)
-    for r in (health.router, devices.router, scans.router, calibration.router, sim.router, selftest.router):
+    for r in (health.router, devices.router, scans.router, raw.router, calibration.router, sim.router,
+              selftest.router):
         app.include_router(r)
 
     @app.exception_handler(LidardError)

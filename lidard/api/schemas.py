@@ -10,6 +10,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
+from ..dsp.estimators import EstimatorName
+from ..dsp.window import WindowName
 from ..instrument_api import OutputFormat, PatternKind, ScanRequest
 
 
@@ -65,6 +67,8 @@ class ScanCreate(_In):
     formats: list[OutputFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=3)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
+    # keep the digitizer's raw segments (Zarr under the data directory) for reprocessing
+    record_raw: bool = Field(default=False, strict=True)
 
     @field_validator("rows", "cols")
     @classmethod
@@ -86,6 +90,9 @@ class ScanCreate(_In):
             raise ValueError("pattern 'pixels' needs a non-empty 'pixels' list")
         if self.pattern != "pixels" and self.pixels is not None:
             raise ValueError(f"'pixels' is only allowed with pattern 'pixels', not {self.pattern!r}")
+        if self.record_raw and self.pattern == "adaptive":
+            raise ValueError("record_raw: the adaptive pattern runs two acquisitions; record a raster, "
+                             "serpentine, roi or pixels scan")
         return self
 
     def to_request(self) -> ScanRequest:
@@ -93,7 +100,8 @@ class ScanCreate(_In):
                            pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
                            averages=self.averages, max_range_m=self.max_range_m,
                            formats=tuple(self.formats),
-                           phase_noise_compensation=self.phase_noise_compensation)
+                           phase_noise_compensation=self.phase_noise_compensation,
+                           record_raw=self.record_raw)
 
 
 ScanState = Literal["queued", "running", "done", "failed", "cancelled", "interrupted"]
@@ -125,6 +133,9 @@ class ScanOut(_Out):
     counts: Counts
     formats: list[str]
     calibration_id: str | None = None
+    raw_bytes: int | None = Field(None, description="bytes of the scan's raw capture on disk (record_raw); "
+                                                    "null without one")
+    reprocessed_from: str | None = Field(None, description="the scan whose raw capture this one reprocessed")
 
     @classmethod
     def from_record(cls, rec) -> "ScanOut":
@@ -134,7 +145,8 @@ class ScanOut(_Out):
                                  hardware_time_s=rec.hardware_time_s, wall_time_s=rec.wall_time_s),
                    counts=Counts(points=rec.points, pixels_scanned=rec.pixels_scanned,
                                  pixels_planned=rec.pixels_planned),
-                   formats=sorted(rec.files), calibration_id=rec.calibration_id)
+                   formats=sorted(rec.files), calibration_id=rec.calibration_id,
+                   raw_bytes=getattr(rec, "raw_bytes", None), reprocessed_from=getattr(rec, "reprocessed_from", None))
 
 
 class ScanList(_Out):
@@ -204,3 +216,26 @@ class ControlStatus(_Out):
     expires_at: float | None = None
     expires_in_s: float | None = None
     ttl_s: float
+
+
+class ReprocessCreate(_In):
+    """POST /scans/{id}/reprocess: overrides of the recorded DSP settings (null keeps the scan's)."""
+
+    estimator: EstimatorName | None = None
+    pfa: float | None = Field(default=None, gt=0, lt=0.1, allow_inf_nan=False, strict=True)
+    window: WindowName | None = None
+    phase_noise: Literal["on", "off"] | None = None
+    formats: list[OutputFormat] | None = Field(default=None, min_length=1, max_length=3,
+                                               description="files of the new scan (default: the original's)")
+
+    @field_validator("formats")
+    @classmethod
+    def _unique(cls, v: list[str] | None) -> list[str] | None:
+        if v is not None and len(set(v)) != len(v):
+            raise ValueError(f"formats must not repeat, got {v}")
+        return v
+
+    def settings(self):
+        from ..raw import ReprocessSettings
+        return ReprocessSettings(estimator=self.estimator, pfa=self.pfa, window=self.window,
+                                 phase_noise=None if self.phase_noise is None else self.phase_noise == "on")

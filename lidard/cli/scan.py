@@ -62,6 +62,9 @@ def add_parser(sub) -> None:
                     help="range gate in metres, > 0 (default: scan.max_range_m)")
     sp.add_argument("--phase-noise", choices=["auto", "on", "off"], default=None,
                     help="laser phase-noise compensation from the monitor MZI (default: scan.* of the config)")
+    sp.add_argument("--record-raw", action="store_true",
+                    help="also keep the digitizer's raw segments (Zarr, scans/<id>/raw.zarr in the data "
+                         "directory) for `lidarctl reprocess` and `lidarctl spectrum`")
     sp.add_argument("--out", default=None, metavar="FILE",
                     help="write the point cloud here (.ply, .las or .npz) and its FILE.json sidecar")
     sp.add_argument("--progress", choices=MODES, default="auto",
@@ -134,6 +137,8 @@ def request_body(args, fmt: str) -> dict[str, Any]:
         body["max_range_m"] = args.max_range
     if args.phase_noise is not None:
         body["phase_noise_compensation"] = args.phase_noise
+    if args.record_raw:
+        body["record_raw"] = True
     try:
         check_scan_body(body)
     except ValueError as exc:

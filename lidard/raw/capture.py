@@ -45,6 +45,7 @@ from zarr.codecs import BloscCodec
 from ..errors import LidardError
 
 FORMAT = "lidard-raw/1"
+RAW_NAME = "raw.zarr"        # a scan's capture: <data dir>/scans/<id>/raw.zarr
 # Fast enough to keep up with the digitizer on one core; noise-like int16 gains little from more.
 _COMPRESSOR = BloscCodec(cname="lz4", clevel=1, shuffle="shuffle")
 

@@ -18,11 +18,9 @@ import numpy as np
 from ..jobs import UnknownScan
 from ..pointcloud import read_sidecar, write_points
 from ..store import ScanRecord, Store
-from .capture import RawCaptureError, capture_size_bytes
+from .capture import RAW_NAME, RawCaptureError, capture_size_bytes
 from .reprocess import ReprocessSettings, reprocess
 from .spectrum import PixelSpectrum, pixel_spectrum
-
-RAW_NAME = "raw.zarr"
 
 
 class NoRawCapture(RawCaptureError):

@@ -19,7 +19,7 @@ from ..dsp.cfar import _noise_os, cfar_detect   # the kernel cfar_detect thresho
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
 from ..instrument_api import POINT_DTYPE
-from .capture import PixelNotRecorded, RawCapture, RawCaptureError
+from .capture import PixelNotRecorded, RawCapture
 from .reprocess import ReplayDsp, ReprocessSettings, replay_dsp
 
 # cfar_detect's defaults, which FrameDsp uses (n_ref cells in total, n_guard per side)

@@ -11,6 +11,8 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, status
 
+from ...dsp.estimators import EstimatorName
+from ...dsp.window import WindowName
 from ...jobs import UnknownScan
 from ...raw import PixelNotRecorded, RawCaptureError, ReprocessSettings
 from ...raw.service import NoRawCapture, raw_path, reprocess_scan, scan_spectrum
@@ -31,7 +33,7 @@ def _http(exc: Exception, scan_id: str) -> HTTPException:
         return HTTPException(status.HTTP_409_CONFLICT, str(exc))
     if isinstance(exc, PixelNotRecorded):
         return HTTPException(status.HTTP_404_NOT_FOUND, str(exc))
-    return HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc))
+    return HTTPException(422, str(exc))
 
 
 @router.post("/{scan_id}/reprocess", response_model=ScanOut, status_code=status.HTTP_201_CREATED, responses=_ERRORS)
@@ -46,9 +48,8 @@ def reprocess(scan_id: str, body: ReprocessCreate, store: StoreDep) -> ScanOut:
 
 @router.get("/{scan_id}/spectrum", response_model=dict[str, Any], responses=_ERRORS)
 def spectrum(scan_id: str, store: StoreDep, row: int = Query(..., ge=0), col: int = Query(..., ge=0),
-             estimator: Literal["argmax", "parabolic", "jacobsen", "quinn2", "aboutanios", "newton"] | None = None,
-             pfa: float | None = Query(None, gt=0, lt=0.1),
-             window: Literal["rectangular", "hann", "blackmanharris"] | None = None,
+             estimator: EstimatorName | None = None, pfa: float | None = Query(None, gt=0, lt=0.1),
+             window: WindowName | None = None,
              phase_noise: Literal["on", "off"] | None = None) -> dict[str, Any]:
     """One pixel's up/down spectra (V^2), OS-CFAR threshold, searched gate, detections and points."""
     try:

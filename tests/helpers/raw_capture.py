@@ -1,0 +1,90 @@
+"""Small synthetic raw captures for tests: beat tones at known ranges, written as the scan loop writes them.
+
+``from tests.helpers.raw_capture import write_capture`` (pyproject sets pytest's pythonpath).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lidard.dsp.frame import FrameDsp
+from lidard.dsp.rangefft import C_M_PER_S
+from lidard.raw import RawWriter, frame_dsp_attrs
+
+FS_HZ = 10e6
+RAMP_SAMPLES = 512
+GAMMA_HZ_PER_S = 1.075e14      # the simulated bench's chirp: 8.6 GHz in 80 us
+MZI_DELAY_S = 10e-9
+LSB_V = 2.0 / 2**16
+
+
+@dataclass
+class Synthetic:
+    path: Path
+    dsp: FrameDsp
+    segments: np.ndarray        # (n_pix * avg, n_ch, record) int16, as written
+    channels: tuple[str, ...]
+    averages: int
+    pixels: np.ndarray
+    directions: np.ndarray
+    t_s: np.ndarray
+    overrange: np.ndarray
+    range_true_m: np.ndarray    # (n_pix,)
+
+    def channel(self, name: str) -> np.ndarray:
+        s = self.segments[:, self.channels.index(name), :]
+        return s.reshape(len(self.pixels), self.averages, -1)
+
+
+def synth_segments(rng, ranges_m, averages, with_mzi):
+    """Up and down ramp of a static target: the same beat 2 gamma R / c on both (eq. 2-2)."""
+    n = len(ranges_m)
+    t = np.arange(2 * RAMP_SAMPLES) / FS_HZ
+    f = 2 * GAMMA_HZ_PER_S * np.asarray(ranges_m) / C_M_PER_S
+    ph = rng.uniform(0, 2 * np.pi, (n, averages, 1))
+    beat = 3000 * np.cos(2 * np.pi * f[:, None, None] * t + ph) + rng.normal(0, 30, (n, averages, t.size))
+    chans = [beat]
+    if with_mzi:
+        ph2 = rng.uniform(0, 2 * np.pi, (n, averages, 1))
+        chans.append(3000 * np.cos(2 * np.pi * GAMMA_HZ_PER_S * MZI_DELAY_S * t + ph2)
+                     + rng.normal(0, 30, (n, averages, t.size)))
+    seg = np.stack(chans, axis=2)                    # (n, avg, n_ch, record)
+    return np.rint(seg).astype(np.int16).reshape(n * averages, len(chans), -1)
+
+
+def write_capture(path, *, n_pix=40, averages=2, chunk_pixels=16, with_mzi=False, batch=7, seed=0,
+                  close=True, pixels=None, directions=None) -> Synthetic:
+    """A capture of ``n_pix`` pixels (default layout: 8 per row) with one target each at 1..3.5 m."""
+    rng = np.random.default_rng(seed)
+    if pixels is not None:
+        n_pix = len(pixels)
+    ranges = rng.uniform(1.0, 3.5, n_pix)
+    if pixels is None:
+        pixels = np.stack([np.arange(n_pix) // 8, np.arange(n_pix) % 8], axis=1)
+    pixels = np.asarray(pixels, dtype=np.int64)
+    v = np.stack([rng.normal(0, 0.1, n_pix), rng.normal(0, 0.1, n_pix), np.ones(n_pix)], axis=1)
+    directions = v / np.linalg.norm(v, axis=1, keepdims=True) if directions is None else directions
+    seg = synth_segments(rng, ranges, averages, with_mzi)
+    overrange = np.zeros(n_pix * averages, np.uint8)
+    overrange[3] = 1                                 # pixel 1 has a clipped segment
+    t_s = np.arange(n_pix) * 2 * averages * RAMP_SAMPLES / FS_HZ
+    trig = (t_s[:, None] * 1e9 + np.arange(averages) * 2 * RAMP_SAMPLES / FS_HZ * 1e9).astype(np.int64).ravel()
+    dsp = FrameDsp(ramp_samples=RAMP_SAMPLES, fs_hz=FS_HZ, chirp_rate_hz_per_s=GAMMA_HZ_PER_S,
+                   wavelength_m=1.55e-6, max_range_m=4.0, max_speed_mps=0.4, window="hann", pfa=1e-6)
+    channels = ("beat", "mzi") if with_mzi else ("beat",)
+    w = RawWriter.create(path, pixels=pixels, directions=directions, averages=averages, channels=channels,
+                         record_length=2 * RAMP_SAMPLES, chunk_pixels=chunk_pixels,
+                         attrs={"adc": {"lsb_v": LSB_V, "sample_rate_hz": FS_HZ}, "dsp": frame_dsp_attrs(dsp),
+                                "phase_noise": {"on": with_mzi, "mzi_delay_s": MZI_DELAY_S},
+                                "calibration_id": "cal-test"})
+    for p0 in range(0, n_pix, batch):              # reads of uneven size, as the scan loop's
+        p1 = min(p0 + batch, n_pix)
+        s0, s1 = p0 * averages, p1 * averages
+        w.append(seg[s0:s1], trig[s0:s1], overrange[s0:s1], t_s[p0:p1])
+    if close:
+        w.close(stop_reason=None)
+    return Synthetic(path=Path(path), dsp=dsp, segments=seg, channels=channels, averages=averages,
+                     pixels=pixels, directions=directions, t_s=t_s, overrange=overrange, range_true_m=ranges)
