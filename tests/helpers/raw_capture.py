@@ -12,7 +12,10 @@ import numpy as np
 
 from lidard.dsp.frame import FrameDsp
 from lidard.dsp.rangefft import C_M_PER_S
-from lidard.raw import RawWriter, frame_dsp_attrs
+from lidard.instrument_api import ScanResult
+from lidard.raw import RawWriter, frame_dsp_attrs, reprocess
+from lidard.scan import plan
+from tests.helpers.fakes import FakeInstrument
 
 FS_HZ = 10e6
 RAMP_SAMPLES = 512
@@ -88,3 +91,20 @@ def write_capture(path, *, n_pix=40, averages=2, chunk_pixels=16, with_mzi=False
         w.close(stop_reason=None)
     return Synthetic(path=Path(path), dsp=dsp, segments=seg, channels=channels, averages=averages,
                      pixels=pixels, directions=directions, t_s=t_s, overrange=overrange, range_true_m=ranges)
+
+
+class RecordingFake(FakeInstrument):
+    """Writes a synthetic capture for the planned pixels when asked (raw_path), as the scan loop does;
+    its points are the DSP's points of that capture."""
+
+    def run_scan(self, request, progress, cancel, calibration=None, raw_path=None):
+        self.requests.append(request)
+        self.raw_paths = getattr(self, "raw_paths", []) + [raw_path]
+        pixels = plan(request, self.optics)
+        if raw_path is None:
+            return super().run_scan(request, progress, cancel, calibration)
+        write_capture(raw_path, pixels=pixels, directions=self.optics.directions(pixels[:, 0], pixels[:, 1]),
+                      chunk_pixels=8)
+        pts = reprocess(raw_path).points
+        return ScanResult(points=pts, meta={"fake": True}, pixels_scanned=len(pixels), pixels_planned=len(pixels),
+                          hardware_time_s=1e-3 * len(pixels))

@@ -7,29 +7,9 @@ import io
 import numpy as np
 import pytest
 
-from lidard.instrument_api import ScanResult
 from lidard.raw import reprocess
 from lidard.raw.capture import capture_size_bytes
-from lidard.scan import plan
-from tests.helpers.fakes import FakeInstrument
-from tests.helpers.raw_capture import write_capture
-
-
-class RecordingFake(FakeInstrument):
-    """Writes a synthetic capture for the planned pixels when asked (raw_path), as the scan loop does;
-    its points are the DSP's points of that capture."""
-
-    def run_scan(self, request, progress, cancel, calibration=None, raw_path=None):
-        self.requests.append(request)
-        self.raw_paths = getattr(self, "raw_paths", []) + [raw_path]
-        pixels = plan(request, self.optics)
-        if raw_path is None:
-            return super().run_scan(request, progress, cancel, calibration)
-        write_capture(raw_path, pixels=pixels, directions=self.optics.directions(pixels[:, 0], pixels[:, 1]),
-                      chunk_pixels=8)
-        pts = reprocess(raw_path).points
-        return ScanResult(points=pts, meta={"fake": True}, pixels_scanned=len(pixels), pixels_planned=len(pixels),
-                          hardware_time_s=1e-3 * len(pixels))
+from tests.helpers.raw_capture import RecordingFake
 
 
 def _points(client, scan_id):
