@@ -67,6 +67,7 @@ from .dsp.rangefft import C_M_PER_S
 from .errors import LidardError
 from .instrument_api import (POINT_DTYPE, CalibrationResult, ScanProgress, ScanRequest, ScanResult)
 from .physics.chirp import adc_rate_hz, triangle_drive_v
+from .raw.points import frame_points
 from .scan import plan
 
 AWG_RATE_HZ = 100e6          # drive samples: 16,000 per 160 us period
@@ -304,11 +305,23 @@ class LidarInstrument:
         return mode == "on"
 
     def run_scan(self, request: ScanRequest, progress, cancel: threading.Event,
-                 calibration: CalibrationResult | None = None) -> ScanResult:
+                 calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
+        """``raw_path``: record the digitizer's raw segments there (lidard.raw; ``record_raw``)."""
         with self._lock:
-            return self._run_scan(request, progress, cancel, calibration)
+            return self._run_scan(request, progress, cancel, calibration, raw_path)
 
-    def _run_scan(self, request, progress, cancel, calibration) -> ScanResult:
+    def _recorder(self, raw_path, pixels, avg, cfgd, adc, dsp, lsb, pn_on, tau_m, calibration, request, drive):
+        from .raw.record import ScanRecorder
+        return ScanRecorder.start(
+            raw_path, pixels=pixels, directions=self.optics.directions(pixels[:, 0], pixels[:, 1]), averages=avg,
+            channels=tuple(cfgd.channels), record_length=adc.record_length, dsp=dsp, lsb_v=lsb, phase_noise=pn_on,
+            mzi_delay_s=tau_m, adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
+                                    "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
+            chirp=self.cfg.chirp.model_dump(), calibration_id=(calibration.meta or {}).get("id") if calibration else None,
+            scan={"max_range_m": float(request.max_range_m), "averages": avg, "pattern": request.pattern},
+            drive_v=drive)
+
+    def _run_scan(self, request, progress, cancel, calibration, raw_path=None) -> ScanResult:
         pixels = plan(request, self.optics)
         n_pix = len(pixels)
         avg = int(request.averages)
@@ -351,7 +364,7 @@ class LidarInstrument:
             pending.clear()
             pending_bytes[0] = 0
             res = dsp.process(beat, lsb, mzi=mzi, mzi_delay_s=tau_m, mzi_lsb_v=lsb)
-            chunks.append(self._points(res, px, t_pix, clipped))
+            chunks.append(frame_points(res, px, t_pix, self.optics.directions(px[:, 0], px[:, 1]), clipped))
 
         def result() -> ScanResult:
             try:
@@ -375,6 +388,9 @@ class LidarInstrument:
                     "mzi_delay_s": tau_m, "mzi_beat_hz": comp.mzi_beat_hz, "m_max": comp.m_max,
                     # nearest M of the bins inside the range gate (0 = uncompensated near ranges)
                     "m_range": list(gate_m_range(dsp, tau_m))}
+            if recorder[0] is not None:
+                recorder[0].close(pixels_scanned=done, stop_reason=stop_reason)
+                meta["raw"] = {"pixels": done, "error": recorder[0].error}
             if safe is not None:
                 meta["safe_state"] = safe
             if stop_reason is not None:
@@ -383,6 +399,7 @@ class LidarInstrument:
                               hardware_time_s=hw_last, partial=partial or stop_reason is not None,
                               stop_reason=stop_reason)
 
+        recorder = [None]
         self._bring_up()
         stopped_safe = False
         try:
@@ -393,6 +410,9 @@ class LidarInstrument:
             cfgd = self.digitizer.configure(channels=channels, sample_rate_hz=adc.fs_hz,
                                             record_length=adc.record_length, segments=n_pix * avg,
                                             bits=adc.bits, input_range_v=self.cfg.adc.input_range_v)
+            if raw_path is not None:
+                recorder[0] = self._recorder(raw_path, pixels, avg, cfgd, adc, dsp, lsb, pn_on, tau_m, calibration,
+                                             request, drive)
             self.digitizer.arm()
             self.fpsa.arm()
             self.fpsa.start()
@@ -452,6 +472,8 @@ class LidarInstrument:
                 clipped = over.any(axis=1)
                 faults["overrange_segments"] += int(over.sum())
                 faults["overrange_pixels"] += int(clipped.sum())
+                if recorder[0] is not None:
+                    recorder[0].add(samples, headers, t_pix, cfgd.channels)
                 pending.append((beat, pixels[done:done + bp], t_pix, clipped, mzi_s))
                 pending_bytes[0] += beat.nbytes * len(channels)
                 done += bp
@@ -573,35 +595,6 @@ class LidarInstrument:
         out["errors"] = errors
         out["safe"] = (not errors and not out.get("laser_on") and not out.get("hv_on")
                        and out.get("laser_ma", 1.0) <= 0.5 and out.get("hv_v", 1.0) <= 0.25)
-        return out
-
-    def _points(self, res, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None) -> np.ndarray:
-        pi, ki = np.nonzero(res.present)
-        out = np.zeros(len(pi), POINT_DTYPE)
-        if not len(pi):
-            return out
-        rows, cols = px[pi, 0], px[pi, 1]
-        rng_m = res.range_m[pi, ki]
-        d = self.optics.directions(rows, cols)
-        xyz = d * rng_m[:, None]
-        out["x"], out["y"], out["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        out["range"] = rng_m
-        out["velocity"] = res.velocity_mps[pi, ki]
-        out["intensity"] = res.intensity_v[pi, ki]
-        out["snr_db"] = res.snr_db[pi, ki]
-        out["row"], out["col"] = rows, cols
-        # return_index: order along the beam by range
-        order = np.lexsort((rng_m, pi))
-        ri = np.zeros(len(pi), np.int64)
-        same = np.r_[False, pi[order][1:] == pi[order][:-1]]
-        run = np.cumsum(~same) - 1
-        starts = np.flatnonzero(~same)
-        ri[order] = np.arange(len(pi)) - starts[run]
-        out["return_index"] = ri
-        out["t"] = t_pix[pi]
-        out["valid"] = res.valid[pi, ki]
-        if clipped is not None:
-            out["valid"][clipped[pi]] = 0       # never report a point from a clipped record as good
         return out
 
     # -- calibration ------------------------------------------------------------------------------------

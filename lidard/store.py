@@ -195,11 +195,16 @@ class Store:
             for col, typ in _ADDED_COLUMNS.items():
                 if col not in have:
                     self._conn.execute(f"ALTER TABLE scans ADD COLUMN {col} {typ}")
+            cut = [r["id"] for r in self._conn.execute("SELECT id FROM scans WHERE state IN ('queued', 'running')")]
             self.recovered = self._conn.execute(
                 "UPDATE scans SET state='interrupted', stage='interrupted', "
                 "error=COALESCE(error, 'daemon stopped while the scan was ' || state) "
                 "WHERE state IN ('queued', 'running')").rowcount
         self.swept_tmp = self._sweep_temp_files()
+        for scan_id in cut:   # a killed scan's raw capture keeps its committed prefix: count it
+            raw = self.scan_dir(scan_id) / "raw.zarr"
+            if raw.is_dir():
+                self.update_scan(scan_id, raw_bytes=sum(f.stat().st_size for f in raw.rglob("*") if f.is_file()))
 
     def _sweep_temp_files(self) -> int:
         """Remove temporary files a killed process left behind (``atomic_write``'s ``.<name>.*.tmp``):

@@ -78,3 +78,15 @@ def test_opening_sweeps_a_killed_writers_temporary_chunk_files(tmp_path):
     st = Store(tmp_path)
     assert st.swept_tmp == 1 and not torn.exists() and (path / "segments" / "c" / "0" / "0" / "0").is_file()
     st.close()
+
+
+def test_a_scan_cut_by_a_dead_daemon_still_reports_its_captures_prefix(tmp_path):
+    st = Store(tmp_path)
+    rec = st.create_scan({})
+    st.update_scan(rec.id, state="running")
+    path = _raw(st, rec.id)
+    st.close()
+    st = Store(tmp_path)             # the next daemon
+    got = st.get_scan(rec.id)
+    assert got.state == "interrupted" and got.raw_bytes == sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+    st.close()
