@@ -79,3 +79,43 @@ def test_phase_noise_scan_records_the_monitor_and_replays_identically(bench, tmp
     off = reprocess(path, ReprocessSettings(phase_noise=False))
     assert off.meta["dsp"]["phase_noise_compensation"] is False
     assert np.array_equal(off.points, _direct(path))
+
+
+@pytest.mark.slow  # two real daemon processes (child benches) and a scan up to its first 8 MB chunk
+def test_a_daemon_killed_mid_scan_leaves_a_readable_prefix_marked_partial(tmp_path):
+    import json
+
+    import httpx
+
+    from tests.e2e.test_e2e_kill9 import _kill_group, _poll, _scan, _start_daemon
+
+    data_dir = tmp_path / "data"
+    proc, url = _start_daemon(data_dir)
+    try:
+        with httpx.Client(base_url=url, timeout=30.0) as c:
+            r = c.post("/scans", json={"pattern": "raster", "averages": 8, "max_range_m": 2.0, "record_raw": True,
+                                       "formats": ["npz"]})
+            assert r.status_code == 201, r.text
+            sid = r.json()["id"]
+            meta = data_dir / "scans" / sid / "raw.zarr" / "zarr.json"
+            _poll(lambda: meta.is_file() and json.loads(meta.read_text())["attributes"].get("chunks_complete", 0) >= 1,
+                  120, "the first committed chunk")
+    finally:
+        _kill_group(proc)                       # kill -9 while the scan records
+    cap = RawCapture(data_dir / "scans" / sid / "raw.zarr")
+    assert cap.complete is False and cap.n_chunks >= 1 and cap.n_pixels < cap.attrs["pixels_planned"]
+    proc, url = _start_daemon(data_dir)
+    try:
+        with httpx.Client(base_url=url, timeout=60.0) as c:
+            rec = _scan(c, sid)
+            assert rec["state"] == "interrupted" and rec["raw_bytes"] > 0
+            r = c.post(f"/scans/{sid}/reprocess", json={})
+            assert r.status_code == 201, r.text
+            new = r.json()
+            assert new["partial"] is True and new["reprocessed_from"] == sid
+            side = c.get(f"/scans/{new['id']}/sidecar", params={"format": "npz"}).json()
+            assert side["reprocess"]["raw_complete"] is False and side["reprocess"]["pixels"] == cap.n_pixels
+            row, col = (int(v) for v in RawCapture(data_dir / "scans" / sid / "raw.zarr").chunk(0).pixels[0])
+            assert c.get(f"/scans/{sid}/spectrum", params={"row": row, "col": col}).status_code == 200
+    finally:
+        _kill_group(proc)
