@@ -20,10 +20,11 @@ from ..dsp.frame import FrameDsp
 from .capture import RawWriter, chunk_pixels_for
 from .reprocess import frame_dsp_attrs
 
-# Raw bytes per chunk (one reprocessing task). The scan's DSP batches are about as large
-# (lidard.instrument.scan_loop.BATCH_BYTES); the DSP treats pixels independently, so the two need
-# not coincide. Tests lower it to get several chunks from a small scan.
-RAW_CHUNK_BYTES = 8 << 20
+# Raw bytes per chunk (one reprocessing task): 1 MiB keeps a few thousand pixels in several tasks
+# for a pool or a cluster and is still a comfortable size for the store (one file per chunk). The
+# scan's DSP batches are larger (BATCH_BYTES, 8 MiB); the DSP treats pixels independently, so the
+# two need not coincide. Tests lower it to get several chunks from a small scan.
+RAW_CHUNK_BYTES = 1 << 20
 
 log = logging.getLogger(__name__)
 
