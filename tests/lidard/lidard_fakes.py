@@ -12,7 +12,7 @@ import threading
 import numpy as np
 
 from lidard.config import load_profile
-from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress
+from lidard.instrument import POINT_DTYPE, CalibrationResult, NotSimulated, ScanProgress, ScanResult
 from lidard.scan import plan
 
 
@@ -84,7 +84,6 @@ class FakeInstrument:
                 self.reached.set()
                 while not (self.release.is_set() or cancel.is_set()):
                     self.release.wait(0.01)
-        from lidard.instrument_api import ScanResult
         return ScanResult(points=pts[:done][has_return[:done]], meta={"fake": True, "chirp": {"ramp_s": 80e-6}},
                           pixels_scanned=done, pixels_planned=n, hardware_time_s=done * pixel_s,
                           partial=done < n)
@@ -101,6 +100,20 @@ class FakeInstrument:
             raise ValueError(str(exc)) from None
         self.scenes.append(scene)
         return {"name": parsed.name, "targets": len(parsed)}
+
+    def selftest(self, progress=None):
+        # the fake has no switches to toggle: the worker reports this as a failed self-test (503)
+        raise NotSimulated("the fake instrument has no FPSA to self-test")
+
+    # Bench faults: the fake has no bench (the API answers 409, as for real hardware).
+    def inject_fault(self, kind, **params):
+        raise NotSimulated("the fake instrument has no bench to inject faults into")
+
+    def clear_faults(self, kind=None):
+        raise NotSimulated("the fake instrument has no bench to clear faults on")
+
+    def active_faults(self):
+        raise NotSimulated("the fake instrument has no bench faults")
 
     def close(self):
         self.closed = True
