@@ -13,7 +13,8 @@ Tree (every class is a :class:`lidard.errors.LidardError`, reported to users as 
 The device a failure belongs to is named where the driver is called (:func:`on_device` around each
 step of the acquisition lifecycle), never guessed from an exception's module or message. An exception
 that names its device itself (a ``.device`` attribute, as the drivers' ``DeviceError(device, command)``
-carries) wins over the caller's name.
+carries) wins over the caller's name. (Plumbing, not physics: no part of the dissertation; the device
+names are those of the bench in §4.4.1.)
 """
 
 from __future__ import annotations

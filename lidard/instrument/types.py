@@ -3,7 +3,7 @@
 The REST API, the job queue and ``lidarctl`` talk to an instrument only through
 :class:`lidard.instrument.protocol.Instrument` and these objects; they know nothing about HTTP. The
 point record follows the outputs of dissertation §4.4 (range, radial velocity and intensity per
-beam, chapter 4.4.1's point clouds); the calibration result is the chirp linearization of §2.2.
+beam: the 3D imaging of §4.4.3); the calibration result is the chirp linearization of §2.2.
 """
 
 from __future__ import annotations
