@@ -20,7 +20,7 @@ from plyfile import PlyData
 from lidard.config import load_config
 from lidard.instrument import SAFETY_CHECK_S, open_instrument
 from lidard.jobs import ScanWorker
-from lidard.instrument import ScanRequest
+from lidard.instrument_api import ScanRequest
 from lidard.store import Store
 
 ROI = ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0)   # 384 bonded pixels

@@ -8,8 +8,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
+try:    # the shared test-helpers package (branch r2-cli moves the fake there)
+    from tests.helpers.fakes import FakeInstrument
+except ImportError:
+    sys.path.insert(0, str(Path(__file__).parent))
+    from lidard_fakes import FakeInstrument  # noqa: E402
 
 from drivers.usbtmc import DeviceStall, DeviceTimeout  # noqa: E402
 from lidard.config import load_config  # noqa: E402

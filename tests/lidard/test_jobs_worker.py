@@ -8,7 +8,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from lidard_fakes import DeviceFault, FakeInstrument  # noqa: E402
 
-from lidard.instrument import ScanRequest  # noqa: E402
+from lidard.instrument_api import ScanRequest  # noqa: E402
 from lidard.jobs import QueueFull, ScanWorker, UnknownScan  # noqa: E402
 from lidard.pointcloud import read_points, read_sidecar  # noqa: E402
 from lidard.store import Store  # noqa: E402
