@@ -208,3 +208,14 @@ def test_the_config_names_its_file_for_a_child_bench(tmp_path):
     assert cfg.path == str(REPO / "config" / "sim.toml")
     assert Config.model_validate(cfg.model_dump()).path == cfg.path     # survives a re-validation
     assert load_config(None, environ={}).path is None
+
+
+def test_the_api_and_the_job_queue_import_the_instrument_seam_without_the_hardware_stack():
+    import subprocess
+
+    code = ("import sys, lidard.jobs, lidard.api.deps, lidard.api.routers.sim; "
+            "print(sorted(m for m in sys.modules if m.startswith(('drivers', 'sim_devices', 'lidard.dsp', "
+            "'lidard.instrument.facade', 'lidard.instrument.compose'))))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
