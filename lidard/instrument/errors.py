@@ -72,6 +72,12 @@ def device_of(exc: BaseException, default: str = "instrument") -> str:
     return dev if isinstance(dev, str) and dev else default
 
 
+def driver_error(exc: BaseException) -> BaseException:
+    """The driver's own exception behind a :class:`DeviceFault` (else ``exc``): a ScanFailed is
+    chained to it directly, so its one-line description (``jobs.describe_error``) reads as before."""
+    return exc.cause if isinstance(exc, DeviceFault) else exc
+
+
 def describe_failure(exc: BaseException) -> str:
     """``"<device>: <ErrorType>: <message>"`` for a failure inside a scan (a DeviceFault already is)."""
     if isinstance(exc, DeviceFault):

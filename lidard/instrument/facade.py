@@ -81,10 +81,21 @@ class LidarInstrument:
             self.registry.identity["fpsa"] = f"reset failed: {exc}"
 
     # The drivers by name (tests and benchmarks reach them as inst.fpsa, inst.digitizer, ...).
-    fpsa = property(lambda self: self.registry["fpsa"])
-    awg = property(lambda self: self.registry["awg"])
-    digitizer = property(lambda self: self.registry["digitizer"])
-    controller = property(lambda self: self.registry["controller"])
+    @property
+    def fpsa(self) -> Any:
+        return self.registry["fpsa"]
+
+    @property
+    def awg(self) -> Any:
+        return self.registry["awg"]
+
+    @property
+    def digitizer(self) -> Any:
+        return self.registry["digitizer"]
+
+    @property
+    def controller(self) -> Any:
+        return self.registry["controller"]
 
     # -- information ----------------------------------------------------------------------------------
     def laser_temperature_c(self) -> float:

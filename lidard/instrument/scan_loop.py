@@ -29,7 +29,7 @@ from ..dsp.rangefft import C_M_PER_S
 from ..physics.chirp import adc_rate_hz
 from ..scan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
-from .errors import InstrumentError, ScanFailed, SegmentsLost, describe_failure, device_of
+from .errors import InstrumentError, ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
 from .points import PointBuffer, RawBatch
 from .safety import SafetyMonitor, describe_safe
 from .types import CalibrationResult, ProgressFn, ScanProgress, ScanRequest, ScanResult
@@ -165,7 +165,7 @@ class ScanLoop:
         except ScanFailed:
             raise
         except Exception as exc:
-            raise ScanFailed(describe_failure(exc), self.result(run)) from exc
+            raise ScanFailed(describe_failure(exc), self.result(run)) from driver_error(exc)
         finally:
             self._finish(run)
         return self.result(run)
@@ -208,9 +208,9 @@ class ScanLoop:
         try:
             acq = self.lifecycle.restart(acq, run.done)
         except Exception as exc2:
-            cause = getattr(exc2, "cause", exc2)
+            cause = driver_error(exc2)
             raise ScanFailed(f"{device_of(exc2)}: resume after '{exc}' failed: {type(cause).__name__}: {cause}",
-                             self.result(run)) from exc2
+                             self.result(run)) from cause
         run.t_shift_s = run.hw_last_s
         run.hw_t0_ns = None
         return acq
