@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
-from ..instrument.types import OutputFormat, PatternKind, ScanRequest
+from ..instrument_api import OutputFormat, PatternKind, ScanRequest
 
 
 
