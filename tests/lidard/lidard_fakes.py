@@ -15,7 +15,7 @@ from lidard.config import load_profile
 from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress
 from lidard.scan import plan
 
-from lidard.instrument import NotSimulated  # noqa: E402  (what the simulation methods raise without a bench)
+from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
 
 
 class DeviceFault(Exception):
