@@ -21,7 +21,7 @@ from fastapi.responses import JSONResponse
 
 from ..config import Config
 from ..errors import LidardError
-from ..instrument_api import Instrument
+from ..instrument.protocol import Instrument
 from ..jobs import ScanWorker, software_version
 from ..pointcloud import scene_identity
 from ..store import Store
