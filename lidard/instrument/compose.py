@@ -69,7 +69,7 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     port = endpoints["controller_port"] if on_bench else d.controller.port
     # Backoffs go through ``sleep`` (the virtual clock on a bench) so a device that comes back after
     # some virtual time is found again without any wall-clock wait.
-    fpsa = FpsaController(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
+    fpsa = FpsaController.from_url(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
     ctrl = LaserHvController(host, port, device_id=d.controller.device_id, timeout_s=d.controller.timeout_s,
                              limits=Limits(max_laser_current_ma=d.controller.max_laser_current_ma,
                                            max_hv_v=d.controller.max_hv_v, tec_range_c=(15.0, 40.0)),
