@@ -338,6 +338,9 @@ class Config(_Model):
 
     # Resolved by load_config (not part of the file format).
     source: str = Field(default="<defaults>", exclude=True)
+    # The file read (None: built-in defaults); a simulated bench started as a child process reads it
+    # too. Kept by model_dump so a config re-validated with an override still names its file.
+    path: str | None = None
     base_dir: str = Field(default=str(CONFIG_DIR), exclude=True)
 
     @field_validator("profile", "laser")
@@ -483,7 +486,8 @@ def load_config(path: str | os.PathLike | None = None, *, environ: dict[str, str
     if applied:
         source = f"{source} (+env {', '.join(applied)})"
     try:
-        cfg = Config.model_validate({**data, "source": source, "base_dir": str(base)})
+        cfg = Config.model_validate({**data, "source": source, "base_dir": str(base),
+                                     "path": None if path is None else str(path)})
     except ValidationError as exc:
         raise ConfigError(_format_validation(source, exc)) from None
     if check_presets:

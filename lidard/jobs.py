@@ -42,7 +42,8 @@ from importlib import metadata
 from typing import Any, Callable
 
 from .errors import LidardError
-from .instrument_api import CalibrationResult, Instrument, ScanCancelled, ScanProgress, ScanRequest, ScanResult
+from .instrument.protocol import Instrument
+from .instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from .physics.optics import FpsaOptics
 from .pointcloud import write_points
 from .raw.capture import RAW_NAME, capture_size_bytes
@@ -519,9 +520,9 @@ class ScanWorker:
             "pixels_planned": int(result.pixels_planned),
             "coverage": (result.pixels_scanned / result.pixels_planned) if result.pixels_planned else 0.0,
             "software_version": software_version(),
-            "simulated": bool(getattr(self.instrument, "simulated", False)),
+            "simulated": bool(self.instrument.simulated),
             "partial": bool(result.partial or job.cancel.is_set()),
-            "stop_reason": getattr(result, "stop_reason", None),
+            "stop_reason": result.stop_reason,
         }
         out_dir = self.store.scan_dir(job.id)
         files = {}

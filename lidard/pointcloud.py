@@ -1,6 +1,6 @@
 """Point-cloud files: PLY, LAS 1.4, NPZ and the JSON sidecar, all written atomically.
 
-A scan's points are :data:`lidard.instrument_api.POINT_DTYPE` records (x, y, z in the sensor frame of
+A scan's points are :data:`lidard.instrument.types.POINT_DTYPE` records (x, y, z in the sensor frame of
 §4.1.1, range, radial velocity, intensity, SNR, the FPSA pixel, return index, time, valid flag), the
 per-pixel output of the FMCW processing of §2.1/§4.4 (Fig. 4-35 shows such a frame). Float32 is used
 only here, at the file edge.
@@ -32,7 +32,7 @@ from typing import Any, BinaryIO, Iterator
 
 import numpy as np
 
-from .instrument_api import POINT_DTYPE
+from .instrument.types import POINT_DTYPE
 
 FORMATS = ("ply", "las", "npz")
 # PLY vertex properties: POINT_DTYPE with the pixel indices widened to int32. Open3D drops ``ushort``

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from .errors import LidardError
-from .instrument_api import CalibrationResult
+from .instrument.types import CalibrationResult
 from .pointcloud import atomic_write
 
 SCAN_STATES = ("queued", "running", "done", "failed", "cancelled", "interrupted")

@@ -21,7 +21,7 @@ from fastapi.responses import JSONResponse
 
 from ..config import Config
 from ..errors import LidardError
-from ..instrument_api import Instrument
+from ..instrument.protocol import Instrument
 from ..jobs import ScanWorker, software_version
 from ..pointcloud import scene_identity
 from ..store import Store
@@ -65,7 +65,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         meta = {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
                 "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
-        if getattr(inst, "simulated", False) and cfg.sim.enabled:
+        if inst.simulated and cfg.sim.enabled:
             # the sidecar names the world a simulated scan saw (PUT /sim/scene replaces this entry)
             meta["scene"] = scene_identity(cfg.resolve_path(cfg.sim.scene))
         worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,

@@ -242,6 +242,6 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
             base.copy_atomic(src, args.out)
             base.copy_atomic(sidecar_path(src), sidecar_path(args.out))
             out = str(args.out)
-        s = summary(final.to_dict(), out, bool(getattr(inst, "simulated", True)))
+        s = summary(final.to_dict(), out, bool(inst.simulated))
         s["error"] = final.error
         return s

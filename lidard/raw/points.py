@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dsp.frame import FrameResult
-from ..instrument_api import POINT_DTYPE
+from ..instrument.types import POINT_DTYPE
 
 
 def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directions: np.ndarray,

@@ -37,6 +37,7 @@ class ScanRecorder:
         self.writer = writer
         self.channels = channels
         self.error: str | None = None
+        self.pixels_recorded = 0        # pixels handed to the writer (committed or waiting for their chunk)
 
     @classmethod
     def start(cls, path: str | Path, *, pixels: np.ndarray, directions: np.ndarray, averages: int,
@@ -81,6 +82,7 @@ class ScanRecorder:
             tt = np.array([int(h.trigger_time_ns) for h in headers], dtype=np.int64)
             ov = np.array([bool(h.overrange) for h in headers], dtype=np.uint8)
             self.writer.append(s, tt, ov, t_pix_s)
+            self.pixels_recorded += len(t_pix_s)
         except Exception as exc:
             self._fail(exc)
 

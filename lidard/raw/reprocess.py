@@ -26,7 +26,7 @@ import numpy as np
 from ..dsp.estimators import EstimatorName
 from ..dsp.frame import FrameDsp
 from ..dsp.window import WINDOW_NAMES
-from ..instrument_api import POINT_DTYPE
+from ..instrument.types import POINT_DTYPE
 from .capture import RawCapture, RawCaptureError, RawChunk
 from .points import frame_points
 

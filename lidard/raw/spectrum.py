@@ -18,7 +18,7 @@ import numpy as np
 from ..dsp.cfar import _noise_os, cfar_detect   # the kernel cfar_detect thresholds with (no public twin)
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
-from ..instrument_api import POINT_DTYPE
+from ..instrument.types import POINT_DTYPE
 from .capture import PixelNotRecorded, RawCapture
 from .reprocess import ReplayDsp, ReprocessSettings, replay_dsp
 

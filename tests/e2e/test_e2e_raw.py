@@ -18,7 +18,7 @@ import pytest
 from lidard.config import load_config
 from lidard.dsp.frame import FrameDsp
 from lidard.instrument import open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument import ScanRequest
 from lidard.raw import RawCapture, ReprocessSettings, frame_points, reprocess
 from lidard.raw import record as raw_record
 

@@ -15,6 +15,8 @@ from lidard.config import load_profile
 from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress
 from lidard.scan import plan
 
+from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
+
 
 class DeviceFault(Exception):
     pass
@@ -101,6 +103,20 @@ class FakeInstrument:
             raise ValueError(str(exc)) from None
         self.scenes.append(scene)
         return {"name": parsed.name, "targets": len(parsed)}
+
+    def selftest(self, progress=None):
+        # the fake has no switches to toggle: the worker reports this as a failed self-test (503)
+        raise NotSimulated("the fake instrument has no FPSA to self-test")
+
+    # Bench faults: the fake has no bench (the API answers 409, as for real hardware).
+    def inject_fault(self, kind, **params):
+        raise NotSimulated("the fake instrument has no bench to inject faults into")
+
+    def clear_faults(self, kind=None):
+        raise NotSimulated("the fake instrument has no bench to clear faults on")
+
+    def active_faults(self):
+        raise NotSimulated("the fake instrument has no bench faults")
 
     def close(self):
         self.closed = True

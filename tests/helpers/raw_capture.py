@@ -12,7 +12,7 @@ import numpy as np
 
 from lidard.dsp.frame import FrameDsp
 from lidard.dsp.rangefft import C_M_PER_S
-from lidard.instrument_api import ScanResult
+from lidard.instrument import ScanResult
 from lidard.raw import RawWriter, frame_dsp_attrs, reprocess
 from lidard.scan import plan
 from tests.helpers.fakes import FakeInstrument

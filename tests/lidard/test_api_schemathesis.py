@@ -31,7 +31,7 @@ _APP = {}
 class HealthyInstrument(FakeInstrument):
     """The fake plus a self-test that finds nothing stuck (POST /selftest)."""
 
-    def selftest(self):
+    def selftest(self, progress=None):
         n_rows, n_cols = self.optics.summary()["pixels"]
         return {"ok": True, "stuck": [], "single_beam_v": 0.5, "partner_row": 0, "partner_col": 0,
                 "rows_tested": n_rows, "cols_tested": n_cols, "row_tap_v": [0.5] * n_rows,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lidard import pointcloud as pc
-from lidard.instrument_api import POINT_DTYPE
+from lidard.instrument import POINT_DTYPE
 
 
 def make_points(n=200, seed=7):

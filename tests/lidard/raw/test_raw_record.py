@@ -55,3 +55,11 @@ def test_a_recording_failure_is_reported_not_raised(tmp_path):
     rec.close()
     cap = RawCapture(tmp_path / "r.zarr")
     assert cap.n_chunks == 1 and cap.complete is False                     # the prefix, marked partial
+
+
+def test_pixels_recorded_counts_what_the_writer_accepted(tmp_path):
+    rec = _start(tmp_path / "r.zarr")
+    rec.add(np.zeros((4, 2, 16), np.int16), [Header(0, 0)] * 4, np.zeros(2), ("beat", "mzi"))
+    assert rec.pixels_recorded == 2
+    rec.add(np.zeros((2, 2, 16), np.int16), [Header(0, 0)] * 2, np.zeros(3), ("beat", "mzi"))  # refused
+    assert rec.pixels_recorded == 2 and rec.error is not None
