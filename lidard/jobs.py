@@ -46,7 +46,6 @@ from .instrument.protocol import Instrument
 from .instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from .physics.optics import FpsaOptics
 from .pointcloud import write_points
-from .raw.capture import RAW_NAME, capture_size_bytes
 from .scan import adaptive_plans, planned_pixel_count
 from .store import ScanRecord, Store
 
@@ -282,6 +281,7 @@ class ScanWorker:
 
     def _finish(self, job: _ScanJob) -> None:
         if job.request.record_raw:   # whatever the outcome: a capture (maybe a partial prefix) is on disk
+            from .raw.capture import capture_size_bytes
             size = capture_size_bytes(self._raw_path(job))
             self.store.update_scan(job.id, raw_bytes=size or None)
         rec = self.store.get_scan(job.id)
@@ -458,6 +458,7 @@ class ScanWorker:
         self._finish(job)
 
     def _raw_path(self, job: _ScanJob):
+        from .raw.capture import RAW_NAME   # zarr is loaded only when a scan records
         return self.store.scan_dir(job.id) / RAW_NAME
 
     def _run_adaptive(self, job: _ScanJob, progress, cal: CalibrationResult) -> ScanResult:

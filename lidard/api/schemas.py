@@ -10,8 +10,6 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
-from ..dsp.estimators import EstimatorName
-from ..dsp.window import WindowName
 from ..instrument_api import OutputFormat, PatternKind, ScanRequest
 
 
@@ -216,6 +214,12 @@ class ControlStatus(_Out):
     expires_at: float | None = None
     expires_in_s: float | None = None
     ttl_s: float
+
+
+# The DSP's names (lidard.dsp.estimators.EstimatorName, lidard.dsp.window.WindowName), spelled out
+# so that the API imports no numerical core; tests/lidard/raw/test_raw_cli.py keeps them equal.
+EstimatorName = Literal["argmax", "parabolic", "jacobsen", "quinn2", "aboutanios", "newton"]
+WindowName = Literal["rectangular", "hann", "blackmanharris"]
 
 
 class ReprocessCreate(_In):

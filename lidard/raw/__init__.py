@@ -1,15 +1,33 @@
 """Raw digitizer captures (Zarr) and reprocessing them with the scan DSP (issue 16, items 3-4).
 
 :mod:`.capture` writes and reads the captures, :mod:`.points` turns DSP results into point records
-(shared with the scan loop), :mod:`.reprocess` replays the DSP per chunk, :mod:`.spectrum` shows one
-pixel's spectra with the CFAR threshold.
+(shared with the scan loop), :mod:`.record` is the scan loop's side of a capture, :mod:`.replay`
+replays the DSP per chunk, :mod:`.spectrum` shows one pixel's spectra with the CFAR threshold,
+:mod:`.service` reprocesses a stored scan into a new linked one.
+
+Names are imported on first use (PEP 562), so that the job queue can reach :mod:`.capture` without
+loading the DSP (the API and the queue import no numerical core; tests/lidard/test_instrument_rooms.py).
 """
 
-from .capture import PixelNotRecorded, RawCapture, RawCaptureError, RawChunk, RawWriter, capture_size_bytes, chunk_pixels_for, remove_capture
-from .points import frame_points
-from .reprocess import (ReplayDsp, Reprocessed, ReprocessSettings, chunk_count, frame_dsp_attrs, replay_dsp,
-                        reprocess, reprocess_chunk)
+from __future__ import annotations
 
-__all__ = ["PixelNotRecorded", "RawCapture", "RawCaptureError", "RawChunk", "RawWriter", "ReplayDsp", "Reprocessed",
-           "ReprocessSettings", "capture_size_bytes", "chunk_count", "chunk_pixels_for", "frame_dsp_attrs",
-           "frame_points", "remove_capture", "replay_dsp", "reprocess", "reprocess_chunk"]
+import importlib
+from typing import Any
+
+_LAZY = {
+    "PixelNotRecorded": "capture", "RawCapture": "capture", "RawCaptureError": "capture", "RawChunk": "capture",
+    "RawWriter": "capture", "capture_size_bytes": "capture", "chunk_pixels_for": "capture",
+    "remove_capture": "capture", "frame_points": "points", "ReplayDsp": "replay", "Reprocessed": "replay",
+    "ReprocessSettings": "replay", "chunk_count": "replay", "frame_dsp_attrs": "replay",
+    "replay_dsp": "replay", "reprocess": "replay", "reprocess_chunk": "replay",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -102,7 +102,7 @@ class RawWriter:
         """A new capture for the planned ``pixels`` (in scan order); refuses an existing path.
 
         ``attrs`` must hold ``adc`` (with ``lsb_v``) and ``dsp`` (the frame DSP's fields, see
-        :mod:`lidard.raw.reprocess`); it is stored as is (JSON) next to the commit state.
+        :mod:`lidard.raw.replay`); it is stored as is (JSON) next to the commit state.
         """
         p = Path(path)
         px = np.asarray(pixels, dtype=np.int64)

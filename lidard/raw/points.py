@@ -1,7 +1,7 @@
 """From the frame DSP's per-pixel results to point records: one function for the scan and for replay.
 
 The scan loop (dissertation §4.4.1: the FPGA steps the pattern, the host turns each batch of
-segments into points) and :mod:`lidard.raw.reprocess` both call :func:`frame_points`, so a replay
+segments into points) and :mod:`lidard.raw.replay` both call :func:`frame_points`, so a replay
 of a raw capture with the original settings yields the original points bit for bit.
 """
 

@@ -3,7 +3,7 @@
 :class:`ScanRecorder` is created when an acquisition is ready (the digitizer has told its channel
 order), fed every batch of segments the scan loop accepts (the same records its DSP gets; a batch
 discarded after a safety stop is not recorded either) and closed with the scan's outcome. It
-writes what :mod:`lidard.raw.reprocess` needs to run the same DSP again: the frame DSP's settings,
+writes what :mod:`lidard.raw.replay` needs to run the same DSP again: the frame DSP's settings,
 the ADC scale, the phase-noise choice and monitor delay (§2.3), the chirp and the calibration id
 (§2.2), the pixel order and each beam's direction (§4.3.4 optics), the hardware time stamps.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from ..dsp.frame import FrameDsp
 from .capture import RawWriter, chunk_pixels_for
-from .reprocess import frame_dsp_attrs
+from .replay import frame_dsp_attrs
 
 # Raw bytes per chunk (one reprocessing task): 1 MiB keeps a few thousand pixels in several tasks
 # for a pool or a cluster and is still a comfortable size for the store (one file per chunk). The

@@ -19,7 +19,7 @@ from ..jobs import UnknownScan
 from ..pointcloud import read_sidecar, write_points
 from ..store import ScanRecord, Store
 from .capture import RAW_NAME, RawCaptureError, capture_size_bytes
-from .reprocess import ReprocessSettings, reprocess
+from .replay import ReprocessSettings, reprocess
 from .spectrum import PixelSpectrum, pixel_spectrum
 
 

@@ -20,7 +20,7 @@ from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
 from ..instrument.types import POINT_DTYPE
 from .capture import PixelNotRecorded, RawCapture
-from .reprocess import ReplayDsp, ReprocessSettings, replay_dsp
+from .replay import ReplayDsp, ReprocessSettings, replay_dsp
 
 # cfar_detect's defaults, which FrameDsp uses (n_ref cells in total, n_guard per side)
 _N_REF, _N_GUARD = 16, 2

@@ -11,13 +11,11 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, status
 
-from ...dsp.estimators import EstimatorName
-from ...dsp.window import WindowName
 from ...jobs import UnknownScan
 from ...raw import PixelNotRecorded, RawCaptureError, ReprocessSettings
 from ...raw.service import NoRawCapture, raw_path, reprocess_scan, scan_spectrum
 from ..deps import StoreDep
-from ..schemas import ReprocessCreate, ScanOut
+from ..schemas import EstimatorName, ReprocessCreate, ScanOut, WindowName
 
 router = APIRouter(prefix="/scans", tags=["raw captures"])
 

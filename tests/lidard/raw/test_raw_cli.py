@@ -100,10 +100,12 @@ def test_through_a_daemon(capsys, tmp_path):
         assert code == 1 and "404" in err and "was not recorded" in err
 
 
-def test_the_cli_offers_exactly_the_dsps_estimators_and_windows():
+def test_the_cli_and_the_api_offer_exactly_the_dsps_estimators_and_windows():
     from typing import get_args
 
+    from lidard.api import schemas
     from lidard.cli import raw as cli_raw
     from lidard.dsp.estimators import EstimatorName
     from lidard.dsp.window import WindowName
-    assert cli_raw.ESTIMATORS == get_args(EstimatorName) and cli_raw.WINDOWS == get_args(WindowName)
+    assert cli_raw.ESTIMATORS == get_args(EstimatorName) == get_args(schemas.EstimatorName)
+    assert cli_raw.WINDOWS == get_args(WindowName) == get_args(schemas.WindowName)
