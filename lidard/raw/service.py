@@ -18,8 +18,8 @@ import numpy as np
 from ..jobs import UnknownScan
 from ..pointcloud import read_sidecar, write_points
 from ..store import ScanRecord, Store
-from .capture import RAW_NAME, RawCaptureError, capture_size_bytes
-from .replay import ReprocessSettings, reprocess
+from .capture import RAW_NAME, RawCapture, RawCaptureError, capture_size_bytes
+from .replay import ReprocessSettings, replay_dsp, reprocess
 from .spectrum import PixelSpectrum, pixel_spectrum
 
 
@@ -56,8 +56,10 @@ def reprocess_scan(store: Store, scan_id: str, settings: ReprocessSettings | Non
     """Reprocess scan ``scan_id``; returns the new, finished scan record."""
     orig, path = _original(store, scan_id)
     settings = settings or ReprocessSettings()
+    replay_dsp(RawCapture(path).attrs, settings)   # a bad override is refused before any record exists
     fmts = tuple(formats or orig.request.get("formats") or ("ply",))
-    request = {**orig.request, "formats": list(fmts), "reprocess": settings.overrides()}
+    # the new scan has no capture of its own: reprocess the original again for other settings
+    request = {**orig.request, "formats": list(fmts), "record_raw": False, "reprocess": settings.overrides()}
     new = store.create_scan(request, pixels_planned=orig.pixels_planned)
     t0 = time.monotonic()
     store.update_scan(new.id, state="running", stage="reprocessing", started=time.time(),

@@ -48,6 +48,7 @@ def test_reprocessing_with_the_original_settings_gives_the_same_points(recorded)
     assert r.status_code == 201, r.text
     new = r.json()
     assert new["reprocessed_from"] == sid and new["state"] == "done" and new["id"] != sid
+    assert new["request"]["record_raw"] is False and new["raw_bytes"] is None
     assert new["formats"] == ["npz"] and new["counts"]["points"] == c.get(f"/scans/{sid}").json()["counts"]["points"]
     assert np.array_equal(_points(c, new["id"]), _points(c, sid))
     side = c.get(f"/scans/{new['id']}/sidecar", params={"format": "npz"}).json()
@@ -79,8 +80,10 @@ def test_spectrum_of_one_pixel(recorded):
 def test_errors_are_named(recorded):
     c, sid, _ = recorded
     assert c.post("/scans/NOPE/reprocess", json={}).status_code == 404
+    before = len(c.get("/scans").json()["scans"])
     r = c.post(f"/scans/{sid}/reprocess", json={"phase_noise": "on"})
     assert r.status_code == 422 and "no monitor 'mzi' channel" in r.json()["detail"]
+    assert len(c.get("/scans").json()["scans"]) == before          # refused before any record is made
     r = c.post(f"/scans/{sid}/reprocess", json={"estimator": "fft"})
     assert r.status_code == 422
     r = c.post(f"/scans/{sid}/reprocess", json={"pfa": 0.5})
