@@ -18,6 +18,7 @@ from pathlib import Path
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 
 from ..config import Config
 from ..errors import LidardError
@@ -26,7 +27,8 @@ from ..jobs import ScanWorker, software_version
 from ..store import Store
 from . import control
 from .control import BodySizeLimit, ControlLock, LockHeld
-from .routers import calibration, devices, health, scans, selftest, sim
+from ..live.points import LivePoints
+from .routers import calibration, devices, health, scans, selftest, sim, viewer
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +64,8 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
                             optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
         app.state.config, app.state.instrument, app.state.store = cfg, inst, store
         app.state.worker, app.state.optics = worker, optics
+        app.state.live = LivePoints()
+        worker.add_point_listener(app.state.live)  # the web viewer's incremental points
         worker.start()
         try:
             yield
@@ -83,8 +87,10 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)
     control.document_gates(app)
-    for r in (health.router, devices.router, scans.router, calibration.router, sim.router, selftest.router):
+    for r in (health.router, devices.router, scans.router, calibration.router, sim.router, selftest.router,
+              viewer.router):
         app.include_router(r)
+    app.mount("/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer")
 
     @app.exception_handler(LidardError)
     async def lidard_error(request: Request, exc: LidardError) -> JSONResponse:
