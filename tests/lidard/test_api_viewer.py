@@ -149,3 +149,23 @@ def test_page_and_scripts_are_served_from_the_package_and_nothing_from_the_netwo
             assert not re.search(r"""(src|href)=["']?(https?:)?//|from\s+["'](https?:)?//|url\((https?:)?//""",
                                  text), path
     assert "three@0.170.0" in (STATIC_DIR / "vendor" / "VERSION").read_text()
+
+
+def test_scan_written_as_mcap_and_pcd_is_served_in_both(client):
+    c, inst, app = client
+    inst.release.set()
+    r = c.post("/scans", json={"pattern": "roi", "rows": [0, 2], "cols": [0, 4], "formats": ["mcap", "pcd"]})
+    assert r.status_code == 201
+    sid = r.json()["id"]
+    app.state.worker.wait(sid, T)
+    assert c.get(f"/scans/{sid}").json()["formats"] == ["mcap", "pcd"]
+    from lidard.outputs.mcap import read_mcap
+    from lidard.outputs.pcd import read_pcd
+    for fmt, reader in (("mcap", lambda p: read_mcap(p)[0]), ("pcd", read_pcd)):
+        body = c.get(f"/scans/{sid}/points", params={"format": fmt})
+        assert body.status_code == 200
+        path = app.state.store.data_dir / f"x.{fmt}"
+        path.write_bytes(body.content)
+        np.testing.assert_allclose(reader(path)["range"], np.linspace(0.5, 1.5, 50).astype(np.float32))
+    bad = c.post("/scans", json={"pattern": "roi", "rows": [0, 2], "cols": [0, 4], "formats": ["xyz"]})
+    assert bad.status_code == 422
