@@ -150,6 +150,7 @@ class ScanWorker:
         self._subs: dict[str, list[Subscriber]] = collections.defaultdict(list)
         self._subs_lock = threading.Lock()
         self._point_listeners: list[PointListener] = []
+        self._event_listeners: list[Subscriber] = []
         self._stopping = False
         self._thread: threading.Thread | None = None
 
@@ -276,6 +277,10 @@ class ScanWorker:
         instrument's progress carries ``new_points``) and once with the whole cloud when it is written."""
         self._point_listeners.append(fn)
 
+    def add_event_listener(self, fn: Subscriber) -> None:
+        """Call ``fn(event)`` for the progress and end events of every scan (live publishers)."""
+        self._event_listeners.append(fn)
+
     def _points_out(self, scan_id: str, points, final: bool) -> None:
         for fn in list(self._point_listeners):
             try:
@@ -285,7 +290,7 @@ class ScanWorker:
 
     def _publish(self, scan_id: str, event: Event) -> None:
         with self._subs_lock:
-            subs = list(self._subs.get(scan_id, ()))
+            subs = list(self._subs.get(scan_id, ())) + self._event_listeners
         for fn in subs:
             try:
                 fn(event)

@@ -66,11 +66,19 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         app.state.worker, app.state.optics = worker, optics
         app.state.live = LivePoints()
         worker.add_point_listener(app.state.live)  # the web viewer's incremental points
+        app.state.foxglove = None
+        if cfg.live.foxglove:
+            from ..live.foxglove_server import FoxgloveLive  # opt-in; starts a WebSocket server
+            app.state.foxglove = FoxgloveLive(cfg.live.foxglove_host, cfg.live.foxglove_port, devices=inst.devices)
+            worker.add_point_listener(app.state.foxglove.on_points)
+            worker.add_event_listener(app.state.foxglove.on_event)
         worker.start()
         try:
             yield
         finally:
             worker.stop()
+            if app.state.foxglove is not None:
+                app.state.foxglove.close()
             if close_instrument:
                 try:
                     inst.close()
