@@ -97,7 +97,8 @@ def run_scan_in_page(page, url: str, rows: tuple[int, int], cols: tuple[int, int
     for name, value in (("row0", rows[0]), ("row1", rows[1]), ("col0", cols[0]), ("col1", cols[1])):
         page.fill(f"input[name={name}]", str(value))
     page.click("#scan-start")
-    page.wait_for_function("window.viewer.scanId !== null || window.viewer.lastError !== null")
+    page.wait_for_function("window.viewer.scanId !== null || window.viewer.lastError !== null",
+                           timeout=timeout_s * 1000)
     assert page.evaluate("window.viewer.lastError") is None
     page.wait_for_function("window.viewer.complete && window.viewer.scanState !== null",
                            timeout=timeout_s * 1000)
@@ -114,7 +115,7 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             try:
                 page = browser.new_page(viewport={"width": 1100, "height": 700})
-                sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=60)
+                sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=120)
                 api = httpx.get(f"{url}/scans/{sid}", timeout=10).json()
                 assert api["state"] == "done"
                 # every planned pixel (the ROI's bonded rows) was scanned
@@ -131,7 +132,17 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
                     shutil.copy(shot, os.environ["LIDARD_VIEWER_SHOT"])
                 img = np.asarray(Image.open(io.BytesIO(shot.read_bytes())).convert("L"), dtype=float)
                 assert img.var() > 1.0, f"blank canvas in {shot}"
-                # the pixel picker answers a point's fields from the page's own data
+                # the pixel picker: a click where the middle point is drawn shows that point's fields
+                mid = api["counts"]["points"] // 2
+                at = page.evaluate(f"window.viewer.cloud.screenOf({mid})")
+                page.mouse.click(at["x"], at["y"])
+                picked = page.evaluate("window.viewer.picked")
+                want = page.evaluate(f"[window.viewer.cloud.column('row')[{mid}], window.viewer.cloud.column('col')[{mid}]]")
+                # that pixel (a second return of the same beam may be drawn on the same spot)
+                assert picked is not None and [picked["row"], picked["col"]] == want, (picked, want)
+                assert 40 <= picked["row"] < 56 and 56 <= picked["col"] < 72, picked
+                assert 0.7 < picked["range"] < 1.0  # the letters at 0.8 m or the board at 0.9 m
+                assert f"row       {picked['row']}" in page.inner_text("#picked")
                 assert page.evaluate("window.viewer.cloud.pick({clientX: -1e6, clientY: -1e6})") is None
             finally:
                 browser.close()

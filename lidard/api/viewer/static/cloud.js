@@ -154,6 +154,14 @@ export class Cloud {
     this.camera.updateProjectionMatrix();
   }
 
+  // Where point ``i`` is drawn, in client (page) pixels.
+  screenOf(i) {
+    const rect = this.canvas.getBoundingClientRect(), pos = this.geometry.attributes.position.array;
+    this.points.updateMatrixWorld();
+    const v = new THREE.Vector3(pos[i * 3], pos[i * 3 + 1], pos[i * 3 + 2]).applyMatrix4(this.points.matrixWorld).project(this.camera);
+    return { x: rect.left + (v.x + 1) / 2 * rect.width, y: rect.top + (1 - v.y) / 2 * rect.height };
+  }
+
   // Nearest point to the click on screen (within 10 px): its fields, or null.
   pick(ev) {
     const rect = this.canvas.getBoundingClientRect();

@@ -77,6 +77,7 @@ async function takeControl() {
   try {
     const r = await (await api("/control", { method: "POST", json: { client: "web viewer" } })).json();
     viewer.lease = r.lease; viewer.holder = r.holder;
+    showControl({ held: true, holder: r.holder });
   } catch (e) { $("scan-error").textContent = String(e); }
   refresh();
 }
@@ -106,31 +107,47 @@ async function cancelScan(id) {
 }
 
 // ---- periodic refresh of the panels -------------------------------------------------------------
+function showControl(control) {
+  const mine = !!(viewer.lease && control.held && control.holder === viewer.holder);
+  if (viewer.lease && !mine) viewer.lease = null;  // expired or taken over
+  $("control-status").textContent = control.held ? `control: ${mine ? "you" : control.holder}` : "control: free";
+  $("control-take").hidden = mine; $("control-release").hidden = !mine;
+  $("scan-start").disabled = !mine;
+  return mine;
+}
+
+// Each panel refreshes on its own, so a slow device check never holds up the queue or the controls.
 let calTick = 0;
 async function refresh() {
   try {
-    const [health, control, list, devs] = await Promise.all([
-      getJSON("/health"), getJSON("/control"), getJSON("/scans?limit=12"), getJSON("/devices")]);
+    const [health, control, list] = await Promise.all([getJSON("/health"), getJSON("/control"), getJSON("/scans?limit=12")]);
     viewer.simulated = health.simulated;
     $("health").textContent = `${health.version} · ${health.simulated ? "simulated bench" : "hardware"} · ${health.status}`;
-    const mine = viewer.lease && control.held && control.holder === viewer.holder;
-    if (viewer.lease && !mine) viewer.lease = null;  // expired or taken over
-    $("control-status").textContent = control.held ? `control: ${mine ? "you" : control.holder}` : "control: free";
-    $("control-take").hidden = !!mine; $("control-release").hidden = !mine;
-    $("scan-start").disabled = !mine;
-    panels.renderQueue($("queue"), list.scans, { canAct: !!mine, onCancel: cancelScan, onShow: showScan, shownId: viewer.scanId });
-    panels.renderDevices($("devices"), devs.devices);
+    const mine = showControl(control);
+    panels.renderQueue($("queue"), list.scans, { canAct: mine, onCancel: cancelScan, onShow: showScan, shownId: viewer.scanId });
     if (!viewer.scanId && list.scans.length) showScan(list.running || list.scans[0].id);
-    if (health.simulated) {
-      panels.renderFaults($("faults"), (await getJSON("/sim/faults")).faults, true);
-    } else panels.renderFaults($("faults"), [], false);
-    if (calTick++ % 5 === 0 || list.running) {
+    refreshSlow(health.simulated, calTick++ % 5 === 0 || !!list.running);
+  } catch (e) {
+    $("health").textContent = `daemon unreachable (${e})`;
+  }
+}
+
+let slowBusy = false;
+async function refreshSlow(simulated, withCalibrations) {
+  if (slowBusy) return;
+  slowBusy = true;
+  try {
+    panels.renderDevices($("devices"), (await getJSON("/devices")).devices);
+    panels.renderFaults($("faults"), simulated ? (await getJSON("/sim/faults")).faults : [], simulated);
+    if (withCalibrations) {
       const cals = await getJSON("/calibration/history?limit=5");
       panels.renderCalibrations($("calibrations"), cals);
       panels.plotConvergence($("convergence"), cals);
     }
   } catch (e) {
-    $("health").textContent = `daemon unreachable (${e})`;
+    viewer.lastPanelError = String(e);
+  } finally {
+    slowBusy = false;
   }
 }
 
