@@ -7,12 +7,13 @@ cancel and queue-order tests need no sleeps.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 
 import numpy as np
 
 from lidard.config import load_profile
-from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress
+from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress, ScanResult
 from lidard.scan import plan
 
 
@@ -104,3 +105,31 @@ class FakeInstrument:
 
     def close(self):
         self.closed = True
+
+
+@dataclasses.dataclass
+class BatchProgress(ScanProgress):
+    """What the instrument's progress carries when it hands over points (``new_points``)."""
+
+    new_points: np.ndarray | None = None
+
+
+class StreamingInstrument(FakeInstrument):
+    """Measures ``n`` points in two batches; holds after the first until the test releases it."""
+
+    def __init__(self, n: int = 50, **kw):
+        super().__init__(**kw)
+        self.n = n
+        self.first_batch = threading.Event()
+
+    def run_scan(self, request, progress, cancel, calibration=None):
+        pts = np.zeros(self.n, POINT_DTYPE)
+        pts["range"] = np.linspace(0.5, 1.5, self.n)
+        pts["z"], pts["row"], pts["col"] = pts["range"], np.arange(self.n) // 10, np.arange(self.n) % 10
+        pts["velocity"], pts["t"], pts["valid"] = -0.25, np.arange(self.n) * 1e-4, 1
+        half = self.n // 2
+        progress(BatchProgress(half, self.n, half, 0.1, new_points=pts[:half]))
+        self.first_batch.set()
+        assert self.release.wait(20.0)
+        progress(BatchProgress(self.n, self.n, self.n, 0.2, new_points=pts[half:]))
+        return ScanResult(points=pts, meta={}, pixels_scanned=self.n, pixels_planned=self.n, hardware_time_s=0.2)

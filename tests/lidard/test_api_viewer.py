@@ -1,10 +1,8 @@
 """The viewer's page and data endpoints in-process: GET /, static files, /points/live, calibration history."""
 
-import dataclasses
 import io
 import re
 import sys
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -12,44 +10,16 @@ import pytest
 from fastapi.testclient import TestClient
 
 sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
+from lidard_fakes import StreamingInstrument  # noqa: E402
 
 from lidard.api.app import create_app  # noqa: E402
 from lidard.api.routers.viewer import STATIC_DIR  # noqa: E402
 from lidard.config import load_config  # noqa: E402
-from lidard.instrument_api import POINT_DTYPE, ScanProgress, ScanResult  # noqa: E402
+from lidard.instrument_api import POINT_DTYPE  # noqa: E402
 from lidard.live.points import LIVE_FIELDS, LivePoints, decode_points, encode_points  # noqa: E402
 from lidard.pointcloud import read_npz  # noqa: E402
 
 T = 20.0
-
-
-@dataclasses.dataclass
-class BatchProgress(ScanProgress):
-    """What the instrument's progress carries when it hands over points (``new_points``)."""
-
-    new_points: np.ndarray | None = None
-
-
-class StreamingInstrument(FakeInstrument):
-    """Measures ``n`` points in two batches; holds after the first until the test releases it."""
-
-    def __init__(self, n: int = 50, **kw):
-        super().__init__(**kw)
-        self.n = n
-        self.first_batch = threading.Event()
-
-    def run_scan(self, request, progress, cancel, calibration=None):
-        pts = np.zeros(self.n, POINT_DTYPE)
-        pts["range"] = np.linspace(0.5, 1.5, self.n)
-        pts["z"], pts["row"], pts["col"] = pts["range"], np.arange(self.n) // 10, np.arange(self.n) % 10
-        pts["velocity"], pts["t"], pts["valid"] = -0.25, np.arange(self.n) * 1e-4, 1
-        half = self.n // 2
-        progress(BatchProgress(half, self.n, half, 0.1, new_points=pts[:half]))
-        self.first_batch.set()
-        assert self.release.wait(T)
-        progress(BatchProgress(self.n, self.n, self.n, 0.2, new_points=pts[half:]))
-        return ScanResult(points=pts, meta={}, pixels_scanned=self.n, pixels_planned=self.n, hardware_time_s=0.2)
 
 
 @pytest.fixture
@@ -169,3 +139,18 @@ def test_scan_written_as_mcap_and_pcd_is_served_in_both(client):
         np.testing.assert_allclose(reader(path)["range"], np.linspace(0.5, 1.5, 50).astype(np.float32))
     bad = c.post("/scans", json={"pattern": "roi", "rows": [0, 2], "cols": [0, 4], "formats": ["xyz"]})
     assert bad.status_code == 422
+
+
+def test_a_failing_point_listener_does_not_stop_the_scan(client):
+    c, inst, app = client
+    seen = []
+
+    def broken(scan_id, points, final):
+        seen.append((len(points), final))
+        raise RuntimeError("viewer bug")
+
+    app.state.worker.add_point_listener(broken)
+    inst.release.set()
+    sid = c.post("/scans", json={"pattern": "roi", "rows": [0, 2], "cols": [0, 4]}).json()["id"]
+    assert app.state.worker.wait(sid, T).state == "done"
+    assert seen == [(25, False), (25, False), (50, True)]

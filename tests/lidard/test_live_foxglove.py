@@ -92,3 +92,26 @@ def test_foxglove_is_off_by_default_and_config_keys_are_checked(tmp_path):
         _live_cfg(tmp_path, foxglove=True, foxglove_port=70000)
     with pytest.raises(ConfigError, match="foxglove_hots"):
         _live_cfg(tmp_path, foxglove_hots="0.0.0.0")
+
+
+def test_foxglove_gets_each_batch_then_the_whole_cloud(tmp_path):
+    from lidard_fakes import StreamingInstrument
+
+    inst = StreamingInstrument(n=50)
+    inst.release.set()
+    app = create_app(_live_cfg(tmp_path, foxglove=True, foxglove_port=0), instrument=inst,
+                     data_dir=tmp_path / "data", progress_interval_s=0.0)
+    with TestClient(app) as c:
+        fox = app.state.foxglove
+        with connect(f"ws://127.0.0.1:{fox.port}", subprotocols=SUBPROTOCOLS, open_timeout=T) as ws:
+            chan = {ch["topic"]: ch for ch in _json_until(ws, "advertise")["channels"]}[POINTS_TOPIC]
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": chan["id"]}]}))
+            _until(lambda: fox.channels.points.has_sinks(), "the subscription to reach the server")
+            sid = c.post("/scans", json={"pattern": "roi", "rows": [0, 2], "cols": [0, 4]}).json()["id"]
+            assert app.state.worker.wait(sid, T).state == "done"
+            sizes = []
+            while sum(sizes) < 100:
+                frame = ws.recv(timeout=T)
+                if not isinstance(frame, str):
+                    sizes.append(len(decode_point_cloud(frame[13:])))
+    assert sizes == [25, 25, 50]
