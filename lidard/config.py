@@ -322,6 +322,15 @@ class Daemon(_Model):
     lease_ttl_s: float = Field(default=300.0, gt=0, le=86_400)
 
 
+class Live(_Model):
+    """Live publishers besides the REST API (lidard.live): the Foxglove WebSocket server, opt-in."""
+
+    foxglove: bool = False
+    # loopback unless the lab says otherwise: the stream has no authentication
+    foxglove_host: str = "127.0.0.1"
+    foxglove_port: int = Field(default=8765, ge=0, le=65535)  # 0: any free port
+
+
 class Config(_Model):
     profile: str = "fpsa128"
     lens: str | None = None
@@ -335,6 +344,7 @@ class Config(_Model):
     devices: Devices = Devices()
     sim: Sim = Sim()
     daemon: Daemon = Daemon()
+    live: Live = Live()
 
     # Resolved by load_config (not part of the file format).
     source: str = Field(default="<defaults>", exclude=True)

@@ -63,7 +63,7 @@ def add_parser(sub) -> None:
     sp.add_argument("--phase-noise", choices=["auto", "on", "off"], default=None,
                     help="laser phase-noise compensation from the monitor MZI (default: scan.* of the config)")
     sp.add_argument("--out", default=None, metavar="FILE",
-                    help="write the point cloud here (.ply, .las or .npz) and its FILE.json sidecar")
+                    help="write the point cloud here (.ply, .las, .npz, .pcd or .mcap) and its FILE.json sidecar")
     sp.add_argument("--progress", choices=MODES, default="auto",
                     help="stderr progress: bar with ETA on a terminal, one line per 10 %% otherwise (auto), "
                          "JSON lines, or none")
