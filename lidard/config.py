@@ -95,6 +95,10 @@ class Profile(_Model):
     actuation_v: PosFloat
     pull_in_v: PosFloat
     release_v: PosFloat
+    #: 1-sigma switch-to-switch spread of pull-in and release (both move together), V (simulator)
+    threshold_spread_v: NonNegFloat = 0.0
+    #: HV583 output discharge time constant into an actuator: release delay rc*ln(V/V_release), s
+    discharge_rc_s: NonNegFloat = 0.0
     row_switch: SwitchTiming
     col_switch: SwitchTiming
     lenses: dict[str, Lens]

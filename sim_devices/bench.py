@@ -75,6 +75,7 @@ from .controller import ControllerSim
 from .digitizer import CaptureConfig, CapturedSegments, SimDigitizer
 from .faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from .fpga import FpgaConfig, FpgaSim
+from .hv_drive import HvDrive
 from .usb_backend import SimUsbBackend, UsbBridgeServer
 from .world.laser import DfbLaser
 from .world.mems import SwitchDynamics
@@ -118,17 +119,17 @@ class Bench:
         self.world = World(cfg, self.profile, self.laser_preset, scene)
         self.laser = DfbLaser(self.laser_preset)
         pr = self.profile
-        row_dyn = SwitchDynamics(pr.row_switch.on_s, pr.row_switch.off_s, pull_in_v=pr.pull_in_v,
-                                 release_v=pr.release_v)
-        col_dyn = SwitchDynamics(pr.col_switch.on_s, pr.col_switch.off_s, pull_in_v=pr.pull_in_v,
-                                 release_v=pr.release_v)
+        row_dyn, col_dyn = (SwitchDynamics(sw.on_s, sw.off_s, pull_in_v=pr.pull_in_v,
+                                           release_v=pr.release_v, discharge_rc_s=pr.discharge_rc_s)
+                            for sw in (pr.row_switch, pr.col_switch))
         self.fpga = FpgaSim(self.clock, FpgaConfig(
             rows=pr.rows, cols=pr.cols, bonded_rows=pr.bonded_rows,
             baudrate=cfg.devices.fpsa.baudrate, hv_supply_v=pr.actuation_v, seed=self.seed,
-            row_dynamics=row_dyn, col_dynamics=col_dyn))
+            row_dynamics=row_dyn, col_dynamics=col_dyn, threshold_spread_v=pr.threshold_spread_v))
         self.awg = SimAwg()
         self.digitizer = SimDigitizer(self.clock, source=self)
         self.controller = ControllerSim(self.clock)
+        self.fpga.supply = self._hv_drive  # the controller's HV is the HV583 supply rail
         self._traj_key: bytes | None = None
         self._traj = None
         self._lock = threading.RLock()
@@ -370,6 +371,10 @@ class Bench:
         self._interlock_after = None
         self.controller.set_interlock(False)
 
+    def _hv_drive(self) -> HvDrive:
+        st = self.controller.state
+        return HvDrive(st.hv_v if st.hv_on else 0.0, st.hv_hold_setpoint_v if st.hv_on else 0.0)
+
     # -- world control ------------------------------------------------------------------------------
     def set_scene(self, scene: Scene) -> None:
         with self._lock:
@@ -445,7 +450,9 @@ class Bench:
         n = len(trig)
         st = self.controller.state
         light = bool(st.laser_on and st.interlock_closed)
-        switches = bool(st.hv_on and st.hv_v >= self.profile.pull_in_v)
+        # the HV583 outputs carry the controller's HV: which switches pull in is the FPGA's
+        # (per-switch hysteresis); an HV output switched off during a run still darkens it
+        switches = bool(st.hv_on)
         # Light per segment: an interlock that opens inside this batch (at a virtual time or after
         # a number of segments) darkens the segments from that trigger on.
         lit = np.full(n, light)
@@ -458,7 +465,8 @@ class Bench:
                       input_range_v=cfg.input_range_v, iq=iq, quantize=True)
         hits = None
         # a stuck switch only shows through the switch dynamics (which beams actually emit)
-        beams_from_dynamics = eff.mems_dynamics or bool(self.fpga.stuck_switches)
+        beams_from_dynamics = (eff.mems_dynamics or bool(self.fpga.stuck_switches)
+                               or not self.fpga.pulls_in_every_switch())
         if beams_from_dynamics:
             rows, cols, trans, beam_seg = (trig.beam_row, trig.beam_col, trig.beam_transmission,
                                            np.asarray(trig.beam_trigger, np.intp))
