@@ -229,6 +229,9 @@ class Monitor(_Model):
 
     delay_s: PosFloat = 200e-9
     amplitude_v: PosFloat = 0.3
+    #: mean optical power on the monitor photodiode, W: sets the channel's shot noise (simulator;
+    #: lidard.physics.budget.monitor_noise_asd). 100 uW is an estimate (a 1 % tap of ~10 mW).
+    power_w: PosFloat = 100e-6
 
 
 class ScanDefaults(_Model):

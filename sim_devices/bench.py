@@ -67,7 +67,7 @@ import numpy as np
 
 from drivers.controller import protocol as ctl_p
 from lidard.config import Config, ConfigError, load_config
-from lidard.physics.budget import quantization_asd
+from lidard.physics.budget import monitor_noise_asd, quantization_asd
 
 from .awg import SimAwg
 from .clock import VirtualClock
@@ -420,6 +420,21 @@ class Bench:
         over = (raw < lo_code).any(axis=1) | (raw > hi_code).any(axis=1)
         return np.clip(raw, lo_code, hi_code).astype(np.int16), over
 
+    def _monitor_asd(self, record_bits: int) -> float:
+        """White-noise ASD of the monitor-MZI channel: its photodiode's shot noise and the laser's
+        RIN (``sim.effects.noise``), plus the 8-bit core's quantization when the record is wider
+        (``sim.effects.quantization``; the record's own quantization is applied by the synthesis)."""
+        eff, mon = self.cfg.sim.effects, self.cfg.monitor
+        asd = 0.0
+        if eff.noise:
+            asd = monitor_noise_asd(mon.amplitude_v, mon.power_w, self.cfg.detector.responsivity_a_per_w,
+                                    self.laser_preset.rin_db_per_hz)["total"]
+        core_bits = self.cfg.adc.bits
+        if eff.quantization and record_bits > core_bits:
+            q = quantization_asd(self.cfg.adc.input_range_v, core_bits, self.cfg.adc.max_sample_rate_hz)
+            asd = float(np.hypot(asd, q))
+        return asd
+
     def tap_volts_per_beam(self) -> float:
         """Tap level of one fully open beam (what a healthy pixel reads), V."""
         link = self.world.link
@@ -487,13 +502,15 @@ class Bench:
             # band) lands in the record as white noise; the 16-bit format quantizes the rest.
             q = quantization_asd(self.cfg.adc.input_range_v, core_bits, self.cfg.adc.max_sample_rate_hz)
             noise_asd = float(np.hypot(noise_asd, q))
+        mzi_asd = self._monitor_asd(cfg.bits) if light else 0.0
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
                          linewidth_hz=linewidth, rng=rng,
                          mzi_delay_s=self.cfg.monitor.delay_s if want_mzi else None,
-                         mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None)
+                         mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
+                         mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0)
         codes = np.zeros((n, len(cfg.channels), cfg.record_length), dtype=np.int16)
         over = np.zeros((n, len(cfg.channels)), dtype=bool)
         by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi}

@@ -199,6 +199,24 @@ def quantization_asd(adc_range_v: float, bits: int, sample_rate_hz: float) -> fl
     return float(np.sqrt(lsb**2 / 12.0 / (sample_rate_hz / 2.0)))
 
 
+def monitor_noise_asd(amplitude_v: float, power_w: float, responsivity_a_per_w: float,
+                      rin_db_per_hz: float) -> dict:
+    """Shot and RIN ASDs (V/sqrt(Hz)) of the monitor-MZI channel (§2.2's MZI on one photodiode).
+
+    One output of an MZI with full fringe visibility carries I(t) = R P_mon (1 + cos dPhi): DC and
+    AC amplitude are both R P_mon, so the TIA gain is G = amplitude_v / (R P_mon). Then, as eqs.
+    2-16 and 2-17 for the LiDAR receiver: shot = G sqrt(2 q R P_mon) = amplitude_v sqrt(2 q /
+    (R P_mon)) and RIN = G R P_mon sqrt(RIN) = amplitude_v sqrt(RIN). The ADC's quantization of the
+    channel is added where the channel is digitized (it depends on the record format).
+    """
+    if not (power_w > 0 and responsivity_a_per_w > 0 and amplitude_v >= 0):
+        raise ValueError(f"monitor_noise_asd: need power_w > 0, responsivity > 0, amplitude_v >= 0; got "
+                         f"{power_w!r}, {responsivity_a_per_w!r}, {amplitude_v!r}")
+    shot = amplitude_v * float(np.sqrt(2.0 * E_CHARGE_C / (responsivity_a_per_w * power_w)))
+    rin = amplitude_v * float(np.sqrt(db_to_lin_power(rin_db_per_hz)))
+    return {"shot": shot, "rin": rin, "total": float(np.hypot(shot, rin))}
+
+
 def budget_report(p: LinkParams, distance_m: float) -> dict:
     """The JSON object `lidarctl budget --json` prints."""
     c = asd_components(p, distance_m)
