@@ -116,7 +116,7 @@ class Bench:
             scene = Scene.from_toml(cfg.resolve_path(cfg.sim.scene))
         self.seed = cfg.sim.seed if seed is None else int(seed)
         self.clock = VirtualClock()
-        self.world = World(cfg, self.profile, self.laser_preset, scene)
+        self.world = World(cfg, self.profile, self.laser_preset, scene, seed=self.seed)
         self.laser = DfbLaser(self.laser_preset)
         pr = self.profile
         row_dyn, col_dyn = (SwitchDynamics(sw.on_s, sw.off_s, pull_in_v=pr.pull_in_v,
@@ -489,11 +489,17 @@ class Bench:
             rows, cols, trans, beam_seg = trig.row, trig.col, np.ones(n), np.arange(n)
         emitting = lit[beam_seg] & switches
         if light and switches and n and emitting.any():
-            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting])
+            chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
+            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp)
             if bh.beam.size:
+                phase = None
+                if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
+                    plain = 2.0 * np.pi * np.mod(self._trajectory().nu0_hz * bh.tau_s, 1.0)
+                    phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
                 hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
                                 tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain,
-                                doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m)
+                                doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
+                                phase_rad=phase)
         noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
         core_bits = self.cfg.adc.bits
         if eff.quantization and cfg.bits > core_bits:

@@ -19,6 +19,9 @@ Scene file format (TOML; see config/scenes/*.toml)::
     reflectivity = 0.1      # >= 0, default 0.1
     transmission = 0.0      # in [0, 1], default 0
     velocity = [vx, vy, vz] # m/s, default 0
+    speckle = false         # true: rough surface, fully developed speckle on its returns (Rayleigh
+                            # amplitude, uniform phase; new per pixel, and per chirp if it moves;
+                            # sim_devices.world.speckle). Default false (a smooth, non-fading return)
     # plane:   point, normal, optional size = [w, h] (rectangle centred on point) and up = [x, y, z]
     #          (h along up projected into the plane, w along the in-plane axis perpendicular to up;
     #          default up = +y, or +z when the normal is parallel to y)
@@ -81,7 +84,7 @@ class SceneError(ValueError):
 # Validation (one error, naming source / target / key)
 # --------------------------------------------------------------------------------------------------
 
-_COMMON_KEYS = ("kind", "reflectivity", "transmission", "velocity")
+_COMMON_KEYS = ("kind", "reflectivity", "transmission", "velocity", "speckle")
 _KIND_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # kind: (required keys, optional keys) besides the common ones
     "plane": (("point", "normal"), ("size", "up")),
@@ -218,7 +221,11 @@ def _target(ctx: _Ctx, raw: Any) -> Target:
     if not 0.0 <= trans <= 1.0:
         raise ctx.error("transmission", f"must be in [0, 1], got {raw['transmission']!r}")
     vel = _vector(ctx, "velocity", raw.get("velocity", [0.0, 0.0, 0.0]), 3)
-    common: dict[str, Any] = {"reflectivity": refl, "transmission": trans, "velocity": vel}
+    speckle = raw.get("speckle", False)
+    if not isinstance(speckle, bool):
+        raise ctx.error("speckle", f"must be true or false, got {speckle!r}")
+    common: dict[str, Any] = {"reflectivity": refl, "transmission": trans, "velocity": vel,
+                              "speckle": speckle}
 
     if kind == "plane":
         point = _vector(ctx, "point", raw["point"], 3)

@@ -79,6 +79,7 @@ class _TargetBase:
     reflectivity: float
     transmission: float
     velocity: np.ndarray  # (3,) m/s
+    speckle: bool = False  # fully developed speckle on its returns (sim_devices.world.speckle)
 
     def __post_init__(self) -> None:
         # Targets are shared between scenes (moved(), to_dict()); freeze their arrays too.
@@ -87,11 +88,14 @@ class _TargetBase:
                 value.setflags(write=False)
 
     def _common_dict(self) -> dict[str, Any]:
-        return {
+        d: dict[str, Any] = {
             "reflectivity": float(self.reflectivity),
             "transmission": float(self.transmission),
             "velocity": [float(c) for c in self.velocity],
         }
+        if self.speckle:  # written only when on, so the shipped scenes' dicts are unchanged
+            d["speckle"] = True
+        return d
 
 
 @dataclass(frozen=True, eq=False)

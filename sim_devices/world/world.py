@@ -28,6 +28,7 @@ from lidard.physics.constants import C_M_PER_S
 from lidard.physics.optics import FpsaOptics
 
 from .scene import Scene
+from .speckle import speckle_factors
 
 WHITE_NOISES = ("shot", "rin", "thermal", "ambient")
 
@@ -42,24 +43,29 @@ class BeamHits:
     amplitude_v: np.ndarray    # beat amplitude at the ADC input (V), eq. 2-11 x G_TIA
     velocity_mps: np.ndarray   # radial, positive receding
     return_index: np.ndarray   # order along the beam (0 = nearest)
+    #: beat phase of hits on speckle targets (NaN elsewhere); None when no hit is on one
+    speckle_phase_rad: np.ndarray | None = None
 
 
 class World:
     """Scene + optics + link budget, with a per-pixel ray-cast cache."""
 
     def __init__(self, cfg: Config, profile: Profile, laser: LaserPreset, scene: Scene,
-                 *, max_hits: int = 4) -> None:
+                 *, max_hits: int = 4, seed: int = 0) -> None:
         self.cfg = cfg
         self.profile = profile
         self.laser = laser
         self.optics: FpsaOptics = profile.optics(cfg.lens, cfg.chirp.wavelength_m)
         self.link: LinkParams = cfg.link_params(profile, laser)
         self.max_hits = max_hits
+        self.seed = int(seed)  # speckle draws
         self.set_scene(scene)
 
     def set_scene(self, scene: Scene) -> None:
         self.scene = scene
         self._cache: dict[int, tuple] = {}
+        self._speckle = np.array([bool(t.speckle) for t in scene.targets], bool)
+        self._moving = np.array([bool(np.any(t.velocity != 0)) for t in scene.targets], bool)
 
     # -- noise ------------------------------------------------------------------------------------
     def white_noise_asd_v(self) -> float:
@@ -78,11 +84,13 @@ class World:
                 n = int(h.count[i])
                 self._cache[int(k)] = (h.range_m[i, :n].copy(), h.incidence_rad[i, :n].copy(),
                                        h.reflectivity[i, :n].copy(), h.radial_velocity_mps[i, :n].copy(),
-                                       h.transmission[i, :n].copy())
+                                       h.transmission[i, :n].copy(),
+                                       h.target_index[i, :n].astype(np.float64))
         return [self._cache[int(k)] for k in keys]
 
-    def beam_hits(self, rows, cols, transmission) -> BeamHits:
-        """Beat tones of beams lit at (rows, cols) with switch-path transmissions ``transmission``."""
+    def beam_hits(self, rows, cols, transmission, chirp=None) -> BeamHits:
+        """Beat tones of beams lit at (rows, cols) with switch-path transmissions ``transmission``;
+        ``chirp``: each beam's chirp (trigger) index, which decorrelates speckle on moving targets."""
         rows = np.asarray(rows)
         cols = np.asarray(cols)
         trans = np.asarray(transmission, dtype=np.float64)
@@ -93,15 +101,24 @@ class World:
             z = np.zeros(0)
             return BeamHits(np.zeros(0, np.int64), z, z, z, z, np.zeros(0, np.int64))
         beam = np.repeat(np.arange(len(entries)), counts)
-        cat = [np.concatenate([e[j] for e in entries]) for j in range(5)]
-        rng_m, inc, rho, vel, chain = cat
+        cat = [np.concatenate([e[j] for e in entries]) for j in range(6)]
+        rng_m, inc, rho, vel, chain, tgt = cat
         ret_idx = np.concatenate([np.arange(c) for c in counts])
         p = self.link
         p_rx = (p.received_power_w(rng_m, reflectivity=rho, incidence_rad=inc)
                 * chain**2 * trans[beam] ** 2)
         amp = p.tia_gain_v_per_a * p.i_ac_a(p_rx)
+        phase = None
+        tgt = tgt.astype(np.int64)
+        rough = self._speckle[tgt] if self._speckle.any() else np.zeros(total, bool)
+        if rough.any():
+            ch = np.zeros(total, np.int64) if chirp is None else np.asarray(chirp, np.int64)[beam]
+            ch = np.where(self._moving[tgt], ch, 0)  # a static surface keeps its speckle
+            a, ph = speckle_factors(self.seed, rows[beam], cols[beam], tgt, ch)
+            amp = np.where(rough, amp * a, amp)
+            phase = np.where(rough, ph, np.nan)
         return BeamHits(beam=beam, range_m=rng_m, tau_s=2.0 * rng_m / C_M_PER_S, amplitude_v=amp,
-                        velocity_mps=vel, return_index=ret_idx)
+                        velocity_mps=vel, return_index=ret_idx, speckle_phase_rad=phase)
 
     def ground_truth(self, rows, cols) -> np.ndarray:
         """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth."""
