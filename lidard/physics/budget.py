@@ -13,6 +13,11 @@ Two set-ups are modelled by :class:`LinkParams`:
   photodiode, so CMRR = 0 dB), ~1 mW leaves the scanner and the return passes the FPSA's Table 4-4
   losses again. :func:`lidard.config` builds it from the configuration.
 
+Beat amplitude: eq. 2-11 as written, I_AC = R sqrt(P_ref P_rx), also for the §4.4 single-photodiode
+circulator set-up, whose ideal (matched polarisation and mode) term would be twice that; the bench
+keeps eq. 2-11 because the dissertation derives §4.4 from it and it reproduces Fig. 4-32's ~28 dB
+(29.1 dB at 0.8 m, against 35.1 dB with the ideal factor): see docs/physics.md.
+
 The ADC term follows eq. 2-19 literally, (V/2^N)^2 / B_ADC (one LSB^2 spread over B_ADC), which is
 12x the variance of an ideal uniform quantizer (LSB^2/12); :func:`quantization_asd` gives the latter
 for simulation at an actual sample rate.
