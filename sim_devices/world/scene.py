@@ -14,6 +14,9 @@ Scene file format (TOML; see config/scenes/*.toml)::
 
     name = "..."            # optional
     description = "..."     # optional
+    mixed_pixels = false    # optional: true samples the beam footprint with sub-rays where it
+                            # straddles a target edge or a depth step (two weaker or one blended
+                            # return; sim_devices.world.footprint); false: one ray per pixel
     [[target]]
     kind = "plane" | "box" | "sphere" | "polygon"
     reflectivity = 0.1      # >= 0, default 0.1
@@ -78,8 +81,6 @@ class SceneError(ValueError):
     """A scene description is invalid; the message names source, target index and key."""
 
 
-
-
 # --------------------------------------------------------------------------------------------------
 # Validation (one error, naming source / target / key)
 # --------------------------------------------------------------------------------------------------
@@ -92,7 +93,7 @@ _KIND_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "sphere": (("center", "radius"), ()),
     "polygon": (("vertices",), ()),
 }
-_TOP_KEYS = ("name", "description", "target")
+_TOP_KEYS = ("name", "description", "mixed_pixels", "target")
 
 
 class _Ctx:
@@ -270,6 +271,7 @@ class Scene:
     name: str | None = None
     description: str | None = None
     source: str = "<scene>"
+    mixed_pixels: bool = False  # sample edge pixels' footprints (sim_devices.world.footprint)
 
     # -- loading -----------------------------------------------------------------------------------
 
@@ -306,11 +308,15 @@ class Scene:
         description = d.get("description")
         if description is not None and not isinstance(description, str):
             raise ctx.error("description", f"must be a string, got {description!r}")
+        mixed = d.get("mixed_pixels", False)
+        if not isinstance(mixed, bool):
+            raise ctx.error("mixed_pixels", f"must be true or false, got {mixed!r}")
         raw_targets = d.get("target", [])
         if not isinstance(raw_targets, (list, tuple)):
             raise ctx.error("target", "must be an array of tables ([[target]])")
         targets = tuple(_target(_Ctx(source, i), t) for i, t in enumerate(raw_targets))
-        return cls(targets=targets, name=name, description=description, source=source)
+        return cls(targets=targets, name=name, description=description, source=source,
+                   mixed_pixels=mixed)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (JSON/TOML friendly) that :meth:`from_dict` turns back into this scene."""
@@ -319,6 +325,8 @@ class Scene:
             d["name"] = self.name
         if self.description is not None:
             d["description"] = self.description
+        if self.mixed_pixels:
+            d["mixed_pixels"] = True
         d["target"] = [t.to_dict() for t in self.targets]
         return d
 
@@ -342,7 +350,7 @@ class Scene:
                 out.append(_replace(t, center=t.center + shift))
             else:
                 out.append(_replace(t, vertices=t.vertices + shift, origin=t.origin + shift))
-        return Scene(tuple(out), self.name, self.description, self.source)
+        return Scene(tuple(out), self.name, self.description, self.source, self.mixed_pixels)
 
     def cast(
         self,

@@ -27,6 +27,7 @@ from lidard.physics.budget import LinkParams, asd_components
 from lidard.physics.constants import C_M_PER_S
 from lidard.physics.optics import FpsaOptics
 
+from . import footprint as fp
 from .scene import Scene
 from .speckle import speckle_factors
 
@@ -81,12 +82,34 @@ class World:
             d = self.optics.directions(missing // 4096, missing % 4096)
             h = self.scene.cast(d, max_hits=self.max_hits)
             for i, k in enumerate(missing):
-                n = int(h.count[i])
-                self._cache[int(k)] = (h.range_m[i, :n].copy(), h.incidence_rad[i, :n].copy(),
-                                       h.reflectivity[i, :n].copy(), h.radial_velocity_mps[i, :n].copy(),
-                                       h.transmission[i, :n].copy(),
-                                       h.target_index[i, :n].astype(np.float64))
+                self._cache[int(k)] = (*_entry(h, i), np.ones(int(h.count[i])))
+            if self.scene.mixed_pixels:
+                self._sample_footprints(missing, d)
         return [self._cache[int(k)] for k in keys]
+
+    def _footprint_radius(self, range_m):
+        lens = self.profile.lenses[self.cfg.lens or self.profile.default_lens]
+        return fp.footprint_radius_m(range_m, emission_w_m=self.optics.emission_w_m,
+                                     focal_m=self.optics.focal_m, wavelength_m=self.optics.wavelength_m,
+                                     aperture_m=lens.aperture_m)
+
+    def _sample_footprints(self, keys: np.ndarray, d: np.ndarray) -> None:
+        """Mixed pixels: re-cast the footprints that may straddle an edge (sim_devices.world.footprint)."""
+        cand = np.flatnonzero(fp.edge_candidates(self.scene.targets, d, self._footprint_radius))
+        if cand.size == 0:
+            return
+        first = np.array([self._cache[int(keys[i])][0][:1].tolist() or [np.inf] for i in cand]).ravel()
+        probe = np.where(np.isfinite(first), first, 1e3)   # a miss: the footprint far away
+        half = np.arctan(self._footprint_radius(probe) / probe)
+        sub = fp.sub_ray_directions(d[cand], half)
+        h = self.scene.cast(sub.reshape(-1, 3), max_hits=self.max_hits)
+        bin_m = C_M_PER_S / (2.0 * abs(self.cfg.chirp.excursion_hz))  # one range bin
+        for j, i in enumerate(cand):
+            key = int(keys[i])
+            samples = [self._cache[key][:6]] + [_entry(h, j * fp.RING + s) for s in range(fp.RING)]
+            mixed = fp.mix_samples(samples, bin_m, self.max_hits)
+            if mixed is not None:
+                self._cache[key] = mixed
 
     def beam_hits(self, rows, cols, transmission, chirp=None) -> BeamHits:
         """Beat tones of beams lit at (rows, cols) with switch-path transmissions ``transmission``;
@@ -101,13 +124,13 @@ class World:
             z = np.zeros(0)
             return BeamHits(np.zeros(0, np.int64), z, z, z, z, np.zeros(0, np.int64))
         beam = np.repeat(np.arange(len(entries)), counts)
-        cat = [np.concatenate([e[j] for e in entries]) for j in range(6)]
-        rng_m, inc, rho, vel, chain, tgt = cat
+        cat = [np.concatenate([e[j] for e in entries]) for j in range(7)]
+        rng_m, inc, rho, vel, chain, tgt, weight = cat
         ret_idx = np.concatenate([np.arange(c) for c in counts])
         p = self.link
         p_rx = (p.received_power_w(rng_m, reflectivity=rho, incidence_rad=inc)
                 * chain**2 * trans[beam] ** 2)
-        amp = p.tia_gain_v_per_a * p.i_ac_a(p_rx)
+        amp = p.tia_gain_v_per_a * p.i_ac_a(p_rx) * weight  # weight < 1: part of a mixed pixel
         phase = None
         tgt = tgt.astype(np.int64)
         rough = self._speckle[tgt] if self._speckle.any() else np.zeros(total, bool)
@@ -124,3 +147,11 @@ class World:
         """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth."""
         entries = self._cast_pixels(np.asarray(rows), np.asarray(cols))
         return np.array([e[0][0] if len(e[0]) else np.inf for e in entries])
+
+
+def _entry(h, i: int) -> tuple:
+    """(range, incidence, reflectivity, radial velocity, transmission, target) of ray i's hits."""
+    n = int(h.count[i])
+    return (h.range_m[i, :n].copy(), h.incidence_rad[i, :n].copy(), h.reflectivity[i, :n].copy(),
+            h.radial_velocity_mps[i, :n].copy(), h.transmission[i, :n].copy(),
+            h.target_index[i, :n].astype(np.float64))
