@@ -113,21 +113,41 @@ def test_spread_decides_which_switches_pull_in_at_the_nominal_voltage():
     assert sim.pulls_in_every_switch()
 
 
+def _tap_readings(bench, hv_v: float) -> np.ndarray:
+    """Emission-monitor level of one pixel per column (as the self-test reads it) at ``hv_v``."""
+    model = bench.controller.model
+    assert model.write(ctl_p.Table.HOLDING, ctl_p.HV_SETPOINT.address,
+                       ctl_p.encode_value(ctl_p.HV_SETPOINT, hv_v)) is None
+    assert model.write(ctl_p.Table.COIL, ctl_p.HV_ENABLE.address, [True]) is None
+    bench.clock.advance(0.2)  # 40 HV time constants: the readback has settled
+    _send(bench.fpga, p.Cmd.RESET)
+    out = []
+    for col in range(0, bench.profile.cols, 8):
+        _send(bench.fpga, p.Cmd.SET_PIXEL, p.encode_set_pixel(bench.profile.bonded_rows[0], col))
+        bench.clock.advance(20 * US)
+        t = bench.clock.now()
+        _, _, trans = bench.fpga.lit_beams(t, t)
+        out.append(bench.tap_volts_per_beam() * float(trans.sum()))
+    return np.array(out)
+
+
 def test_controller_hv_reaches_the_fpga_and_the_selftest_names_it():
     bench = Bench(load_config(CONFIG_DIR / "sim.toml"))
-    model = bench.controller.model
-    pull_in = bench.profile.pull_in_v
-    low = pull_in - 1.0
-    assert model.write(ctl_p.Table.HOLDING, ctl_p.HV_SETPOINT.address,
-                       ctl_p.encode_value(ctl_p.HV_SETPOINT, low)) is None
-    assert model.write(ctl_p.Table.COIL, ctl_p.HV_ENABLE.address, [True]) is None
-    bench.clock.advance(0.2)  # 40 HV time constants
+    pr = bench.profile
+    one_beam = bench.tap_volts_per_beam()
+    low = pr.pull_in_v - 1.0
+    dark = _tap_readings(bench, low)
     assert bench.fpga.supply().hv_v == pytest.approx(low, abs=1e-3)
     assert not bench.fpga.pulls_in_every_switch()
-    msg = hv_pull_in_problem([0.0] * 10, bench.controller.state.hv_v, pull_in, dark_v=0.05,
-                             spread_v=bench.profile.threshold_spread_v)
-    assert msg is not None and f"HV {low:.2f} V" in msg and f"{pull_in:.2f} V" in msg
-    assert "10 of 10" in msg
+    assert np.all(dark < 0.01 * one_beam)                      # nothing pulled in
+    msg = hv_pull_in_problem(dark, bench.controller.state.hv_v, pr.pull_in_v, dark_v=0.5 * one_beam,
+                             spread_v=pr.threshold_spread_v)
+    assert msg is not None and f"HV {low:.2f} V" in msg and f"{pr.pull_in_v:.2f} V" in msg
+    assert f"{dark.size} of {dark.size}" in msg
+    lit = _tap_readings(bench, pr.actuation_v)                  # the profile's drive: all on
+    np.testing.assert_allclose(lit, one_beam, rtol=1e-6)
+    assert hv_pull_in_problem(lit, bench.controller.state.hv_v, pr.pull_in_v, dark_v=0.5 * one_beam,
+                              spread_v=pr.threshold_spread_v) is None
 
 
 def test_selftest_hv_messages():
