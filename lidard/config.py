@@ -225,6 +225,11 @@ class Monitor(_Model):
 
     delay_s: PosFloat = 200e-9
     amplitude_v: PosFloat = 0.3
+    # The MZI is also read in quadrature (a 90-degree hybrid or 3x3 coupler and a second digitizer
+    # channel, ``mzi_q``): the laser phase is then rebuilt per sample and phase-noise compensation holds
+    # at EVERY range (lidard.dsp.pnrecon, issue 15). False is the dissertation's single real MZI: the
+    # compensation is exact only where the round trip is a whole multiple of delay_s (docs/benchmarks.md).
+    quadrature: bool = False
 
 
 class ScanDefaults(_Model):
