@@ -385,7 +385,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
               abs_tol_frac: float = 1e-6, refine: bool = True,
               update: Literal["inverse", "scalar"] = "inverse", max_drive_factor: float = 4.0,
               max_drive_v: float | None = None, max_averages: int | None = None,
-              target_frac: float = 2e-5) -> IlcResult:
+              target_frac: float = 4e-6) -> IlcResult:
     """Iteratively pre-distort ``drive0_v`` so that the MZI-measured chirp becomes linear (§2.2).
 
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
@@ -399,7 +399,8 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     the excursion, the same drive is measured again with twice the averages (up to ``max_averages``;
     default: no growth) and learning goes on. A broad-linewidth laser on a long MZI needs this: its
     averaged beat shrinks by exp(-pi linewidth tau_m) while the noise does not, and a narrow laser
-    never pays for it.
+    never pays for it. The default target, 4e-6 of the excursion, is what a >= 1000x reduction of a
+    ~0.7 % RMS nonlinearity needs (issue 15); the measurement itself is unchanged.
     """
     if not callable(measure):
         raise TypeError("measure must be callable as measure(drive_v, n_avg)")

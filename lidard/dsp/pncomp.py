@@ -30,7 +30,7 @@ import numpy as np
 from scipy.signal import get_window, hilbert
 
 from .instfreq import check_finite_array, check_positive
-from .pnrecon import delayed, quadrature_delta, reconstruct_phase
+from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
 
 
 @dataclass(frozen=True)
@@ -230,7 +230,7 @@ def _reconstructed_spectrum(b, mzi_i, mzi_q, *, fs_hz, mzi_delay_s, max_delay_s,
         raise ValueError(f"mzi_q must have the beat's length {b.size}, got {q.size}")
     step = check_positive("tau_step_s", tau_step_s if tau_step_s is not None else mzi_delay_s / 16)
     gamma = float(chirp_rate_hz_per_s)
-    d_samples = int(round(mzi_delay_s * fs_hz))
+    d_samples = whole_delay_samples(mzi_delay_s, fs_hz)
     delta = quadrature_delta(mzi_i, q, fs_hz=fs_hz, beat_hz=gamma * mzi_delay_s)
     valid = np.zeros(b.size, dtype=bool)
     valid[n_edge:b.size - n_edge] = True

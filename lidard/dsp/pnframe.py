@@ -40,7 +40,7 @@ from scipy.signal import hilbert
 from .chain import detect_and_refine
 from .instfreq import check_positive
 from .pncomp import demodulated_phase
-from .pnrecon import delayed, quadrature_delta, reconstruct_phase
+from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
 from .rangefft import C_M_PER_S, RangeFFT, windowed_fft
 from .window import DspInputError, get_window
 
@@ -201,7 +201,7 @@ class PhaseNoiseCompensator:
             delta = quadrature_delta(m, mzi_q, fs_hz=self.fs_hz, beat_hz=self.mzi_beat_hz)
             valid = np.zeros(r, dtype=bool)
             valid[self.edge_samples:stop] = True
-            phi, _ = reconstruct_phase(delta, valid, int(round(self.delay_samples)))
+            phi, _ = reconstruct_phase(delta, valid, whole_delay_samples(self.mzi_delay_s, self.fs_hz))
             return CompensatedRamps(z=z, s=None, comp=self, phi=phi, start=start)
         delta, _ = mzi_phase_noise_batch(m, fs_hz=self.fs_hz, edge_s=self.edge_seconds,
                                          beat_hz=self.mzi_beat_hz, bandwidth_hz=self.bandwidth_hz)

@@ -28,6 +28,8 @@ Pure numpy: no I/O, no clock, no logging. Batched over leading axes, ramps on th
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .window import DspInputError
@@ -87,6 +89,18 @@ def reconstruct_phase(delta: np.ndarray, valid: np.ndarray, delay_samples: int) 
     # the period before: phi(k - D) = phi(k) - delta(k) (delta's own constant is a common offset)
     out[..., k0 - D:k0] = phi_v[..., :D] - (dv[..., :D] - dv[..., :1])
     return out, k0 - D
+
+
+def whole_delay_samples(mzi_delay_s: float, fs_hz: float) -> int:
+    """The monitor delay in samples, which the reconstruction needs whole (its recursion steps by it):
+    a fraction of a sample would add a random walk of 2 pi linewidth (fraction / fs) per period.
+    DspInputError naming the rate that would fit when tau_m fs is not within 0.02 of an integer."""
+    d = float(mzi_delay_s) * float(fs_hz)
+    if not (math.isfinite(d) and d >= 1) or abs(d - round(d)) > 0.02:
+        near = max(1, round(d)) if math.isfinite(d) else 1
+        raise DspInputError(f"mzi_delay_s * fs_hz = {d:.3f} samples: the quadrature-monitor reconstruction needs a "
+                            f"whole number; sample at a multiple of 1 / mzi_delay_s, e.g. fs_hz = {near / mzi_delay_s:.6g}")
+    return int(round(d))
 
 
 def delayed(x: np.ndarray, shift_samples: float) -> np.ndarray:

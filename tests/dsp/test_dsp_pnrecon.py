@@ -12,7 +12,7 @@ import pytest
 
 from lidard.dsp.frame import FrameDsp
 from lidard.dsp.pncomp import compensated_spectrum
-from lidard.dsp.pnrecon import quadrature_delta, reconstruct_phase
+from lidard.dsp.pnrecon import quadrature_delta, reconstruct_phase, whole_delay_samples
 from lidard.dsp.window import DspInputError
 
 C = 299_792_458.0
@@ -125,6 +125,10 @@ def test_bad_inputs_are_named():
         v = np.ones(100, dtype=bool)
         v[50] = False
         reconstruct_phase(np.zeros(100), v, 10)
+    # 200 ns at 537.9 MS/s is 107.58 samples: the error names the rate that fits
+    with pytest.raises(DspInputError, match="fs_hz = 5.4e"):
+        whole_delay_samples(200e-9, 537.9e6)
+    assert whole_delay_samples(200e-9, 1e9) == 200
 
 
 def test_frame_dsp_ranges_an_off_grid_target_with_the_quadrature_monitor():
