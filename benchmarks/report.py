@@ -296,21 +296,23 @@ def sec_phase_noise(quick: bool, img: Path, log) -> Section:
     return s
 
 
+def _any_range_sweep(quick: bool) -> tuple[dict, str]:
+    """quick: the ends and two off-grid ranges (75 m is half-way between 2 and 3 monitor delays); full:
+    the quadrature monitor (the set-up that must hold everywhere) at 1 m steps, the other two at 5 m."""
+    loss_sweep = need("phase_noise", "loss_sweep")
+    if quick:
+        return loss_sweep((15.0, 75.0, 137.3, 200.0), trials=2), "15, 75, 137.3 and 200 m (quick)"
+    r = loss_sweep(np.arange(15.0, 200.0 + 1e-9, 1.0), methods=("quadrature",), trials=4)
+    coarse = loss_sweep(np.arange(15.0, 200.0 + 1e-9, 5.0), methods=("grid", "short"), trials=4)
+    for c in coarse["curves"]:
+        c["ranges_m"] = coarse["ranges_m"]
+    r["curves"] += coarse["curves"]
+    return r, "every range from 15 to 200 m in 1 m steps (quadrature; 5 m steps for the other two)"
+
+
 def _any_range_markdown(quick: bool, img: Path, s: Section) -> str:
     """Issue 15: the 15-200 m sweep at the TRUE ranges, three monitor set-ups, both linewidths."""
-    loss_sweep = need("phase_noise", "loss_sweep")
-    # quick: the ends and two off-grid ranges (75 m is half-way between 2 and 3 monitor delays); full:
-    # the quadrature monitor (the set-up that must hold everywhere) at 1 m steps, the other two at 5 m
-    if quick:
-        r = loss_sweep((15.0, 75.0, 137.3, 200.0), trials=2)
-        steps = "15, 75, 137.3 and 200 m (quick)"
-    else:
-        r = loss_sweep(np.arange(15.0, 200.0 + 1e-9, 1.0), methods=("quadrature",), trials=4)
-        coarse = loss_sweep(np.arange(15.0, 200.0 + 1e-9, 5.0), methods=("grid", "short"), trials=4)
-        steps = "every range from 15 to 200 m in 1 m steps (quadrature; 5 m steps for the other two)"
-        for c in coarse["curves"]:
-            c["ranges_m"] = coarse["ranges_m"]
-        r["curves"] += coarse["curves"]
+    r, steps = _any_range_sweep(quick)
     trials = r["trials"]
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(15, 5), sharey=True)
