@@ -221,10 +221,11 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
         ("ILC true residual / excursion, dfb_default", f"{max(d['true_residual_up'], d['true_residual_down']):.2g}",
          "<= 5e-5")]
     for quad in (False, True):
-        rs = [r for r in runs if bool(r.get("quadrature")) == quad]
+        # a preset that is already linear (ideal) has nothing to reduce: 1x is its right answer
+        rs = [r for r in runs if bool(r.get("quadrature")) == quad and r.get("updates", 1) > 0]
         if rs:
             worst = min(min(r["reduction_up"], r["reduction_down"]) for r in rs)
-            s.headline.append((f"ILC worst reduction over {len(rs)} preset(s), both ramps, "
+            s.headline.append((f"ILC worst reduction over the {len(rs)} preset(s) with a nonlinearity, both ramps, "
                                f"{'quadrature' if quad else 'real'} monitor", f"{worst:.0f}x", ">= 1000x (issue 15)"))
     s.markdown = (
         "`benchmarks.ilc.convergence(preset, seed=1, quadrature=...)` per preset: RMS nonlinearity over the ROI as the daemon "
