@@ -232,6 +232,11 @@ class Monitor(_Model):
     #: mean optical power on the monitor photodiode, W: sets the channel's shot noise (simulator;
     #: lidard.physics.budget.monitor_noise_asd). 100 uW is an estimate (a 1 % tap of ~10 mW).
     power_w: PosFloat = 100e-6
+    # The MZI is also read in quadrature (a 90-degree hybrid or 3x3 coupler and a second digitizer
+    # channel, ``mzi_q``): the laser phase is then rebuilt per sample and phase-noise compensation holds
+    # at EVERY range (lidard.dsp.pnrecon, issue 15). False is the dissertation's single real MZI: the
+    # compensation is exact only where the round trip is a whole multiple of delay_s (docs/benchmarks.md).
+    quadrature: bool = False
 
 
 class ScanDefaults(_Model):
