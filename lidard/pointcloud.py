@@ -34,7 +34,7 @@ import numpy as np
 
 from .instrument.types import POINT_DTYPE
 
-FORMATS = ("ply", "las", "npz")
+FORMATS = ("ply", "las", "npz", "pcd", "mcap")  # pcd, mcap: lidard.outputs
 # PLY vertex properties: POINT_DTYPE with the pixel indices widened to int32. Open3D drops ``ushort``
 # properties ("unsupported datatype"); ``int`` is kept by Open3D, PCL and CloudCompare alike.
 PLY_DTYPE = np.dtype([(name, "<i4" if name in ("row", "col") else POINT_DTYPE[name].newbyteorder("<"))
@@ -238,7 +238,8 @@ def read_sidecar(path: str | os.PathLike) -> dict[str, Any]:
 def format_of(path: str | os.PathLike) -> str:
     ext = Path(path).suffix.lower().lstrip(".")
     if ext not in FORMATS:
-        raise PointCloudError(f"{path}: unknown point-cloud format {ext!r}; allowed: .ply, .las, .npz")
+        raise PointCloudError(f"{path}: unknown point-cloud format {ext!r}; allowed: "
+                              f"{', '.join('.' + f for f in FORMATS)}")
     return ext
 
 
@@ -252,6 +253,12 @@ def write_points(path: str | os.PathLike, points: np.ndarray, meta: dict[str, An
         write_las(path, points)
     elif fmt == "npz":
         write_npz(path, points, meta)
+    elif fmt == "pcd":
+        from .outputs.pcd import write_pcd  # lidard.outputs imports this module (atomic_write)
+        write_pcd(path, points)
+    elif fmt == "mcap":
+        from .outputs.mcap import write_mcap
+        write_mcap(path, points, meta)
     else:
         raise PointCloudError(f"{path}: unknown point-cloud format {fmt!r}; allowed: {', '.join(FORMATS)}")
     return [Path(path), write_sidecar(path, {**meta, "format": fmt, "points": int(len(points))})]
@@ -263,4 +270,21 @@ def read_points(path: str | os.PathLike) -> np.ndarray:
         return read_ply(path)
     if fmt == "las":
         return read_las(path)
+    if fmt == "pcd":
+        from .outputs.pcd import read_pcd
+        return _as_point_dtype(read_pcd(path))
+    if fmt == "mcap":
+        from .outputs.mcap import read_mcap
+        return _as_point_dtype(read_mcap(path)[0])
     return read_npz(path)[0]
+
+
+def _as_point_dtype(rec: np.ndarray) -> np.ndarray:
+    # PCD and MCAP carry the POINT_DTYPE fields in their own widths; absent ones (MCAP has no
+    # return_index/valid) are left at 0 / 1
+    out = np.zeros(len(rec), POINT_DTYPE)
+    out["valid"] = 1
+    for name in POINT_DTYPE.names:
+        if name in (rec.dtype.names or ()):
+            out[name] = rec[name]
+    return out

@@ -18,6 +18,7 @@ from pathlib import Path
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 
 from ..config import Config
 from ..errors import LidardError
@@ -27,7 +28,8 @@ from ..pointcloud import scene_identity
 from ..store import Store
 from . import control
 from .control import BodySizeLimit, ControlLock, LockHeld
-from .routers import calibration, devices, health, raw, scans, selftest, sim
+from ..live.points import LivePoints
+from .routers import calibration, devices, health, raw, scans, selftest, sim, viewer
 
 log = logging.getLogger(__name__)
 
@@ -73,11 +75,21 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
                             optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
         app.state.config, app.state.instrument, app.state.store = cfg, inst, st
         app.state.worker, app.state.optics = worker, optics
+        app.state.live = LivePoints()
+        worker.add_point_listener(app.state.live)  # the web viewer's incremental points
+        app.state.foxglove = None
+        if cfg.live.foxglove:
+            from ..live.foxglove_server import FoxgloveLive  # opt-in; starts a WebSocket server
+            app.state.foxglove = FoxgloveLive(cfg.live.foxglove_host, cfg.live.foxglove_port, devices=inst.devices)
+            worker.add_point_listener(app.state.foxglove.on_points)
+            worker.add_event_listener(app.state.foxglove.on_event)
         worker.start()
         try:
             yield
         finally:
             worker.stop()
+            if app.state.foxglove is not None:
+                app.state.foxglove.close()
             if close_instrument:
                 try:
                     inst.close()
@@ -95,8 +107,9 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
     app.include_router(control.router)
     control.document_gates(app)
     for r in (health.router, devices.router, scans.router, raw.router, calibration.router, sim.router,
-              selftest.router):
+              selftest.router, viewer.router):
         app.include_router(r)
+    app.mount("/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer")
 
     @app.exception_handler(LidardError)
     async def lidard_error(request: Request, exc: LidardError) -> JSONResponse:

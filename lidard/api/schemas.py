@@ -10,7 +10,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
-from ..instrument_api import OutputFormat, PatternKind, ScanRequest
+from ..instrument_api import PatternKind, ScanRequest
+
+# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs
+FileFormat = Literal["ply", "las", "npz", "pcd", "mcap"]
 
 
 def describe_errors(errors: list[dict[str, Any]]) -> str:
@@ -62,7 +65,7 @@ class ScanCreate(_In):
     pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
     averages: StrictInt = Field(default=1, ge=1, le=100)
     max_range_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False, strict=True)
-    formats: list[OutputFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=3)
+    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=5)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
     # keep the digitizer's raw segments (Zarr under the data directory) for reprocessing

@@ -35,11 +35,16 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "required to bind a non-loopback address")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"],
                    help="log verbosity")
+    p.add_argument("--foxglove", action="store_true",
+                   help="also serve the Foxglove live stream (as [live] foxglove = true; loopback, port from "
+                        "[live] foxglove_port, default 8765)")
     return p
 
 
 def serve(args) -> int:
     cfg = base.load_config(args.config)
+    if args.foxglove:
+        cfg = cfg.model_copy(update={"live": cfg.live.model_copy(update={"foxglove": True})})
     host = args.host or cfg.daemon.host
     port = cfg.daemon.port if args.port is None else args.port
     if not 0 <= port <= 65535:

@@ -66,7 +66,7 @@ def add_parser(sub) -> None:
                     help="also keep the digitizer's raw segments (Zarr, scans/<id>/raw.zarr in the data "
                          "directory) for `lidarctl reprocess` and `lidarctl spectrum`")
     sp.add_argument("--out", default=None, metavar="FILE",
-                    help="write the point cloud here (.ply, .las or .npz) and its FILE.json sidecar")
+                    help="write the point cloud here (.ply, .las, .npz, .pcd or .mcap) and its FILE.json sidecar")
     sp.add_argument("--progress", choices=MODES, default="auto",
                     help="stderr progress: bar with ETA on a terminal, one line per 10 %% otherwise (auto), "
                          "JSON lines, or none")

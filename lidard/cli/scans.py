@@ -6,6 +6,7 @@ from typing import Any
 
 from . import base, output
 from .base import CliError
+from ..pointcloud import FORMATS
 from .client import client, daemon_opts
 
 
@@ -14,7 +15,7 @@ def add_parser(sub) -> None:
     daemon_opts(sp)
     sp.add_argument("action", choices=["list", "show", "fetch"], help="what to do")
     sp.add_argument("id", nargs="?", help="scan ID (show, fetch)")
-    sp.add_argument("--format", choices=["ply", "las", "npz"], default=None,
+    sp.add_argument("--format", choices=list(FORMATS), default=None,
                     help="fetch: file format (default: from the --out extension)")
     sp.add_argument("--out", default=None, metavar="FILE", help="fetch: write the point cloud here")
     sp.set_defaults(fn=cmd_scans)

@@ -50,6 +50,13 @@ class PointBuffer:
         self._pending: list[RawBatch] = []
         self._pending_bytes = 0
         self._chunks: list[np.ndarray] = []
+        self._handed_over = 0
+
+    def take_new(self) -> np.ndarray | None:
+        """The points processed since the last call (for live viewers), or None when there are none."""
+        new = self._chunks[self._handed_over:]
+        self._handed_over = len(self._chunks)
+        return np.concatenate(new) if new else None
 
     @property
     def count(self) -> int:

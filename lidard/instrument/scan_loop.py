@@ -165,7 +165,8 @@ class ScanLoop:
                     break
                 acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
                 if accepted:
-                    progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s))
+                    progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
+                                          new_points=run.points.take_new()))
         except ScanFailed:
             raise
         except Exception as exc:

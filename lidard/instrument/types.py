@@ -52,6 +52,8 @@ class ScanProgress:
     points: int
     hardware_time_s: float
     stage: str = "scanning"      # "preparing" | "linearizing" | "scanning" | "finishing"
+    # the points processed since the previous report (live viewers, Foxglove); None: none new
+    new_points: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def fraction(self) -> float:

@@ -12,7 +12,7 @@ import threading
 import numpy as np
 
 from lidard.config import load_profile
-from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress
+from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress, ScanResult
 from lidard.scan import plan
 
 from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
@@ -120,3 +120,24 @@ class FakeInstrument:
 
     def close(self):
         self.closed = True
+
+
+class StreamingInstrument(FakeInstrument):
+    """Measures ``n`` points in two batches; holds after the first until the test releases it."""
+
+    def __init__(self, n: int = 50, **kw):
+        super().__init__(**kw)
+        self.n = n
+        self.first_batch = threading.Event()
+
+    def run_scan(self, request, progress, cancel, calibration=None):
+        pts = np.zeros(self.n, POINT_DTYPE)
+        pts["range"] = np.linspace(0.5, 1.5, self.n)
+        pts["z"], pts["row"], pts["col"] = pts["range"], np.arange(self.n) // 10, np.arange(self.n) % 10
+        pts["velocity"], pts["t"], pts["valid"] = -0.25, np.arange(self.n) * 1e-4, 1
+        half = self.n // 2
+        progress(ScanProgress(half, self.n, half, 0.1, new_points=pts[:half]))
+        self.first_batch.set()
+        assert self.release.wait(20.0)
+        progress(ScanProgress(self.n, self.n, self.n, 0.2, new_points=pts[half:]))
+        return ScanResult(points=pts, meta={}, pixels_scanned=self.n, pixels_planned=self.n, hardware_time_s=0.2)

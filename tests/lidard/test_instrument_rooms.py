@@ -8,22 +8,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-try:    # the shared test-helpers package (branch r2-cli moves the fake there)
-    from tests.helpers.fakes import FakeInstrument
-except ImportError:
-    sys.path.insert(0, str(Path(__file__).parent))
-    from lidard_fakes import FakeInstrument  # noqa: E402
-
-from drivers.usbtmc import DeviceStall, DeviceTimeout  # noqa: E402
-from lidard.config import load_config  # noqa: E402
-from lidard.instrument import DeviceFault, InstrumentError, SegmentsLost  # noqa: E402
-from lidard.instrument.acquisition import (BATCH_BACKOFF_S, BATCH_RETRIES, AcquisitionLifecycle,  # noqa: E402
+from tests.helpers.fakes import FakeInstrument
+from drivers.usbtmc import DeviceStall, DeviceTimeout
+from lidard.config import load_config
+from lidard.instrument import DeviceFault, InstrumentError, SegmentsLost
+from lidard.instrument.acquisition import (BATCH_BACKOFF_S, BATCH_RETRIES, AcquisitionLifecycle,
                                            AcquisitionPlan)
-from lidard.instrument.devices import DEVICE_NAMES, DeviceRegistry  # noqa: E402
-from lidard.instrument.errors import describe_failure, on_device  # noqa: E402
-from lidard.instrument.facade import LidarInstrument  # noqa: E402
-from lidard.instrument.protocol import INSTRUMENT_MEMBERS, Instrument  # noqa: E402
-from lidard.instrument.safety import SafetyMonitor  # noqa: E402
+from lidard.instrument.devices import DEVICE_NAMES, DeviceRegistry
+from lidard.instrument.errors import describe_failure, on_device
+from lidard.instrument.facade import LidarInstrument
+from lidard.instrument.protocol import INSTRUMENT_MEMBERS, Instrument
+from lidard.instrument.safety import SafetyMonitor
 
 REPO = Path(__file__).resolve().parents[2]
 

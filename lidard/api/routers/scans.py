@@ -14,11 +14,12 @@ from ...jobs import QueueFull, UnknownScan, WorkerStopped
 from ...pointcloud import read_sidecar
 from ...scan import ScanPlanError, plan
 from ..deps import OpticsDep, StoreDep, WorkerDep
-from ..schemas import ScanCreate, ScanList, ScanOut
+from ..schemas import FileFormat, ScanCreate, ScanList, ScanOut
 
 router = APIRouter(prefix="/scans", tags=["scans"])
 
-_MEDIA = {"ply": "application/octet-stream", "las": "application/vnd.las", "npz": "application/octet-stream"}
+_MEDIA = {"ply": "application/octet-stream", "las": "application/vnd.las", "npz": "application/octet-stream",
+          "pcd": "application/octet-stream", "mcap": "application/octet-stream"}
 
 
 _404 = {404: {"description": "no scan with this id"}}
@@ -66,7 +67,7 @@ def get_scan(scan_id: str, store: StoreDep) -> ScanOut:
 @router.get("/{scan_id}/points", response_class=FileResponse,
             responses={404: {"description": "unknown scan or format not written"},
                        409: {"description": "scan not finished"}})
-def get_points(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz"] = "ply") -> FileResponse:
+def get_points(scan_id: str, store: StoreDep, format: FileFormat = "ply") -> FileResponse:
     rec = store.get_scan(scan_id)
     if rec is None:
         raise _not_found(scan_id)
