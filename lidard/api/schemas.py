@@ -232,7 +232,7 @@ class ReprocessCreate(_In):
     pfa: float | None = Field(default=None, gt=0, lt=0.1, allow_inf_nan=False, strict=True)
     window: WindowName | None = None
     phase_noise: Literal["on", "off"] | None = None
-    formats: list[OutputFormat] | None = Field(default=None, min_length=1, max_length=3,
+    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=5,
                                                description="files of the new scan (default: the original's)")
 
     @field_validator("formats")

@@ -46,7 +46,7 @@ def add_parsers(sub) -> None:
     sp.add_argument("id", help="scan ID of the recorded scan")
     _dsp_opts(sp)
     sp.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the new point cloud here (.ply, .las or .npz) with its FILE.json sidecar")
+                    help="also write the new point cloud here (.ply, .las, .npz, .pcd or .mcap) with its FILE.json sidecar")
     sp.set_defaults(fn=cmd_reprocess)
     sp = sub.add_parser("spectrum", help="one pixel's spectra, CFAR threshold and detections",
                         description="Show one pixel's up/down range spectra from a scan's raw capture.",

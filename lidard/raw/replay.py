@@ -76,10 +76,19 @@ class ReplayDsp:
                 "range_resolution_m": self.dsp.range_resolution_m, "use_fraction": self.dsp.use_fraction,
                 "phase_noise_compensation": self.phase_noise}
 
+    def monitor(self, chunk: RawChunk, channels: list[str], averages: int):
+        """(mzi, mzi_q) as the DSP takes them: None without compensation; ``mzi_q`` (the monitor's
+        quadrature output, config ``monitor.quadrature``) only when it was recorded."""
+        if not self.phase_noise:
+            return None, None
+        q = chunk.channel("mzi_q", channels, averages) if "mzi_q" in channels else None
+        return chunk.channel("mzi", channels, averages), q
+
     def points(self, chunk: RawChunk, channels: list[str], averages: int) -> np.ndarray:
         beat = chunk.channel("beat", channels, averages)
-        mzi = chunk.channel("mzi", channels, averages) if self.phase_noise else None
-        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v)
+        mzi, mzi_q = self.monitor(chunk, channels, averages)
+        kw = {} if mzi_q is None else {"mzi_q": mzi_q}
+        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v, **kw)
         return frame_points(res, chunk.pixels, chunk.t_s, chunk.directions, chunk.clipped)
 
 

@@ -59,7 +59,8 @@ class PixelSpectrum:
                    gate=tuple(d["gate_bins"]), detections=list(d["detections"]), points=pts, dsp=dict(d["dsp"]))
 
 
-def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, start: int) -> np.ndarray:
+def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, mzi_q: np.ndarray | None,
+                start: int) -> np.ndarray:
     """(1, n_bins) averaged power of one ramp as the frame DSP computes it before CFAR."""
     d = replay.dsp
     a, n, r = d.offset, d.n_used, d.ramp_samples
@@ -67,8 +68,9 @@ def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, sta
         spec = d.rfft(beat[..., start + a:start + a + n].astype(np.float64) * replay.lsb_v)
     else:
         comp = compensator_for(d, replay.mzi_delay_s)
+        q = None if mzi_q is None else mzi_q[..., start:start + r].astype(np.float64) * replay.lsb_v
         ramps = comp.prepare(beat[..., start:start + r].astype(np.float64) * replay.lsb_v,
-                             mzi[..., start:start + r].astype(np.float64) * replay.lsb_v, a, n)
+                             mzi[..., start:start + r].astype(np.float64) * replay.lsb_v, a, n, mzi_q=q)
         spec, _ = ramps.composite_spectrum(get_window(d.window, n), d.rfft.n_fft)
     return (spec.real**2 + spec.imag**2).mean(axis=1)
 
@@ -89,12 +91,12 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
                               trigger_time_ns=chunk.trigger_time_ns[s0:s1], pixels=chunk.pixels[k:k + 1],
                               directions=chunk.directions[k:k + 1], t_s=chunk.t_s[k:k + 1])
     beat = one.channel("beat", cap.channels, cap.averages)
-    mzi = one.channel("mzi", cap.channels, cap.averages) if replay.phase_noise else None
+    mzi, mzi_q = replay.monitor(one, cap.channels, cap.averages)
     d = replay.dsp
     gate = d.bin_range
     power, threshold, dets = {}, {}, []
     for name, start in (("up", 0), ("down", d.ramp_samples)):
-        p = _ramp_power(replay, beat, mzi, start)
+        p = _ramp_power(replay, beat, mzi, mzi_q, start)
         det = cfar_detect(p, method="os", pfa=d.pfa, max_detections=d.max_returns, window=d.window,
                           bin_range=gate)
         noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.pfa, None)
