@@ -42,7 +42,7 @@ class Synthetic:
         return s.reshape(len(self.pixels), self.averages, -1)
 
 
-def synth_segments(rng, ranges_m, averages, with_mzi):
+def synth_segments(rng, ranges_m, averages, with_mzi, with_mzi_q=False, mzi_delay_s=MZI_DELAY_S):
     """Up and down ramp of a static target: the same beat 2 gamma R / c on both (eq. 2-2)."""
     n = len(ranges_m)
     t = np.arange(2 * RAMP_SAMPLES) / FS_HZ
@@ -52,14 +52,17 @@ def synth_segments(rng, ranges_m, averages, with_mzi):
     chans = [beat]
     if with_mzi:
         ph2 = rng.uniform(0, 2 * np.pi, (n, averages, 1))
-        chans.append(3000 * np.cos(2 * np.pi * GAMMA_HZ_PER_S * MZI_DELAY_S * t + ph2)
-                     + rng.normal(0, 30, (n, averages, t.size)))
+        arg = 2 * np.pi * GAMMA_HZ_PER_S * mzi_delay_s * t + ph2
+        chans.append(3000 * np.cos(arg) + rng.normal(0, 30, (n, averages, t.size)))
+        if with_mzi_q:     # the monitor's quadrature output: the same fringe 90 degrees on
+            chans.append(3000 * np.sin(arg) + rng.normal(0, 30, (n, averages, t.size)))
     seg = np.stack(chans, axis=2)                    # (n, avg, n_ch, record)
     return np.rint(seg).astype(np.int16).reshape(n * averages, len(chans), -1)
 
 
 def write_capture(path, *, n_pix=40, averages=2, chunk_pixels=16, with_mzi=False, batch=7, seed=0,
-                  close=True, pixels=None, directions=None) -> Synthetic:
+                  close=True, pixels=None, directions=None, with_mzi_q=False,
+                  mzi_delay_s=MZI_DELAY_S) -> Synthetic:
     """A capture of ``n_pix`` pixels (default layout: 8 per row) with one target each at 1..3.5 m."""
     rng = np.random.default_rng(seed)
     if pixels is not None:
@@ -70,18 +73,18 @@ def write_capture(path, *, n_pix=40, averages=2, chunk_pixels=16, with_mzi=False
     pixels = np.asarray(pixels, dtype=np.int64)
     v = np.stack([rng.normal(0, 0.1, n_pix), rng.normal(0, 0.1, n_pix), np.ones(n_pix)], axis=1)
     directions = v / np.linalg.norm(v, axis=1, keepdims=True) if directions is None else directions
-    seg = synth_segments(rng, ranges, averages, with_mzi)
+    seg = synth_segments(rng, ranges, averages, with_mzi, with_mzi_q, mzi_delay_s)
     overrange = np.zeros(n_pix * averages, np.uint8)
     overrange[3] = 1                                 # pixel 1 has a clipped segment
     t_s = np.arange(n_pix) * 2 * averages * RAMP_SAMPLES / FS_HZ
     trig = (t_s[:, None] * 1e9 + np.arange(averages) * 2 * RAMP_SAMPLES / FS_HZ * 1e9).astype(np.int64).ravel()
     dsp = FrameDsp(ramp_samples=RAMP_SAMPLES, fs_hz=FS_HZ, chirp_rate_hz_per_s=GAMMA_HZ_PER_S,
                    wavelength_m=1.55e-6, max_range_m=4.0, max_speed_mps=0.4, window="hann", pfa=1e-6)
-    channels = ("beat", "mzi") if with_mzi else ("beat",)
+    channels = ("beat", "mzi", "mzi_q")[:1 + with_mzi + (with_mzi and with_mzi_q)]
     w = RawWriter.create(path, pixels=pixels, directions=directions, averages=averages, channels=channels,
                          record_length=2 * RAMP_SAMPLES, chunk_pixels=chunk_pixels,
                          attrs={"adc": {"lsb_v": LSB_V, "sample_rate_hz": FS_HZ}, "dsp": frame_dsp_attrs(dsp),
-                                "phase_noise": {"on": with_mzi, "mzi_delay_s": MZI_DELAY_S},
+                                "phase_noise": {"on": with_mzi, "mzi_delay_s": mzi_delay_s},
                                 "calibration_id": "cal-test"})
     for p0 in range(0, n_pix, batch):              # reads of uneven size, as the scan loop's
         p1 = min(p0 + batch, n_pix)
