@@ -59,6 +59,8 @@ def show_text(s: dict[str, Any]) -> str:
         ("wall time", output.seconds(t.get("wall_time_s"))),
         ("files", ", ".join(s.get("formats") or []) or None),
         ("calibration", s.get("calibration_id")),
+        ("raw capture", f"{s['raw_bytes'] / 1e6:.1f} MB" if s.get("raw_bytes") else None),
+        ("reprocessed from", s.get("reprocessed_from")),
     ])
 
 

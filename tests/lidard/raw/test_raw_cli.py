@@ -92,7 +92,13 @@ def test_through_a_daemon(capsys, tmp_path):
         sid = json.loads(out)["id"]
         code, out, err = run(capsys, "reprocess", sid, "--url", url, "--out", str(tmp_path / "r.npz"), "--json")
         assert code == 0, err
+        new_id = json.loads(out)["id"]
         assert json.loads(out)["reprocessed_from"] == sid
+        code, out, err = run(capsys, "scans", "show", sid, "--url", url)
+        raw_line = [ln for ln in out.splitlines() if ln.startswith("raw capture")]
+        assert code == 0 and raw_line and raw_line[0].endswith(" MB")
+        code, out, err = run(capsys, "scans", "show", new_id, "--url", url)
+        assert any(ln.startswith("reprocessed from") and ln.endswith(sid) for ln in out.splitlines())
         assert np.array_equal(read_points(tmp_path / "r.npz"), read_points(tmp_path / "o.npz"))
         code, out, err = run(capsys, "spectrum", sid, "--url", url, "--pixel", "0,2", "--plot", str(tmp_path / "s.png"))
         assert code == 0, err and "pixel (0, 2)" in out and (tmp_path / "s.png").is_file()
