@@ -1,0 +1,191 @@
+"""Run many independent tasks on Dask: a LocalCluster by default, or an existing scheduler.
+
+The reusable layer under ``lidarctl sweep`` (and, later, ``lidarctl reprocess`` of raw captures):
+
+* :func:`open_client` starts a ``distributed.LocalCluster`` of worker PROCESSES (numpy releases the
+  GIL only in parts of the DSP, so threads would serialize the Python glue) or connects to a running
+  scheduler given as ``tcp://host:8786``; either way the caller gets a ``distributed.Client``.
+* :func:`run_tasks` submits ``fn(task)`` for every task with a bounded number in flight (a sweep of
+  a million tasks must not hold a million futures), hands each result to ``on_result`` as it arrives
+  (so a writer can persist it at once and an interrupted run loses little), calls ``on_progress``,
+  and returns the results IN TASK ORDER. A task that raises does not stop the others: it becomes a
+  :class:`TaskFailure` carrying the task's own parameters, the exception and its traceback.
+* :func:`run_serial` is the same contract without Dask, in this process: the baseline of the
+  scheduling-overhead benchmark and the reference the Dask path must equal.
+
+Task functions must be importable on the workers (module-level functions of an installed package,
+not lambdas defined in ``__main__``) and their arguments picklable.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+from lidard.errors import LidardError
+
+from . import require_offline_extra
+
+ResultCallback = Callable[[int, Any, Any], None]      # (index, task, result)
+ProgressCallback = Callable[[int, int, int], None]    # (done, total, failed)
+
+
+class ClusterError(LidardError):
+    """The scheduler cannot be reached or the cluster cannot start; the message names the address."""
+
+
+@dataclass(frozen=True)
+class TaskFailure:
+    """One task that raised: its position, its parameters (``describe(task)``) and the error."""
+
+    index: int
+    params: Any
+    error_type: str
+    message: str
+    traceback: str = ""
+
+    def summary(self) -> str:
+        return f"task {self.index} {self.params}: {self.error_type}: {self.message}"
+
+
+@dataclass
+class RunReport:
+    """What :func:`run_tasks` / :func:`run_serial` return: results in task order, failures, timing."""
+
+    results: list[Any]
+    failures: list[TaskFailure] = field(default_factory=list)
+    elapsed_s: float = 0.0
+    workers: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+
+@contextmanager
+def open_client(scheduler: str | None = None, *, n_workers: int | None = None, threads_per_worker: int = 1,
+                processes: bool = True, connect_timeout_s: float = 10.0) -> Iterator[Any]:
+    """A ``distributed.Client``: on ``scheduler`` if given, else on a new LocalCluster (closed after).
+
+    ``n_workers`` defaults to the CPU count. ``processes=False`` runs the workers as threads of this
+    process (the tests' in-process cluster: no spawn cost, same scheduler and futures).
+    """
+    require_offline_extra(("dask", "distributed"))
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=f"{connect_timeout_s}s")
+        except (OSError, TimeoutError) as exc:
+            raise ClusterError(f"cannot reach the Dask scheduler at {scheduler!r} within "
+                               f"{connect_timeout_s:g} s ({exc}); is `dask scheduler` running there?") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    n = int(n_workers or os.cpu_count() or 1)
+    if n < 1 or threads_per_worker < 1:
+        raise ClusterError(f"need n_workers >= 1 and threads_per_worker >= 1, got {n}, {threads_per_worker}")
+    cluster = LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=processes,
+                           dashboard_address=None, silence_logs=logging.WARNING)
+    client = Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        cluster.close()
+
+
+def _failure(index: int, task: Any, exc: BaseException, tb, describe: Callable[[Any], Any]) -> TaskFailure:
+    text = "".join(traceback.format_tb(tb)) if tb is not None else ""
+    return TaskFailure(index=index, params=describe(task), error_type=type(exc).__name__,
+                       message=str(exc), traceback=text)
+
+
+def _n_workers(client) -> int:
+    try:
+        return len(client.scheduler_info().get("workers", {}))
+    except Exception:   # an information call only; never fail a run over it
+        return 0
+
+
+def run_tasks(client, fn: Callable[[Any], Any], tasks: Sequence[Any], *,
+              describe: Callable[[Any], Any] = repr, on_result: ResultCallback | None = None,
+              on_progress: ProgressCallback | None = None, max_in_flight: int | None = None,
+              key_prefix: str = "lidard-task") -> RunReport:
+    """Run ``fn(task)`` for every task on ``client``; results in task order, failures reported.
+
+    At most ``max_in_flight`` tasks (default: 8 per worker thread, at least 64) are submitted at
+    once; each completion submits the next one, so memory stays bounded however long the list.
+    """
+    require_offline_extra(("dask", "distributed"))
+    from distributed import as_completed
+
+    t0 = time.perf_counter()
+    total = len(tasks)
+    results: list[Any] = [None] * total
+    failures: list[TaskFailure] = []
+    if max_in_flight is None:
+        threads = sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values())
+        max_in_flight = max(64, 8 * max(threads, 1))
+    token = f"{os.getpid()}-{time.monotonic_ns()}"      # unique keys: the same task twice is two runs
+    index_of: dict[str, int] = {}
+
+    def submit(i: int):
+        fut = client.submit(fn, tasks[i], key=f"{key_prefix}-{token}-{i}", pure=False)
+        index_of[fut.key] = i
+        return fut
+
+    nxt = min(max_in_flight, total)
+    pending = as_completed([submit(i) for i in range(nxt)])
+    done = 0
+    try:
+        for fut in pending:
+            i = index_of.pop(fut.key)
+            if fut.status == "error":
+                failures.append(_failure(i, tasks[i], fut.exception(), fut.traceback(), describe))
+            else:
+                results[i] = fut.result()
+                if on_result is not None:
+                    on_result(i, tasks[i], results[i])
+            fut.release()
+            done += 1
+            if nxt < total:
+                pending.add(submit(nxt))
+                nxt += 1
+            if on_progress is not None:
+                on_progress(done, total, len(failures))
+    except BaseException:
+        # Ctrl-C or a failing callback: stop the cluster's work too, not just this loop
+        client.cancel(list(pending.futures))
+        raise
+    failures.sort(key=lambda f: f.index)
+    return RunReport(results=results, failures=failures, elapsed_s=time.perf_counter() - t0,
+                     workers=_n_workers(client))
+
+
+def run_serial(fn: Callable[[Any], Any], tasks: Sequence[Any], *, describe: Callable[[Any], Any] = repr,
+               on_result: ResultCallback | None = None,
+               on_progress: ProgressCallback | None = None) -> RunReport:
+    """:func:`run_tasks` without Dask: every task in this process, one after the other."""
+    t0 = time.perf_counter()
+    results: list[Any] = [None] * len(tasks)
+    failures: list[TaskFailure] = []
+    for i, task in enumerate(tasks):
+        try:
+            results[i] = fn(task)
+        except Exception as exc:     # reported with its parameters; the rest still run
+            failures.append(_failure(i, task, exc, exc.__traceback__, describe))
+        else:
+            if on_result is not None:
+                on_result(i, task, results[i])
+        if on_progress is not None:
+            on_progress(i + 1, len(tasks), len(failures))
+    return RunReport(results=results, failures=failures, elapsed_s=time.perf_counter() - t0, workers=0)
