@@ -94,7 +94,7 @@ def open_client(scheduler: str | None = None, *, n_workers: int | None = None, t
     if n < 1 or threads_per_worker < 1:
         raise ClusterError(f"need n_workers >= 1 and threads_per_worker >= 1, got {n}, {threads_per_worker}")
     cluster = LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=processes,
-                           dashboard_address=None, silence_logs=logging.WARNING)
+                           dashboard_address=":0", silence_logs=logging.WARNING)
     client = Client(cluster)
     try:
         yield client

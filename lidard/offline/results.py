@@ -20,6 +20,7 @@ import math
 import os
 import subprocess
 import time
+import uuid
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -61,7 +62,8 @@ class ResultStore:
         self.parts.mkdir(parents=True, exist_ok=True)
         self.version = version or code_version()
         self.flush_rows, self.flush_s = int(flush_rows), float(flush_s)
-        self._run = time.strftime("%Y%m%dT%H%M%S") + f"-{os.getpid()}"
+        # unique per store: two runs into one directory (even in one process, one second) never collide
+        self._run = time.strftime("%Y%m%dT%H%M%S") + f"-{uuid.uuid4().hex[:8]}"
         self._n = 0
         self._buf: list[dict] = []
         self._last = time.monotonic()

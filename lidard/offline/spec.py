@@ -37,7 +37,7 @@ import json
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Annotated, Any, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -85,7 +85,7 @@ class Linspace(_Model):
 class RunSection(_Model):
     name: str = Field(default="sweep", min_length=1)
     base_config: str = "sim.toml"
-    seeds: int | list[int] = Field(default=10)
+    seeds: Annotated[int, Field(ge=1)] | Annotated[list[int], Field(min_length=1)] = 10
     seed: int = 0                 # mixed into every task's random stream: a different Monte-Carlo draw
     trials_per_task: int = Field(default=8, ge=1, le=4096)
 
@@ -95,10 +95,15 @@ class RunSection(_Model):
         return list(self.seeds)
 
 
+PosFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Speed = Annotated[float, Field(ge=-100, le=100, allow_inf_nan=False)]
+
+
 class TargetSection(_Model):
-    distances_m: list[float] | Linspace
-    reflectivity: float | list[float] = 0.1
-    velocity_mps: float | list[float] = 0.0
+    distances_m: Annotated[list[PosFloat], Field(min_length=1)] | Linspace
+    reflectivity: NonNegFloat | Annotated[list[NonNegFloat], Field(min_length=1)] = 0.1
+    velocity_mps: Speed | Annotated[list[Speed], Field(min_length=1)] = 0.0
 
     def axes(self) -> tuple[list[float], list[float], list[float]]:
         d = self.distances_m.values() if isinstance(self.distances_m, Linspace) else list(self.distances_m)
@@ -207,7 +212,8 @@ def _point(source: str, base: Config, overrides: dict[str, Scalar], where: str) 
         e = exc.errors()[0]
         loc = ".".join(str(x) for x in e["loc"])
         loc = f"dsp.{loc}" if dsp and loc in DspSettings.model_fields else loc
-        raise SweepSpecError(f"{source}: {where}.{loc}: {e['msg']} (got {e.get('input')!r}; in {shown})") from None
+        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
+        raise SweepSpecError(f"{source}: {where}.{loc}: {msg} (got {e.get('input')!r}; in {shown})") from None
     try:
         profile, laser = cfg.load_profile(), cfg.load_laser()
         if cfg.lens is not None and cfg.lens not in profile.lenses:
