@@ -1,0 +1,76 @@
+"""``lidarctl sweep`` as a command: a missing offline extra names the install command, a bad sweep
+file exits 2 naming the key, --dry-run counts, a real (tiny) run prints the summary; and the task's
+ADC plan is the daemon's."""
+
+from __future__ import annotations
+
+import importlib.util
+from types import SimpleNamespace
+
+import pytest
+
+from lidard.config import load_config
+from lidard.offline import sweep_cli
+from lidard.offline.sweep import adc_plan
+
+SWEEP = """
+[sweep]
+name = "cli"
+base_config = "sim.toml"
+seeds = 1
+trials_per_task = 2
+[grid]
+"scan.max_range_m" = 15.0
+{grid}
+[target]
+distances_m = [3.0, 6.0]
+"""
+
+
+def _write(tmp_path, grid: str = "") -> str:
+    p = tmp_path / "s.toml"
+    p.write_text(SWEEP.format(grid=grid))
+    return str(p)
+
+
+def test_without_the_offline_extra_the_command_names_the_install(monkeypatch, tmp_path, capsys):
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyarrow" else real(name, *a))
+    assert sweep_cli.sweep_main([_write(tmp_path)]) == sweep_cli.EXIT_ERROR
+    err = capsys.readouterr().err
+    assert "missing: pyarrow" in err and 'pip install -e ".[offline]"' in err
+
+
+def test_a_bad_sweep_file_exits_2_naming_the_key(tmp_path, capsys):
+    assert sweep_cli.sweep_main([_write(tmp_path, '"link.tx_pwr_w" = 1e-3')]) == sweep_cli.EXIT_ERROR
+    assert "grid.link.tx_pwr_w: unknown key" in capsys.readouterr().err
+
+
+def test_dry_run_counts_and_a_run_prints_the_summary(tmp_path, capsys):
+    spec = _write(tmp_path, '"link.tx_power_w" = [1e-3, 1e-2]')
+    assert sweep_cli.sweep_main([spec, "--dry-run", "--out", str(tmp_path / "o")]) == 0
+    assert "2 configurations, 4 tasks" in capsys.readouterr().out
+    assert not (tmp_path / "o").exists()
+    assert sweep_cli.sweep_main([spec, "--in-process", "--no-plot", "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "ran 4 tasks (0 already done)" in out and "link.tx_power_w" in out
+    assert (tmp_path / "o" / "summary.csv").is_file() and not (tmp_path / "o" / "sweep.png").exists()
+    assert sweep_cli.sweep_main([spec, "--in-process", "--no-plot", "--out", str(tmp_path / "o")]) == 0
+    assert "ran 0 tasks (4 already done)" in capsys.readouterr().out
+
+
+def test_workers_must_be_positive(tmp_path, capsys):
+    assert sweep_cli.sweep_main([_write(tmp_path), "--workers", "0"]) == sweep_cli.EXIT_ERROR
+    assert "--workers must be >= 1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("max_range_m", [2.0, 15.0, 40.0, 150.0])
+def test_the_task_plans_the_adc_like_the_daemon(max_range_m):
+    cfg = load_config()
+    try:        # the instrument package's scan loop (after the instrument split) ...
+        from lidard.instrument.scan_loop import adc_plan as daemon_plan
+        plan = daemon_plan(cfg, max_range_m)
+    except ImportError:     # ... or the single-module instrument before it
+        from lidard.instrument import LidarInstrument
+        plan = LidarInstrument._adc_plan(SimpleNamespace(cfg=cfg), max_range_m)
+    assert adc_plan(cfg, max_range_m) == (plan.fs_hz, plan.ramp_samples)
