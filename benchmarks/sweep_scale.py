@@ -9,6 +9,7 @@ Measured, side by side in one run, every variant ``--repeats`` times interleaved
 * in-process: the sweep's tasks one after the other in this process (``run_serial``), no Dask;
 * LocalCluster with 1 and with 2 worker processes (one thread each; both clusters stay up for the
   whole run): the same tasks through ``run_tasks``; start-up is timed apart, not in the throughput;
+* the same with 8 sweep tasks per Dask task (``--batch`` of lidarctl sweep);
 * scheduling overhead: NO-OP tasks that take the same pickled task object and return a row-sized dict,
   through 1 worker: wall time / task is what Dask adds per task (serialize, schedule, run, return);
 * data volume: pickled bytes of a task (what travels to a worker) and of its result row (back).
@@ -16,7 +17,8 @@ Measured, side by side in one run, every variant ``--repeats`` times interleaved
 Model (not measured) for N workers of the same speed: a worker finishes a task every c + o_w seconds
 (c: compute, o_w: the worker's share of the overhead); the scheduler dispatches at most 1 / o_s tasks
 per second (o_s: its per-task cost, bounded here by the no-op rate, which includes the client), so
-throughput(N) = min(N / (c + o_w), 1 / o_s), and the network carries throughput x (task + row) bytes.
+throughput(N) = min(N / (c + o_w), B / o_s) with B sweep tasks per Dask task, and the network carries
+throughput x (task + row) bytes.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from lidard.offline.sweep import run_task
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = ROOT / "config" / "sweeps" / "lasers_powers.toml"
+BATCH = 8           # lidarctl sweep --batch default
 
 
 def noop_task(task) -> dict:
@@ -61,7 +64,8 @@ def measure(n_tasks: int, n_noop: int, repeats: int = 3) -> dict:
     noop_tasks = (tasks * (n_noop // len(tasks) + 1))[:n_noop]
     run_serial(run_task, tasks[:2])                           # warm imports and caches
     load0 = os.getloadavg()[0]
-    runs: dict[str, list] = {k: [] for k in ("in_process", "workers_1", "workers_2", "noop_1", "noop_2")}
+    modes = ("in_process", "workers_1", "workers_2", f"workers_1_batch{BATCH}", f"workers_2_batch{BATCH}")
+    runs: dict[str, list] = {k: [] for k in modes + ("noop_1", "noop_2")}
     startup = {}
     with contextlib.ExitStack() as stack:
         clients = {}
@@ -74,6 +78,7 @@ def measure(n_tasks: int, n_noop: int, repeats: int = 3) -> dict:
             runs["in_process"].append(run_serial(run_task, tasks))
             for w in (1, 2):
                 runs[f"workers_{w}"].append(run_tasks(clients[w], run_task, tasks))
+                runs[f"workers_{w}_batch{BATCH}"].append(run_tasks(clients[w], run_task, tasks, batch_size=BATCH))
                 runs[f"noop_{w}"].append(run_tasks(clients[w], noop_task, noop_tasks))
     for k, reps in runs.items():
         for r in reps:
@@ -85,12 +90,12 @@ def measure(n_tasks: int, n_noop: int, repeats: int = 3) -> dict:
            "load_avg_start": load0, "task_compute_s": sum(r["elapsed_s"] for r in rows) / len(rows),
            "task_bytes": len(pickle.dumps(tasks[0])), "row_bytes": len(pickle.dumps(rows[0])),
            "samples_per_task": rows[0]["samples"]}
-    for k in ("in_process", "workers_1", "workers_2"):
+    for k in modes:
         best, med = _best(runs[k])
         out[k] = {"wall_s": best, "median_wall_s": med, "tasks_per_s": len(tasks) / best,
                   "pixels_per_s": pixels / best}
         if k != "in_process":
-            out[k]["startup_s"] = startup[int(k[-1])]
+            out[k]["startup_s"] = startup[int(k.split("_")[1])]
             # compute time inside the tasks on the workers: the same as in-process unless the workers starve
             wrows = runs[k][0].results
             out[k]["task_compute_s"] = sum(r["elapsed_s"] for r in wrows) / len(wrows)
@@ -103,17 +108,24 @@ def measure(n_tasks: int, n_noop: int, repeats: int = 3) -> dict:
 
 
 def model(m: dict) -> dict:
-    """Throughput of N workers from the measured per-task figures (see the module docstring)."""
+    """Throughput of N workers from the measured per-task figures (see the module docstring).
+
+    o_s, the scheduler's (and client's) cost per Dask task, is bounded by the no-op rate with 2 workers;
+    o_w, a worker's extra time per sweep task, is what one worker loses against in-process. With B
+    sweep tasks per Dask task the scheduler limit becomes B / o_s sweep tasks per second.
+    """
     c = m["task_compute_s"]
     o_s = 1.0 / m["noop_workers_2"]["tasks_per_s"]
-    # a worker's extra time per task: what one worker loses against in-process, per task
-    o_w = max(0.0, 1.0 / m["workers_1"]["tasks_per_s"] - 1.0 / m["in_process"]["tasks_per_s"])
-    out = {"c_s": c, "o_w_s": o_w, "o_s_s": o_s}
-    for n in (10, 100):
-        rate = min(n / (c + o_w), 1.0 / o_s)
-        out[f"N{n}"] = {"tasks_per_s": rate, "bound": "workers" if n / (c + o_w) < 1.0 / o_s else "scheduler",
-                        "sweep_3600_s": 3600 / rate,
-                        "network_kb_per_s": rate * (m["task_bytes"] + m["row_bytes"]) / 1e3}
+    out = {"c_s": c, "o_s_s": o_s}
+    for b, key in ((1, "workers_1"), (BATCH, f"workers_1_batch{BATCH}")):
+        o_w = max(0.0, 1.0 / m[key]["tasks_per_s"] - 1.0 / m["in_process"]["tasks_per_s"])
+        for n in (10, 100):
+            worker_rate, sched_rate = n / (c + o_w), b / o_s
+            rate = min(worker_rate, sched_rate)
+            out[f"batch{b}_N{n}"] = {"o_w_s": o_w, "tasks_per_s": rate,
+                                     "bound": "workers" if worker_rate < sched_rate else "scheduler",
+                                     "sweep_3600_s": 3600 / rate,
+                                     "network_kb_per_s": rate * (m["task_bytes"] + m["row_bytes"]) / 1e3}
     return out
 
 
@@ -131,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{m['load_avg_end']:.1f}")
     print(f"in-process : {ip['tasks_per_s']:.1f} tasks/s  {ip['pixels_per_s']:.0f} pixels/s  "
           f"(compute {m['task_compute_s'] * 1e3:.1f} ms/task)")
-    for k, r in (("1 worker  ", w1), ("2 workers ", w2)):
+    for k, r in (("1 worker  ", w1), ("2 workers ", w2), (f"1 worker,  batch {BATCH}", m[f"workers_1_batch{BATCH}"]),
+                 (f"2 workers, batch {BATCH}", m[f"workers_2_batch{BATCH}"])):
         print(f"{k} : {r['tasks_per_s']:.1f} tasks/s  {r['pixels_per_s']:.0f} pixels/s  "
               f"x{r['tasks_per_s'] / ip['tasks_per_s']:.2f} of in-process  (start-up {r['startup_s']:.1f} s, "
               f"compute in the workers {r['task_compute_s'] * 1e3:.1f} ms/task)")
@@ -141,10 +154,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"data: task {m['task_bytes']} B pickled, row {m['row_bytes']} B, {m['samples_per_task']} samples "
           "synthesized per task")
     mo = m["model"]
-    for n in (10, 100):
-        r = mo[f"N{n}"]
-        print(f"MODEL N={n}: {r['tasks_per_s']:.0f} tasks/s ({r['bound']}-bound), 3600-task sweep "
-              f"{r['sweep_3600_s']:.0f} s, network {r['network_kb_per_s']:.0f} kB/s")
+    for b in (1, BATCH):
+        for n in (10, 100):
+            r = mo[f"batch{b}_N{n}"]
+            print(f"MODEL batch {b}, N={n}: {r['tasks_per_s']:.0f} tasks/s ({r['bound']}-bound), 3600-task sweep "
+                  f"{r['sweep_3600_s']:.0f} s, network {r['network_kb_per_s']:.0f} kB/s")
     if a.json:
         Path(a.json).write_text(json.dumps(m, indent=1))
     return 0

@@ -116,18 +116,35 @@ def _n_workers(client) -> int:
         return 0
 
 
+def call_batch(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[tuple]:
+    """Run ``fn`` on each item of a batch (on a worker): ("ok", result) or ("err", type, message, tb)
+    per item, so one raising item does not hide the results of the others in its batch."""
+    out: list[tuple] = []
+    for item in items:
+        try:
+            out.append(("ok", fn(item)))
+        except Exception as exc:     # reported per item by run_tasks, with the item's parameters
+            out.append(("err", type(exc).__name__, str(exc), "".join(traceback.format_tb(exc.__traceback__))))
+    return out
+
+
 def run_tasks(client, fn: Callable[[Any], Any], tasks: Sequence[Any], *,
               describe: Callable[[Any], Any] = repr, on_result: ResultCallback | None = None,
               on_progress: ProgressCallback | None = None, max_in_flight: int | None = None,
-              key_prefix: str = "lidard-task") -> RunReport:
+              batch_size: int = 1, key_prefix: str = "lidard-task") -> RunReport:
     """Run ``fn(task)`` for every task on ``client``; results in task order, failures reported.
 
-    At most ``max_in_flight`` tasks (default: 8 per worker thread, at least 64) are submitted at
-    once; each completion submits the next one, so memory stays bounded however long the list.
+    ``batch_size`` > 1 runs that many consecutive tasks in one Dask task (:func:`call_batch`): Dask
+    spends milliseconds per task (docs/sweeps.md), so tasks of tens of ms are worth grouping; each
+    item still gets its own result, failure and progress step. At most ``max_in_flight`` Dask tasks
+    (default: 8 per worker thread, at least 64) are submitted at once; each completion submits the
+    next one, so memory stays bounded however long the list.
     """
     require_offline_extra(("dask", "distributed"))
     from distributed import as_completed
 
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     t0 = time.perf_counter()
     total = len(tasks)
     results: list[Any] = [None] * total
@@ -136,32 +153,42 @@ def run_tasks(client, fn: Callable[[Any], Any], tasks: Sequence[Any], *,
         threads = sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values())
         max_in_flight = max(64, 8 * max(threads, 1))
     token = f"{os.getpid()}-{time.monotonic_ns()}"      # unique keys: the same task twice is two runs
-    index_of: dict[str, int] = {}
+    batches = [range(i, min(i + batch_size, total)) for i in range(0, total, batch_size)]
+    batch_of: dict[str, range] = {}
 
-    def submit(i: int):
-        fut = client.submit(fn, tasks[i], key=f"{key_prefix}-{token}-{i}", pure=False)
-        index_of[fut.key] = i
+    def submit(b: int):
+        idx = batches[b]
+        fut = client.submit(call_batch, fn, [tasks[i] for i in idx], key=f"{key_prefix}-{token}-{b}", pure=False)
+        batch_of[fut.key] = idx
         return fut
 
-    nxt = min(max_in_flight, total)
-    pending = as_completed([submit(i) for i in range(nxt)])
+    nxt = min(max_in_flight, len(batches))
+    pending = as_completed([submit(b) for b in range(nxt)])
     done = 0
     try:
         for fut in pending:
-            i = index_of.pop(fut.key)
-            if fut.status == "error":
-                failures.append(_failure(i, tasks[i], fut.exception(), fut.traceback(), describe))
+            idx = batch_of.pop(fut.key)
+            if fut.status == "error":       # the whole Dask task failed (e.g. its worker died)
+                exc, tb = fut.exception(), fut.traceback()
+                outcomes = [("err", type(exc).__name__, str(exc),
+                             "".join(traceback.format_tb(tb)) if tb is not None else "")] * len(idx)
             else:
-                results[i] = fut.result()
-                if on_result is not None:
-                    on_result(i, tasks[i], results[i])
+                outcomes = fut.result()
             fut.release()
-            done += 1
-            if nxt < total:
+            for i, oc in zip(idx, outcomes):
+                if oc[0] == "ok":
+                    results[i] = oc[1]
+                    if on_result is not None:
+                        on_result(i, tasks[i], oc[1])
+                else:
+                    failures.append(TaskFailure(index=i, params=describe(tasks[i]), error_type=oc[1],
+                                                message=oc[2], traceback=oc[3]))
+                done += 1
+                if on_progress is not None:
+                    on_progress(done, total, len(failures))
+            if nxt < len(batches):
                 pending.add(submit(nxt))
                 nxt += 1
-            if on_progress is not None:
-                on_progress(done, total, len(failures))
     except BaseException:
         # Ctrl-C or a failing callback: stop the cluster's work too, not just this loop
         client.cancel(list(pending.futures))

@@ -44,12 +44,13 @@ def _describe(task: SweepTask) -> dict[str, Any]:
 
 def run_sweep(sweep: Sweep, out_dir: str | Path, *, client=None, scheduler: str | None = None,
               workers: int | None = None, processes: bool = True, in_process: bool = False,
-              on_progress: ProgressCallback | None = None, plot: bool = True,
+              on_progress: ProgressCallback | None = None, plot: bool = True, batch_size: int = 8,
               task_fn: Callable[[SweepTask], dict] | None = None) -> SweepOutcome:
     """Run the tasks of ``sweep`` not yet in ``out_dir``; summarize everything ``out_dir`` holds.
 
     ``client``: an existing ``distributed.Client`` (tests, notebooks); else ``scheduler`` (an
     address) or a new LocalCluster of ``workers`` processes; ``in_process`` runs without Dask.
+    ``batch_size`` sweep tasks share one Dask task (a task is tens of ms; Dask's own cost is ms).
     """
     out = Path(out_dir)
     store = ResultStore(out)
@@ -67,11 +68,12 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, *, client=None, scheduler: str 
         elif in_process:
             report = run_serial(fn, todo, describe=_describe, on_result=on_result, on_progress=on_progress)
         elif client is not None:
-            report = run_tasks(client, fn, todo, describe=_describe, on_result=on_result, on_progress=on_progress)
+            report = run_tasks(client, fn, todo, describe=_describe, on_result=on_result, on_progress=on_progress,
+                               batch_size=batch_size)
         else:
             with open_client(scheduler, n_workers=workers, processes=processes) as c:
                 report = run_tasks(c, fn, todo, describe=_describe, on_result=on_result,
-                                   on_progress=on_progress)
+                                   on_progress=on_progress, batch_size=batch_size)
     finally:
         store.flush()       # rows of finished tasks survive an interruption
     (out / "failures.json").write_text(json.dumps(

@@ -35,6 +35,9 @@ def _configure(sp: argparse.ArgumentParser) -> None:
                        help="run every task in this process, without Dask (baseline; debugging)")
     sp.add_argument("--workers", type=int, default=None, metavar="N",
                     help="worker processes of the LocalCluster (default: the CPU count)")
+    sp.add_argument("--batch", type=int, default=8, metavar="N",
+                    help="sweep tasks per Dask task (default 8: a task is tens of ms, Dask's own cost a few ms "
+                         "per task; see docs/sweeps.md)")
     sp.add_argument("--no-plot", action="store_true", help="skip the plots (summary.csv is still written)")
     sp.add_argument("--dry-run", action="store_true", help="validate and count the tasks, run nothing")
 
@@ -81,12 +84,15 @@ def cmd_sweep(args) -> int:
         sweep = load_sweep(args.spec)
         if args.workers is not None and args.workers < 1:
             raise LidardError(f"--workers must be >= 1, got {args.workers}")
+        if args.batch < 1:
+            raise LidardError(f"--batch must be >= 1, got {args.batch}")
         out = Path(args.out) if args.out else Path("sweeps") / sweep.name
         print(f"sweep {sweep.name}: {len(sweep.points)} configurations, {len(sweep.tasks)} tasks -> {out}")
         if args.dry_run:
             return 0
         outcome = run_sweep(sweep, out, scheduler=args.scheduler, workers=args.workers,
-                            in_process=args.in_process, on_progress=_Progress(), plot=not args.no_plot)
+                            in_process=args.in_process, on_progress=_Progress(), plot=not args.no_plot,
+                            batch_size=args.batch)
     except KeyboardInterrupt:
         sys.stderr.write("lidarctl sweep: interrupted; finished rows are kept, rerun to resume\n")
         return EXIT_INTERRUPTED

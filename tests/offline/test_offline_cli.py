@@ -59,9 +59,10 @@ def test_dry_run_counts_and_a_run_prints_the_summary(tmp_path, capsys):
     assert "ran 0 tasks (4 already done)" in capsys.readouterr().out
 
 
-def test_workers_must_be_positive(tmp_path, capsys):
-    assert sweep_cli.sweep_main([_write(tmp_path), "--workers", "0"]) == sweep_cli.EXIT_ERROR
-    assert "--workers must be >= 1" in capsys.readouterr().err
+@pytest.mark.parametrize("flag", ["--workers", "--batch"])
+def test_workers_and_batch_must_be_positive(tmp_path, capsys, flag):
+    assert sweep_cli.sweep_main([_write(tmp_path), flag, "0"]) == sweep_cli.EXIT_ERROR
+    assert f"{flag} must be >= 1" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("max_range_m", [2.0, 15.0, 40.0, 150.0])

@@ -29,10 +29,13 @@ def _check(report, seen, progress):
     assert [p[0] for p in progress] == list(range(1, 9))
 
 
-def test_run_tasks_on_a_local_cluster_orders_results_and_reports_the_failure(client):
+@pytest.mark.parametrize("batch_size", [1, 3])
+def test_run_tasks_on_a_local_cluster_orders_results_and_reports_the_failure(client, batch_size):
+    # batch 3: the failing task shares its Dask task with two that succeed
     seen, progress = [], []
-    report = run_tasks(client, square_or_fail, TASKS, describe=lambda t: t, max_in_flight=3,
-                       on_result=lambda i, t, r: seen.append(i), on_progress=lambda *a: progress.append(a))
+    report = run_tasks(client, square_or_fail, TASKS, describe=lambda t: t, max_in_flight=2,
+                       batch_size=batch_size, on_result=lambda i, t, r: seen.append(i),
+                       on_progress=lambda *a: progress.append(a))
     _check(report, seen, progress)
     assert report.workers == 2 and not report.ok
 
