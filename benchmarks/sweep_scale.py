@@ -51,10 +51,10 @@ def _tasks(n: int):
     return tasks[::step][:n]           # spread over lasers, powers, distances, seeds
 
 
-def _best(reps: list) -> tuple[float, float]:
-    """(best, median) wall time of repeated runs."""
-    w = sorted(r.elapsed_s for r in reps)
-    return w[0], w[len(w) // 2]
+def _best(reps: list) -> tuple:
+    """(best run, its wall time, the median wall time) of repeated runs."""
+    w = sorted(reps, key=lambda r: r.elapsed_s)
+    return w[0], w[0].elapsed_s, w[len(w) // 2].elapsed_s
 
 
 def measure(n_tasks: int, n_noop: int, repeats: int = 3) -> dict:
@@ -84,23 +84,22 @@ def measure(n_tasks: int, n_noop: int, repeats: int = 3) -> dict:
         for r in reps:
             if r.failures:
                 raise RuntimeError(f"{k}: {r.failures[0].summary()}")
-    rows = runs["in_process"][0].results
+    rows = _best(runs["in_process"])[0].results
     pixels = len(tasks) * tasks[0].trials
     out = {"tasks": len(tasks), "trials_per_task": tasks[0].trials, "repeats": repeats,
            "load_avg_start": load0, "task_compute_s": sum(r["elapsed_s"] for r in rows) / len(rows),
            "task_bytes": len(pickle.dumps(tasks[0])), "row_bytes": len(pickle.dumps(rows[0])),
            "samples_per_task": rows[0]["samples"]}
     for k in modes:
-        best, med = _best(runs[k])
+        run, best, med = _best(runs[k])
         out[k] = {"wall_s": best, "median_wall_s": med, "tasks_per_s": len(tasks) / best,
                   "pixels_per_s": pixels / best}
         if k != "in_process":
             out[k]["startup_s"] = startup[int(k.split("_")[1])]
-            # compute time inside the tasks on the workers: the same as in-process unless the workers starve
-            wrows = runs[k][0].results
-            out[k]["task_compute_s"] = sum(r["elapsed_s"] for r in wrows) / len(wrows)
+            # compute time inside the tasks on the workers (same run): above in-process = CPU starvation
+            out[k]["task_compute_s"] = sum(r["elapsed_s"] for r in run.results) / len(run.results)
     for w in (1, 2):
-        best, med = _best(runs[f"noop_{w}"])
+        _, best, med = _best(runs[f"noop_{w}"])
         out[f"noop_workers_{w}"] = {"wall_s": best, "median_wall_s": med, "tasks_per_s": n_noop / best,
                                     "overhead_per_task_ms": 1e3 * best / n_noop}
     out["load_avg_end"] = os.getloadavg()[0]
@@ -111,14 +110,16 @@ def model(m: dict) -> dict:
     """Throughput of N workers from the measured per-task figures (see the module docstring).
 
     o_s, the scheduler's (and client's) cost per Dask task, is bounded by the no-op rate with 2 workers;
-    o_w, a worker's extra time per sweep task, is what one worker loses against in-process. With B
-    sweep tasks per Dask task the scheduler limit becomes B / o_s sweep tasks per second.
+    o_w, a worker's extra time per sweep task, is one worker's wall time per task minus the compute time
+    measured inside the tasks of the same run (so CPU stolen by other processes is not counted as
+    Dask's). c is the in-process compute time. With B sweep tasks per Dask task the scheduler limit
+    becomes B / o_s sweep tasks per second.
     """
     c = m["task_compute_s"]
     o_s = 1.0 / m["noop_workers_2"]["tasks_per_s"]
     out = {"c_s": c, "o_s_s": o_s}
     for b, key in ((1, "workers_1"), (BATCH, f"workers_1_batch{BATCH}")):
-        o_w = max(0.0, 1.0 / m[key]["tasks_per_s"] - 1.0 / m["in_process"]["tasks_per_s"])
+        o_w = max(0.0, 1.0 / m[key]["tasks_per_s"] - m[key]["task_compute_s"])
         for n in (10, 100):
             worker_rate, sched_rate = n / (c + o_w), b / o_s
             rate = min(worker_rate, sched_rate)
