@@ -103,12 +103,6 @@ def open_client(scheduler: str | None = None, *, n_workers: int | None = None, t
         cluster.close()
 
 
-def _failure(index: int, task: Any, exc: BaseException, tb, describe: Callable[[Any], Any]) -> TaskFailure:
-    text = "".join(traceback.format_tb(tb)) if tb is not None else ""
-    return TaskFailure(index=index, params=describe(task), error_type=type(exc).__name__,
-                       message=str(exc), traceback=text)
-
-
 def _n_workers(client) -> int:
     try:
         return len(client.scheduler_info().get("workers", {}))
@@ -126,6 +120,46 @@ def call_batch(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[tuple]:
         except Exception as exc:     # reported per item by run_tasks, with the item's parameters
             out.append(("err", type(exc).__name__, str(exc), "".join(traceback.format_tb(exc.__traceback__))))
     return out
+
+
+@dataclass
+class _Collector:
+    """Where outcomes land: results in task order, failures with parameters, callbacks per item."""
+
+    tasks: Sequence[Any]
+    describe: Callable[[Any], Any]
+    on_result: ResultCallback | None
+    on_progress: ProgressCallback | None
+    results: list[Any] = field(default_factory=list)
+    failures: list[TaskFailure] = field(default_factory=list)
+    done: int = 0
+
+    def __post_init__(self) -> None:
+        self.results = [None] * len(self.tasks)
+
+    def take(self, i: int, outcome: tuple) -> None:
+        if outcome[0] == "ok":
+            self.results[i] = outcome[1]
+            if self.on_result is not None:
+                self.on_result(i, self.tasks[i], outcome[1])
+        else:
+            _, etype, msg, tb = outcome
+            self.failures.append(TaskFailure(index=i, params=self.describe(self.tasks[i]), error_type=etype,
+                                             message=msg, traceback=tb))
+        self.done += 1
+        if self.on_progress is not None:
+            self.on_progress(self.done, len(self.tasks), len(self.failures))
+
+    def report(self, t0: float, workers: int) -> RunReport:
+        return RunReport(results=self.results, failures=sorted(self.failures, key=lambda f: f.index),
+                         elapsed_s=time.perf_counter() - t0, workers=workers)
+
+
+def _future_outcomes(fut, n: int) -> list[tuple]:
+    if fut.status == "error":       # the whole Dask task failed (e.g. its worker died): every item did
+        exc, tb = fut.exception(), fut.traceback()
+        return [("err", type(exc).__name__, str(exc), "".join(traceback.format_tb(tb)) if tb is not None else "")] * n
+    return fut.result()
 
 
 def run_tasks(client, fn: Callable[[Any], Any], tasks: Sequence[Any], *,
@@ -146,46 +180,29 @@ def run_tasks(client, fn: Callable[[Any], Any], tasks: Sequence[Any], *,
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     t0 = time.perf_counter()
-    total = len(tasks)
-    results: list[Any] = [None] * total
-    failures: list[TaskFailure] = []
+    col = _Collector(tasks, describe, on_result, on_progress)
     if max_in_flight is None:
         threads = sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values())
         max_in_flight = max(64, 8 * max(threads, 1))
     token = f"{os.getpid()}-{time.monotonic_ns()}"      # unique keys: the same task twice is two runs
-    batches = [range(i, min(i + batch_size, total)) for i in range(0, total, batch_size)]
+    batches = [range(i, min(i + batch_size, len(tasks))) for i in range(0, len(tasks), batch_size)]
     batch_of: dict[str, range] = {}
 
     def submit(b: int):
-        idx = batches[b]
-        fut = client.submit(call_batch, fn, [tasks[i] for i in idx], key=f"{key_prefix}-{token}-{b}", pure=False)
-        batch_of[fut.key] = idx
+        fut = client.submit(call_batch, fn, [tasks[i] for i in batches[b]], key=f"{key_prefix}-{token}-{b}",
+                            pure=False)
+        batch_of[fut.key] = batches[b]
         return fut
 
     nxt = min(max_in_flight, len(batches))
     pending = as_completed([submit(b) for b in range(nxt)])
-    done = 0
     try:
         for fut in pending:
             idx = batch_of.pop(fut.key)
-            if fut.status == "error":       # the whole Dask task failed (e.g. its worker died)
-                exc, tb = fut.exception(), fut.traceback()
-                outcomes = [("err", type(exc).__name__, str(exc),
-                             "".join(traceback.format_tb(tb)) if tb is not None else "")] * len(idx)
-            else:
-                outcomes = fut.result()
+            outcomes = _future_outcomes(fut, len(idx))
             fut.release()
             for i, oc in zip(idx, outcomes):
-                if oc[0] == "ok":
-                    results[i] = oc[1]
-                    if on_result is not None:
-                        on_result(i, tasks[i], oc[1])
-                else:
-                    failures.append(TaskFailure(index=i, params=describe(tasks[i]), error_type=oc[1],
-                                                message=oc[2], traceback=oc[3]))
-                done += 1
-                if on_progress is not None:
-                    on_progress(done, total, len(failures))
+                col.take(i, oc)
             if nxt < len(batches):
                 pending.add(submit(nxt))
                 nxt += 1
@@ -193,9 +210,7 @@ def run_tasks(client, fn: Callable[[Any], Any], tasks: Sequence[Any], *,
         # Ctrl-C or a failing callback: stop the cluster's work too, not just this loop
         client.cancel(list(pending.futures))
         raise
-    failures.sort(key=lambda f: f.index)
-    return RunReport(results=results, failures=failures, elapsed_s=time.perf_counter() - t0,
-                     workers=_n_workers(client))
+    return col.report(t0, _n_workers(client))
 
 
 def run_serial(fn: Callable[[Any], Any], tasks: Sequence[Any], *, describe: Callable[[Any], Any] = repr,
@@ -203,16 +218,8 @@ def run_serial(fn: Callable[[Any], Any], tasks: Sequence[Any], *, describe: Call
                on_progress: ProgressCallback | None = None) -> RunReport:
     """:func:`run_tasks` without Dask: every task in this process, one after the other."""
     t0 = time.perf_counter()
-    results: list[Any] = [None] * len(tasks)
-    failures: list[TaskFailure] = []
+    col = _Collector(tasks, describe, on_result, on_progress)
     for i, task in enumerate(tasks):
-        try:
-            results[i] = fn(task)
-        except Exception as exc:     # reported with its parameters; the rest still run
-            failures.append(_failure(i, task, exc, exc.__traceback__, describe))
-        else:
-            if on_result is not None:
-                on_result(i, task, results[i])
-        if on_progress is not None:
-            on_progress(i + 1, len(tasks), len(failures))
-    return RunReport(results=results, failures=failures, elapsed_s=time.perf_counter() - t0, workers=0)
+        (outcome,) = call_batch(fn, [task])
+        col.take(i, outcome)
+    return col.report(t0, 0)
