@@ -285,5 +285,8 @@ def expand_sweep(raw: dict, *, source: str = "<sweep>", base_dir: Path | None = 
     tasks = [SweepTask(key=task_key(pt, d, r, v, s, run.seed, run.trials_per_task), point=pt, distance_m=d,
                        reflectivity=r, velocity_mps=v, seed=s, base_seed=run.seed, trials=run.trials_per_task)
              for pt in points for r in refl for v in vels for d in distances for s in run.seed_list()]
+    if len({t.key for t in tasks}) != len(tasks):
+        raise SweepSpecError(f"{source}: target/sweep.seeds: a distance, reflectivity, velocity or seed is "
+                             "listed twice (the same task would run twice)")
     keys = tuple(dict.fromkeys(k for pt in points for k, _ in pt.params))
     return Sweep(name=run.name, source=source, points=points, tasks=tasks, swept_keys=keys)

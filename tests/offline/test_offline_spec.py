@@ -74,6 +74,9 @@ def test_bad_file_structure_names_the_key(make_sweep, tmp_path):
     raw["sweep"]["base_config"] = "nowhere.toml"
     with pytest.raises(SweepSpecError, match=r"sweep\.base_config: 'nowhere\.toml' not found"):
         expand_sweep(raw)
+    raw = make_sweep(seeds=[1, 1])
+    with pytest.raises(SweepSpecError, match=r"listed twice"):
+        expand_sweep(raw)
     bad = tmp_path / "s.toml"
     bad.write_text("[sweep\n")
     with pytest.raises(SweepSpecError, match=r"s\.toml: cannot read as TOML"):
