@@ -75,3 +75,11 @@ def test_the_task_plans_the_adc_like_the_daemon(max_range_m):
         from lidard.instrument import LidarInstrument
         plan = LidarInstrument._adc_plan(SimpleNamespace(cfg=cfg), max_range_m)
     assert adc_plan(cfg, max_range_m) == (plan.fs_hz, plan.ramp_samples)
+
+
+def test_scheduler_flag_runs_the_sweep_on_an_existing_scheduler(client, tmp_path, capsys):
+    address = client.scheduler.address          # the in-process cluster's scheduler, as a remote one would be
+    spec = _write(tmp_path)
+    assert sweep_cli.sweep_main([spec, "--scheduler", address, "--no-plot", "--out", str(tmp_path / "o")]) == 0
+    assert "ran 2 tasks (0 already done)" in capsys.readouterr().out
+    assert client.scheduler_info()["workers"]    # the scheduler (not ours to close) is still up
