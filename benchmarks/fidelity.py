@@ -37,7 +37,7 @@ import numpy as np
 
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument import ScanRequest
 
 EFFECTS = ("phase_noise", "mems_dynamics", "quantization", "noise")
 NOT_MODELLED = {"beam_footprint": "sim_devices.world casts one ray per pixel: no footprint, no edge sampling"}

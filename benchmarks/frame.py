@@ -19,7 +19,7 @@ import time
 
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument import ScanRequest
 
 DEFAULT_SCENE = str(CONFIG_DIR / "scenes" / "cal_letters.toml")
 

@@ -46,7 +46,7 @@ DEFAULT_SCENE = str(CONFIG_DIR / "scenes" / "cal_letters.toml")
 def serve(app, *, join_timeout_s: float = 30.0):
     """Run ``app`` on a uvicorn server bound to 127.0.0.1 on a free port; yields its base URL."""
     import uvicorn
-    # IPPROTO_TCP, as lidard.cli._bind: with proto 0 asyncio skips TCP_NODELAY (+40 ms a response)
+    # IPPROTO_TCP, as lidard.cli.daemon.bind: with proto 0 asyncio skips TCP_NODELAY (+40 ms a response)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.bind(("127.0.0.1", 0))
     # backlog for the burst of connections the clients open at once

@@ -36,9 +36,9 @@ def one_upload(baud: int, chunk: int, via_pty: bool) -> dict[str, float]:
     sim = FpgaSim(clock, FpgaConfig(baudrate=baud))
     pattern = raster()
     server = sim.serve_pty() if via_pty else None
-    target = server.path if server else sim.open_pipe()
     try:
-        drv = FpsaController(target, timeout_s=2.0, baudrate=baud, chunk_pixels=chunk)
+        drv = (FpsaController.from_url(server.path, timeout_s=2.0, baudrate=baud, chunk_pixels=chunk)
+               if server else FpsaController(sim.open_pipe(), timeout_s=2.0, chunk_pixels=chunk))
         drv.reset()
         rx0, tx0, t_virtual0 = sim.rx_bytes, sim.tx_bytes, clock.now()
         t0 = time.perf_counter()

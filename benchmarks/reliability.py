@@ -36,7 +36,7 @@ import numpy as np
 
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import SAFETY_CHECK_S, open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument import ScanRequest
 from lidard.jobs import ScanWorker
 from lidard.store import Store
 
@@ -203,7 +203,7 @@ def safety_tradeoff(values_s=(0.01, 0.02, 0.05, 0.2, None), averages: int = 1) -
     BATCH_BYTES). CPU time, not wall time, so other load on the machine does not enter."""
     import threading
 
-    import lidard.instrument as li
+    import lidard.instrument.scan_loop as li   # where the scan loop reads it
     cfg = load_config(CONFIG_DIR / "sim.toml")
     inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"), bench="embedded")
     saved = li.SAFETY_CHECK_S

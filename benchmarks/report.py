@@ -452,7 +452,7 @@ def sec_accuracy(quick: bool, img: Path, log) -> Section:
 
     from lidard.config import CONFIG_DIR, load_config
     from lidard.instrument import open_instrument
-    from lidard.instrument_api import ScanRequest
+    from lidard.instrument import ScanRequest
     from sim_devices.world.scene import Scene
 
     s = Section("accuracy", "4c. Accuracy on the simulated bench (the scenes of tests/e2e)")

@@ -20,8 +20,11 @@ followed (MSG_OUT, MSG_IN) by TransferSize message bytes padded with zeros to a 
 This module is PURE (no I/O). Decoders raise only ``UsbtmcProtocolError`` (a ``ProtocolError``).
 Golden byte vectors are in docs/protocols/awg.md.
 
-The typed driver errors (``DeviceTimeout`` etc.) live here too because both USB drivers raise them
-and both map pyusb's ``USBError`` the same way (errno ETIMEDOUT/EPIPE/ENODEV).
+The typed USB driver errors (``DeviceTimeout`` etc.) live here too because both USB drivers raise
+them and both map pyusb's ``USBError`` the same way (errno ETIMEDOUT/EPIPE/ENODEV). They are
+subclasses of the shared tree in :mod:`drivers.errors` (``DeviceTimeout`` of its DeviceTimeout,
+``DeviceStall`` of CommandRefused, ``DeviceDisconnected`` of DeviceGone, codec errors of its
+ProtocolError), so every one carries ``device`` and ``command``.
 """
 
 from __future__ import annotations
@@ -30,48 +33,64 @@ import errno as _errno
 import struct
 from dataclasses import dataclass
 
+from drivers import errors as _e
+
 # ----------------------------------------------------------------------------------------- errors
 
 
-class ProtocolError(Exception):
-    """Bytes that do not follow a wire protocol (base class of every codec error)."""
+class ProtocolError(_e.ProtocolError):
+    """Bytes that do not follow a USB wire protocol (base class of the USB codecs' errors).
+
+    Codecs raise it with the message only; ``device`` is the class's ``DEVICE`` and ``command``
+    is ``"decode"`` unless given.
+    """
+
+    DEVICE = "usb"
+
+    def __init__(self, message: str, *, device: str | None = None, command: str = "decode") -> None:
+        super().__init__(device or self.DEVICE, command, message, message=message)
 
 
 class UsbtmcProtocolError(ProtocolError):
-    """A USBTMC header or message that cannot be decoded."""
+    """A USBTMC header or message that cannot be decoded (the AWG is the USBTMC device)."""
+
+    DEVICE = "awg"
 
 
-class UsbDeviceError(Exception):
+class UsbDeviceError(_e.DeviceError):
     """Base of the typed errors a USB driver raises; names the device and the command."""
 
     def __init__(self, device: str, command: str, detail: str = "") -> None:
-        self.device = device
-        self.command = command
-        self.detail = detail
         msg = f"{device}: {command!r}"
         if detail:
             msg += f": {detail}"
-        super().__init__(msg)
+        _e.DeviceError.__init__(self, device, command, detail, message=msg)
 
 
-class DeviceTimeout(UsbDeviceError):
+class DeviceTimeout(UsbDeviceError, _e.DeviceTimeout):
     """The device did not answer within the timeout after the bounded retries."""
 
 
-class DeviceStall(UsbDeviceError):
+class DeviceStall(UsbDeviceError, _e.CommandRefused):
     """The device stalled an endpoint (USB STALL, errno EPIPE): it refused the request."""
 
 
-class DeviceDisconnected(UsbDeviceError):
+class DeviceDisconnected(UsbDeviceError, _e.DeviceGone):
     """The device went away (errno ENODEV / ENXIO / EIO)."""
 
 
-class DeviceIOError(UsbDeviceError):
+class DeviceIOError(UsbDeviceError, _e.TransportError):
     """Any other USB failure, with the errno in the detail."""
 
 
-class InvalidArgument(ValueError):
-    """A value passed to a driver method is outside what the instrument accepts (names it)."""
+class InvalidArgument(_e.InvalidValue):
+    """A value passed to a driver method is outside what the instrument accepts (names it).
+
+    ``InvalidArgument(device, command, message)``; nothing was sent.
+    """
+
+    def __init__(self, device: str, command: str, message: str) -> None:
+        super().__init__(device, command, message, message=message)
 
 
 def classify_usb_error(exc: BaseException, device: str, command: str) -> UsbDeviceError:

@@ -322,6 +322,15 @@ class Daemon(_Model):
     lease_ttl_s: float = Field(default=300.0, gt=0, le=86_400)
 
 
+class Live(_Model):
+    """Live publishers besides the REST API (lidard.live): the Foxglove WebSocket server, opt-in."""
+
+    foxglove: bool = False
+    # loopback unless the lab says otherwise: the stream has no authentication
+    foxglove_host: str = "127.0.0.1"
+    foxglove_port: int = Field(default=8765, ge=0, le=65535)  # 0: any free port
+
+
 class Config(_Model):
     profile: str = "fpsa128"
     lens: str | None = None
@@ -335,9 +344,13 @@ class Config(_Model):
     devices: Devices = Devices()
     sim: Sim = Sim()
     daemon: Daemon = Daemon()
+    live: Live = Live()
 
     # Resolved by load_config (not part of the file format).
     source: str = Field(default="<defaults>", exclude=True)
+    # The file read (None: built-in defaults); a simulated bench started as a child process reads it
+    # too. Kept by model_dump so a config re-validated with an override still names its file.
+    path: str | None = None
     base_dir: str = Field(default=str(CONFIG_DIR), exclude=True)
 
     @field_validator("profile", "laser")
@@ -483,7 +496,8 @@ def load_config(path: str | os.PathLike | None = None, *, environ: dict[str, str
     if applied:
         source = f"{source} (+env {', '.join(applied)})"
     try:
-        cfg = Config.model_validate({**data, "source": source, "base_dir": str(base)})
+        cfg = Config.model_validate({**data, "source": source, "base_dir": str(base),
+                                     "path": None if path is None else str(path)})
     except ValidationError as exc:
         raise ConfigError(_format_validation(source, exc)) from None
     if check_presets:

@@ -42,7 +42,8 @@ from importlib import metadata
 from typing import Any, Callable
 
 from .errors import LidardError
-from .instrument_api import CalibrationResult, Instrument, ScanCancelled, ScanProgress, ScanRequest, ScanResult
+from .instrument.protocol import Instrument
+from .instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from .physics.optics import FpsaOptics
 from .pointcloud import write_points
 from .scan import adaptive_plans, planned_pixel_count
@@ -52,6 +53,8 @@ log = logging.getLogger(__name__)
 
 Event = dict[str, Any]
 Subscriber = Callable[[Event], None]
+# (scan_id, POINT_DTYPE records, final): a batch measured so far, or (final=True) the whole cloud
+PointListener = Callable[[str, Any, bool], None]
 
 
 class QueueFull(LidardError):
@@ -147,6 +150,8 @@ class ScanWorker:
         self._current: _ScanJob | _CalibrationJob | None = None
         self._subs: dict[str, list[Subscriber]] = collections.defaultdict(list)
         self._subs_lock = threading.Lock()
+        self._point_listeners: list[PointListener] = []
+        self._event_listeners: list[Subscriber] = []
         self._stopping = False
         self._thread: threading.Thread | None = None
 
@@ -268,9 +273,25 @@ class ScanWorker:
                     self._subs.pop(scan_id, None)
         return unsubscribe
 
+    def add_point_listener(self, fn: PointListener) -> None:
+        """Call ``fn(scan_id, points, final)`` for every batch of points a scan hands over (when the
+        instrument's progress carries ``new_points``) and once with the whole cloud when it is written."""
+        self._point_listeners.append(fn)
+
+    def add_event_listener(self, fn: Subscriber) -> None:
+        """Call ``fn(event)`` for the progress and end events of every scan (live publishers)."""
+        self._event_listeners.append(fn)
+
+    def _points_out(self, scan_id: str, points, final: bool) -> None:
+        for fn in list(self._point_listeners):
+            try:
+                fn(scan_id, points, final)
+            except Exception:  # a broken viewer must not stop the scan
+                log.exception("point listener for scan %s failed", scan_id)
+
     def _publish(self, scan_id: str, event: Event) -> None:
         with self._subs_lock:
-            subs = list(self._subs.get(scan_id, ()))
+            subs = list(self._subs.get(scan_id, ())) + self._event_listeners
         for fn in subs:
             try:
                 fn(event)
@@ -384,6 +405,9 @@ class ScanWorker:
                 self.store.update_scan(job.id, progress=p.fraction, stage=p.stage,
                                        pixels_scanned=p.pixels_done, pixels_planned=p.pixels_planned,
                                        points=p.points, hardware_time_s=p.hardware_time_s)
+            batch = p.new_points                    # the points measured since the last call, or None
+            if batch is not None and len(batch):
+                self._points_out(job.id, batch, False)
             self._publish(job.id, ev)
 
         cal_id = None
@@ -410,6 +434,7 @@ class ScanWorker:
                 try:
                     files = self._write(job, dataclasses.replace(partial_result, partial=True), cal_id,
                                         time.monotonic() - t0)
+                    self._points_out(job.id, partial_result.points, True)
                     counts = dict(points=int(len(partial_result.points)),
                                   pixels_scanned=int(partial_result.pixels_scanned),
                                   pixels_planned=int(partial_result.pixels_planned),
@@ -431,6 +456,7 @@ class ScanWorker:
                                    wall_time_s=wall)
             self._finish(job)
             return
+        self._points_out(job.id, result.points, True)
         partial = bool(result.partial or job.cancel.is_set())
         stop_reason = getattr(result, "stop_reason", None)
         if stop_reason:
@@ -509,9 +535,9 @@ class ScanWorker:
             "pixels_planned": int(result.pixels_planned),
             "coverage": (result.pixels_scanned / result.pixels_planned) if result.pixels_planned else 0.0,
             "software_version": software_version(),
-            "simulated": bool(getattr(self.instrument, "simulated", False)),
+            "simulated": bool(self.instrument.simulated),
             "partial": bool(result.partial or job.cancel.is_set()),
-            "stop_reason": getattr(result, "stop_reason", None),
+            "stop_reason": result.stop_reason,
         }
         out_dir = self.store.scan_dir(job.id)
         files = {}

@@ -1,11 +1,12 @@
 """Point-cloud files: PLY, LAS 1.4, NPZ and the JSON sidecar, all written atomically.
 
-A scan's points are :data:`lidard.instrument_api.POINT_DTYPE` records (x, y, z in the sensor frame of
+A scan's points are :data:`lidard.instrument.types.POINT_DTYPE` records (x, y, z in the sensor frame of
 §4.1.1, range, radial velocity, intensity, SNR, the FPSA pixel, return index, time, valid flag), the
 per-pixel output of the FMCW processing of §2.1/§4.4 (Fig. 4-35 shows such a frame). Float32 is used
 only here, at the file edge.
 
-* PLY: binary little-endian, one ``vertex`` element carrying every POINT_DTYPE field unchanged.
+* PLY: binary little-endian, one ``vertex`` element carrying every POINT_DTYPE field, with ``row``
+  and ``col`` stored as ``int`` (int32) because Open3D skips ``ushort`` properties.
 * LAS 1.4, point format 6: x/y/z as scaled integers with a 0.1 mm scale (mm precision with margin)
   and the offsets at the cloud's minimum; LAS ``intensity`` (uint16) holds the amplitude scaled to
   the largest one, ``return_number``/``number_of_returns`` the per-pixel return ordering and
@@ -31,9 +32,13 @@ from typing import Any, BinaryIO, Iterator
 
 import numpy as np
 
-from .instrument_api import POINT_DTYPE
+from .instrument.types import POINT_DTYPE
 
-FORMATS = ("ply", "las", "npz")
+FORMATS = ("ply", "las", "npz", "pcd", "mcap")  # pcd, mcap: lidard.outputs
+# PLY vertex properties: POINT_DTYPE with the pixel indices widened to int32. Open3D drops ``ushort``
+# properties ("unsupported datatype"); ``int`` is kept by Open3D, PCL and CloudCompare alike.
+PLY_DTYPE = np.dtype([(name, "<i4" if name in ("row", "col") else POINT_DTYPE[name].newbyteorder("<"))
+                      for name in POINT_DTYPE.names])
 LAS_SCALE_M = 1e-4
 # Extra-bytes dimensions of the LAS file and their POINT_DTYPE source field.
 _LAS_EXTRA = (("range", "range", np.float32), ("velocity", "velocity", np.float32),
@@ -113,7 +118,7 @@ def write_ply(path: str | os.PathLike, points: np.ndarray) -> Path:
     from plyfile import PlyData, PlyElement
 
     pts = _as_points(points)
-    el = PlyElement.describe(pts, "vertex")
+    el = PlyElement.describe(pts.astype(PLY_DTYPE), "vertex")
     with atomic_write(path) as f:
         PlyData([el], text=False, byte_order="<").write(f)
     return Path(path)
@@ -213,6 +218,19 @@ def write_sidecar(path: str | os.PathLike, meta: dict[str, Any]) -> Path:
     return side
 
 
+def scene_identity(path: str | os.PathLike) -> dict[str, str]:
+    """The sidecar's ``scene`` entry on a simulated bench: the scene file's absolute path and the
+    sha256 of its bytes, so a point cloud names exactly the world it was measured in."""
+    import hashlib
+
+    p = Path(path).resolve()
+    try:
+        digest = hashlib.sha256(p.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise PointCloudError(f"scene {p}: cannot be read for the sidecar ({exc.strerror or exc})") from None
+    return {"path": str(p), "sha256": digest}
+
+
 def read_sidecar(path: str | os.PathLike) -> dict[str, Any]:
     return json.loads(sidecar_path(path).read_text(encoding="utf-8"))
 
@@ -220,7 +238,8 @@ def read_sidecar(path: str | os.PathLike) -> dict[str, Any]:
 def format_of(path: str | os.PathLike) -> str:
     ext = Path(path).suffix.lower().lstrip(".")
     if ext not in FORMATS:
-        raise PointCloudError(f"{path}: unknown point-cloud format {ext!r}; allowed: .ply, .las, .npz")
+        raise PointCloudError(f"{path}: unknown point-cloud format {ext!r}; allowed: "
+                              f"{', '.join('.' + f for f in FORMATS)}")
     return ext
 
 
@@ -234,6 +253,12 @@ def write_points(path: str | os.PathLike, points: np.ndarray, meta: dict[str, An
         write_las(path, points)
     elif fmt == "npz":
         write_npz(path, points, meta)
+    elif fmt == "pcd":
+        from .outputs.pcd import write_pcd  # lidard.outputs imports this module (atomic_write)
+        write_pcd(path, points)
+    elif fmt == "mcap":
+        from .outputs.mcap import write_mcap
+        write_mcap(path, points, meta)
     else:
         raise PointCloudError(f"{path}: unknown point-cloud format {fmt!r}; allowed: {', '.join(FORMATS)}")
     return [Path(path), write_sidecar(path, {**meta, "format": fmt, "points": int(len(points))})]
@@ -245,4 +270,21 @@ def read_points(path: str | os.PathLike) -> np.ndarray:
         return read_ply(path)
     if fmt == "las":
         return read_las(path)
+    if fmt == "pcd":
+        from .outputs.pcd import read_pcd
+        return _as_point_dtype(read_pcd(path))
+    if fmt == "mcap":
+        from .outputs.mcap import read_mcap
+        return _as_point_dtype(read_mcap(path)[0])
     return read_npz(path)[0]
+
+
+def _as_point_dtype(rec: np.ndarray) -> np.ndarray:
+    # PCD and MCAP carry the POINT_DTYPE fields in their own widths; absent ones (MCAP has no
+    # return_index/valid) are left at 0 / 1
+    out = np.zeros(len(rec), POINT_DTYPE)
+    out["valid"] = 1
+    for name in POINT_DTYPE.names:
+        if name in (rec.dtype.names or ()):
+            out[name] = rec[name]
+    return out

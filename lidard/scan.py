@@ -28,7 +28,7 @@ from collections.abc import Generator
 
 import numpy as np
 
-from .instrument_api import ScanRequest
+from .instrument.types import ScanRequest
 from .physics.optics import FpsaOptics
 
 ADAPTIVE_STEP = 4

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from .errors import LidardError
-from .instrument_api import CalibrationResult
+from .instrument.types import CalibrationResult
 from .pointcloud import atomic_write
 
 SCAN_STATES = ("queued", "running", "done", "failed", "cancelled", "interrupted")
@@ -317,6 +317,16 @@ class Store:
         with self._lock:
             row = self._conn.execute(q + " ORDER BY created DESC, id DESC LIMIT 1", args).fetchone()
         return None if row is None else self._calibration_from_row(row)
+
+    def list_calibrations(self, limit: int = 5, laser: str | None = None) -> list[CalibrationResult]:
+        """The newest ``limit`` calibrations (of ``laser`` if given), newest first."""
+        q, args = "SELECT * FROM calibrations", []
+        if laser is not None:
+            q += " WHERE laser = ?"
+            args.append(laser)
+        with self._lock:
+            rows = self._conn.execute(q + " ORDER BY created DESC, id DESC LIMIT ?", [*args, int(limit)]).fetchall()
+        return [self._calibration_from_row(r) for r in rows]
 
     def get_calibration(self, cal_id: str) -> CalibrationResult | None:
         with self._lock:

@@ -10,16 +10,34 @@ shared ``VirtualClock``: before a segment is served the clock moves to its trigg
 record duration (the capture must have happened), and every bulk-IN transfer advances it by
 bytes / ``usb_rate_bytes_s`` (the modelled bus throughput, 40 MB/s by default).
 
+Front end (SET_RESOLUTION, SET_BANDWIDTH): the source's codes stand for the analog input (16-bit
+codes are 15 uV steps on a 1 V range). The digitizer band-limits every channel with its anti-alias
+filter (signal and noise alike, since both are in the codes) and then quantizes to the requested
+resolution, as the converter does: filter first, quantizer last. The filter stands in for a
+digitizer's decimation filter: zero phase (linear-phase like an FIR decimator, so a trigger-aligned
+record keeps its timing and the range does not shift), steep (a 4th-order Butterworth run forward
+and backward, effective order 8). Its amplitude response, the formula docs/protocols/digitizer.md
+gives, is
+
+    |G(f)| = 1 / (1 + (sqrt(2) - 1) * (tan(pi f / fs) / tan(pi f_c / fs)) ** (2 * ANTI_ALIAS_ORDER))
+
+i.e. -3.01 dB at the corner f_c and about -42 dB at 2 f_c (fs = 20 f_c). Running a Butterworth of
+corner f_d forward and backward squares its magnitude, 1 / (1 + (t / t_d)**(2N)) with
+t = tan(pi f / fs); the design corner t_d = t_c * (sqrt(2) - 1) ** (-1 / (2N)) puts the -3 dB point
+of the pair at f_c. A corner at or above fs / 2 leaves the record as it is.
+
 Wire format: drivers/digitizer/protocol.py and docs/protocols/digitizer.md.
 """
 
 from __future__ import annotations
 
+import math
 import zlib
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from scipy.signal import butter, sosfiltfilt
 
 from drivers.digitizer import protocol as p
 from sim_devices.clock import VirtualClock
@@ -31,6 +49,8 @@ RECORD_LENGTH_MAX = 16 * 1024 * 1024
 SEGMENTS_MAX = 1 << 24
 RANGE_MV_MIN = 10
 RANGE_MV_MAX = 10_000
+#: Butterworth order of the anti-alias filter, run forward and backward (zero phase, order doubles)
+ANTI_ALIAS_ORDER = 4
 
 
 @dataclass(frozen=True)
@@ -40,6 +60,9 @@ class CaptureConfig:
     channels: tuple[str, ...]
     bits: int
     input_range_v: float
+    #: ADC resolution and anti-alias corner the digitizer applies after the source (information)
+    resolution_bits: int = 16
+    bandwidth_hz: float = 0.0
 
 
 @dataclass
@@ -95,7 +118,7 @@ class SimDigitizer(SimUsbDevice):
     def capture_config(self, c: p.Config | None = None) -> CaptureConfig:
         c = c or self.config
         return CaptureConfig(float(c.sample_rate_hz), c.record_length, c.channels, c.bits,
-                             c.input_range_mv / 1000.0)
+                             c.input_range_mv / 1000.0, c.resolution_bits, float(c.bandwidth_hz))
 
     # ------------------------------------------------------------------------ control
 
@@ -109,47 +132,12 @@ class SimDigitizer(SimUsbDevice):
         except ValueError:
             raise self._refuse(req, "unknown request") from None
         if bm & 0x80:
-            if r is p.Req.IDENTIFY:
-                s = self.spec
-                return f"{s.manufacturer},{s.product},{s.serial},1.0".encode()[:w_length]
-            if r is p.Req.GET_STATUS:
-                return p.encode_status(p.Status(self.state, self.segments_captured, self.overrange_count,
-                                                self.last_refused_request, self.segments_sent))
-            if r is p.Req.GET_CONFIG:
-                return p.encode_config(self.config)
-            raise self._refuse(req, "not an IN request")
-        if self.state in (p.State.ARMED, p.State.CAPTURING) and r in (
-                p.Req.SET_CHANNELS, p.Req.SET_SAMPLE_RATE, p.Req.SET_RECORD_LENGTH,
-                p.Req.SET_SEGMENTS, p.Req.SET_FORMAT, p.Req.SET_RANGE):
+            return self._answer_in(r, req, w_length)
+        if self.state in (p.State.ARMED, p.State.CAPTURING) and r in _SETTINGS:
             raise self._refuse(req, "configuration locked while armed")
-        c = self.config
         try:
-            if r is p.Req.SET_CHANNELS:
-                p.validate_mask(w_value)
-                self.config = _replace(c, channel_mask=w_value)
-            elif r is p.Req.SET_SAMPLE_RATE:
-                v = p.dec_u64(data or b"")
-                if not SAMPLE_RATE_MIN_HZ <= v <= SAMPLE_RATE_MAX_HZ:
-                    raise self._refuse(req, f"sample rate {v} Hz")
-                self.config = _replace(c, sample_rate_hz=v)
-            elif r is p.Req.SET_RECORD_LENGTH:
-                v = p.dec_u32(data or b"")
-                if not 1 <= v <= RECORD_LENGTH_MAX:
-                    raise self._refuse(req, f"record length {v}")
-                self.config = _replace(c, record_length=v)
-            elif r is p.Req.SET_SEGMENTS:
-                v = p.dec_u32(data or b"")
-                if not 1 <= v <= SEGMENTS_MAX:
-                    raise self._refuse(req, f"segments {v}")
-                self.config = _replace(c, segments=v)
-            elif r is p.Req.SET_FORMAT:
-                p.bytes_per_sample(w_value)
-                self.config = _replace(c, bits=w_value)
-            elif r is p.Req.SET_RANGE:
-                v = p.dec_u32(data or b"")
-                if not RANGE_MV_MIN <= v <= RANGE_MV_MAX:
-                    raise self._refuse(req, f"range {v} mV")
-                self.config = _replace(c, input_range_mv=v)
+            if r in _SETTINGS:
+                self.config = self._setting(r, req, w_value, data or b"")
             elif r is p.Req.ARM:
                 self._reset_acquisition()
                 self.state = p.State.ARMED
@@ -169,6 +157,36 @@ class SimDigitizer(SimUsbDevice):
             raise self._refuse(req, str(exc)) from None
         return len(data or b"")
 
+    def _answer_in(self, r: p.Req, req: int, w_length: int) -> bytes:
+        if r is p.Req.IDENTIFY:
+            s = self.spec
+            return f"{s.manufacturer},{s.product},{s.serial},1.0".encode()[:w_length]
+        if r is p.Req.GET_STATUS:
+            return p.encode_status(p.Status(self.state, self.segments_captured, self.overrange_count,
+                                            self.last_refused_request, self.segments_sent))
+        if r is p.Req.GET_CONFIG:
+            return p.encode_config(self.config)
+        raise self._refuse(req, "not an IN request")
+
+    def _setting(self, r: p.Req, req: int, w_value: int, data: bytes) -> p.Config:
+        """The configuration after setting request ``r`` (refused: a STALL naming the value)."""
+        c = self.config
+        if r is p.Req.SET_CHANNELS:
+            p.validate_mask(w_value)
+            return _replace(c, channel_mask=w_value)
+        if r is p.Req.SET_FORMAT:
+            p.bytes_per_sample(w_value)
+            # a new format starts at its full resolution (SET_RESOLUTION may lower it)
+            return _replace(c, bits=w_value, resolution_bits=w_value)
+        if r is p.Req.SET_RESOLUTION:
+            p.check_resolution(w_value, c.bits)
+            return _replace(c, resolution_bits=w_value)
+        field, decode, low, high, unit = _NUMERIC[r]
+        v = decode(data)
+        if not low <= v <= high:
+            raise self._refuse(req, f"{field} {v} {unit}")
+        return _replace(c, **{field: v})
+
     # ------------------------------------------------------------------------ bulk-IN
 
     def _make_batch(self) -> None:
@@ -184,6 +202,8 @@ class SimDigitizer(SimUsbDevice):
             raise ValueError(f"SegmentSource returned codes {codes.shape}, expected "
                              f"{(count, n_ch, cfg.record_length)}")
         lo, hi = (-128, 127) if cfg.bits == 8 else (-32768, 32767)
+        if cfg.bandwidth_hz or cfg.resolution_bits < cfg.bits:
+            codes, hi = front_end(codes, cfg)
         clipped = (codes < lo) | (codes > hi)
         over = np.asarray(cap.overrange, dtype=bool) | clipped.any(axis=2)
         recs = np.zeros(count, dtype=rec)
@@ -196,7 +216,7 @@ class SimDigitizer(SimUsbDevice):
         recs["n_samples"] = cfg.record_length
         t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
         recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
-        recs["data"] = np.clip(codes, lo, hi) if clipped.any() else codes
+        recs["data"] = (np.clip(codes, lo, hi) if clipped.any() else codes).astype(p.sample_dtype(cfg.bits))
         raw = recs.view(np.uint8)
         mv = memoryview(raw)
         size = rec.itemsize
@@ -248,6 +268,52 @@ class SimDigitizer(SimUsbDevice):
 
     def handle_reset(self):
         self._reset_acquisition()
+
+
+#: requests that change the configuration (refused while armed)
+_SETTINGS = frozenset({p.Req.SET_CHANNELS, p.Req.SET_SAMPLE_RATE, p.Req.SET_RECORD_LENGTH, p.Req.SET_SEGMENTS,
+                       p.Req.SET_FORMAT, p.Req.SET_RANGE, p.Req.SET_RESOLUTION, p.Req.SET_BANDWIDTH})
+#: numeric settings: request -> (Config field, data-stage decoder, lowest, highest, unit)
+_NUMERIC = {
+    p.Req.SET_SAMPLE_RATE: ("sample_rate_hz", p.dec_u64, SAMPLE_RATE_MIN_HZ, SAMPLE_RATE_MAX_HZ, "Hz"),
+    p.Req.SET_RECORD_LENGTH: ("record_length", p.dec_u32, 1, RECORD_LENGTH_MAX, "samples"),
+    p.Req.SET_SEGMENTS: ("segments", p.dec_u32, 1, SEGMENTS_MAX, "segments"),
+    p.Req.SET_RANGE: ("input_range_mv", p.dec_u32, RANGE_MV_MIN, RANGE_MV_MAX, "mV"),
+    p.Req.SET_BANDWIDTH: ("bandwidth_hz", p.dec_u64, 0, p.MAX_BANDWIDTH_HZ, "Hz"),
+}
+
+
+def band_limit(x: np.ndarray, bandwidth_hz: float, sample_rate_hz: float) -> np.ndarray:
+    """The anti-alias filter along the last axis (module docstring); float64 out.
+
+    A corner of 0 or at/above fs/2 returns ``x`` unfiltered (as float64).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if not 0 < bandwidth_hz < sample_rate_hz / 2 or x.shape[-1] < 2:
+        return x
+    n = ANTI_ALIAS_ORDER
+    t_design = math.tan(math.pi * bandwidth_hz / sample_rate_hz) * (math.sqrt(2.0) - 1.0) ** (-1.0 / (2 * n))
+    sos = butter(n, math.atan(t_design) * sample_rate_hz / math.pi, fs=sample_rate_hz, output="sos")
+    # odd extension as long as the record allows: keeps the record ends free of start-up transients
+    pad = min(x.shape[-1] - 1, 3 * (2 * len(sos) + 1))
+    return sosfiltfilt(sos, x, axis=-1, padlen=pad)
+
+
+def quantize_codes(x: np.ndarray, resolution_bits: int, format_bits: int) -> tuple[np.ndarray, int]:
+    """Mid-tread quantizer of ``resolution_bits`` inside the ``format_bits`` container.
+
+    Returns (codes as float64 multiples of the step 2**(format - resolution), highest code of the
+    resolution). Values beyond full scale are left for the caller to clip and flag.
+    """
+    step = 1 << (format_bits - resolution_bits)
+    hi = (1 << (format_bits - 1)) - step
+    return np.round(np.asarray(x, dtype=np.float64) / step) * step, hi
+
+
+def front_end(codes: np.ndarray, cfg: p.Config) -> tuple[np.ndarray, int]:
+    """Band limit then quantize the source's codes (both channels alike); (codes, highest code)."""
+    x = band_limit(codes, float(cfg.bandwidth_hz), float(cfg.sample_rate_hz))
+    return quantize_codes(x, cfg.resolution_bits, cfg.bits)
 
 
 def _replace(c: p.Config, **kw) -> p.Config:

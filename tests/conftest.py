@@ -1,5 +1,9 @@
 """Suite-wide checks and fixtures.
 
+Fixtures: ``make_client`` builds the daemon's app around an instrument (a FakeInstrument unless
+given) and returns an entered TestClient, closed after the test; helpers the fixtures build on are
+in the importable package tests/helpers.
+
 The test toolchain is pinned in pyproject.toml (``[project.optional-dependencies] test``) because
 plugins break across minor releases of pytest (schemathesis 4.32.5 under pytest 9.2 fails deep inside
 one test with ``'Function' object has no attribute '_nodeid'``). A drifted environment is refused at
@@ -8,6 +12,7 @@ start-up with one line naming the package, the pin and what is installed.
 
 from __future__ import annotations
 
+import contextlib
 import tomllib
 from importlib import metadata
 from pathlib import Path
@@ -44,3 +49,16 @@ def pytest_configure(config: pytest.Config) -> None:
             "incompatible test toolchain: " + "; ".join(problems)
             + ' (run: pip install -e ".[test]")'
         )
+
+
+@pytest.fixture
+def make_client(tmp_path):
+    """``make_client(instrument=None, cfg=None, data_dir=None, client_kw=None, **create_app_kw)``:
+    an entered TestClient on the daemon's app (data in ``tmp_path/data`` unless given)."""
+    from tests.helpers.api import app_client
+
+    with contextlib.ExitStack() as stack:
+        def make(instrument=None, cfg=None, data_dir=None, client_kw=None, **app_kw):
+            return stack.enter_context(app_client(tmp_path / "data" if data_dir is None else data_dir,
+                                                  instrument, cfg, client_kw, **app_kw))
+        yield make

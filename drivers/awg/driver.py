@@ -31,6 +31,7 @@ import usb.core
 
 from drivers import usbtmc
 from drivers.awg import protocol as p
+from drivers.errors import CommandRefused
 from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
@@ -50,7 +51,7 @@ CHUNK_BYTES = 1 << 20
 READ_CHUNK = 64 * 1024
 
 
-class AwgError(UsbDeviceError):
+class AwgError(UsbDeviceError, CommandRefused):
     """The AWG reported a SCPI error (code and text) for the named command."""
 
     def __init__(self, command: str, code: int, text: str) -> None:
@@ -210,7 +211,7 @@ class AwgDriver:
 
     def set_sample_rate(self, hz: float) -> None:
         if not (np.isfinite(hz) and hz > 0):
-            raise InvalidArgument(f"awg sample rate must be > 0 Hz, got {hz!r}")
+            raise InvalidArgument(DEVICE, "set_sample_rate", f"awg sample rate must be > 0 Hz, got {hz!r}")
         self.write(p.cmd_sample_rate(hz))
 
     def sample_rate(self) -> float:
@@ -218,7 +219,7 @@ class AwgDriver:
 
     def set_amplitude(self, v: float) -> None:
         if not (np.isfinite(v) and v > 0):
-            raise InvalidArgument(f"awg amplitude must be > 0 V, got {v!r}")
+            raise InvalidArgument(DEVICE, "set_amplitude", f"awg amplitude must be > 0 V, got {v!r}")
         self.write(p.cmd_amplitude(v))
 
     def amplitude(self) -> float:
@@ -226,7 +227,7 @@ class AwgDriver:
 
     def set_offset(self, v: float) -> None:
         if not np.isfinite(v):
-            raise InvalidArgument(f"awg offset must be finite, got {v!r}")
+            raise InvalidArgument(DEVICE, "set_offset", f"awg offset must be finite, got {v!r}")
         self.write(p.cmd_offset(v))
 
     def offset(self) -> float:
@@ -255,15 +256,15 @@ class AwgDriver:
         """
         s = np.asarray(samples, dtype=np.float64)
         if s.ndim != 1 or s.size < 2:
-            raise InvalidArgument(f"awg waveform must be 1-D with >= 2 samples, got shape {s.shape}")
+            raise InvalidArgument(DEVICE, "upload_waveform", f"awg waveform must be 1-D with >= 2 samples, got shape {s.shape}")
         if not np.all(np.isfinite(s)):
-            raise InvalidArgument("awg waveform contains non-finite samples")
+            raise InvalidArgument(DEVICE, "upload_waveform", "awg waveform contains non-finite samples")
         if units == "volts":
             hi, lo = float(s.max()), float(s.min())
             amp = (hi - lo) / 2.0
             off = (hi + lo) / 2.0
             if amp <= 0:
-                raise InvalidArgument("awg waveform in volts is constant: amplitude would be 0 V")
+                raise InvalidArgument(DEVICE, "upload_waveform", "awg waveform in volts is constant: amplitude would be 0 V")
             s = np.clip((s - off) / amp, -1.0, 1.0)
             # The output stage checks |offset| + amplitude on every setting, so go through offset 0:
             # (0, old amp) and (0, new amp) are valid whenever the old and the new settings are, while
@@ -272,7 +273,7 @@ class AwgDriver:
             self.set_amplitude(amp)
             self.set_offset(off)
         elif units != "normalized":
-            raise InvalidArgument(f"awg waveform units must be 'normalized' or 'volts', got {units!r}")
+            raise InvalidArgument(DEVICE, "upload_waveform", f"awg waveform units must be 'normalized' or 'volts', got {units!r}")
         elif np.max(np.abs(s)) > 1.0:
-            raise InvalidArgument(f"awg normalized waveform exceeds [-1, 1] (max |s| = {np.max(np.abs(s))})")
+            raise InvalidArgument(DEVICE, "upload_waveform", f"awg normalized waveform exceeds [-1, 1] (max |s| = {np.max(np.abs(s))})")
         self.write(p.cmd_upload(p.codes_from_normalized(s)))

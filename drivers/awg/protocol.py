@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.usbtmc import ProtocolError
+from drivers.usbtmc import InvalidArgument, ProtocolError
 
 #: USB IDs of the simulated AWG (pid.codes test VID). The lab configuration names the real ones.
 AWG_VID = 0x1209
@@ -32,6 +32,8 @@ CODE_FULL_SCALE = 32767
 
 class AwgProtocolError(ProtocolError):
     """AWG bytes (SCPI text, block, reply) that cannot be decoded."""
+
+    DEVICE = "awg"
 
 
 class ScpiSyntaxError(AwgProtocolError):
@@ -81,9 +83,9 @@ def codes_from_normalized(samples: np.ndarray) -> np.ndarray:
     """Normalized samples in [-1, 1] -> int16 codes (round to nearest)."""
     s = np.asarray(samples, dtype=np.float64)
     if s.ndim != 1:
-        raise ValueError(f"waveform must be 1-D, got shape {s.shape}")
+        raise InvalidArgument("awg", "encode waveform", f"awg: waveform must be 1-D, got shape {s.shape}")
     if s.size and (not np.all(np.isfinite(s)) or np.max(np.abs(s)) > 1.0):
-        raise ValueError("waveform samples must be finite and within [-1, 1]")
+        raise InvalidArgument("awg", "encode waveform", "awg: waveform samples must be finite and within [-1, 1]")
     return np.rint(s * CODE_FULL_SCALE).astype(np.int16)
 
 
@@ -108,7 +110,7 @@ def decode_codes(payload: bytes) -> np.ndarray:
 
 def _num(x: float) -> str:
     if not math.isfinite(x):
-        raise ValueError(f"SCPI numeric argument must be finite, got {x!r}")
+        raise InvalidArgument("awg", "encode SCPI", f"awg: SCPI numeric argument must be finite, got {x!r}")
     return repr(float(x))
 
 

@@ -32,6 +32,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from urllib.parse import urlsplit
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
@@ -129,6 +130,19 @@ class LaserHvController:
         self._client = ModbusTcpClient(
             host, port=self.port, timeout=self.timeout_s, retries=0, trace_packet=self._trace_packet,
         )
+
+    @classmethod
+    def from_url(cls, url: str, **kwargs: object) -> LaserHvController:
+        """``modbus+tcp://host[:port]`` (port 502 by default), as the other drivers' ``from_url``;
+        a URL of any other form is a ConfigError naming it. Keywords go to the constructor."""
+        parts = urlsplit(url) if isinstance(url, str) else None
+        try:
+            port = parts.port if parts is not None else None
+        except ValueError:
+            port, parts = None, None
+        if parts is None or parts.scheme != "modbus+tcp" or not parts.hostname or parts.path not in ("", "/"):
+            raise ConfigError(f"{DEVICE}: controller URL must be modbus+tcp://host[:port], got {url!r}")
+        return cls(parts.hostname, 502 if port is None else port, **kwargs)  # type: ignore[arg-type]
 
     # -- lifecycle --------------------------------------------------------------------------
     def close(self) -> None:

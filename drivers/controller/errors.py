@@ -3,19 +3,26 @@
 Every error names the device ("controller"), the register or quantity involved and the offending
 value, so a log line alone says what went wrong. The hierarchy lets callers catch broadly
 (``ControllerError``) or narrowly (``DeviceRefused``, ``DeviceTimeout``, ``InterlockOpen``).
-Pure module: no I/O, importable by the simulator and by the driver alike.
+All classes sit in the tree of :mod:`drivers.errors` and carry ``device`` and ``command`` (the
+Modbus operation or the setpoint being written). Pure module: no I/O, importable by the simulator
+and by the driver alike.
 """
 
 from __future__ import annotations
 
+from drivers import errors as _e
+
 DEVICE = "controller"
 
 
-class ControllerError(Exception):
-    """Base class of every error raised by drivers.controller."""
+class ControllerError(_e.DeviceError):
+    """Base class of every error raised by drivers.controller (``device`` = "controller")."""
+
+    def __init__(self, message: str, *, command: str = "configure", device: str = DEVICE) -> None:
+        _e.DeviceError.__init__(self, device, command, message, message=message)
 
 
-class LimitError(ControllerError, ValueError):
+class LimitError(ControllerError, _e.InvalidValue):
     """A setpoint lies outside the allowed range; raised BEFORE anything is sent."""
 
     def __init__(self, quantity: str, value: float, low: float, high: float, unit: str) -> None:
@@ -26,46 +33,47 @@ class LimitError(ControllerError, ValueError):
         self.unit = unit
         super().__init__(
             f"{DEVICE}: {quantity} = {value!r} {unit} is outside the allowed range "
-            f"[{low:g}, {high:g}] {unit}; nothing was sent"
+            f"[{low:g}, {high:g}] {unit}; nothing was sent", command=f"write {quantity}",
         )
 
 
-class ConfigError(ControllerError, ValueError):
+class ConfigError(ControllerError, _e.InvalidValue):
     """Driver configuration (limits, tolerances) is inconsistent."""
 
 
-class ProtocolError(ControllerError):
+class ProtocolError(ControllerError, _e.ProtocolError):
     """A reply or register value that the register map does not allow."""
 
     def __init__(self, what: str, value: object, reason: str) -> None:
         self.what = what
         self.value = value
         self.reason = reason
-        super().__init__(f"{DEVICE}: bad {what} = {value!r}: {reason}")
+        super().__init__(f"{DEVICE}: bad {what} = {value!r}: {reason}", command=f"decode {what}")
 
 
-class DeviceTimeout(ControllerError, TimeoutError):
+class DeviceTimeout(ControllerError, _e.DeviceTimeout):
     """No reply after the bounded number of attempts."""
 
     def __init__(self, device: str, operation: str, attempts: int = 1) -> None:
-        self.device = device
         self.operation = operation
         self.attempts = attempts
-        super().__init__(f"{device}: no reply to {operation} after {attempts} attempt(s)")
+        super().__init__(f"{device}: no reply to {operation} after {attempts} attempt(s)",
+                         command=operation, device=device)
 
 
-class DeviceUnreachable(ControllerError, ConnectionError):
+class DeviceUnreachable(ControllerError, _e.DeviceGone):
     """The TCP connection to the controller could not be opened."""
 
     def __init__(self, device: str, host: str, port: int, operation: str) -> None:
-        self.device = device
         self.host = host
         self.port = port
         self.operation = operation
-        super().__init__(f"{device}: cannot connect to {host}:{port} for {operation}")
+        self.url = f"modbus+tcp://{host}:{port}"
+        super().__init__(f"{device}: cannot connect to {host}:{port} for {operation}",
+                         command=operation, device=device)
 
 
-class ModbusExceptionError(ControllerError):
+class ModbusExceptionError(ControllerError, _e.CommandRefused):
     """The device answered with a Modbus exception response (function code | 0x80)."""
 
     #: Modbus exception code this class stands for (None: any code not mapped to a subclass)
@@ -79,7 +87,8 @@ class ModbusExceptionError(ControllerError):
         super().__init__(
             f"{DEVICE}: {operation} of {register}"
             + ("" if value is None else f" = {value!r}")
-            + f" answered with Modbus exception {code} ({_EXC_NAMES.get(code, 'unknown')})"
+            + f" answered with Modbus exception {code} ({_EXC_NAMES.get(code, 'unknown')})",
+            command=operation,
         )
 
 
@@ -107,25 +116,25 @@ class DeviceBusy(ModbusExceptionError):
     code = 6
 
 
-class InterlockOpen(ControllerError):
+class InterlockOpen(ControllerError, _e.DeviceFaulted):
     """The safety interlock is open, so the laser / HV cannot be (or are no longer) on."""
 
     def __init__(self, operation: str) -> None:
         self.operation = operation
-        super().__init__(f"{DEVICE}: interlock is open; {operation} not possible")
+        super().__init__(f"{DEVICE}: interlock is open; {operation} not possible", command=operation)
 
 
-class DeviceFaulted(ControllerError):
+class DeviceFaulted(ControllerError, _e.DeviceFaulted):
     """Latched faults prevent the operation."""
 
     def __init__(self, operation: str, faults: frozenset) -> None:
         self.operation = operation
         self.faults = faults
         names = ", ".join(sorted(f.name for f in faults)) or "none"
-        super().__init__(f"{DEVICE}: {operation} blocked by latched faults: {names}")
+        super().__init__(f"{DEVICE}: {operation} blocked by latched faults: {names}", command=operation)
 
 
-class SettleError(ControllerError):
+class SettleError(ControllerError, _e.SettleError):
     """A readback did not reach its setpoint within tolerance in the allowed time."""
 
     def __init__(
@@ -140,7 +149,8 @@ class SettleError(ControllerError):
         self.waited_s = waited_s
         super().__init__(
             f"{DEVICE}: {quantity} readback {readback:g} {unit} did not reach setpoint "
-            f"{setpoint:g} {unit} (tolerance +/-{tolerance:g} {unit}) within {waited_s:g} s"
+            f"{setpoint:g} {unit} (tolerance +/-{tolerance:g} {unit}) within {waited_s:g} s",
+            command=f"settle {quantity}",
         )
 
 

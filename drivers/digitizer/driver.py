@@ -30,6 +30,7 @@ import numpy as np
 import usb.core
 
 from drivers.digitizer import protocol as p
+from drivers.errors import ProtocolError
 from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
@@ -50,7 +51,7 @@ class DigitizerError(DeviceStall):
     """The digitizer refused a request (stalled the control pipe): bad value or wrong state."""
 
 
-class DigitizerDataError(UsbDeviceError):
+class DigitizerDataError(UsbDeviceError, ProtocolError):
     """Segment stream that fails validation (magic, index, crc) for the named read."""
 
 
@@ -125,48 +126,81 @@ class DigitizerDriver:
         try:
             mask = p.channel_mask(tuple(channels))
         except p.DigitizerProtocolError as exc:
-            raise InvalidArgument(f"digitizer channels {channels!r}: {exc}") from None
+            raise InvalidArgument(DEVICE, "set_channels", f"digitizer channels {channels!r}: {exc}") from None
         self._out(p.Req.SET_CHANNELS, mask)
 
     def set_sample_rate(self, hz: float) -> None:
         if not (np.isfinite(hz) and hz >= 1):
-            raise InvalidArgument(f"digitizer sample rate must be >= 1 Hz, got {hz!r}")
+            raise InvalidArgument(DEVICE, "set_sample_rate", f"digitizer sample rate must be >= 1 Hz, got {hz!r}")
         self._out(p.Req.SET_SAMPLE_RATE, data=p.enc_u64(int(round(hz))))
 
     def set_record_length(self, n: int) -> None:
         if not 1 <= int(n) <= 0xFFFFFFFF:
-            raise InvalidArgument(f"digitizer record length {n!r} out of u32 range")
+            raise InvalidArgument(DEVICE, "set_record_length", f"digitizer record length {n!r} out of u32 range")
         self._out(p.Req.SET_RECORD_LENGTH, data=p.enc_u32(int(n)))
 
     def set_segments(self, n: int) -> None:
         if not 1 <= int(n) <= 0xFFFFFFFF:
-            raise InvalidArgument(f"digitizer segment count {n!r} out of u32 range")
+            raise InvalidArgument(DEVICE, "set_segments", f"digitizer segment count {n!r} out of u32 range")
         self._out(p.Req.SET_SEGMENTS, data=p.enc_u32(int(n)))
 
     def set_format(self, bits: int) -> None:
         if bits not in (8, 16):
-            raise InvalidArgument(f"digitizer sample format must be 8 or 16 bits, got {bits!r}")
+            raise InvalidArgument(DEVICE, "set_format", f"digitizer sample format must be 8 or 16 bits, got {bits!r}")
         self._out(p.Req.SET_FORMAT, bits)
 
     def set_input_range(self, volts: float) -> None:
         mv = int(round(volts * 1000.0)) if np.isfinite(volts) else -1
         if not 1 <= mv <= 0xFFFFFFFF:
-            raise InvalidArgument(f"digitizer input range {volts!r} V out of range")
+            raise InvalidArgument(DEVICE, "set_input_range", f"digitizer input range {volts!r} V out of range")
         self._out(p.Req.SET_RANGE, data=p.enc_u32(mv))
 
+    def set_resolution(self, bits: int) -> None:
+        """Quantize the samples to ``bits`` (8 .. the sample format's bits; set the format first).
+
+        A 12-bit resolution in the 16-bit format gives codes that are multiples of 16.
+        """
+        if isinstance(bits, bool) or not isinstance(bits, int) or not p.MIN_RESOLUTION_BITS <= bits <= 16:
+            raise InvalidArgument(DEVICE, "set_resolution",
+                                  f"digitizer resolution must be an integer of {p.MIN_RESOLUTION_BITS}..16 "
+                                  f"bits, got {bits!r}")
+        self._out(p.Req.SET_RESOLUTION, bits)
+
+    def set_bandwidth(self, hz: float | None) -> None:
+        """Anti-alias low-pass corner in Hz (the -3 dB point); ``None`` or 0 = full bandwidth.
+
+        The response is documented in docs/protocols/digitizer.md ("Bandwidth limit"); a corner at
+        or above half the sample rate leaves the record unfiltered.
+        """
+        value = 0.0 if hz is None else hz
+        if not (np.isfinite(value) and (value == 0 or 1 <= value <= p.MAX_BANDWIDTH_HZ)):
+            raise InvalidArgument(DEVICE, "set_bandwidth",
+                                  f"digitizer bandwidth must be 0 (full) or 1 .. {p.MAX_BANDWIDTH_HZ:g} Hz, "
+                                  f"got {hz!r}")
+        self._out(p.Req.SET_BANDWIDTH, data=p.enc_u64(int(round(value))))
+
     def configure(self, *, channels: tuple[str, ...], sample_rate_hz: float, record_length: int,
-                  segments: int, bits: int = 16, input_range_v: float = 1.0) -> p.Config:
-        """All settings in one call; returns the device's read-back configuration."""
+                  segments: int, bits: int = 16, input_range_v: float = 1.0,
+                  resolution_bits: int | None = None, bandwidth_hz: float | None = None) -> p.Config:
+        """All settings in one call; returns the device's read-back configuration.
+
+        ``bits`` is the sample format (8 or 16); ``resolution_bits`` the ADC resolution the samples
+        are quantized to (default: the format's bits); ``bandwidth_hz`` the anti-alias corner
+        (default: full bandwidth). Every call sets all of them, so nothing is left over from a
+        previous configuration.
+        """
         self.set_channels(channels)
         self.set_sample_rate(sample_rate_hz)
         self.set_record_length(record_length)
         self.set_segments(segments)
         self.set_format(bits)
+        self.set_resolution(bits if resolution_bits is None else resolution_bits)
+        self.set_bandwidth(bandwidth_hz)
         self.set_input_range(input_range_v)
         return self.config()
 
     def config(self) -> p.Config:
-        return p.decode_config(self._in(p.Req.GET_CONFIG, 24))
+        return p.decode_config(self._in(p.Req.GET_CONFIG, p.CONFIG_LEN))
 
     def arm(self) -> None:
         self._out(p.Req.ARM)
@@ -186,7 +220,7 @@ class DigitizerDriver:
         round trip when the caller already has it.
         """
         if count < 1 or first < 0:
-            raise InvalidArgument(f"digitizer read_segments(first={first}, count={count}) invalid")
+            raise InvalidArgument(DEVICE, "read_segments", f"digitizer read_segments(first={first}, count={count}) invalid")
         cfg = cfg or self.config()
         n_ch = len(cfg.channels)
         rec = p.segment_dtype(n_ch, cfg.record_length, cfg.bits)

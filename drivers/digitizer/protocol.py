@@ -57,10 +57,12 @@ class Req(enum.IntEnum):
     SET_SEGMENTS = 0x13    # OUT, data u32 segments per acquisition
     SET_FORMAT = 0x14      # OUT, wValue = bits (8 | 16)
     SET_RANGE = 0x15       # OUT, data u32 full-scale input range in millivolts (peak)
+    SET_RESOLUTION = 0x16  # OUT, wValue = resolution bits (8..format bits): quantization of the samples
+    SET_BANDWIDTH = 0x17   # OUT, data u64 Hz: anti-alias low-pass corner (0 = full bandwidth)
     ARM = 0x20             # OUT, no data
     ABORT = 0x21           # OUT, no data
     GET_STATUS = 0x30      # IN, 16 bytes (see Status)
-    GET_CONFIG = 0x31      # IN, 24 bytes (see Config)
+    GET_CONFIG = 0x31      # IN, 32 bytes (see Config)
     READ_SEGMENTS = 0x40   # OUT, data u32 first, u32 count -> stream on EP 0x81
 
 
@@ -75,6 +77,8 @@ assert HEADER_LEN == 32
 
 class DigitizerProtocolError(ProtocolError):
     """Digitizer bytes that cannot be decoded (bad magic, CRC, field values, lengths)."""
+
+    DEVICE = "digitizer"
 
 
 class State(enum.IntEnum):
@@ -214,17 +218,45 @@ def decode_status(data: bytes) -> Status:
     return Status(state, cap, ovr, refused, sent)
 
 
-_CONFIG = struct.Struct("<QIIIBBH")  # rate Hz, record length, segments, range mV, mask, bits, reserved
+# rate Hz, record length, segments, range mV, mask, format bits, resolution bits, reserved, bandwidth Hz
+_CONFIG = struct.Struct("<QIIIBBBBQ")
+CONFIG_LEN = _CONFIG.size  # 32
+#: Lowest resolution the ADC quantizes to; the highest is the sample format (8 or 16 bits).
+MIN_RESOLUTION_BITS = 8
+#: Highest anti-alias corner SET_BANDWIDTH accepts (the analog front end's own limit, Hz)
+MAX_BANDWIDTH_HZ = 5_000_000_000
+
+
+def check_resolution(resolution_bits: int, format_bits: int) -> None:
+    """A resolution the format can carry: 8 <= resolution <= format bits (DigitizerProtocolError)."""
+    bytes_per_sample(format_bits)
+    if not MIN_RESOLUTION_BITS <= resolution_bits <= format_bits:
+        raise DigitizerProtocolError(f"resolution must be {MIN_RESOLUTION_BITS}..{format_bits} bits for "
+                                     f"{format_bits}-bit samples, got {resolution_bits}")
 
 
 @dataclass(frozen=True)
 class Config:
+    """The digitizer's settings as GET_CONFIG reports them.
+
+    ``bits`` is the sample format (8 or 16 bits per stored sample); ``resolution_bits`` the ADC
+    resolution the samples are quantized to (0 when constructing = same as ``bits``): a 12-bit
+    record in the 16-bit format has codes that are multiples of 2**(16 - 12). ``bandwidth_hz`` is
+    the anti-alias low-pass corner, 0 for full bandwidth (see docs/protocols/digitizer.md).
+    """
+
     sample_rate_hz: int
     record_length: int
     segments: int
     input_range_mv: int
     channel_mask: int
     bits: int
+    resolution_bits: int = 0
+    bandwidth_hz: int = 0
+
+    def __post_init__(self) -> None:
+        if self.resolution_bits == 0:
+            object.__setattr__(self, "resolution_bits", self.bits)
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -233,16 +265,16 @@ class Config:
 
 def encode_config(c: Config) -> bytes:
     return _CONFIG.pack(c.sample_rate_hz, c.record_length, c.segments, c.input_range_mv,
-                        c.channel_mask, c.bits, 0)
+                        c.channel_mask, c.bits, c.resolution_bits, 0, c.bandwidth_hz)
 
 
 def decode_config(data: bytes) -> Config:
     if len(data) != _CONFIG.size:
         raise DigitizerProtocolError(f"config must be {_CONFIG.size} bytes, got {len(data)}")
-    rate, rl, seg, rng, mask, bits, _r = _CONFIG.unpack(data)
+    rate, rl, seg, rng, mask, bits, res, _r, bw = _CONFIG.unpack(data)
     validate_mask(mask)
-    bytes_per_sample(bits)
-    return Config(rate, rl, seg, rng, mask, bits)
+    check_resolution(res, bits)
+    return Config(rate, rl, seg, rng, mask, bits, res, bw)
 
 
 # ------------------------------------------------------------------------- segment header

@@ -1,9 +1,13 @@
 """Host driver of the FPSA controller FPGA (§4.3.3, Fig. 4-22): typed methods over the wire
-codec in ``protocol.py`` and any byte channel from ``drivers.transport``.
+codec in ``protocol.py`` and a :class:`drivers.transport.ByteChannel`.
 
-The same class drives the Cmod-S7 on ``/dev/ttyUSB1``, the simulated FPGA on a pty path, or a
-pre-opened serial-like object (tests pass the simulator's in-memory pipe). There is no simulator
-switch: the channel is configuration.
+The seam is the channel (pyserial's idea; httpx's transport seam is the model): the driver takes
+any object with ``read``/``write``/``timeout`` (``FpsaController(channel, reopen=...)``), and
+``FpsaController.from_url(url)`` opens one through :func:`drivers.transport.open_channel`. The same
+class drives the Cmod-S7 on ``/dev/ttyUSB1``, the simulated FPGA on a pty path, or the simulator's
+in-memory pipe; tests wrap a channel to drop or corrupt bytes. There is no simulator switch: the
+channel is configuration. (``FpsaController(url)`` still works for one release, with a
+DeprecationWarning.)
 
 Reliability (stop-and-wait with idempotent retries): every command gets a fresh ``seq``; a
 retry re-sends the *identical* frame (same seq) after a lone 0x00 that flushes any garbage the
@@ -14,11 +18,12 @@ device and the command (or :class:`LinkError` if answers kept arriving garbled).
 final and raised as :class:`NakError`.
 
 Reconnect: when the port itself fails (the USB-serial adapter unplugged, the pty closed: pyserial
-raises ``SerialException``/``OSError``), a driver opened from a URL closes it and reopens the SAME
-URL before the next attempt. The URL should therefore be a stable name (``/dev/serial/by-id/...`` in
+raises ``SerialException``/``OSError``), a driver with ``reopen`` closes it and opens a fresh
+channel before the next attempt (``from_url`` reopens the SAME URL); without ``reopen`` the failure
+is final, a :class:`~drivers.errors.DeviceGone` naming device and command. The URL should therefore be a stable name (``/dev/serial/by-id/...`` in
 the lab, the bench's symlink in simulation) that follows the device to its new node. The retry
 budget is shared with timeouts, so a port that stays away ends in :class:`DeviceTimeout` (or
-:class:`~drivers.transport.TransportError` when it cannot even be reopened) naming the device.
+:class:`~drivers.errors.DeviceGone` when it cannot even be reopened) naming the device.
 
 Patterns are validated before anything is sent: shape, range, and that every row is wire-bonded
 (§4.3.3: one row in four is not). The protocol can only ever address one row per pixel
@@ -28,15 +33,18 @@ rows at once.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
+import warnings
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import serial
 
-from drivers.transport import DeviceTimeout, TracedChannel, TransportError, open_channel
+from drivers.errors import DeviceGone, InvalidValue
+from drivers.transport import ByteChannel, DeviceTimeout, TracedChannel, TransportError, open_channel
 
 from . import protocol as p
 from .errors import LinkError, NakError, PatternError, ProtocolError
@@ -49,13 +57,42 @@ _MIN_CHUNK_PIXELS = 32        # smallest chunk the upload falls back to on a noi
 __all__ = ["DEFAULT_BAUDRATE", "FpsaController", "LinkError"]
 
 
+def _check_settings(device: str, timeout_s: float, retries: int, backoff_s: float,
+                    chunk_pixels: int) -> None:
+    if not timeout_s > 0:
+        raise InvalidValue(device, "configure", f"{device}: timeout_s must be > 0, got {timeout_s!r}")
+    if not (isinstance(retries, int) and retries >= 0):
+        raise InvalidValue(device, "configure", f"{device}: retries must be an int >= 0, got {retries!r}")
+    if not backoff_s >= 0:
+        raise InvalidValue(device, "configure", f"{device}: backoff_s must be >= 0, got {backoff_s!r}")
+    if not 1 <= chunk_pixels <= p.MAX_CHUNK_PIXELS:
+        raise InvalidValue(device, "configure", f"{device}: chunk_pixels must be 1..{p.MAX_CHUNK_PIXELS}")
+
+
+def _url_opener(url: str, baudrate: int, timeout_s: float, trace: bool,
+                device: str) -> Callable[[], ByteChannel]:
+    """A function that opens ``url`` afresh each call (the driver's ``reopen``)."""
+    return functools.partial(open_channel, url, baudrate=baudrate, timeout_s=timeout_s, trace=trace,
+                             device=device)
+
+
 class FpsaController:
-    """Typed, validated access to the FPSA controller over a byte channel."""
+    """Typed, validated access to the FPSA controller over a :class:`ByteChannel`.
+
+    ``FpsaController(channel, reopen=...)`` drives any open channel; ``reopen`` (optional) opens a
+    fresh channel to the same device when the port itself fails (see the module docstring).
+    ``FpsaController.from_url(url, ...)`` is the usual way in: it opens the URL through
+    :func:`drivers.transport.open_channel` and reopens the same URL on a port failure. The driver
+    closes the channels it opened (through ``from_url`` or ``reopen``); a channel passed in is the
+    caller's to close.
+    """
 
     def __init__(
         self,
-        url_or_serial: str | Any,
+        channel: ByteChannel | str,
         *,
+        reopen: Callable[[], ByteChannel] | None = None,
+        url: str | None = None,
         timeout_s: float = 0.5,
         retries: int = 3,
         backoff_s: float = 0.01,
@@ -69,14 +106,7 @@ class FpsaController:
         chunk_pixels: int = 1024,
         device: str = "fpsa",
     ) -> None:
-        if not timeout_s > 0:
-            raise ValueError(f"{device}: timeout_s must be > 0, got {timeout_s!r}")
-        if not (isinstance(retries, int) and retries >= 0):
-            raise ValueError(f"{device}: retries must be an int >= 0, got {retries!r}")
-        if not backoff_s >= 0:
-            raise ValueError(f"{device}: backoff_s must be >= 0, got {backoff_s!r}")
-        if not 1 <= chunk_pixels <= p.MAX_CHUNK_PIXELS:
-            raise ValueError(f"{device}: chunk_pixels must be 1..{p.MAX_CHUNK_PIXELS}")
+        _check_settings(device, timeout_s, retries, backoff_s, chunk_pixels)
         self.device = device
         self.timeout_s = float(timeout_s)
         self.retries = retries
@@ -84,25 +114,24 @@ class FpsaController:
         self.chunk_pixels = chunk_pixels
         self._sleep = sleep
         self._monotonic = monotonic
-        self.url = url_or_serial if isinstance(url_or_serial, str) else None
-        self._baudrate = baudrate
-        self._trace = trace
         self.reconnect_count = 0
         self._port_broken = False
-        if isinstance(url_or_serial, str):
-            self._port = open_channel(url_or_serial, baudrate=baudrate, timeout_s=timeout_s,
-                                      trace=trace, device=device)
-            self._owns_port = True
-        else:
-            if not (hasattr(url_or_serial, "read") and hasattr(url_or_serial, "write")):
-                raise TypeError(f"{device}: expected a URL or a serial-like object with "
-                                f"read()/write(), got {type(url_or_serial).__name__}")
-            port = url_or_serial
-            if hasattr(port, "timeout"):
-                # an empty read must mean "timeout_s passed": never block forever
-                port.timeout = timeout_s
-            self._port = TracedChannel(port, device=device) if trace else port
-            self._owns_port = False
+        owns = False
+        if isinstance(channel, str):
+            # The pre-seam call ``FpsaController(url, baudrate=...)``, kept for one release.
+            warnings.warn("FpsaController(url) is deprecated: use FpsaController.from_url(url)",
+                          DeprecationWarning, stacklevel=2)
+            url, reopen = channel, _url_opener(channel, baudrate, timeout_s, trace, device)
+            channel, trace, owns = reopen(), False, True
+        elif not isinstance(channel, ByteChannel):
+            raise TypeError(f"{device}: expected a ByteChannel (read(), write(), timeout) or use "
+                            f"FpsaController.from_url(url), got {type(channel).__name__}")
+        self.url = url
+        self._reopen = reopen
+        self._owns_port = owns
+        # an empty read must mean "timeout_s passed": never block forever
+        channel.timeout = timeout_s
+        self._port: ByteChannel = TracedChannel(channel, device=device) if trace else channel
         self._parser = p.FrameParser()
         self._seq = 0
         self._rows = rows
@@ -114,28 +143,47 @@ class FpsaController:
         self.rx_bytes = 0
         self.retry_count = 0
 
+    @classmethod
+    def from_url(cls, url: str, *, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 0.5,
+                 trace: bool = False, device: str = "fpsa", **kwargs: Any) -> FpsaController:
+        """Open ``url`` (any scheme of :data:`drivers.transport.SCHEMES`, ``trace+`` prefix allowed)
+        and drive it; a failed port is closed and the SAME url reopened before the next attempt.
+
+        Raises :class:`~drivers.errors.TransportError` (or :class:`~drivers.errors.DeviceGone`)
+        naming the device when the URL cannot be opened. Other keywords go to the constructor.
+        """
+        _check_settings(device, timeout_s, kwargs.get("retries", 0), kwargs.get("backoff_s", 0.0),
+                        kwargs.get("chunk_pixels", 1))
+        opener = _url_opener(url, baudrate, timeout_s, trace, device)
+        drv = cls(opener(), reopen=opener, url=url, timeout_s=timeout_s, device=device, **kwargs)
+        drv._owns_port = True
+        return drv
+
     # --- lifecycle ------------------------------------------------------------------------------
     def close(self) -> None:
         if self._owns_port:
             self._port.close()
 
     def reconnect(self) -> None:
-        """Close and reopen the port by its URL (raises TransportError if it cannot be opened).
+        """Close the port and open a fresh one through ``reopen`` (TransportError if impossible).
 
-        A pre-opened serial-like object cannot be reopened: TransportError says so.
+        A driver given a channel without ``reopen`` cannot reconnect: TransportError says so.
         """
-        if not self._owns_port or self.url is None:
-            raise TransportError(self.device, "cannot reconnect a port that was passed in open")
+        if self._reopen is None:
+            raise TransportError(self.device, "reconnect",
+                                 "cannot reopen a channel that was passed in without reopen=")
         try:
             self._port.close()
         except Exception:  # a vanished device may fail to close; the reopen is what matters
             pass
-        self._port = open_channel(self.url, baudrate=self._baudrate, timeout_s=self.timeout_s,
-                                  trace=self._trace, device=self.device)
+        port = self._reopen()
+        port.timeout = self.timeout_s
+        self._port = port
+        self._owns_port = True
         self._parser = p.FrameParser()
         self._port_broken = False
         self.reconnect_count += 1
-        log.warning("%s: reopened %s", self.device, self.url)
+        log.warning("%s: reopened %s", self.device, self.url or "its channel")
 
     def __enter__(self) -> FpsaController:
         return self
@@ -158,7 +206,7 @@ class FpsaController:
                 log.warning("%s: %s attempt %d/%d after %s (backoff %.3g s)", self.device,
                             cmd.name, attempt + 1, attempts, failure, delay)
                 self._sleep(delay)
-            if self._port_broken and self._owns_port:
+            if self._port_broken and self._reopen is not None:
                 try:
                     self.reconnect()
                 except TransportError as exc:
@@ -175,9 +223,8 @@ class FpsaController:
                 log.warning("%s: port error during %s: %s", self.device, cmd.name, exc)
                 self._port_broken = True
                 failure = "port error"
-                if not self._owns_port:
-                    raise TransportError(self.device, f"port error during {cmd.name}: {exc}",
-                                         url=self.url) from exc
+                if self._reopen is None:
+                    raise DeviceGone(self.device, cmd.name, f"port error: {exc}", url=self.url) from exc
                 continue
             if isinstance(outcome, p.Response):
                 if outcome.ok:
@@ -188,13 +235,13 @@ class FpsaController:
                 raise NakError(self.device, cmd.name, outcome.code, outcome.detail)
             failure = outcome
         if failure == "port gone" and reopen_error is not None:
-            raise TransportError(self.device, f"{cmd.name}: port could not be reopened after "
-                                 f"{attempts} attempts ({reopen_error})", url=self.url) from reopen_error
+            raise DeviceGone(self.device, cmd.name, f"port could not be reopened after {attempts} "
+                             f"attempts ({reopen_error})", url=self.url) from reopen_error
         if failure in ("timeout", "port error"):
             raise DeviceTimeout(self.device, cmd.name, timeout_s=self.timeout_s,
                                 attempts=attempts, url=self.url)
         raise LinkError(f"{self.device}: no valid answer to {cmd.name} after {attempts} "
-                        f"attempts (last: {failure})")
+                        f"attempts (last: {failure})", device=self.device, command=cmd.name)
 
     def _await(self, seq: int, cmd: p.Cmd) -> p.Response | str:
         deadline = self._monotonic() + self.timeout_s
@@ -227,7 +274,7 @@ class FpsaController:
         mask = np.zeros(rows, bool)
         idx = np.asarray(bonded, dtype=np.int64).ravel()
         if idx.size and (idx.min() < 0 or idx.max() >= rows):
-            raise ValueError(f"{self.device}: bonded_rows must lie in 0..{rows - 1}")
+            raise InvalidValue(self.device, "configure", f"{self.device}: bonded_rows must lie in 0..{rows - 1}")
         mask[idx] = True
         self._bonded = mask
 
@@ -257,17 +304,18 @@ class FpsaController:
 
     def _validate(self, pixels: Any, what: str) -> np.ndarray:
         rows, cols, bonded = self._geometry()
+        ctx = {"device": self.device, "command": "SET_PIXEL" if what == "SET_PIXEL" else "UPLOAD_PATTERN"}
         arr = np.asarray(pixels)
         if arr.ndim != 2 or arr.shape[1] != 2:
-            raise PatternError(f"{self.device}: {what} must have shape (n, 2), got {arr.shape}")
+            raise PatternError(f"{self.device}: {what} must have shape (n, 2), got {arr.shape}", **ctx)
         if arr.shape[0] == 0:
-            raise PatternError(f"{self.device}: {what} is empty")
+            raise PatternError(f"{self.device}: {what} is empty", **ctx)
         if not np.issubdtype(arr.dtype, np.integer):
-            raise PatternError(f"{self.device}: {what} must be integers, got dtype {arr.dtype}")
+            raise PatternError(f"{self.device}: {what} must be integers, got dtype {arr.dtype}", **ctx)
         limit = min(rows * cols, 0xFFFF)
         if arr.shape[0] > limit:
             raise PatternError(f"{self.device}: {what} has {arr.shape[0]} pixels, more than "
-                               f"{limit} ({rows}x{cols})")
+                               f"{limit} ({rows}x{cols})", **ctx)
         r = arr[:, 0].astype(np.int64)
         c = arr[:, 1].astype(np.int64)
         bad_r = (r < 0) | (r >= rows)
@@ -284,7 +332,7 @@ class FpsaController:
             else:
                 why = f"row {ri} is not wire-bonded"
             raise PatternError(f"{self.device}: {what} pixel {i} (row {ri}, col {ci}): {why}",
-                               index=i, row=ri, col=ci)
+                               index=i, row=ri, col=ci, **ctx)
         return np.stack([r, c], axis=1).astype(np.uint8)
 
     def set_pixel(self, row: int, col: int) -> None:
@@ -339,9 +387,9 @@ class FpsaController:
         try:
             payload = t.pack()
         except ProtocolError as exc:
-            raise ValueError(f"{self.device}: {exc}") from exc
+            raise InvalidValue(self.device, "SET_TIMING", f"{self.device}: {exc}") from exc
         if t.triggers_per_pixel < 1:
-            raise ValueError(f"{self.device}: triggers_per_pixel must be >= 1")
+            raise InvalidValue(self.device, "SET_TIMING", f"{self.device}: triggers_per_pixel must be >= 1")
         self._transact(p.Cmd.SET_TIMING, payload)
         return t
 

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
 
 import numpy as np
+from cobs import cobs as _cobs
 
 from .errors import CrcError, FramingError, LengthError, PayloadError, ProtocolError
 
@@ -109,38 +110,19 @@ def crc32(data: bytes) -> int:
 
 
 # --- COBS -------------------------------------------------------------------------------------
+# The `cobs` package (C extension, pure-Python fallback) does the byte stuffing; these wrappers
+# keep the codec's names and turn its DecodeError into our typed FramingError.
 def cobs_encode(data: bytes) -> bytes:
     """Consistent-overhead byte stuffing: output contains no 0x00 (Cheshire & Baker 1999)."""
-    out = bytearray()
-    for seg in bytes(data).split(b"\x00"):
-        while len(seg) >= 254:
-            out.append(0xFF)
-            out += seg[:254]
-            seg = seg[254:]
-        out.append(len(seg) + 1)
-        out += seg
-    return bytes(out)
+    return _cobs.encode(bytes(data))
 
 
 def cobs_decode(enc: bytes) -> bytes:
     """Inverse of :func:`cobs_encode`; raises :class:`FramingError` on malformed input."""
-    out = bytearray()
-    i, n = 0, len(enc)
-    while i < n:
-        code = enc[i]
-        if code == 0:
-            raise FramingError(f"COBS: zero code byte at offset {i}")
-        end = i + code
-        if end > n:
-            raise FramingError(f"COBS: block at offset {i} (code {code}) overruns frame of {n} B")
-        block = enc[i + 1:end]
-        if 0 in block:
-            raise FramingError(f"COBS: zero byte inside block at offset {i}")
-        out += block
-        i = end
-        if code != 0xFF and i < n:
-            out.append(0)
-    return bytes(out)
+    try:
+        return _cobs.decode(bytes(enc))
+    except _cobs.DecodeError as exc:
+        raise FramingError(f"COBS: {exc}") from None
 
 
 # --- frames -----------------------------------------------------------------------------------

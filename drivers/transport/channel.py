@@ -14,11 +14,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import serial
 
-from .errors import TransportError
+from .errors import DeviceGone, TransportError
 from .trace import TracedChannel
 
 TRACE_PREFIX = "trace+"
@@ -26,17 +26,21 @@ TRACE_PREFIX = "trace+"
 
 @runtime_checkable
 class ByteChannel(Protocol):
-    """The serial-like surface drivers rely on (a ``serial.Serial`` satisfies it)."""
+    """The byte seam every serial-style driver talks through (pyserial's ``Serial`` API, minimal).
+
+    ``read(size)`` returns up to ``size`` bytes and returns early (possibly with none) when
+    ``timeout`` seconds pass, which is how a driver detects a silent device; ``write`` sends all
+    of ``data``. A ``serial.Serial`` from :func:`open_channel`, the simulator's in-memory pipe and
+    a test's fault-injecting wrapper all satisfy it. Optional extras a driver uses when present:
+    ``in_waiting`` (read what is buffered in one call) and ``close()`` (called only on channels
+    the driver opened itself).
+    """
 
     timeout: float | None
 
     def read(self, size: int = 1) -> bytes: ...
 
     def write(self, data: bytes) -> int | None: ...
-
-    def reset_input_buffer(self) -> None: ...
-
-    def close(self) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -74,23 +78,23 @@ def open_channel(
     write_timeout_s: float | None = 2.0,
     trace: bool = False,
     device: str = "device",
-) -> Any:
+) -> ByteChannel:
     """Open ``url`` and return a serial-like channel (raises :class:`TransportError`).
 
     ``timeout_s`` is the read timeout: ``read(n)`` returns early with fewer bytes (possibly
     none) when it expires, which is how drivers detect a silent device.
     """
     if not isinstance(url, str) or not url:
-        raise TransportError(device, f"channel URL must be a non-empty string, got {url!r}")
+        raise TransportError(device, "open", f"channel URL must be a non-empty string, got {url!r}")
     if url.startswith(TRACE_PREFIX):
         trace = True
         url = url[len(TRACE_PREFIX):]
     scheme, target = split_scheme(url)
     if scheme not in SCHEMES:
         known = ", ".join(f"{s}://" if s else "<path>" for s in SCHEMES)
-        raise TransportError(device, f"unknown URL scheme {scheme!r} (supported: {known})", url=url)
+        raise TransportError(device, "open", f"unknown URL scheme {scheme!r} (supported: {known})", url=url)
     if not baudrate > 0:
-        raise TransportError(device, f"baudrate must be > 0, got {baudrate!r}", url=url)
+        raise TransportError(device, "open", f"baudrate must be > 0, got {baudrate!r}", url=url)
     try:
         port = serial.serial_for_url(
             target,
@@ -100,7 +104,7 @@ def open_channel(
             do_not_open=False,
         )
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise TransportError(device, f"cannot open: {exc}", url=url) from exc
+        raise DeviceGone(device, "open", f"cannot open: {exc}", url=url) from exc
     if trace:
         return TracedChannel(port, device=device)
     return port

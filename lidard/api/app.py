@@ -18,15 +18,18 @@ from pathlib import Path
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 
 from ..config import Config
 from ..errors import LidardError
-from ..instrument_api import Instrument
+from ..instrument.protocol import Instrument
 from ..jobs import ScanWorker, software_version
+from ..pointcloud import scene_identity
 from ..store import Store
 from . import control
 from .control import BodySizeLimit, ControlLock, LockHeld
-from .routers import calibration, devices, health, scans, selftest, sim
+from ..live.points import LivePoints
+from .routers import calibration, devices, health, scans, selftest, sim, viewer
 
 log = logging.getLogger(__name__)
 
@@ -64,16 +67,29 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         meta = {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
                 "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
                 "detector": cfg.detector.model_dump(), "config": cfg.source}
+        if inst.simulated and cfg.sim.enabled:
+            # the sidecar names the world a simulated scan saw (PUT /sim/scene replaces this entry)
+            meta["scene"] = scene_identity(cfg.resolve_path(cfg.sim.scene))
         worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=meta,
                             optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
         app.state.config, app.state.instrument, app.state.store = cfg, inst, st
         app.state.worker, app.state.optics = worker, optics
+        app.state.live = LivePoints()
+        worker.add_point_listener(app.state.live)  # the web viewer's incremental points
+        app.state.foxglove = None
+        if cfg.live.foxglove:
+            from ..live.foxglove_server import FoxgloveLive  # opt-in; starts a WebSocket server
+            app.state.foxglove = FoxgloveLive(cfg.live.foxglove_host, cfg.live.foxglove_port, devices=inst.devices)
+            worker.add_point_listener(app.state.foxglove.on_points)
+            worker.add_event_listener(app.state.foxglove.on_event)
         worker.start()
         try:
             yield
         finally:
             worker.stop()
+            if app.state.foxglove is not None:
+                app.state.foxglove.close()
             if close_instrument:
                 try:
                     inst.close()
@@ -90,8 +106,10 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)
     control.document_gates(app)
-    for r in (health.router, devices.router, scans.router, calibration.router, sim.router, selftest.router):
+    for r in (health.router, devices.router, scans.router, calibration.router, sim.router, selftest.router,
+              viewer.router):
         app.include_router(r)
+    app.mount("/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer")
 
     @app.exception_handler(LidardError)
     async def lidard_error(request: Request, exc: LidardError) -> JSONResponse:

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import Depends, Request
 
 from ..config import Config
-from ..instrument_api import Instrument
+from ..instrument.protocol import Instrument
 from ..jobs import ScanWorker
 from ..physics.optics import FpsaOptics
 from ..store import Store

@@ -10,8 +10,40 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
-from ..instrument_api import OutputFormat, PatternKind, ScanRequest
+from ..instrument_api import PatternKind, ScanRequest
 
+# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs
+FileFormat = Literal["ply", "las", "npz", "pcd", "mcap"]
+
+
+def describe_errors(errors: list[dict[str, Any]]) -> str:
+    """One line for a list of validation errors (pydantic's, or the daemon's 422 ``detail``):
+    ``averages: Input should be greater than or equal to 1; ...``.
+
+    The single formatter for the daemon's 422 bodies and for lidarctl's own check of a request
+    before it starts a bench, so both say the same words. The ``body`` location prefix and
+    pydantic's "Value error, " are dropped, and a message that already names its field (the scan
+    planner's "rows: ...") is not prefixed twice.
+    """
+    parts = []
+    for e in errors:
+        loc = [str(x) for x in (e.get("loc") or ())]
+        if loc and loc[0] == "body":
+            loc = loc[1:]
+        where = ".".join(loc)
+        msg = str(e.get("msg", "")).removeprefix("Value error, ")
+        parts.append(msg if not where or msg.startswith(where) else f"{where}: {msg}")
+    return "; ".join(parts)
+
+
+def check_scan_body(body: dict[str, Any]) -> "ScanCreate":
+    """Validate a POST /scans body exactly as the daemon will; ``ValueError`` carries
+    :func:`describe_errors`' line."""
+    from pydantic import ValidationError
+    try:
+        return ScanCreate.model_validate(body)
+    except ValidationError as exc:
+        raise ValueError(describe_errors(exc.errors())) from None
 
 
 class _In(BaseModel):
@@ -33,7 +65,7 @@ class ScanCreate(_In):
     pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
     averages: StrictInt = Field(default=1, ge=1, le=100)
     max_range_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False, strict=True)
-    formats: list[OutputFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=3)
+    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=5)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
 

@@ -14,7 +14,7 @@ simulated bench uses, called directly instead of through the byte protocols:
 * the bench's digitizer model: 16-bit records, the 8-bit core's quantization noise added as white
   noise when the record is wider than the core (``sim_devices.bench``), Wiener phase noise of the
   laser's linewidth, the monitor MZI when phase-noise compensation is on;
-* the daemon's ADC plan (rate from the maximum range, ``lidard.physics.chirp.adc_rate_hz``) and its
+* the daemon's ADC plan (``lidard.instrument.scan_loop.adc_plan``: rate from the maximum range) and its
   DSP (``lidard.dsp.frame.FrameDsp``: range FFT, OS-CFAR, estimator, up/down pairing), unchanged.
 
 The chirp is the LINEARIZED one (an ideal triangle of ``chirp.excursion_hz`` over ``chirp.ramp_s``):
@@ -34,8 +34,8 @@ import numpy as np
 from lidard.config import Config
 from lidard.dsp.crlb import crlb_freq_var
 from lidard.dsp.frame import FrameDsp, FrameResult
+from lidard.instrument.scan_loop import adc_plan as daemon_adc_plan
 from lidard.physics.budget import quantization_asd, snr_db
-from lidard.physics.chirp import adc_rate_hz
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world.scene import Scene
 from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory_from_frequency
@@ -43,24 +43,20 @@ from sim_devices.world.world import World
 
 from .spec import SweepTask
 
-RECORD_BITS = 16          # the daemon's record format (lidard.instrument._adc_plan)
+RECORD_BITS = 16          # the daemon's record format (lidard.instrument.scan_loop.adc_plan)
 
 
 def adc_plan(cfg: Config, max_range_m: float) -> tuple[float, int]:
-    """(ADC rate, samples per ramp) exactly as the daemon plans a scan to ``max_range_m``.
-
-    Mirrors ``lidard.instrument`` (which this module must not import: it owns hardware), so a change
-    there has to be made here too; tests/offline compare the two.
-    """
-    c, a = cfg.chirp, cfg.adc
-    doppler = 2 * cfg.scan.max_speed_mps / c.wavelength_m
-    fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
-                     max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
-    return fs, int(round(fs * c.ramp_s))
+    """(ADC rate, samples per ramp): the daemon's own plan for a scan to ``max_range_m``."""
+    plan = daemon_adc_plan(cfg, max_range_m)
+    return plan.fs_hz, plan.ramp_samples
 
 
 def phase_noise_on(cfg: Config, max_range_m: float) -> bool:
-    """The daemon's rule for scan.phase_noise_compensation ("auto": round trip >= 2 monitor delays)."""
+    """The daemon's rule for scan.phase_noise_compensation ("auto": round trip >= 2 monitor delays).
+
+    The scan loop's version takes a whole ScanRequest; tests/offline compare the two.
+    """
     mode = cfg.scan.phase_noise_compensation
     if mode == "auto":
         return 2 * max_range_m / C_M_PER_S >= 2 * cfg.monitor.delay_s

@@ -24,11 +24,14 @@ def test_ca_alpha_gives_the_design_pfa():
 
 
 def test_os_alpha_solves_the_exact_equation_and_is_cached():
+    os_cfar_alpha.cache_clear()
     alpha = os_cfar_alpha(16, 12, 1e-4)
     assert os_cfar_pfa(alpha, 16, 12) == pytest.approx(1e-4, rel=1e-8)
     # k = N = 1 reduces to a single exponential cell: Pfa = 1/(1+alpha)
     assert os_cfar_alpha(1, 1, 0.01) == pytest.approx(99.0, rel=1e-9)
-    assert os_cfar_alpha(16, 12, 1e-4) is alpha or os_cfar_alpha.cache_info().hits > 0
+    hits = os_cfar_alpha.cache_info().hits
+    assert os_cfar_alpha(16, 12, 1e-4) == alpha          # same value ...
+    assert os_cfar_alpha.cache_info().hits == hits + 1   # ... from the cache, not solved again
     with pytest.raises(DspInputError, match="rank"):
         os_cfar_alpha(16, 17, 1e-4)
     with pytest.raises(DspInputError, match="pfa"):

@@ -19,8 +19,8 @@ from plyfile import PlyData
 
 from lidard.config import load_config
 from lidard.instrument import SAFETY_CHECK_S, open_instrument
-from lidard.jobs import ScanWorker
 from lidard.instrument_api import ScanRequest
+from lidard.jobs import ScanWorker
 from lidard.store import Store
 
 ROI = ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0)   # 384 bonded pixels
@@ -373,10 +373,7 @@ def test_child_bench_faults_travel_over_the_control_socket():
 
 
 def test_adaptive_scan_failing_in_its_dense_pass_keeps_the_coarse_points(tmp_path):
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "lidard"))
-    from lidard_fakes import FakeInstrument
+    from tests.helpers.fakes import FakeInstrument
 
     class DenseFails(FakeInstrument):
         def run_scan(self, request, progress, cancel, calibration=None):
@@ -401,7 +398,6 @@ def test_adaptive_scan_failing_in_its_dense_pass_keeps_the_coarse_points(tmp_pat
 
 
 def test_devices_answers_busy_from_the_last_check_while_a_job_holds_the_instrument(r):
-    import threading
     inst = r["inst"]
     fresh = inst.devices()                                 # a real check: every device answers
     assert all(d["connected"] for d in fresh) and not any(d["state"].startswith("busy") for d in fresh)

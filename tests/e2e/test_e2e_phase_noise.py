@@ -15,7 +15,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.instrument import open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument import ScanRequest
 
 C = 299_792_458.0
 WALL_Z_M = 3 * 200e-9 * C / 2          # 89.94 m: round trip 3 tau_m

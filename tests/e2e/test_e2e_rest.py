@@ -3,19 +3,17 @@
 import io
 
 import numpy as np
-from fastapi.testclient import TestClient
 from plyfile import PlyData
 
-from lidard.api.app import create_app
 from lidard.config import load_config
 from lidard.instrument import open_instrument
+from tests.helpers.api import app_client
 
 
 def test_post_scan_poll_and_fetch_points_over_rest(tmp_path):
     cfg = load_config("config/sim.toml")
     inst = open_instrument(cfg, scene_path="config/scenes/cal_letters.toml", bench="embedded")
-    app = create_app(cfg, instrument=inst, data_dir=str(tmp_path))
-    with TestClient(app) as client:
+    with app_client(tmp_path, inst, cfg) as client:
         assert client.get("/scanner").json()["bonded_rows"] == 96
         r = client.post("/scans", json={"pattern": "roi", "rows": [44, 46], "cols": [60, 68],
                                         "averages": 2, "max_range_m": 2.0, "formats": ["ply"]})

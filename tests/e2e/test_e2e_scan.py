@@ -12,7 +12,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.instrument import open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument import ScanRequest
 from sim_devices.world.scene import Scene
 
 
@@ -35,7 +35,9 @@ def embedded():
 
 def test_linearization_through_the_mzi_reduces_nonlinearity(embedded):
     _, _, cal = embedded
-    assert cal.converged or len(cal.iterations) <= 11
+    # the ILC stops on its own criterion (noise floor / no further improvement), well before max_iter
+    assert cal.converged, cal
+    assert len(cal.iterations) <= 11
     assert cal.reduction["up"] > 100 and cal.reduction["down"] > 100
 
 
@@ -105,7 +107,7 @@ def test_cancel_keeps_the_points_so_far(embedded):
         if p.pixels_done > 0:
             cancel.set()
 
-    import lidard.instrument as mod
+    import lidard.instrument.scan_loop as mod
     old = mod.BATCH_BYTES
     mod.BATCH_BYTES = 64 * 1024          # small batches so the scan has several
     try:

@@ -27,8 +27,8 @@ def test_awg_reply_parsers_raise_only_protocol_errors(data):
     for fn in (awg.parse_error, awg.parse_int, awg.decode_codes):
         try:
             fn(data)
-        except usbtmc.ProtocolError:
-            pass
+        except usbtmc.ProtocolError as exc:
+            assert exc.device == "awg" and exc.command == "decode"
 
 
 @FUZZ

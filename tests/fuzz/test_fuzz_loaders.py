@@ -9,19 +9,15 @@ targets can be cast against).
 """
 
 import copy
-import sys
 import tomllib
-from pathlib import Path
 
 import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-sys.path.insert(0, str(Path(__file__).parent))
-from _toml_emit import dumps  # noqa: E402
-
-from lidard.config import CONFIG_DIR, Config, ConfigError, load_config  # noqa: E402
-from sim_devices.world.scene import Scene, SceneError  # noqa: E402
+from lidard.config import CONFIG_DIR, Config, ConfigError, load_config
+from sim_devices.world.scene import Scene, SceneError
+from tests.helpers.toml_emit import dumps
 
 FUZZ = settings(max_examples=100, derandomize=True, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -77,13 +73,19 @@ def _emit(doc):
         return None
 
 
+def _one_clear_line(exc):
+    # a refused file says why in one line: not empty, no multi-line pydantic dump
+    msg = str(exc).strip()
+    assert msg and "\n" not in msg, msg
+
+
 def _load_text(tmp_path, text):
     path = tmp_path / "fuzz.toml"
     path.write_text(text, encoding="utf-8")
     try:
         cfg = load_config(path, environ={})
     except ConfigError as exc:
-        assert str(exc) and "\n" not in str(exc).strip() or str(exc)
+        _one_clear_line(exc)
         return None
     assert isinstance(cfg, Config)
     cfg.optics()  # a configuration that loads can be used
@@ -117,8 +119,8 @@ def test_config_byte_mutations_only_config_error(tmp_path, data):
     path.write_bytes(bytes(raw))
     try:
         load_config(path, environ={})
-    except ConfigError:
-        pass
+    except ConfigError as exc:
+        _one_clear_line(exc)
 
 
 @FUZZ
@@ -137,8 +139,8 @@ def test_config_structural_mutations_only_config_error(tmp_path, doc):
 def test_config_env_overrides_only_config_error(environ):
     try:
         load_config(CONFIG_DIR / "sim.toml", environ=environ)
-    except ConfigError:
-        pass
+    except ConfigError as exc:
+        _one_clear_line(exc)
 
 
 # --------------------------------------------------------------------------------------- scenes

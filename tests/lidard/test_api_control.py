@@ -1,18 +1,13 @@
 """Issue 6 control lock: one controlling client, read-only observers, leases on an injected clock."""
 
 import re
-import sys
-from pathlib import Path
 
 import pytest
-from fastapi.testclient import TestClient
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard.api.app import create_app  # noqa: E402
-from lidard.api.control import LEASE_HEADER, ControlLock, LockHeld  # noqa: E402
-from lidard.config import ConfigError, load_config  # noqa: E402
+from lidard.api.control import LEASE_HEADER, ControlLock, LockHeld
+from lidard.config import ConfigError, load_config
+from tests.helpers.api import app_client, live_server, make_app
+from tests.helpers.fakes import FakeInstrument
 
 SMALL = {"pattern": "roi", "rows": [0, 1], "cols": [0, 4]}
 TTL = 60.0
@@ -27,13 +22,11 @@ class FakeClock:
 
 
 @pytest.fixture
-def env(tmp_path):
+def env(make_client):
     clock = FakeClock()
     inst = FakeInstrument()
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, lease_ttl_s=TTL, clock=clock,
-                     progress_interval_s=0.0)
-    with TestClient(app) as c:
-        yield c, inst, app, clock
+    c = make_client(inst, lease_ttl_s=TTL, clock=clock, progress_interval_s=0.0)
+    yield c, inst, c.app, clock
 
 
 def acquire(c, name, **headers):
@@ -148,26 +141,9 @@ def test_lock_unit_expiry_boundary_and_bad_ttl():
 # -- lidarctl control / --lease against a live uvicorn server on a free loopback port
 @pytest.fixture
 def live(tmp_path):
-    import socket
-    import threading
-
-    import uvicorn
     inst = FakeInstrument(profile="fpsa20")
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path / "data", progress_interval_s=0.0)
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)  # TCP_NODELAY per connection
-    sock.bind(("127.0.0.1", 0))
-    server = uvicorn.Server(uvicorn.Config(app, log_level="error", lifespan="on"))
-    t = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    t.start()
-    for _ in range(1000):  # readiness without sleeping: join with a short timeout
-        if server.started:
-            break
-        t.join(0.01)
-    assert server.started
-    yield f"http://127.0.0.1:{sock.getsockname()[1]}", inst
-    server.should_exit = True
-    t.join(10)
-    assert not t.is_alive()
+    with live_server(make_app(tmp_path / "data", inst, progress_interval_s=0.0)) as url:
+        yield url, inst
 
 
 def lidarctl(capsys, *argv):
@@ -252,7 +228,7 @@ def test_lease_ttl_comes_from_the_config(tmp_path, monkeypatch):
     monkeypatch.setenv("LIDARD__DAEMON__LEASE_TTL_S", "42")
     cfg = load_config()
     assert cfg.daemon.lease_ttl_s == 42.0
-    with TestClient(create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path)) as c:
+    with app_client(tmp_path, cfg=cfg) as c:
         assert c.get("/control").json()["ttl_s"] == 42.0
     monkeypatch.setenv("LIDARD__DAEMON__LEASE_TTL_S", "-1")
     with pytest.raises(ConfigError, match="lease_ttl_s"):

@@ -2,46 +2,33 @@
 
 import io
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard.api.app import create_app  # noqa: E402
-from lidard.config import load_config  # noqa: E402
+from tests.helpers.api import app_client
+from tests.helpers.fakes import FakeInstrument
 
 T = 20.0
 SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20]}
 
 
 @pytest.fixture
-def make_client(tmp_path):
-    clients = []
-
+def fake_api(make_client):
+    """``fake_api(**FakeInstrument kwargs)`` -> (client, instrument, app), queue of 3."""
     def make(**kw):
         inst = FakeInstrument(**kw)
-        app = create_app(load_config(), instrument=inst, data_dir=tmp_path / "data", progress_interval_s=0.0,
-                         max_queue=3)
-        c = TestClient(app)
-        c.__enter__()
-        clients.append(c)
-        return c, inst, app
-    yield make
-    for c in clients:
-        c.__exit__(None, None, None)
+        c = make_client(inst, progress_interval_s=0.0, max_queue=3)
+        return c, inst, c.app
+    return make
 
 
 def wait_done(app, scan_id):
     return app.state.worker.wait(scan_id, T)
 
 
-def test_health_devices_scanner(make_client):
-    c, inst, app = make_client()
+def test_health_devices_scanner(fake_api):
+    c, inst, app = fake_api()
     h = c.get("/health").json()
     assert h["status"] == "ok" and h["simulated"] is True and h["worker_running"] is True
     d = c.get("/devices").json()["devices"]
@@ -52,8 +39,8 @@ def test_health_devices_scanner(make_client):
     assert "/scans/{scan_id}/events" in c.get("/openapi.json").json()["paths"]
 
 
-def test_create_scan_201_location_and_fetch_points(make_client):
-    c, inst, app = make_client()
+def test_create_scan_201_location_and_fetch_points(fake_api):
+    c, inst, app = fake_api()
     r = c.post("/scans", json={**SMALL, "formats": ["ply", "las", "npz"]})
     assert r.status_code == 201
     sid = r.json()["id"]
@@ -75,8 +62,8 @@ def test_create_scan_201_location_and_fetch_points(make_client):
     assert [x["id"] for x in lst["scans"]] == [sid]
 
 
-def test_unknown_scan_404(make_client):
-    c, _, _ = make_client()
+def test_unknown_scan_404(fake_api):
+    c, _, _ = fake_api()
     for method, url in [("GET", "/scans/NOPE"), ("GET", "/scans/NOPE/points"), ("DELETE", "/scans/NOPE"),
                         ("GET", "/scans/NOPE/events")]:
         r = c.request(method, url)
@@ -84,8 +71,8 @@ def test_unknown_scan_404(make_client):
         assert "NOPE" in r.json()["detail"]
 
 
-def test_points_409_while_running_and_format_404(make_client):
-    c, inst, app = make_client(hold_after=5)
+def test_points_409_while_running_and_format_404(fake_api):
+    c, inst, app = fake_api(hold_after=5)
     sid = c.post("/scans", json=SMALL).json()["id"]
     assert inst.reached.wait(T)
     r = c.get(f"/scans/{sid}/points")
@@ -110,28 +97,28 @@ def test_points_409_while_running_and_format_404(make_client):
     ({"pattern": "pixels", "pixels": [[0, 200]]}, "pixels"),
     ({"pattern": "roi", "rows": [0, 500]}, "rows"),
 ])
-def test_bad_scan_bodies_are_422_naming_the_field(make_client, body, field):
-    c, inst, _ = make_client()
+def test_bad_scan_bodies_are_422_naming_the_field(fake_api, body, field):
+    c, inst, _ = fake_api()
     r = c.post("/scans", json=body)
     assert r.status_code == 422, r.text
     assert field in json.dumps(r.json()["detail"])
     assert inst.requests == []
 
 
-def test_malformed_json_is_422(make_client):
-    c, _, _ = make_client()
+def test_malformed_json_is_422(fake_api):
+    c, _, _ = fake_api()
     r = c.post("/scans", content=b"{not json", headers={"content-type": "application/json"})
     assert r.status_code == 422
 
 
-def test_unbonded_pixel_is_named(make_client):
-    c, _, _ = make_client()
+def test_unbonded_pixel_is_named(fake_api):
+    c, _, _ = fake_api()
     r = c.post("/scans", json={"pattern": "pixels", "pixels": [[0, 0], [7, 1]]})
     assert "(7, 1)" in json.dumps(r.json()["detail"])
 
 
-def test_delete_running_keeps_partial_points(make_client):
-    c, inst, app = make_client(hold_after=17)
+def test_delete_running_keeps_partial_points(fake_api):
+    c, inst, app = fake_api(hold_after=17)
     sid = c.post("/scans", json={**SMALL, "formats": ["npz"]}).json()["id"]
     assert inst.reached.wait(T)
     assert c.delete(f"/scans/{sid}").status_code == 200
@@ -145,8 +132,8 @@ def test_delete_running_keeps_partial_points(make_client):
         assert json.loads(str(z["meta"]))["partial"] is True
 
 
-def test_delete_queued_and_queue_fifo_and_limit(make_client):
-    c, inst, app = make_client(hold_after=1)
+def test_delete_queued_and_queue_fifo_and_limit(fake_api):
+    c, inst, app = fake_api(hold_after=1)
     first = c.post("/scans", json=SMALL).json()["id"]
     assert inst.reached.wait(T)
     ids = [c.post("/scans", json={"pattern": "roi", "rows": [0, 1], "cols": [k, k + 1]}).json()["id"]
@@ -173,8 +160,8 @@ def parse_sse(text):
     return events
 
 
-def test_sse_stream_yields_progress_and_ends(make_client):
-    c, inst, app = make_client(hold_after=3)
+def test_sse_stream_yields_progress_and_ends(fake_api):
+    c, inst, app = fake_api(hold_after=3)
     sid = c.post("/scans", json=SMALL).json()["id"]
     assert inst.reached.wait(T)
     with c.stream("GET", f"/scans/{sid}/events") as r:
@@ -189,16 +176,16 @@ def test_sse_stream_yields_progress_and_ends(make_client):
     assert done == sorted(done) and done[-1] == 60
 
 
-def test_sse_of_finished_scan_ends_at_once(make_client):
-    c, inst, app = make_client()
+def test_sse_of_finished_scan_ends_at_once(fake_api):
+    c, inst, app = fake_api()
     sid = c.post("/scans", json=SMALL).json()["id"]
     wait_done(app, sid)
     ev = parse_sse(c.get(f"/scans/{sid}/events").text)
     assert ev == [("end", {"event": "end", "id": sid, "state": "done", "partial": False, "error": None})]
 
 
-def test_calibration_endpoints(make_client):
-    c, inst, app = make_client()
+def test_calibration_endpoints(fake_api):
+    c, inst, app = fake_api()
     assert c.get("/calibration").status_code == 404
     r = c.post("/calibration/linearize")
     assert r.status_code == 201
@@ -209,8 +196,8 @@ def test_calibration_endpoints(make_client):
     assert got["id"] == body["id"] and len(got["iterations"]) == 2
 
 
-def test_failed_scan_reports_error(make_client):
-    c, inst, app = make_client(fail_with=RuntimeError("awg: USB pipe stalled"))
+def test_failed_scan_reports_error(fake_api):
+    c, inst, app = fake_api(fail_with=RuntimeError("awg: USB pipe stalled"))
     sid = c.post("/scans", json=SMALL).json()["id"]
     wait_done(app, sid)
     s = c.get(f"/scans/{sid}").json()
@@ -227,8 +214,8 @@ normal = [0.0, 0.0, -1.0]
 """
 
 
-def test_put_scene_toml_json_and_errors(make_client):
-    c, inst, app = make_client()
+def test_put_scene_toml_json_and_errors(fake_api):
+    c, inst, app = fake_api()
     r = c.put("/sim/scene", content=SCENE_TOML, headers={"content-type": "application/toml"})
     assert r.status_code == 200, r.text
     assert r.json() == {"name": "wall", "targets": 1}
@@ -242,16 +229,14 @@ def test_put_scene_toml_json_and_errors(make_client):
     assert len(inst.scenes) == 2
 
 
-def test_put_scene_on_real_hardware_is_409(make_client):
-    c, inst, app = make_client(simulated=False)
+def test_put_scene_on_real_hardware_is_409(fake_api):
+    c, inst, app = fake_api(simulated=False)
     r = c.put("/sim/scene", content=SCENE_TOML, headers={"content-type": "application/toml"})
     assert r.status_code == 409 and inst.scenes == []
 
 
 def test_token_required_when_configured(tmp_path):
-    inst = FakeInstrument()
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, token="s3cret")
-    with TestClient(app) as c:
+    with app_client(tmp_path, token="s3cret") as c:
         # issue 6: reads stay open to observers, mutating requests need the token
         assert c.get("/health").status_code == 200
         assert c.post("/scans", json=SMALL).status_code == 401
@@ -260,13 +245,13 @@ def test_token_required_when_configured(tmp_path):
 
 def test_lifespan_closes_instrument(tmp_path):
     inst = FakeInstrument()
-    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
+    with app_client(tmp_path, inst) as c:
         assert c.get("/health").status_code == 200
     assert inst.closed
 
 
-def test_points_file_missing_on_disk_is_404_not_500(make_client):
-    c, inst, app = make_client()
+def test_points_file_missing_on_disk_is_404_not_500(fake_api):
+    c, inst, app = fake_api()
     sid = c.post("/scans", json=SMALL).json()["id"]
     rec = wait_done(app, sid)
     (app.state.store.data_dir / rec.files["ply"]).unlink()
@@ -274,8 +259,8 @@ def test_points_file_missing_on_disk_is_404_not_500(make_client):
     assert r.status_code == 404 and "missing" in r.json()["detail"]
 
 
-def test_linearize_device_fault_is_503_naming_the_device(make_client):
-    c, inst, app = make_client()
+def test_linearize_device_fault_is_503_naming_the_device(fake_api):
+    c, inst, app = fake_api()
 
     def broken(progress=None):
         raise RuntimeError("awg: drive waveform upload rejected")
@@ -284,8 +269,8 @@ def test_linearize_device_fault_is_503_naming_the_device(make_client):
     assert r.status_code == 503 and "awg: drive waveform upload rejected" in r.json()["detail"]
 
 
-def test_phase_noise_compensation_choice_reaches_the_instrument(make_client):
-    c, inst, app = make_client()
+def test_phase_noise_compensation_choice_reaches_the_instrument(fake_api):
+    c, inst, app = fake_api()
     sids = []
     for choice in ("on", "off", None):
         body = dict(SMALL) if choice is None else {**SMALL, "phase_noise_compensation": choice}
@@ -297,3 +282,31 @@ def test_phase_noise_compensation_choice_reaches_the_instrument(make_client):
     assert [q.phase_noise_compensation for q in inst.requests] == ["on", "off", None]
     r = c.post("/scans", json={**SMALL, "phase_noise_compensation": "sometimes"})
     assert r.status_code == 422 and "phase_noise_compensation" in r.text
+
+
+def test_sidecar_endpoint_names_the_config_scene_then_an_uploaded_one(make_client):
+    import hashlib
+
+    from lidard.config import CONFIG_DIR, load_config
+    cfg = load_config(CONFIG_DIR / "sim.toml")
+    c = make_client(FakeInstrument(profile="fpsa128"), cfg=cfg, progress_interval_s=0.0)
+    scene_file = cfg.resolve_path(cfg.sim.scene)
+
+    def scan_sidecar():
+        sid = c.post("/scans", json={**SMALL, "formats": ["ply"]}).json()["id"]
+        c.app.state.worker.wait(sid, T)
+        return sid, c.get(f"/scans/{sid}/sidecar", params={"format": "ply"})
+
+    sid, r = scan_sidecar()
+    assert r.status_code == 200
+    side = r.json()
+    assert side["scan_id"] == sid and side["format"] == "ply"
+    assert side["scene"] == {"path": str(scene_file.resolve()),
+                             "sha256": hashlib.sha256(scene_file.read_bytes()).hexdigest()}
+    assert c.get(f"/scans/{sid}/sidecar", params={"format": "las"}).status_code == 404
+    assert c.get("/scans/NOPE/sidecar").status_code == 404
+    # a scene uploaded with PUT /sim/scene has no file: later sidecars carry the hash of the body sent
+    assert c.put("/sim/scene", content=SCENE_TOML, headers={"content-type": "application/toml"}).status_code == 200
+    _, r = scan_sidecar()
+    assert r.json()["scene"] == {"path": None, "source": "PUT /sim/scene", "name": "wall",
+                                 "sha256": hashlib.sha256(SCENE_TOML.encode()).hexdigest()}

@@ -4,16 +4,9 @@ The scan is held part-way (FakeInstrument ``hold_after``) so the load really run
 running; run_load cancels it afterwards. No timing is asserted (figures are for the benchmark).
 """
 
-import sys
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(Path(__file__).parent))
-sys.path.insert(0, str(ROOT))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from benchmarks.load import run_load  # noqa: E402
-from lidard.config import load_config  # noqa: E402
+from benchmarks.load import run_load
+from lidard.config import load_config
+from tests.helpers.fakes import FakeInstrument
 
 
 def test_small_load_has_no_errors_while_a_scan_runs():

@@ -16,19 +16,14 @@ The control lock is released after every case so that a generated ``POST /contro
 the rest of the run into 423s.
 """
 
-import sys
-from pathlib import Path
 
 import pytest
 import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard.api.app import create_app  # noqa: E402
-from lidard.config import load_config  # noqa: E402
+from tests.helpers.api import app_client, make_app
+from tests.helpers.fakes import FakeInstrument
 
 _APP = {}
 
@@ -36,7 +31,7 @@ _APP = {}
 class HealthyInstrument(FakeInstrument):
     """The fake plus a self-test that finds nothing stuck (POST /selftest)."""
 
-    def selftest(self):
+    def selftest(self, progress=None):
         n_rows, n_cols = self.optics.summary()["pixels"]
         return {"ok": True, "stuck": [], "single_beam_v": 0.5, "partner_row": 0, "partner_col": 0,
                 "rows_tested": n_rows, "cols_tested": n_cols, "row_tap_v": [0.5] * n_rows,
@@ -45,8 +40,8 @@ class HealthyInstrument(FakeInstrument):
 
 @pytest.fixture(scope="module")
 def lidard_openapi(tmp_path_factory):
-    app = create_app(load_config(), instrument=HealthyInstrument(), data_dir=tmp_path_factory.mktemp("st"),
-                     max_queue=1_000_000, progress_interval_s=0.0)
+    app = make_app(tmp_path_factory.mktemp("st"), HealthyInstrument(),
+                   max_queue=1_000_000, progress_interval_s=0.0)
     _APP["app"] = app
     with TestClient(app) as client:  # runs the lifespan once: store (it holds the data dir), worker
         # from_asgi would run the lifespan a second time on the same data directory, which the
@@ -113,7 +108,7 @@ def test_openapi_documents_the_gates(lidard_openapi):
 ])
 def test_lax_coercions_are_422(tmp_path, body, field):
     inst = FakeInstrument()
-    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
+    with app_client(tmp_path, inst) as c:
         r = c.post("/scans", json=body)
         assert r.status_code == 422 and field in str(r.json()["detail"])
         assert inst.requests == []
@@ -130,7 +125,7 @@ def test_lax_coercions_are_422(tmp_path, body, field):
 ])
 def test_put_scene_odd_json_is_422_not_500(tmp_path, scene):
     inst = FakeInstrument()
-    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path)) as c:
+    with app_client(tmp_path, inst) as c:
         r = c.put("/sim/scene", json=scene)
         assert r.status_code == 422, r.text
         assert inst.scenes == []

@@ -12,15 +12,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from fastapi.testclient import TestClient
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard.api.app import create_app  # noqa: E402
-from lidard.api.control import BodySizeLimit, token_ok  # noqa: E402
-from lidard.cli import build_lidard_parser, is_loopback  # noqa: E402
-from lidard.config import Config, ConfigError, load_config  # noqa: E402
+from lidard.api.control import BodySizeLimit, token_ok
+from lidard.cli import build_lidard_parser, is_loopback
+from lidard.config import Config, ConfigError, load_config
+from tests.helpers.api import app_client, make_app
+from tests.helpers.fakes import FakeInstrument
 
 SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20]}
 SCENE = 'name = "wall"\n[[target]]\nkind = "plane"\npoint = [0.0, 0.0, 2.0]\nnormal = [0.0, 0.0, -1.0]\n'
@@ -30,9 +27,8 @@ AUTH = {"Authorization": "Bearer s3cret"}
 @pytest.fixture
 def app_with_token(tmp_path):
     inst = FakeInstrument()
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, token="s3cret", max_body_bytes=4096)
-    with TestClient(app) as c:
-        yield c, inst, app
+    with app_client(tmp_path, inst, token="s3cret", max_body_bytes=4096) as c:
+        yield c, inst, c.app
 
 
 def test_default_bind_is_loopback():
@@ -166,8 +162,7 @@ def test_body_limit_middleware_lying_content_length_and_bad_header():
 
 def test_max_body_bytes_comes_from_config(tmp_path):
     cfg = Config.model_validate({**load_config().model_dump(), "daemon": {"max_body_bytes": 2048}})
-    app = create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path)
-    with TestClient(app) as c:
+    with app_client(tmp_path, cfg=cfg) as c:
         r = c.put("/sim/scene", content="#" * 3000, headers={"content-type": "application/toml"})
         assert r.status_code == 413 and "2048" in r.json()["detail"]
     bad = tmp_path / "bad.toml"
@@ -178,10 +173,9 @@ def test_max_body_bytes_comes_from_config(tmp_path):
 
 # -- the same limits on a live uvicorn server, with raw sockets (what a hostile client would send)
 def _live(tmp_path, **kw):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     from benchmarks.load import serve
     inst = FakeInstrument()
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path, max_body_bytes=4096, **kw)
+    app = make_app(tmp_path, inst, max_body_bytes=4096, **kw)
     return serve(app), inst
 
 
@@ -287,8 +281,8 @@ def test_daemon_socket_gets_tcp_nodelay_on_every_connection():
     socket whose proto is TCP (with proto 0 every response waited ~40 ms for a delayed ACK)."""
     import socket
 
-    from lidard.cli import _bind
-    sock = _bind("127.0.0.1", 0)
+    from lidard.cli.daemon import bind
+    sock = bind("127.0.0.1", 0)
     assert sock.proto == socket.IPPROTO_TCP
     seen = []
 
@@ -331,8 +325,7 @@ def test_cross_origin_rule(origin, host, token_set, refused):
 def test_web_page_cannot_steer_a_loopback_daemon(tmp_path):
     """A 'simple' cross-origin POST (no preflight) must not start a linearization (laser on)."""
     inst = FakeInstrument()
-    with TestClient(create_app(load_config(), instrument=inst, data_dir=tmp_path),
-                    base_url="http://127.0.0.1:8470") as c:
+    with app_client(tmp_path, inst, client_kw={"base_url": "http://127.0.0.1:8470"}) as c:
         r = c.post("/calibration/linearize", headers={"Origin": "https://evil.example"})
         assert r.status_code == 403 and "evil.example" in r.json()["detail"]
         r = c.post("/scans", content=json.dumps(SMALL), headers={"Origin": "https://evil.example",

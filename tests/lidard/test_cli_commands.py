@@ -2,21 +2,15 @@
 
 import json
 import math
-import socket
-import sys
-import threading
-from pathlib import Path
 
 import pytest
-import uvicorn
 
-sys.path.insert(0, str(Path(__file__).parent))
-from lidard_fakes import FakeInstrument  # noqa: E402
-
-from lidard import cli  # noqa: E402
-from lidard.api.app import create_app  # noqa: E402
-from lidard.config import load_config  # noqa: E402
-from lidard.pointcloud import read_points, read_sidecar  # noqa: E402
+from lidard import cli
+from lidard.cli import base as cli_base
+from lidard.cli.progress import Progress
+from lidard.pointcloud import read_points, read_sidecar
+from tests.helpers.api import live_server, make_app
+from tests.helpers.fakes import FakeInstrument
 
 TABLE_2_2 = """
 profile = "fpsa20"
@@ -148,7 +142,7 @@ def test_bad_config_is_one_line(capsys, tmp_path):
 def test_lidard_refuses_public_bind_without_token(capsys, monkeypatch):
     monkeypatch.delenv("LIDARD_API_TOKEN", raising=False)
     opened = []
-    monkeypatch.setattr(cli, "_open_instrument", lambda cfg, **kw: opened.append(cfg))
+    monkeypatch.setattr(cli_base, "open_instrument", lambda cfg, **kw: opened.append(cfg))
     code = cli.lidard_main(["--host", "0.0.0.0", "--port", "0"])
     err = capsys.readouterr().err
     assert code != 0 and "token" in err and len(err.strip().splitlines()) == 1
@@ -175,7 +169,7 @@ def test_scan_sim_writes_out_and_json(capsys, monkeypatch, tmp_path):
     def fake_open(cfg, **kw):
         seen.update(kw, profile=cfg.profile)
         return FakeInstrument(profile=cfg.profile)
-    monkeypatch.setattr(cli, "_open_instrument", fake_open)
+    monkeypatch.setattr(cli_base, "open_instrument", fake_open)
     out_file = tmp_path / "cloud.npz"
     code, out, err = run(capsys, "scan", "--sim", "--profile", "fpsa20", "--rows", "0:4", "--cols", "0:5",
                          "--averages", "2", "--out", str(out_file), "--json")
@@ -189,7 +183,11 @@ def test_scan_sim_writes_out_and_json(capsys, monkeypatch, tmp_path):
     assert len(pts) == 20 and set(pts["row"].tolist()) == {0, 1, 2, 3}
     side = read_sidecar(out_file)
     assert side["simulated"] is True and side["profile"] == "fpsa20" and side["partial"] is False
-    assert err == ""  # no progress bar when stderr is not a terminal
+    # stderr is not a terminal: no bar redrawn with "\r", plain progress lines at 10 % steps up to 100 %
+    assert "\r" not in err
+    steps = [int(line.split()[1]) for line in err.splitlines() if line.startswith("scanning")]
+    assert steps and steps[-1] == 100 and all(b > a for a, b in zip(steps, steps[1:]))
+    assert all(p % 10 == 0 for p in steps) and len(steps) <= 10
 
 
 def test_scan_sim_phase_noise_option_reaches_the_request(capsys, monkeypatch, tmp_path):
@@ -198,7 +196,7 @@ def test_scan_sim_phase_noise_option_reaches_the_request(capsys, monkeypatch, tm
     def fake_open(cfg, **kw):
         made.append(FakeInstrument(profile=cfg.profile))
         return made[-1]
-    monkeypatch.setattr(cli, "_open_instrument", fake_open)
+    monkeypatch.setattr(cli_base, "open_instrument", fake_open)
     code, out, err = run(capsys, "scan", "--sim", "--profile", "fpsa20", "--rows", "0:2", "--cols", "0:2",
                          "--phase-noise", "on", "--out", str(tmp_path / "pn.npz"), "--json")
     assert code == 0, err
@@ -208,13 +206,13 @@ def test_scan_sim_phase_noise_option_reaches_the_request(capsys, monkeypatch, tm
 
 
 def test_scan_sim_bad_rows_is_one_line(capsys, monkeypatch):
-    monkeypatch.setattr(cli, "_open_instrument", lambda cfg, **kw: FakeInstrument(profile=cfg.profile))
+    monkeypatch.setattr(cli_base, "open_instrument", lambda cfg, **kw: FakeInstrument(profile=cfg.profile))
     code, out, err = run(capsys, "scan", "--sim", "--profile", "fpsa20", "--rows", "0:99")
     assert code == 1 and "rows" in err and len(err.strip().splitlines()) == 1
 
 
 def test_linearize_sim_json_and_plot(capsys, monkeypatch, tmp_path):
-    monkeypatch.setattr(cli, "_open_instrument", lambda cfg, **kw: FakeInstrument())
+    monkeypatch.setattr(cli_base, "open_instrument", lambda cfg, **kw: FakeInstrument())
     png = tmp_path / "ilc.png"
     code, out, err = run(capsys, "linearize", "--sim", "--json", "--plot", str(png))
     assert code == 0, err
@@ -228,24 +226,8 @@ def test_linearize_sim_json_and_plot(capsys, monkeypatch, tmp_path):
 @pytest.fixture
 def live(tmp_path):
     inst = FakeInstrument(profile="fpsa20")
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path / "data", progress_interval_s=0.0)
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    port = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, log_level="error", lifespan="on"))
-    t = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    t.start()
-    # wait for readiness on the server thread (join with a timeout, no sleeps)
-    for _ in range(500):
-        if server.started:
-            break
-        t.join(0.01)
-    assert server.started
-    yield f"http://127.0.0.1:{port}", inst
-    server.should_exit = True
-    t.join(10)
-    assert not t.is_alive()
-    sock.close()
+    with live_server(make_app(tmp_path / "data", inst, progress_interval_s=0.0)) as url:
+        yield url, inst
     assert inst.closed
 
 
@@ -263,7 +245,7 @@ def test_live_server_scan_fetch_and_status(capsys, live, tmp_path):
     assert len(read_points(out_file)) == 40
     code, out, err = run(capsys, "scans", "list", "--url", url)
     assert code == 0 and s["id"] in out
-    code, out, err = run(capsys, "scans", "show", s["id"], "--url", url)
+    code, out, err = run(capsys, "scans", "show", s["id"], "--url", url, "--json")
     assert code == 0 and one_json(out)["counts"]["points"] == 40
     fetched = tmp_path / "f.ply"
     code, out, err = run(capsys, "scans", "fetch", s["id"], "--format", "ply", "--out", str(fetched), "--url", url)
@@ -275,14 +257,14 @@ def test_live_server_scan_fetch_and_status(capsys, live, tmp_path):
 
 
 def test_progress_bar_draws_only_when_enabled(capsys):
-    bar = cli._ProgressBar(enabled=True, width=10)
+    bar = Progress("bar", width=10)
     bar({"event": "progress", "stage": "scanning", "fraction": 0.5, "pixels_done": 5, "pixels_planned": 10,
          "points": 4})
     bar({"event": "end"})
     bar.close()
     err = capsys.readouterr().err
     assert "[#####.....]" in err and "50.0%" in err and "5/10 px" in err and err.endswith("\n")
-    quiet = cli._ProgressBar(enabled=False)
+    quiet = Progress("none")
     quiet({"event": "progress", "fraction": 1.0})
     quiet.close()
     assert capsys.readouterr().err == ""

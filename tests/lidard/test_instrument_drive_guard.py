@@ -52,6 +52,7 @@ def test_the_drive_limit_follows_the_configuration(inst, monkeypatch):
     assert inst.cfg.devices.awg.max_output_v == AWG_OUTPUT_MAX_V
     d = inst.cfg.devices
     lower = d.model_copy(update={"awg": d.awg.model_copy(update={"max_output_v": 2.0})})
-    monkeypatch.setattr(inst, "cfg", inst.cfg.model_copy(update={"devices": lower}))
+    # the acquisition lifecycle loads drives with its configuration
+    monkeypatch.setattr(inst.acquisition, "cfg", inst.cfg.model_copy(update={"devices": lower}))
     with pytest.raises(InstrumentError, match=r"\+-2 V \(devices.awg.max_output_v\)"):
         inst._load_drive(_triangle(-1.0, 2.5))

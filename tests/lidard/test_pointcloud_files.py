@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lidard import pointcloud as pc
-from lidard.instrument_api import POINT_DTYPE
+from lidard.instrument import POINT_DTYPE
 
 
 def make_points(n=200, seed=7):
@@ -39,6 +39,21 @@ def test_ply_round_trip_exact(tmp_path):
     assert back.dtype == POINT_DTYPE
     for name in POINT_DTYPE.names:
         assert np.array_equal(back[name], pts[name]), name
+
+
+def test_ply_pixel_indices_are_int32_that_point_cloud_tools_keep(tmp_path):
+    # Open3D skips ``ushort`` properties ("unsupported datatype"); int32 is kept by Open3D, PCL and
+    # CloudCompare. Open3D itself is a 400 MB wheel, so the file is read back with plyfile, a
+    # reader independent of the writer's dtype handling, and its declared types are checked.
+    pts = make_points(50)
+    pts["row"][0], pts["col"][0] = 127, 65535  # the largest index a uint16 could hold survives
+    path = pc.write_ply(tmp_path / "rc.ply", pts)
+    header = path.read_bytes().split(b"end_header")[0].decode("ascii")
+    assert "property int row" in header and "property int col" in header and "ushort" not in header
+    from plyfile import PlyData
+    v = PlyData.read(str(path))["vertex"]
+    assert v.data.dtype["row"] == np.dtype("<i4") and v.data.dtype["col"] == np.dtype("<i4")
+    assert v["row"].tolist() == pts["row"].tolist() and v["col"].tolist() == pts["col"].tolist()
 
 
 def test_las_round_trip_extra_bytes_and_scale(tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lidard.config import load_profile
-from lidard.instrument_api import POINT_DTYPE, ScanRequest
+from lidard.instrument import POINT_DTYPE, ScanRequest
 from lidard.scan import ScanPlanError, adaptive_plans, plan, planned_pixel_count
 
 

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
-from lidard.api.app import create_app
 from lidard.cli import lidarctl_main
 from lidard.config import load_config
 from lidard.instrument import analyse_selftest, open_instrument
+from tests.helpers.api import app_client
+from tests.helpers.fakes import FakeInstrument
 
 REPO = Path(__file__).resolve().parents[2]
 ROWS = [0, 1, 2, 4, 5, 6, 8, 9]          # bonded rows of a small array (every 4th row missing)
@@ -80,8 +80,7 @@ def test_no_light_at_all_blames_nothing_as_healthy():
 def client(tmp_path_factory):
     cfg = load_config(REPO / "config" / "sim.toml")
     inst = open_instrument(cfg, bench="embedded")
-    app = create_app(cfg, instrument=inst, data_dir=str(tmp_path_factory.mktemp("selftest-data")))
-    with TestClient(app) as c:
+    with app_client(tmp_path_factory.mktemp("selftest-data"), inst, cfg) as c:
         yield c
 
 
@@ -124,13 +123,8 @@ def test_sim_faults_refuses_unknown_kinds_and_bad_parameters_by_name(client):
 
 
 def test_sim_faults_on_real_hardware_is_a_conflict(tmp_path):
-    import sys
-    sys.path.insert(0, str(Path(__file__).parent))
-    from lidard_fakes import FakeInstrument
-
     cfg = load_config(REPO / "config" / "sim.toml")
-    app = create_app(cfg, instrument=FakeInstrument(simulated=False), data_dir=str(tmp_path))
-    with TestClient(app) as c:
+    with app_client(tmp_path, FakeInstrument(simulated=False), cfg) as c:
         for method, kw in (("POST", {"json": {"kind": "hv_fault"}}), ("GET", {}), ("DELETE", {})):
             r = c.request(method, "/sim/faults", **kw)
             assert r.status_code == 409 and "real hardware" in r.text

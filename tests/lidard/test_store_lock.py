@@ -69,3 +69,18 @@ def test_close_releases_the_directory(tmp_path):
         Store(tmp_path)
     first.close()
     Store(tmp_path).close()
+
+
+@pytest.mark.parametrize("argv", [
+    ["-m", "lidard", "--config", "config/sim.toml", "--port", "0"],
+    ["-c", "import sys; from lidard.cli import lidarctl_main; sys.exit(lidarctl_main())", "scan", "--sim", "--rows", "0:2", "--cols", "0:2", "--out", "x.ply"],
+], ids=["lidard", "lidarctl-scan-sim"])
+def test_held_directory_refuses_daemon_and_one_shot_scan(tmp_path, holder, argv):
+    from pathlib import Path
+    proc, _ = holder
+    repo = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, *argv, "--data-dir", str(tmp_path)], cwd=repo,
+                         capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+    assert out.returncode != 0
+    assert f"PID {proc.pid}" in out.stderr and "in use by another lidard process" in out.stderr
+    assert "serving on" not in out.stderr     # refused before binding a bench or serving

@@ -6,7 +6,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from lidard.instrument_api import CalibrationResult
+from lidard.instrument import CalibrationResult
 from lidard.store import Store, StoreError, new_id
 
 

@@ -1,6 +1,6 @@
 """``lidarctl sweep`` as a command: a missing offline extra names the install command, a bad sweep
 file exits 2 naming the key, --dry-run counts, a real (tiny) run prints the summary; and the task's
-ADC plan is the daemon's."""
+rule for phase-noise compensation is the daemon's."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.offline import sweep_cli
-from lidard.offline.sweep import adc_plan
+from lidard.offline.sweep import phase_noise_on
 
 SWEEP = """
 [sweep]
@@ -65,16 +65,13 @@ def test_workers_and_batch_must_be_positive(tmp_path, capsys, flag):
     assert f"{flag} must be >= 1" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("max_range_m", [2.0, 15.0, 40.0, 150.0])
-def test_the_task_plans_the_adc_like_the_daemon(max_range_m):
-    cfg = load_config()
-    try:        # the instrument package's scan loop (after the instrument split) ...
-        from lidard.instrument.scan_loop import adc_plan as daemon_plan
-        plan = daemon_plan(cfg, max_range_m)
-    except ImportError:     # ... or the single-module instrument before it
-        from lidard.instrument import LidarInstrument
-        plan = LidarInstrument._adc_plan(SimpleNamespace(cfg=cfg), max_range_m)
-    assert adc_plan(cfg, max_range_m) == (plan.fs_hz, plan.ramp_samples)
+@pytest.mark.parametrize("max_range_m", [2.0, 15.0, 40.0, 59.0, 60.0, 150.0])
+@pytest.mark.parametrize("mode", ["auto", "on", "off"])
+def test_the_task_turns_phase_noise_compensation_on_like_the_daemon(max_range_m, mode):
+    from lidard.instrument.scan_loop import phase_noise_on as daemon_rule
+    cfg = load_config(environ={"LIDARD__SCAN__PHASE_NOISE_COMPENSATION": mode})
+    request = SimpleNamespace(max_range_m=max_range_m, phase_noise_compensation=None)
+    assert phase_noise_on(cfg, max_range_m) == daemon_rule(cfg, request)
 
 
 def test_scheduler_flag_runs_the_sweep_on_an_existing_scheduler(client, tmp_path, capsys):
@@ -83,3 +80,11 @@ def test_scheduler_flag_runs_the_sweep_on_an_existing_scheduler(client, tmp_path
     assert sweep_cli.sweep_main([spec, "--scheduler", address, "--no-plot", "--out", str(tmp_path / "o")]) == 0
     assert "ran 2 tasks (0 already done)" in capsys.readouterr().out
     assert client.scheduler_info()["workers"]    # the scheduler (not ours to close) is still up
+
+
+def test_lidarctl_registers_the_sweep_command(tmp_path, capsys):
+    from lidard.cli.lidarctl import main
+    assert main(["sweep", _write(tmp_path, '"link.tx_power_w" = [1e-3, 1e-2]'), "--dry-run"]) == 0
+    assert "2 configurations, 4 tasks" in capsys.readouterr().out
+    assert main(["sweep", _write(tmp_path, '"laser" = "nope"')]) == sweep_cli.EXIT_ERROR
+    assert "laser: 'nope' is not a preset" in capsys.readouterr().err

@@ -1,8 +1,8 @@
-"""Chirp linearization (§2.2, ILC through the monitor MZI): run one, read the latest."""
+"""Chirp linearization (§2.2, ILC through the monitor MZI): run one, read the latest or the last few."""
 
 import asyncio
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Query, status
 
 from ...jobs import describe_error
 from ..deps import ConfigDep, StoreDep, WorkerDep
@@ -32,3 +32,10 @@ def latest(store: StoreDep, cfg: ConfigDep) -> CalibrationOut:
         raise HTTPException(status.HTTP_404_NOT_FOUND,
                             f"no calibration stored for laser {cfg.laser!r}; POST /calibration/linearize")
     return CalibrationOut.from_result(cal)
+
+
+@router.get("/history", response_model=list[CalibrationOut])
+def history(store: StoreDep, cfg: ConfigDep, limit: int = Query(5, ge=1, le=100)) -> list[CalibrationOut]:
+    """The newest ``limit`` calibrations of the configured laser, newest first (the viewer plots
+    each one's ILC convergence, rms frequency error per iteration)."""
+    return [CalibrationOut.from_result(c) for c in store.list_calibrations(limit, cfg.laser)]

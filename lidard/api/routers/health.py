@@ -12,5 +12,5 @@ router = APIRouter(tags=["health"])
 @router.get("/health", response_model=Health)
 def health(worker: WorkerDep, instrument: InstrumentDep) -> Health:
     return Health(status="ok" if worker.running else "degraded", version=software_version(),
-                  simulated=bool(getattr(instrument, "simulated", False)), worker_running=worker.running,
+                  simulated=bool(instrument.simulated), worker_running=worker.running,
                   queue_length=worker.queue_length(), running_scan=worker.current_scan_id())

@@ -1,22 +1,25 @@
-"""Scans: create (queue), list, show, fetch points, cancel, follow progress (server-sent events)."""
+"""Scans: create (queue), list, show, fetch points and their JSON sidecar, cancel, follow progress
+(server-sent events)."""
 
 from __future__ import annotations
 
 import asyncio
 import json
-from typing import Literal
+from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Response, status
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 
 from ...jobs import QueueFull, UnknownScan, WorkerStopped
+from ...pointcloud import read_sidecar
 from ...scan import ScanPlanError, plan
 from ..deps import OpticsDep, StoreDep, WorkerDep
-from ..schemas import ScanCreate, ScanList, ScanOut
+from ..schemas import FileFormat, ScanCreate, ScanList, ScanOut
 
 router = APIRouter(prefix="/scans", tags=["scans"])
 
-_MEDIA = {"ply": "application/octet-stream", "las": "application/vnd.las", "npz": "application/octet-stream"}
+_MEDIA = {"ply": "application/octet-stream", "las": "application/vnd.las", "npz": "application/octet-stream",
+          "pcd": "application/octet-stream", "mcap": "application/octet-stream"}
 
 
 _404 = {404: {"description": "no scan with this id"}}
@@ -64,7 +67,7 @@ def get_scan(scan_id: str, store: StoreDep) -> ScanOut:
 @router.get("/{scan_id}/points", response_class=FileResponse,
             responses={404: {"description": "unknown scan or format not written"},
                        409: {"description": "scan not finished"}})
-def get_points(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz"] = "ply") -> FileResponse:
+def get_points(scan_id: str, store: StoreDep, format: FileFormat = "ply") -> FileResponse:
     rec = store.get_scan(scan_id)
     if rec is None:
         raise _not_found(scan_id)
@@ -83,6 +86,23 @@ def get_points(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz
                                                        f"the data directory ({rec.files[format]})")
     return FileResponse(path, media_type=_MEDIA[format], filename=f"{scan_id}.{format}",
                         headers={"X-Lidard-Partial": "true" if rec.partial else "false"})
+
+
+@router.get("/{scan_id}/sidecar", response_model=dict[str, Any],
+            responses={404: {"description": "unknown scan or format not written"}})
+def get_sidecar(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz"] = "ply") -> JSONResponse:
+    """The JSON sidecar of a written point file: settings, calibration, timing, scene on a bench."""
+    rec = store.get_scan(scan_id)
+    if rec is None:
+        raise _not_found(scan_id)
+    if format not in rec.files:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id} has no {format} file; "
+                                                       f"written: {', '.join(sorted(rec.files)) or 'none'}")
+    try:
+        return JSONResponse(read_sidecar(store.data_dir / rec.files[format]))
+    except (OSError, ValueError):
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id}: the {format} sidecar is missing "
+                                                       "or unreadable in the data directory") from None
 
 
 @router.delete("/{scan_id}", response_model=ScanOut, responses=_404)

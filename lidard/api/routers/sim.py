@@ -2,9 +2,11 @@
 bench faults (issue 6: the catalogue and parameters are those of ``sim_devices.faults``).
 
 On a real instrument every endpoint here answers 409 (the request is fine, the daemon's state, real
-hardware, does not allow it). A fault the bench refuses (unknown kind, bad parameter) is 422 naming it.
+hardware, does not allow it): the instrument says so (``simulated`` false, or ``NotSimulated`` from
+its simulation methods). A fault the bench refuses (unknown kind, bad parameter) is 422 naming it.
 """
 
+import hashlib
 import json
 import tomllib
 from typing import Any
@@ -12,6 +14,8 @@ from typing import Any
 from fastapi import APIRouter, HTTPException, Query, Request, status
 from pydantic import BaseModel, ConfigDict, Field
 
+from ...instrument.errors import NotSimulated
+from ...instrument.protocol import Instrument
 from ..deps import InstrumentDep
 from ..schemas import SceneAccepted
 
@@ -25,9 +29,8 @@ MAX_SCENE_BYTES = 1 << 20
                 "application/json": {"schema": {"type": "object"}}}}})
 async def put_scene(request: Request, instrument: InstrumentDep) -> SceneAccepted:
     """Body: a scene in the TOML format of config/scenes (or the same structure as JSON)."""
-    if not getattr(instrument, "simulated", False):
-        raise HTTPException(status.HTTP_409_CONFLICT, "the instrument is real hardware; "
-                                                      "scenes can only be set on a simulated bench")
+    if not instrument.simulated:
+        raise _real_hardware("scenes can only be set on a simulated bench")
     body = await request.body()
     if len(body) > MAX_SCENE_BYTES:
         raise HTTPException(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
@@ -50,8 +53,15 @@ async def put_scene(request: Request, instrument: InstrumentDep) -> SceneAccepte
     try:
         # the bench parses and checks it (the scene format belongs to the simulator)
         summary = instrument.set_scene(data)
+    except NotSimulated:
+        raise _real_hardware("scenes can only be set on a simulated bench") from None
     except ValueError as exc:
         raise HTTPException(422, [{"loc": ["body"], "msg": str(exc), "type": "scene_error"}]) from None
+    # later sidecars name this scene: it has no file, so the uploaded body's hash identifies it
+    worker = getattr(request.app.state, "worker", None)
+    if worker is not None:
+        worker.base_meta["scene"] = {"path": None, "source": "PUT /sim/scene", "name": summary["name"],
+                                     "sha256": hashlib.sha256(body).hexdigest()}
     return SceneAccepted(name=summary["name"], targets=summary["targets"])
 
 
@@ -71,10 +81,16 @@ class FaultsCleared(BaseModel):
     cleared: int
 
 
-def _require_sim(instrument) -> None:
-    if not getattr(instrument, "simulated", False) or not hasattr(instrument, "inject_fault"):
-        raise HTTPException(status.HTTP_409_CONFLICT, "the instrument is real hardware; faults can only "
-                                                      "be injected into a simulated bench")
+def _real_hardware(what: str) -> HTTPException:
+    return HTTPException(status.HTTP_409_CONFLICT, f"the instrument is real hardware; {what}")
+
+
+_NO_BENCH = "faults can only be injected into a simulated bench"
+
+
+def _require_sim(instrument: Instrument) -> None:
+    if not instrument.simulated:
+        raise _real_hardware(_NO_BENCH)
 
 
 def _refused(exc: Exception) -> HTTPException:
@@ -89,6 +105,8 @@ def inject_fault(body: FaultIn, instrument: InstrumentDep) -> dict[str, Any]:
     params = dict(body.model_extra or {})
     try:
         return instrument.inject_fault(body.kind, **params)
+    except NotSimulated:
+        raise _real_hardware(_NO_BENCH) from None
     except (ValueError, TypeError) as exc:  # SimFaultError is a ValueError
         raise _refused(exc) from None
 
@@ -96,7 +114,10 @@ def inject_fault(body: FaultIn, instrument: InstrumentDep) -> dict[str, Any]:
 @router.get("/faults", response_model=FaultList, responses={409: {"description": "real hardware"}})
 def list_faults(instrument: InstrumentDep) -> FaultList:
     _require_sim(instrument)
-    return FaultList(faults=instrument.active_faults())
+    try:
+        return FaultList(faults=instrument.active_faults())
+    except NotSimulated:
+        raise _real_hardware(_NO_BENCH) from None
 
 
 @router.delete("/faults", response_model=FaultsCleared,
@@ -107,5 +128,7 @@ def clear_faults(instrument: InstrumentDep,
     _require_sim(instrument)
     try:
         return FaultsCleared(cleared=instrument.clear_faults(kind))
+    except NotSimulated:
+        raise _real_hardware(_NO_BENCH) from None
     except (ValueError, TypeError) as exc:
         raise _refused(exc) from None

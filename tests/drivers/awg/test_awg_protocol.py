@@ -105,8 +105,8 @@ def test_block_and_header_decoders_raise_only_protocol_errors(data):
                lambda: p.parse_float(data)):
         try:
             fn()
-        except usbtmc.ProtocolError:
-            pass
+        except usbtmc.ProtocolError as exc:
+            assert exc.device == "awg" and exc.command == "decode"
 
 
 @settings(max_examples=200, deadline=None, derandomize=True)

@@ -359,3 +359,15 @@ def test_wrong_unit_id_is_a_typed_device_failure(sim):
         with pytest.raises(DeviceFailure) as ei:
             c.tec_c()
     assert ei.value.exception_code == 4 and ei.value.register == "TEC_TEMPERATURE"
+
+
+def test_from_url_opens_the_same_driver_and_refuses_other_urls(sim):
+    with LaserHvController.from_url(f"modbus+tcp://127.0.0.1:{sim.port}", limits=p.HARDWARE_LIMITS,
+                                    timeout_s=0.5, retries=0) as c:
+        assert (c.host, c.port) == ("127.0.0.1", sim.port)
+        assert c.identify().map_version == p.MAP_VERSION
+    assert LaserHvController.from_url("modbus+tcp://10.0.0.9", limits=p.HARDWARE_LIMITS).port == 502
+    for bad in ("tcp://127.0.0.1:502", "modbus+tcp://:502", "modbus+tcp://h:99999", "modbus+tcp://h/x", 5):
+        with pytest.raises(ConfigError, match="modbus\\+tcp") as ei:
+            LaserHvController.from_url(bad, limits=p.HARDWARE_LIMITS)
+        assert ei.value.device == "controller"

@@ -81,8 +81,8 @@ def test_decoders_raise_only_protocol_errors(data):
                p.dec_read_segments, p.dec_u32, p.dec_u64):
         try:
             fn(data)
-        except p.DigitizerProtocolError:
-            pass
+        except p.DigitizerProtocolError as exc:
+            assert exc.device == "digitizer" and exc.command == "decode"
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)
@@ -115,3 +115,22 @@ def test_stream_parser_resynchronizes(garbage, samples, step):
 def test_crc_is_standard_ieee():
     # the check value of CRC-32/ISO-HDLC for "123456789" is 0xCBF43926
     assert zlib.crc32(b"123456789") == 0xCBF43926
+
+
+# docs/protocols/digitizer.md, D8 and D9 (hand-assembled)
+D8 = bytes.fromhex("00 2D 31 01 00 00 00 00")
+D9 = bytes.fromhex("00 E1 F5 05 00 00 00 00 F4 01 00 00 14 00 00 00"
+                   "F4 01 00 00 09 10 0C 00 00 2D 31 01 00 00 00 00")
+
+
+def test_golden_bandwidth_and_config_with_resolution():
+    assert p.enc_u64(20_000_000) == D8
+    cfg = p.Config(100_000_000, 500, 20, 500, 0x09, 16, resolution_bits=12, bandwidth_hz=20_000_000)
+    assert p.encode_config(cfg) == D9 and p.decode_config(D9) == cfg
+    assert len(D9) == p.CONFIG_LEN == 32
+    assert p.Config(1, 1, 1, 10, 1, 8).resolution_bits == 8  # default: the format's own bits
+    for res, fmt in [(13, 8), (7, 16), (17, 16)]:
+        bad = bytearray(D9)
+        bad[21], bad[22] = fmt, res
+        with pytest.raises(p.DigitizerProtocolError, match="resolution"):
+            p.decode_config(bytes(bad))

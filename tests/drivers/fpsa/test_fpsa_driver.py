@@ -8,6 +8,7 @@ import pytest
 from drivers.fpsa import protocol as p
 from drivers.fpsa.driver import FpsaController, LinkError
 from drivers.fpsa.errors import NakError, PatternError
+from drivers.errors import DeviceGone, TransportError
 from drivers.transport import DeviceTimeout
 from sim_devices.clock import VirtualClock
 from sim_devices.fpga import FpgaConfig, FpgaSim
@@ -78,7 +79,7 @@ def test_every_command_over_a_real_pty():
     clock = VirtualClock()
     sim = FpgaSim(clock, FpgaConfig(seed=3))
     with sim.serve_pty() as server:
-        with FpsaController(server.path, timeout_s=2.0, retries=1) as drv:
+        with FpsaController.from_url(server.path, timeout_s=2.0, retries=1) as drv:
             exercise_every_command(drv, sim, clock)
 
 
@@ -86,7 +87,7 @@ def test_full_12288_pixel_pattern_over_pty_and_run_completes():
     clock = VirtualClock()
     sim = FpgaSim(clock)
     pattern = full_raster()
-    with sim.serve_pty() as server, FpsaController(server.path, timeout_s=2.0) as drv:
+    with sim.serve_pty() as server, FpsaController.from_url(server.path, timeout_s=2.0) as drv:
         drv.reset()
         assert drv.upload_pattern(pattern) == 12
         drv.set_timing(settle_ns=8000, trigger_period_ns=10_000)
@@ -289,3 +290,43 @@ def test_constructor_rejects_bad_arguments():
         FpsaController(DeadPort(), timeout_s=0)
     with pytest.raises(ValueError):
         FpsaController(DeadPort(), retries=-1)
+
+
+def test_channel_seam_reopen_and_from_url():
+    # A port that fails once: the driver closes it and asks ``reopen`` for a fresh channel.
+    sim = FpgaSim(VirtualClock())
+
+    class Unplugged:
+        timeout = None
+
+        def write(self, data):
+            raise OSError("device unplugged")
+
+        def read(self, size=1):
+            return b""
+
+        def close(self):
+            pass
+
+    opened = []
+
+    def reopen():
+        opened.append(sim.open_pipe())
+        return opened[-1]
+
+    drv = FpsaController(Unplugged(), reopen=reopen, sleep=lambda s: None)
+    assert drv.identify().rows == 128
+    assert drv.reconnect_count == 1 and len(opened) == 1 and opened[0].timeout == drv.timeout_s
+    # without ``reopen`` a failed port is final, typed, and names device and command
+    with pytest.raises(DeviceGone) as ei:
+        FpsaController(Unplugged(), sleep=lambda s: None).status()
+    assert (ei.value.device, ei.value.command) == ("fpsa", "STATUS")
+    with pytest.raises(TransportError):
+        FpsaController.from_url("nosuch://x")
+
+
+def test_url_constructor_still_works_for_one_release():
+    with pytest.warns(DeprecationWarning, match="from_url"):
+        drv = FpsaController("loop://", timeout_s=0.05, retries=0)
+    assert drv.url == "loop://" and drv._reopen is not None
+    drv.close()

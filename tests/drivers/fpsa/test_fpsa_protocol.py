@@ -73,7 +73,13 @@ def test_cobs_known_examples():
     assert p.cobs_encode(b"\x11\x00\x00\x00") == b"\x02\x11\x01\x01\x01"
     run = bytes(range(1, 255))  # 254 non-zero bytes
     enc = p.cobs_encode(run)
-    assert enc[0] == 0xFF and p.cobs_decode(enc) == run
+    # canonical COBS: a full 254-byte block ends the frame with no empty block after it
+    assert enc == b"\xff" + run and p.cobs_decode(enc) == run
+    # a sender that adds the redundant empty block is still understood
+    assert p.cobs_decode(enc + b"\x01") == run
+    for bad in (b"\x05\x01", b"\x03\x00\x01", b"\x00"):
+        with pytest.raises(FramingError):
+            p.cobs_decode(bad)
 
 
 @given(st.binary(max_size=1200))

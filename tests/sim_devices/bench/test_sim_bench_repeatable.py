@@ -16,7 +16,7 @@ import numpy as np
 
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument import ScanRequest
 
 
 def _calibrate_and_scan(delay_s: float):

@@ -2,20 +2,17 @@
 the virtual clock's timers and the serial line-noise statistics."""
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sim_faults_helpers import SIM_TOML, bench  # noqa: E402,F401
-
-from lidard.config import load_config  # noqa: E402
-from lidard.errors import ConfigError  # noqa: E402
-from sim_devices.bench import Bench, BenchControlClient  # noqa: E402
-from sim_devices.clock import VirtualClock  # noqa: E402
-from sim_devices.faults import FAULT_KINDS, SerialLineNoise, validate_fault  # noqa: E402
+from lidard.config import load_config
+from lidard.errors import ConfigError
+from sim_devices.bench import Bench, BenchControlClient
+from sim_devices.clock import VirtualClock
+from sim_devices.faults import FAULT_KINDS, SerialLineNoise, validate_fault
+from tests.helpers.sim_bench import SIM_TOML
 
 
 @pytest.mark.parametrize("kind, params, names", [

@@ -1,27 +1,23 @@
 """Controller faults read through the real Modbus driver: exception answers, lost replies, an HV
 supply trip and the interlock opening (at a virtual time, or mid-scan after N segments)."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import usb.core
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sim_faults_helpers import bench, controller, fpsa, power_up, run_pattern  # noqa: E402,F401
-
-from drivers.controller.errors import (  # noqa: E402
+from drivers.controller.errors import (
     DeviceBusy,
     DeviceFailure,
     DeviceFaulted,
     DeviceTimeout,
     InterlockOpen,
 )
-from drivers.controller.protocol import Fault  # noqa: E402
-from drivers.digitizer import protocol as dig_p  # noqa: E402
-from drivers.digitizer.driver import DigitizerDriver  # noqa: E402
-from sim_devices.digitizer import CaptureConfig  # noqa: E402
+from drivers.controller.protocol import Fault
+from drivers.digitizer import protocol as dig_p
+from drivers.digitizer.driver import DigitizerDriver
+from sim_devices.digitizer import CaptureConfig
+from tests.helpers.sim_bench import controller, fpsa, power_up, run_pattern
 
 PIXELS = [[0, c] for c in range(10)]   # row 0 is bonded; one trigger per pixel
 

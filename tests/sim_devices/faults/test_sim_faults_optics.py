@@ -1,19 +1,15 @@
 """Optical faults: a stuck MEMS switch (light from the wrong pixels or none; the tap monitor sees 2x
 or 0) and digitizer overrange (the beat clips at full scale, the segment header flags it)."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import usb.core
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sim_faults_helpers import bench, chirp_on, fpsa, power_up, restart, run_pattern  # noqa: E402,F401
-
-from drivers.digitizer import protocol as dig_p  # noqa: E402
-from drivers.digitizer.driver import DigitizerDriver  # noqa: E402
-from sim_devices.digitizer import CaptureConfig  # noqa: E402
+from drivers.digitizer import protocol as dig_p
+from drivers.digitizer.driver import DigitizerDriver
+from sim_devices.digitizer import CaptureConfig
+from tests.helpers.sim_bench import chirp_on, fpsa, power_up, restart, run_pattern
 
 TAP = CaptureConfig(10e6, 200, ("tap",), 16, 1.0)
 

@@ -2,19 +2,15 @@
 copes and nothing uploaded is corrupted) and disconnect / reconnect behind the stable symlink."""
 
 import os
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import serial
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sim_faults_helpers import bench, fpsa  # noqa: E402,F401
-
-from drivers.fpsa import protocol as fp_p  # noqa: E402
-from drivers.transport import DeviceTimeout  # noqa: E402
-from drivers.transport.errors import TransportError  # noqa: E402
+from drivers.fpsa import protocol as fp_p
+from drivers.transport import DeviceTimeout
+from drivers.transport.errors import TransportError
+from tests.helpers.sim_bench import fpsa
 
 PATTERN = np.array([[r, c] for r in range(0, 40) if r % 4 != 3 for c in range(0, 40, 3)])
 

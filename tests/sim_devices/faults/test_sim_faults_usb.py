@@ -2,19 +2,15 @@
 number of transfers or until cleared, in-process and across the socket bridge."""
 
 import errno
-import sys
-from pathlib import Path
 
 import pytest
 import usb.core
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sim_faults_helpers import SIM_TOML, bench  # noqa: E402,F401
-
-from drivers.digitizer import protocol as dig_p  # noqa: E402
-from lidard.config import load_config  # noqa: E402
-from sim_devices.bench import Bench  # noqa: E402
-from sim_devices.usb_backend import backend_from_url  # noqa: E402
+from drivers.digitizer import protocol as dig_p
+from lidard.config import load_config
+from sim_devices.bench import Bench
+from sim_devices.usb_backend import backend_from_url
+from tests.helpers.sim_bench import SIM_TOML
 
 
 def _find(backend, dev):
@@ -122,7 +118,7 @@ def test_replug_resets_the_usb_session_but_keeps_the_settings(bench):
         dig_p.REQTYPE_IN, int(dig_p.Req.GET_STATUS), 0, 0, 16)))
     assert status.state == dig_p.State.IDLE            # the armed acquisition did not survive
     cfg = dig_p.decode_config(bytes(again.ctrl_transfer(
-        dig_p.REQTYPE_IN, int(dig_p.Req.GET_CONFIG), 0, 0, 24)))
+        dig_p.REQTYPE_IN, int(dig_p.Req.GET_CONFIG), 0, 0, dig_p.CONFIG_LEN)))
     assert cfg.segments == 7                           # the configuration did
     # and a setting is accepted again (it is refused while armed)
     again.ctrl_transfer(dig_p.REQTYPE_OUT, int(dig_p.Req.SET_SEGMENTS), 0, 0, dig_p.enc_u32(9))

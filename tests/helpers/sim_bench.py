@@ -1,10 +1,11 @@
-"""Shared set-up for the fault-injection tests: a started bench (in-process USB), real drivers
-(imported by the test modules; a unique basename, not a conftest, so it never shadows another)."""
+"""Shared set-up for the fault-injection tests: a started bench (in-process USB) and real drivers
+on it. The ``bench`` fixture lives in tests/sim_devices/faults/conftest.py and uses :func:`started_bench`."""
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from drivers.awg import protocol as awg_p
 from drivers.controller.driver import LaserHvController, SettleCheck
@@ -14,16 +15,18 @@ from lidard.config import load_config
 from lidard.physics.chirp import triangle_drive_v
 from sim_devices.bench import Bench
 
-SIM_TOML = Path(__file__).resolve().parents[3] / "config" / "sim.toml"
+SIM_TOML = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 LIMITS = Limits(max_laser_current_ma=150.0, max_hv_v=60.0, tec_range_c=(15.0, 40.0))
 
 
-@pytest.fixture
-def bench():
+@contextlib.contextmanager
+def started_bench() -> Iterator[Bench]:
     b = Bench(load_config(SIM_TOML))
     b.start(usb="inproc")
-    yield b
-    b.close()
+    try:
+        yield b
+    finally:
+        b.close()
 
 
 def controller(bench: Bench, **kw) -> LaserHvController:
@@ -35,7 +38,7 @@ def controller(bench: Bench, **kw) -> LaserHvController:
 
 def fpsa(bench: Bench, **kw) -> FpsaController:
     kw.setdefault("timeout_s", 0.5)
-    return FpsaController(bench.endpoints()["fpsa_url"], **kw)
+    return FpsaController.from_url(bench.endpoints()["fpsa_url"], **kw)
 
 
 def power_up(bench: Bench) -> LaserHvController:

@@ -1,6 +1,6 @@
 """A fake Instrument for daemon/API/CLI tests: synthetic points, honours cancel and progress.
 
-Not a test module (no test_ prefix); test files load it with ``sys.path`` pointing here.
+Import it as ``from tests.helpers.fakes import FakeInstrument`` (pyproject sets pytest's pythonpath).
 A scan can be held part-way (``hold_after`` pixels) until the test releases it or cancels it, so
 cancel and queue-order tests need no sleeps.
 """
@@ -12,8 +12,10 @@ import threading
 import numpy as np
 
 from lidard.config import load_profile
-from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress
+from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress, ScanResult
 from lidard.scan import plan
+
+from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
 
 
 class DeviceFault(Exception):
@@ -102,5 +104,40 @@ class FakeInstrument:
         self.scenes.append(scene)
         return {"name": parsed.name, "targets": len(parsed)}
 
+    def selftest(self, progress=None):
+        # the fake has no switches to toggle: the worker reports this as a failed self-test (503)
+        raise NotSimulated("the fake instrument has no FPSA to self-test")
+
+    # Bench faults: the fake has no bench (the API answers 409, as for real hardware).
+    def inject_fault(self, kind, **params):
+        raise NotSimulated("the fake instrument has no bench to inject faults into")
+
+    def clear_faults(self, kind=None):
+        raise NotSimulated("the fake instrument has no bench to clear faults on")
+
+    def active_faults(self):
+        raise NotSimulated("the fake instrument has no bench faults")
+
     def close(self):
         self.closed = True
+
+
+class StreamingInstrument(FakeInstrument):
+    """Measures ``n`` points in two batches; holds after the first until the test releases it."""
+
+    def __init__(self, n: int = 50, **kw):
+        super().__init__(**kw)
+        self.n = n
+        self.first_batch = threading.Event()
+
+    def run_scan(self, request, progress, cancel, calibration=None):
+        pts = np.zeros(self.n, POINT_DTYPE)
+        pts["range"] = np.linspace(0.5, 1.5, self.n)
+        pts["z"], pts["row"], pts["col"] = pts["range"], np.arange(self.n) // 10, np.arange(self.n) % 10
+        pts["velocity"], pts["t"], pts["valid"] = -0.25, np.arange(self.n) * 1e-4, 1
+        half = self.n // 2
+        progress(ScanProgress(half, self.n, half, 0.1, new_points=pts[:half]))
+        self.first_batch.set()
+        assert self.release.wait(20.0)
+        progress(ScanProgress(self.n, self.n, self.n, 0.2, new_points=pts[half:]))
+        return ScanResult(points=pts, meta={}, pixels_scanned=self.n, pixels_planned=self.n, hardware_time_s=0.2)

@@ -1,0 +1,172 @@
+// lidard web viewer: watches the daemon over its own REST API (same rules as any client: reads are
+// open, starting or cancelling needs the control lease, sent as X-Lidard-Lease).
+// window.viewer exposes the page's state (scanId, pointCount, complete, ...) for tests and the console.
+import { Cloud } from "/viewer/cloud.js";
+import * as panels from "/viewer/panels.js";
+
+const FIELDS = ["x", "y", "z", "range", "velocity", "intensity", "snr_db", "row", "col", "t", "valid"];
+const $ = (id) => document.getElementById(id);
+
+const viewer = window.viewer = {
+  lease: null, holder: null, simulated: false,
+  scanId: null, pointCount: 0, complete: false, scanState: null, lastError: null,
+  cloud: new Cloud($("cloud"), FIELDS),
+};
+
+async function api(path, opts = {}) {
+  const headers = { ...(opts.headers || {}) };
+  if (viewer.lease) headers["X-Lidard-Lease"] = viewer.lease;
+  if (opts.json !== undefined) { headers["Content-Type"] = "application/json"; opts.body = JSON.stringify(opts.json); }
+  const r = await fetch(path, { ...opts, headers });
+  if (!r.ok) {
+    let detail = r.statusText;
+    try { const j = await r.json(); detail = typeof j.detail === "string" ? j.detail : JSON.stringify(j.detail); } catch (e) { /* not JSON */ }
+    const err = new Error(`${r.status}: ${detail}`); err.status = r.status; throw err;
+  }
+  return r;
+}
+const getJSON = async (path) => (await api(path)).json();
+
+// ---- the point cloud of one scan, fetched incrementally ---------------------------------------
+let pulling = false, pullAgain = false, events = null;
+
+async function pullPoints() {
+  if (pulling) { pullAgain = true; return; }
+  pulling = true;
+  try {
+    do {
+      pullAgain = false;
+      const id = viewer.scanId;
+      const r = await api(`/scans/${id}/points/live?since=${viewer.pointCount}`);
+      if (id !== viewer.scanId) break;  // the user switched scans meanwhile
+      const rows = new Float32Array(await r.arrayBuffer());
+      viewer.cloud.append(rows);
+      viewer.pointCount = viewer.cloud.count;
+      viewer.complete = r.headers.get("X-Lidard-Complete") === "true";
+      if (rows.length && !viewer.complete) pullAgain = true;  // more may be waiting (limit)
+      $("point-count").textContent = `${viewer.pointCount} points${viewer.complete ? "" : " …"}`;
+      drawLegend();
+    } while (pullAgain);
+  } catch (e) {
+    viewer.lastError = String(e);
+  } finally {
+    pulling = false;
+  }
+}
+
+function showScan(id) {
+  if (events) { events.close(); events = null; }
+  viewer.scanId = id; viewer.pointCount = 0; viewer.complete = false; viewer.scanState = null;
+  viewer.cloud.clear();
+  $("scan-label").textContent = `scan ${id}`;
+  $("picked").textContent = "click a point to see its fields";
+  // progress events say when new points exist; the end event says the count is final
+  events = new EventSource(`/scans/${id}/events`);
+  events.addEventListener("progress", (m) => { viewer.scanState = "running"; pullPoints(); });
+  events.addEventListener("end", (m) => {
+    viewer.scanState = JSON.parse(m.data).state;
+    events.close(); events = null;
+    pullPoints();
+    refresh();
+  });
+  pullPoints();
+}
+
+// ---- control lease --------------------------------------------------------------------------
+async function takeControl() {
+  try {
+    const r = await (await api("/control", { method: "POST", json: { client: "web viewer" } })).json();
+    viewer.lease = r.lease; viewer.holder = r.holder;
+    showControl({ held: true, holder: r.holder });
+  } catch (e) { $("scan-error").textContent = String(e); }
+  refresh();
+}
+
+async function releaseControl() {
+  try { await api("/control", { method: "DELETE" }); } catch (e) { /* already gone */ }
+  viewer.lease = null;
+  refresh();
+}
+
+async function startScan(ev) {
+  ev.preventDefault();
+  const f = new FormData($("scan-form")), n = (k) => Number(f.get(k));
+  const body = { pattern: f.get("pattern"), averages: n("averages"), max_range_m: n("max_range_m"), formats: ["npz"] };
+  if (body.pattern === "roi") { body.rows = [n("row0"), n("row1")]; body.cols = [n("col0"), n("col1")]; }
+  $("scan-error").textContent = "";
+  try {
+    const s = await (await api("/scans", { method: "POST", json: body })).json();
+    showScan(s.id);
+  } catch (e) { $("scan-error").textContent = String(e); viewer.lastError = String(e); }
+  refresh();
+}
+
+async function cancelScan(id) {
+  try { await api(`/scans/${id}`, { method: "DELETE" }); } catch (e) { $("scan-error").textContent = String(e); }
+  refresh();
+}
+
+// ---- periodic refresh of the panels -------------------------------------------------------------
+function showControl(control) {
+  const mine = !!(viewer.lease && control.held && control.holder === viewer.holder);
+  if (viewer.lease && !mine) viewer.lease = null;  // expired or taken over
+  $("control-status").textContent = control.held ? `control: ${mine ? "you" : control.holder}` : "control: free";
+  $("control-take").hidden = mine; $("control-release").hidden = !mine;
+  $("scan-start").disabled = !mine;
+  return mine;
+}
+
+// Each panel refreshes on its own, so a slow device check never holds up the queue or the controls.
+let calTick = 0;
+async function refresh() {
+  try {
+    const [health, control, list] = await Promise.all([getJSON("/health"), getJSON("/control"), getJSON("/scans?limit=12")]);
+    viewer.simulated = health.simulated;
+    $("health").textContent = `${health.version} · ${health.simulated ? "simulated bench" : "hardware"} · ${health.status}`;
+    const mine = showControl(control);
+    panels.renderQueue($("queue"), list.scans, { canAct: mine, onCancel: cancelScan, onShow: showScan, shownId: viewer.scanId });
+    if (!viewer.scanId && list.scans.length) showScan(list.running || list.scans[0].id);
+    refreshSlow(health.simulated, calTick++ % 5 === 0 || !!list.running);
+  } catch (e) {
+    $("health").textContent = `daemon unreachable (${e})`;
+  }
+}
+
+let slowBusy = false;
+async function refreshSlow(simulated, withCalibrations) {
+  if (slowBusy) return;
+  slowBusy = true;
+  try {
+    panels.renderDevices($("devices"), (await getJSON("/devices")).devices);
+    panels.renderFaults($("faults"), simulated ? (await getJSON("/sim/faults")).faults : [], simulated);
+    if (withCalibrations) {
+      const cals = await getJSON("/calibration/history?limit=5");
+      panels.renderCalibrations($("calibrations"), cals);
+      panels.plotConvergence($("convergence"), cals);
+    }
+  } catch (e) {
+    viewer.lastPanelError = String(e);
+  } finally {
+    slowBusy = false;
+  }
+}
+
+function drawLegend() {
+  const [lo, hi] = viewer.cloud.colorLimits || [0, 0];
+  const unit = { range: "m", velocity: "m/s", snr_db: "dB", intensity: "V" }[viewer.cloud.mode];
+  $("legend").textContent = `${lo.toPrecision(3)} … ${hi.toPrecision(3)} ${unit}`;
+}
+
+viewer.cloud.onPick = (p) => {
+  $("picked").textContent = p === null ? "no point there" : FIELDS.map((f) =>
+    `${f.padEnd(9)} ${["row", "col", "valid"].includes(f) ? p[f] : p[f].toPrecision(5)}`).join("\n");
+  viewer.picked = p;
+};
+$("color-mode").addEventListener("change", (e) => { viewer.cloud.setMode(e.target.value); drawLegend(); });
+$("control-take").addEventListener("click", takeControl);
+$("control-release").addEventListener("click", releaseControl);
+$("scan-form").addEventListener("submit", startScan);
+viewer.showScan = showScan;
+viewer.ready = true;
+refresh();
+setInterval(refresh, 1000);

@@ -1,0 +1,101 @@
+"""What every command of ``lidarctl`` and ``lidard`` shares: the one-line error contract, the argparse
+subclass that keeps it, configuration loading, the lazy hook into the composition root, atomic file
+output and the runner that turns exceptions into exit codes.
+
+Every failure (bad option, unreachable daemon, bad configuration, device fault) is printed as ONE
+line on stderr with a non-zero exit status; ``LIDARD_DEBUG=1`` re-raises for the traceback.
+Ctrl-C exits 130 (128 + SIGINT, the shell convention).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from pathlib import Path
+from typing import Any, Callable, NoReturn
+
+from ..errors import ConfigError, LidardError
+
+DEFAULT_URL = "http://127.0.0.1:8470"
+EXIT_ERROR = 1
+EXIT_USAGE = 2
+EXIT_STUCK = 3          # the self-test ran and found a stuck switch
+EXIT_INTERRUPTED = 130  # 128 + SIGINT
+
+
+class CliError(LidardError):
+    """A user-facing failure; printed as one line."""
+
+
+class Interrupted(Exception):
+    """Ctrl-C arrived and the command finished cleanly (partial results kept); exit 130."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage dump) so scripts can parse stderr."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(EXIT_USAGE)
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keep the examples' line breaks; each flag's help says its unit and default itself."""
+
+
+def open_instrument(cfg, **kw):
+    """The composition root (lidard.instrument), imported only when a command needs hardware/sim.
+
+    Commands call it as ``base.open_instrument`` so that tests can replace it in one place.
+    """
+    try:
+        from ..instrument import open_instrument as _open
+    except ImportError as exc:
+        raise CliError(f"the instrument layer is not available ({exc})") from None
+    return _open(cfg, **kw)
+
+
+def load_config(path: str | None, profile: str | None = None):
+    """The configuration file (default search path when ``path`` is None), with ``profile`` swapped in."""
+    from ..config import Config
+    from ..config import load_config as _load
+    cfg = _load(path)
+    if profile is not None and profile != cfg.profile:
+        data = cfg.model_dump()
+        data.update(profile=profile, lens=None, source=cfg.source, base_dir=cfg.base_dir)
+        cfg = Config.model_validate(data)
+        cfg.load_profile()
+    return cfg
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    from ..pointcloud import atomic_write
+    with atomic_write(path) as f:
+        f.write(data)
+
+
+def copy_atomic(src: Path, dst: str | Path) -> None:
+    from ..pointcloud import atomic_write
+    with open(src, "rb") as fin, atomic_write(dst) as fout:
+        shutil.copyfileobj(fin, fout)
+
+
+def run(fn: Callable[[Any], int], args, prog: str) -> int:
+    """Call a command; map its exceptions to one stderr line and an exit status."""
+    try:
+        return fn(args)
+    except (KeyboardInterrupt, Interrupted) as exc:
+        detail = str(exc) if isinstance(exc, Interrupted) and str(exc) else ""
+        sys.stderr.write(f"{prog}: interrupted{': ' + detail if detail else ''}\n")
+        return EXIT_INTERRUPTED
+    except Exception as exc:
+        if os.environ.get("LIDARD_DEBUG"):
+            raise
+        msg = str(exc).replace("\n", " ").strip()
+        if isinstance(exc, (CliError, ConfigError)):
+            sys.stderr.write(f"{prog}: error: {msg}\n")
+        else:
+            sys.stderr.write(f"{prog}: error: {type(exc).__name__}: {msg}\n")
+        return EXIT_ERROR

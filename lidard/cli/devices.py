@@ -1,0 +1,49 @@
+"""``lidarctl status`` (the daemon's health) and ``lidarctl devices`` (one row per instrument)."""
+
+from __future__ import annotations
+
+from . import output
+from .client import client, daemon_opts
+
+
+def add_parsers(sub) -> None:
+    sp = sub.add_parser("status", help="daemon health: state, queue, running scan")
+    daemon_opts(sp)
+    sp.set_defaults(fn=cmd_status)
+    sp = sub.add_parser("devices", help="per-device link, identity, state and faults")
+    daemon_opts(sp)
+    sp.set_defaults(fn=cmd_devices)
+
+
+def cmd_status(args) -> int:
+    with client(args) as c:
+        h = c.get_json("/health")
+    if args.json:
+        output.emit_json(h)
+    else:
+        print(f"lidard {h['version']} at {args.url}: {h['status']}"
+              f"{' (simulated)' if h['simulated'] else ''}; queue {h['queue_length']}, "
+              f"running {h['running_scan'] or '-'}")
+    return 0
+
+
+def device_rows(devs: list[dict]) -> list[list[str]]:
+    rows = []
+    for d in devs:
+        link = "connected" if d.get("connected") else "DISCONNECTED"
+        if d.get("reconnected"):
+            link += " (reconnected)"
+        faults = output.compact([output.readable(f) for f in d.get("faults") or []]) if d.get("faults") else "-"
+        rows.append([str(d.get("name", "?")), link, output.readable(d.get("identity")),
+                     output.readable(d.get("state")), faults])
+    return rows
+
+
+def cmd_devices(args) -> int:
+    with client(args) as c:
+        devs = c.get_json("/devices")["devices"]
+    if args.json:
+        output.emit_json({"devices": devs})
+        return 0
+    print(output.table(device_rows(devs), ["DEVICE", "LINK", "IDENTITY", "STATE", "FAULTS"]))
+    return 0

@@ -1,0 +1,84 @@
+"""``--sim``: an embedded simulated bench with the daemon's own worker and store, in this process.
+
+The command runs the same job code as the daemon (lidard.jobs.ScanWorker over lidard.store.Store),
+so a one-shot ``lidarctl scan --sim`` and a scan through ``lidard`` write the same files. Without
+``--data-dir`` the store is a temporary directory, so every run starts without a calibration and
+linearizes the chirp first (ILC, dissertation §2.2); ``--data-dir DIR`` keeps it for the next run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import tempfile
+from pathlib import Path
+
+from . import base
+from .base import CliError
+
+
+def sim_config(args):
+    """The configuration of ``--sim`` (default: the packaged config/sim.toml), refused if not simulated."""
+    from ..config import CONFIG_DIR
+    cfg = base.load_config(args.config or str(CONFIG_DIR / "sim.toml"), getattr(args, "profile", None))
+    if not cfg.sim.enabled:
+        raise CliError(f"--sim needs a simulated configuration; {cfg.source} has sim.enabled = false")
+    return cfg
+
+
+def run_meta(cfg, scene_path: str | None) -> dict:
+    """The sidecar's run description: what the daemon's app records, plus the scene on a bench."""
+    from ..pointcloud import scene_identity
+    profile = cfg.load_profile()
+    scene = scene_path or str(cfg.resolve_path(cfg.sim.scene))
+    return {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
+            "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
+            "detector": cfg.detector.model_dump(), "config": cfg.source, "scene": scene_identity(scene)}
+
+
+@contextlib.contextmanager
+def embedded(args, cfg=None, scene_path: str | None = None):
+    """Yield ``(worker, store, instrument)``; on exit stop the worker, close the store and the bench."""
+    from ..jobs import ScanWorker
+    from ..store import Store
+    cfg = cfg if cfg is not None else sim_config(args)
+    meta = run_meta(cfg, scene_path)
+    kw = {"scene_path": scene_path} if scene_path is not None else {}
+    tmp = None
+    data_dir = args.data_dir
+    if data_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="lidarctl-")
+        data_dir = tmp.name
+    # The store first: it takes the data directory's lock, so a held directory is refused before
+    # a bench starts (the message names the holder's PID).
+    try:
+        store = Store(data_dir)
+    except BaseException:
+        if tmp is not None:
+            tmp.cleanup()
+        raise
+    try:
+        inst = base.open_instrument(cfg, bench="embedded", **kw)
+    except BaseException:
+        store.close()
+        if tmp is not None:
+            tmp.cleanup()
+        raise
+    try:
+        worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1, optics=cfg.optics(),
+                            recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
+        worker.start()
+        try:
+            yield worker, store, inst
+        finally:
+            worker.stop()
+    finally:
+        try:
+            store.close()
+            inst.close()
+        finally:
+            if tmp is not None:
+                tmp.cleanup()
+
+
+def resolve(path: str | None) -> str | None:
+    return None if path is None else str(Path(path).resolve())

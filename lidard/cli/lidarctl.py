@@ -1,0 +1,54 @@
+"""``lidarctl``: the client of a running lidard and the offline tools, one module per command group.
+
+A new command goes in its own module of this package with an ``add_parser(sub)`` that registers it
+and sets ``fn``; list it in :data:`GROUPS` below.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import calibration, control, devices, faults, optics, scan, scans, selftest, sweep
+from .base import Parser, run
+
+# (module, registering function) in the order ``lidarctl --help`` lists them
+GROUPS = ((scan, "add_parser"), (devices, "add_parsers"), (scans, "add_parser"), (control, "add_parser"),
+          (faults, "add_parser"), (calibration, "add_parser"), (selftest, "add_parser"),
+          (optics, "add_parsers"), (sweep, "add_parser"))
+
+DESCRIPTION = """\
+Control and inspect an FPSA FMCW LiDAR through its daemon (lidard), or run it on an embedded
+simulated bench with --sim. `lidarctl COMMAND --help` explains each command."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = Parser(prog="lidarctl", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module, register in GROUPS:
+        getattr(module, register)(sub)
+    return p
+
+
+def glue_secret_values(argv: list[str]) -> list[str]:
+    """``--lease -Xy`` -> ``--lease=-Xy`` (and ``--token``): a secret may start with "-" (a lease of an
+    older daemon, a token the user generated with ``token_urlsafe``), which argparse would otherwise
+    take for an option and fail with "expected one argument". ``--lease --json`` stays an error."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if (a in ("--lease", "--token") and i + 1 < len(argv) and argv[i + 1].startswith("-")
+                and not argv[i + 1].startswith("--") and argv[i + 1] != "-h"):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = glue_secret_values(list(sys.argv[1:] if argv is None else argv))
+    args = build_parser().parse_args(argv)
+    return run(args.fn, args, "lidarctl")

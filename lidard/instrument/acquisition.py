@@ -1,0 +1,201 @@
+"""One acquisition lifecycle, ready -> start -> read -> stop, shared by scan, resume, linearization and self-test.
+
+Dissertation §4.4.1 (Fig. 4-14): the AWG plays the laser's drive waveform on external trigger, the
+FPGA steps the FPSA's switch pattern itself and triggers AWG and digitizer once per chirp period, and
+the digitizer records ``triggers_per_pixel`` segments per pixel. There is no PC round trip per pixel:
+the host only prepares, starts, reads segments by index and stops.
+
+* :class:`AcquisitionPlan` is what to acquire (pixels, triggers, channels, rate, record length);
+* :class:`Acquisition` is the context of one running acquisition (its plan, the digitizer's own
+  record layout, where it starts inside the scan, the run's fault counters), passed to every step
+  (after ophyd-async's detector ``_PrepareCtx``/trigger-info dataclasses) instead of closures;
+* :class:`AcquisitionLifecycle` runs the steps; each driver call sits in :func:`on_device`, so a
+  failure names its device (and the drivers' own ``.device`` wins).
+
+Reads are idempotent (segments by index), so a failed batch is re-read up to ``BATCH_RETRIES`` times
+with exponential backoff on the instrument's clock; a lost acquisition is :meth:`restart` ed from
+the first pixel not yet read.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from drivers.usbtmc import DeviceDisconnected, DeviceStall, DeviceTimeout as UsbTimeout, UsbDeviceError
+
+from ..config import Config
+from ..physics.chirp import triangle_drive_v
+from .devices import DeviceRegistry
+from .errors import InstrumentError, SegmentsLost, on_device
+
+AWG_RATE_HZ = 100e6          # drive samples: 16,000 per 160 us period
+BATCH_RETRIES = 3            # re-reads of a failed batch of segments
+BATCH_BACKOFF_S = 0.005      # first backoff between batch re-reads (doubles)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class AcquisitionPlan:
+    """What one acquisition records: every pixel of ``pixels`` ``triggers_per_pixel`` times."""
+
+    pixels: np.ndarray                  # (n, 2) row, col in the order the FPGA steps them
+    triggers_per_pixel: int
+    channels: tuple[str, ...]           # digitizer channels ("beat", "mzi", "tap")
+    fs_hz: float
+    record_length: int                  # samples per segment
+    bits: int
+
+    @property
+    def segments(self) -> int:
+        return len(self.pixels) * int(self.triggers_per_pixel)
+
+    def rest(self, from_pixel: int) -> AcquisitionPlan:
+        """The same acquisition for the pixels from ``from_pixel`` on (a resume)."""
+        return AcquisitionPlan(self.pixels[from_pixel:], self.triggers_per_pixel, self.channels, self.fs_hz,
+                               self.record_length, self.bits)
+
+
+@dataclass
+class Acquisition:
+    """The context of one prepared/running acquisition."""
+
+    plan: AcquisitionPlan
+    layout: Any                          # the digitizer's configure() reply: its channel order
+    first_pixel: int = 0                 # index inside the whole scan of plan.pixels[0]
+    faults: dict[str, Any] = field(default_factory=lambda: {"batch_retries": 0})
+    started: bool = False
+
+    def channel_index(self, name: str) -> int:
+        # the record lists channels in the digitizer's order (channel bits), not ours
+        return self.layout.channels.index(name)
+
+
+class AcquisitionLifecycle:
+    """ready -> start -> read -> stop over the FPSA controller, the AWG and the digitizer."""
+
+    def __init__(self, devices: DeviceRegistry, cfg: Config, sleep: Callable[[float], object]):
+        self.devices = devices
+        self.cfg = cfg
+        self._sleep = sleep
+
+    # -- ready ----------------------------------------------------------------------------------
+    def load_drive(self, drive_v: np.ndarray) -> None:
+        """Upload the laser drive waveform (volts) and play it on external trigger; refuses a waveform
+        beyond the AWG's output range (devices.awg.max_output_v) before anything is uploaded."""
+        d = np.asarray(drive_v, dtype=np.float64)
+        peak = float(np.max(np.abs(d))) if d.size else 0.0
+        limit = self.cfg.devices.awg.max_output_v
+        if not (d.ndim == 1 and d.size >= 2 and np.all(np.isfinite(d)) and peak <= limit):
+            raise InstrumentError(f"awg: refusing drive waveform (shape {d.shape}, peak {peak:.4g} V): it must be "
+                                  f"finite and within the output range of +-{limit:g} V "
+                                  "(devices.awg.max_output_v); nothing uploaded")
+        awg = self.devices["awg"]
+        with on_device("awg", "load drive"):
+            awg.output(False)
+            awg.set_sample_rate(AWG_RATE_HZ)
+            awg.upload_waveform(d, units="volts")
+            awg.set_trigger_external(True)
+            awg.output(True)
+
+    def ready(self, plan: AcquisitionPlan, *, drive_v: np.ndarray | None = None, first_pixel: int = 0,
+              faults: dict[str, Any] | None = None) -> Acquisition:
+        """(Drive,) pattern and timing to the FPGA, then the digitizer configured and armed."""
+        if drive_v is not None:
+            self.load_drive(drive_v)
+        fpsa, dig = self.devices["fpsa"], self.devices["digitizer"]
+        with on_device("fpsa", "pattern"):
+            fpsa.upload_pattern(plan.pixels)
+            fpsa.set_timing(settle_ns=int(self.cfg.scan.settle_s * 1e9), dwell_ns=0,
+                            triggers_per_pixel=int(plan.triggers_per_pixel),
+                            trigger_period_ns=int(round(2 * self.cfg.chirp.ramp_s * 1e9)))
+        with on_device("digitizer", "configure"):
+            dig.abort()   # an acquisition a failed job left armed would lock the settings
+            layout = dig.configure(channels=plan.channels, sample_rate_hz=plan.fs_hz,
+                                   record_length=plan.record_length, segments=plan.segments, bits=plan.bits,
+                                   input_range_v=self.cfg.adc.input_range_v)
+            dig.arm()
+        return Acquisition(plan, layout, first_pixel, faults if faults is not None else {"batch_retries": 0})
+
+    # -- start / read / stop --------------------------------------------------------------------
+    def start(self, acq: Acquisition) -> None:
+        fpsa = self.devices["fpsa"]
+        with on_device("fpsa", "start"):
+            fpsa.arm()
+            fpsa.start()
+        acq.started = True
+
+    def read(self, acq: Acquisition, first: int, count: int) -> tuple[list[Any], np.ndarray]:
+        """Segments ``first .. first + count - 1`` of this acquisition: (headers, samples); transient
+        failures re-read the whole batch (bounded), then :class:`SegmentsLost`."""
+        dig = self.devices["digitizer"]
+        last: Exception | None = None
+        for attempt in range(BATCH_RETRIES + 1):
+            if attempt:
+                acq.faults["batch_retries"] += 1
+                log.warning("digitizer: re-reading segments %d..%d (attempt %d/%d) after %s",
+                            first, first + count - 1, attempt + 1, BATCH_RETRIES + 1, last)
+                self._sleep(BATCH_BACKOFF_S * 2 ** (attempt - 1))
+            with on_device("digitizer", "READ_SEGMENTS"):
+                try:
+                    return dig.read_segments(first, count, acq.layout)
+                except DeviceStall as exc:
+                    raise SegmentsLost(f"digitizer: refused READ_SEGMENTS({first},{count}): {exc}") from exc
+                except DeviceDisconnected as exc:
+                    last = exc
+                    try:
+                        dig.reconnect(f"READ_SEGMENTS({first},{count})")
+                    except Exception as exc2:
+                        last = exc2
+                except (UsbTimeout, UsbDeviceError) as exc:
+                    last = exc
+        raise SegmentsLost(f"digitizer: segments {first}..{first + count - 1} could not be read after "
+                           f"{BATCH_RETRIES + 1} attempts: {type(last).__name__}: {last}") from last
+
+    def read_all(self, acq: Acquisition, step: int,
+                 done: Callable[[int, np.ndarray], None] | None = None) -> np.ndarray:
+        """Every segment, ``step`` at a time (samples only); ``done(first, samples)`` after each read."""
+        n = acq.plan.segments
+        out = []
+        for first in range(0, n, step):
+            _, samples = self.read(acq, first, min(step, n - first))
+            out.append(samples)
+            if done is not None:
+                done(first, samples)
+        return np.concatenate(out) if out else np.zeros((0, len(acq.plan.channels), acq.plan.record_length))
+
+    def stop(self, acq: Acquisition | None = None) -> None:
+        """Stop the FPGA's pattern (no more triggers)."""
+        with on_device("fpsa", "stop"):
+            self.devices["fpsa"].stop()
+        if acq is not None:
+            acq.started = False
+
+    def abort(self, acq: Acquisition | None = None) -> None:
+        """Abort the digitizer's acquisition: one left armed locks its configuration for the next job."""
+        try:
+            with on_device("digitizer", "abort"):
+                self.devices["digitizer"].abort()
+        except Exception as exc:
+            log.warning("digitizer abort after an early stop failed: %s", exc)
+
+    def restart(self, acq: Acquisition, from_pixel: int) -> Acquisition:
+        """Stop what is left of ``acq`` and start a new acquisition for its pixels from ``from_pixel``
+        on (scan-wide index); the fault counters carry over."""
+        try:
+            self.stop(acq)
+        except Exception as exc:  # the restart below is what matters; it fails loudly if needed
+            log.warning("fpsa stop before resume failed: %s", exc)
+        new = self.ready(acq.plan.rest(from_pixel - acq.first_pixel), first_pixel=from_pixel, faults=acq.faults)
+        self.start(new)
+        return new
+
+
+def plain_drive(cfg: Config, static_tuning_hz_per_v: float) -> np.ndarray:
+    """The unlinearized triangle drive (volts) for the configured chirp ."""
+    c = cfg.chirp
+    return triangle_drive_v(c.excursion_hz, c.ramp_s, AWG_RATE_HZ, static_tuning_hz_per_v)

@@ -1,0 +1,80 @@
+"""Chirp linearization by iterative learning pre-distortion (dissertation §2.2; §4.4.2's monitor MZI).
+
+The ILC itself (:func:`lidard.dsp.ilc.linearize`) is pure: it asks for measurements of a drive
+waveform and learns the pre-distortion. Here each measurement is one acquisition on the centre pixel:
+the drive is loaded into the AWG, the FPGA fires ``n_avg`` chirps, the digitizer records the monitor
+MZI channel, and the safety monitor is checked before the samples are trusted. The ADC rate is set by
+the MZI beat (chirp rate x MZI delay), not by the scan range.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, Callable
+
+import numpy as np
+
+from ...config import Config
+from ...dsp.ilc import linearize as ilc_linearize
+from ...physics.chirp import adc_rate_hz
+from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan
+from ..errors import InstrumentError
+from ..safety import SafetyMonitor, describe_safe
+from ..types import CalibrationResult
+
+log = logging.getLogger(__name__)
+
+
+class Linearization:
+    """One linearization run: ``run(plain_drive_v)`` answers the :class:`CalibrationResult`."""
+
+    def __init__(self, cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: SafetyMonitor,
+                 progress: Callable[[dict[str, Any]], None] | None = None):
+        self.cfg, self.lifecycle, self.safety, self.progress = cfg, lifecycle, safety, progress
+        c = cfg.chirp
+        self.mzi_delay_s = cfg.monitor.delay_s
+        f_mzi = c.rate_hz_per_s * self.mzi_delay_s
+        self.fs_hz = adc_rate_hz(1.0, c.rate_hz_per_s, max_doppler_hz=f_mzi * 2.0, oversample=4.0,
+                                 max_rate_hz=cfg.adc.max_sample_rate_hz, min_rate_hz=cfg.adc.min_sample_rate_hz,
+                                 ramp_s=c.ramp_s)
+        self.record_length = 2 * int(round(self.fs_hz * c.ramp_s))
+        rows = optics.bonded_rows
+        self.centre = np.array([[rows[len(rows) // 2], optics.cols // 2]])
+        self.measurements = 0
+        self.faults: dict[str, Any] = {"batch_retries": 0}
+
+    def measure(self, drive_v: np.ndarray, n_avg: int) -> np.ndarray:
+        """The ILC's measurement: ``n_avg`` MZI records (volts-proportional float64) of ``drive_v``."""
+        plan = AcquisitionPlan(self.centre, n_avg, ("mzi",), self.fs_hz, self.record_length, 16)
+        acq = self.lifecycle.ready(plan, drive_v=drive_v, faults=self.faults)
+        self.lifecycle.start(acq)
+        _, samples = self.lifecycle.read(acq, 0, n_avg)
+        self.lifecycle.stop(acq)
+        reason = self.safety.check()
+        if reason is not None:
+            # the same safe path as a scan: outputs first, then give up the calibration
+            raise InstrumentError(f"linearization stopped: {reason}; {describe_safe(self.safety.trip())}")
+        self.measurements += 1
+        if self.progress is not None:
+            self.progress({"measurements": self.measurements})
+        return samples[:, 0, :].astype(np.float64)
+
+    def run(self, plain_drive_v: np.ndarray, laser: str) -> CalibrationResult:
+        c = self.cfg.chirp
+        self.safety.bring_up()
+        try:
+            res = ilc_linearize(self.measure, plain_drive_v, fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self.fs_hz,
+                                ramp_s=c.ramp_s, excursion_hz=c.excursion_hz, mzi_delay_s=self.mzi_delay_s,
+                                averages=32, max_averages=512, max_drive_v=self.cfg.devices.awg.max_output_v)
+        finally:
+            self.safety.bring_down()
+        iters = [{"up_rms_hz": float(it["up_rms_hz"]), "down_rms_hz": float(it["down_rms_hz"])}
+                 for it in res.iterations]
+        try:
+            temp = float(self.safety.controller.tec_c())
+        except Exception:
+            temp = float("nan")
+        return CalibrationResult(iterations=iters, reduction={k: float(v) for k, v in dict(res.reduction).items()},
+                                 converged=bool(res.converged), laser=laser, temperature_c=temp,
+                                 drive_v=np.asarray(res.drive_v, dtype=np.float64), fs_drive_hz=AWG_RATE_HZ,
+                                 meta={"mzi_delay_s": self.mzi_delay_s, "adc_rate_hz": self.fs_hz})

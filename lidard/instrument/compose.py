@@ -1,0 +1,197 @@
+"""The composition root: a configuration becomes running drivers and a :class:`LidarInstrument`.
+
+For a simulated configuration the simulated bench (sim_devices) is started first, embedded in this
+process or as a ``lidar-sim`` child process, and the device addresses are taken from it; the
+instrument then talks to it over the same bytes as to the lab bench of dissertation §4.4.1 (serial
+to the FPGA, USB to the AWG and digitizer, Modbus TCP to the laser/HV controller). This is the only
+module of lidard that imports sim_devices (an import-linter contract in pyproject.toml).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import os
+import subprocess
+import sys
+import threading
+import time
+from typing import Any
+
+from drivers.awg.driver import AwgDriver
+from drivers.controller.driver import LaserHvController
+from drivers.controller.protocol import Limits
+from drivers.digitizer.driver import DigitizerDriver
+from drivers.fpsa.driver import FpsaController
+
+from ..config import Config
+from .errors import InstrumentError, SceneRejected, SimFaultError
+from .facade import LidarInstrument, SimHooks
+
+log = logging.getLogger(__name__)
+
+
+def _usb_ids(spec: str, default_ids: tuple[int, int], who: str) -> tuple[int, int]:
+    if spec == "bench":
+        return default_ids
+    try:
+        vid_s, pid_s = spec.split(":")
+        return int(vid_s, 16), int(pid_s, 16)
+    except ValueError:
+        raise InstrumentError(f"{who}: usb address {spec!r} is not VID:PID (hex)") from None
+
+
+def _usb_finder(backend, ids: tuple[int, int]):
+    import usb.core
+
+    def find():
+        return usb.core.find(idVendor=ids[0], idProduct=ids[1], backend=backend)
+    return find
+
+
+def _usb_device(backend, ids: tuple[int, int], who: str):
+    dev = _usb_finder(backend, ids)()
+    if dev is None:
+        raise InstrumentError(f"{who}: no USB device {ids[0]:04x}:{ids[1]:04x} found")
+    return dev
+
+
+def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) -> dict[str, Any]:
+    """The four drivers, keyed by device name (addresses "bench" are taken from ``endpoints``)."""
+    from drivers.awg import protocol as awg_p
+    from drivers.digitizer import protocol as dig_p
+
+    d = cfg.devices
+    on_bench = endpoints is not None and d.controller.host == "bench"
+    fpsa_url = endpoints["fpsa_url"] if endpoints and d.fpsa.url == "bench" else d.fpsa.url
+    host = endpoints["controller_host"] if on_bench else d.controller.host
+    port = endpoints["controller_port"] if on_bench else d.controller.port
+    # Backoffs go through ``sleep`` (the virtual clock on a bench) so a device that comes back after
+    # some virtual time is found again without any wall-clock wait.
+    fpsa = FpsaController.from_url(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
+    ctrl = LaserHvController(host, port, device_id=d.controller.device_id, timeout_s=d.controller.timeout_s,
+                             limits=Limits(max_laser_current_ma=d.controller.max_laser_current_ma,
+                                           max_hv_v=d.controller.max_hv_v, tec_range_c=(15.0, 40.0)),
+                             sleep=sleep, busy_retries=3)
+    awg_ids = _usb_ids(d.awg.usb, (awg_p.AWG_VID, awg_p.AWG_PID), "awg")
+    dig_ids = _usb_ids(d.digitizer.usb, (dig_p.DIGITIZER_VID, dig_p.DIGITIZER_PID), "digitizer")
+    awg = AwgDriver(_usb_device(usb_backend, awg_ids, "awg"), finder=_usb_finder(usb_backend, awg_ids), sleep=sleep)
+    dig = DigitizerDriver(_usb_device(usb_backend, dig_ids, "digitizer"),
+                          finder=_usb_finder(usb_backend, dig_ids), sleep=sleep)
+    return {"fpsa": fpsa, "awg": awg, "digitizer": dig, "controller": ctrl}
+
+
+def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | None = None) -> LidarInstrument:
+    """Build the instrument a configuration describes.
+
+    Simulated configurations start the bench first: ``bench="embedded"`` runs it in this process
+    (the default of ``lidarctl scan --sim``), ``"child"`` as a ``lidar-sim`` child process that talks
+    over a real pty, Modbus TCP and the USB socket bridge (the daemon's default, ``sim.bench``).
+    """
+    if not cfg.sim.enabled:
+        if scene_path is not None:
+            raise InstrumentError("--scene needs a simulated configuration (sim.enabled = true)")
+        from usb.backend import libusb1
+
+        parts = _connect(cfg, None, libusb1.get_backend(), time.sleep)
+        return LidarInstrument(cfg, simulated=False, **parts)
+    mode = bench or cfg.sim.bench
+    if mode == "embedded":
+        return _open_embedded(cfg, scene_path)
+    if mode != "child":
+        raise InstrumentError(f"sim.bench must be 'embedded' or 'child', got {mode!r}")
+    return _open_child(cfg, scene_path)
+
+
+def _open_embedded(cfg: Config, scene_path: str | None) -> LidarInstrument:
+    from sim_devices.bench import Bench
+    from sim_devices.world.scene import Scene, SceneError
+
+    b = Bench(cfg, Scene.from_toml(scene_path) if scene_path else None)
+    ep = b.start(usb="inproc")
+    parts = _connect(cfg, ep, b.usb_backend, b.clock.advance)
+
+    def set_scene(d: dict) -> dict:
+        try:
+            scene = Scene.from_dict(d, source="<request>")
+        except SceneError as exc:
+            raise SceneRejected(str(exc)) from None
+        b.set_scene(scene)
+        return {"name": scene.name, "targets": len(scene)}
+
+    hooks = SimHooks(set_scene=set_scene,
+                     inject_fault=lambda kind, **params: b.inject_fault(kind, **params),
+                     clear_faults=lambda kind=None: b.clear_faults(kind),
+                     active_faults=lambda: b.active_faults())
+    # on_close is the bench's own close: tests reach the embedded bench as ``inst._on_close.__self__``
+    return LidarInstrument(cfg, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
+                           on_close=b.close, **parts)
+
+
+def _start_child(cfg: Config, scene_path: str | None) -> tuple[subprocess.Popen, dict[str, Any]]:
+    """Start ``lidar-sim --json`` on the same configuration file; answers the process and its endpoints."""
+    cmd = [sys.executable, "-m", "sim_devices.bench", "--json"]
+    if cfg.path is not None:
+        cmd += ["--config", str(cfg.path)]
+    if scene_path:
+        cmd += ["--scene", str(scene_path)]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=os.environ.copy())
+    stderr_tail: collections.deque[str] = collections.deque(maxlen=20)
+
+    def forward_stderr() -> None:   # the child's complaints go to our log, the last ones into errors
+        for raw in proc.stderr:
+            text = raw.decode("utf-8", "replace").rstrip()
+            stderr_tail.append(text)
+            log.warning("%s", text if text.startswith("lidar-sim") else f"lidar-sim: {text}")
+
+    reader = threading.Thread(target=forward_stderr, name="lidar-sim-stderr", daemon=True)
+    reader.start()
+    line = proc.stdout.readline()
+    if not line:
+        proc.kill()
+        reader.join(timeout=5)
+        why = stderr_tail[-1] if stderr_tail else "no message"
+        raise InstrumentError(f"simulated bench: the lidar-sim child process did not start: {why}")
+    return proc, json.loads(line)
+
+
+def _open_child(cfg: Config, scene_path: str | None) -> LidarInstrument:
+    from sim_devices.bench import BenchControlClient
+    from sim_devices.usb_backend import backend_from_url
+
+    proc, ep = _start_child(cfg, scene_path)
+    ctl = BenchControlClient(ep["control_port"])
+
+    def advance(dt_s: float) -> None:
+        ctl.call("advance", dt_s=float(dt_s))
+
+    def stop_child() -> None:
+        ctl.close()
+        try:
+            proc.stdin.close()
+            proc.wait(timeout=10)
+        except Exception:
+            proc.kill()
+
+    def call(cmd: str, **kw) -> dict:
+        try:
+            return ctl.call(cmd, **kw)
+        except ValueError as exc:   # the bench refused (unknown kind, bad parameter): say so
+            raise SimFaultError(str(exc)) from None
+
+    def set_scene(d: dict) -> dict:
+        try:
+            reply = ctl.call("set_scene", scene=d)
+        except ValueError as exc:   # the bench's SceneError, named
+            raise SceneRejected(str(exc)) from None
+        return {"name": reply.get("name"), "targets": int(reply.get("targets", 0))}
+
+    hooks = SimHooks(set_scene=set_scene,
+                     inject_fault=lambda kind, **params: call("inject", kind=kind, **params)["fault"],
+                     clear_faults=lambda kind=None: int(call("clear_faults", kind=kind)["cleared"]),
+                     active_faults=lambda: call("faults")["faults"])
+    parts = _connect(cfg, ep, backend_from_url(ep["usb_url"]), advance)
+    return LidarInstrument(cfg, simulated=True, sleep=advance, now=lambda: float(ctl.call("ping")["t_s"]),
+                           sim=hooks, on_close=stop_child, **parts)

@@ -1,0 +1,195 @@
+"""The instrument facade: what the job worker, the REST API and ``lidarctl`` call (dissertation §4.4).
+
+:class:`LidarInstrument` is the one object that owns the hardware of §4.4.1 (the job worker calls it
+from one thread; a lock keeps callers apart). It holds the rooms and delegates:
+
+* scans -> :mod:`.scan_loop` (plan -> acquire -> DSP -> points, §4.4.3 imaging);
+* chirp linearization -> :mod:`.calibration` (§2.2);
+* the switch self-test -> :mod:`.selftest` (the FPSA's row/column lines, §4.3.3);
+* interlock, faults and the outputs -> :mod:`.safety`;
+* the four devices -> :mod:`.devices` (one registry: identities, GET /devices health and reconnect);
+* simulation control (scene, bench faults) -> the :class:`SimHooks` the composition root
+  (:mod:`.compose`) hands over for a simulated bench; on real hardware it raises :class:`NotSimulated`.
+
+Faults (issue 6; docs/reliability.md): drivers retry their own transfers; the acquisition re-reads a
+failed batch of segments and resumes a lost acquisition; a device that stays down fails the scan with
+:class:`ScanFailed` naming the device (the points so far ride on it); the interlock and latched faults
+are checked between reads and trip the safe state (laser and HV off first, read back).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from ..config import Config
+from .acquisition import AcquisitionLifecycle, plain_drive
+from .calibration import Linearization
+from .devices import DeviceRegistry
+from .errors import NotSimulated, SimFaultError
+from .safety import SafetyMonitor
+from .scan_loop import ScanLoop
+from .selftest import run_selftest
+from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
+
+DEVICES_WAIT_S = 0.5         # GET /devices waits this long for the instrument before answering "busy"
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SimHooks:
+    """What the composition root gives the instrument to reach a simulated bench."""
+
+    set_scene: Callable[[dict], dict]
+    inject_fault: Callable[..., dict]
+    clear_faults: Callable[[str | None], int]
+    active_faults: Callable[[], list]
+
+
+class LidarInstrument:
+    """Scans, calibration, self-test, device health and simulation control over one set of drivers."""
+
+    def __init__(self, cfg: Config, *, fpsa: Any, awg: Any, digitizer: Any, controller: Any, simulated: bool,
+                 sleep: Callable[[float], object] = time.sleep, on_close: Callable[[], None] | None = None,
+                 now: Callable[[], float] = time.monotonic, sim: SimHooks | None = None):
+        self.cfg = cfg
+        self.profile = cfg.load_profile()
+        self.laser = cfg.load_laser()
+        self.optics = self.profile.optics(cfg.lens, cfg.chirp.wavelength_m)
+        self.registry = DeviceRegistry(fpsa=fpsa, awg=awg, digitizer=digitizer, controller=controller)
+        self.simulated = simulated
+        self._sleep = sleep
+        self._sim = sim
+        self._on_close = on_close
+        self._lock = threading.RLock()
+        self._last_devices: list[dict[str, Any]] = []
+        self.safety = SafetyMonitor(controller, laser_current_ma=cfg.devices.controller.laser_current_ma,
+                                    hv_v=self.profile.actuation_v, sleep=sleep, now=now)
+        self.acquisition = AcquisitionLifecycle(self.registry, cfg, sleep)
+        self.scan_loop = ScanLoop(cfg, self.optics, self.acquisition, self.safety, simulated=simulated)
+        self.registry.identify_all()
+        # The HV583 registers power up with random contents (ghost beams): clear them first.
+        try:
+            fpsa.reset()
+        except Exception as exc:
+            self.registry.identity["fpsa"] = f"reset failed: {exc}"
+
+    # The drivers by name (tests and benchmarks reach them as inst.fpsa, inst.digitizer, ...).
+    @property
+    def fpsa(self) -> Any:
+        return self.registry["fpsa"]
+
+    @property
+    def awg(self) -> Any:
+        return self.registry["awg"]
+
+    @property
+    def digitizer(self) -> Any:
+        return self.registry["digitizer"]
+
+    @property
+    def controller(self) -> Any:
+        return self.registry["controller"]
+
+    # -- information ----------------------------------------------------------------------------------
+    def laser_temperature_c(self) -> float:
+        with self._lock:
+            try:
+                return float(self.controller.tec_c())
+            except Exception as exc:   # the caller decides what an unknown temperature means
+                log.warning("controller: TEC temperature unreadable: %s", exc)
+                return float("nan")
+
+    def devices(self) -> list[dict[str, Any]]:
+        """Per device: connected true/false and the cause. A device that does not answer is
+        reconnected once (serial port reopened, USB device re-found, Modbus reconnected) and asked
+        again, so GET /devices both shows and heals a lost connection."""
+        # The drivers are not thread-safe, so the checks need the instrument; while a scan holds it,
+        # answer from the last check instead of blocking the caller for the whole scan.
+        if not self._lock.acquire(timeout=DEVICES_WAIT_S):
+            return [{**e, "state": "busy: in use by the running job (last check shown)", "reconnected": False}
+                    for e in self._last_devices] or self.registry.busy_listing()
+        try:
+            self._last_devices = self.registry.check_all()
+            return self._last_devices
+        finally:
+            self._lock.release()
+
+    def scanner(self) -> dict[str, Any]:
+        return self.optics.summary()
+
+    # -- scans, calibration, self-test -----------------------------------------------------------------
+    def _plain_drive(self) -> np.ndarray:
+        return plain_drive(self.cfg, self.laser.static_tuning_hz_per_v)
+
+    def _load_drive(self, drive_v: np.ndarray) -> None:
+        self.acquisition.load_drive(drive_v)
+
+    def run_scan(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event,
+                 calibration: CalibrationResult | None = None) -> ScanResult:
+        with self._lock:
+            drive = (calibration.drive_v if (calibration is not None and calibration.drive_v.size)
+                     else self._plain_drive())
+            return self.scan_loop.run(request, progress, cancel, drive, calibration)
+
+    def linearize(self, progress: Callable[[dict[str, Any]], None] | None = None) -> CalibrationResult:
+        with self._lock:
+            lin = Linearization(self.cfg, self.optics, self.acquisition, self.safety, progress)
+            return lin.run(self._plain_drive(), self.cfg.laser)
+
+    def selftest(self, progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+        with self._lock:
+            return run_selftest(self.cfg, self.optics, self.acquisition, self.safety, self._plain_drive(),
+                                progress)
+
+    # -- simulation ------------------------------------------------------------------------------------
+    def _hooks(self, what: str) -> SimHooks:
+        if self._sim is None:
+            raise NotSimulated(f"{what}: the instrument is real hardware; only a simulated bench has this")
+        return self._sim
+
+    def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
+        """Simulation only: replace the bench's scene (the scene-file structure as a dict).
+
+        Returns ``{"name", "targets"}``; a scene the bench refuses raises :class:`SceneRejected`
+        naming what is wrong (the bench parses it: the daemon side does not know the scene format).
+        """
+        return self._hooks("set_scene").set_scene(scene)
+
+    def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
+        """Simulation only: inject a bench fault (sim_devices.faults catalogue); returns it with its id."""
+        hooks = self._hooks("inject_fault")
+        try:
+            return hooks.inject_fault(kind, **params)
+        except SimFaultError:
+            raise
+        except (ValueError, TypeError) as exc:
+            raise SimFaultError(f"fault {kind!r}: {exc}") from None
+
+    def clear_faults(self, kind: str | None = None) -> int:
+        hooks = self._hooks("clear_faults")
+        try:
+            return int(hooks.clear_faults(kind))
+        except SimFaultError:
+            raise
+        except (ValueError, TypeError) as exc:
+            raise SimFaultError(f"clear faults {kind!r}: {exc}") from None
+
+    def active_faults(self) -> list[dict[str, Any]]:
+        return list(self._hooks("active_faults").active_faults())
+
+    def close(self) -> None:
+        with self._lock:
+            try:
+                self.safety.bring_down()
+            except Exception:
+                pass
+            self.registry.close()
+            if self._on_close is not None:
+                self._on_close()

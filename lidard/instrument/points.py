@@ -1,0 +1,122 @@
+"""DSP -> points: raw segment batches through the frame DSP into point records (dissertation §4.4.3).
+
+The range, radial velocity and intensity of every detected return (§2.1.1-2.1.2: the beat frequencies
+of the up and down ramps) come from :class:`lidard.dsp.frame.FrameDsp`; here they become points along
+each pixel's beam direction (the FPSA optics of §4.3.4 map row/column to a direction).
+
+The digitizer is read in short batches (the safety check wants short reads), but the DSP wants long
+ones (its per-call set-up costs as much as many pixels), so :class:`PointBuffer` holds raw batches
+until ``flush_bytes`` are together: memory stays bounded by one buffer, never a frame of raw samples.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..dsp.frame import FrameDsp
+from .types import POINT_DTYPE
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RawBatch:
+    """Consecutive pixels' segments as read: ``beat``/``mzi`` are (pixels, averages, samples)."""
+
+    beat: np.ndarray
+    pixels: np.ndarray               # (pixels, 2) row, col
+    t_pix_s: np.ndarray              # hardware time of each pixel's first trigger since scan start
+    clipped: np.ndarray              # a segment of the pixel was over range
+    mzi: np.ndarray | None = None    # monitor MZI records (phase-noise compensation, §2.3)
+
+    @property
+    def nbytes(self) -> int:
+        return self.beat.nbytes * (1 if self.mzi is None else 2)
+
+
+class PointBuffer:
+    """Collects raw batches, runs the DSP once ``flush_bytes`` are together, keeps the points."""
+
+    def __init__(self, dsp: FrameDsp, optics, *, lsb_v: float, mzi_delay_s: float, flush_bytes: int):
+        self.dsp = dsp
+        self.optics = optics
+        self.lsb_v = lsb_v
+        self.mzi_delay_s = mzi_delay_s
+        self.flush_bytes = flush_bytes
+        self._pending: list[RawBatch] = []
+        self._pending_bytes = 0
+        self._chunks: list[np.ndarray] = []
+        self._handed_over = 0
+
+    def take_new(self) -> np.ndarray | None:
+        """The points processed since the last call (for live viewers), or None when there are none."""
+        new = self._chunks[self._handed_over:]
+        self._handed_over = len(self._chunks)
+        return np.concatenate(new) if new else None
+
+    @property
+    def count(self) -> int:
+        return int(sum(len(c) for c in self._chunks))
+
+    def add(self, batch: RawBatch, *, last: bool = False) -> None:
+        self._pending.append(batch)
+        self._pending_bytes += batch.nbytes
+        if self._pending_bytes >= self.flush_bytes or last:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self._pending:
+            return
+        pend, self._pending, self._pending_bytes = self._pending, [], 0
+        beat = np.concatenate([p.beat for p in pend])
+        mzi = np.concatenate([p.mzi for p in pend]) if pend[0].mzi is not None else None
+        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v)
+        self._chunks.append(points_from(res, self.optics, np.concatenate([p.pixels for p in pend]),
+                                        np.concatenate([p.t_pix_s for p in pend]),
+                                        np.concatenate([p.clipped for p in pend])))
+
+    def points(self) -> np.ndarray:
+        """Every point so far; a batch still waiting is processed first (a failure there is logged:
+        the points before it are reported, the cause of the stop is already on its way)."""
+        try:
+            self.flush()
+        except Exception as exc:
+            log.warning("processing the last batch failed: %s", exc)
+        return np.concatenate(self._chunks) if self._chunks else np.zeros(0, POINT_DTYPE)
+
+
+def points_from(res, optics, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None) -> np.ndarray:
+    """Point records for every present return of a frame result (``res.present[pixel, k]``)."""
+    pi, ki = np.nonzero(res.present)
+    out = np.zeros(len(pi), POINT_DTYPE)
+    if not len(pi):
+        return out
+    rows, cols = px[pi, 0], px[pi, 1]
+    rng_m = res.range_m[pi, ki]
+    xyz = optics.directions(rows, cols) * rng_m[:, None]
+    out["x"], out["y"], out["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    out["range"] = rng_m
+    out["velocity"] = res.velocity_mps[pi, ki]
+    out["intensity"] = res.intensity_v[pi, ki]
+    out["snr_db"] = res.snr_db[pi, ki]
+    out["row"], out["col"] = rows, cols
+    out["return_index"] = _return_index(pi, rng_m)
+    out["t"] = t_pix[pi]
+    out["valid"] = res.valid[pi, ki]
+    if clipped is not None:
+        out["valid"][clipped[pi]] = 0       # never report a point from a clipped record as good
+    return out
+
+
+def _return_index(pi: np.ndarray, rng_m: np.ndarray) -> np.ndarray:
+    """0 for the nearest return of each beam, 1 for the next, ... (order along the beam by range)."""
+    order = np.lexsort((rng_m, pi))
+    ri = np.zeros(len(pi), np.int64)
+    same = np.r_[False, pi[order][1:] == pi[order][:-1]]
+    run = np.cumsum(~same) - 1
+    starts = np.flatnonzero(~same)
+    ri[order] = np.arange(len(pi)) - starts[run]
+    return ri

@@ -1,0 +1,67 @@
+"""The :class:`Instrument` protocol: exactly what the REST routers, the job worker and ``lidarctl`` call.
+
+The real instrument (:class:`lidard.instrument.facade.LidarInstrument`) and the tests' fakes both
+satisfy it, so callers use plain attribute access (no ``getattr``/``hasattr`` probing). Simulation
+control is part of it: on real hardware those methods raise :class:`NotSimulated`, which the API
+answers with 409. The operations follow dissertation §4.4.1 (scans), §2.2 (chirp linearization) and
+§4.3.3 (the FPSA's row/column switch control, which the self-test toggles).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Callable, Protocol, runtime_checkable
+
+from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
+
+StageFn = Callable[[dict[str, Any]], None]
+
+
+@runtime_checkable
+class Instrument(Protocol):
+    """What the daemon needs from the hardware (or the simulated bench)."""
+
+    simulated: bool
+
+    def devices(self) -> list[dict[str, Any]]:
+        """Per device: name, connected, identity, state, faults."""
+
+    def scanner(self) -> dict[str, Any]:
+        """The same figures as ``lidarctl optics --json``."""
+
+    def run_scan(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event,
+                 calibration: CalibrationResult | None = None) -> ScanResult:
+        """Run one scan; on cancel return the points so far with ``partial=True``."""
+
+    def linearize(self, progress: StageFn | None = None) -> CalibrationResult:
+        """Run the ILC chirp linearization through the monitor MZI."""
+
+    def laser_temperature_c(self) -> float:
+        """The laser's TEC temperature readback now (NaN when it cannot be read)."""
+
+    def selftest(self, progress: StageFn | None = None) -> dict[str, Any]:
+        """Toggle every bonded row and every column against the monitor tap; report stuck switches:
+        ``{"ok": bool, "stuck": [{"line": "row"|"col", "index", "state": "on"|"off", "evidence"}],
+        "single_beam_v", "partner_row", "partner_col", "rows_tested", "cols_tested", ...}``."""
+
+    def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
+        """Simulation only: replace the scene; returns ``{"name", "targets"}``. A scene the bench
+        refuses raises a ``ValueError`` naming what is wrong; real hardware raises NotSimulated."""
+
+    def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
+        """Simulation only: inject a bench fault; returns it with its ``id``. A refused fault raises
+        a ``ValueError`` (SimFaultError) naming it; real hardware raises NotSimulated."""
+
+    def clear_faults(self, kind: str | None = None) -> int:
+        """Simulation only: clear every fault (or those of ``kind``); returns how many."""
+
+    def active_faults(self) -> list[dict[str, Any]]:
+        """Simulation only: the faults now active on the bench."""
+
+    def close(self) -> None:
+        """Bring the laser and HV down and release the devices."""
+
+
+#: The names callers may use on an instrument (what a fake must provide; checked in the tests).
+INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "linearize", "laser_temperature_c",
+                      "selftest", "set_scene", "inject_fault", "clear_faults", "active_faults", "close")

@@ -1,0 +1,289 @@
+"""One scan, as stages: plan -> acquire -> DSP -> points (dissertation §4.4.1 setup, §4.4.3 imaging).
+
+* plan (:func:`plan_scan`): the pixel pattern (:mod:`lidard.scan`), the ADC rate and record length
+  from the requested maximum range and the chirp (§2.1.1: beat frequency = chirp rate x round trip),
+  the monitor MZI channel when phase-noise compensation is on (§2.3, §4.4.2), and the frame DSP;
+* acquire (:class:`ScanLoop`): laser and HV up, one acquisition (:mod:`.acquisition`) started, its
+  segments read in batches of at most ``SAFETY_CHECK_S`` of hardware time with the safety check
+  (:mod:`.safety`) after each read; a lost acquisition is resumed from the first pixel not yet read
+  (at most ``RESUMES`` times); a device that stays down fails the scan with :class:`ScanFailed`
+  carrying the points so far;
+* DSP -> points (:mod:`.points`): batches collected up to ``BATCH_BYTES``, processed, kept as points.
+
+The run's state lives in one :class:`ScanRun` context passed between the stages.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..config import Config
+from ..dsp.frame import FrameDsp
+from ..dsp.pnframe import compensator_for, gate_m_range
+from ..dsp.rangefft import C_M_PER_S
+from ..physics.chirp import adc_rate_hz
+from ..scan import plan
+from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
+from .errors import InstrumentError, ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
+from .points import PointBuffer, RawBatch
+from .safety import SafetyMonitor, describe_safe
+from .types import CalibrationResult, ProgressFn, ScanProgress, ScanRequest, ScanResult
+
+BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
+# Hardware time per read: the interlock/fault flags are read between reads, so this bounds the
+# host's reaction time (the controller's own hardware interlock drops the outputs at once anyway).
+# Each read has a fixed cost (in the simulator mostly the FPGA model's per-call beam bookkeeping):
+# 50 ms reads cost ~15-20 % of the simulated bench's throughput against unbounded reads, 10 ms ~50 %
+# (benchmarks/reliability.py --tradeoff, docs/reliability.md).
+SAFETY_CHECK_S = 0.05
+RESUMES = 2                  # new acquisitions for the rest of a scan after one was lost
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class AdcPlan:
+    fs_hz: float
+    ramp_samples: int
+    record_length: int
+    bits: int
+
+
+@dataclass(frozen=True)
+class ScanPlan:
+    """Everything decided before the first trigger."""
+
+    pixels: np.ndarray
+    averages: int
+    phase_noise: bool
+    mzi_delay_s: float
+    adc: AdcPlan
+    acquisition: AcquisitionPlan
+    dsp: FrameDsp
+    lsb_v: float
+
+    @property
+    def n_pixels(self) -> int:
+        return len(self.pixels)
+
+
+def adc_plan(cfg: Config, max_range_m: float) -> AdcPlan:
+    """Sample rate and record length for beats up to ``max_range_m`` (plus the Doppler allowance)."""
+    c, a = cfg.chirp, cfg.adc
+    doppler = 2 * cfg.scan.max_speed_mps / c.wavelength_m
+    fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
+                     max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
+    r = int(round(fs * c.ramp_s))
+    # 16-bit records: the digitizer decimates its full-rate core on board (more bits at low rates)
+    return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r, bits=16)
+
+
+def phase_noise_on(cfg: Config, request: ScanRequest) -> bool:
+    """Resolve scan.phase_noise_compensation (or the request's override): "auto" is on when the
+    round trip of max_range_m is at least twice the monitor delay (config.ScanDefaults)."""
+    mode = request.phase_noise_compensation or cfg.scan.phase_noise_compensation
+    if mode not in ("auto", "on", "off"):
+        raise InstrumentError(f"scan: phase_noise_compensation={mode!r} is not one of 'auto', 'on', 'off'")
+    if mode == "auto":
+        return 2 * float(request.max_range_m) / C_M_PER_S >= 2 * cfg.monitor.delay_s
+    return mode == "on"
+
+
+def plan_scan(cfg: Config, optics, request: ScanRequest) -> ScanPlan:
+    pixels = plan(request, optics)
+    avg = int(request.averages)
+    tau_m = cfg.monitor.delay_s
+    pn_on = phase_noise_on(cfg, request)
+    # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
+    adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m)
+    channels = ("beat", "mzi") if pn_on else ("beat",)
+    dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
+                   wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
+                   max_speed_mps=cfg.scan.max_speed_mps, window=cfg.scan.window, pfa=cfg.scan.pfa,
+                   max_returns=cfg.scan.max_returns)
+    acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
+    return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits)
+
+
+def batch_pixels(cfg: Config, p: ScanPlan) -> int:
+    """Pixels per read: bounded by BATCH_BYTES of raw samples and SAFETY_CHECK_S of hardware time."""
+    bytes_per_pix = p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
+    pixel_s = p.averages * 2 * cfg.chirp.ramp_s + cfg.scan.settle_s
+    return max(1, min(p.n_pixels, BATCH_BYTES // max(1, bytes_per_pix), int(SAFETY_CHECK_S / pixel_s)))
+
+
+@dataclass
+class ScanRun:
+    """The state of one scan between its stages (what used to live in closures and cells)."""
+
+    plan: ScanPlan
+    points: PointBuffer
+    calibration_id: Any = None
+    done: int = 0                       # pixels read and accepted
+    hw_t0_ns: float | None = None       # trigger time of the current acquisition's scan start
+    hw_last_s: float = 0.0              # hardware time at the end of the last pixel read
+    t_shift_s: float = 0.0              # where a resumed acquisition's clock continues
+    cancelled: bool = False
+    stop_reason: str | None = None
+    safe: dict[str, Any] | None = None  # readbacks of a safety stop (outputs already down)
+    faults: dict[str, Any] = field(default_factory=lambda: {"batch_retries": 0, "resumes": 0,
+                                                            "overrange_segments": 0, "overrange_pixels": 0})
+
+
+class ScanLoop:
+    """Runs one scan plan over the acquisition lifecycle with the safety monitor between reads."""
+
+    def __init__(self, cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: SafetyMonitor, *,
+                 simulated: bool):
+        self.cfg, self.optics, self.lifecycle, self.safety = cfg, optics, lifecycle, safety
+        self.simulated = simulated
+
+    def run(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event, drive_v: np.ndarray,
+            calibration: CalibrationResult | None = None) -> ScanResult:
+        p = plan_scan(self.cfg, self.optics, request)
+        progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
+        run = ScanRun(p, PointBuffer(p.dsp, self.optics, lsb_v=p.lsb_v, mzi_delay_s=p.mzi_delay_s,
+                                     flush_bytes=BATCH_BYTES),
+                      calibration_id=(calibration.meta or {}).get("id") if calibration else None)
+        self.safety.bring_up()
+        try:
+            acq = self.lifecycle.ready(p.acquisition, drive_v=drive_v, faults=run.faults)
+            self.lifecycle.start(acq)
+            step = batch_pixels(self.cfg, p)
+            while run.done < p.n_pixels and run.stop_reason is None:
+                if cancel.is_set():
+                    run.cancelled = True
+                    break
+                acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
+                if accepted:
+                    progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
+                                          new_points=run.points.take_new()))
+        except ScanFailed:
+            raise
+        except Exception as exc:
+            raise ScanFailed(describe_failure(exc), self.result(run)) from driver_error(exc)
+        finally:
+            self._finish(run)
+        return self.result(run)
+
+    # -- acquire ----------------------------------------------------------------------------------
+    def _step(self, run: ScanRun, acq: Acquisition, bp: int) -> tuple[Acquisition, bool]:
+        """Read the next ``bp`` pixels, check safety, hand them on. Answers the acquisition to go on
+        with and whether the pixels were accepted (not after a safety stop or a resume)."""
+        avg = run.plan.averages
+        try:
+            headers, samples = self.lifecycle.read(acq, (run.done - acq.first_pixel) * avg, bp * avg)
+        except SegmentsLost as exc:
+            # before blaming the digitizer: did the interlock or a fault stop the light?
+            if self._safety_stop(run):
+                return acq, False
+            return self._resume(run, acq, exc), False
+        if self._safety_stop(run):
+            # Outputs first; the batch in flight is discarded (when the light went is unknown).
+            run.faults["discarded_pixels"] = bp
+            log.warning("scan stopped after %d of %d pixels: %s", run.done, run.plan.n_pixels, run.stop_reason)
+            return acq, False
+        self._accept(run, acq, headers, samples, bp)
+        return acq, True
+
+    def _safety_stop(self, run: ScanRun) -> bool:
+        reason = self.safety.check()
+        if reason is None:
+            return False
+        run.safe = self.safety.trip()
+        run.stop_reason = f"{reason}; {describe_safe(run.safe)}"
+        return True
+
+    def _resume(self, run: ScanRun, acq: Acquisition, exc: SegmentsLost) -> Acquisition:
+        if run.faults["resumes"] >= RESUMES:
+            raise ScanFailed(str(exc), self.result(run)) from exc
+        # The acquisition itself is lost (a replugged digitizer resets it): run the rest of the
+        # pattern as a new acquisition from the first pixel not yet read.
+        run.faults["resumes"] += 1
+        log.warning("scan: resuming from pixel %d of %d after %s", run.done, run.plan.n_pixels, exc)
+        try:
+            acq = self.lifecycle.restart(acq, run.done)
+        except Exception as exc2:
+            cause = driver_error(exc2)
+            raise ScanFailed(f"{device_of(exc2)}: resume after '{exc}' failed: {type(cause).__name__}: {cause}",
+                             self.result(run)) from cause
+        run.t_shift_s = run.hw_last_s
+        run.hw_t0_ns = None
+        return acq
+
+    def _accept(self, run: ScanRun, acq: Acquisition, headers: list, samples: np.ndarray, bp: int) -> None:
+        p = run.plan
+        avg, rl = p.averages, p.adc.record_length
+        t_ns = np.array([h.trigger_time_ns for h in headers], dtype=np.float64)
+        if run.hw_t0_ns is None:
+            # after a resume the new run's clock continues where the last pixel read ended
+            run.hw_t0_ns = t_ns[0] - run.t_shift_s * 1e9
+        beat = samples[:, acq.channel_index("beat"), :].reshape(bp, avg, rl)
+        mzi = samples[:, acq.channel_index("mzi"), :].reshape(bp, avg, rl) if p.phase_noise else None
+        # a clipped beat puts harmonics and a wrong amplitude into the spectrum
+        over = np.array([h.overrange for h in headers], dtype=np.int64).reshape(bp, avg) != 0
+        clipped = over.any(axis=1)
+        run.faults["overrange_segments"] += int(over.sum())
+        run.faults["overrange_pixels"] += int(clipped.sum())
+        batch = RawBatch(beat, p.pixels[run.done:run.done + bp], (t_ns.reshape(bp, avg)[:, 0] - run.hw_t0_ns) * 1e-9,
+                         clipped, mzi)
+        run.done += bp
+        run.hw_last_s = (t_ns[-1] - run.hw_t0_ns) * 1e-9 + rl / p.adc.fs_hz
+        run.points.add(batch, last=run.done >= p.n_pixels)
+
+    def _finish(self, run: ScanRun) -> None:
+        """Stop the FPGA, abort an unfinished acquisition, bring the outputs down (each step runs even
+        when the one before fails). After a safety stop the outputs are already down."""
+        early = run.done < run.plan.n_pixels
+        if run.safe is not None:
+            try:
+                self.lifecycle.stop()
+            except Exception as exc:  # outputs are already safe; report, do not mask the stop
+                log.warning("fpsa stop after a safety stop failed: %s", exc)
+            if early:
+                self.lifecycle.abort()
+            return
+        try:
+            self.lifecycle.stop()
+        finally:
+            try:
+                if early:
+                    self.lifecycle.abort()
+            finally:
+                self.safety.bring_down()
+
+    # -- result -----------------------------------------------------------------------------------
+    def result(self, run: ScanRun) -> ScanResult:
+        points = run.points.points()
+        return ScanResult(points=points, meta=self._meta(run), pixels_scanned=run.done,
+                          pixels_planned=run.plan.n_pixels, hardware_time_s=run.hw_last_s,
+                          partial=run.cancelled or run.stop_reason is not None, stop_reason=run.stop_reason)
+
+    def _meta(self, run: ScanRun) -> dict[str, Any]:
+        p, dsp, adc = run.plan, run.plan.dsp, run.plan.adc
+        meta: dict[str, Any] = {
+            "adc": {"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
+                    "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
+            "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
+                    "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction,
+                    "phase_noise_compensation": p.phase_noise},
+            "simulated": self.simulated,
+            "calibration_id": run.calibration_id,
+            "faults": dict(run.faults),
+        }
+        if p.phase_noise:
+            comp = compensator_for(dsp, p.mzi_delay_s)
+            meta["dsp"]["phase_noise"] = {
+                "mzi_delay_s": p.mzi_delay_s, "mzi_beat_hz": comp.mzi_beat_hz, "m_max": comp.m_max,
+                # nearest M of the bins inside the range gate (0 = uncompensated near ranges)
+                "m_range": list(gate_m_range(dsp, p.mzi_delay_s))}
+        if run.safe is not None:
+            meta["safe_state"] = run.safe
+        if run.stop_reason is not None:
+            meta["stop_reason"] = run.stop_reason
+        return meta

@@ -1,0 +1,150 @@
+"""The web viewer in a real browser (issue 16 item 1): headless Debian Chromium driven by Playwright.
+
+A real ``lidard`` process on the simulated bench (config/sim.toml, CAL letters, temp data dir, port
+0) serves the page. The test does what a user does: take control on the page, start a 16 x 16 ROI
+scan from the form, wait for the page to see the end. Then the page's own state
+(``window.viewer.pointCount``, built from the incremental ``/points/live`` fetches) must equal the
+count the API reports, and the WebGL canvas must not be blank (pixel variance of what it drew, and
+of the screenshot). Only Debian's /usr/bin/chromium is used; nothing is downloaded. Without that
+executable (or the playwright package) the test skips, saying which is missing.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+CHROMIUM = os.environ.get("LIDARD_CHROMIUM", "/usr/bin/chromium")
+STARTUP_S = 60.0
+# Software WebGL (SwiftShader) in a headless, sandbox-less container (CI runs as root).
+CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                 "--ignore-gpu-blocklist"]
+
+
+def _browser_or_skip():
+    if not (os.path.isfile(CHROMIUM) and os.access(CHROMIUM, os.X_OK)):
+        pytest.skip(f"no browser: {CHROMIUM} is missing (apt-get install chromium; .ci/run does)")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.skip("the playwright package is not installed (pip install -e '.[test]')")
+    return sync_playwright
+
+
+def start_daemon(data_dir: Path, scene: str | None = None) -> tuple[subprocess.Popen, str]:
+    """``python -m lidard`` on a free port; answers the process and its base URL once /health is up."""
+    cmd = [sys.executable, "-m", "lidard", "--config", str(REPO / "config" / "sim.toml"), "--port", "0",
+           "--data-dir", str(data_dir), "--log-level", "warning"]
+    proc = subprocess.Popen(cmd, cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)  # own process group: the bench child goes with it
+    deadline = time.monotonic() + STARTUP_S
+    lines: list[str] = []
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline().decode(errors="replace")
+        if not line:
+            if proc.poll() is not None:
+                break
+            continue
+        lines.append(line)
+        m = re.search(r"serving on (http://[\d.]+:\d+)", line)
+        if m:
+            url = m.group(1)
+            while time.monotonic() < deadline:
+                try:
+                    if httpx.get(url + "/health", timeout=2.0).status_code == 200:
+                        return proc, url
+                except httpx.TransportError:
+                    time.sleep(0.05)  # polling interval only; the deadline decides
+            break
+    stop_daemon(proc)
+    pytest.fail("lidard did not come up: " + "".join(lines[-20:]))
+
+
+def stop_daemon(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=20)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=20)
+    if proc.stderr:
+        proc.stderr.close()
+
+
+def run_scan_in_page(page, url: str, rows: tuple[int, int], cols: tuple[int, int], timeout_s: float) -> str:
+    """Take control and start an ROI scan from the page's own controls; answers the scan id."""
+    page.goto(url + "/")
+    page.wait_for_function("window.viewer && window.viewer.ready")
+    page.click("#control-take")
+    page.wait_for_selector("#scan-start:not([disabled])", timeout=10_000)
+    page.select_option("select[name=pattern]", "roi")
+    for name, value in (("row0", rows[0]), ("row1", rows[1]), ("col0", cols[0]), ("col1", cols[1])):
+        page.fill(f"input[name={name}]", str(value))
+    page.click("#scan-start")
+    page.wait_for_function("window.viewer.scanId !== null || window.viewer.lastError !== null",
+                           timeout=timeout_s * 1000)
+    assert page.evaluate("window.viewer.lastError") is None
+    page.wait_for_function("window.viewer.complete && window.viewer.scanState !== null",
+                           timeout=timeout_s * 1000)
+    return page.evaluate("window.viewer.scanId")
+
+
+def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
+    sync_playwright = _browser_or_skip()
+    from PIL import Image
+
+    proc, url = start_daemon(tmp_path / "data")
+    try:
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1100, "height": 700})
+                sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=120)
+                api = httpx.get(f"{url}/scans/{sid}", timeout=10).json()
+                assert api["state"] == "done"
+                # every planned pixel (the ROI's bonded rows) was scanned
+                assert 0 < api["counts"]["pixels_scanned"] == api["counts"]["pixels_planned"] <= 256
+                assert api["counts"]["points"] > 0
+                assert page.evaluate("window.viewer.scanState") == "done"
+                assert page.evaluate("window.viewer.pointCount") == api["counts"]["points"]
+                # the page really drew them: the WebGL buffer is not one flat colour
+                stats = page.evaluate("window.viewer.cloud.pixelStats()")
+                assert stats["lit"] > 0 and stats["variance"] > 1.0, stats
+                shot = tmp_path / "viewer.png"
+                page.locator("#cloud").screenshot(path=str(shot))
+                if os.environ.get("LIDARD_VIEWER_SHOT"):
+                    shutil.copy(shot, os.environ["LIDARD_VIEWER_SHOT"])
+                img = np.asarray(Image.open(io.BytesIO(shot.read_bytes())).convert("L"), dtype=float)
+                assert img.var() > 1.0, f"blank canvas in {shot}"
+                # the pixel picker: a click where the middle point is drawn shows that point's fields
+                mid = api["counts"]["points"] // 2
+                at = page.evaluate(f"window.viewer.cloud.screenOf({mid})")
+                page.mouse.click(at["x"], at["y"])
+                picked = page.evaluate("window.viewer.picked")
+                want = page.evaluate(f"[window.viewer.cloud.column('row')[{mid}], window.viewer.cloud.column('col')[{mid}]]")
+                # that pixel (a second return of the same beam may be drawn on the same spot)
+                assert picked is not None and [picked["row"], picked["col"]] == want, (picked, want)
+                assert 40 <= picked["row"] < 56 and 56 <= picked["col"] < 72, picked
+                assert 0.7 < picked["range"] < 1.0  # the letters at 0.8 m or the board at 0.9 m
+                assert f"row       {picked['row']}" in page.inner_text("#picked")
+                assert page.evaluate("window.viewer.cloud.pick({clientX: -1e6, clientY: -1e6})") is None
+            finally:
+                browser.close()
+    finally:
+        stop_daemon(proc)
