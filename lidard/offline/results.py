@@ -33,6 +33,9 @@ PARTS_DIR = "parts"
 def code_version() -> str:
     """``git describe`` of the source tree when it is a git checkout, else the package version."""
     root = Path(__file__).resolve().parents[2]
+    # only our own checkout (an installed copy may sit inside some unrelated repository)
+    if not ((root / ".git").exists() and (root / "pyproject.toml").is_file()):
+        return _package_version()
     try:
         out = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty", "--tags"],
                              capture_output=True, text=True, timeout=5)
@@ -40,6 +43,10 @@ def code_version() -> str:
             return "git:" + out.stdout.strip()
     except (OSError, subprocess.SubprocessError):
         pass
+    return _package_version()
+
+
+def _package_version() -> str:
     from importlib.metadata import PackageNotFoundError, version
     try:
         return "lidard " + version("lidard")
