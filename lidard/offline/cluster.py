@@ -12,6 +12,9 @@ The reusable layer under ``lidarctl sweep`` (and, later, ``lidarctl reprocess`` 
   :class:`TaskFailure` carrying the task's own parameters, the exception and its traceback.
 * :func:`run_serial` is the same contract without Dask, in this process: the baseline of the
   scheduling-overhead benchmark and the reference the Dask path must equal.
+* :func:`mapper` wraps either as a drop-in for the builtin ``map`` (results in order, or
+  :class:`TasksFailed` naming every failed call's arguments): for code that takes a ``map_fn``, such
+  as the raw-capture reprocessing (``lidard.raw.replay.reprocess(path, settings, map_fn=...)``).
 
 Task functions must be importable on the workers (module-level functions of an installed package,
 not lambdas defined in ``__main__``) and their arguments picklable.
@@ -223,3 +226,37 @@ def run_serial(fn: Callable[[Any], Any], tasks: Sequence[Any], *, describe: Call
         (outcome,) = call_batch(fn, [task])
         col.take(i, outcome)
     return col.report(t0, 0)
+
+
+class TasksFailed(LidardError):
+    """Some tasks of a :func:`mapper` call raised; ``failures`` holds each with its parameters."""
+
+    def __init__(self, failures: list[TaskFailure], total: int) -> None:
+        self.failures = failures
+        shown = "; ".join(f.summary() for f in failures[:3]) + ("; ..." if len(failures) > 3 else "")
+        super().__init__(f"{len(failures)} of {total} tasks failed: {shown}")
+
+
+def _star(job: tuple) -> Any:
+    fn, args = job
+    return fn(*args)
+
+
+def mapper(client=None, *, on_progress: ProgressCallback | None = None,
+           batch_size: int = 1) -> Callable[..., list]:
+    """A drop-in for the builtin ``map(fn, *iterables)`` that runs on ``client`` (or in this process
+    when None) and returns the results as a list in order: the seam for code written against ``map``
+    (the raw-capture reprocessing's ``map_fn``). Every task runs; if any raised, :class:`TasksFailed`
+    names each with its arguments afterwards.
+    """
+    def run(fn: Callable[..., Any], *iterables) -> list:
+        jobs = [(fn, args) for args in zip(*iterables)]
+        describe = lambda job: job[1]          # noqa: E731 - the task's own arguments
+        if client is None:
+            rep = run_serial(_star, jobs, describe=describe, on_progress=on_progress)
+        else:
+            rep = run_tasks(client, _star, jobs, describe=describe, on_progress=on_progress, batch_size=batch_size)
+        if rep.failures:
+            raise TasksFailed(rep.failures, len(jobs))
+        return rep.results
+    return run

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from lidard.offline.cluster import ClusterError, open_client, run_serial, run_tasks
+from lidard.offline.cluster import ClusterError, TasksFailed, mapper, open_client, run_serial, run_tasks
 
 
 def square_or_fail(task: dict) -> int:
@@ -51,3 +51,18 @@ def test_an_unreachable_scheduler_is_a_clear_error():
     with pytest.raises(ClusterError, match=r"tcp://127\.0\.0\.1:9.*dask scheduler"):
         with open_client("tcp://127.0.0.1:9", connect_timeout_s=1.0):
             pass
+
+
+def scaled(x: int, k: int) -> int:
+    if x == 3:
+        raise ValueError("x=3 is cursed")
+    return k * x
+
+
+@pytest.mark.parametrize("on_cluster", [False, True])
+def test_mapper_is_map_on_the_cluster_and_names_failed_arguments(client, on_cluster):
+    m = mapper(client if on_cluster else None, batch_size=2)
+    assert m(scaled, [0, 1, 2, 4], [10, 10, 10, 10]) == list(map(scaled, [0, 1, 2, 4], [10] * 4))
+    with pytest.raises(TasksFailed, match=r"1 of 5 tasks failed: task 3 \(3, 7\): ValueError: x=3 is cursed") as ei:
+        m(scaled, range(5), [7] * 5)
+    assert [f.index for f in ei.value.failures] == [3]
