@@ -76,11 +76,16 @@ class ResultStore:
         self._last = time.monotonic()
 
     def done_keys(self) -> set[str]:
+        return {k for k, _ in self.done()}
+
+    def done(self) -> set[tuple[str, str]]:
+        """(task key, code version) of every row written so far."""
         import pyarrow.parquet as pq
-        keys: set[str] = set()
+        out: set[tuple[str, str]] = set()
         for f in sorted(self.parts.glob("*.parquet")):
-            keys.update(pq.read_table(f, columns=["task_key"]).column("task_key").to_pylist())
-        return keys
+            t = pq.read_table(f, columns=["task_key", "code_version"])
+            out.update(zip(t.column("task_key").to_pylist(), t.column("code_version").to_pylist()))
+        return out
 
     def add(self, task: SweepTask, row: dict) -> None:
         """Buffer one finished task's row; flushes every ``flush_rows`` rows or ``flush_s`` seconds."""

@@ -30,6 +30,7 @@ class SweepOutcome:
     summary: list[dict] = field(default_factory=list)
     table: str = ""
     plot: Path | None = None
+    warnings: list[str] = field(default_factory=list)
 
 
 def _task_fn() -> Callable[[SweepTask], dict]:
@@ -54,8 +55,11 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, *, client=None, scheduler: str 
     """
     out = Path(out_dir)
     store = ResultStore(out)
-    done = store.done_keys()
+    previous = store.done()
+    done = {k for k, _ in previous}
     todo = [t for t in sweep.tasks if t.key not in done]
+    wanted = {t.key for t in sweep.tasks}
+    older = sorted({v for k, v in previous if k in wanted and v != store.version})
     fn = task_fn or _task_fn()
 
     def on_result(_i: int, task: SweepTask, row: dict) -> None:
@@ -81,7 +85,10 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, *, client=None, scheduler: str 
         indent=1, default=str))
     outcome = SweepOutcome(total=len(sweep.tasks), skipped=len(sweep.tasks) - len(todo), ran=len(todo),
                            failures=report.failures, elapsed_s=report.elapsed_s, workers=report.workers)
-    wanted = {t.key for t in sweep.tasks}
+    if older and todo:
+        # a resumed sweep computed by two versions of the code: say so (the rows keep each version)
+        outcome.warnings.append(f"rows already in {out} were computed by {', '.join(older)}; "
+                                f"this run is {store.version} (see the code_version column)")
     rows = [r for r in read_results(out).to_pylist() if r["task_key"] in wanted]
     outcome.summary = summarize(rows, sweep.swept_keys, {p.config_hash: i for i, p in enumerate(sweep.points)})
     write_summary_csv(outcome.summary, out / "summary.csv")

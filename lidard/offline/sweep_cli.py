@@ -102,6 +102,8 @@ def cmd_sweep(args) -> int:
     print(f"ran {outcome.ran} tasks ({outcome.skipped} already done) in {outcome.elapsed_s:.1f} s "
           f"on {outcome.workers or 'no'} Dask workers")
     print(outcome.table)
+    for w in outcome.warnings:
+        sys.stderr.write(f"lidarctl sweep: warning: {w}\n")
     print(f"rows: {out / 'parts'}  summary: {out / 'summary.csv'}" + (f"  plot: {outcome.plot}" if outcome.plot else ""))
     for f in outcome.failures:
         sys.stderr.write(f"lidarctl sweep: FAILED {f.summary()}\n")

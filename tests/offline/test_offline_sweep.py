@@ -85,8 +85,19 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_tasks(make_sweep,
         return run_task(task)
 
     out = run_sweep(sw, tmp_path, in_process=True, task_fn=counting, plot=False)
-    assert (out.skipped, out.ran) == (5, 3)
+    assert (out.skipped, out.ran) == (5, 3) and out.warnings == []
     assert set(rerun) == {t.key for t in sw.tasks} - set(calls)
     assert read_results(tmp_path).num_rows == 8
     again = run_sweep(sw, tmp_path, in_process=True, task_fn=counting, plot=False)
     assert (again.skipped, again.ran) == (8, 0) and len(rerun) == 3
+
+
+def test_a_resume_with_other_code_says_so(make_sweep, tmp_path, monkeypatch):
+    sw = expand_sweep(make_sweep(seeds=1))
+    import lidard.offline.results as results
+    monkeypatch.setattr(results, "code_version", lambda: "git:old")
+    run_sweep(expand_sweep(make_sweep(seeds=1, distances=(3.0,))), tmp_path, in_process=True, plot=False)
+    monkeypatch.setattr(results, "code_version", lambda: "git:new")
+    out = run_sweep(sw, tmp_path, in_process=True, plot=False)
+    assert out.ran == 1 and len(out.warnings) == 1 and "git:old" in out.warnings[0] and "git:new" in out.warnings[0]
+    assert {r["code_version"] for r in read_results(tmp_path).to_pylist()} == {"git:old", "git:new"}
