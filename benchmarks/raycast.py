@@ -10,6 +10,11 @@ Beam directions follow eq. 4-1: antenna offset (x, y) behind a lens of focal len
 points along (-x/f, -y/f, 1) normalised; the antenna pitch is chosen so that 128 antennas span the
 16 deg FoV (pitch = 2 f tan 8 deg / 128 = 55 um, resolution 0.126 deg ~ 0.13 deg).
 
+A third line measures the mixed-pixel footprint sampling (sim_devices.world.footprint): the bench's
+per-pixel cast of a 128 x 128 frame with ``mixed_pixels`` on against off, for a scene without
+edges (one infinite wall: the ratio should be ~1) and for a box in front of the wall (sub-rays only
+around the box's edges).
+
 Usage: python benchmarks/raycast.py [--repeats N] [--max-hits K]
 """
 
@@ -105,6 +110,35 @@ def run_raycast(repeats: int = 9, max_hits: int = 4) -> dict:
     return {"mixed20": mixed, "cal_letters": cal, "repeats": repeats, "max_hits": max_hits}
 
 
+def _frame_cast_s(targets: list[dict], mixed: bool, repeats: int) -> float:
+    """Median time of the bench's per-pixel cast (World cache filled from scratch) of a frame."""
+    from lidard.config import load_config
+    from sim_devices.world.world import World
+
+    cfg = load_config(ROOT / "config" / "sim.toml")
+    world = World(cfg, cfg.load_profile(), cfg.load_laser(), Scene())
+    rows, cols = np.divmod(np.arange(128 * 128), 128)
+    scene = Scene.from_dict({"mixed_pixels": mixed, "target": targets})
+    times = []
+    for _ in range(repeats):
+        world.set_scene(scene)  # empties the per-pixel cache
+        t0 = time.perf_counter()
+        world._cast_pixels(rows, cols)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def footprint_cost(repeats: int = 5) -> dict:
+    """Frame cast time with mixed pixels on / off: a wall (no edges) and a box before the wall."""
+    wall = {"kind": "plane", "point": [0, 0, 2.0], "normal": [0, 0, -1]}
+    box = {"kind": "box", "center": [0.05, 0.0, 1.1], "size": [0.2, 0.2, 0.2]}
+    out = {}
+    for name, targets in (("wall", [wall]), ("box_on_wall", [box, wall])):
+        off, on = _frame_cast_s(targets, False, repeats), _frame_cast_s(targets, True, repeats)
+        out[name] = {"off_s": off, "on_s": on, "ratio": on / off}
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=9)
@@ -118,6 +152,9 @@ def main(argv: list[str] | None = None) -> None:
     print(f"cal_letters 128x96: {c['rays']:6d} rays  median {c['median_s'] * 1e3:8.2f} ms  "
           f"{c['rays_per_s'] / 1e6:6.3f} Mrays/s  ({c['beams_on_letters']} beams on the letters)")
     print(f"(median of {args.repeats} runs after one warm-up, max_hits = {args.max_hits})")
+    for name, f in footprint_cost(max(3, args.repeats // 2)).items():
+        print(f"mixed pixels, {name:11s}: 128x128 frame cast {f['off_s'] * 1e3:7.1f} ms one ray, "
+              f"{f['on_s'] * 1e3:7.1f} ms with footprints (ratio {f['ratio']:.2f})")
 
 
 if __name__ == "__main__":

@@ -95,6 +95,10 @@ class Profile(_Model):
     actuation_v: PosFloat
     pull_in_v: PosFloat
     release_v: PosFloat
+    #: 1-sigma switch-to-switch spread of pull-in and release (both move together), V (simulator)
+    threshold_spread_v: NonNegFloat = 0.0
+    #: HV583 output discharge time constant into an actuator: release delay rc*ln(V/V_release), s
+    discharge_rc_s: NonNegFloat = 0.0
     row_switch: SwitchTiming
     col_switch: SwitchTiming
     lenses: dict[str, Lens]
@@ -225,6 +229,14 @@ class Monitor(_Model):
 
     delay_s: PosFloat = 200e-9
     amplitude_v: PosFloat = 0.3
+    #: mean optical power on the monitor photodiode, W: sets the channel's shot noise (simulator;
+    #: lidard.physics.budget.monitor_noise_asd). 100 uW is an estimate (a 1 % tap of ~10 mW).
+    power_w: PosFloat = 100e-6
+    # The MZI is also read in quadrature (a 90-degree hybrid or 3x3 coupler and a second digitizer
+    # channel, ``mzi_q``): the laser phase is then rebuilt per sample and phase-noise compensation holds
+    # at EVERY range (lidard.dsp.pnrecon, issue 15). False is the dissertation's single real MZI: the
+    # compensation is exact only where the round trip is a whole multiple of delay_s (docs/benchmarks.md).
+    quadrature: bool = False
 
 
 class ScanDefaults(_Model):

@@ -67,7 +67,7 @@ import numpy as np
 
 from drivers.controller import protocol as ctl_p
 from lidard.config import Config, ConfigError, load_config
-from lidard.physics.budget import quantization_asd
+from lidard.physics.budget import monitor_noise_asd, quantization_asd
 
 from .awg import SimAwg
 from .clock import VirtualClock
@@ -75,6 +75,7 @@ from .controller import ControllerSim
 from .digitizer import CaptureConfig, CapturedSegments, SimDigitizer
 from .faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from .fpga import FpgaConfig, FpgaSim
+from .hv_drive import HvDrive
 from .usb_backend import SimUsbBackend, UsbBridgeServer
 from .world.laser import DfbLaser
 from .world.mems import SwitchDynamics
@@ -115,20 +116,20 @@ class Bench:
             scene = Scene.from_toml(cfg.resolve_path(cfg.sim.scene))
         self.seed = cfg.sim.seed if seed is None else int(seed)
         self.clock = VirtualClock()
-        self.world = World(cfg, self.profile, self.laser_preset, scene)
+        self.world = World(cfg, self.profile, self.laser_preset, scene, seed=self.seed)
         self.laser = DfbLaser(self.laser_preset)
         pr = self.profile
-        row_dyn = SwitchDynamics(pr.row_switch.on_s, pr.row_switch.off_s, pull_in_v=pr.pull_in_v,
-                                 release_v=pr.release_v)
-        col_dyn = SwitchDynamics(pr.col_switch.on_s, pr.col_switch.off_s, pull_in_v=pr.pull_in_v,
-                                 release_v=pr.release_v)
+        row_dyn, col_dyn = (SwitchDynamics(sw.on_s, sw.off_s, pull_in_v=pr.pull_in_v,
+                                           release_v=pr.release_v, discharge_rc_s=pr.discharge_rc_s)
+                            for sw in (pr.row_switch, pr.col_switch))
         self.fpga = FpgaSim(self.clock, FpgaConfig(
             rows=pr.rows, cols=pr.cols, bonded_rows=pr.bonded_rows,
             baudrate=cfg.devices.fpsa.baudrate, hv_supply_v=pr.actuation_v, seed=self.seed,
-            row_dynamics=row_dyn, col_dynamics=col_dyn))
+            row_dynamics=row_dyn, col_dynamics=col_dyn, threshold_spread_v=pr.threshold_spread_v))
         self.awg = SimAwg()
         self.digitizer = SimDigitizer(self.clock, source=self)
         self.controller = ControllerSim(self.clock)
+        self.fpga.supply = self._hv_drive  # the controller's HV is the HV583 supply rail
         self._traj_key: bytes | None = None
         self._traj = None
         self._lock = threading.RLock()
@@ -370,6 +371,10 @@ class Bench:
         self._interlock_after = None
         self.controller.set_interlock(False)
 
+    def _hv_drive(self) -> HvDrive:
+        st = self.controller.state
+        return HvDrive(st.hv_v if st.hv_on else 0.0, st.hv_hold_setpoint_v if st.hv_on else 0.0)
+
     # -- world control ------------------------------------------------------------------------------
     def set_scene(self, scene: Scene) -> None:
         with self._lock:
@@ -415,6 +420,21 @@ class Bench:
         over = (raw < lo_code).any(axis=1) | (raw > hi_code).any(axis=1)
         return np.clip(raw, lo_code, hi_code).astype(np.int16), over
 
+    def _monitor_asd(self, record_bits: int) -> float:
+        """White-noise ASD of the monitor-MZI channel: its photodiode's shot noise and the laser's
+        RIN (``sim.effects.noise``), plus the 8-bit core's quantization when the record is wider
+        (``sim.effects.quantization``; the record's own quantization is applied by the synthesis)."""
+        eff, mon = self.cfg.sim.effects, self.cfg.monitor
+        asd = 0.0
+        if eff.noise:
+            asd = monitor_noise_asd(mon.amplitude_v, mon.power_w, self.cfg.detector.responsivity_a_per_w,
+                                    self.laser_preset.rin_db_per_hz)["total"]
+        core_bits = self.cfg.adc.bits
+        if eff.quantization and record_bits > core_bits:
+            q = quantization_asd(self.cfg.adc.input_range_v, core_bits, self.cfg.adc.max_sample_rate_hz)
+            asd = float(np.hypot(asd, q))
+        return asd
+
     def tap_volts_per_beam(self) -> float:
         """Tap level of one fully open beam (what a healthy pixel reads), V."""
         link = self.world.link
@@ -445,7 +465,9 @@ class Bench:
         n = len(trig)
         st = self.controller.state
         light = bool(st.laser_on and st.interlock_closed)
-        switches = bool(st.hv_on and st.hv_v >= self.profile.pull_in_v)
+        # the HV583 outputs carry the controller's HV: which switches pull in is the FPGA's
+        # (per-switch hysteresis); an HV output switched off during a run still darkens it
+        switches = bool(st.hv_on)
         # Light per segment: an interlock that opens inside this batch (at a virtual time or after
         # a number of segments) darkens the segments from that trigger on.
         lit = np.full(n, light)
@@ -458,7 +480,8 @@ class Bench:
                       input_range_v=cfg.input_range_v, iq=iq, quantize=True)
         hits = None
         # a stuck switch only shows through the switch dynamics (which beams actually emit)
-        beams_from_dynamics = eff.mems_dynamics or bool(self.fpga.stuck_switches)
+        beams_from_dynamics = (eff.mems_dynamics or bool(self.fpga.stuck_switches)
+                               or not self.fpga.pulls_in_every_switch())
         if beams_from_dynamics:
             rows, cols, trans, beam_seg = (trig.beam_row, trig.beam_col, trig.beam_transmission,
                                            np.asarray(trig.beam_trigger, np.intp))
@@ -466,11 +489,17 @@ class Bench:
             rows, cols, trans, beam_seg = trig.row, trig.col, np.ones(n), np.arange(n)
         emitting = lit[beam_seg] & switches
         if light and switches and n and emitting.any():
-            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting])
+            chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
+            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp)
             if bh.beam.size:
+                phase = None
+                if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
+                    plain = 2.0 * np.pi * np.mod(self._trajectory().nu0_hz * bh.tau_s, 1.0)
+                    phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
                 hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
                                 tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain,
-                                doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m)
+                                doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
+                                phase_rad=phase)
         noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
         core_bits = self.cfg.adc.bits
         if eff.quantization and cfg.bits > core_bits:
@@ -479,13 +508,15 @@ class Bench:
             # band) lands in the record as white noise; the 16-bit format quantizes the rest.
             q = quantization_asd(self.cfg.adc.input_range_v, core_bits, self.cfg.adc.max_sample_rate_hz)
             noise_asd = float(np.hypot(noise_asd, q))
+        mzi_asd = self._monitor_asd(cfg.bits) if light else 0.0
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
                          linewidth_hz=linewidth, rng=rng,
                          mzi_delay_s=self.cfg.monitor.delay_s if want_mzi else None,
-                         mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None)
+                         mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
+                         mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0)
         codes = np.zeros((n, len(cfg.channels), cfg.record_length), dtype=np.int16)
         over = np.zeros((n, len(cfg.channels)), dtype=bool)
         by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi}

@@ -75,6 +75,7 @@ class ControllerState:
     tec_c: float = 25.0
     laser_setpoint_ma: float = 0.0
     hv_setpoint_v: float = 0.0
+    hv_hold_setpoint_v: float = 0.0  # 0 = lines held at the full HV (sim_devices.hv_drive)
     tec_setpoint_c: float = 25.0
     faults: set[p.Fault] = field(default_factory=set)
     last_command: int = 0
@@ -191,6 +192,7 @@ class ControllerModel:
                     *p.encode_value(p.TEC_SETPOINT, s.tec_setpoint_c),
                     *p.encode_value(p.HV_SETPOINT, s.hv_setpoint_v),
                     s.last_command,
+                    *p.encode_value(p.HV_HOLD_SETPOINT, s.hv_hold_setpoint_v),
                 ]
             uptime_ms = int((self.clock.now() - self._t0_s) * 1000.0) % (1 << 32)
             return [
@@ -256,6 +258,8 @@ class ControllerModel:
                 s.tec_setpoint_c = float(value)
             elif reg is p.HV_SETPOINT:
                 s.hv_setpoint_v = float(value)
+            elif reg is p.HV_HOLD_SETPOINT:
+                s.hv_hold_setpoint_v = float(value)
             elif reg is p.COMMAND:
                 s.last_command = int(value)
                 if value is p.Command.CLEAR_FAULTS:

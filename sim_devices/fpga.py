@@ -41,6 +41,7 @@ import os
 import select
 import threading
 import tty
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +51,7 @@ from drivers.fpsa.errors import LengthError, PayloadError, ProtocolError
 
 from .clock import VirtualClock
 from .faults import SerialLineNoise
+from .hv_drive import HOLD_BOOST_S, HvDrive, valid_holds
 from .triggers import PixelSchedule, TriggerBatch
 from .world.mems import (
     COLUMN_SWITCH,
@@ -57,6 +59,7 @@ from .world.mems import (
     SwitchBank,
     SwitchDynamics,
     mean_path_transmission,
+    switch_thresholds,
 )
 
 ROW, COL = 0, 1  # line kinds in the drive-event log
@@ -131,6 +134,7 @@ class FpgaConfig:
     row_dynamics: SwitchDynamics = ROW_SWITCH
     col_dynamics: SwitchDynamics = COLUMN_SWITCH
     beam_floor: float = 1e-6  # beams dimmer than this (path transmission) are not reported
+    threshold_spread_v: float = 0.0  # 1-sigma switch-to-switch spread of pull-in/release (seeded)
     min_trigger_period_ns: int = 100
 
     def __post_init__(self) -> None:
@@ -209,6 +213,9 @@ class FpgaSim:
         self.tx_bytes = 0
         self.executed = 0  # commands executed (cached retries are not counted)
         self._events = _Events()
+        self._holds = _Events()  # hold-level drive after each pull-in boost (sim_devices.hv_drive)
+        #: What the HV583 outputs carry; the bench points this at the controller's HV output.
+        self.supply: Callable[[], HvDrive] = lambda: HvDrive(self.config.hv_supply_v)
         self._banks: tuple[SwitchBank, SwitchBank] | None = None
         # (kind, line) -> [(t_from, t_to, on)]: intervals in which that switch ignores its drive
         self._stuck: dict[tuple[int, int], list[list]] = {}
@@ -239,11 +246,14 @@ class FpgaSim:
         """Log drive events for every wired line whose HV583 output changed at ``t_s``."""
         rows = self._bonded_lines(self.hv_rows.outputs)
         cols = self.hv_cols.outputs[: self.config.cols]
-        v = self.config.hv_supply_v
+        drive = self.supply()
         for kind, new, old in ((ROW, rows, self._row_high), (COL, cols, self._col_high)):
             changed = np.flatnonzero(new != old)
             if changed.size:
-                self._events.add(kind, changed, t_s, np.where(new[changed], v, 0.0))
+                self._events.add(kind, changed, t_s, np.where(new[changed], drive.hv_v, 0.0))
+                rising = changed[new[changed]]
+                if drive.holds and rising.size:
+                    self._holds.add(kind, rising, t_s + HOLD_BOOST_S, drive.hold_v)
         self._row_high, self._col_high = rows.copy(), cols.copy()
         self._banks = None
 
@@ -509,7 +519,8 @@ class FpgaSim:
         cols = run.pattern[:, 1].astype(np.int64)
         n = rows.size
         latch = sched.latch_s(np.arange(n))
-        v = self.config.hv_supply_v
+        drive = self.supply()
+        v = drive.hv_v
         kinds, lines, ts, vs = [], [], [], []
 
         def add(k, line, t, volts):
@@ -531,8 +542,12 @@ class FpgaSim:
             add(k, seq[ch], latch[ch], v)
             add(k, seq[-1:], np.array([sched.natural_end_s]), 0.0)
         self._run_slot = len(self._events.kind)
-        self._events.add(np.concatenate(kinds), np.concatenate(lines), np.concatenate(ts),
-                         np.concatenate(vs))
+        all_k, all_l, all_t, all_v = (np.concatenate(kinds), np.concatenate(lines),
+                                      np.concatenate(ts), np.concatenate(vs))
+        self._events.add(all_k, all_l, all_t, all_v)
+        rising = all_v > 0
+        if drive.holds and rising.any():  # holds cut short by a line change are dropped later
+            self._holds.add(all_k[rising], all_l[rising], all_t[rising] + HOLD_BOOST_S, drive.hold_v)
         self._row_high[:] = False
         self._col_high[:] = False
         self._banks = None
@@ -626,11 +641,33 @@ class FpgaSim:
             banks = []
             for k, n, dyn in ((ROW, self.config.rows, self.config.row_dynamics),
                               (COL, self.config.cols, self.config.col_dynamics)):
-                m = kinds == k
-                ln, t, v = self._with_stuck(k, lines[m], ts[m], vs[m])
-                banks.append(SwitchBank(n, dyn, ln, t, v))
+                ln, t, v = self._with_holds(k, kinds, lines, ts, vs)
+                ln, t, v = self._with_stuck(k, ln, t, v)
+                thresholds = switch_thresholds(n, dyn, self.config.threshold_spread_v,
+                                               [self.config.seed, 0x4B5, k])
+                banks.append(SwitchBank(n, dyn, ln, t, v, thresholds=thresholds))
             self._banks = (banks[0], banks[1])
         return self._banks
+
+    def _with_holds(self, kind: int, kinds, lines, ts, vs):
+        """Drive events of one line kind, with the hold-level events that still apply."""
+        m = kinds == kind
+        ln, t, v = lines[m], ts[m], vs[m]
+        hk, hl, ht, hv = self._holds.arrays()
+        hm = hk == kind
+        keep = valid_holds(ln, t, v, hl[hm], ht[hm])
+        if not keep.any():
+            return ln, t, v
+        return (np.concatenate([ln, hl[hm][keep]]), np.concatenate([t, ht[hm][keep]]),
+                np.concatenate([v, hv[hm][keep]]))
+
+    def pulls_in_every_switch(self) -> bool:
+        """Whether the present drive pulls in every row and column switch (the bench can then
+        take the commanded pixel for the lit one when it skips the switch dynamics)."""
+        with self._lock:
+            rows_bank, cols_bank = self._switch_banks()
+            hv = self.supply().hv_v
+            return bool(hv >= rows_bank.pull_in_v.max() and hv >= cols_bank.pull_in_v.max())
 
     # --- stuck switches (fault injection) -------------------------------------------------------
     def _with_stuck(self, kind: int, lines: np.ndarray, ts: np.ndarray, vs: np.ndarray):

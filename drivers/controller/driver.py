@@ -308,6 +308,14 @@ class LaserHvController:
     def hv_setpoint_v(self) -> float:
         return float(self._read("read HV setpoint", p.HV_SETPOINT))
 
+    def set_hv_hold_v(self, voltage_v: float) -> None:
+        """Hold drive: lines pull in at the HV, then hold at ``voltage_v`` (0 = hold at the HV).
+        Pick it above the switches' release voltage and below their pull-in voltage."""
+        self._write_setpoint("set HV hold voltage", p.HV_HOLD_SETPOINT, voltage_v)
+
+    def hv_hold_setpoint_v(self) -> float:
+        return float(self._read("read HV hold setpoint", p.HV_HOLD_SETPOINT))
+
     def hv_v(self) -> float:
         """Measured HV output voltage (readback)."""
         return float(self._read("read HV voltage", p.HV_VOLTAGE))

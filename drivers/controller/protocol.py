@@ -115,6 +115,8 @@ HV_SETPOINT = Register("HV_SETPOINT", Table.HOLDING, 2, Kind.U16, "V", 0.01,
                        "MEMS HV supply voltage setpoint")
 COMMAND = Register("COMMAND", Table.HOLDING, 3, Kind.U16,
                    description="write a Command code to execute it; reads the last code executed")
+HV_HOLD_SETPOINT = Register("HV_HOLD_SETPOINT", Table.HOLDING, 4, Kind.U16, "V", 0.01,
+                            "MEMS hold voltage after each pull-in (0 = hold at HV_SETPOINT)")
 
 # --- input registers (read-only words) ---------------------------------------------------------
 MODEL = Register("MODEL", Table.INPUT, 0, Kind.ASCII8, description="model name, 8 ASCII chars")
@@ -137,7 +139,7 @@ HEARTBEAT = Register("HEARTBEAT", Table.INPUT, 12, Kind.U16,
 REGISTER_MAP: tuple[Register, ...] = (
     LASER_ENABLE, HV_ENABLE,
     INTERLOCK_CLOSED, LASER_ON, HV_ON, FAULT_ACTIVE, TEC_SETTLED,
-    LASER_CURRENT_SETPOINT, TEC_SETPOINT, HV_SETPOINT, COMMAND,
+    LASER_CURRENT_SETPOINT, TEC_SETPOINT, HV_SETPOINT, COMMAND, HV_HOLD_SETPOINT,
     MODEL, FIRMWARE, MAP_VERSION_REG, LASER_CURRENT, TEC_TEMPERATURE, HV_VOLTAGE, FAULTS,
     UPTIME_MS, HEARTBEAT,
 )
@@ -225,7 +227,7 @@ class Limits:
         """Allowed engineering range of a setpoint register."""
         if reg is LASER_CURRENT_SETPOINT:
             return (0.0, float(self.max_laser_current_ma))
-        if reg is HV_SETPOINT:
+        if reg is HV_SETPOINT or reg is HV_HOLD_SETPOINT:
             return (0.0, float(self.max_hv_v))
         if reg is TEC_SETPOINT:
             return (float(self.tec_range_c[0]), float(self.tec_range_c[1]))

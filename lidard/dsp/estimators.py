@@ -38,15 +38,13 @@ models the image); a second target inside the main lobe biases every method.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
 from functools import lru_cache
 from math import factorial
 from typing import Literal, get_args
 
 import numpy as np
 
-from lidard.dsp.cfar import Detections, cfar_detect
-from lidard.dsp.rangefft import RangeFFT, check_samples, gather_bins
+from lidard.dsp.rangefft import check_samples, gather_bins, windowed_fft
 from lidard.dsp.window import DspInputError, WindowName, check_window_name, get_window
 
 EstimatorName = Literal["argmax", "parabolic", "jacobsen", "quinn2", "aboutanios", "newton"]
@@ -76,12 +74,8 @@ class _Batch:
     def spectrum(self) -> np.ndarray:
         """Windowed spectrum in RangeFFT layout (computed on demand if not supplied)."""
         if self._spectrum is None:
-            w = get_window(self.window, self.n)
-            if self.iq:
-                spec = np.fft.fftshift(np.fft.fft(self.x * w, n=self.n_fft, axis=-1), axes=-1)
-            else:
-                spec = np.fft.rfft(self.x * w, n=self.n_fft, axis=-1)
-            self._spectrum = spec
+            self._spectrum = windowed_fft(self.x, get_window(self.window, self.n), self.n_fft,
+                                          "shifted" if self.iq else "real")
         return self._spectrum
 
     def three_bins(self, spec: np.ndarray, centre: np.ndarray, n_fft: int):
@@ -451,46 +445,3 @@ def estimate(
         return np.zeros(out_shape, dtype=np.float64)
     batch = _Batch(a, pb, window, int(zero_pad), spectrum)
     return np.asarray(ESTIMATORS[method](batch), dtype=np.float64).reshape(out_shape)
-
-
-# ---------------------------------------------------------------------------------------------
-# convenience: spectrum -> CFAR -> sub-bin refinement, the chain a ramp goes through
-# ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class PeakMeasurements:
-    """Refined detections of a batch of ramps, (batch..., K) each, strongest first.
-
-    freq_hz / range_m are 0.0 where ``detections.valid`` is False.
-    """
-
-    freq_hz: np.ndarray
-    range_m: np.ndarray
-    detections: Detections
-
-
-def measure_peaks(
-    rf: RangeFFT,
-    x: object,
-    *,
-    method: EstimatorName = DEFAULT_METHOD,
-    **cfar_kwargs,
-) -> PeakMeasurements:
-    """Range FFT, CFAR (``cfar_kwargs`` go to :func:`lidard.dsp.cfar.cfar_detect`; window,
-    zero_pad and iq are taken from ``rf``; the range gate of ``rf`` limits the search) and sub-bin
-    refinement of every detection with ``method``."""
-    a = check_samples(x, rf.n_samples)
-    spec = rf(a)
-    power = spec.real**2 + spec.imag**2
-    gate = np.flatnonzero(rf.gate_mask)
-    if gate.size == 0:
-        raise DspInputError(f"range_gate_m={rf.range_gate_m} selects no bins")
-    cfar_kwargs.setdefault("bin_range", (int(gate[0]), int(gate[-1])))
-    det = cfar_detect(power, window=rf.window, zero_pad=rf.zero_pad, iq=rf.iq, **cfar_kwargs)
-    if rf.iq and rf.range_gate_m is not None:
-        # |range| gate on a two-sided spectrum: the contiguous bin_range above covers both signs.
-        det_ok = det.valid & rf.gate_mask[np.maximum(det.index, 0)]
-        det = replace(det, valid=det_ok, index=np.where(det_ok, det.index, -1))
-    bins = rf.index_to_bin(np.where(det.valid, det.index, rf.bin_to_index(1)))
-    frac = estimate(a, bins, method=method, window=rf.window, zero_pad=rf.zero_pad, spectrum=spec)
-    freq_hz = np.where(det.valid, frac * rf.delta_f, 0.0)
-    return PeakMeasurements(freq_hz=freq_hz, range_m=np.where(det.valid, rf.bin_to_range_m(frac), 0.0), detections=det)

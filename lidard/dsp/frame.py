@@ -24,8 +24,9 @@ from functools import cached_property
 
 import numpy as np
 
-from .cfar import cfar_detect
-from .estimators import DEFAULT_METHOD, estimate
+from .chain import detect_and_refine
+from .estimators import DEFAULT_METHOD
+from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .velocity import pair_up_down
 
@@ -99,38 +100,45 @@ class FrameDsp:
         return lo, hi
 
     def process(self, beat: np.ndarray, lsb_v: float = 1.0, *, mzi: np.ndarray | None = None,
-                mzi_delay_s: float | None = None, mzi_lsb_v: float = 1.0) -> FrameResult:
+                mzi_delay_s: float | None = None, mzi_lsb_v: float = 1.0,
+                mzi_q: np.ndarray | None = None) -> FrameResult:
         """``beat``: (n_pix, averages, 2 * ramp_samples) real samples (codes or volts).
 
         ``mzi``: the monitor MZI recorded in the same segments (same shape): laser phase-noise
-        compensation (§2.3, :mod:`lidard.dsp.pnframe`) with the monitor delay ``mzi_delay_s``.
+        compensation (§2.3, :mod:`lidard.dsp.pnframe`) with the monitor delay ``mzi_delay_s``;
+        ``mzi_q``: the same MZI's quadrature output (second monitor channel, same shape and LSB as
+        ``mzi``): compensation at every range, not only at multiples of the delay.
         """
         x = np.asarray(beat)
         if x.ndim != 3 or x.shape[-1] < 2 * self.ramp_samples:
             raise ValueError(f"beat must be (n_pix, averages, >= {2 * self.ramp_samples}), got {x.shape}")
-        n_pix, n_avg = x.shape[:2]
-        a, n = self.offset, self.n_used
-        r = self.ramp_samples
-        up = x[..., a:a + n].astype(np.float64) * lsb_v
-        down = x[..., r + a:r + a + n].astype(np.float64) * lsb_v
-        rf = self.rfft
-        out_f, out_det = [], []
-        if mzi is not None:     # same CFAR, estimator and pairing on the compensated spectrum
-            from .pnframe import compensated_front_end   # pnframe builds on this module
+        if mzi is not None:     # same chain and pairing on the compensated spectrum
             if mzi_delay_s is None:
                 raise ValueError("mzi given without mzi_delay_s (the monitor MZI delay)")
-            out_f, out_det = compensated_front_end(self, x, mzi, lsb_v, mzi_delay_s=mzi_delay_s, mzi_lsb_v=mzi_lsb_v)
-        for ramp in ((up, down) if mzi is None else ()):
+            out_f, out_det = compensated_front_end(self, x, mzi, lsb_v, mzi_delay_s=mzi_delay_s,
+                                                   mzi_lsb_v=mzi_lsb_v, mzi_q=mzi_q)
+        else:
+            out_f, out_det = self._plain_front_end(x, lsb_v)
+        return self._pair(out_f, out_det)
+
+    def _plain_front_end(self, x: np.ndarray, lsb_v: float) -> tuple[list, list]:
+        """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT."""
+        a, n, r = self.offset, self.n_used, self.ramp_samples
+        rf = self.rfft
+        out_f, out_det = [], []
+        for r0 in (0, r):
+            ramp = x[..., r0 + a:r0 + a + n].astype(np.float64) * lsb_v
             spec = rf(ramp)                                    # (n_pix, n_avg, n_bins)
-            p = (spec.real**2 + spec.imag**2).mean(axis=1)     # incoherent average
-            det = cfar_detect(p, method="os", pfa=self.pfa, max_detections=self.max_returns,
-                              window=self.window, bin_range=self.bin_range)
-            bins = np.where(det.valid, det.index, 1)           # (n_pix, K)
-            pb = np.broadcast_to(bins[:, None, :], (n_pix, n_avg, bins.shape[-1]))
-            frac = estimate(ramp, pb, method=self.estimator, window=self.window, spectrum=spec)
-            f_hz = frac.mean(axis=1) * rf.delta_f
-            out_f.append(f_hz)
-            out_det.append(det)
+            res = detect_and_refine(
+                spec, lambda idx, ramp=ramp, spec=spec: (ramp, idx, spec), window=self.window,
+                estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa,
+                max_detections=self.max_returns, bin_range=self.bin_range)
+            out_f.append(res.frac_bins * rf.delta_f)
+            out_det.append(res.detections)
+        return out_f, out_det
+
+    def _pair(self, out_f: list, out_det: list) -> FrameResult:
+        """Up/down pairing (eqs. 2-6, 2-7), validity flags and the range gate."""
         du, dd = out_det
         rng_m, vel, ok = pair_up_down(out_f[0], out_f[1], du.valid, dd.valid, self.chirp_rate_hz_per_s,
                                       self.wavelength_m, iq=self.iq, max_speed_mps=self.max_speed_mps)

@@ -30,6 +30,7 @@ import numpy as np
 from scipy.signal import get_window, hilbert
 
 from .instfreq import check_finite_array, check_positive
+from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
 
 
 @dataclass(frozen=True)
@@ -162,8 +163,14 @@ class CompensatedSpectrum:
 def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_delay_s: float,
                          window: str = "hann", edge_s: float | None = None,
                          nfft: int | None = None, bandwidth_hz: float | None = None,
-                         chirp_rate_hz_per_s: float | None = None) -> CompensatedSpectrum:
+                         chirp_rate_hz_per_s: float | None = None, mzi_q=None,
+                         tau_step_s: float | None = None) -> CompensatedSpectrum:
     """Phase-noise compensated spectrum of one ramp of a LiDAR beat (real, 1-D) using the monitor MZI.
+
+    ``mzi_q``: the quadrature output of the same MZI (sin where ``mzi`` is cos): the laser phase is then
+    rebuilt sample by sample (:mod:`lidard.dsp.pnrecon`) and every bin is compensated at its own round
+    trip, rounded to ``tau_step_s`` (default tau_m / 16); ``m_of_bin`` then counts steps, not tau_m.
+    Needs ``chirp_rate_hz_per_s``. Without ``mzi_q``: the nearest multiple M of tau_m (exact only there).
 
     ``beat`` and ``mzi`` are the same ramp, sample-aligned. Targets up to ``max_delay_s`` round trip
     are compensated (M up to ceil(max_delay / tau_m)); the analysis window starts after that delay
@@ -189,6 +196,11 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
     stop = b.size - n_edge
     if stop - start < 64:
         raise ValueError(f"ramp of {b.size} samples too short for max_delay_s={max_delay_s!r} and edge_s={edge_s!r}")
+    if mzi_q is not None:
+        return _reconstructed_spectrum(b, m_arr, mzi_q, fs_hz=fs_hz, mzi_delay_s=mzi_delay_s,
+                                       max_delay_s=max_delay_s, window=window, start=start, stop=stop,
+                                       nfft=nfft, chirp_rate_hz_per_s=chirp_rate_hz_per_s,
+                                       tau_step_s=tau_step_s, n_edge=n_edge)
     z = hilbert(b - b.mean())[start:stop]
     w = get_window(window, stop - start, fftbins=False)
     nfft = int(nfft or (stop - start))
@@ -205,4 +217,37 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
         spec = np.abs(np.fft.fft(z * np.exp(-1j * s[start:stop]) * w, nfft))[pos]
         comp[sel] = spec[sel]
     return CompensatedSpectrum(freq_hz=freq, raw=raw, comp=comp, m_of_bin=m_of_bin, f_mzi_hz=pn.f_mzi_hz,
+                               start=start)
+
+
+def _reconstructed_spectrum(b, mzi_i, mzi_q, *, fs_hz, mzi_delay_s, max_delay_s, window, start, stop, nfft,
+                            chirp_rate_hz_per_s, tau_step_s, n_edge) -> CompensatedSpectrum:
+    """compensated_spectrum with a quadrature monitor: phi(t) rebuilt, every bin at its own round trip."""
+    if chirp_rate_hz_per_s is None:
+        raise ValueError("mzi_q needs chirp_rate_hz_per_s (the fringe is demodulated at gamma tau_m)")
+    q = check_finite_array("mzi_q", mzi_q, ndim=(1,))
+    if q.size != b.size:
+        raise ValueError(f"mzi_q must have the beat's length {b.size}, got {q.size}")
+    step = check_positive("tau_step_s", tau_step_s if tau_step_s is not None else mzi_delay_s / 16)
+    gamma = float(chirp_rate_hz_per_s)
+    d_samples = whole_delay_samples(mzi_delay_s, fs_hz)
+    delta = quadrature_delta(mzi_i, q, fs_hz=fs_hz, beat_hz=gamma * mzi_delay_s)
+    valid = np.zeros(b.size, dtype=bool)
+    valid[n_edge:b.size - n_edge] = True
+    phi, _ = reconstruct_phase(delta, valid, d_samples)
+    z = hilbert(b - b.mean())[start:stop]
+    w = get_window(window, stop - start, fftbins=False)
+    nfft = int(nfft or (stop - start))
+    freq = np.fft.fftfreq(nfft, d=1.0 / fs_hz)
+    pos = (freq >= 0) & (freq < fs_hz / 2)
+    freq = freq[pos]
+    raw = np.abs(np.fft.fft(z * w, nfft))[pos]
+    g_max = int(math.ceil(max_delay_s / step))
+    g_of_bin = np.clip(np.rint(freq / (gamma * step)), 0, g_max).astype(int)
+    comp = np.empty_like(raw)
+    for g in np.unique(g_of_bin):
+        sel = g_of_bin == g
+        e = phi[start:stop] - delayed(phi, g * step * fs_hz)[start:stop]
+        comp[sel] = np.abs(np.fft.fft(z * np.exp(-1j * e) * w, nfft))[pos][sel]
+    return CompensatedSpectrum(freq_hz=freq, raw=raw, comp=comp, m_of_bin=g_of_bin, f_mzi_hz=gamma * mzi_delay_s,
                                start=start)

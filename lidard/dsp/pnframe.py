@@ -32,16 +32,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from scipy.signal import hilbert
 
-from .cfar import cfar_detect
-from .estimators import estimate
-from .frame import FrameDsp, FrameResult
+from .chain import detect_and_refine
 from .instfreq import check_positive
 from .pncomp import demodulated_phase
-from .rangefft import C_M_PER_S
+from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
+from .rangefft import C_M_PER_S, RangeFFT, windowed_fft
 from .window import DspInputError, get_window
 
 
@@ -91,6 +91,27 @@ def _delayed_batch(x: np.ndarray, shift: float) -> np.ndarray:
     return out
 
 
+class FrameGeometry(Protocol):
+    """What this front end reads of a :class:`lidard.dsp.frame.FrameDsp` (frame builds on this module,
+    not the reverse: no import cycle)."""
+
+    ramp_samples: int
+    fs_hz: float
+    chirp_rate_hz_per_s: float
+    wavelength_m: float
+    max_range_m: float
+    max_speed_mps: float
+    window: str
+    pfa: float
+    max_returns: int
+    estimator: str
+    iq: bool
+    offset: int
+    n_used: int
+    rfft: RangeFFT
+    bin_range: tuple[int, int]
+
+
 @dataclass(frozen=True)
 class PhaseNoiseCompensator:
     """Geometry of the compensation: monitor delay, deepest M, known chirp rate, ADC rate.
@@ -106,12 +127,21 @@ class PhaseNoiseCompensator:
     chirp_rate_hz_per_s: float
     edge_s: float | None = None
     bandwidth_hz: float | None = None
+    tau_step_s: float | None = None      # quadrature monitor: round-trip grid of the compensation
 
     def __post_init__(self) -> None:
         for name in ("fs_hz", "mzi_delay_s", "max_delay_s", "chirp_rate_hz_per_s"):
             check_positive(name, getattr(self, name))
+        if self.tau_step_s is not None:
+            check_positive("tau_step_s", self.tau_step_s)
         if self.edge_s is not None and not (math.isfinite(self.edge_s) and self.edge_s >= 0):
             raise DspInputError(f"edge_s={self.edge_s!r} must be >= 0")
+
+    @property
+    def step_s(self) -> float:
+        """Round-trip grid with a rebuilt laser phase: tau_m / 16 unless given (the phase residual over
+        half a step, 2 pi linewidth step / 2, is 0.2 rad^2 at tau_c = 0.1 us)."""
+        return self.mzi_delay_s / 16 if self.tau_step_s is None else float(self.tau_step_s)
 
     @property
     def m_max(self) -> int:
@@ -142,10 +172,14 @@ class PhaseNoiseCompensator:
         """Nearest M for beat frequencies (the target round trip is f / gamma)."""
         return np.clip(np.rint(np.asarray(freq_hz) / self.mzi_beat_hz), 0, self.m_max).astype(np.int64)
 
-    def prepare(self, beat: np.ndarray, mzi: np.ndarray, start: int, n: int) -> "CompensatedRamps":
-        """Analytic beat and cumulative MZI phases of the window [start, start + n) of every ramp.
+    def prepare(self, beat: np.ndarray, mzi: np.ndarray, start: int, n: int,
+                mzi_q: np.ndarray | None = None) -> "CompensatedRamps":
+        """Analytic beat and the compensation phases of the window [start, start + n) of every ramp.
 
         ``beat``, ``mzi``: (..., ramp_samples) real, sample-aligned (same trigger, same record).
+        ``mzi_q``: the quadrature output of the same MZI (a second monitor channel): the laser phase is
+        rebuilt per sample (:mod:`lidard.dsp.pnrecon`) and every bin is compensated at its own round
+        trip (to ``tau_step_s``) instead of the nearest multiple of tau_m.
         """
         b = np.asarray(beat, dtype=np.float64)
         m = np.asarray(mzi, dtype=np.float64)
@@ -160,9 +194,17 @@ class PhaseNoiseCompensator:
                 f"+ edge) and end <= {stop}; lower max_range_m or raise use_fraction's margin")
         if not np.all(np.isfinite(b)):
             raise DspInputError("beat contains NaN or inf")
+        z = hilbert(b - b.mean(axis=-1, keepdims=True), axis=-1)[..., start:start + n]
+        if mzi_q is not None:
+            if np.shape(mzi_q) != b.shape:
+                raise DspInputError(f"mzi_q must have the beat's shape {b.shape}, got {np.shape(mzi_q)}")
+            delta = quadrature_delta(m, mzi_q, fs_hz=self.fs_hz, beat_hz=self.mzi_beat_hz)
+            valid = np.zeros(r, dtype=bool)
+            valid[self.edge_samples:stop] = True
+            phi, _ = reconstruct_phase(delta, valid, whole_delay_samples(self.mzi_delay_s, self.fs_hz))
+            return CompensatedRamps(z=z, s=None, comp=self, phi=phi, start=start)
         delta, _ = mzi_phase_noise_batch(m, fs_hz=self.fs_hz, edge_s=self.edge_seconds,
                                          beat_hz=self.mzi_beat_hz, bandwidth_hz=self.bandwidth_hz)
-        z = hilbert(b - b.mean(axis=-1, keepdims=True), axis=-1)[..., start:start + n]
         d = self.delay_samples
         s = np.empty((self.m_max + 1,) + b.shape[:-1] + (n,))
         acc = np.zeros_like(delta)
@@ -175,16 +217,40 @@ class PhaseNoiseCompensator:
 
 @dataclass(frozen=True)
 class CompensatedRamps:
-    """Analytic beat ``z`` (..., n) and cumulative phases ``s`` (M_max + 1, ..., n) of one ramp window."""
+    """Analytic beat ``z`` (..., n) of one ramp window and its compensation phases: either the
+    cumulative MZI phases ``s`` (M_max + 1, ..., n) (one real monitor: index M = round trip / tau_m) or
+    the rebuilt laser phase ``phi`` (..., ramp) (quadrature monitor: index g = round trip / tau_step_s)."""
 
     z: np.ndarray
-    s: np.ndarray
+    s: np.ndarray | None
     comp: PhaseNoiseCompensator
+    phi: np.ndarray | None = None
+    start: int = 0
+
+    @property
+    def unit_s(self) -> float:
+        """Round trip per index step: tau_m, or tau_step_s with a rebuilt phase."""
+        return self.comp.mzi_delay_s if self.phi is None else self.comp.step_s
+
+    def index_of_freq(self, freq_hz: np.ndarray) -> np.ndarray:
+        if self.phi is None:
+            return self.comp.m_of_freq(freq_hz)
+        g_max = int(math.ceil(self.comp.max_delay_s / self.comp.step_s - 1e-9))
+        return np.clip(np.rint(np.asarray(freq_hz) / (self.comp.chirp_rate_hz_per_s * self.comp.step_s)),
+                       0, g_max).astype(np.int64)
+
+    def phase(self, g: int) -> np.ndarray:
+        """The compensation phase (..., n) for index ``g``."""
+        if self.phi is None:
+            return self.s[g]
+        n = self.z.shape[-1]
+        win = slice(self.start, self.start + n)
+        return self.phi[..., win] - delayed(self.phi, g * self.comp.step_s * self.comp.fs_hz)[..., win]
 
     def composite_spectrum(self, window: np.ndarray, n_fft: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(spectrum (..., n_fft // 2 + 1) complex, m_of_bin (n_fft // 2 + 1,)).
+        """(spectrum (..., n_fft // 2 + 1) complex, index of each bin (n_fft // 2 + 1,): M or g).
 
-        Scale as :class:`RangeFFT` for a real ramp: FFT(z e^{-j S_M} w) / (2 sum w), so that the
+        Scale as :class:`RangeFFT` for a real ramp: FFT(z e^{-j S} w) / (2 sum w), so that the
         compensated spectrum of a zero-linewidth beat matches the plain one.
         """
         n = self.z.shape[-1]
@@ -192,25 +258,28 @@ class CompensatedRamps:
         nb = n_fft // 2 + 1
         # fftfreq's arithmetic, so that ties (bins exactly half-way between two M) break as in pncomp
         freq = np.arange(nb) * (1.0 / (n_fft * (1.0 / self.comp.fs_hz)))
-        m_of_bin = self.comp.m_of_freq(freq)
-        zw = self.z * window
+        m_of_bin = self.index_of_freq(freq)
         out = np.empty(self.z.shape[:-1] + (nb,), dtype=np.complex128)
         for mm in np.unique(m_of_bin):
             sel = m_of_bin == mm
-            y = zw if mm == 0 else zw * np.exp(-1j * self.s[mm])
-            out[..., sel] = np.fft.fft(y, n_fft, axis=-1)[..., :nb][..., sel]
+            y = self.z if mm == 0 else self.z * np.exp(-1j * self.phase(mm))
+            out[..., sel] = windowed_fft(y, window, n_fft, "analytic")[..., sel]
         out *= 1.0 / (2.0 * np.sum(window))
         return out, m_of_bin
 
     def real_signals(self, m_idx: np.ndarray) -> np.ndarray:
-        """Re(z exp(-j S_M)) for each M in ``m_idx`` (..., K): shape (..., K, n)."""
+        """Re(z exp(-j S)) for each index in ``m_idx`` (..., K): shape (..., K, n)."""
         m_idx = np.asarray(m_idx, dtype=np.int64)
         lead = self.z.shape[:-1]
         if m_idx.shape[:-1] != lead:
             raise DspInputError(f"m_idx shape {m_idx.shape} does not match the ramps {lead} + (K,)")
-        rows = np.indices(m_idx.shape)[:-1]
-        s = self.s[(m_idx,) + tuple(rows)]            # (..., K, n)
-        return (self.z[..., None, :] * np.exp(-1j * s)).real
+        out = np.empty(m_idx.shape + self.z.shape[-1:])
+        for g in np.unique(m_idx):
+            sel = m_idx == g                               # (..., K)
+            lead_sel = np.nonzero(sel)
+            y = (self.z * np.exp(-1j * self.phase(int(g)))).real      # (..., n)
+            out[lead_sel] = y[lead_sel[:-1]]
+        return out
 
 
 @dataclass(frozen=True)
@@ -221,7 +290,7 @@ class CompensatedFrameInfo:
     mzi_beat_hz: float
 
 
-def compensator_for(dsp: FrameDsp, mzi_delay_s: float) -> PhaseNoiseCompensator:
+def compensator_for(dsp: FrameGeometry, mzi_delay_s: float) -> PhaseNoiseCompensator:
     """The compensator a frame DSP needs: every range up to its gate (plus Doppler) gets its nearest M."""
     doppler = 2 * dsp.max_speed_mps / dsp.wavelength_m
     max_delay = (2 * dsp.max_range_m / C_M_PER_S) + doppler / dsp.chirp_rate_hz_per_s
@@ -229,7 +298,7 @@ def compensator_for(dsp: FrameDsp, mzi_delay_s: float) -> PhaseNoiseCompensator:
                                  chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s)
 
 
-def gate_m_range(dsp: FrameDsp, mzi_delay_s: float) -> tuple[int, int]:
+def gate_m_range(dsp: FrameGeometry, mzi_delay_s: float) -> tuple[int, int]:
     """Smallest and largest nearest-M over the bins a frame DSP searches (its gate plus Doppler)."""
     comp = compensator_for(dsp, mzi_delay_s)
     lo, hi = dsp.bin_range
@@ -237,13 +306,15 @@ def gate_m_range(dsp: FrameDsp, mzi_delay_s: float) -> tuple[int, int]:
     return int(m.min()), int(m.max())
 
 
-def compensated_front_end(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
+def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
                           mzi_delay_s: float, mzi_lsb_v: float = 1.0,
-                          comp: PhaseNoiseCompensator | None = None) -> tuple[list, list]:
+                          comp: PhaseNoiseCompensator | None = None,
+                          mzi_q: np.ndarray | None = None) -> tuple[list, list]:
     """Per ramp (up, down): refined beat frequencies (n_pix, K) and CFAR detections of the composite
     compensated spectrum; :meth:`FrameDsp.process` pairs them as it pairs its own.
 
-    ``beat``, ``mzi``: (n_pix, averages, >= 2 * ramp_samples), the same segments (same trigger).
+    ``beat``, ``mzi`` (and ``mzi_q``, the quadrature monitor, same LSB as ``mzi``): (n_pix, averages,
+    >= 2 * ramp_samples), the same segments (same trigger).
     """
     x = np.asarray(beat)
     mz = np.asarray(mzi)
@@ -251,35 +322,35 @@ def compensated_front_end(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_
         raise DspInputError(f"beat must be (n_pix, averages, >= {2 * dsp.ramp_samples}), got {x.shape}")
     if mz.shape != x.shape:
         raise DspInputError(f"mzi must have the beat's shape {x.shape}, got {mz.shape}")
+    if mzi_q is not None and np.shape(mzi_q) != x.shape:
+        raise DspInputError(f"mzi_q must have the beat's shape {x.shape}, got {np.shape(mzi_q)}")
     if dsp.iq:
         raise DspInputError("phase-noise compensation of I/Q ramps is not implemented (real beat only)")
     comp = comp or compensator_for(dsp, mzi_delay_s)
-    n_pix, n_avg = x.shape[:2]
     a, n, r = dsp.offset, dsp.n_used, dsp.ramp_samples
     rf = dsp.rfft
     w = get_window(dsp.window, n)
-    lo_bin, hi_bin = dsp.bin_range
     out_f, out_det = [], []
     for r0 in (0, r):
+        q = None if mzi_q is None else np.asarray(mzi_q)[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v
         ramps = comp.prepare(x[..., r0:r0 + r].astype(np.float64) * lsb_v,
-                             mz[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v, a, n)
+                             mz[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v, a, n, mzi_q=q)
         spec, m_of_bin = ramps.composite_spectrum(w, rf.n_fft)
-        p = (spec.real**2 + spec.imag**2).mean(axis=1)
-        det = cfar_detect(p, method="os", pfa=dsp.pfa, max_detections=dsp.max_returns,
-                          window=dsp.window, bin_range=(lo_bin, hi_bin))
-        bins = np.where(det.valid, det.index, 1)                          # (n_pix, K)
-        k = bins.shape[-1]
-        pb = np.broadcast_to(bins[:, None, :], (n_pix, n_avg, k))
-        y = ramps.real_signals(m_of_bin[pb])                               # (n_pix, n_avg, K, n)
-        frac = estimate(y, pb, method=dsp.estimator, window=dsp.window)
-        out_f.append(frac.mean(axis=1) * rf.delta_f)
-        out_det.append(det)
+        # the estimator refines each detection on the real compensated ramp of its own delay (its
+        # time-domain path, so ``newton`` still models the negative-frequency image)
+        res = detect_and_refine(
+            spec, lambda idx, ramps=ramps, m_of_bin=m_of_bin: (ramps.real_signals(m_of_bin[idx]), idx, None),
+            window=dsp.window, estimator=dsp.estimator, average_axis=1, method="os", pfa=dsp.pfa,
+            max_detections=dsp.max_returns, bin_range=dsp.bin_range)
+        out_f.append(res.frac_bins * rf.delta_f)
+        out_det.append(res.detections)
     return out_f, out_det
 
 
-def process_compensated(dsp: FrameDsp, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
-                        mzi_delay_s: float, mzi_lsb_v: float = 1.0) -> tuple[FrameResult, CompensatedFrameInfo]:
-    """``dsp.process(beat, lsb_v, mzi=mzi, ...)`` and which M the gate used."""
+def process_compensated(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
+                        mzi_delay_s: float, mzi_lsb_v: float = 1.0):
+    """``dsp.process(beat, lsb_v, mzi=mzi, ...)`` (a FrameResult) and which M the gate used
+    (a :class:`CompensatedFrameInfo`)."""
     res = dsp.process(beat, lsb_v, mzi=mzi, mzi_delay_s=mzi_delay_s, mzi_lsb_v=mzi_lsb_v)
     comp = compensator_for(dsp, mzi_delay_s)
     m_lo, m_hi = gate_m_range(dsp, mzi_delay_s)

@@ -50,6 +50,22 @@ def check_samples(x: object, n_samples: int | None = None, name: str = "x") -> n
     return a
 
 
+def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str) -> np.ndarray:
+    """The one windowed FFT of the DSP (RangeFFT, the estimators, the compensated spectrum wrap it).
+
+    ``layout``: "real" (rfft of a real ramp, bins 0..n_fft/2), "shifted" (two-sided fft of I/Q samples,
+    fft-shifted so that frequency increases with the index), "analytic" (an analytic signal's fft,
+    positive bins 0..n_fft/2 only: the rfft grid). Unscaled: the callers own the amplitude convention.
+    """
+    if layout == "real":
+        return np.fft.rfft(x * window, n=n_fft, axis=-1)
+    if layout == "shifted":
+        return np.fft.fftshift(np.fft.fft(x * window, n=n_fft, axis=-1), axes=-1)
+    if layout == "analytic":
+        return np.fft.fft(x * window, n=n_fft, axis=-1)[..., :n_fft // 2 + 1]
+    raise DspInputError(f"layout={layout!r}: expected 'real', 'shifted' or 'analytic'")
+
+
 def gather_bins(spec: np.ndarray, bins: np.ndarray, n_fft: int, iq: bool) -> np.ndarray:
     """Complex spectrum values at signed integer ``bins`` (broadcast against spec[..., :1]).
 
@@ -168,11 +184,7 @@ class RangeFFT:
         a = check_samples(x, self.n_samples)
         if a.dtype.kind == "c" and not self.iq:
             raise DspInputError("complex (I/Q) samples given to a RangeFFT built with iq=False; build it with iq=True")
-        scale = 1.0 / np.sum(self._w)
-        if self.iq:
-            spec = np.fft.fft(a * self._w, n=self.n_fft, axis=-1) * scale
-            return np.fft.fftshift(spec, axes=-1)
-        return np.fft.rfft(a * self._w, n=self.n_fft, axis=-1) * scale
+        return windowed_fft(a, self._w, self.n_fft, "shifted" if self.iq else "real") * (1.0 / np.sum(self._w))
 
     def power(self, x: object, average_axis: int | None = None) -> np.ndarray:
         """|X|^2; with ``average_axis`` the powers of several chirps are averaged (incoherently)."""

@@ -13,6 +13,11 @@ Two set-ups are modelled by :class:`LinkParams`:
   photodiode, so CMRR = 0 dB), ~1 mW leaves the scanner and the return passes the FPSA's Table 4-4
   losses again. :func:`lidard.config` builds it from the configuration.
 
+Beat amplitude: eq. 2-11 as written, I_AC = R sqrt(P_ref P_rx), also for the §4.4 single-photodiode
+circulator set-up, whose ideal (matched polarisation and mode) term would be twice that; the bench
+keeps eq. 2-11 because the dissertation derives §4.4 from it and it reproduces Fig. 4-32's ~28 dB
+(29.1 dB at 0.8 m, against 35.1 dB with the ideal factor): see docs/physics.md.
+
 The ADC term follows eq. 2-19 literally, (V/2^N)^2 / B_ADC (one LSB^2 spread over B_ADC), which is
 12x the variance of an ideal uniform quantizer (LSB^2/12); :func:`quantization_asd` gives the latter
 for simulation at an actual sample rate.
@@ -197,6 +202,24 @@ def quantization_asd(adc_range_v: float, bits: int, sample_rate_hz: float) -> fl
     """ASD of an ideal uniform quantizer sampled at fs: sqrt(LSB^2/12 / (fs/2))."""
     lsb = adc_range_v / 2.0**bits
     return float(np.sqrt(lsb**2 / 12.0 / (sample_rate_hz / 2.0)))
+
+
+def monitor_noise_asd(amplitude_v: float, power_w: float, responsivity_a_per_w: float,
+                      rin_db_per_hz: float) -> dict:
+    """Shot and RIN ASDs (V/sqrt(Hz)) of the monitor-MZI channel (§2.2's MZI on one photodiode).
+
+    One output of an MZI with full fringe visibility carries I(t) = R P_mon (1 + cos dPhi): DC and
+    AC amplitude are both R P_mon, so the TIA gain is G = amplitude_v / (R P_mon). Then, as eqs.
+    2-16 and 2-17 for the LiDAR receiver: shot = G sqrt(2 q R P_mon) = amplitude_v sqrt(2 q /
+    (R P_mon)) and RIN = G R P_mon sqrt(RIN) = amplitude_v sqrt(RIN). The ADC's quantization of the
+    channel is added where the channel is digitized (it depends on the record format).
+    """
+    if not (power_w > 0 and responsivity_a_per_w > 0 and amplitude_v >= 0):
+        raise ValueError(f"monitor_noise_asd: need power_w > 0, responsivity > 0, amplitude_v >= 0; got "
+                         f"{power_w!r}, {responsivity_a_per_w!r}, {amplitude_v!r}")
+    shot = amplitude_v * float(np.sqrt(2.0 * E_CHARGE_C / (responsivity_a_per_w * power_w)))
+    rin = amplitude_v * float(np.sqrt(db_to_lin_power(rin_db_per_hz)))
+    return {"shot": shot, "rin": rin, "total": float(np.hypot(shot, rin))}
 
 
 def budget_report(p: LinkParams, distance_m: float) -> dict:

@@ -13,6 +13,15 @@ Physics followed:
   "the optical signal turns on or off within 1 us of the electrical signal", counts from the
   electrical edge), so ``tau = t_response / ln 10``. A switch commanded while still moving
   relaxes from wherever it is, so overlapping transitions are handled exactly.
+* Spread across switches: the pull-in and release voltages of a real array scatter from switch to
+  switch (gap and spring stiffness vary over the wafer). :func:`switch_thresholds` draws each
+  switch's pair from a seeded normal spread of one common offset (the gap sets both thresholds,
+  so they move together and the hysteresis width stays that of §4.2.6).
+* Release delay (HV583 output discharge): when a line goes to 0 V the actuator's capacitance
+  discharges through the HV583 output with time constant ``discharge_rc_s``; the plate lets go
+  when the voltage crosses the release voltage, ``rc * ln(V_drive / V_release)`` after the command.
+  Holding at a voltage just above release (the hold-drive option of the controller) therefore
+  releases sooner than holding at the full actuation voltage, and charges the dielectric less.
 * Row-column addressing (§4.2.1): light leaves through pixel (r, c) only when row switch r and
   column switch c are both on: path transmission = T_row(t) * T_col(t). Transmissions are
   normalised to 1 for a fully-on switch; insertion loss belongs to the optics model.
@@ -39,10 +48,13 @@ class SwitchDynamics:
     off_response_s: float
     pull_in_v: float = 32.0  # §4.2.6
     release_v: float = 29.0  # §4.2.6
+    discharge_rc_s: float = 0.0  # HV583 output + actuator capacitance; 0 = instant discharge
 
     def __post_init__(self) -> None:
         if not (self.on_response_s > 0 and self.off_response_s > 0):
             raise ValueError(f"response times must be > 0 s, got {self!r}")
+        if not (math.isfinite(self.discharge_rc_s) and self.discharge_rc_s >= 0):
+            raise ValueError(f"discharge_rc_s must be finite and >= 0 s, got {self.discharge_rc_s!r}")
         if not self.release_v < self.pull_in_v:
             raise ValueError(
                 f"release_v ({self.release_v}) must be below pull_in_v ({self.pull_in_v})")
@@ -58,6 +70,16 @@ class SwitchDynamics:
 
 ROW_SWITCH = SwitchDynamics(on_response_s=1.0e-6, off_response_s=1.0e-6)  # §4.3.6
 COLUMN_SWITCH = SwitchDynamics(on_response_s=2.7e-6, off_response_s=2.0e-6)  # §4.3.6
+
+
+def switch_thresholds(n: int, dynamics: SwitchDynamics, spread_v: float,
+                      seed: int | list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-switch (pull_in_v, release_v) of ``n`` switches: nominal + one seeded N(0, spread_v)
+    offset each (both thresholds move together). ``spread_v = 0`` gives the nominal values."""
+    if not (math.isfinite(spread_v) and spread_v >= 0):
+        raise ValueError(f"threshold spread must be finite and >= 0 V, got {spread_v!r}")
+    offset = spread_v * np.random.default_rng(seed).standard_normal(n) if spread_v else np.zeros(n)
+    return dynamics.pull_in_v + offset, dynamics.release_v + offset
 
 
 def hysteresis_states(volts: np.ndarray, initial_on: np.ndarray | bool,
@@ -89,7 +111,8 @@ class SwitchBank:
     """
 
     def __init__(self, n: int, dynamics: SwitchDynamics, switch: np.ndarray, t_s: np.ndarray,
-                 volts: np.ndarray, initial_on: np.ndarray | None = None) -> None:
+                 volts: np.ndarray, initial_on: np.ndarray | None = None,
+                 thresholds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         sw = np.asarray(switch, dtype=np.int64).ravel()
         t = np.asarray(t_s, dtype=np.float64).ravel()
         v = np.asarray(volts, dtype=np.float64).ravel()
@@ -112,8 +135,15 @@ class SwitchBank:
         counts = np.bincount(self._sw, minlength=n)
         self._stop = np.cumsum(counts)
         self._start = self._stop - counts
-        on = v_sorted >= dynamics.pull_in_v
-        decisive = on | (v_sorted <= dynamics.release_v)  # pseudo-events are always decisive
+        pull, rel = (np.full(n, dynamics.pull_in_v), np.full(n, dynamics.release_v)) \
+            if thresholds is None else (np.asarray(thresholds[0], float), np.asarray(thresholds[1], float))
+        if pull.shape != (n,) or rel.shape != (n,) or np.any(rel >= pull):
+            raise ValueError(f"thresholds must be two ({n},) arrays with release < pull-in")
+        self.pull_in_v, self.release_v = pull, rel
+        on = v_sorted >= pull[self._sw]
+        decisive = on | (v_sorted <= rel[self._sw])  # pseudo-events are always decisive
+        if dynamics.discharge_rc_s > 0:
+            self._t = self._release_delayed(v_sorted, on, decisive, rel, dynamics.discharge_rc_s)
         last = np.maximum.accumulate(np.where(decisive, np.arange(on.size), -1))
         self._target = on[last].astype(np.float64)
         self._tau = np.where(self._target > 0.5, dynamics.tau_on_s, dynamics.tau_off_s)
@@ -126,6 +156,23 @@ class SwitchBank:
         self._t_all = np.sort(self._t)
         self._stride = np.int64(self._t.size + 1)
         self._key = self._sw * self._stride + np.searchsorted(self._t_all, self._t, side="right")
+
+    def _release_delayed(self, v: np.ndarray, on: np.ndarray, decisive: np.ndarray,
+                         rel: np.ndarray, rc_s: float) -> np.ndarray:
+        """Event times with each release moved to when the discharging drive crosses the
+        switch's release voltage (never past the switch's next event, so the order holds)."""
+        t = self._t.copy()
+        prev_v = np.concatenate([[0.0], v[:-1]])
+        same = np.concatenate([[False], self._sw[1:] == self._sw[:-1]])
+        release = decisive & ~on & same & np.isfinite(prev_v) & (prev_v > rel[self._sw])
+        idx = np.flatnonzero(release)
+        if idx.size:
+            delay = rc_s * np.log(prev_v[idx] / rel[self._sw[idx]])
+            nxt = np.where((idx + 1 < t.size) & (self._sw[np.minimum(idx + 1, t.size - 1)]
+                                                  == self._sw[idx]),
+                           t[np.minimum(idx + 1, t.size - 1)], np.inf)
+            t[idx] = np.minimum(t[idx] + delay, nxt)
+        return t
 
     def _levels_at_events(self) -> np.ndarray:
         t, target, tau = self._t.tolist(), self._target.tolist(), self._tau.tolist()

@@ -1,4 +1,7 @@
-"""Vectorized ray casting into a :class:`~sim_devices.world.scene.Scene` (numpy, no loop over rays).
+"""Vectorized ray casting into a scene's targets (numpy, no loop over rays).
+
+Builds on the target types of :mod:`sim_devices.world.targets` only; the scene loader imports
+this module (``Scene.cast``), never the reverse.
 
 Used by the simulated bench to find, for every beam direction of the FPSA scanner (eq. 4-1:
 antenna offset (x, y) behind a lens of focal length f -> direction (-x/f, -y/f, 1) normalised),
@@ -29,18 +32,26 @@ so a ray returns at most one hit on or after its first opaque target.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from sim_devices.world.scene import (
+from sim_devices.world.targets import (
     BoxTarget,
     PlaneTarget,
     PolygonTarget,
-    Scene,
     SphereTarget,
     Target,
 )
+
+
+class _HasTargets(Protocol):
+    """What :func:`cast` needs of a scene: its targets (a Scene, or anything listing targets)."""
+
+    @property
+    def targets(self) -> Sequence[Target]: ...
 
 __all__ = ["Hits", "RayError", "cast", "intersect_target", "TIE_TOL_M", "UNIT_TOL"]
 
@@ -243,7 +254,7 @@ def _check_args(
 
 
 def cast(
-    scene: Scene,
+    scene: _HasTargets,
     directions: np.ndarray,
     max_hits: int = 4,
     origin: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),

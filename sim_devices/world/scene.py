@@ -14,11 +14,17 @@ Scene file format (TOML; see config/scenes/*.toml)::
 
     name = "..."            # optional
     description = "..."     # optional
+    mixed_pixels = false    # optional: true samples the beam footprint with sub-rays where it
+                            # straddles a target edge or a depth step (two weaker or one blended
+                            # return; sim_devices.world.footprint); false: one ray per pixel
     [[target]]
     kind = "plane" | "box" | "sphere" | "polygon"
     reflectivity = 0.1      # >= 0, default 0.1
     transmission = 0.0      # in [0, 1], default 0
     velocity = [vx, vy, vz] # m/s, default 0
+    speckle = false         # true: rough surface, fully developed speckle on its returns (Rayleigh
+                            # amplitude, uniform phase; new per pixel, and per chirp if it moves;
+                            # sim_devices.world.speckle). Default false (a smooth, non-fading return)
     # plane:   point, normal, optional size = [w, h] (rectangle centred on point) and up = [x, y, z]
     #          (h along up projected into the plane, w along the in-plane axis perpendicular to up;
     #          default up = +y, or +z when the normal is parallel to y)
@@ -35,14 +41,26 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal, Union
+from typing import Any, Literal
 
 import numpy as np
 
-if TYPE_CHECKING:  # raycast imports this module; only the annotation needs Hits
-    from sim_devices.world.raycast import Hits
+from sim_devices.world.raycast import Hits, cast
+from sim_devices.world.targets import (
+    DEFAULT_REFLECTIVITY,
+    DEFAULT_TRANSMISSION,
+    PLANARITY_TOL_M,
+    BoxTarget,
+    PlaneTarget,
+    PolygonTarget,
+    SphereTarget,
+    Target,
+    _is_parallel,
+    _plane_axes,
+    rotation_matrix_deg,
+)
 
 __all__ = [
     "SceneError",
@@ -56,12 +74,6 @@ __all__ = [
     "PLANARITY_TOL_M",
 ]
 
-#: Largest distance (m) of a polygon vertex from the best-fit plane before the polygon is rejected.
-PLANARITY_TOL_M = 1e-9
-
-DEFAULT_REFLECTIVITY = 0.1
-DEFAULT_TRANSMISSION = 0.0
-
 Kind = Literal["plane", "box", "sphere", "polygon"]
 
 
@@ -70,162 +82,10 @@ class SceneError(ValueError):
 
 
 # --------------------------------------------------------------------------------------------------
-# Geometry helpers
-# --------------------------------------------------------------------------------------------------
-
-
-def rotation_matrix_deg(rotation_deg: np.ndarray | tuple[float, float, float]) -> np.ndarray:
-    """R = Rz @ Ry @ Rx for right-handed rotations (degrees) about the sensor x, y, z axes.
-
-    Extrinsic order: first about x, then y, then z (all fixed sensor axes). ``R`` maps box-local
-    coordinates to sensor-frame directions.
-    """
-    rx, ry, rz = (math.radians(float(a)) for a in rotation_deg)
-    cx, sx = math.cos(rx), math.sin(rx)
-    cy, sy = math.cos(ry), math.sin(ry)
-    cz, sz = math.cos(rz), math.sin(rz)
-    r_x = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
-    r_y = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    r_z = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-    return r_z @ r_y @ r_x
-
-
-def _plane_axes(normal: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """In-plane unit axes (u, v): v = up projected into the plane, u = v x n (across up)."""
-    v = up - np.dot(up, normal) * normal
-    v = v / np.linalg.norm(v)
-    u = np.cross(v, normal)
-    return u / np.linalg.norm(u), v
-
-
-def _is_parallel(a: np.ndarray, b: np.ndarray) -> bool:
-    """True when unit vector ``a`` and vector ``b`` are (numerically) parallel."""
-    bn = b / np.linalg.norm(b)
-    return bool(np.linalg.norm(np.cross(a, bn)) < 1e-9)
-
-
-# --------------------------------------------------------------------------------------------------
-# Targets
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class _TargetBase:
-    reflectivity: float
-    transmission: float
-    velocity: np.ndarray  # (3,) m/s
-
-    def __post_init__(self) -> None:
-        # Targets are shared between scenes (moved(), to_dict()); freeze their arrays too.
-        for value in vars(self).values():
-            if isinstance(value, np.ndarray):
-                value.setflags(write=False)
-
-    def _common_dict(self) -> dict[str, Any]:
-        return {
-            "reflectivity": float(self.reflectivity),
-            "transmission": float(self.transmission),
-            "velocity": [float(c) for c in self.velocity],
-        }
-
-
-@dataclass(frozen=True, eq=False)
-class PlaneTarget(_TargetBase):
-    """Infinite plane, or a w x h rectangle centred on ``point`` when ``size`` is given."""
-
-    kind: ClassVar[str] = "plane"
-    point: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -1.0]))  # unit
-    size: np.ndarray | None = None  # (w, h) or None for infinite
-    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))  # as given/resolved
-
-    @property
-    def axes(self) -> tuple[np.ndarray, np.ndarray]:
-        """(u, v): width axis (perpendicular to up) and height axis (along up) in the plane."""
-        return _plane_axes(self.normal, self.up)
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {
-            "kind": "plane",
-            "point": [float(c) for c in self.point],
-            "normal": [float(c) for c in self.normal],
-        }
-        if self.size is not None:
-            d["size"] = [float(c) for c in self.size]
-            d["up"] = [float(c) for c in self.up]
-        d.update(self._common_dict())
-        return d
-
-
-@dataclass(frozen=True, eq=False)
-class BoxTarget(_TargetBase):
-    """Oriented box: ``center``, full edge lengths ``size``, rotation R (box-local -> sensor)."""
-
-    kind: ClassVar[str] = "box"
-    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    size: np.ndarray = field(default_factory=lambda: np.ones(3))
-    rotation_deg: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    @property
-    def rotation(self) -> np.ndarray:
-        return rotation_matrix_deg(self.rotation_deg)
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {
-            "kind": "box",
-            "center": [float(c) for c in self.center],
-            "size": [float(c) for c in self.size],
-            "rotation_deg": [float(c) for c in self.rotation_deg],
-        }
-        d.update(self._common_dict())
-        return d
-
-
-@dataclass(frozen=True, eq=False)
-class SphereTarget(_TargetBase):
-    kind: ClassVar[str] = "sphere"
-    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    radius: float = 1.0
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {
-            "kind": "sphere",
-            "center": [float(c) for c in self.center],
-            "radius": float(self.radius),
-        }
-        d.update(self._common_dict())
-        return d
-
-
-@dataclass(frozen=True, eq=False)
-class PolygonTarget(_TargetBase):
-    """Planar, possibly non-convex polygon (letters, signs); inside by the even-odd rule."""
-
-    kind: ClassVar[str] = "polygon"
-    vertices: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # (m, 3)
-    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))  # unit, Newell
-    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))  # vertex centroid, on the plane
-    u: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))  # 2D frame axes
-    v: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
-    vertices_2d: np.ndarray = field(default_factory=lambda: np.zeros((3, 2)))  # (m, 2) in (u, v)
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {
-            "kind": "polygon",
-            "vertices": [[float(c) for c in p] for p in self.vertices],
-        }
-        d.update(self._common_dict())
-        return d
-
-
-Target = Union[PlaneTarget, BoxTarget, SphereTarget, PolygonTarget]
-
-
-# --------------------------------------------------------------------------------------------------
 # Validation (one error, naming source / target / key)
 # --------------------------------------------------------------------------------------------------
 
-_COMMON_KEYS = ("kind", "reflectivity", "transmission", "velocity")
+_COMMON_KEYS = ("kind", "reflectivity", "transmission", "velocity", "speckle")
 _KIND_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # kind: (required keys, optional keys) besides the common ones
     "plane": (("point", "normal"), ("size", "up")),
@@ -233,7 +93,7 @@ _KIND_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "sphere": (("center", "radius"), ()),
     "polygon": (("vertices",), ()),
 }
-_TOP_KEYS = ("name", "description", "target")
+_TOP_KEYS = ("name", "description", "mixed_pixels", "target")
 
 
 class _Ctx:
@@ -362,7 +222,11 @@ def _target(ctx: _Ctx, raw: Any) -> Target:
     if not 0.0 <= trans <= 1.0:
         raise ctx.error("transmission", f"must be in [0, 1], got {raw['transmission']!r}")
     vel = _vector(ctx, "velocity", raw.get("velocity", [0.0, 0.0, 0.0]), 3)
-    common: dict[str, Any] = {"reflectivity": refl, "transmission": trans, "velocity": vel}
+    speckle = raw.get("speckle", False)
+    if not isinstance(speckle, bool):
+        raise ctx.error("speckle", f"must be true or false, got {speckle!r}")
+    common: dict[str, Any] = {"reflectivity": refl, "transmission": trans, "velocity": vel,
+                              "speckle": speckle}
 
     if kind == "plane":
         point = _vector(ctx, "point", raw["point"], 3)
@@ -407,6 +271,7 @@ class Scene:
     name: str | None = None
     description: str | None = None
     source: str = "<scene>"
+    mixed_pixels: bool = False  # sample edge pixels' footprints (sim_devices.world.footprint)
 
     # -- loading -----------------------------------------------------------------------------------
 
@@ -443,11 +308,15 @@ class Scene:
         description = d.get("description")
         if description is not None and not isinstance(description, str):
             raise ctx.error("description", f"must be a string, got {description!r}")
+        mixed = d.get("mixed_pixels", False)
+        if not isinstance(mixed, bool):
+            raise ctx.error("mixed_pixels", f"must be true or false, got {mixed!r}")
         raw_targets = d.get("target", [])
         if not isinstance(raw_targets, (list, tuple)):
             raise ctx.error("target", "must be an array of tables ([[target]])")
         targets = tuple(_target(_Ctx(source, i), t) for i, t in enumerate(raw_targets))
-        return cls(targets=targets, name=name, description=description, source=source)
+        return cls(targets=targets, name=name, description=description, source=source,
+                   mixed_pixels=mixed)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (JSON/TOML friendly) that :meth:`from_dict` turns back into this scene."""
@@ -456,6 +325,8 @@ class Scene:
             d["name"] = self.name
         if self.description is not None:
             d["description"] = self.description
+        if self.mixed_pixels:
+            d["mixed_pixels"] = True
         d["target"] = [t.to_dict() for t in self.targets]
         return d
 
@@ -479,7 +350,7 @@ class Scene:
                 out.append(_replace(t, center=t.center + shift))
             else:
                 out.append(_replace(t, vertices=t.vertices + shift, origin=t.origin + shift))
-        return Scene(tuple(out), self.name, self.description, self.source)
+        return Scene(tuple(out), self.name, self.description, self.source, self.mixed_pixels)
 
     def cast(
         self,
@@ -488,8 +359,6 @@ class Scene:
         origin: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> Hits:
         """Cast rays from ``origin`` along unit ``directions`` (n, 3); see :func:`raycast.cast`."""
-        from sim_devices.world.raycast import cast
-
         return cast(self, directions, max_hits=max_hits, origin=origin)
 
 

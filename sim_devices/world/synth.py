@@ -334,6 +334,7 @@ class Synthesized:
     volts: dict | None = None
     phase_noise_rad: np.ndarray | None = None
     phase_noise_pre: int = 0
+    mzi_q: np.ndarray | None = None     # quadrature monitor output (``mzi_quadrature``): sin where mzi is cos
 
 
 # --------------------------------------------------------------------------------------------------
@@ -400,7 +401,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                noise_asd_v_per_rthz=0.0, linewidth_hz: float = 0.0, rng: np.random.Generator | None = None,
                mzi_delay_s: float | None = None, mzi_amplitude_v: float | None = None,
                mzi_noise_asd_v_per_rthz: float = 0.0, dc_v: float = 0.0,
-               return_volts: bool = False, return_phase_noise: bool = False,
+               return_volts: bool = False, return_phase_noise: bool = False, mzi_quadrature: bool = False,
                fast_trig: bool | None = None) -> Synthesized:
     """Synthesize the digitized LiDAR beat (and the monitor MZI) for ``len(t_start_s)`` segments.
 
@@ -408,6 +409,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     start of a drive period; the drive repeats every ``traj.period_s``). ``hits`` may be None or empty
     (noise only). ``noise_asd_v_per_rthz``: scalar or per-segment white-noise ASD of the LiDAR channel.
     ``rng`` is required only when something random is switched on.
+    ``mzi_quadrature``: also the monitor MZI's quadrature output (channel ``mzi_q``: sin of the same
+    phase, as a 90-degree hybrid or 3x3 coupler and a second digitizer channel give; its own noise draws).
     ``fast_trig`` (default: ``adc.quantize``) evaluates cos/sin in float32 after an exact float64
     range reduction (error ~1e-7 of the amplitude, invisible after quantization); unquantized output
     uses float64 trig so that tests can compare volts to 1e-9.
@@ -470,6 +473,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
         mzi_det = base - traj._phase_nonneg(xm, periods)
         mzi_det += mean_w * tau_m + 2.0 * np.pi * math.fmod(traj.nu0_hz * tau_m, 1.0)
         mzi_clean = np.cos(mzi_det) * mzi_amplitude_v
+        mzi_clean_q = np.sin(mzi_det) * mzi_amplitude_v if mzi_quadrature else None
 
     # -- phase-noise geometry ----------------------------------------------------------------------
     pn_on = linewidth_hz > 0 and (seg.size > 0 or want_mzi)
@@ -480,7 +484,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     max_m = max(int(m_hit.max(initial=0)), int(m_mzi[0]) if want_mzi else 0)
     n_pre = max_m + 1
 
-    channels = ["beat"] + (["beat_q"] if adc.iq else []) + (["mzi"] if want_mzi else [])
+    channels = ["beat"] + (["beat_q"] if adc.iq else []) + (["mzi"] if want_mzi else []) \
+        + (["mzi_q"] if want_mzi and mzi_quadrature else [])
     out_dtype = np.int16 if adc.quantize else np.float64
     outs = {c: np.empty((n_seg, n), dtype=out_dtype) for c in channels}
     overrange = np.zeros((n_seg, len(channels)), dtype=bool)
@@ -554,7 +559,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                         acc[c][lseg[sel]] += part[sel]
             del parts, cos_part, sin_part
         for c in channels:
-            if c != "mzi" and c not in acc:
+            if c not in ("mzi", "mzi_q") and c not in acc:
                 acc[c] = np.zeros((nc, n))
         if want_mzi:
             ub = u_inv[s0:s1]
@@ -562,15 +567,19 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                 mphi = mzi_det[0] + phi[:, n_pre:] if single_start else mzi_det[ub] + phi[:, n_pre:]
                 mphi -= _delayed_noise(phi, np.arange(nc), n_pre, n, np.full(nc, m_mzi[0]),
                                        np.full(nc, w_mzi[0]), var_step, rng)
-                mzi_v, _ = _cos_sin(mphi, False, fast)
+                mzi_v, mzi_s = _cos_sin(mphi, mzi_quadrature, fast)
                 mzi_v *= mzi_amplitude_v
                 acc["mzi"] = mzi_v
+                if mzi_quadrature:       # the same MZI's 90-degree output: same phase noise, sin
+                    acc["mzi_q"] = mzi_s * mzi_amplitude_v
             else:
                 acc["mzi"] = np.repeat(mzi_clean, nc, axis=0) if single_start else mzi_clean[ub]
+                if mzi_quadrature:
+                    acc["mzi_q"] = np.repeat(mzi_clean_q, nc, axis=0) if single_start else mzi_clean_q[ub]
 
         for c in channels:
             v = acc[c]
-            if c == "mzi":
+            if c in ("mzi", "mzi_q"):
                 if mzi_noise_asd_v_per_rthz > 0:
                     noise = rng.standard_normal((nc, n), dtype=np.float32)
                     noise *= np.float32(mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
@@ -601,7 +610,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
 
     return Synthesized(beat=outs["beat"], beat_q=outs.get("beat_q"), mzi=outs.get("mzi"),
                        overrange=overrange, channels=tuple(channels), lsb_v=adc.lsb_v, volts=volts,
-                       phase_noise_rad=pn_all, phase_noise_pre=n_pre if pn_all is not None else 0)
+                       phase_noise_rad=pn_all, phase_noise_pre=n_pre if pn_all is not None else 0,
+                       mzi_q=outs.get("mzi_q"))
 
 
 def sample_rate_for_range_hz(max_range_m: float, rate_hz_per_s: float, *, oversample: float = 2.5,

@@ -27,7 +27,9 @@ from lidard.physics.budget import LinkParams, asd_components
 from lidard.physics.constants import C_M_PER_S
 from lidard.physics.optics import FpsaOptics
 
+from . import footprint as fp
 from .scene import Scene
+from .speckle import speckle_factors
 
 WHITE_NOISES = ("shot", "rin", "thermal", "ambient")
 
@@ -42,24 +44,29 @@ class BeamHits:
     amplitude_v: np.ndarray    # beat amplitude at the ADC input (V), eq. 2-11 x G_TIA
     velocity_mps: np.ndarray   # radial, positive receding
     return_index: np.ndarray   # order along the beam (0 = nearest)
+    #: beat phase of hits on speckle targets (NaN elsewhere); None when no hit is on one
+    speckle_phase_rad: np.ndarray | None = None
 
 
 class World:
     """Scene + optics + link budget, with a per-pixel ray-cast cache."""
 
     def __init__(self, cfg: Config, profile: Profile, laser: LaserPreset, scene: Scene,
-                 *, max_hits: int = 4) -> None:
+                 *, max_hits: int = 4, seed: int = 0) -> None:
         self.cfg = cfg
         self.profile = profile
         self.laser = laser
         self.optics: FpsaOptics = profile.optics(cfg.lens, cfg.chirp.wavelength_m)
         self.link: LinkParams = cfg.link_params(profile, laser)
         self.max_hits = max_hits
+        self.seed = int(seed)  # speckle draws
         self.set_scene(scene)
 
     def set_scene(self, scene: Scene) -> None:
         self.scene = scene
         self._cache: dict[int, tuple] = {}
+        self._speckle = np.array([bool(t.speckle) for t in scene.targets], bool)
+        self._moving = np.array([bool(np.any(t.velocity != 0)) for t in scene.targets], bool)
 
     # -- noise ------------------------------------------------------------------------------------
     def white_noise_asd_v(self) -> float:
@@ -75,14 +82,38 @@ class World:
             d = self.optics.directions(missing // 4096, missing % 4096)
             h = self.scene.cast(d, max_hits=self.max_hits)
             for i, k in enumerate(missing):
-                n = int(h.count[i])
-                self._cache[int(k)] = (h.range_m[i, :n].copy(), h.incidence_rad[i, :n].copy(),
-                                       h.reflectivity[i, :n].copy(), h.radial_velocity_mps[i, :n].copy(),
-                                       h.transmission[i, :n].copy())
+                self._cache[int(k)] = (*_entry(h, i), np.ones(int(h.count[i])))
+            if self.scene.mixed_pixels:
+                self._sample_footprints(missing, d)
         return [self._cache[int(k)] for k in keys]
 
-    def beam_hits(self, rows, cols, transmission) -> BeamHits:
-        """Beat tones of beams lit at (rows, cols) with switch-path transmissions ``transmission``."""
+    def _footprint_radius(self, range_m):
+        lens = self.profile.lenses[self.cfg.lens or self.profile.default_lens]
+        return fp.footprint_radius_m(range_m, emission_w_m=self.optics.emission_w_m,
+                                     focal_m=self.optics.focal_m, wavelength_m=self.optics.wavelength_m,
+                                     aperture_m=lens.aperture_m)
+
+    def _sample_footprints(self, keys: np.ndarray, d: np.ndarray) -> None:
+        """Mixed pixels: re-cast the footprints that may straddle an edge (sim_devices.world.footprint)."""
+        cand = np.flatnonzero(fp.edge_candidates(self.scene.targets, d, self._footprint_radius))
+        if cand.size == 0:
+            return
+        first = np.array([self._cache[int(keys[i])][0][:1].tolist() or [np.inf] for i in cand]).ravel()
+        probe = np.where(np.isfinite(first), first, 1e3)   # a miss: the footprint far away
+        half = np.arctan(self._footprint_radius(probe) / probe)
+        sub = fp.sub_ray_directions(d[cand], half)
+        h = self.scene.cast(sub.reshape(-1, 3), max_hits=self.max_hits)
+        bin_m = C_M_PER_S / (2.0 * abs(self.cfg.chirp.excursion_hz))  # one range bin
+        for j, i in enumerate(cand):
+            key = int(keys[i])
+            samples = [self._cache[key][:6]] + [_entry(h, j * fp.RING + s) for s in range(fp.RING)]
+            mixed = fp.mix_samples(samples, bin_m, self.max_hits)
+            if mixed is not None:
+                self._cache[key] = mixed
+
+    def beam_hits(self, rows, cols, transmission, chirp=None) -> BeamHits:
+        """Beat tones of beams lit at (rows, cols) with switch-path transmissions ``transmission``;
+        ``chirp``: each beam's chirp (trigger) index, which decorrelates speckle on moving targets."""
         rows = np.asarray(rows)
         cols = np.asarray(cols)
         trans = np.asarray(transmission, dtype=np.float64)
@@ -93,17 +124,34 @@ class World:
             z = np.zeros(0)
             return BeamHits(np.zeros(0, np.int64), z, z, z, z, np.zeros(0, np.int64))
         beam = np.repeat(np.arange(len(entries)), counts)
-        cat = [np.concatenate([e[j] for e in entries]) for j in range(5)]
-        rng_m, inc, rho, vel, chain = cat
+        cat = [np.concatenate([e[j] for e in entries]) for j in range(7)]
+        rng_m, inc, rho, vel, chain, tgt, weight = cat
         ret_idx = np.concatenate([np.arange(c) for c in counts])
         p = self.link
         p_rx = (p.received_power_w(rng_m, reflectivity=rho, incidence_rad=inc)
                 * chain**2 * trans[beam] ** 2)
-        amp = p.tia_gain_v_per_a * p.i_ac_a(p_rx)
+        amp = p.tia_gain_v_per_a * p.i_ac_a(p_rx) * weight  # weight < 1: part of a mixed pixel
+        phase = None
+        tgt = tgt.astype(np.int64)
+        rough = self._speckle[tgt] if self._speckle.any() else np.zeros(total, bool)
+        if rough.any():
+            ch = np.zeros(total, np.int64) if chirp is None else np.asarray(chirp, np.int64)[beam]
+            ch = np.where(self._moving[tgt], ch, 0)  # a static surface keeps its speckle
+            a, ph = speckle_factors(self.seed, rows[beam], cols[beam], tgt, ch)
+            amp = np.where(rough, amp * a, amp)
+            phase = np.where(rough, ph, np.nan)
         return BeamHits(beam=beam, range_m=rng_m, tau_s=2.0 * rng_m / C_M_PER_S, amplitude_v=amp,
-                        velocity_mps=vel, return_index=ret_idx)
+                        velocity_mps=vel, return_index=ret_idx, speckle_phase_rad=phase)
 
     def ground_truth(self, rows, cols) -> np.ndarray:
         """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth."""
         entries = self._cast_pixels(np.asarray(rows), np.asarray(cols))
         return np.array([e[0][0] if len(e[0]) else np.inf for e in entries])
+
+
+def _entry(h, i: int) -> tuple:
+    """(range, incidence, reflectivity, radial velocity, transmission, target) of ray i's hits."""
+    n = int(h.count[i])
+    return (h.range_m[i, :n].copy(), h.incidence_rad[i, :n].copy(), h.reflectivity[i, :n].copy(),
+            h.radial_velocity_mps[i, :n].copy(), h.transmission[i, :n].copy(),
+            h.target_index[i, :n].astype(np.float64))

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lidard.dsp.estimators import measure_peaks
+from lidard.dsp.chain import measure_peaks
 from lidard.dsp.rangefft import C_M_PER_S, RangeFFT
 
 GAMMA = 1.25e14

@@ -58,6 +58,14 @@ def test_setpoints_round_trip(ctl, sim):
     assert (st.laser_setpoint_ma, st.tec_setpoint_c, st.hv_setpoint_v) == pytest.approx((123.45, 21.5, 32.0))
 
 
+def test_hold_voltage_round_trips_and_is_limit_checked(ctl, sim):
+    ctl.set_hv_hold_v(30.5)
+    assert ctl.hv_hold_setpoint_v() == pytest.approx(30.5, abs=1e-9)
+    assert sim.state.hv_hold_setpoint_v == pytest.approx(30.5)
+    with pytest.raises(LimitError, match="HV_HOLD_SETPOINT"):
+        ctl.set_hv_hold_v(60.5)  # the deployment's HV limit applies to the hold rail too
+
+
 def test_enables_round_trip_and_readbacks_follow_first_order_lag(ctl, sim, clock):
     ctl.set_laser_current_ma(100.0)
     ctl.set_hv_v(50.0)

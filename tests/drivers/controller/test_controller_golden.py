@@ -31,7 +31,7 @@ DOC = Path(__file__).resolve().parents[3] / "docs" / "protocols" / "controller.m
 def _golden() -> dict[str, tuple[bytes, bytes]]:
     text = DOC.read_text()
     found = {}
-    for name in ("G1", "G2", "G3", "G4", "G5"):
+    for name in ("G1", "G2", "G3", "G4", "G5", "G6"):
         req = re.search(rf"^{name} request:\s+([0-9A-Fa-f ]+)$", text, re.M)
         rsp = re.search(rf"^{name} response:\s+([0-9A-Fa-f ]+)$", text, re.M)
         assert req and rsp, f"{name} missing from {DOC}"
@@ -90,6 +90,16 @@ def test_g4_tec_write_echo_client_side():
     assert isinstance(pdu, WriteSingleRegisterResponse) and pdu.registers == [word]
 
 
+def test_g6_hold_voltage_write_client_side():
+    req, rsp = GOLDEN["G6"]
+    (word,) = p.encode_value(p.HV_HOLD_SETPOINT, 30.0)
+    assert word == 3000
+    assert _client_frame(WriteSingleRegisterRequest(address=p.HV_HOLD_SETPOINT.address,
+                                                    registers=[word], dev_id=1, transaction_id=6)) == req
+    pdu = _client_decode(rsp)
+    assert isinstance(pdu, WriteSingleRegisterResponse) and pdu.registers == [word]
+
+
 def test_g5_identity_client_side():
     req, rsp = GOLDEN["G5"]
     assert _client_frame(ReadInputRegistersRequest(address=0, count=6, dev_id=1, transaction_id=5)) == req
@@ -131,3 +141,7 @@ def test_server_answers_golden_requests_with_golden_responses():
         req, rsp = GOLDEN["G4"]
         assert _exchange(sim.port, req, len(rsp)) == rsp
         assert sim.state.tec_setpoint_c == pytest.approx(25.0)
+        # G6: the hold voltage is accepted and reaches the device state
+        req, rsp = GOLDEN["G6"]
+        assert _exchange(sim.port, req, len(rsp)) == rsp
+        assert sim.state.hv_hold_setpoint_v == pytest.approx(30.0)

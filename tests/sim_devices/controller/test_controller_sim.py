@@ -86,7 +86,9 @@ def test_device_accepts_hardware_limit_edges(model):
 
 
 def test_unmapped_write_address(model):
-    assert model.write(p.Table.HOLDING, 4, [0]) == EC.ILLEGAL_DATA_ADDRESS
+    # the first address past the map (HR 4 is HV_HOLD_SETPOINT since the hold drive, issue 15)
+    assert model.write(p.Table.HOLDING, p.table_size(p.Table.HOLDING), [0]) == EC.ILLEGAL_DATA_ADDRESS
+    assert p.table_size(p.Table.HOLDING) == 5
     assert model.write(p.Table.COIL, 1, [True, True]) == EC.ILLEGAL_DATA_ADDRESS
     assert model.write(p.Table.INPUT, 0, [0]) == EC.ILLEGAL_FUNCTION
 

@@ -166,7 +166,8 @@ def _two(second: str) -> str:
 
 ERROR_CASES = [
     # (scene body, exact message prefix after "<src>: ")
-    ("colour = 1\n", "colour: unknown top-level key; allowed: name, description, target"),
+    ("mixed_pixels = 1\n", "mixed_pixels: must be true or false, got 1"),
+    ("colour = 1\n", "colour: unknown top-level key; allowed: name, description, mixed_pixels, target"),
     ("name = 3\n", "name: must be a string, got 3"),
     ("description = [1]\n", "description: must be a string"),
     ("target = 3\n", "target: must be an array of tables"),

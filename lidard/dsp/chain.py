@@ -1,0 +1,97 @@
+"""The detection chain, written once: incoherent average -> OS-CFAR -> sub-bin estimate (§2.1, §4.4.3).
+
+Every front end (the plain range FFT of :mod:`lidard.dsp.frame`, the phase-noise compensated composite
+spectrum of :mod:`lidard.dsp.pnframe`, the single-batch :func:`measure_peaks` below)
+hands this module a complex spectrum and a way to get the time-domain signals the estimator refines
+(the ramps themselves, or the compensated ramps of each detection's delay). What happens next is the
+same for all of them and lives only here.
+
+Pure numpy: no I/O, no clock, no logging. This module imports the detector and the estimators, never a
+front end (the front ends build on it: no import cycle, checked by import-linter).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+
+from .cfar import Detections, cfar_detect
+from .estimators import DEFAULT_METHOD, EstimatorName, estimate
+from .rangefft import RangeFFT, check_samples
+from .window import DspInputError
+
+# (indices of the detections (..., K) with invalid slots at a harmless bin) -> (signals, signed peak
+# bins for the estimator, precomputed spectrum or None)
+RefineSignals = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray | None]]
+
+
+@dataclass(frozen=True)
+class ChainResult:
+    """Refined fractional bins (batch..., K) (mean over ``average_axis``) and the CFAR detections."""
+
+    frac_bins: np.ndarray
+    detections: Detections
+
+
+def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, estimator: str,
+                      average_axis: int | None = None, zero_pad: int = 1, iq: bool = False,
+                      keep: np.ndarray | None = None, idle_index: int = 1, **cfar_kwargs) -> ChainResult:
+    """``spec`` (batch..., [averages,] n_bins) complex in RangeFFT layout -> refined detections.
+
+    ``average_axis``: the axis of ``spec`` holding the averages of one pixel (powers are averaged over
+    it, incoherently, and the refined frequencies too); ``keep``: optional (n_bins,) mask of bins a
+    detection may sit on (a |range| gate on a two-sided spectrum); ``idle_index``: the spectrum index
+    given to the estimator for empty detection slots (their result is ignored);
+    ``cfar_kwargs``: pfa, max_detections, bin_range, ... of :func:`lidard.dsp.cfar.cfar_detect`.
+    """
+    p = spec.real ** 2 + spec.imag ** 2
+    if average_axis is not None:
+        p = p.mean(axis=average_axis)
+    det = cfar_detect(p, window=window, zero_pad=zero_pad, iq=iq, **cfar_kwargs)
+    if keep is not None:
+        ok = det.valid & keep[np.maximum(det.index, 0)]
+        det = replace(det, valid=ok, index=np.where(ok, det.index, -1))
+    index = np.where(det.valid, det.index, idle_index)
+    if average_axis is not None:
+        ax = average_axis % spec.ndim
+        index = np.broadcast_to(np.expand_dims(index, ax), spec.shape[:-1] + index.shape[-1:])
+    x, bins, spectrum = refine(index)
+    frac = estimate(x, bins, method=estimator, window=window, zero_pad=zero_pad, spectrum=spectrum)
+    if average_axis is not None:
+        frac = frac.mean(axis=average_axis % spec.ndim)
+    return ChainResult(frac_bins=frac, detections=det)
+
+
+@dataclass(frozen=True)
+class PeakMeasurements:
+    """Refined detections of a batch of ramps, (batch..., K) each, strongest first.
+
+    freq_hz / range_m are 0.0 where ``detections.valid`` is False.
+    """
+
+    freq_hz: np.ndarray
+    range_m: np.ndarray
+    detections: Detections
+
+
+def measure_peaks(rf: RangeFFT, x: object, *, method: EstimatorName = DEFAULT_METHOD,
+                  **cfar_kwargs) -> PeakMeasurements:
+    """Range FFT, CFAR (``cfar_kwargs`` go to :func:`lidard.dsp.cfar.cfar_detect`; window,
+    zero_pad and iq are taken from ``rf``; the range gate of ``rf`` limits the search) and sub-bin
+    refinement of every detection with ``method``: the chain on one batch, no averaging."""
+    a = check_samples(x, rf.n_samples)
+    spec = rf(a)
+    gate = np.flatnonzero(rf.gate_mask)
+    if gate.size == 0:
+        raise DspInputError(f"range_gate_m={rf.range_gate_m} selects no bins")
+    cfar_kwargs.setdefault("bin_range", (int(gate[0]), int(gate[-1])))
+    # |range| gate on a two-sided spectrum: the contiguous bin_range above covers both signs
+    keep = rf.gate_mask if (rf.iq and rf.range_gate_m is not None) else None
+    res = detect_and_refine(spec, lambda idx: (a, rf.index_to_bin(idx), spec), window=rf.window,
+                            estimator=method, zero_pad=rf.zero_pad, iq=rf.iq, keep=keep,
+                            idle_index=int(rf.bin_to_index(1)), **cfar_kwargs)
+    det, frac = res.detections, res.frac_bins
+    freq_hz = np.where(det.valid, frac * rf.delta_f, 0.0)
+    return PeakMeasurements(freq_hz=freq_hz, range_m=np.where(det.valid, rf.bin_to_range_m(frac), 0.0), detections=det)
