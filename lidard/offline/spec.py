@@ -59,6 +59,7 @@ REFUSED = {
     "link.reflectivity": "the target's reflectivity is [target] reflectivity",
     "adc.iq": "the sweep task runs the real-beat DSP only (an I/Q receiver variant is not simulated yet)",
     "adc.bandwidth_hz": "it only enters the budget's eq. 2-19 term, which the synthesis replaces by real quantization",
+    "monitor.quadrature": "the daemon's scan loop does not read a quadrature monitor yet",
 }
 DSP_KEYS = {"dsp.estimator"}
 

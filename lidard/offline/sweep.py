@@ -35,7 +35,7 @@ from lidard.config import Config
 from lidard.dsp.crlb import crlb_freq_var
 from lidard.dsp.frame import FrameDsp, FrameResult
 from lidard.instrument.scan_loop import adc_plan as daemon_adc_plan
-from lidard.physics.budget import quantization_asd, snr_db
+from lidard.physics.budget import monitor_noise_asd, quantization_asd, snr_db
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world.scene import Scene
 from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory_from_frequency
@@ -97,6 +97,18 @@ def _noise_asd(cfg: Config, world: World) -> float:
     return asd
 
 
+def _monitor_asd(cfg: Config, rin_db_per_hz: float) -> float:
+    """The bench's white noise on the monitor-MZI channel (sim_devices.bench._monitor_asd), V/sqrt(Hz)."""
+    eff, mon = cfg.sim.effects, cfg.monitor
+    asd = 0.0
+    if eff.noise:
+        asd = monitor_noise_asd(mon.amplitude_v, mon.power_w, cfg.detector.responsivity_a_per_w,
+                                rin_db_per_hz)["total"]
+    if eff.quantization and RECORD_BITS > cfg.adc.bits:
+        asd = float(np.hypot(asd, quantization_asd(cfg.adc.input_range_v, cfg.adc.bits, cfg.adc.max_sample_rate_hz)))
+    return asd
+
+
 def run_task(task: SweepTask) -> dict:
     """Synthesize and range ``task.trials`` pixels; return the task's result row (see evaluate)."""
     t0 = time.perf_counter()
@@ -118,7 +130,8 @@ def run_task(task: SweepTask) -> dict:
     rng = np.random.default_rng([task.base_seed, task.seed, int(task.key[:12], 16)])
     syn = synthesize(linear_trajectory(cfg, fs, r), adc, np.zeros(n_seg), hits, noise_asd_v_per_rthz=asd,
                      linewidth_hz=linewidth, rng=rng, mzi_delay_s=cfg.monitor.delay_s if pn_on else None,
-                     mzi_amplitude_v=cfg.monitor.amplitude_v if pn_on else None)
+                     mzi_amplitude_v=cfg.monitor.amplitude_v if pn_on else None,
+                     mzi_noise_asd_v_per_rthz=_monitor_asd(cfg, pt.laser.rin_db_per_hz) if pn_on else 0.0)
     dsp = FrameDsp(ramp_samples=r, fs_hz=fs, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=max_range,
                    max_speed_mps=cfg.scan.max_speed_mps, window=cfg.scan.window, pfa=cfg.scan.pfa,

@@ -66,3 +66,17 @@ def test_range_rmse_meets_the_cramer_rao_bound_at_high_snr():
     # 64 trials estimate an RMSE to ~9 % (1 sigma); an efficient estimator sits at ratio 1
     assert 0.75 <= ratio <= 1.35, ratio
     assert abs(r["range_err_sum_m"] / r["detected"]) < 3 * crlb / math.sqrt(64) + 1e-5   # unbiased
+
+
+def test_phase_noise_compensation_on_records_the_monitor_and_still_ranges():
+    # "on" at 15 m (below the 60 m where "auto" turns it on): like the daemon, the task samples fast
+    # enough for the MZI beat (its plan to 1.5 c tau_m / 2 = 45 m), records the monitor MZI as a second
+    # channel, and the daemon's compensated front end ranges the target
+    off, on = _rows({"laser": "dfb_broad_linewidth", "link.tx_power_w": 10e-3,
+                     "scan.phase_noise_compensation": ["off", "on"]}, [3.0], trials=8)
+    assert not off["phase_noise_compensation"] and on["phase_noise_compensation"]
+    assert on["sample_rate_hz"] > off["sample_rate_hz"]
+    ratio = on["sample_rate_hz"] / off["sample_rate_hz"]
+    assert on["samples"] == round(2 * ratio * off["samples"])
+    assert on["detected"] == off["detected"] == 8
+    assert on["range_rmse_m"] < 5 * on["crlb_range_m"]

@@ -48,6 +48,7 @@ def test_linspace_distances_and_seed_lists(make_sweep):
     ({"link.tx_powr_w": 1e-3}, r"grid\.link\.tx_powr_w: unknown key"),
     ({"devices.fpsa.url": "x"}, r"grid\.devices\.fpsa\.url: not a key"),
     ({"adc.iq": True}, r"grid\.adc\.iq: cannot be swept: .*I/Q"),
+    ({"monitor.quadrature": True}, r"grid\.monitor\.quadrature: cannot be swept: .*quadrature"),
     ({"link.reflectivity": 0.3}, r"grid\.link\.reflectivity: cannot be swept: .*\[target\] reflectivity"),
     ({"link.tx_power_w": [1e-3, -1.0]}, r"grid\.link\.tx_power_w: .*greater than 0 \(got -1\.0"),
     ({"laser": "dfb_nope"}, r"grid: laser: 'dfb_nope' is not a preset; allowed: .*dfb_default"),
