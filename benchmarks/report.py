@@ -742,7 +742,18 @@ def render(sections: list[Section], facts: dict, quick: bool, total_s: float) ->
     for s in sections:
         body.append(f"\n## {s.title}\n\n")
         body.append(f"_Not run: {s.error}_\n" if s.error else s.markdown)
-    return "\n".join(head) + "".join(body)
+    return "\n".join(head) + "".join(body) + SEE_ALSO
+
+
+# Reports measured by their own commands (too long for this run); kept in every generated report.
+SEE_ALSO = """
+## See also: design sweeps and scale-out on Dask
+
+Detection probability, range and velocity RMSE against distance for 3 lasers x 3 powers (3,600 tasks
+through `lidarctl sweep`), the scheduling overhead per task, throughput with 1 and 2 Dask worker
+processes against in-process, and the model for 10 and 100 workers: [sweeps.md](sweeps.md)
+(`python -m benchmarks.sweep_scale`; how to run on a cluster: [scale-out.md](scale-out.md)).
+"""
 
 
 def _jsonable(o):
