@@ -37,13 +37,35 @@ from typing import Any, Callable
 
 from drivers.controller.driver import SettleCheck
 
-from .errors import InstrumentError
+from .errors import FaultsStillOpen, InstrumentError
 
 log = logging.getLogger(__name__)
 
 
 class SafetyStopped(InstrumentError):
     """The safety monitor tripped while the outputs were being brought up (laser and HV already off)."""
+
+
+def latched_state(controller: Any) -> dict[str, Any]:
+    """``{"latched": [fault names], "interlock_closed": bool}``: two Modbus reads."""
+    return {"latched": sorted(f.name for f in controller.faults()),
+            "interlock_closed": bool(controller.interlock_closed())}
+
+
+def acknowledge(controller: Any) -> list[str]:
+    """Clear the controller's latched faults, only once their causes are gone (a manual reset, as
+    laser safety expects). Answers the names cleared; raises :class:`FaultsStillOpen` naming what is
+    still open (the interlock loop reads open: nothing is sent; a fault the device keeps latched
+    through CLEAR_FAULTS because its cause persists, e.g. an HV supply trip)."""
+    state = latched_state(controller)
+    if not state["interlock_closed"]:
+        raise FaultsStillOpen(["INTERLOCK_OPEN (the interlock loop reads open: close it first)"])
+    if not state["latched"]:
+        return []
+    remaining = sorted(f.name for f in controller.clear_faults())
+    if remaining:
+        raise FaultsStillOpen([f"{name} (its cause is still present)" for name in remaining])
+    return state["latched"]
 
 
 class SafetyMonitor:
