@@ -83,6 +83,7 @@ class SafetyMonitor:
         self._tripped: dict[str, Any] | None = None  # the trip of the current bring_up session
         self._watch: SafetyWatch | None = None
         self.last_trip: dict[str, Any] | None = None  # the latest trip, with wall (monotonic) stamps
+        self.trip_event = threading.Event()           # set by a trip, cleared by the next bring_up
 
     def settle(self, *, stop_on_trip: bool = False) -> SettleCheck:
         """The controller's readback wait, on the instrument's clock (virtual on a bench); for a
@@ -138,6 +139,7 @@ class SafetyMonitor:
             self._tripped = {"reason": reason or "controller: safety trip", "safe": safe, "by": by}
             self.last_trip = {**self._tripped, "wall_detected_s": t_detect,
                               "wall_off_commanded_s": safe.pop("_wall_cmd"), "wall_safe_s": time.monotonic()}
+            self.trip_event.set()
         log.warning("safety trip (%s): %s; %s", by, self._tripped["reason"], describe_safe(safe))
         return safe
 
@@ -174,6 +176,7 @@ class SafetyMonitor:
         """A new session: forget the last trip and start the watch thread (once)."""
         with self._trip_lock:
             self._tripped = None
+            self.trip_event.clear()
         if self.period_s is not None and self._watch is None:
             self._watch = SafetyWatch(self, self.period_s)
             self._watch.start()
