@@ -31,6 +31,7 @@ raises :class:`SafetyStopped`) instead of waiting out their timeout for outputs 
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 from typing import Any, Callable
@@ -40,6 +41,10 @@ from drivers.controller.driver import SettleCheck
 from .errors import FaultsStillOpen, InstrumentError
 
 log = logging.getLogger(__name__)
+
+LASER_OFF_MA = 0.5       # readback tolerances of "off" (the driver's SettleCheck defaults)
+HV_OFF_V = 0.25
+SWITCH_INTERVAL_S = 0.001  # interpreter thread switch interval while the watch runs (see start_watch)
 
 
 class SafetyStopped(InstrumentError):
@@ -82,6 +87,7 @@ class SafetyMonitor:
         self._trip_lock = threading.Lock()
         self._tripped: dict[str, Any] | None = None  # the trip of the current bring_up session
         self._watch: SafetyWatch | None = None
+        self._switch_s: float | None = None           # the interpreter's switch interval before the watch
         self.last_trip: dict[str, Any] | None = None  # the latest trip, with wall (monotonic) stamps
         self.trip_event = threading.Event()           # set by a trip, cleared by the next bring_up
 
@@ -144,32 +150,51 @@ class SafetyMonitor:
         return safe
 
     def _outputs_off(self) -> dict[str, Any]:
-        errors = []
-        for what, fn in (("laser off", lambda: self.controller.laser_enable(False)),
-                         ("HV off", lambda: self.controller.hv_enable(False))):
+        """Laser and HV off, read back (two requests per poll: status + flags), then setpoints to 0.
+
+        Its own short sequence rather than the driver's ``bring_down`` (which repeats the enables and
+        waits for each output in turn): every Modbus round trip here is on the path to the safe
+        state, and with the DSP busy each one can wait for the interpreter."""
+        c, errors = self.controller, []
+        for what, fn in (("laser off", lambda: c.laser_enable(False)), ("HV off", lambda: c.hv_enable(False))):
             try:
                 fn()
             except Exception as exc:
                 errors.append(f"{what}: {type(exc).__name__}: {exc}")
         wall_cmd = time.monotonic()
         t_cmd = float(self._now())      # read after the commands: nothing may delay them
-        try:
-            self.controller.bring_down(settle_check=self.settle())
-        except Exception as exc:
-            errors.append(f"bring down: {type(exc).__name__}: {exc}")
         out: dict[str, Any] = {"off_commanded_at_s": t_cmd, "_wall_cmd": wall_cmd}
         try:
-            out["laser_ma"] = float(self.controller.laser_current_ma())
-            out["hv_v"] = float(self.controller.hv_v())
-            out["laser_on"] = bool(self.controller.laser_is_on())
-            out["hv_on"] = bool(self.controller.hv_is_on())
+            out.update(self._read_back_off())
         except Exception as exc:
             errors.append(f"readback: {type(exc).__name__}: {exc}")
         out["safe_at_s"] = float(self._now())
+        # the setpoints to 0 as well (so nothing comes back at the old setpoints on a later enable);
+        # after the readback: the disabled outputs are what makes the state safe
+        for what, fn in (("laser current to 0", lambda: c.set_laser_current_ma(0.0)),
+                         ("HV to 0", lambda: c.set_hv_v(0.0))):
+            try:
+                fn()
+            except Exception as exc:
+                errors.append(f"{what}: {type(exc).__name__}: {exc}")
         out["errors"] = errors
         out["safe"] = (not errors and not out.get("laser_on") and not out.get("hv_on")
-                       and out.get("laser_ma", 1.0) <= 0.5 and out.get("hv_v", 1.0) <= 0.25)
+                       and out.get("laser_ma", 1.0) <= LASER_OFF_MA and out.get("hv_v", 1.0) <= HV_OFF_V)
         return out
+
+    def _read_back_off(self) -> dict[str, Any]:
+        """Poll until both outputs read off (or the readback timeout passes on the instrument's clock)."""
+        sc, waited_s = self.settle(), 0.0
+        while True:
+            st, fl = self.controller.status(), self.controller.flags()
+            got = {"laser_ma": float(st.laser_current_ma), "hv_v": float(st.hv_v),
+                   "laser_on": bool(fl.laser_on), "hv_on": bool(fl.hv_on)}
+            off = (got["laser_ma"] <= LASER_OFF_MA and got["hv_v"] <= HV_OFF_V
+                   and not got["laser_on"] and not got["hv_on"])
+            if off or waited_s >= sc.timeout_s:
+                return got
+            sc.sleep(sc.poll_s)
+            waited_s += sc.poll_s
 
     # -- the wall-clock watch -----------------------------------------------------------------------
     def start_watch(self) -> None:
@@ -180,12 +205,21 @@ class SafetyMonitor:
         if self.period_s is not None and self._watch is None:
             self._watch = SafetyWatch(self, self.period_s)
             self._watch.start()
+            # While the DSP thread computes it holds the interpreter lock for up to the switch
+            # interval (5 ms by default) before a waiting thread gets it, and the watch's trip path
+            # needs the lock ~10 times (each Modbus reply). 1 ms keeps that wait small; the DSP's
+            # numpy work barely notices. Restored when the watch stops.
+            self._switch_s = sys.getswitchinterval()
+            sys.setswitchinterval(min(self._switch_s, SWITCH_INTERVAL_S))
 
     def stop_watch(self) -> None:
         """Stop the watch thread and wait for it (it is never mid-trip when this returns)."""
         watch, self._watch = self._watch, None
         if watch is not None:
             watch.stop()
+            if self._switch_s is not None:
+                sys.setswitchinterval(self._switch_s)
+                self._switch_s = None
 
     @property
     def watching(self) -> bool:

@@ -78,6 +78,7 @@ def test_the_watch_trips_while_the_scan_thread_is_blocked_in_the_dsp(inst, monke
 class _Flags:
     def __init__(self, interlock_closed=True, fault_active=False):
         self.interlock_closed, self.fault_active = interlock_closed, fault_active
+        self.laser_on = self.hv_on = False
 
 
 class _ScriptedController:
@@ -106,8 +107,14 @@ class _ScriptedController:
     def bring_down(self, settle_check):
         self.calls.append("bring_down")
 
-    laser_current_ma = hv_v = lambda self: 0.0
-    laser_is_on = hv_is_on = lambda self: False
+    def set_laser_current_ma(self, v):
+        self.calls.append(("laser_ma", v))
+
+    def set_hv_v(self, v):
+        self.calls.append(("hv_v", v))
+
+    def status(self):
+        return type("Status", (), {"laser_current_ma": 0.0, "hv_v": 0.0})()
 
     def interlock_closed(self):
         return True
@@ -128,7 +135,8 @@ def test_the_watch_trips_once_outputs_off_first_then_check_answers_its_reason():
     assert mon.trip_event.wait(WAIT_S)
     assert mon.tripped["by"] == "watch"
     first_off = ctrl.calls.index(("laser", False))
-    assert ctrl.calls[first_off:first_off + 3] == [("laser", False), ("hv", False), "bring_down"]
+    assert ctrl.calls[first_off:first_off + 3] == [("laser", False), ("hv", False), "flags"]   # readback
+    assert ctrl.calls[first_off + 3:first_off + 5] == [("laser_ma", 0.0), ("hv_v", 0.0)]
     assert ctrl.calls[:first_off].count("flags") == 3          # tripped on the third read, not before
     assert mon.check() == "controller: interlock opened mid-scan"  # no new read: the watch's reason
     assert mon.trip("again") is mon.tripped["safe"]             # a second trip answers the first
