@@ -39,7 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -179,6 +179,7 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
     refused_injections: list[dict[str, Any]] = []
     ack_refusals: list[str] = []
     lost = scans = files_checked = 0
+    by_fault: dict[str, Counter] = defaultdict(Counter)   # injected kind ("none") -> outcomes
     t0 = time.monotonic()
     try:
         while time.monotonic() - t0 < minutes * 60.0:
@@ -193,12 +194,14 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
             r = c.call("POST", "/scans", json=SCAN_BODY)
             if r.status_code == 409:          # a latched fault: acknowledge and go on
                 outcomes["refused_latched"] += 1
+                by_fault[fault[0] if fault else "none"]["refused_latched"] += 1
                 if fault is None:             # nothing was injected: the last acknowledgement failed
                     clean_not_done.append({"state": "refused", "error": r.text[:300]})
             elif r.status_code == 201:
                 rec = wait_scan(c, r.json()["id"])
                 scans += 1
                 outcomes[rec["state"]] += 1
+                by_fault[fault[0] if fault else "none"][rec["state"]] += 1
                 if rec["state"] in ("done", "failed"):
                     checked, n_lost = check_files(c, rec)
                     files_checked += checked
@@ -221,6 +224,7 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
     return {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
         "minutes": minutes, "seed": seed, "scans": scans, "outcomes": dict(outcomes),
+        "outcomes_by_fault": {k: dict(v) for k, v in sorted(by_fault.items())},
         "faults_injected": dict(injected), "acknowledgements": {str(k): v for k, v in acks.items()},
         "injections_refused": refused_injections, "acknowledgement_refusals": ack_refusals[:20],
         "clean_scans_not_done": clean_not_done, "files_checked": files_checked, "points_lost": lost,
