@@ -224,6 +224,99 @@ def safety_tradeoff(values_s=(0.01, 0.02, 0.05, 0.2, None), averages: int = 1) -
     return out
 
 
+# the wall-clock figure needs a DSP batch of the full BATCH_BYTES (8 MiB) in the middle of the scan
+WALL_ROI = ScanRequest(pattern="roi", rows=(40, 72), cols=(0, 128), max_range_m=2.0, averages=4)
+
+
+def wall_time_to_safe(trials: int = 8, bench: str = "child", seed: int = 1) -> dict[str, Any]:
+    """Time to safe state on WALL time while the scan thread is busy in the DSP of a full batch.
+
+    Daemon composition (child-process bench: the controller's Modbus server is another process, as
+    a real controller is another box). Each trial scans ``WALL_ROI``; when the first full 8 MiB batch
+    enters the DSP, a helper thread waits a random fraction of that DSP call's expected duration and
+    opens the interlock through the bench's fault injection. Figures, from the moment the injection
+    is sent (an upper bound: the loop opens somewhere inside that call) to the safety watch's trip
+    record (``SafetyMonitor.last_trip``, monotonic clock): detection, laser/HV off commanded, both read
+    back. ``dsp_busy`` says whether the DSP call was still running when the readback was done."""
+    import threading
+
+    from lidard.instrument.points import PointBuffer
+    from lidard.instrument.scan_loop import BATCH_BYTES
+
+    cfg = load_config(CONFIG_DIR / "sim.toml", environ=ENV)
+    inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"), bench=bench)
+    rng = np.random.default_rng(seed)
+    original = PointBuffer.flush
+    trial: dict[str, Any] = {}
+    flush_s: list[float] = []
+
+    def open_later(delay_s: float) -> None:
+        time.sleep(delay_s)          # wall time on purpose: the opening must land inside the DSP call
+        trial["t_open"] = time.monotonic()
+        inst.inject_fault("interlock_open")
+        trial["t_injected"] = time.monotonic()
+
+    def timed_flush(self) -> None:
+        full = self._pending_bytes >= BATCH_BYTES
+        if full and trial.get("armed") and "flush" not in trial:
+            threading.Thread(target=open_later, args=(trial["delay_s"],), daemon=True).start()
+        t0 = time.monotonic()
+        try:
+            return original(self)
+        finally:
+            if full:
+                flush_s.append(time.monotonic() - t0)
+                trial.setdefault("flush", (t0, time.monotonic()))
+
+    PointBuffer.flush = timed_flush
+    rows: list[dict[str, Any]] = []
+    try:
+        inst.run_scan(WALL_ROI, lambda p: None, threading.Event())      # warm-up: the DSP's duration
+        dsp_s = float(np.median(flush_s))
+        for _ in range(trials):
+            inst.clear_faults()
+            inst.controller.clear_faults()
+            trial.clear()
+            trial.update(armed=True, delay_s=float(rng.uniform(0.1, 0.6)) * dsp_s)
+            res = inst.run_scan(WALL_ROI, lambda p: None, threading.Event())
+            lt = inst.safety.last_trip or {}
+            if "t_open" not in trial or not res.stop_reason or lt.get("wall_safe_s", 0) < trial["t_open"]:
+                rows.append({"tripped": False})
+                continue
+            t0 = trial["t_open"]
+            rows.append({"tripped": True, "by": lt["by"], "inject_call_ms": (trial["t_injected"] - t0) * 1e3,
+                         "detect_ms": (lt["wall_detected_s"] - t0) * 1e3,
+                         "off_commanded_ms": (lt["wall_off_commanded_s"] - t0) * 1e3,
+                         "safe_ms": (lt["wall_safe_s"] - t0) * 1e3,
+                         "dsp_busy": trial["flush"][1] > lt["wall_safe_s"],
+                         "virtual_safe_ms": (lt["safe"]["safe_at_s"] - lt["safe"]["off_commanded_at_s"]) * 1e3})
+        inst.clear_faults()
+        inst.controller.clear_faults()
+    finally:
+        PointBuffer.flush = original
+        inst.close()
+    ok = [r for r in rows if r["tripped"]]
+    safe = np.array([r["safe_ms"] for r in ok])
+    return {"bench": bench, "safety_period_s": cfg.daemon.safety_period_s, "dsp_batch_bytes": BATCH_BYTES,
+            "dsp_call_s_median": dsp_s, "trials": len(rows), "tripped": len(ok),
+            "by_watch": sum(r["by"] == "watch" for r in ok), "dsp_busy": sum(r["dsp_busy"] for r in ok),
+            "safe_ms_median": float(np.median(safe)) if ok else None,
+            "safe_ms_max": float(safe.max()) if ok else None, "safe_ms_min": float(safe.min()) if ok else None,
+            "detect_ms_max": max((r["detect_ms"] for r in ok), default=None),
+            "inject_call_ms_max": max((r["inject_call_ms"] for r in ok), default=None), "rows": rows}
+
+
+def print_wall(w: dict[str, Any]) -> None:
+    print(f"\nwall time to safe state ({w['bench']} bench, watch period {w['safety_period_s'] * 1e3:g} ms, "
+          f"DSP of one {w['dsp_batch_bytes'] >> 20} MiB batch {w['dsp_call_s_median']:.2f} s): "
+          f"{w['tripped']}/{w['trials']} tripped, {w['by_watch']} by the watch, {w['dsp_busy']} with the DSP "
+          f"still busy at the readback")
+    if w["tripped"]:
+        print(f"  opening -> laser and HV read back off: median {w['safe_ms_median']:.1f} ms, min "
+              f"{w['safe_ms_min']:.1f} ms, max {w['safe_ms_max']:.1f} ms (detection max {w['detect_ms_max']:.1f} "
+              f"ms; the injection call itself up to {w['inject_call_ms_max']:.1f} ms of it)")
+
+
 def print_table(res: dict[str, Any]) -> None:
     hdr = ("fault", "rate or moment", "outcome", "pixels", "valid pts", "retries", "lost")
     print(" | ".join(hdr))
@@ -248,7 +341,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--tradeoff", action="store_true",
                     help="also measure the throughput cost of the safety-check interval")
+    ap.add_argument("--wall", action="store_true",
+                    help="only the wall-clock time to safe state with the DSP busy (safety watch)")
+    ap.add_argument("--wall-trials", type=int, default=8, help="interlock openings for --wall")
     args = ap.parse_args(argv)
+    if args.wall:
+        w = wall_time_to_safe(args.wall_trials)
+        print(json.dumps(w, indent=1)) if args.json else print_wall(w)
+        return 0 if w["tripped"] == w["trials"] else 1
     res = run_reliability(args.sweep)
     if args.tradeoff:
         res["tradeoff"] = safety_tradeoff()

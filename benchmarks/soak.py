@@ -9,11 +9,12 @@ only change self-test answers, not scans).
 
 Reported (and checked at the end):
 
-* scans by outcome, and how many started with no active fault and still did not end ``done``
-  (target 0: after its acknowledgement the instrument must be usable again);
+* scans by outcome, and how many started with no active fault and still did not end ``done`` or were
+  refused (target 0: after its acknowledgement the instrument must be usable again);
 * faults injected by kind; acknowledgements (``POST /controller/acknowledge``) and their answers;
-* files checked against the store: every ``done``/partial scan's PLY parses and holds exactly the
-  stored point count (data lost = 0);
+* files checked against the store: every ``done``/failed scan's PLY, fetched over HTTP
+  (``GET /scans/{id}/points``), parses and holds exactly the stored point count (``counts.points``);
+  measured points without a file count as lost (data lost = 0);
 * HTTP 5xx answers (target 0), temporary files left under the data dir (target 0);
 * the daemon's memory (VmRSS of the daemon process, sampled once per scan): the median of the last
   5 minutes against the median of minutes 2-6 (target: within 10 MB over a 15-minute run).
@@ -26,6 +27,7 @@ The figures of a run go to docs/reliability.md by hand, with the machine and the
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import platform
@@ -37,7 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -135,7 +137,7 @@ class Client:
 
     def call(self, method: str, path: str, **kw) -> httpx.Response:
         r = self.http.request(method, path, **kw)
-        self.status[r.status_code // 100 * 100] += 1
+        self.status[r.status_code] += 1
         return r
 
 
@@ -150,13 +152,17 @@ def wait_scan(c: Client, sid: str) -> dict[str, Any]:
     return {"state": "timeout", "id": sid}
 
 
-def check_files(data_dir: Path, rec: dict[str, Any]) -> int:
-    """Points lost for one ended scan: measured points not in a parsable file with the stored count."""
-    files = rec.get("files") or {}
-    if not files.get("ply"):
-        return rec.get("points", 0)
-    n = len(PlyData.read(str(data_dir / files["ply"]))["vertex"])
-    return abs(n - rec["points"])
+def check_files(c: Client, rec: dict[str, Any]) -> tuple[int, int]:
+    """(files checked, points lost) for one ended scan: its PLY, fetched like a lab client would
+    (GET /scans/{id}/points), must parse and hold exactly the point count the store reports."""
+    points = int(rec["counts"]["points"])
+    if "ply" not in (rec.get("formats") or []):
+        return 0, points                  # measured points with no file are lost
+    r = c.call("GET", f"/scans/{rec['id']}/points", params={"format": "ply"})
+    if r.status_code != 200:
+        return 1, points
+    n = len(PlyData.read(io.BytesIO(r.content))["vertex"])
+    return 1, abs(n - points)
 
 
 def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
@@ -170,7 +176,10 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
     acks: Counter = Counter()
     clean_not_done: list[dict[str, Any]] = []
     rss: list[tuple[float, float]] = []
-    lost = scans = 0
+    refused_injections: list[dict[str, Any]] = []
+    ack_refusals: list[str] = []
+    lost = scans = files_checked = 0
+    by_fault: dict[str, Counter] = defaultdict(Counter)   # injected kind ("none") -> outcomes
     t0 = time.monotonic()
     try:
         while time.monotonic() - t0 < minutes * 60.0:
@@ -180,21 +189,33 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
                 r = c.call("POST", "/sim/faults", json={"kind": kind, **params})
                 if r.status_code == 201:
                     injected[kind] += 1
+                else:                         # the fault is not active: the scan still counts as faulted
+                    refused_injections.append({"kind": kind, "status": r.status_code, "detail": r.text[:200]})
             r = c.call("POST", "/scans", json=SCAN_BODY)
             if r.status_code == 409:          # a latched fault: acknowledge and go on
                 outcomes["refused_latched"] += 1
+                by_fault[fault[0] if fault else "none"]["refused_latched"] += 1
+                if fault is None:             # nothing was injected: the last acknowledgement failed
+                    clean_not_done.append({"state": "refused", "error": r.text[:300]})
             elif r.status_code == 201:
                 rec = wait_scan(c, r.json()["id"])
                 scans += 1
                 outcomes[rec["state"]] += 1
+                by_fault[fault[0] if fault else "none"][rec["state"]] += 1
                 if rec["state"] in ("done", "failed"):
-                    lost += check_files(data_dir, rec)
+                    checked, n_lost = check_files(c, rec)
+                    files_checked += checked
+                    lost += n_lost
                 if fault is None and rec["state"] != "done":
                     clean_not_done.append({"id": rec.get("id"), "state": rec["state"],
                                            "error": rec.get("error")})
+            else:
+                outcomes[f"http_{r.status_code}"] += 1
             c.call("DELETE", "/sim/faults")
             a = c.call("POST", "/controller/acknowledge")
             acks[a.status_code] += 1
+            if a.status_code != 200:
+                ack_refusals.append(a.text[:300])
             rss.append((time.monotonic() - t0, rss_mb(proc.pid)))
     finally:
         tmp_left = [str(p) for p in data_dir.rglob("*.tmp")]
@@ -203,9 +224,11 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
     return {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
         "minutes": minutes, "seed": seed, "scans": scans, "outcomes": dict(outcomes),
+        "outcomes_by_fault": {k: dict(v) for k, v in sorted(by_fault.items())},
         "faults_injected": dict(injected), "acknowledgements": {str(k): v for k, v in acks.items()},
-        "clean_scans_not_done": clean_not_done, "points_lost": lost,
-        "http": {str(k): v for k, v in c.status.items()}, "http_5xx": c.status.get(500, 0),
+        "injections_refused": refused_injections, "acknowledgement_refusals": ack_refusals[:20],
+        "clean_scans_not_done": clean_not_done, "files_checked": files_checked, "points_lost": lost,
+        "http": {str(k): v for k, v in c.status.items()}, "http_5xx": sum(v for k, v in c.status.items() if k >= 500),
         "temp_files_left": tmp_left, "rss_mb": memory_figures(rss),
     }
 

@@ -332,6 +332,8 @@ class Daemon(_Model):
     max_body_bytes: int = Field(default=1 << 20, ge=1024, le=1 << 30)
     # the control lock's lease lapses this long after the holder's last request (POST /control)
     lease_ttl_s: float = Field(default=300.0, gt=0, le=86_400)
+    # wall-clock period of the safety watch thread (interlock/fault flags while laser/HV may be on)
+    safety_period_s: float = Field(default=0.02, gt=0, le=1.0)
 
 
 class Live(_Model):

@@ -18,6 +18,9 @@ Guarantees:
   same bounded budget, the client reconnecting on the next request (pymodbus' sync client connects
   lazily), with ``backoff_s * 2**k`` between attempts through the injected ``sleep``; only then
   ``DeviceUnreachable`` naming host, port and operation. ``reconnect()`` forces a fresh connection.
+- Thread-safe per request: one lock is held for each Modbus request and its reply (and the
+  reconnect after a lost one), never across a sequence or a backoff, so a safety monitor on another
+  thread waits at most for the one request in flight, even while ``bring_up`` waits for readbacks.
 - ``bring_up``/``bring_down`` command AND read back; waiting uses the injected
   ``SettleCheck.sleep`` (``time.sleep`` in the lab, ``VirtualClock.advance`` on the bench), so this
   module never decides what time is.
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from urllib.parse import urlsplit
@@ -125,6 +129,8 @@ class LaserHvController:
         self._lost = False
         #: bytes handed to the socket so far (tests use it to prove that a refused write sent nothing)
         self.bytes_sent = 0
+        # one request/reply at a time on the shared TCP connection (scan thread + safety watch)
+        self._io_lock = threading.Lock()
         # pymodbus' own retries are off: retries are counted and bounded here, with a reconnect
         # between attempts.
         self._client = ModbusTcpClient(
@@ -146,14 +152,16 @@ class LaserHvController:
 
     # -- lifecycle --------------------------------------------------------------------------
     def close(self) -> None:
-        self._client.close()
+        with self._io_lock:
+            self._client.close()
 
     def reconnect(self) -> None:
         """Drop the TCP connection and open a new one (DeviceUnreachable if refused)."""
-        self._client.close()
-        if not self._client.connect():
-            raise DeviceUnreachable(DEVICE, self.host, self.port, "reconnect")
-        self.reconnect_count += 1
+        with self._io_lock:
+            self._client.close()
+            if not self._client.connect():
+                raise DeviceUnreachable(DEVICE, self.host, self.port, "reconnect")
+            self.reconnect_count += 1
 
     def __enter__(self) -> "LaserHvController":
         return self
@@ -176,16 +184,19 @@ class LaserHvController:
             if unreachable is not None:
                 self._sleep(self.backoff_s * 2 ** (attempts - 1))
             try:
-                rsp = request(*args, device_id=self.device_id, **kwargs)
+                with self._io_lock:
+                    try:
+                        rsp = request(*args, device_id=self.device_id, **kwargs)
+                    except (ConnectionException, ModbusIOException):
+                        self._client.close()  # drop any late reply before the next attempt
+                        raise
             except ConnectionException as exc:
                 # the next request reconnects (lazy connect); bounded by the same retry budget
-                self._client.close()
                 unreachable = exc
                 self._lost = True
                 attempts += 1
                 continue
             except ModbusIOException:
-                self._client.close()  # drop any late reply before the next attempt
                 attempts += 1
                 log.warning("%s: no reply to %s (attempt %d/%d)", DEVICE, operation, attempts,
                             self.retries + 1)

@@ -29,7 +29,7 @@ from ..store import Store
 from . import control
 from .control import BodySizeLimit, ControlLock, LockHeld
 from ..live.points import LivePoints
-from .routers import calibration, devices, health, raw, scans, selftest, sim, viewer
+from .routers import calibration, controller, devices, health, raw, scans, selftest, sim, viewer
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +107,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
     app.include_router(control.router)
     control.document_gates(app)
     for r in (health.router, devices.router, scans.router, raw.router, calibration.router, sim.router,
-              selftest.router, viewer.router):
+              selftest.router, viewer.router, controller.router):
         app.include_router(r)
     app.mount("/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer")
 

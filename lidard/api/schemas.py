@@ -163,6 +163,10 @@ class Health(_Out):
     worker_running: bool
     queue_length: int
     running_scan: str | None
+    # the laser/HV controller's latched safety faults ([] none; None: unreadable); while any is
+    # latched POST /scans answers 409 until `lidarctl faults ack` (POST /controller/acknowledge)
+    latched_faults: list[str] | None = None
+    interlock_closed: bool | None = None
 
 
 class DeviceList(_Out):

@@ -24,6 +24,12 @@ def cmd_status(args) -> int:
         print(f"lidard {h['version']} at {args.url}: {h['status']}"
               f"{' (simulated)' if h['simulated'] else ''}; queue {h['queue_length']}, "
               f"running {h['running_scan'] or '-'}")
+        if h.get("latched_faults"):
+            print(f"controller faults LATCHED: {', '.join(h['latched_faults'])} (interlock "
+                  f"{'closed' if h.get('interlock_closed') else 'OPEN'}); laser and HV stay off: remove the "
+                  f"cause, then run `lidarctl faults ack`")
+        elif h.get("latched_faults") is None and "latched_faults" in h:
+            print("controller faults: unknown (controller unreadable; see `lidarctl devices`)")
     return 0
 
 

@@ -9,6 +9,7 @@ Tree (every class is a :class:`lidard.errors.LidardError`, reported to users as 
     +-- NotSimulated           a simulation-only operation was asked of real hardware
     +-- SimFaultError          the simulated bench refused a fault (also a ValueError)
     +-- SceneRejected          the simulated bench refused a scene (also a ValueError)
+    +-- FaultsStillOpen        a fault acknowledgement was refused: ``.still_open`` names what is still open
 
 The device a failure belongs to is named where the driver is called (:func:`on_device` around each
 step of the acquisition lifecycle), never guessed from an exception's module or message. An exception
@@ -64,6 +65,15 @@ class SimFaultError(InstrumentError, ValueError):
 
 class SceneRejected(InstrumentError, ValueError):
     """The simulated bench refused a scene; the message names the key or target that is wrong."""
+
+
+class FaultsStillOpen(InstrumentError):
+    """An acknowledgement of the controller's latched faults was refused: a cause is still present.
+    ``still_open`` names each (``INTERLOCK_OPEN``, ``HV_FAULT``, ...) with why."""
+
+    def __init__(self, still_open: list[str]):
+        self.still_open = list(still_open)
+        super().__init__("controller: cannot acknowledge, still open: " + "; ".join(self.still_open))
 
 
 def device_of(exc: BaseException, default: str = "instrument") -> str:

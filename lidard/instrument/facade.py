@@ -32,7 +32,8 @@ from .acquisition import AcquisitionLifecycle, plain_drive
 from .calibration import Linearization
 from .devices import DeviceRegistry
 from .errors import NotSimulated, SimFaultError
-from .safety import SafetyMonitor
+from .errors import on_device
+from .safety import FaultsStillOpen, SafetyMonitor, acknowledge, latched_state
 from .scan_loop import ScanLoop
 from .selftest import run_selftest
 from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
@@ -70,7 +71,8 @@ class LidarInstrument:
         self._lock = threading.RLock()
         self._last_devices: list[dict[str, Any]] = []
         self.safety = SafetyMonitor(controller, laser_current_ma=cfg.devices.controller.laser_current_ma,
-                                    hv_v=self.profile.actuation_v, sleep=sleep, now=now)
+                                    hv_v=self.profile.actuation_v, sleep=sleep, now=now,
+                                    period_s=cfg.daemon.safety_period_s)
         self.acquisition = AcquisitionLifecycle(self.registry, cfg, sleep)
         self.scan_loop = ScanLoop(cfg, self.optics, self.acquisition, self.safety, simulated=simulated)
         self.registry.identify_all()
@@ -120,6 +122,26 @@ class LidarInstrument:
             return self._last_devices
         finally:
             self._lock.release()
+
+    def controller_faults(self) -> dict[str, Any]:
+        """The controller's latched faults and interlock now (no instrument lock: the driver
+        serializes its requests, so this answers while a scan runs)."""
+        with on_device("controller", "read faults"):
+            return latched_state(self.controller)
+
+    def acknowledge_faults(self, by: str) -> dict[str, Any]:
+        """Clear the latched faults whose cause is gone (else :class:`FaultsStillOpen`); logged with
+        who and when. Answers ``{"cleared": [names], "by": by, "at": unix time}``."""
+        with on_device("controller", "acknowledge faults"):
+            try:
+                cleared = acknowledge(self.controller)
+            except FaultsStillOpen as exc:
+                log.warning("controller faults NOT acknowledged (asked by %s): %s", by, exc)
+                raise
+        at = time.time()
+        log.warning("controller faults acknowledged by %s at %s: %s", by,
+                    time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(at)), ", ".join(cleared) or "none latched")
+        return {"cleared": cleared, "by": by, "at": at}
 
     def scanner(self) -> dict[str, Any]:
         return self.optics.summary()

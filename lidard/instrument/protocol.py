@@ -47,6 +47,13 @@ class Instrument(Protocol):
         ``{"ok": bool, "stuck": [{"line": "row"|"col", "index", "state": "on"|"off", "evidence"}],
         "single_beam_v", "partner_row", "partner_col", "rows_tested", "cols_tested", ...}``."""
 
+    def controller_faults(self) -> dict[str, Any]:
+        """``{"latched": [fault names], "interlock_closed": bool}`` of the laser/HV controller now."""
+
+    def acknowledge_faults(self, by: str) -> dict[str, Any]:
+        """Clear the controller's latched faults when their causes are gone; answers ``{"cleared":
+        [names], "by": by, "at": unix time}``, else raises FaultsStillOpen naming what is still open."""
+
     def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
         """Simulation only: replace the scene; returns ``{"name", "targets"}``. A scene the bench
         refuses raises a ``ValueError`` naming what is wrong; real hardware raises NotSimulated."""
@@ -67,4 +74,5 @@ class Instrument(Protocol):
 
 #: The names callers may use on an instrument (what a fake must provide; checked in the tests).
 INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "linearize", "laser_temperature_c",
-                      "selftest", "set_scene", "inject_fault", "clear_faults", "active_faults", "close")
+                      "selftest", "controller_faults", "acknowledge_faults", "set_scene", "inject_fault",
+                      "clear_faults", "active_faults", "close")

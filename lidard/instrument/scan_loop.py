@@ -5,7 +5,7 @@
   the monitor MZI channel when phase-noise compensation is on (§2.3, §4.4.2), and the frame DSP;
 * acquire (:class:`ScanLoop`): laser and HV up, one acquisition (:mod:`.acquisition`) started, its
   segments read in batches of at most ``SAFETY_CHECK_S`` of hardware time with the safety check
-  (:mod:`.safety`) after each read; a lost acquisition is resumed from the first pixel not yet read
+  (:mod:`.safety`) after each read (the safety watch also checks on its own thread, on wall time); a lost acquisition is resumed from the first pixel not yet read
   (at most ``RESUMES`` times); a device that stays down fails the scan with :class:`ScanFailed`
   carrying the points so far;
 * DSP -> points (:mod:`.points`): batches collected up to ``BATCH_BYTES``, processed, kept as points.
@@ -167,6 +167,8 @@ class ScanLoop:
                 if accepted:
                     progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
                                           new_points=run.points.take_new()))
+            if run.stop_reason is None and self.safety.tripped is not None:
+                self._safety_stop(run)      # the wall-clock watch tripped after the last read's check
         except ScanFailed:
             raise
         except Exception as exc:
@@ -211,10 +213,10 @@ class ScanLoop:
         return acq, True
 
     def _safety_stop(self, run: ScanRun) -> bool:
-        reason = self.safety.check()
+        reason = self.safety.check()        # the watch's reason once it tripped, else the flags
         if reason is None:
             return False
-        run.safe = self.safety.trip()
+        run.safe = self.safety.trip(reason)
         run.stop_reason = f"{reason}; {describe_safe(run.safe)}"
         return True
 
@@ -262,6 +264,7 @@ class ScanLoop:
         when the one before fails). After a safety stop the outputs are already down."""
         early = run.done < run.plan.n_pixels
         if run.safe is not None:
+            self.safety.stop_watch()
             try:
                 self.lifecycle.stop()
             except Exception as exc:  # outputs are already safe; report, do not mask the stop

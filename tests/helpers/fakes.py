@@ -8,6 +8,7 @@ cancel and queue-order tests need no sleeps.
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress, 
 from lidard.scan import plan
 
 from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
+from lidard.instrument.errors import FaultsStillOpen
 
 
 class DeviceFault(Exception):
@@ -38,6 +40,8 @@ class FakeInstrument:
         self.scenes = []
         self.closed = False
         self.temperature_c = 25.0            # the TEC readback laser_temperature_c() reports
+        self.latched = []                    # controller faults latched (names), as controller_faults() reports
+        self.interlock_closed = True
 
     def laser_temperature_c(self):
         return self.temperature_c
@@ -45,6 +49,16 @@ class FakeInstrument:
     def devices(self):
         return [{"name": n, "connected": True, "identity": f"fake-{n}", "state": "ready", "faults": []}
                 for n in ("fpsa", "awg", "digitizer", "controller")]
+
+    def controller_faults(self):
+        return {"latched": sorted(self.latched), "interlock_closed": self.interlock_closed}
+
+    def acknowledge_faults(self, by):
+        # like the real one: refused while the interlock reads open, else the latches are cleared
+        if not self.interlock_closed:
+            raise FaultsStillOpen(["INTERLOCK_OPEN (the interlock loop reads open: close it first)"])
+        cleared, self.latched = sorted(self.latched), []
+        return {"cleared": cleared, "by": by, "at": time.time()}
 
     def scanner(self):
         return self.optics.summary()

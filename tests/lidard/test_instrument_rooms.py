@@ -162,7 +162,7 @@ class _Controller:
     def flags(self):
         if self.unreadable:
             raise TimeoutError("modbus")
-        return SimpleNamespace(interlock_closed=self.interlock, fault_active=self.fault)
+        return SimpleNamespace(interlock_closed=self.interlock, fault_active=self.fault, laser_on=False, hv_on=False)
 
     def faults(self):
         return [SimpleNamespace(name="HV_FAULT")]
@@ -173,11 +173,15 @@ class _Controller:
     def hv_enable(self, on):
         self.calls.append(("hv", on))
 
-    def bring_down(self, settle_check):
-        self.calls.append(("bring_down", None))
+    def set_laser_current_ma(self, v):
+        self.calls.append(("laser_ma", v))
 
-    laser_current_ma = hv_v = lambda self: 0.0
-    laser_is_on = hv_is_on = lambda self: False
+    def set_hv_v(self, v):
+        self.calls.append(("hv_v", v))
+
+    def status(self):
+        self.calls.append(("status", None))
+        return SimpleNamespace(laser_current_ma=0.0, hv_v=0.0)
 
 
 def _monitor(ctrl):
@@ -192,7 +196,7 @@ def test_safety_check_fails_safe_and_trip_commands_outputs_off_before_the_readba
     assert "unreadable" in _monitor(_Controller(unreadable=True)).check()
     ctrl = _Controller(interlock=False)
     safe = _monitor(ctrl).trip()
-    assert ctrl.calls == [("laser", False), ("hv", False), ("bring_down", None)]
+    assert ctrl.calls == [("laser", False), ("hv", False), ("status", None), ("laser_ma", 0.0), ("hv_v", 0.0)]
     assert safe["safe"] and safe["off_commanded_at_s"] < safe["safe_at_s"]
 
 

@@ -13,8 +13,9 @@ from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from ...jobs import QueueFull, UnknownScan, WorkerStopped
 from ...pointcloud import read_sidecar
 from ...scan import ScanPlanError, plan
-from ..deps import OpticsDep, StoreDep, WorkerDep
+from ..deps import InstrumentDep, OpticsDep, StoreDep, WorkerDep
 from ..schemas import FileFormat, ScanCreate, ScanList, ScanOut
+from .controller import latched_refusal
 
 router = APIRouter(prefix="/scans", tags=["scans"])
 
@@ -30,14 +31,19 @@ def _not_found(scan_id: str) -> HTTPException:
 
 
 @router.post("", response_model=ScanOut, status_code=status.HTTP_201_CREATED,
-             responses={503: {"description": "the queue is full or the daemon is shutting down (Retry-After)"}})
-def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics: OpticsDep) -> ScanOut:
+             responses={503: {"description": "the queue is full or the daemon is shutting down (Retry-After)"},
+                        409: {"description": "a controller fault is latched (names it and `lidarctl faults ack`)"}})
+def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics: OpticsDep,
+                instrument: InstrumentDep) -> ScanOut:
     req = body.to_request()
     try:
         plan(req, optics)  # validate against the device (bonded rows, array bounds) before queueing
     except ScanPlanError as exc:
         field = str(exc).split(":", 1)[0].split("[", 1)[0]
         raise HTTPException(422, [{"loc": ["body", field], "msg": str(exc), "type": "value_error"}]) from None
+    refusal = latched_refusal(instrument)
+    if refusal is not None:      # a scan would only fail at bring-up: say what to do instead
+        raise HTTPException(status.HTTP_409_CONFLICT, refusal)
     try:
         rec = worker.submit_scan(req)
     except (QueueFull, WorkerStopped) as exc:
