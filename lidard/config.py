@@ -195,13 +195,40 @@ class Detector(_Model):
 
 
 class Adc(_Model):
+    """The digitizer's analogue front end and converter (Table 2-2).
+
+    ``bits`` is the resolution of the converter CORE, which samples at ``max_sample_rate_hz``; a
+    record at a lower rate fs is decimated on board, which adds log2(sqrt(max_sample_rate_hz / fs))
+    bits (the core's quantization noise spread over a band D times wider than the record's). The host
+    asks the digitizer for that record resolution (:meth:`record_bits`, rounded, capped at the
+    record format's 16 bits) and the digitizer rounds its codes to it (docs/protocols/digitizer.md).
+    ``bandwidth_hz`` is the anti-alias low-pass corner the digitizer applies to every record (a corner
+    at or above half the record's rate leaves it unfiltered).
+    """
+
     bits: Literal[8, 10, 12, 14, 16] = 8
     input_range_v: PosFloat = 1.0
     bandwidth_hz: PosFloat = 500e6
     max_sample_rate_hz: PosFloat = 1e9
     min_sample_rate_hz: PosFloat = 1e6
     oversample: float = Field(default=2.5, ge=2.0, le=16.0)
+    # Real (single-photodiode) beat only: an I/Q receiver is not built yet, so true is refused.
     iq: bool = False
+
+    @field_validator("iq")
+    @classmethod
+    def _no_iq_yet(cls, v: bool) -> bool:
+        if v:
+            raise ValueError("an I/Q receiver (adc.iq = true) is not supported yet: the instrument records "
+                             "the real beat of one photodiode; set adc.iq = false")
+        return v
+
+    def record_bits(self, sample_rate_hz: float, format_bits: int = 16) -> int:
+        """Resolution of a record at ``sample_rate_hz``: the core's bits plus the decimation gain
+        log2(sqrt(max_sample_rate_hz / fs)), to the nearest bit, within [core bits, format_bits]."""
+        decimation = max(1.0, self.max_sample_rate_hz / float(sample_rate_hz))
+        gain = round(0.5 * math.log2(decimation))
+        return int(min(format_bits, max(self.bits, self.bits + gain)))
 
 
 class Link(_Model):

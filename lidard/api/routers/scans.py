@@ -13,7 +13,7 @@ from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from ...jobs import QueueFull, UnknownScan, WorkerStopped
 from ...pointcloud import read_sidecar
 from ...scan import ScanPlanError, plan
-from ..deps import OpticsDep, StoreDep, WorkerDep
+from ..deps import ConfigDep, OpticsDep, StoreDep, WorkerDep
 from ..schemas import FileFormat, ScanCreate, ScanList, ScanOut
 
 router = APIRouter(prefix="/scans", tags=["scans"])
@@ -31,8 +31,9 @@ def _not_found(scan_id: str) -> HTTPException:
 
 @router.post("", response_model=ScanOut, status_code=status.HTTP_201_CREATED,
              responses={503: {"description": "the queue is full or the daemon is shutting down (Retry-After)"}})
-def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics: OpticsDep) -> ScanOut:
-    req = body.to_request()
+def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics: OpticsDep,
+                cfg: ConfigDep) -> ScanOut:
+    req = body.to_request(cfg.scan)  # fields left out: the configuration's [scan] defaults
     try:
         plan(req, optics)  # validate against the device (bonded rows, array bounds) before queueing
     except ScanPlanError as exc:
