@@ -155,8 +155,9 @@ class LaserPreset(_Model):
     nonlin_a3: float = Field(default=0.0, allow_inf_nan=False)
     coherence_time_s: float = Field(default=0.64e-6, gt=0)  # inf = ideal laser
     rin_db_per_hz: float = Field(default=-150.0, le=0, allow_inf_nan=False)
+    #: the laser's absolute maximum drive current: caps the controller's current limit
+    #: (instrument.compose) and a devices.controller.laser_current_ma above it is refused at load
     max_current_ma: PosFloat = 200.0
-    drive_v_per_ma: PosFloat = 0.01
 
     @property
     def linewidth_hz(self) -> float:
@@ -541,7 +542,11 @@ def load_config(path: str | os.PathLike | None = None, *, environ: dict[str, str
         raise ConfigError(_format_validation(source, exc)) from None
     if check_presets:
         profile = cfg.load_profile()
-        cfg.load_laser()
+        laser = cfg.load_laser()
+        if cfg.devices.controller.laser_current_ma > laser.max_current_ma:
+            raise ConfigError(f"{source}: devices.controller.laser_current_ma: "
+                              f"{cfg.devices.controller.laser_current_ma:g} mA is above the maximum current "
+                              f"{laser.max_current_ma:g} mA of laser preset {cfg.laser!r} (max_current_ma)")
         if cfg.lens is not None and cfg.lens not in profile.lenses:
             raise ConfigError(f"{source}: lens: {cfg.lens!r} is not a lens of profile {profile.name}; "
                               f"allowed: {', '.join(sorted(profile.lenses))}")

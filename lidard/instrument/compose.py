@@ -76,7 +76,9 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     # some virtual time is found again without any wall-clock wait.
     fpsa = FpsaController.from_url(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
     ctrl = LaserHvController(host, port, device_id=d.controller.device_id, timeout_s=d.controller.timeout_s,
-                             limits=Limits(max_laser_current_ma=d.controller.max_laser_current_ma,
+                             # the laser preset's absolute maximum caps the controller's limit too
+                             limits=Limits(max_laser_current_ma=min(d.controller.max_laser_current_ma,
+                                                                    cfg.load_laser().max_current_ma),
                                            max_hv_v=d.controller.max_hv_v, tec_range_c=(15.0, 40.0)),
                              sleep=sleep, busy_retries=3)
     awg_ids = _usb_ids(d.awg.usb, (awg_p.AWG_VID, awg_p.AWG_PID), "awg")

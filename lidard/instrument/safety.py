@@ -18,6 +18,7 @@ from typing import Any, Callable
 
 from drivers.controller.driver import SettleCheck
 
+from ..selftest_analysis import hv_margin_problem
 from .errors import InstrumentError
 
 
@@ -25,10 +26,13 @@ class SafetyMonitor:
     """Interlock/fault check, safe state, and bringing the laser and HV up and down."""
 
     def __init__(self, controller: Any, *, laser_current_ma: float, hv_v: float,
-                 sleep: Callable[[float], object], now: Callable[[], float]):
+                 sleep: Callable[[float], object], now: Callable[[], float],
+                 pull_in_v: float | None = None, spread_v: float = 0.0):
         self.controller = controller
         self.laser_current_ma = laser_current_ma     # setpoints of bring_up()
         self.hv_v = hv_v
+        self.pull_in_v = pull_in_v                   # the switches' pull-in (profile), checked at bring-up
+        self.spread_v = spread_v
         self._sleep = sleep
         self._now = now
 
@@ -83,11 +87,18 @@ class SafetyMonitor:
         return out
 
     # -- outputs up and down ------------------------------------------------------------------------
-    def bring_up(self) -> None:
-        """Refuse with the interlock open; else laser and HV up to their setpoints and read back."""
+    def bring_up(self, *, check_hv: bool = True) -> None:
+        """Refuse with the interlock open; else laser and HV up to their setpoints and read back.
+        ``check_hv``: refuse (outputs down again) when the HV read back cannot pull in every switch
+        (selftest_analysis.hv_margin_problem); the self-test skips it to diagnose instead."""
         if not self.controller.interlock_closed():
             raise InstrumentError("controller: interlock open; close it before scanning")
         self.controller.bring_up(self.laser_current_ma, self.hv_v, settle_check=self.settle())
+        if check_hv and self.pull_in_v is not None:
+            problem = hv_margin_problem(float(self.controller.hv_v()), self.pull_in_v, self.spread_v)
+            if problem is not None:
+                self.bring_down()
+                raise InstrumentError(f"controller: {problem}")
 
     def bring_down(self) -> None:
         try:
