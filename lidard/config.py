@@ -195,14 +195,19 @@ class Detector(_Model):
         return self.cmrr_db if self.balanced else 0.0
 
 
+#: bits a decimated record keeps beyond the core's effective resolution (config.Adc.record_bits)
+RECORD_GUARD_BITS = 4
+
+
 class Adc(_Model):
     """The digitizer's analogue front end and converter (Table 2-2).
 
     ``bits`` is the resolution of the converter CORE, which samples at ``max_sample_rate_hz``; a
     record at a lower rate fs is decimated on board, which adds log2(sqrt(max_sample_rate_hz / fs))
     bits (the core's quantization noise spread over a band D times wider than the record's). The host
-    asks the digitizer for that record resolution (:meth:`record_bits`, rounded, capped at the
-    record format's 16 bits) and the digitizer rounds its codes to it (docs/protocols/digitizer.md).
+    asks the digitizer for that record resolution plus ``RECORD_GUARD_BITS`` (:meth:`record_bits`,
+    capped at the record format's 16 bits), so the digitizer's rounding of its output words adds
+    1/256 of the core's noise power, not as much again (docs/protocols/digitizer.md).
     ``bandwidth_hz`` is the anti-alias low-pass corner the digitizer applies to every record (a corner
     at or above half the record's rate leaves it unfiltered).
     """
@@ -226,10 +231,13 @@ class Adc(_Model):
 
     def record_bits(self, sample_rate_hz: float, format_bits: int = 16) -> int:
         """Resolution of a record at ``sample_rate_hz``: the core's bits plus the decimation gain
-        log2(sqrt(max_sample_rate_hz / fs)), to the nearest bit, within [core bits, format_bits]."""
+        log2(sqrt(max_sample_rate_hz / fs)) to the nearest bit, plus the guard bits, capped at
+        ``format_bits``. At the core's full rate there is nothing to gain or guard: the core's bits."""
         decimation = max(1.0, self.max_sample_rate_hz / float(sample_rate_hz))
         gain = round(0.5 * math.log2(decimation))
-        return int(min(format_bits, max(self.bits, self.bits + gain)))
+        if gain <= 0:
+            return int(min(format_bits, self.bits))
+        return int(min(format_bits, self.bits + gain + RECORD_GUARD_BITS))
 
 
 class Link(_Model):

@@ -12,9 +12,11 @@ budget), one DFB laser model and one :class:`~sim_devices.clock.VirtualClock`:
 * the digitizer (vendor bulk protocol over the pyusb backend) asks this bench, as its
   ``SegmentSource``, for the segments it streams: triggers from the FPGA, beams -> hits -> beat
   tones from the world, synthesized at the sample rate the host configured (never a fixed high rate).
-  The record resolution the host configured (``CaptureConfig.resolution_bits``: the converter core's
-  bits plus its decimation gain, config.Adc.record_bits) sets the core's quantization noise, added
-  as white noise; the digitizer then rounds the codes to that resolution and band-limits them.
+  A record resolution the host configured wider than the converter core (``CaptureConfig.
+  resolution_bits``; 16-bit-format records from the 8-bit core of Table 2-2, config.Adc.record_bits)
+  models on-board decimation from the core's full rate: the core's quantization noise is added as
+  white noise over its full Nyquist band, then the digitizer band-limits the record and rounds it to
+  the configured resolution.
 
 Each trigger starts one period (up + down ramp) of the AWG waveform, so every segment's record starts
 at t = 0 of the drive period. Segment noise is seeded from (bench seed, run, first segment index), so a
@@ -420,16 +422,20 @@ class Bench:
         over = (raw < lo_code).any(axis=1) | (raw > hi_code).any(axis=1)
         return np.clip(raw, lo_code, hi_code).astype(np.int16), over
 
-    @staticmethod
-    def _core_asd(cfg: CaptureConfig) -> float:
-        """White-noise ASD of the decimated converter core in a record of ``cfg.resolution_bits``.
+    def _core_asd(self, capture: CaptureConfig) -> float:
+        """White-noise ASD of the converter core's quantization in a decimated record.
 
-        The host asks for the resolution its core reaches at this rate (config.Adc.record_bits: core
-        bits + log2(sqrt(decimation))): the core's quantization noise, LSB_core^2/12 over its full
-        Nyquist band, is then LSB_R^2/12 over the record's band, i.e. an R-bit quantizer at the
-        record's rate. The bench reads R from the digitizer's configuration, not from its own config:
-        what the digitizer was told is what it does (it then rounds its codes to R bits too)."""
-        return quantization_asd(cfg.input_range_v, int(cfg.resolution_bits), cfg.sample_rate_hz)
+        The simulated converter is the one the configuration describes (``adc.bits`` at
+        ``adc.max_sample_rate_hz``). A record the host configured wider than the core
+        (``CaptureConfig.resolution_bits`` > core bits: config.Adc.record_bits, core bits + the
+        decimation gain + guard bits) was decimated on board, so the core's quantization noise,
+        LSB^2/12 over its full Nyquist band, is in it as white noise; the digitizer then rounds the
+        record to the configured resolution. A record at the core's own resolution gets only that
+        rounding."""
+        a = self.cfg.adc
+        if int(capture.resolution_bits) <= a.bits:
+            return 0.0
+        return quantization_asd(a.input_range_v, a.bits, a.max_sample_rate_hz)
 
     def _monitor_asd(self, capture: CaptureConfig) -> float:
         """White-noise ASD of the monitor-MZI channel: its photodiode's shot noise and the laser's

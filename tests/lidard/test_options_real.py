@@ -65,9 +65,10 @@ def test_a_laser_current_above_the_preset_maximum_is_refused():
 
 
 @pytest.mark.parametrize("core, fs, expect", [
-    (8, 5e6, 8 + round(math.log2(math.sqrt(1e9 / 5e6)))),    # 200x decimation: +3.8 -> 12 bits
-    (8, 1e9, 8),                                              # full rate: the core's own bits
-    (14, 1e6, 16),                                            # capped at the 16-bit record format
+    (8, 1e9 / 4**2, 8 + 2 + 4),     # 16x decimation: log2(sqrt(16)) = 2 bits of gain, + 4 guard bits
+    (8, 1e9 / 2**3, 8 + 2 + 4),     # 8x: 1.5 bits, to the nearest bit 2
+    (8, 1e9, 8),                    # full rate: the core's own bits
+    (8, 5e6, 16),                   # 200x: 8 + 4 + 4, capped at the 16-bit record format
 ])
 def test_record_resolution_is_core_bits_plus_the_decimation_gain(core, fs, expect):
     cfg = load_config(SIM, environ={"LIDARD__ADC__BITS": str(core)})
@@ -94,14 +95,14 @@ def test_usb_timeouts_and_the_preset_current_limit_reach_the_drivers(inst):
 
 
 def test_adc_bits_and_bandwidth_configure_the_digitizer(inst):
-    fs = 4e6
+    fs = 1e9 / 4             # 4x decimation: exactly 1 bit of gain
     plan = AcquisitionPlan(np.array([[0, 0]]), 1, ("beat",), fs, 64, 16)
     acq = inst.acquisition.ready(plan)
     try:
         got = inst.registry["digitizer"].config()
     finally:
         inst.acquisition.abort(acq)
-    assert got.resolution_bits == 10 + round(0.5 * math.log2(1e9 / fs))   # 10-bit core, 250x: 14
+    assert got.resolution_bits == 10 + 1 + 4                    # 10-bit core + 1 gain + 4 guard bits
     assert got.bandwidth_hz == 2_000_000
 
 
