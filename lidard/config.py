@@ -155,8 +155,9 @@ class LaserPreset(_Model):
     nonlin_a3: float = Field(default=0.0, allow_inf_nan=False)
     coherence_time_s: float = Field(default=0.64e-6, gt=0)  # inf = ideal laser
     rin_db_per_hz: float = Field(default=-150.0, le=0, allow_inf_nan=False)
+    #: the laser's absolute maximum drive current: caps the controller's current limit
+    #: (instrument.compose) and a devices.controller.laser_current_ma above it is refused at load
     max_current_ma: PosFloat = 200.0
-    drive_v_per_ma: PosFloat = 0.01
 
     @property
     def linewidth_hz(self) -> float:
@@ -194,14 +195,49 @@ class Detector(_Model):
         return self.cmrr_db if self.balanced else 0.0
 
 
+#: bits a decimated record keeps beyond the core's effective resolution (config.Adc.record_bits)
+RECORD_GUARD_BITS = 4
+
+
 class Adc(_Model):
+    """The digitizer's analogue front end and converter (Table 2-2).
+
+    ``bits`` is the resolution of the converter CORE, which samples at ``max_sample_rate_hz``; a
+    record at a lower rate fs is decimated on board, which adds log2(sqrt(max_sample_rate_hz / fs))
+    bits (the core's quantization noise spread over a band D times wider than the record's). The host
+    asks the digitizer for that record resolution plus ``RECORD_GUARD_BITS`` (:meth:`record_bits`,
+    capped at the record format's 16 bits), so the digitizer's rounding of its output words adds
+    1/256 of the core's noise power, not as much again (docs/protocols/digitizer.md).
+    ``bandwidth_hz`` is the anti-alias low-pass corner the digitizer applies to every record (a corner
+    at or above half the record's rate leaves it unfiltered).
+    """
+
     bits: Literal[8, 10, 12, 14, 16] = 8
     input_range_v: PosFloat = 1.0
     bandwidth_hz: PosFloat = 500e6
     max_sample_rate_hz: PosFloat = 1e9
     min_sample_rate_hz: PosFloat = 1e6
     oversample: float = Field(default=2.5, ge=2.0, le=16.0)
+    # Real (single-photodiode) beat only: an I/Q receiver is not built yet, so true is refused.
     iq: bool = False
+
+    @field_validator("iq")
+    @classmethod
+    def _no_iq_yet(cls, v: bool) -> bool:
+        if v:
+            raise ValueError("an I/Q receiver (adc.iq = true) is not supported yet: the instrument records "
+                             "the real beat of one photodiode; set adc.iq = false")
+        return v
+
+    def record_bits(self, sample_rate_hz: float, format_bits: int = 16) -> int:
+        """Resolution of a record at ``sample_rate_hz``: the core's bits plus the decimation gain
+        log2(sqrt(max_sample_rate_hz / fs)) to the nearest bit, plus the guard bits, capped at
+        ``format_bits``. At the core's full rate there is nothing to gain or guard: the core's bits."""
+        decimation = max(1.0, self.max_sample_rate_hz / float(sample_rate_hz))
+        gain = round(0.5 * math.log2(decimation))
+        if gain <= 0:
+            return int(min(format_bits, self.bits))
+        return int(min(format_bits, self.bits + gain + RECORD_GUARD_BITS))
 
 
 class Link(_Model):
@@ -516,7 +552,11 @@ def load_config(path: str | os.PathLike | None = None, *, environ: dict[str, str
         raise ConfigError(_format_validation(source, exc)) from None
     if check_presets:
         profile = cfg.load_profile()
-        cfg.load_laser()
+        laser = cfg.load_laser()
+        if cfg.devices.controller.laser_current_ma > laser.max_current_ma:
+            raise ConfigError(f"{source}: devices.controller.laser_current_ma: "
+                              f"{cfg.devices.controller.laser_current_ma:g} mA is above the maximum current "
+                              f"{laser.max_current_ma:g} mA of laser preset {cfg.laser!r} (max_current_ma)")
         if cfg.lens is not None and cfg.lens not in profile.lenses:
             raise ConfigError(f"{source}: lens: {cfg.lens!r} is not a lens of profile {profile.name}; "
                               f"allowed: {', '.join(sorted(profile.lenses))}")

@@ -12,9 +12,11 @@ budget), one DFB laser model and one :class:`~sim_devices.clock.VirtualClock`:
 * the digitizer (vendor bulk protocol over the pyusb backend) asks this bench, as its
   ``SegmentSource``, for the segments it streams: triggers from the FPGA, beams -> hits -> beat
   tones from the world, synthesized at the sample rate the host configured (never a fixed high rate).
-  A record format wider than the ADC core (16-bit records from the 8-bit core of Table 2-2) models
-  on-board decimation from the core's full rate: the core's quantization noise is added as white
-  noise over its full Nyquist band, then the record is quantized at the format's resolution.
+  A record resolution the host configured wider than the converter core (``CaptureConfig.
+  resolution_bits``; 16-bit-format records from the 8-bit core of Table 2-2, config.Adc.record_bits)
+  models on-board decimation from the core's full rate: the core's quantization noise is added as
+  white noise over its full Nyquist band, then the digitizer band-limits the record and rounds it to
+  the configured resolution.
 
 Each trigger starts one period (up + down ramp) of the AWG waveform, so every segment's record starts
 at t = 0 of the drive period. Segment noise is seeded from (bench seed, run, first segment index), so a
@@ -420,19 +422,32 @@ class Bench:
         over = (raw < lo_code).any(axis=1) | (raw > hi_code).any(axis=1)
         return np.clip(raw, lo_code, hi_code).astype(np.int16), over
 
-    def _monitor_asd(self, record_bits: int) -> float:
+    def _core_asd(self, capture: CaptureConfig) -> float:
+        """White-noise ASD of the converter core's quantization in a decimated record.
+
+        The simulated converter is the one the configuration describes (``adc.bits`` at
+        ``adc.max_sample_rate_hz``). A record the host configured wider than the core
+        (``CaptureConfig.resolution_bits`` > core bits: config.Adc.record_bits, core bits + the
+        decimation gain + guard bits) was decimated on board, so the core's quantization noise,
+        LSB^2/12 over its full Nyquist band, is in it as white noise; the digitizer then rounds the
+        record to the configured resolution. A record at the core's own resolution gets only that
+        rounding."""
+        a = self.cfg.adc
+        if int(capture.resolution_bits) <= a.bits:
+            return 0.0
+        return quantization_asd(a.input_range_v, a.bits, a.max_sample_rate_hz)
+
+    def _monitor_asd(self, capture: CaptureConfig) -> float:
         """White-noise ASD of the monitor-MZI channel: its photodiode's shot noise and the laser's
-        RIN (``sim.effects.noise``), plus the 8-bit core's quantization when the record is wider
-        (``sim.effects.quantization``; the record's own quantization is applied by the synthesis)."""
+        RIN (``sim.effects.noise``), plus the decimated core's quantization noise (:meth:`_core_asd`,
+        ``sim.effects.quantization``)."""
         eff, mon = self.cfg.sim.effects, self.cfg.monitor
         asd = 0.0
         if eff.noise:
             asd = monitor_noise_asd(mon.amplitude_v, mon.power_w, self.cfg.detector.responsivity_a_per_w,
                                     self.laser_preset.rin_db_per_hz)["total"]
-        core_bits = self.cfg.adc.bits
-        if eff.quantization and record_bits > core_bits:
-            q = quantization_asd(self.cfg.adc.input_range_v, core_bits, self.cfg.adc.max_sample_rate_hz)
-            asd = float(np.hypot(asd, q))
+        if eff.quantization:
+            asd = float(np.hypot(asd, self._core_asd(capture)))
         return asd
 
     def tap_volts_per_beam(self) -> float:
@@ -501,14 +516,9 @@ class Bench:
                                 doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
                                 phase_rad=phase)
         noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
-        core_bits = self.cfg.adc.bits
-        if eff.quantization and cfg.bits > core_bits:
-            # A 16-bit record from an 8-bit core: the digitizer samples at its full rate and
-            # decimates on board, so the core's quantization noise (LSB^2/12 over the full Nyquist
-            # band) lands in the record as white noise; the 16-bit format quantizes the rest.
-            q = quantization_asd(self.cfg.adc.input_range_v, core_bits, self.cfg.adc.max_sample_rate_hz)
-            noise_asd = float(np.hypot(noise_asd, q))
-        mzi_asd = self._monitor_asd(cfg.bits) if light else 0.0
+        if eff.quantization:
+            noise_asd = float(np.hypot(noise_asd, self._core_asd(cfg)))
+        mzi_asd = self._monitor_asd(cfg) if light else 0.0
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])

@@ -10,7 +10,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
-from ..instrument_api import PatternKind, ScanRequest
+from ..config import ScanDefaults
+from ..instrument.types import PatternKind, ScanRequest
 
 # lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs
 FileFormat = Literal["ply", "las", "npz", "pcd", "mcap"]
@@ -59,12 +60,14 @@ class ScanCreate(_In):
 
     # Strict numbers: lax coercion would take ``true`` for 1.0 or "3" for 3 (found by schemathesis);
     # a body is what the client meant or a 422, never a guess.
-    pattern: PatternKind = "raster"
+    # pattern, averages, max_range_m: null (left out) takes the configuration's [scan] default
+    # (config.ScanDefaults), filled in by :meth:`to_request`; a pixel list alone implies "pixels".
+    pattern: PatternKind | None = None
     rows: tuple[StrictInt, StrictInt] | None = None
     cols: tuple[StrictInt, StrictInt] | None = None
     pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
-    averages: StrictInt = Field(default=1, ge=1, le=100)
-    max_range_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False, strict=True)
+    averages: StrictInt | None = Field(default=None, ge=1, le=100)
+    max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
     formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=5)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
@@ -89,17 +92,21 @@ class ScanCreate(_In):
     def _pixels_only_with_pixels(self) -> "ScanCreate":
         if self.pattern == "pixels" and not self.pixels:
             raise ValueError("pattern 'pixels' needs a non-empty 'pixels' list")
-        if self.pattern != "pixels" and self.pixels is not None:
+        if self.pattern not in ("pixels", None) and self.pixels is not None:
             raise ValueError(f"'pixels' is only allowed with pattern 'pixels', not {self.pattern!r}")
         if self.record_raw and self.pattern == "adaptive":
             raise ValueError("record_raw: the adaptive pattern runs two acquisitions; record a raster, "
                              "serpentine, roi or pixels scan")
         return self
 
-    def to_request(self) -> ScanRequest:
-        return ScanRequest(pattern=self.pattern, rows=self.rows, cols=self.cols,
+    def to_request(self, defaults: ScanDefaults | None = None) -> ScanRequest:
+        """The instrument's request; fields left out take ``defaults`` (the configuration's [scan])."""
+        d = defaults if defaults is not None else ScanDefaults()
+        pattern = self.pattern or ("pixels" if self.pixels is not None else d.pattern)
+        return ScanRequest(pattern=pattern, rows=self.rows, cols=self.cols,
                            pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
-                           averages=self.averages, max_range_m=self.max_range_m,
+                           averages=d.averages if self.averages is None else self.averages,
+                           max_range_m=d.max_range_m if self.max_range_m is None else self.max_range_m,
                            formats=tuple(self.formats),
                            phase_noise_compensation=self.phase_noise_compensation,
                            record_raw=self.record_raw)

@@ -146,12 +146,18 @@ def request_body(args, fmt: str) -> dict[str, Any]:
     return body
 
 
-def check_plan(body: dict[str, Any], optics) -> None:
+def sim_request(body: dict[str, Any], cfg):
+    """The instrument request of ``--sim``: the flags left out take the configuration's [scan]
+    defaults, as the daemon fills them (ScanCreate.to_request)."""
+    from ..api.schemas import check_scan_body
+    return check_scan_body(body).to_request(cfg.scan)
+
+
+def check_plan(req, optics) -> None:
     """The planner's check (bonded rows, array bounds) on this device, before the bench starts."""
-    from ..jobs import request_from_dict
     from ..scan import ScanPlanError, plan
     try:
-        plan(request_from_dict(body), optics)
+        plan(req, optics)
     except ScanPlanError as exc:
         raise CliError(str(exc)) from None
 
@@ -221,13 +227,13 @@ def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[bool]) -> di
 
 
 def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[str, Any]:
-    from ..jobs import request_from_dict
     from ..pointcloud import sidecar_path
     from .embedded import embedded, resolve, sim_config
     cfg = sim_config(args)
-    check_plan(body, cfg.optics())  # before the bench starts
+    req = sim_request(body, cfg)
+    check_plan(req, cfg.optics())  # before the bench starts
     with embedded(args, cfg, scene_path=resolve(args.scene)) as (worker, store, inst):
-        rec = worker.submit_scan(request_from_dict(body))
+        rec = worker.submit_scan(req)
         worker.subscribe(rec.id, bar)
         try:
             final = worker.wait(rec.id)

@@ -34,4 +34,6 @@ def cmd_selftest(args) -> int:
             print("all switches respond: none stuck")
         for st in report["stuck"]:
             print(f"STUCK {st['state'].upper():<3} {st['line']} {st['index']}: {st.get('evidence', '')}")
+        if report.get("hv_problem"):
+            print(f"HV: {report['hv_problem']}")
     return 0 if report["ok"] else EXIT_STUCK

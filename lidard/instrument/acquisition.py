@@ -117,7 +117,9 @@ class AcquisitionLifecycle:
             dig.abort()   # an acquisition a failed job left armed would lock the settings
             layout = dig.configure(channels=plan.channels, sample_rate_hz=plan.fs_hz,
                                    record_length=plan.record_length, segments=plan.segments, bits=plan.bits,
-                                   input_range_v=self.cfg.adc.input_range_v)
+                                   input_range_v=self.cfg.adc.input_range_v,
+                                   resolution_bits=self.cfg.adc.record_bits(plan.fs_hz, plan.bits),
+                                   bandwidth_hz=self.cfg.adc.bandwidth_hz)
             dig.arm()
         return Acquisition(plan, layout, first_pixel, faults if faults is not None else {"batch_retries": 0})
 

@@ -57,6 +57,11 @@ def _usb_device(backend, ids: tuple[int, int], who: str):
     return dev
 
 
+def _ms(seconds: float) -> int:
+    """A USB transfer timeout in whole milliseconds (pyusb's unit), at least 1 (0 would mean "forever")."""
+    return max(1, int(round(seconds * 1000.0)))
+
+
 def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) -> dict[str, Any]:
     """The four drivers, keyed by device name (addresses "bench" are taken from ``endpoints``)."""
     from drivers.awg import protocol as awg_p
@@ -71,14 +76,17 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     # some virtual time is found again without any wall-clock wait.
     fpsa = FpsaController.from_url(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
     ctrl = LaserHvController(host, port, device_id=d.controller.device_id, timeout_s=d.controller.timeout_s,
-                             limits=Limits(max_laser_current_ma=d.controller.max_laser_current_ma,
+                             # the laser preset's absolute maximum caps the controller's limit too
+                             limits=Limits(max_laser_current_ma=min(d.controller.max_laser_current_ma,
+                                                                    cfg.load_laser().max_current_ma),
                                            max_hv_v=d.controller.max_hv_v, tec_range_c=(15.0, 40.0)),
                              sleep=sleep, busy_retries=3)
     awg_ids = _usb_ids(d.awg.usb, (awg_p.AWG_VID, awg_p.AWG_PID), "awg")
     dig_ids = _usb_ids(d.digitizer.usb, (dig_p.DIGITIZER_VID, dig_p.DIGITIZER_PID), "digitizer")
-    awg = AwgDriver(_usb_device(usb_backend, awg_ids, "awg"), finder=_usb_finder(usb_backend, awg_ids), sleep=sleep)
-    dig = DigitizerDriver(_usb_device(usb_backend, dig_ids, "digitizer"),
-                          finder=_usb_finder(usb_backend, dig_ids), sleep=sleep)
+    awg = AwgDriver(_usb_device(usb_backend, awg_ids, "awg"), finder=_usb_finder(usb_backend, awg_ids),
+                    timeout_ms=_ms(d.awg.timeout_s), sleep=sleep)
+    dig = DigitizerDriver(_usb_device(usb_backend, dig_ids, "digitizer"), finder=_usb_finder(usb_backend, dig_ids),
+                          timeout_ms=_ms(d.digitizer.timeout_s), sleep=sleep)
     return {"fpsa": fpsa, "awg": awg, "digitizer": dig, "controller": ctrl}
 
 

@@ -72,7 +72,8 @@ class LidarInstrument:
         self._last_devices: list[dict[str, Any]] = []
         self.safety = SafetyMonitor(controller, laser_current_ma=cfg.devices.controller.laser_current_ma,
                                     hv_v=self.profile.actuation_v, sleep=sleep, now=now,
-                                    period_s=cfg.daemon.safety_period_s)
+                                    period_s=cfg.daemon.safety_period_s,
+                                    pull_in_v=self.profile.pull_in_v, spread_v=self.profile.threshold_spread_v)
         self.acquisition = AcquisitionLifecycle(self.registry, cfg, sleep)
         self.scan_loop = ScanLoop(cfg, self.optics, self.acquisition, self.safety, simulated=simulated)
         self.registry.identify_all()

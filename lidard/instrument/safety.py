@@ -38,6 +38,7 @@ from typing import Any, Callable
 
 from drivers.controller.driver import SettleCheck
 
+from ..selftest_analysis import hv_margin_problem
 from .errors import FaultsStillOpen, InstrumentError
 
 log = logging.getLogger(__name__)
@@ -77,11 +78,14 @@ class SafetyMonitor:
     """Interlock/fault check, safe state, the wall-clock watch, and bringing the laser and HV up and down."""
 
     def __init__(self, controller: Any, *, laser_current_ma: float, hv_v: float,
-                 sleep: Callable[[float], object], now: Callable[[], float], period_s: float | None = 0.02):
+                 sleep: Callable[[float], object], now: Callable[[], float], period_s: float | None = 0.02,
+                 pull_in_v: float | None = None, spread_v: float = 0.0):
         self.controller = controller
         self.laser_current_ma = laser_current_ma     # setpoints of bring_up()
         self.hv_v = hv_v
         self.period_s = period_s                     # wall-clock watch period; None: no watch thread
+        self.pull_in_v = pull_in_v                   # the switches' pull-in (profile), checked at bring-up
+        self.spread_v = spread_v
         self._sleep = sleep
         self._now = now
         self._trip_lock = threading.Lock()
@@ -226,9 +230,11 @@ class SafetyMonitor:
         return self._watch is not None and self._watch.alive
 
     # -- outputs up and down ------------------------------------------------------------------------
-    def bring_up(self) -> None:
+    def bring_up(self, *, check_hv: bool = True) -> None:
         """Refuse with the interlock open; else start the watch, then laser and HV up to their setpoints
-        and read back. The watch runs until :meth:`bring_down` (or the end of a scan after a trip)."""
+        and read back. The watch runs until :meth:`bring_down` (or the end of a scan after a trip).
+        ``check_hv``: refuse (outputs down again) when the HV read back cannot pull in every switch
+        (selftest_analysis.hv_margin_problem); the self-test skips it to diagnose instead."""
         if not self.controller.interlock_closed():
             raise InstrumentError("controller: interlock open; close it before scanning")
         self.start_watch()
@@ -241,6 +247,11 @@ class SafetyMonitor:
             # the watch tripped between two steps of the sequence: whatever came on after it, off again
             self._end_failed_bring_up()
             raise SafetyStopped(f"bring-up stopped by the safety monitor: {self._tripped['reason']}")
+        if check_hv and self.pull_in_v is not None:
+            problem = hv_margin_problem(float(self.controller.hv_v()), self.pull_in_v, self.spread_v)
+            if problem is not None:
+                self.bring_down()
+                raise InstrumentError(f"controller: {problem}")
 
     def _end_failed_bring_up(self) -> None:
         self.stop_watch()

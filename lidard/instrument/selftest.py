@@ -14,6 +14,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import Config
+from ..selftest_analysis import hv_pull_in_problem
 from .acquisition import AcquisitionLifecycle, AcquisitionPlan
 from .errors import InstrumentError
 from .safety import SafetyMonitor
@@ -41,8 +42,9 @@ def run_selftest(cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: S
         if progress is not None:
             progress({"stage": "measuring", "done": first + len(samples), "lines": n})
 
-    safety.bring_up()
+    safety.bring_up(check_hv=False)   # a low HV is diagnosed below, not refused
     try:
+        hv_v = float(safety.controller.hv_v())
         acq = lifecycle.ready(plan, drive_v=drive_v)
         lifecycle.start(acq)
         volts = lifecycle.read_all(acq, READ_STEP, measured)[:, 0, :].astype(np.float64).mean(axis=1) * lsb
@@ -54,7 +56,20 @@ def run_selftest(cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: S
             lifecycle.stop()
         finally:
             safety.bring_down()
-    return analyse_selftest(volts[:len(bonded)], volts[len(bonded):], bonded, cols, r0, c0)
+    report = analyse_selftest(volts[:len(bonded)], volts[len(bonded):], bonded, cols, r0, c0)
+    return with_hv_check(report, volts, hv_v, cfg.load_profile(), lsb)
+
+
+def with_hv_check(report: dict[str, Any], tap_v: np.ndarray, hv_v: float, profile, lsb_v: float) -> dict[str, Any]:
+    """Add ``hv_v`` and ``hv_problem`` (None, or why dark lines come from an HV below pull-in,
+    selftest_analysis.hv_pull_in_problem) to the report; a problem makes it not ok.
+
+    A line is dark below half the single-beam level; with no line lit at all every line is dark."""
+    v1 = report["single_beam_v"]
+    dark_v = 0.5 * v1 if np.isfinite(v1) and v1 > 0 else float(np.max(tap_v, initial=0.0)) + lsb_v
+    problem = hv_pull_in_problem(tap_v, hv_v, profile.pull_in_v, dark_v=dark_v,
+                                 spread_v=profile.threshold_spread_v)
+    return {**report, "ok": bool(report["ok"] and problem is None), "hv_v": hv_v, "hv_problem": problem}
 
 
 def analyse_selftest(row_v: np.ndarray, col_v: np.ndarray, rows: list[int], cols: list[int],

@@ -13,7 +13,7 @@ from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from ...jobs import QueueFull, UnknownScan, WorkerStopped
 from ...pointcloud import read_sidecar
 from ...scan import ScanPlanError, plan
-from ..deps import InstrumentDep, OpticsDep, StoreDep, WorkerDep
+from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
 from ..schemas import FileFormat, ScanCreate, ScanList, ScanOut
 from .controller import latched_refusal
 
@@ -34,8 +34,8 @@ def _not_found(scan_id: str) -> HTTPException:
              responses={503: {"description": "the queue is full or the daemon is shutting down (Retry-After)"},
                         409: {"description": "a controller fault is latched (names it and `lidarctl faults ack`)"}})
 def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics: OpticsDep,
-                instrument: InstrumentDep) -> ScanOut:
-    req = body.to_request()
+                instrument: InstrumentDep, cfg: ConfigDep) -> ScanOut:
+    req = body.to_request(cfg.scan)  # fields left out: the configuration's [scan] defaults
     try:
         plan(req, optics)  # validate against the device (bonded rows, array bounds) before queueing
     except ScanPlanError as exc:

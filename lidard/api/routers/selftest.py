@@ -35,6 +35,8 @@ class SelftestReport(BaseModel):
     cols_tested: int
     row_tap_v: list[float]
     col_tap_v: list[float]
+    hv_v: float | None = None          # the HV read back during the test, V
+    hv_problem: str | None = None      # dark lines explained by an HV below the switches' pull-in
 
 
 @router.post("/selftest", response_model=SelftestReport,
