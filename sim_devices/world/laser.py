@@ -161,24 +161,16 @@ class DfbLaser:
         return wiener_phase(self.linewidth_hz, int(n), dt_s, rng, shape=shape)
 
 
-def wiener_phase(linewidth_hz: float, n: int, dt_s: float, rng: np.random.Generator, *, shape=(),
-                 step_dtype=np.float64) -> np.ndarray | None:
-    """Wiener phase phi[..., k] = sum_{i<=k} w_i, w_i ~ N(0, 2 pi linewidth dt); None if linewidth 0.
-
-    ``step_dtype=np.float32`` draws the steps in float32 (half the cost of the draw; a step needs
-    no more than 7 digits) but still accumulates them in float64: the phase wanders by many radians
-    over a record, and a float32 running sum would lose the small steps against it.
-    """
+def wiener_phase(linewidth_hz: float, n: int, dt_s: float, rng: np.random.Generator, *, shape=()) -> np.ndarray | None:
+    """Wiener phase phi[..., k] = sum_{i<=k} w_i, w_i ~ N(0, 2 pi linewidth dt); None if linewidth 0."""
     if linewidth_hz == 0.0:
         return None
     if not (math.isfinite(linewidth_hz) and linewidth_hz > 0):
         raise ValueError(f"wiener_phase: linewidth_hz must be >= 0 and finite, got {linewidth_hz!r}")
     shape = tuple(np.atleast_1d(shape).astype(int)) if shape != () else ()
-    steps = rng.standard_normal((*shape, n), dtype=step_dtype)
-    steps *= step_dtype(math.sqrt(2.0 * math.pi * linewidth_hz * dt_s))
-    if steps.dtype == np.float64:
-        return np.cumsum(steps, axis=-1, out=steps)
-    return np.cumsum(steps, axis=-1, dtype=np.float64)
+    steps = rng.standard_normal((*shape, n))
+    steps *= math.sqrt(2.0 * math.pi * linewidth_hz * dt_s)
+    return np.cumsum(steps, axis=-1, out=steps)
 
 
 def triangle_drive(excursion_hz: float, ramp_s: float, fs_hz: float, static_tuning_hz_per_v: float) -> np.ndarray:

@@ -506,9 +506,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
         s1 = min(n_seg, s0 + chunk)
         nc = s1 - s0
         h0, h1 = int(seg_bounds[ci]), int(seg_bounds[ci + 1])
-        # quantized output (fast): float32 steps, float64 running phase (see wiener_phase)
-        phi = wiener_phase(linewidth_hz, n_pre + n, 1.0 / fs, rng, shape=(nc,),
-                           step_dtype=np.float32 if fast else np.float64) if pn_on else None
+        phi = wiener_phase(linewidth_hz, n_pre + n, 1.0 / fs, rng, shape=(nc,)) if pn_on else None
         if pn_all is not None:
             pn_all[s0:s1] = phi
 
