@@ -490,7 +490,7 @@ def sec_frame(quick: bool, img: Path, log) -> Section:
     rows, runs = [], []
     for r_, c_, avg in shapes:
         # its own process: the peak RSS is then this frame's, not the high-water mark of the report
-        proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "frame.py"), "--json", "--averages", str(avg),
+        proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "frame.py"), "--json", "--limit", "--averages", str(avg),
                                "--rows", f"{r_[0]}:{r_[1]}", "--cols", f"{c_[0]}:{c_[1]}"], cwd=ROOT,
                               capture_output=True, text=True, timeout=1800)
         if proc.returncode != 0:
@@ -502,7 +502,7 @@ def sec_frame(quick: bool, img: Path, log) -> Section:
         log(f"  {f['pixels']} px x {avg} avg: hardware {f['hardware_s']:.2f} s wall {f['wall_s']:.2f} s")
     s.data = {"runs": runs}
     f0 = runs[0]
-    s.headline = [(f"real-time factor, {f0['pixels']} pixels x {f0['averages']} averages (CAL letters, 2 m)",
+    s.headline = [_limit_headline(f, facts=machine_facts()) for f in runs] + [(f"real-time factor, {f0['pixels']} pixels x {f0['averages']} averages (CAL letters, 2 m)",
                    f"{f0['realtime_factor']:.2f} on wall time ({f0['realtime_factor_cpu']:.2f} on process CPU time)",
                    ">= 1"),
                   ("peak RSS of that frame (own process: bench, daemon side, DSP)", f"{f0['peak_rss_mb']:.0f} MB",
@@ -514,8 +514,27 @@ def sec_frame(quick: bool, img: Path, log) -> Section:
         "time; on CPU time it is what an unloaded machine would reach (the scan runs on one thread; other jobs "
         "on a shared machine stretch wall time only).\n\n"
         + table(["pixels", "averages", "hardware frame time (s)", "wall (s)", "CPU (s)", "real-time factor (wall)",
-                 "real-time factor (CPU)", "linearization wall (s)", "peak RSS (MB)"], rows))
+                 "real-time factor (CPU)", "linearization wall (s)", "peak RSS (MB)"], rows)
+        + "\nAgainst the limit kernel of the same scan (`benchmarks/limit.py`, run in the same process right "
+        "after it: the same samples synthesized as cos + noise -> int16, one copy, one windowed rfft + argmax "
+        "per ramp, the points written as PLY), per stage on the scan thread's CPU time (wall time in "
+        "brackets; wall stretches with other jobs on a shared machine):\n\n"
+        + table(["pixels", "averages", "synthesis", "transport", "DSP", "points", "whole scan / whole limit"],
+                [[f["pixels"], f["averages"]] + [f"{f['ratio_cpu'].get(k, float('nan')):.1f}x ({f['ratio_wall'].get(k, float('nan')):.1f}x)"
+                                                 for k in ("synthesis", "transport", "dsp", "points")]
+                 + [f"{f['ratio_scan_cpu']:.1f}x ({f['ratio_scan_wall']:.1f}x)"] for f in runs]))
     return s
+
+
+def _limit_headline(f: dict, facts: dict) -> tuple[str, str, str]:
+    """One headline row: scan/limit per stage (CPU time) with the real-time factor and the machine."""
+    r = {k: f["ratio_cpu"].get(k, float("nan")) for k in ("synthesis", "dsp", "transport", "points")}
+    return (f"frame / limit kernel, {f['pixels']} px x {f['averages']} avg, on CPU time "
+            f"({facts['cpus']} CPUs, {facts['cpu_model'] or 'cpu unknown'})",
+            f"synthesis {r['synthesis']:.1f}x, DSP {r['dsp']:.1f}x, transport {r['transport']:.1f}x, "
+            f"points {r['points']:.1f}x; whole scan {f['ratio_scan_cpu']:.1f}x; "
+            f"real-time factor {f['realtime_factor_cpu']:.2f} (CPU), {f['realtime_factor']:.2f} (wall)",
+            "<= 3x (10 avg), <= 4x (1 avg)")
 
 
 def sec_accuracy(quick: bool, img: Path, log) -> Section:

@@ -321,8 +321,9 @@ class Store:
         return [self._scan_from_row(r) for r in rows]
 
     # -- calibrations --------------------------------------------------------------------------
-    def save_calibration(self, cal: CalibrationResult) -> str:
-        cal_id = new_id()
+    def save_calibration(self, cal: CalibrationResult, cal_id: str | None = None) -> str:
+        """Store ``cal``; ``cal_id`` keeps an id given elsewhere (a calibration from the user's cache)."""
+        cal_id = cal_id or new_id()
         drive_file = None
         drive = np.asarray(cal.drive_v, dtype=np.float64)
         if drive.size:

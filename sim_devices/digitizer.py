@@ -37,11 +37,23 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from drivers.digitizer import protocol as p
 from sim_devices.clock import VirtualClock
 from sim_devices.usb_backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_stall, usb_timeout
+
+
+def butter(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import butter as fn
+    return fn(*args, **kwargs)
+
+
+def sosfiltfilt(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import sosfiltfilt as fn
+    return fn(*args, **kwargs)
+
 
 SAMPLE_RATE_MIN_HZ = 1_000
 SAMPLE_RATE_MAX_HZ = 5_000_000_000

@@ -51,6 +51,13 @@ def pytest_configure(config: pytest.Config) -> None:
         )
 
 
+@pytest.fixture(autouse=True)
+def _private_cache_dir(tmp_path_factory, monkeypatch):
+    """Every test gets its own $XDG_CACHE_HOME: --sim commands cache calibrations there
+    (lidard.calcache), and a test must neither see another's nor write to the user's."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
+
+
 @pytest.fixture
 def make_client(tmp_path):
     """``make_client(instrument=None, cfg=None, data_dir=None, client_kw=None, **create_app_kw)``:

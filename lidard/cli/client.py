@@ -113,6 +113,9 @@ def daemon_opts(sp, sim: bool = False) -> None:
         sp.add_argument("--data-dir", default=None, metavar="DIR",
                         help="only with --sim: keep the store (calibrations, scans) here instead of a "
                              "temporary directory, so the next run reuses the chirp linearization")
+        sp.add_argument("--no-cal-cache", action="store_true", default=None,
+                        help="only with --sim and no --data-dir: neither reuse nor keep the chirp "
+                             "linearization in the user's cache ($XDG_CACHE_HOME/lidard)")
 
 
 def refuse_sim_only(args, *flags: str) -> None:

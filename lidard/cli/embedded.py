@@ -2,8 +2,10 @@
 
 The command runs the same job code as the daemon (lidard.jobs.ScanWorker over lidard.store.Store),
 so a one-shot ``lidarctl scan --sim`` and a scan through ``lidard`` write the same files. Without
-``--data-dir`` the store is a temporary directory, so every run starts without a calibration and
-linearizes the chirp first (ILC, dissertation §2.2); ``--data-dir DIR`` keeps it for the next run.
+``--data-dir`` the store is a temporary directory: it starts with the calibration of the same
+configuration from the user's cache (lidard.calcache), or without one, and then linearizes the chirp
+first (ILC, dissertation §2.2) and leaves the result in the cache. ``--no-cal-cache`` skips the cache;
+``--data-dir DIR`` keeps calibrations in DIR instead.
 """
 
 from __future__ import annotations
@@ -63,7 +65,9 @@ def embedded(args, cfg=None, scene_path: str | None = None):
         if tmp is not None:
             tmp.cleanup()
         raise
+    use_cache = tmp is not None and not getattr(args, "no_cal_cache", False)
     try:
+        seeded = _seed_from_cache(cfg, store) if use_cache else None
         worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1, optics=cfg.optics(),
                             recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
         worker.start()
@@ -71,6 +75,8 @@ def embedded(args, cfg=None, scene_path: str | None = None):
             yield worker, store, inst
         finally:
             worker.stop()
+            if use_cache:
+                _update_cache(cfg, store, seeded)
     finally:
         try:
             store.close()
@@ -78,6 +84,24 @@ def embedded(args, cfg=None, scene_path: str | None = None):
         finally:
             if tmp is not None:
                 tmp.cleanup()
+
+
+def _seed_from_cache(cfg, store) -> str | None:
+    """Put the cached calibration of this configuration into the (temporary) store; its id or None.
+    The worker then reuses it unless the laser temperature moved (scan.recalibrate_delta_c)."""
+    from .. import calcache
+    cal = calcache.load(cfg)
+    if cal is None or cal.laser != cfg.laser:
+        return None
+    return store.save_calibration(cal, cal_id=cal.meta.get("id"))
+
+
+def _update_cache(cfg, store, seeded: str | None) -> None:
+    """Keep a calibration made by this run (none, or the seeded one: nothing to write)."""
+    from .. import calcache
+    cal = store.latest_calibration(cfg.laser)
+    if cal is not None and cal.meta.get("id") != seeded:
+        calcache.save(cfg, cal)
 
 
 def resolve(path: str | None) -> str | None:

@@ -177,7 +177,7 @@ def summary(rec: dict[str, Any], out: str | None, simulated: bool) -> dict[str, 
 
 def cmd_scan(args) -> int:
     from ..pointcloud import format_of
-    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir")
+    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache")
     fmt = format_of(args.out) if args.out else "ply"
     body = request_body(args, fmt)
     bar = Progress(args.progress)

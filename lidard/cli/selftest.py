@@ -15,7 +15,7 @@ def add_parser(sub) -> None:
 
 
 def cmd_selftest(args) -> int:
-    refuse_sim_only(args, "--config", "--data-dir")
+    refuse_sim_only(args, "--config", "--data-dir", "--no-cal-cache")
     if args.sim:
         from .embedded import embedded
         with embedded(args) as (worker, store, inst):

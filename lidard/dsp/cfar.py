@@ -38,9 +38,15 @@ from functools import lru_cache
 from typing import Literal, get_args
 
 import numpy as np
-from scipy.optimize import brentq
 
 from lidard.dsp.window import DspInputError, WindowName, check_window_name, get_window, window_info
+
+
+def brentq(*args, **kwargs):
+    # imported on first use: scipy.optimize costs about a second of every command's start-up (issue 18)
+    from scipy.optimize import brentq as fn
+    return fn(*args, **kwargs)
+
 
 CfarMethod = Literal["ca", "os"]
 CFAR_METHODS: tuple[str, ...] = get_args(CfarMethod)

@@ -52,11 +52,17 @@ from dataclasses import dataclass, field, replace
 from typing import Callable, Literal
 
 import numpy as np
-from scipy.signal import hilbert
 
 from .ilcquad import quadrature_ramp_nu
 from .instfreq import (best_fit_residual, check_finite_array, check_positive, fft_filter,
                        lowpass_padded, ramp_frequency)
+
+
+def hilbert(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import hilbert as fn
+    return fn(*args, **kwargs)
+
 
 MeasureFn = Callable[[np.ndarray, int], np.ndarray]
 

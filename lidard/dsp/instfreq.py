@@ -29,7 +29,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import hilbert
+
+
+def hilbert(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import hilbert as fn
+    return fn(*args, **kwargs)
 
 
 def check_finite_array(name: str, x, *, ndim: tuple[int, ...] | None = None) -> np.ndarray:

@@ -27,10 +27,21 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import get_window, hilbert
 
 from .instfreq import check_finite_array, check_positive
 from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
+
+
+def get_window(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import get_window as fn
+    return fn(*args, **kwargs)
+
+
+def hilbert(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import hilbert as fn
+    return fn(*args, **kwargs)
 
 
 @dataclass(frozen=True)

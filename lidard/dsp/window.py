@@ -22,7 +22,13 @@ from functools import lru_cache
 from typing import Literal, get_args
 
 import numpy as np
-from scipy.signal import get_window as _scipy_get_window
+
+
+def _scipy_get_window(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import get_window as fn
+    return fn(*args, **kwargs)
+
 
 WindowName = Literal["rectangular", "hann", "blackmanharris"]
 WINDOW_NAMES: tuple[str, ...] = get_args(WindowName)

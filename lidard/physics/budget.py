@@ -30,9 +30,24 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
-from scipy.optimize import brentq
 
 from .constants import C_M_PER_S, E_CHARGE_C, K_BOLTZMANN_J_PER_K
+
+
+def _bisect_root(f, a: float, b: float, xtol: float) -> float:
+    """A root of f in [a, b] where f(a) > 0 >= f(b), to xtol (bisection: about 35 steps here).
+
+    Not scipy.optimize.brentq: importing scipy.optimize costs about a second of start-up of every
+    command that needs a link budget (``lidarctl budget``, config loading; issue 18).
+    """
+    while b - a > xtol:
+        m = 0.5 * (a + b)
+        if f(m) > 0:
+            a = m
+        else:
+            b = m
+    return 0.5 * (a + b)
+
 
 COMPONENTS = ("signal", "pedestal", "shot", "rin", "thermal", "adc", "ambient")
 NOISE_COMPONENTS = COMPONENTS[1:]
@@ -183,7 +198,7 @@ def max_range_m(p: LinkParams, *, against: str = "total", lo_m: float = 1e-3, hi
         return 0.0
     if margin(b) > 0:
         return float("inf")
-    return float(np.exp(brentq(margin, a, b, xtol=1e-9)))
+    return float(np.exp(_bisect_root(margin, float(a), float(b), xtol=1e-9)))
 
 
 def shot_limited_ref_window_w(p: LinkParams) -> tuple[float, float]:

@@ -31,11 +31,16 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from lidard.config import LaserPreset
 from lidard.physics.chirp import triangle_drive_v
 from lidard.physics.constants import C_M_PER_S
+
+
+def lfilter(*args, **kwargs):
+    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    from scipy.signal import lfilter as fn
+    return fn(*args, **kwargs)
 
 
 def _check_drive(drive_v, fs_hz: float, who: str) -> np.ndarray:
