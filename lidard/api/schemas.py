@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
-from ..instrument_api import PatternKind, ScanRequest
+from ..instrument.types import PatternKind, ScanRequest
 
 # lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs
 FileFormat = Literal["ply", "las", "npz", "pcd", "mcap"]
