@@ -12,15 +12,12 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 from ..instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from ..pointcloud import write_points
 from ..scan import adaptive_plans, planned_pixel_count
 from .kinds import _ScanJob, describe_error, request_to_dict, software_version
-
-if TYPE_CHECKING:
-    from .worker import ScanWorker
 
 log = logging.getLogger("lidard.jobs")
 
@@ -28,7 +25,9 @@ log = logging.getLogger("lidard.jobs")
 class ScanRun:
     """The context of one scan on the worker thread."""
 
-    def __init__(self, worker: ScanWorker, job: _ScanJob) -> None:
+    # ``worker`` is the lidard.jobs.worker.ScanWorker that runs this scan (not imported: the worker
+    # imports this module, and lidard's modules form no import cycle, see pyproject.toml)
+    def __init__(self, worker: Any, job: _ScanJob) -> None:
         self.w, self.job = worker, job
         self.store, self.instrument = worker.store, worker.instrument
         self.t0 = time.monotonic()
