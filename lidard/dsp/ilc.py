@@ -45,7 +45,8 @@ previous best drive is restored and beta halved (back off instead of diverging).
 Rooms (issue 12): the measurement (demodulation, refinement, unfolding, errors) is
 :mod:`lidard.dsp.ilcmeasure`; the response fit and the update law :mod:`lidard.dsp.ilcupdate`; this
 module is the iteration driver (:func:`linearize`), whose state between measurements is one explicit
-:class:`_IlcState`.
+:class:`_IlcState`. :func:`linearize` is about 70 lines with its docstring: argument checks and
+the loop (judge, record, converged?, step, measure), each step a function below.
 
 Pure numpy/scipy: no I/O, no clock, no logging.
 """
