@@ -98,23 +98,23 @@ class ScanWorker:
         return cur.id if isinstance(cur, _ScanJob) else None
 
     # -- submitting ----------------------------------------------------------------------------
-    def _enqueue(self, job) -> None:
+    def _check_room(self) -> None:
         # called with self._cv held
         if self._stopping:
             raise WorkerStopped("the scan worker is stopping; no new jobs are accepted")
         if len(self._queue) >= self.max_queue:
             raise QueueFull(f"scan queue is full ({self.max_queue} jobs waiting); retry when one finishes")
+
+    def _enqueue(self, job) -> None:
+        # called with self._cv held
+        self._check_room()
         self._queue.append(job)
         self._cv.notify_all()
 
     def submit_scan(self, request: ScanRequest) -> ScanRecord:
         planned = self._pixels_planned(request) if self._pixels_planned else 0
         with self._cv:
-            if self._stopping:
-                raise WorkerStopped("the scan worker is stopping; no new jobs are accepted")
-            if len(self._queue) >= self.max_queue:
-                raise QueueFull(f"scan queue is full ({self.max_queue} jobs waiting); "
-                                "retry when one finishes")
+            self._check_room()              # before the store records a scan that could not queue
             rec = self.store.create_scan(request_to_dict(request), pixels_planned=planned)
             job = _ScanJob(rec.id, request)
             self._jobs[rec.id] = job
