@@ -172,8 +172,8 @@ def _norm(pair: tuple[float, float]) -> float:
     return math.hypot(pair[0], pair[1])
 
 
-def _check_knobs(*, q_cutoff_hz, meas_cutoff_hz, beta, roi, learn, max_iter, update, max_drive_factor, max_drive_v, averages,
-                 max_averages, target_frac) -> int:
+def _check_knobs(*, q_cutoff_hz, meas_cutoff_hz, beta, roi, learn, max_iter, update, max_drive_factor,
+                 max_drive_v, averages, max_averages, target_frac) -> int:
     """Raise a ValueError naming the first bad argument; return the largest average count allowed."""
     check_positive("q_cutoff_hz", q_cutoff_hz)
     check_positive("meas_cutoff_hz", meas_cutoff_hz)

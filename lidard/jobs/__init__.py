@@ -38,9 +38,9 @@ from __future__ import annotations
 from .events import Event, EventHub, PointListener, Subscriber
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, describe_error, request_from_dict, request_to_dict,
                     software_version)
-from .scan_job import ScanRun
+from .scan_job import ScanJobRun
 from .worker import ScanWorker
 
-__all__ = ["Event", "EventHub", "PointListener", "QueueFull", "ScanRun", "ScanWorker", "Subscriber",
+__all__ = ["Event", "EventHub", "PointListener", "QueueFull", "ScanJobRun", "ScanWorker", "Subscriber",
            "UnknownScan", "WorkerStopped", "describe_error", "request_from_dict", "request_to_dict",
            "software_version"]

@@ -1,6 +1,6 @@
 """One scan job, from ``queued`` to a terminal state, on the worker thread (lidard.jobs, issue 12).
 
-:class:`ScanRun` is the explicit context of a running scan (what the worker used to keep in closures
+:class:`ScanJobRun` is the explicit context of a running scan (what the worker used to keep in closures
 and ``[value]`` cells): the calibration it uses, when the store last heard its progress, and the
 steps run → (adaptive coarse + dense passes) → write the point clouds → record the outcome. The
 outcomes and their states are the policy of :mod:`lidard.jobs` (cancelled, failed with the partial
@@ -22,7 +22,7 @@ from .kinds import _ScanJob, describe_error, request_to_dict, software_version
 log = logging.getLogger("lidard.jobs")
 
 
-class ScanRun:
+class ScanJobRun:
     """The context of one scan on the worker thread."""
 
     # ``worker`` is the lidard.jobs.worker.ScanWorker that runs this scan (not imported: the worker

@@ -1,7 +1,7 @@
 """The scan worker: the one thread that owns the instrument, and the FIFO queue in front of it.
 
 The queue, the worker thread, submitting, cancelling and waiting, and the calibration a scan uses;
-one scan's run is :class:`lidard.jobs.scan_job.ScanRun`, the job kinds and errors are
+one scan's run is :class:`lidard.jobs.scan_job.ScanJobRun`, the job kinds and errors are
 :mod:`lidard.jobs.kinds`, subscribers and live listeners :mod:`lidard.jobs.events`. The policy is in
 the :mod:`lidard.jobs` package docstring (and docs/api.md).
 """
@@ -25,7 +25,7 @@ from ..store import ScanRecord, Store
 from .events import EventHub, PointListener, Subscriber
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob,
                     request_to_dict)
-from .scan_job import ScanRun
+from .scan_job import ScanJobRun
 
 log = logging.getLogger("lidard.jobs")
 
@@ -194,7 +194,7 @@ class ScanWorker:
                 self._current = job
             try:
                 if isinstance(job, _ScanJob):
-                    ScanRun(self, job).run()
+                    ScanJobRun(self, job).run()
                 elif isinstance(job, _SelftestJob):
                     self._run_selftest(job)
                 else:
