@@ -7,3 +7,7 @@ class LidardError(Exception):
 
 class ConfigError(LidardError):
     """A configuration, profile or scene file is invalid; the message names file, key and rule."""
+
+
+class UnknownScan(LidardError):
+    """No scan with that id (the job queue, the store's services and the API share it)."""

@@ -5,6 +5,10 @@
 starts the scan worker and, on shutdown, stops the worker and closes the instrument. Nothing is
 created at import time. Routers know nothing of hardware; they talk to the worker and the store.
 See docs/api.md for the endpoints and the queue policy.
+
+Length (issue 12): ``create_app`` is about 70 lines with its docstring because the lifespan stays a
+closure over the factory's arguments (the store, instrument and worker it builds live exactly as
+long as the app); the scan metadata and the error handlers are separate functions.
 """
 
 from __future__ import annotations
@@ -63,15 +67,8 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         if st.recovered:
             log.warning("%d scan(s) from a previous run marked interrupted", st.recovered)
         optics = cfg.optics()
-        profile = cfg.load_profile()
-        meta = {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
-                "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
-                "detector": cfg.detector.model_dump(), "config": cfg.source}
-        if inst.simulated and cfg.sim.enabled:
-            # the sidecar names the world a simulated scan saw (PUT /sim/scene replaces this entry)
-            meta["scene"] = scene_identity(cfg.resolve_path(cfg.sim.scene))
         worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,
-                            progress_interval_s=progress_interval_s, meta=meta,
+                            progress_interval_s=progress_interval_s, meta=_scan_meta(cfg, inst),
                             optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
         app.state.config, app.state.instrument, app.state.store = cfg, inst, st
         app.state.worker, app.state.optics = worker, optics
@@ -110,7 +107,23 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
               selftest.router, viewer.router, controller.router):
         app.include_router(r)
     app.mount("/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer")
+    _add_error_handlers(app)
+    return app
 
+
+def _scan_meta(cfg: Config, inst: Instrument) -> dict:
+    """What every scan's sidecar records about the set-up it was measured with."""
+    profile = cfg.load_profile()
+    meta = {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
+            "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
+            "detector": cfg.detector.model_dump(), "config": cfg.source}
+    if inst.simulated and cfg.sim.enabled:
+        # the sidecar names the world a simulated scan saw (PUT /sim/scene replaces this entry)
+        meta["scene"] = scene_identity(cfg.resolve_path(cfg.sim.scene))
+    return meta
+
+
+def _add_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(LidardError)
     async def lidard_error(request: Request, exc: LidardError) -> JSONResponse:
         # Domain errors (config, device faults reported by the instrument) are the server's state,
@@ -126,5 +139,3 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
                   for e in exc.errors()]
         return JSONResponse({"detail": errors}, status_code=422)
-
-    return app

@@ -266,6 +266,45 @@ def cfar_detect(
     dc_guard_bins: bins with |frequency bin| < dc_guard_bins are never reported (default: the
         window's main-lobe half-width, so DC and its lobe are excluded).
     """
+    p = _checked_power(power, method=method, window=window, n_ref=n_ref, n_guard=n_guard,
+                       max_detections=max_detections, pfa=pfa)
+    lead = p.shape[:-1]
+    p2 = p.reshape(-1, p.shape[-1])
+    n_bins = p2.shape[-1]
+    if n_bins < 3:
+        raise DspInputError(f"power has {n_bins} bins; at least 3 are needed")
+
+    if method == "ca":
+        noise, alpha = _noise_ca(p2, n_ref // 2, n_guard, pfa)
+    else:
+        noise, alpha = _noise_os(p2, n_ref // 2, n_guard, pfa, os_rank)
+    cand = _candidates(p2, noise, alpha, window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
+                       dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db)
+    k, idx, valid, pk, nz, snr_db = _strongest(p2, noise, cand, max_detections)
+
+    # Resolution: the merged lobe of two close targets is wider than one tone's main lobe.
+    lobe = _single_tone_width(window, zero_pad)
+    width = np.where(valid, _width_6db(p2, np.where(valid, idx, 0), int(np.ceil(4 * lobe)) + 2), 0.0)
+    unresolved = valid & (width > unresolved_factor * lobe)
+    harm = _harmonic_ghosts(idx, pk, valid, n_bins=n_bins, iq=iq, zero_pad=zero_pad,
+                            harmonic_ratio_db=harmonic_ratio_db)
+
+    idx = np.where(valid, idx, -1)
+    shape = lead + (k,)
+    return Detections(
+        index=idx.reshape(shape),
+        power=pk.reshape(shape),
+        noise=nz.reshape(shape),
+        snr_db=snr_db.reshape(shape),
+        valid=valid.reshape(shape),
+        harmonic=harm.reshape(shape),
+        unresolved=unresolved.reshape(shape),
+        width_bins=width.reshape(shape),
+    )
+
+
+def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa) -> np.ndarray:
+    """``power`` as float64 after checking it and the detector's knobs (a DspInputError names the bad one)."""
     p = np.asarray(power)
     if p.dtype.kind not in "fiu" or p.ndim < 1:
         raise DspInputError(f"power must be a real array (..., n_bins), got dtype {p.dtype} ndim {p.ndim}")
@@ -284,18 +323,12 @@ def cfar_detect(
     if max_detections < 1:
         raise DspInputError(f"max_detections={max_detections} must be >= 1")
     _check_pfa(pfa)
-    lead = p.shape[:-1]
-    p2 = p.reshape(-1, p.shape[-1])
-    n_bins = p2.shape[-1]
-    if n_bins < 3:
-        raise DspInputError(f"power has {n_bins} bins; at least 3 are needed")
+    return p
 
-    if method == "ca":
-        noise, alpha = _noise_ca(p2, n_ref // 2, n_guard, pfa)
-    else:
-        noise, alpha = _noise_os(p2, n_ref // 2, n_guard, pfa, os_rank)
-    # A noiseless (all-zero / constant-after-DC) spectrum has noise 0; no cell may then pass on
-    # numerical dust, so require a strictly positive noise estimate and signal.
+
+def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_bins, sidelobe_margin_db):
+    """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate."""
+    n_bins = p2.shape[-1]
     # A noiseless (all-zero) spectrum has noise 0, and FFT round-off (~1e-32 of the strongest
     # bin) must never pass as a target: require positive noise and a 200 dB dynamic-range floor.
     floor = 1e-20 * p2.max(axis=-1, keepdims=True)
@@ -322,8 +355,12 @@ def cfar_detect(
         in_range = np.zeros(n_bins, dtype=bool)
         in_range[max(lo, 0) : min(hi, n_bins - 1) + 1] = True
         keep &= in_range
-    cand &= keep
+    return cand & keep
 
+
+def _strongest(p2, noise, cand, max_detections):
+    """The ``k`` strongest candidates per ramp, strongest first: (k, index, valid, power, noise, snr_db)."""
+    n_bins = p2.shape[-1]
     k = min(max_detections, n_bins)
     score = np.where(cand, p2, -np.inf)
     part = np.argpartition(-score, k - 1, axis=-1)[:, :k] if k < n_bins else np.tile(np.arange(n_bins), (p2.shape[0], 1))
@@ -334,13 +371,11 @@ def cfar_detect(
     nz = np.where(valid, np.take_along_axis(noise, idx, axis=-1), 0.0)
     with np.errstate(divide="ignore"):
         snr_db = np.where(valid, 10.0 * np.log10(np.where(valid, pk, 1.0) / np.where(valid, nz, 1.0)), -np.inf)
+    return k, idx, valid, pk, nz, snr_db
 
-    # Resolution: the merged lobe of two close targets is wider than one tone's main lobe.
-    lobe = _single_tone_width(window, zero_pad)
-    width = np.where(valid, _width_6db(p2, np.where(valid, idx, 0), int(np.ceil(4 * lobe)) + 2), 0.0)
-    unresolved = valid & (width > unresolved_factor * lobe)
 
-    # Harmonic ghosts: compare every detection with every stronger one in the same ramp.
+def _harmonic_ghosts(idx, pk, valid, *, n_bins, iq, zero_pad, harmonic_ratio_db) -> np.ndarray:
+    """Detections at the 2nd/3rd harmonic (aliased) of a much stronger one in the same ramp."""
     n_fft = (n_bins if iq else 2 * (n_bins - 1))
     fbin = (idx - n_fft // 2) if iq else idx
     harm = np.zeros(idx.shape, dtype=bool)
@@ -357,16 +392,4 @@ def cfar_detect(
         strong = pk[:, :, None] >= ratio * pk[:, None, :]
         pair = close & strong & valid[:, :, None] & valid[:, None, :]
         harm |= pair.any(axis=1)
-
-    idx = np.where(valid, idx, -1)
-    shape = lead + (k,)
-    return Detections(
-        index=idx.reshape(shape),
-        power=pk.reshape(shape),
-        noise=nz.reshape(shape),
-        snr_db=snr_db.reshape(shape),
-        valid=valid.reshape(shape),
-        harmonic=harm.reshape(shape),
-        unresolved=unresolved.reshape(shape),
-        width_bins=width.reshape(shape),
-    )
+    return harm

@@ -42,6 +42,12 @@ previous best drive is restored and beta halved (back off instead of diverging).
 "up" and "down" name the first and second half of the drive period (with
 ``sim_devices.world.laser.triangle_drive`` the first half is the optical up-chirp).
 
+Rooms (issue 12): the measurement (demodulation, refinement, unfolding, errors) is
+:mod:`lidard.dsp.ilcmeasure`; the response fit and the update law :mod:`lidard.dsp.ilcupdate`; this
+module is the iteration driver (:func:`linearize`), whose state between measurements is one explicit
+:class:`_IlcState`. :func:`linearize` is about 70 lines with its docstring: argument checks and
+the loop (judge, record, converged?, step, measure), each step a function below.
+
 Pure numpy/scipy: no I/O, no clock, no logging.
 """
 
@@ -53,9 +59,9 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from .ilcquad import quadrature_ramp_nu
-from .instfreq import (best_fit_residual, check_finite_array, check_positive, fft_filter,
-                       lowpass_padded, ramp_frequency)
+from .ilcmeasure import _Analysis, _Analyzer, _directions  # noqa: F401  (_Analyzer: tests reach in)
+from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
+from .instfreq import check_finite_array, check_positive
 
 
 def hilbert(*args, **kwargs):
@@ -65,21 +71,6 @@ def hilbert(*args, **kwargs):
 
 
 MeasureFn = Callable[[np.ndarray, int], np.ndarray]
-
-# narrow-band refinement of the MZI phase (see _Analyzer._refine)
-_RIDGE_WINDOW_S = 2e-6
-_RIDGE_LOWPASS_HZ = 200e3
-_REFINE_BANDS_HZ = (1e6, 300e3)
-# fold detection (see _Analyzer._unfold): search the outer 10 % of a ramp for a slope below 0.3 gamma
-_FOLD_SEARCH = 0.1
-_FOLD_SLOPE = 0.3
-# the correction across a turning-point gap switches sides within this time (see _to_drive)
-_GAP_SWITCH_S = 1e-6
-# inverse-response update (see fit_fm_response): a generic first-order basis, log-spaced
-_BASIS_TAUS_S = (10e-9, 30e-9, 100e-9, 300e-9, 1e-6, 3e-6, 10e-6, 30e-6, 100e-6, 300e-6, 1e-3, 3e-3)
-_BASIS_RIDGE = 1e-2
-_BASIS_DECIMATE = 4
-_INVERSE_FLOOR = 0.1
 
 
 @dataclass(frozen=True)
@@ -123,264 +114,192 @@ class IlcResult:
     meta: dict = field(default_factory=dict)
 
 
+
+@dataclass(frozen=True)
+class _IlcOptions:
+    """The validated knobs of one :func:`linearize` run."""
+
+    excursion_hz: float
+    fs_drive_hz: float
+    ramp_s: float
+    learn: float
+    q_cutoff_hz: float
+    update: str
+    max_iter: int
+    rel_tol: float
+    grow_tol: float
+    min_beta: float
+    abs_tol_frac: float
+    target_frac: float
+    max_avg: int
+    cap_v: float                           # the largest |drive| ever sent
+    cap_text: str                          # how the cap reads in a stop reason
+
+
 @dataclass
-class _Analysis:
-    rms: tuple[float, float]
-    err_rms: tuple[float, float]
-    noise: float
-    tuning: float
+class _IlcState:
+    """Everything the iteration carries from one measurement to the next."""
+
+    u: np.ndarray                          # the drive last measured ...
+    a: _Analysis                           # ... and what was measured
+    first: _Analysis                       # the initial drive's measurement (for the reduction)
+    cur_u: np.ndarray                      # the drive the next update starts from ...
+    cur_a: _Analysis                       # ... and its measurement
+    best_u: np.ndarray
+    best_a: _Analysis
+    best_k: int
+    beta: float
+    n_avg: int                             # grows when the noise floor stops learning too early
     slips: int
-    err_drive: np.ndarray                  # error (Hz, drive frame) on the drive grid, tapered
-    ramps_nu: list                         # per ramp (t, drive-frame nu) as measured, for the plant fit
+    k: int = 0
+    stalled: int = 0
+    converged: bool = False
+    reason: str = "max_iter reached"
+    iters: list[IlcIteration] = field(default_factory=list)
 
 
-class _Analyzer:
-    """Everything about turning one averaged MZI record into errors; fixed geometry per run."""
+class _Plant:
+    """The one way a drive is measured: ``measure`` checked for shape and finiteness, then analysed."""
 
-    def __init__(self, *, fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s, roi, learn,
-                 meas_cutoff_hz, directions, refine=True):
-        self.fs_d, self.fs_a, self.T = fs_drive_hz, fs_adc_hz, ramp_s
-        self.tau_m, self.roi, self.learn = mzi_delay_s, roi, learn
-        self.slope = excursion_hz / ramp_s
-        self.f_beat = self.slope * mzi_delay_s
-        self.meas_cutoff = meas_cutoff_hz
-        self.directions = directions
-        self.refine = refine
-        self.n_adc = int(round(2 * ramp_s * fs_adc_hz))
-        self.n_drive = int(round(2 * ramp_s * fs_drive_hz))
-        self.t_drive = np.arange(self.n_drive) / fs_drive_hz
-        # Hilbert transients and turning points: a few beat periods, but never into the learn region
-        self.edge_s = min(3.0 / self.f_beat, 0.5 * (1 - learn) * ramp_s)
+    def __init__(self, measure: MeasureFn, an: _Analyzer) -> None:
+        self.measure, self.an = measure, an
 
-    def _ramp_nu(self, x_avg: np.ndarray):
-        """Band-pass the averaged period, then per ramp: drive-frame nu (low-passed) on its time axis."""
-        lo = 0.25 * self.f_beat
-        hi = max(4.0 * self.f_beat, 4.0 * self.meas_cutoff)
-        xb = fft_filter(x_avg, self.fs_a, lo_hz=lo, hi_hz=min(hi, 0.4 * self.fs_a))
-        n_r = self.n_adc // 2
-        out = []
-        for r in range(2):
-            rf = ramp_frequency(xb[r * n_r:(r + 1) * n_r], fs_hz=self.fs_a, mzi_delay_s=self.tau_m,
-                                t0_s=r * self.T, direction=self.directions[r], edge_s=self.edge_s,
-                                trend_hz=0.5 * self.f_beat)
-            t = rf.t_s[rf.valid]
-            nu = self._refine(xb[r * n_r:(r + 1) * n_r], rf) if self.refine else rf.nu_hz[rf.valid]
-            nu = lowpass_padded(nu, self.fs_a, self.meas_cutoff)
-            out.append((t, self._unfold(nu, self.directions[r]), rf.phase_slips))
-        return out
-
-    def _refine(self, seg: np.ndarray, rf) -> np.ndarray:
-        """Narrow-band re-estimate of one ramp's drive-frame nu (valid samples).
-
-        The Hilbert phase of the averaged beat takes the whole pass band's noise non-linearly. With a
-        long MZI and a broad linewidth (tau_m ~ tau_c) averaging shrinks the beat by
-        exp(-pi linewidth tau_m) while the residual noise stays broadband, and that phase slips and
-        wanders by MHz. Here the local beat frequency is read off the ridge of a short-time spectrum
-        (a 2 us window integrates the noise away), integrated to a reference phase, and the beat is
-        demodulated by it and low-passed *as a complex phasor* (1 MHz, then 300 kHz) before its angle
-        corrects the reference: the noise enters only through that narrow band.
-        """
-        n = seg.size
-        pad = min(n - 1, max(1, int(math.ceil(self.edge_s * self.fs_a))))
-        ext = np.concatenate([seg[pad:0:-1], seg, seg[-2:-pad - 2:-1]])
-        a = hilbert(ext - ext.mean())[pad:pad + n]
-        lw = min(n, max(16, int(round(_RIDGE_WINDOW_S * self.fs_a))))
-        hop = max(1, lw // 4)
-        nfft = 8 * lw
-        frames = np.lib.stride_tricks.sliding_window_view(a, lw)[::hop] * np.hanning(lw)
-        sp = np.abs(np.fft.fft(frames, nfft, axis=1))
-        sp[:, nfft // 2:] = 0.0                  # positive beat frequencies only
-        sp[:, 0] = 0.0
-        k = np.argmax(sp, axis=1)
-        kk = np.clip(k, 1, nfft - 2)
-        rows = np.arange(k.size)
-        y0, y1, y2 = (np.log(sp[rows, kk + d] + 1e-300) for d in (-1, 0, 1))
-        den = y0 - 2 * y1 + y2
-        dk = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
-        centers = np.arange(k.size) * hop + 0.5 * (lw - 1)
-        f_ridge = np.interp(np.arange(n), centers, (kk + dk) * self.fs_a / nfft)
-        f_ridge = lowpass_padded(f_ridge, self.fs_a, _RIDGE_LOWPASS_HZ)
-        psi = 2 * np.pi * np.cumsum(f_ridge) / self.fs_a
-        for bw in _REFINE_BANDS_HZ:
-            z = a * np.exp(-1j * psi)
-            psi = psi + np.unwrap(np.arctan2(lowpass_padded(z.imag, self.fs_a, bw),
-                                             lowpass_padded(z.real, self.fs_a, bw)))
-        return rf.direction * psi[rf.valid] / (2 * np.pi * self.tau_m)
-
-    def _unfold(self, nu: np.ndarray, direction: int) -> np.ndarray:
-        """Undo the fold of a real beat where the optical chirp turns *after* the drive does.
-
-        A laser with slow thermal terms keeps chirping the old way for microseconds after the drive
-        turns. The real MZI beat cannot show that: its frequency dips to zero at the optical turning
-        point and the Hilbert phase, which always increases, folds the wrong-way part over (drive
-        frame: ``nu_meas = 2 nu(t_turn) - nu_true`` before the turn). Learning from the folded part
-        pushes with the wrong sign and drags the turning point later every iteration. A fold is an
-        *interior* minimum of the drive-frame slope near a ramp end, close to zero, with the slope
-        rising again towards the end; there the folded part is reflected back.
-        """
-        slope = direction * np.gradient(nu) * self.fs_a
-        n = nu.size
-        q = max(2, int(_FOLD_SEARCH * n))
-        floor = _FOLD_SLOPE * self.slope
-        i = int(np.argmin(slope[:q]))
-        if 0 < i and slope[i] < floor and slope[:i].max() > 2 * max(slope[i], 0.0) + 0.05 * self.slope:
-            nu = nu.copy()
-            nu[:i] = 2 * nu[i] - nu[:i]
-        j = n - q + int(np.argmin(slope[n - q:]))
-        if j < n - 1 and slope[j] < floor and slope[j + 1:].max() > 2 * max(slope[j], 0.0) + 0.05 * self.slope:
-            nu = nu.copy()
-            nu[j + 1:] = 2 * nu[j] - nu[j + 1:]
-        return nu
-
-    def _roi(self, t: np.ndarray, r: int, frac: float) -> np.ndarray:
-        tr = t - r * self.T
-        return (tr >= 0.5 * (1 - frac) * self.T) & (tr <= 0.5 * (1 + frac) * self.T)
-
-    def _records_nu(self, y: np.ndarray):
-        """Per ramp (t, drive-frame nu, slips) of a set of records: a real fringe is averaged coherently
-        then demodulated; a quadrature one (complex I + jQ) is demodulated per record and its phases
-        averaged (:mod:`lidard.dsp.ilcquad`)."""
-        if np.iscomplexobj(y):
-            return quadrature_ramp_nu(y, fs_hz=self.fs_a, ramp_s=self.T, mzi_delay_s=self.tau_m,
-                                      edge_s=self.edge_s, directions=self.directions,
-                                      meas_cutoff_hz=self.meas_cutoff)
-        return self._ramp_nu(y.mean(axis=0))
-
-    def analyse(self, y: np.ndarray, u: np.ndarray) -> _Analysis:
-        full = self._records_nu(y)
-        noise = float("nan")
-        if y.shape[0] >= 2:
-            a, b = self._records_nu(y[0::2]), self._records_nu(y[1::2])
-            nf = []
-            for r in range(2):
-                m = self._roi(a[r][0], r, self.roi)
-                nf.append(float(np.sqrt(np.mean(best_fit_residual(a[r][0][m], 0.5 * (a[r][1][m] - b[r][1][m])) ** 2))))
-            # halves of an odd count are unequal; the mean of both is close enough for a floor
-            noise = max(nf)
-        rms, err_rms, slips = [], [], 0
-        ramps_e = []
-        ramps_nu = []
-        su = sv = suu = 0.0
-        for r, (t, nu, s) in enumerate(full):
-            slips += s
-            roi = self._roi(t, r, self.roi)
-            rms.append(float(np.sqrt(np.mean(best_fit_residual(t[roi], nu[roi]) ** 2))))
-            ideal = self.directions[r] * self.slope * (t - t[roi].mean())
-            e = ideal - nu
-            e -= e[roi].mean()                      # the optical offset is free: only the shape counts
-            err_rms.append(float(np.sqrt(np.mean(e[roi] ** 2))))
-            # tuning magnitude: regress nu on the drive (periodic interpolation) over the ROI
-            ud = np.interp(t[roi], self.t_drive, u, period=2 * self.T)
-            uc, vc = ud - ud.mean(), nu[roi] - nu[roi].mean()
-            su += float(np.dot(uc, vc))
-            suu += float(np.dot(uc, uc))
-            ramps_e.append((t, e))
-            ramps_nu.append((t, nu))
-        tuning = su / suu if suu > 0 else float("nan")
-        return _Analysis(rms=(rms[0], rms[1]), err_rms=(err_rms[0], err_rms[1]), noise=noise,
-                         tuning=tuning, slips=slips, err_drive=self._to_drive(ramps_e), ramps_nu=ramps_nu)
-
-    def _to_drive(self, ramps: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-        """Error on the drive grid: interpolated over each learning region; across the gaps around
-        the turning points (no reliable measurement there) each edge value is held and the two are
-        joined by a raised cosine 1 us wide at the drive's turning point (Q limits the step).
-
-        Every drive sample gets a value: a sample that falls on a region's edge, where the masks
-        below meet with strict and non-strict comparisons of float times, is interpolated from its
-        neighbours. (It used to keep whatever ``np.empty`` left there: garbage that changed with the
-        process's allocation history, at times 1e300, which Q spread into a drive of ~100 V.)"""
-        period = 2 * self.T
-        knots_t, knots_e = [], []
-        for r, (t, e) in enumerate(ramps):
-            tr = t - r * self.T
-            inside = (tr >= 0.5 * (1 - self.learn) * self.T) & (tr <= 0.5 * (1 + self.learn) * self.T)
-            knots_t.append(t[inside])
-            knots_e.append(e[inside])
-        out = np.full(self.n_drive, np.nan)
-        td = self.t_drive
-        for r in range(2):
-            ti, ei = knots_t[r], knots_e[r]
-            m = (td >= ti[0]) & (td <= ti[-1])
-            out[m] = np.interp(td[m], ti, ei)
-            # gap from the end of this learning region to the start of the next (wrapping the period)
-            t_a, e_a = ti[-1], ei[-1]
-            nt, ne = knots_t[(r + 1) % 2], knots_e[(r + 1) % 2]
-            t_b, e_b = nt[0] + (period if r == 1 else 0.0), ne[0]
-            tg = np.where(td < ti[-1] - 0.5 * period, td + period, td) if r == 1 else td
-            g = (tg > t_a) & (tg < t_b)
-            s = (tg[g] - t_a) / (t_b - t_a)
-            # hold each side's edge value and switch over within _GAP_SWITCH_S around the drive's
-            # turning point: the correction a ramp's start asks for (the pre-emphasis that makes
-            # a slow laser turn quickly) is then applied right after the turn, not smeared into
-            # the end of the other ramp
-            x = np.clip((s - 0.5) * (t_b - t_a) / _GAP_SWITCH_S + 0.5, 0.0, 1.0)
-            out[g] = e_a + (e_b - e_a) * 0.5 * (1 - np.cos(np.pi * x))
-        hole = np.isnan(out)
-        if hole.any():
-            out[hole] = np.interp(td[hole], td[~hole], out[~hole], period=period)
-        return out
-
-
-def fit_fm_response(drive_v, ramps_nu, *, fs_drive_hz: float, ramp_s: float, learn: float,
-                    floor_hz_per_v: float) -> np.ndarray:
-    """Model-free estimate of the FM response H(f) (Hz/V, drive frame) on the drive's rfft grid.
-
-    The measured drive-frame frequency over the learning regions is regressed on the drive passed
-    through a fixed, generic bank of first-order low passes (log-spaced 10 ns .. 3 ms, plus the
-    direct term) with a free offset per ramp; ridge-regularised least squares. Nothing about the
-    laser goes in: only the drive that was sent and what the MZI saw. ``|H|`` is floored at
-    ``floor_hz_per_v`` so that dividing by it never blows up where the fit is poor.
-
-    Why: one scalar K is right for the slow part of a DFB's response and 5-10x too large for its fast
-    part (the carrier and thermal terms cancel at high frequency), and it ignores the thermal phase
-    lag, so fine features learn slowly and a slow tail couples the ramps. Dividing the error by the
-    fitted H(f) is the classic inverse-model ILC update.
-    """
-    u = np.asarray(drive_v, dtype=np.float64)
-    n = u.size
-    f = np.fft.rfftfreq(n, d=1.0 / fs_drive_hz)
-    spec = np.fft.rfft(u)
-    resp = [np.ones_like(f, dtype=complex)] + [1.0 / (1.0 + 2j * np.pi * f * tau) for tau in _BASIS_TAUS_S]
-    basis = [np.fft.irfft(spec * r, n=n) for r in resp]
-    td = np.arange(n) / fs_drive_hz
-    rows, ys = [], []
-    for r, (t, nu) in enumerate(ramps_nu):
-        tr = t - r * ramp_s
-        m = (tr >= 0.5 * (1 - learn) * ramp_s) & (tr <= 0.5 * (1 + learn) * ramp_s)
-        tm = t[m][::_BASIS_DECIMATE]
-        cols = [np.interp(tm, td, b, period=2 * ramp_s) for b in basis]
-        cols += [np.full(tm.size, 1.0 if q == r else 0.0) for q in range(len(ramps_nu))]
-        rows.append(np.stack(cols, axis=1))
-        ys.append(nu[m][::_BASIS_DECIMATE])
-    a = np.concatenate(rows)
-    y = np.concatenate(ys)
-    scale = np.abs(a).max(axis=0)
-    scale[scale == 0] = 1.0
-    an = a / scale
-    gram = an.T @ an
-    lam = _BASIS_RIDGE * np.trace(gram) / gram.shape[0]
-    g = np.linalg.solve(gram + lam * np.eye(gram.shape[0]), an.T @ y) / scale
-    h = sum(gk * rk for gk, rk in zip(g[:len(resp)], resp))
-    mag = np.abs(h)
-    return np.where(mag < floor_hz_per_v, h / np.maximum(mag, 1e-300) * floor_hz_per_v, h)
+    def run(self, u: np.ndarray, n_avg: int) -> _Analysis:
+        y = np.asarray(self.measure(u.copy(), n_avg))
+        y = y.astype(np.complex128 if np.iscomplexobj(y) else np.float64)
+        if y.ndim == 1:
+            y = y[None, :]
+        if y.ndim != 2 or y.shape[1] != self.an.n_adc:
+            raise ValueError(f"measure returned shape {y.shape}; expected (n_avg, {self.an.n_adc})")
+        check_finite_array("MZI samples from measure", y.view(np.float64))
+        return self.an.analyse(y, u)
 
 
 def _norm(pair: tuple[float, float]) -> float:
     return math.hypot(pair[0], pair[1])
 
 
-def _directions(u: np.ndarray) -> tuple[int, int]:
-    n = u.size // 2
-    d = []
-    for seg in (u[:n], u[n:]):
-        k = max(1, seg.size // 10)
-        step = seg[-k:].mean() - seg[:k].mean()
-        if step == 0:
-            raise ValueError("drive0_v: a ramp has no net drive change; expected one triangle period")
-        d.append(1 if step > 0 else -1)
-    if d[0] == d[1]:
-        raise ValueError("drive0_v: both halves ramp the same way; expected a triangle (up then down)")
-    return d[0], d[1]
+def _check_knobs(*, q_cutoff_hz, meas_cutoff_hz, beta, roi, learn, max_iter, update, max_drive_factor,
+                 max_drive_v, averages, max_averages, target_frac) -> int:
+    """Raise a ValueError naming the first bad argument; return the largest average count allowed."""
+    check_positive("q_cutoff_hz", q_cutoff_hz)
+    check_positive("meas_cutoff_hz", meas_cutoff_hz)
+    if not (math.isfinite(beta) and 0 < beta <= 10):
+        raise ValueError(f"beta must be in (0, 10], got {beta!r}")
+    if not 0 < roi < learn <= 1:
+        raise ValueError(f"need 0 < roi < learn <= 1, got roi={roi!r}, learn={learn!r}")
+    if int(max_iter) != max_iter or max_iter < 0:
+        raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
+    if update not in ("inverse", "scalar"):
+        raise ValueError(f"update must be 'inverse' or 'scalar', got {update!r}")
+    if not (math.isfinite(max_drive_factor) and max_drive_factor >= 1):
+        raise ValueError(f"max_drive_factor must be >= 1, got {max_drive_factor!r}")
+    if max_drive_v is not None and not (math.isfinite(max_drive_v) and max_drive_v > 0):
+        raise ValueError(f"max_drive_v must be a finite voltage > 0, got {max_drive_v!r}")
+    if int(averages) != averages or averages < 1:
+        raise ValueError(f"averages must be a positive integer, got {averages!r}")
+    max_avg = int(averages) if max_averages is None else max_averages
+    if int(max_avg) != max_avg or max_avg < averages:
+        raise ValueError(f"max_averages must be an integer >= averages ({averages}), got {max_averages!r}")
+    if not (math.isfinite(target_frac) and target_frac >= 0):
+        raise ValueError(f"target_frac must be finite and >= 0, got {target_frac!r}")
+    return max_avg
+
+
+def _drive_cap(u0: np.ndarray, max_drive_factor: float, max_drive_v: float | None) -> dict:
+    """The largest |drive| ever sent (relative to the plain drive, and the output stage's range) and
+    how it reads in a stop reason; a plain drive already beyond ``max_drive_v`` is refused."""
+    peak0 = float(np.abs(u0).max())
+    if max_drive_v is not None and peak0 > max_drive_v:
+        raise ValueError(f"drive0_v peaks at {peak0:.4g} V, beyond max_drive_v = {max_drive_v:.4g} V")
+    cap_v = max_drive_factor * peak0 if max_drive_v is None else min(max_drive_factor * peak0, max_drive_v)
+    return {"cap_v": cap_v,
+            "cap_text": (f"{cap_v:.4g} V peak ({max_drive_factor:g} x the initial drive peak"
+                         f"{'' if max_drive_v is None else f' or max_drive_v = {max_drive_v:.4g} V'})")}
+
+
+def _judge(st: _IlcState, o: _IlcOptions) -> bool:
+    """Accept the drive just measured (it becomes the start of the next update) or roll it back."""
+    if st.k == 0:
+        return True
+    a = st.a
+    # near the floor the error fluctuates with the noise: only growth beyond that is divergence
+    floor = 3.0 * a.noise if math.isfinite(a.noise) else 0.0
+    if max(a.err_rms) > (1 + o.grow_tol) * max(st.cur_a.err_rms) + floor:
+        st.beta *= 0.5                     # roll back to the last good drive, learn more gently
+        return False
+    improvement = 1 - _norm(a.err_rms) / _norm(st.cur_a.err_rms)
+    st.stalled = st.stalled + 1 if improvement < o.rel_tol else 0
+    st.cur_u, st.cur_a = st.u, a
+    if _norm(a.err_rms) < _norm(st.best_a.err_rms):
+        st.best_u, st.best_a, st.best_k = st.u, a, st.k
+    return True
+
+
+def _average_more(st: _IlcState, o: _IlcOptions, plant: _Plant) -> None:
+    """Measure the same drive with twice the averages while the noise floor alone stops learning."""
+    a = st.a
+    while (math.isfinite(a.noise) and max(a.rms) <= 2.0 * a.noise
+           and max(a.rms) > o.target_frac * o.excursion_hz and 2 * st.n_avg <= o.max_avg):
+        st.n_avg *= 2                      # the same drive, measured with less noise
+        a = st.a = plant.run(st.u, st.n_avg)
+        st.slips += a.slips
+        st.cur_a = a
+        if _norm(a.err_rms) <= _norm(st.best_a.err_rms) or st.best_k == st.k:
+            st.best_u, st.best_a, st.best_k = st.u, a, st.k
+        st.iters[-1] = replace(st.iters[-1], up_rms_hz=a.rms[0], down_rms_hz=a.rms[1],
+                               up_error_hz=a.err_rms[0], down_error_hz=a.err_rms[1],
+                               noise_floor_hz=a.noise, tuning_hz_per_v=a.tuning, phase_slips=a.slips,
+                               averages=st.n_avg)
+
+
+def _converged(st: _IlcState, o: _IlcOptions, accepted: bool, plant: _Plant) -> str:
+    """Why learning has converged after this measurement (empty: it has not)."""
+    a = st.a
+    if st.k == 0:
+        if max(a.rms) <= o.abs_tol_frac * o.excursion_hz:
+            return "already linear: nonlinearity below abs_tol_frac of the excursion"
+        return ""
+    if not accepted:
+        return ""
+    _average_more(st, o, plant)
+    a = st.a
+    if math.isfinite(a.noise) and max(a.rms) <= 2.0 * a.noise:
+        return "reached the measurement noise floor"
+    if max(a.rms) <= o.abs_tol_frac * o.excursion_hz:
+        return "nonlinearity below abs_tol_frac of the excursion"
+    if st.stalled >= 2:
+        return "error stopped improving"
+    return ""
+
+
+def _step(st: _IlcState, o: _IlcOptions) -> str:
+    """Make the next drive into ``st.u`` (``st.k`` advanced); return why learning stops instead."""
+    if st.k >= o.max_iter:
+        return "max_iter reached"
+    if st.beta < o.min_beta:
+        return "beta backed off below min_beta"
+    K = st.cur_a.tuning
+    if not (math.isfinite(K) and K > 0):
+        return "tuning slope not measurable"
+    st.k += 1
+    prop = propose_drive(st.cur_u, st.cur_a.err_drive, st.cur_a.ramps_nu, tuning_hz_per_v=K, beta=st.beta,
+                         update=o.update, fs_drive_hz=o.fs_drive_hz, ramp_s=o.ramp_s, learn=o.learn,
+                         q_cutoff_hz=o.q_cutoff_hz, cap_v=o.cap_v, min_beta=o.min_beta, cap_text=o.cap_text)
+    if prop.beta != st.beta:               # the cap halved the gain: the record says so
+        st.beta = prop.beta
+        st.iters[-1] = replace(st.iters[-1], beta=st.beta)
+    if prop.drive_v is None:
+        return prop.reason
+    st.u = prop.drive_v
+    return ""
+
+
+def _record(st: _IlcState, accepted: bool) -> None:
+    a = st.a
+    st.iters.append(IlcIteration(index=st.k, up_rms_hz=a.rms[0], down_rms_hz=a.rms[1], up_error_hz=a.err_rms[0],
+                                 down_error_hz=a.err_rms[1], noise_floor_hz=a.noise, tuning_hz_per_v=a.tuning,
+                                 beta=st.beta, phase_slips=a.slips, accepted=accepted, averages=st.n_avg))
 
 
 def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
@@ -411,33 +330,13 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     if not callable(measure):
         raise TypeError("measure must be callable as measure(drive_v, n_avg)")
     u0 = check_finite_array("drive0_v", drive0_v, ndim=(1,)).copy()
-    fs_drive_hz = check_positive("fs_drive_hz", fs_drive_hz)
-    fs_adc_hz = check_positive("fs_adc_hz", fs_adc_hz)
-    ramp_s = check_positive("ramp_s", ramp_s)
-    excursion_hz = check_positive("excursion_hz", excursion_hz)
-    mzi_delay_s = check_positive("mzi_delay_s", mzi_delay_s)
-    check_positive("q_cutoff_hz", q_cutoff_hz)
-    check_positive("meas_cutoff_hz", meas_cutoff_hz)
-    if not (math.isfinite(beta) and 0 < beta <= 10):
-        raise ValueError(f"beta must be in (0, 10], got {beta!r}")
-    if not 0 < roi < learn <= 1:
-        raise ValueError(f"need 0 < roi < learn <= 1, got roi={roi!r}, learn={learn!r}")
-    if int(max_iter) != max_iter or max_iter < 0:
-        raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
-    if update not in ("inverse", "scalar"):
-        raise ValueError(f"update must be 'inverse' or 'scalar', got {update!r}")
-    if not (math.isfinite(max_drive_factor) and max_drive_factor >= 1):
-        raise ValueError(f"max_drive_factor must be >= 1, got {max_drive_factor!r}")
-    if max_drive_v is not None and not (math.isfinite(max_drive_v) and max_drive_v > 0):
-        raise ValueError(f"max_drive_v must be a finite voltage > 0, got {max_drive_v!r}")
-    if int(averages) != averages or averages < 1:
-        raise ValueError(f"averages must be a positive integer, got {averages!r}")
-    max_avg = int(averages) if max_averages is None else max_averages
-    if int(max_avg) != max_avg or max_avg < averages:
-        raise ValueError(f"max_averages must be an integer >= averages ({averages}), got {max_averages!r}")
-    if not (math.isfinite(target_frac) and target_frac >= 0):
-        raise ValueError(f"target_frac must be finite and >= 0, got {target_frac!r}")
-    n_avg = [int(averages)]                # grows when the noise floor stops learning too early
+    fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s = (check_positive(name, v) for name, v in (
+        ("fs_drive_hz", fs_drive_hz), ("fs_adc_hz", fs_adc_hz), ("ramp_s", ramp_s),
+        ("excursion_hz", excursion_hz), ("mzi_delay_s", mzi_delay_s)))
+    max_avg = _check_knobs(q_cutoff_hz=q_cutoff_hz, meas_cutoff_hz=meas_cutoff_hz, beta=beta, roi=roi,
+                           learn=learn, max_iter=max_iter, update=update,
+                           max_drive_factor=max_drive_factor, max_drive_v=max_drive_v, averages=averages,
+                           max_averages=max_averages, target_frac=target_frac)
     n_drive = 2 * ramp_s * fs_drive_hz
     if abs(n_drive - u0.size) > 0.5:
         raise ValueError(f"drive0_v has {u0.size} samples; one period 2 ramp_s fs_drive_hz is {n_drive:g}")
@@ -446,110 +345,32 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
                    directions=_directions(u0), refine=bool(refine))
     if an.f_beat * ramp_s < 10:
         raise ValueError(f"MZI beat {an.f_beat:g} Hz gives < 10 fringes per ramp: mzi_delay_s too short")
-
-    def run(u: np.ndarray) -> _Analysis:
-        y = np.asarray(measure(u.copy(), n_avg[0]))
-        y = y.astype(np.complex128 if np.iscomplexobj(y) else np.float64)
-        if y.ndim == 1:
-            y = y[None, :]
-        if y.ndim != 2 or y.shape[1] != an.n_adc:
-            raise ValueError(f"measure returned shape {y.shape}; expected (n_avg, {an.n_adc})")
-        check_finite_array("MZI samples from measure", y.view(np.float64))
-        return an.analyse(y, u)
-
-    iters: list[IlcIteration] = []
-    u = u0
-    peak0 = float(np.abs(u0).max())
-    if max_drive_v is not None and peak0 > max_drive_v:
-        raise ValueError(f"drive0_v peaks at {peak0:.4g} V, beyond max_drive_v = {max_drive_v:.4g} V")
-    # the largest |drive| ever sent: relative to the plain drive, and the output stage's range
-    cap_v = max_drive_factor * peak0 if max_drive_v is None else min(max_drive_factor * peak0, max_drive_v)
-    a = run(u)
-    first = a
-    cur_u, cur_a = u, a                    # the drive the next update starts from
-    best_u, best_a, best_k = u, a, 0
-    slips = a.slips
-    converged, reason = False, "max_iter reached"
-    b = float(beta)
-    k = 0
-    stalled = 0
+    o = _IlcOptions(excursion_hz=excursion_hz, fs_drive_hz=fs_drive_hz, ramp_s=ramp_s, learn=learn,
+                    q_cutoff_hz=q_cutoff_hz, update=update, max_iter=max_iter, rel_tol=rel_tol,
+                    grow_tol=grow_tol, min_beta=min_beta, abs_tol_frac=abs_tol_frac, target_frac=target_frac,
+                    max_avg=max_avg, **_drive_cap(u0, max_drive_factor, max_drive_v))
+    plant = _Plant(measure, an)
+    a = plant.run(u0, int(averages))
+    st = _IlcState(u=u0, a=a, first=a, cur_u=u0, cur_a=a, best_u=u0, best_a=a, best_k=0, beta=float(beta),
+                   n_avg=int(averages), slips=a.slips)
     while True:
-        accepted = True
-        if k > 0:
-            # near the floor the error fluctuates with the noise: only growth beyond that is divergence
-            floor = 3.0 * a.noise if math.isfinite(a.noise) else 0.0
-            if max(a.err_rms) > (1 + grow_tol) * max(cur_a.err_rms) + floor:
-                accepted = False           # roll back to the last good drive, learn more gently
-                b *= 0.5
-            else:
-                improvement = 1 - _norm(a.err_rms) / _norm(cur_a.err_rms)
-                stalled = stalled + 1 if improvement < rel_tol else 0
-                cur_u, cur_a = u, a
-                if _norm(a.err_rms) < _norm(best_a.err_rms):
-                    best_u, best_a, best_k = u, a, k
-        iters.append(IlcIteration(index=k, up_rms_hz=a.rms[0], down_rms_hz=a.rms[1], up_error_hz=a.err_rms[0],
-                                  down_error_hz=a.err_rms[1], noise_floor_hz=a.noise, tuning_hz_per_v=a.tuning,
-                                  beta=b, phase_slips=a.slips, accepted=accepted, averages=n_avg[0]))
-        if k == 0 and max(a.rms) <= abs_tol_frac * excursion_hz:
-            converged, reason = True, "already linear: nonlinearity below abs_tol_frac of the excursion"
+        accepted = _judge(st, o)
+        _record(st, accepted)
+        reason = _converged(st, o, accepted, plant)
+        if reason:
+            st.converged, st.reason = True, reason
             break
-        if k > 0 and accepted:
-            while (math.isfinite(a.noise) and max(a.rms) <= 2.0 * a.noise
-                   and max(a.rms) > target_frac * excursion_hz and 2 * n_avg[0] <= max_avg):
-                n_avg[0] *= 2                  # the same drive, measured with less noise
-                a = run(u)
-                slips += a.slips
-                cur_a = a
-                if _norm(a.err_rms) <= _norm(best_a.err_rms) or best_k == k:
-                    best_u, best_a, best_k = u, a, k
-                iters[-1] = replace(iters[-1], up_rms_hz=a.rms[0], down_rms_hz=a.rms[1],
-                                    up_error_hz=a.err_rms[0], down_error_hz=a.err_rms[1],
-                                    noise_floor_hz=a.noise, tuning_hz_per_v=a.tuning, phase_slips=a.slips,
-                                    averages=n_avg[0])
-            if math.isfinite(a.noise) and max(a.rms) <= 2.0 * a.noise:
-                converged, reason = True, "reached the measurement noise floor"
-                break
-            if max(a.rms) <= abs_tol_frac * excursion_hz:
-                converged, reason = True, "nonlinearity below abs_tol_frac of the excursion"
-                break
-            if stalled >= 2:
-                converged, reason = True, "error stopped improving"
-                break
-        if k >= max_iter:
+        reason = _step(st, o)
+        if reason:
+            st.reason = reason
             break
-        if b < min_beta:
-            reason = "beta backed off below min_beta"
-            break
-        K = cur_a.tuning
-        if not (math.isfinite(K) and K > 0):
-            reason = "tuning slope not measurable"
-            break
-        k += 1
-        if update == "inverse":
-            h = fit_fm_response(cur_u, cur_a.ramps_nu, fs_drive_hz=fs_drive_hz, ramp_s=ramp_s, learn=learn,
-                                floor_hz_per_v=_INVERSE_FLOOR * K)
-            step = np.fft.irfft(np.fft.rfft(cur_a.err_drive) / h, n=cur_u.size)
-        else:
-            step = cur_a.err_drive / K
-        u = fft_filter(cur_u + b * step, fs_drive_hz, hi_hz=q_cutoff_hz)
-        if not np.abs(u).max() <= cap_v:
-            # a step this large is a broken measurement or fit, never a linearization: do not send it
-            b *= 0.5
-            iters[-1] = replace(iters[-1], beta=b)
-            if b < min_beta:
-                reason = "beta backed off below min_beta"
-                break
-            u = fft_filter(cur_u + b * cur_a.err_drive / K, fs_drive_hz, hi_hz=q_cutoff_hz)
-            if not np.abs(u).max() <= cap_v:
-                reason = (f"update would exceed {cap_v:.4g} V peak ({max_drive_factor:g} x the initial drive "
-                          f"peak{'' if max_drive_v is None else f' or max_drive_v = {max_drive_v:.4g} V'})")
-                break
-        a = run(u)
-        slips += a.slips
+        st.a = plant.run(st.u, st.n_avg)
+        st.slips += st.a.slips
+    first, best_a = st.first, st.best_a
     red = {"up": first.rms[0] / best_a.rms[0] if best_a.rms[0] > 0 else math.inf,
            "down": first.rms[1] / best_a.rms[1] if best_a.rms[1] > 0 else math.inf}
-    return IlcResult(drive_v=best_u, iterations=iters, reduction=red, converged=converged,
-                     tuning_hz_per_v=best_a.tuning, best_iteration=best_k, phase_slips=slips,
-                     stop_reason=reason,
-                     meta={"meas_cutoff_hz": meas_cutoff_hz, "q_cutoff_hz": q_cutoff_hz, "averages": n_avg[0],
+    return IlcResult(drive_v=st.best_u, iterations=st.iters, reduction=red, converged=st.converged,
+                     tuning_hz_per_v=best_a.tuning, best_iteration=st.best_k, phase_slips=st.slips,
+                     stop_reason=st.reason,
+                     meta={"meas_cutoff_hz": meas_cutoff_hz, "q_cutoff_hz": q_cutoff_hz, "averages": st.n_avg,
                            "roi": roi, "learn": learn, "mzi_beat_hz": an.f_beat})

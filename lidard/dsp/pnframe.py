@@ -80,22 +80,6 @@ def mzi_phase_noise_batch(mzi: np.ndarray, *, fs_hz: float, edge_s: float, beat_
     return delta, valid
 
 
-def _delayed_batch(x: np.ndarray, shift: float) -> np.ndarray:
-    """x(k - shift) along the last axis, zero before the start; linear interpolation between samples."""
-    n = x.shape[-1]
-    i = int(math.floor(shift))
-    frac = shift - i
-    out = np.zeros_like(x)
-    if i < n:
-        out[..., i:] = x[..., :n - i]
-    if frac > 1e-9:
-        nxt = np.zeros_like(x)
-        if i + 1 < n:
-            nxt[..., i + 1:] = x[..., :n - i - 1]
-        out = (1.0 - frac) * out + frac * nxt
-    return out
-
-
 class FrameGeometry(Protocol):
     """What this front end reads of a :class:`lidard.dsp.frame.FrameDsp` (frame builds on this module,
     not the reverse: no import cycle)."""
@@ -215,7 +199,7 @@ class PhaseNoiseCompensator:
         acc = np.zeros_like(delta)
         s[0] = 0.0
         for mm in range(self.m_max):
-            acc += _delayed_batch(delta, mm * d)
+            acc += delayed(delta, mm * d)
             s[mm + 1] = acc[..., start:start + n]
         return CompensatedRamps(z=z, s=s, comp=self)
 

@@ -85,20 +85,7 @@ def pair_up_down(
         fu2, fd2 = np.abs(fu2), np.abs(fd2)
     f_dmax = np.inf if max_speed_mps is None else 2.0 * max_speed_mps / wavelength_m
 
-    # Pair cost: disagreement of the two single-ramp beats = 2 |Doppler|.
-    cost = np.abs(fd2[:, None, :] - fu2[:, :, None])  # [row, up i, down j]
-    ok = vu2[:, :, None] & vd2[:, None, :] & (cost <= 2.0 * f_dmax)
-    cost = np.where(ok, cost, np.inf)
-    match = np.full(fu2.shape, -1, dtype=np.int64)
-    rows = np.arange(fu2.shape[0])
-    for _ in range(min(ku, kd)):
-        flat = np.argmin(cost.reshape(cost.shape[0], -1), axis=-1)
-        i, j = np.divmod(flat, kd)
-        good = np.isfinite(cost[rows, i, j])
-        match[rows[good], i[good]] = j[good]
-        cost[rows[good], i[good], :] = np.inf
-        cost[rows[good], :, j[good]] = np.inf
-
+    match = _greedy_match(fu2, fd2, vu2, vd2, f_dmax)
     paired = match >= 0
     fdn = np.take_along_axis(fd2, np.maximum(match, 0), axis=-1)
     f_range = 0.5 * (fu2 + fdn)  # 2 gamma d / c
@@ -116,3 +103,22 @@ def pair_up_down(
     range_m = np.where(valid, range_m, 0.0)
     velocity_mps = np.where(valid, velocity_mps, 0.0)
     return range_m.reshape(lead + (ku,)), velocity_mps.reshape(lead + (ku,)), valid.reshape(lead + (ku,))
+
+
+def _greedy_match(fu2, fd2, vu2, vd2, f_dmax) -> np.ndarray:
+    """Per row, the down-ramp peak paired with each up-ramp peak (-1: none), cheapest pair first."""
+    ku, kd = fu2.shape[-1], fd2.shape[-1]
+    # Pair cost: disagreement of the two single-ramp beats = 2 |Doppler|.
+    cost = np.abs(fd2[:, None, :] - fu2[:, :, None])  # [row, up i, down j]
+    ok = vu2[:, :, None] & vd2[:, None, :] & (cost <= 2.0 * f_dmax)
+    cost = np.where(ok, cost, np.inf)
+    match = np.full(fu2.shape, -1, dtype=np.int64)
+    rows = np.arange(fu2.shape[0])
+    for _ in range(min(ku, kd)):
+        flat = np.argmin(cost.reshape(cost.shape[0], -1), axis=-1)
+        i, j = np.divmod(flat, kd)
+        good = np.isfinite(cost[rows, i, j])
+        match[rows[good], i[good]] = j[good]
+        cost[rows[good], i[good], :] = np.inf
+        cost[rows[good], :, j[good]] = np.inf
+    return match

@@ -15,7 +15,7 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from ..jobs import UnknownScan
+from ..errors import UnknownScan
 from ..pointcloud import read_sidecar, write_points
 from ..store import ScanRecord, Store
 from .capture import RAW_NAME, RawCapture, RawCaptureError, capture_size_bytes

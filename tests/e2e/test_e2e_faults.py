@@ -19,7 +19,7 @@ from plyfile import PlyData
 
 from lidard.config import load_config
 from lidard.instrument import SAFETY_CHECK_S, open_instrument
-from lidard.instrument_api import ScanRequest
+from lidard.instrument.types import ScanRequest
 from lidard.jobs import ScanWorker
 from lidard.store import Store
 

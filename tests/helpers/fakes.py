@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from lidard.config import load_profile
-from lidard.instrument_api import POINT_DTYPE, CalibrationResult, ScanProgress, ScanResult
+from lidard.instrument.types import POINT_DTYPE, CalibrationResult, ScanProgress, ScanResult
 from lidard.scan import plan
 
 from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
@@ -100,7 +100,7 @@ class FakeInstrument:
                 self.reached.set()
                 while not (self.release.is_set() or cancel.is_set()):
                     self.release.wait(0.01)
-        from lidard.instrument_api import ScanResult
+        from lidard.instrument.types import ScanResult
         return ScanResult(points=pts[:done][has_return[:done]], meta={"fake": True, "chirp": {"ramp_s": 80e-6}},
                           pixels_scanned=done, pixels_planned=n, hardware_time_s=done * pixel_s,
                           partial=done < n)

@@ -11,7 +11,7 @@ from tests.helpers.fakes import StreamingInstrument  # noqa: E402
 from lidard.api.app import create_app  # noqa: E402
 from lidard.api.routers.viewer import STATIC_DIR  # noqa: E402
 from lidard.config import load_config  # noqa: E402
-from lidard.instrument_api import POINT_DTYPE  # noqa: E402
+from lidard.instrument.types import POINT_DTYPE  # noqa: E402
 from lidard.live.points import LIVE_FIELDS, LivePoints, decode_points, encode_points  # noqa: E402
 from lidard.pointcloud import read_npz  # noqa: E402
 

@@ -63,6 +63,11 @@ CONSUMED_IN_CONFIG = {
 PENDING_WIRING = {("Monitor", "quadrature")}
 
 
+# lidard.config and the models it re-exports (lidard/config_models/) are one module, split for size
+_CONFIG_FILES = {Path(config_mod.__file__).resolve(),
+                 *(p.resolve() for p in (REPO / "lidard" / "config_models").glob("*.py"))}
+
+
 def _models(tp) -> list[type[BaseModel]]:
     """The pydantic models inside an annotation (X, X | None, list[X], dict[str, X])."""
     if isinstance(tp, type) and issubclass(tp, BaseModel):
@@ -99,7 +104,7 @@ def _used_outside_config() -> set[str]:
     names: set[str] = set()
     for top in SOURCES:
         for path in (REPO / top).rglob("*.py"):
-            if path.resolve() == Path(config_mod.__file__).resolve():
+            if path.resolve() in _CONFIG_FILES:
                 continue
             names |= _reads(ast.parse(path.read_text(encoding="utf-8"), str(path)))
     return names
@@ -107,7 +112,8 @@ def _used_outside_config() -> set[str]:
 
 def _used_in_config_code() -> set[str]:
     """Attribute reads in config.py (not strings: its messages name every key)."""
-    tree = ast.parse(Path(config_mod.__file__).read_text(encoding="utf-8"))
+    tree = ast.Module(body=[node for p in _CONFIG_FILES
+                            for node in ast.parse(p.read_text(encoding="utf-8")).body], type_ignores=[])
     return {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Load)}
 
 

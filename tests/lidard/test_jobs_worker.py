@@ -3,7 +3,7 @@
 
 import pytest
 
-from lidard.instrument_api import ScanRequest
+from lidard.instrument.types import ScanRequest
 from lidard.jobs import QueueFull, ScanWorker, UnknownScan
 from lidard.pointcloud import read_points, read_sidecar
 from lidard.store import Store

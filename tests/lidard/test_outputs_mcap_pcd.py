@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from lidard.instrument_api import POINT_DTYPE
+from lidard.instrument.types import POINT_DTYPE
 from lidard.live.channels import DEVICES_TOPIC, PACKED_DTYPE, POINTS_TOPIC, STATUS_TOPIC
 from lidard.outputs.mcap import read_mcap, write_mcap
 from lidard.outputs.pcd import read_pcd, write_pcd

@@ -1,0 +1,225 @@
+"""The sections of a configuration file (``[chirp]``, ``[detector]``, ``[adc]``, ``[link]``, ``[monitor]``,
+``[scan]``, ``[devices.*]``, ``[sim]``, ``[daemon]``, ``[live]``).
+
+The chirp follows dissertation §4.4.1, the detector/TIA/ADC and link budget Table 2-2 and §4.4.2.
+:class:`lidard.config.Config` composes them; every model here is re-exported by :mod:`lidard.config`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+from pydantic import Field, field_validator
+
+from .base import Fraction, NonNegFloat, PosFloat, _Model
+
+
+class Chirp(_Model):
+    wavelength_m: PosFloat = 1.55e-6
+    excursion_hz: PosFloat = 8.6e9
+    ramp_s: PosFloat = 80e-6
+    shape: Literal["triangle"] = "triangle"
+
+    @property
+    def rate_hz_per_s(self) -> float:
+        return self.excursion_hz / self.ramp_s
+
+
+class Detector(_Model):
+    responsivity_a_per_w: PosFloat = 0.95
+    tia_gain_v_per_a: PosFloat = 1.6e4
+    temperature_k: PosFloat = 300.0
+    balanced: bool = False
+    cmrr_db: float = Field(default=-25.0, le=0, allow_inf_nan=False)
+
+    @property
+    def effective_cmrr_db(self) -> float:
+        """A single photodiode cancels nothing: CMRR = 0 dB (§4.4.2)."""
+        return self.cmrr_db if self.balanced else 0.0
+
+
+#: bits a decimated record keeps beyond the core's effective resolution (config.Adc.record_bits)
+RECORD_GUARD_BITS = 4
+
+
+class Adc(_Model):
+    """The digitizer's analogue front end and converter (Table 2-2).
+
+    ``bits`` is the resolution of the converter CORE, which samples at ``max_sample_rate_hz``; a
+    record at a lower rate fs is decimated on board, which adds log2(sqrt(max_sample_rate_hz / fs))
+    bits (the core's quantization noise spread over a band D times wider than the record's). The host
+    asks the digitizer for that record resolution plus ``RECORD_GUARD_BITS`` (:meth:`record_bits`,
+    capped at the record format's 16 bits), so the digitizer's rounding of its output words adds
+    1/256 of the core's noise power, not as much again (docs/protocols/digitizer.md).
+    ``bandwidth_hz`` is the anti-alias low-pass corner the digitizer applies to every record (a corner
+    at or above half the record's rate leaves it unfiltered).
+    """
+
+    bits: Literal[8, 10, 12, 14, 16] = 8
+    input_range_v: PosFloat = 1.0
+    bandwidth_hz: PosFloat = 500e6
+    max_sample_rate_hz: PosFloat = 1e9
+    min_sample_rate_hz: PosFloat = 1e6
+    oversample: float = Field(default=2.5, ge=2.0, le=16.0)
+    # Real (single-photodiode) beat only: an I/Q receiver is not built yet, so true is refused.
+    iq: bool = False
+
+    @field_validator("iq")
+    @classmethod
+    def _no_iq_yet(cls, v: bool) -> bool:
+        if v:
+            raise ValueError("an I/Q receiver (adc.iq = true) is not supported yet: the instrument records "
+                             "the real beat of one photodiode; set adc.iq = false")
+        return v
+
+    def record_bits(self, sample_rate_hz: float, format_bits: int = 16) -> int:
+        """Resolution of a record at ``sample_rate_hz``: the core's bits plus the decimation gain
+        log2(sqrt(max_sample_rate_hz / fs)) to the nearest bit, plus the guard bits, capped at
+        ``format_bits``. At the core's full rate there is nothing to gain or guard: the core's bits."""
+        decimation = max(1.0, self.max_sample_rate_hz / float(sample_rate_hz))
+        gain = round(0.5 * math.log2(decimation))
+        if gain <= 0:
+            return int(min(format_bits, self.bits))
+        return int(min(format_bits, self.bits + gain + RECORD_GUARD_BITS))
+
+
+class Link(_Model):
+    """Link-budget parameters (Table 2-2) and the reference-path architecture (§4.4.2)."""
+
+    reference: Literal["backreflection", "mzi"] = "backreflection"
+    # backreflection (§4.4): light per fibre-array channel, the facet's reflection as LO, power out
+    fiber_power_w: PosFloat = 0.1
+    backreflection_db: float = Field(default=-34.0, lt=0)
+    tx_power_w: PosFloat = 1e-3
+    fpsa_losses: Literal["measured", "improved"] = "measured"
+    # mzi (Table 2-2)
+    laser_power_w: PosFloat = 50e-3
+    r_ref: Fraction = 0.1
+    eta_tx: Fraction = 0.7
+    eta_rx: Fraction = 0.5
+    rx_aperture_m: PosFloat | None = None  # None: the lens's entrance pupil (f / N)
+    ambient_psd_w_per_hz: NonNegFloat = 1.57e-20
+    optical_bandwidth_m: PosFloat = 1e-9
+    reflectivity: NonNegFloat = 0.1
+
+
+class Monitor(_Model):
+    """Monitor MZI used for chirp linearization and phase-noise compensation (§2.2, §2.3)."""
+
+    delay_s: PosFloat = 200e-9
+    amplitude_v: PosFloat = 0.3
+    #: mean optical power on the monitor photodiode, W: sets the channel's shot noise (simulator;
+    #: lidard.physics.budget.monitor_noise_asd). 100 uW is an estimate (a 1 % tap of ~10 mW).
+    power_w: PosFloat = 100e-6
+    # The MZI is also read in quadrature (a 90-degree hybrid or 3x3 coupler and a second digitizer
+    # channel, ``mzi_q``): the laser phase is then rebuilt per sample and phase-noise compensation holds
+    # at EVERY range (lidard.dsp.pnrecon, issue 15). False is the dissertation's single real MZI: the
+    # compensation is exact only where the round trip is a whole multiple of delay_s (docs/benchmarks.md).
+    quadrature: bool = False
+
+
+class ScanDefaults(_Model):
+    averages: int = Field(default=1, ge=1, le=100)
+    max_range_m: PosFloat = 2.0
+    pattern: Literal["raster", "serpentine", "roi", "pixels", "adaptive"] = "raster"
+    settle_s: NonNegFloat = 5e-6
+    pfa: float = Field(default=1e-6, gt=0, lt=0.1)
+    max_returns: int = Field(default=2, ge=1, le=8)
+    window: Literal["rectangular", "hann", "blackmanharris"] = "hann"
+    # A real (single-photodiode) beat cannot tell a Doppler shift from a range beat when the Doppler
+    # allowance exceeds the range beat (§2.1.2): the a-priori speed limit sets what is unambiguous.
+    max_speed_mps: float = Field(default=0.4, gt=0, le=100)
+    # Laser phase-noise compensation from the monitor MZI recorded with the beat (§2.3,
+    # lidard.dsp.pnframe). "auto": on when the round trip of the scan's max_range_m is at least twice the
+    # monitor delay (60 m at 200 ns), i.e. where the gate holds bins whose nearest M is >= 2; below
+    # that the daemon cannot know the laser's coherence time and the MZI channel doubles the data
+    # for little gain. "on"/"off" force it.
+    phase_noise_compensation: Literal["auto", "on", "off"] = "auto"
+    # A stored chirp linearization is reused only while the laser's TEC temperature stays within this
+    # of the temperature it was made at: a DFB's tuning (and so the learned drive) moves with it.
+    recalibrate_delta_c: float = Field(default=0.5, gt=0, le=50)
+
+
+class FpsaDevice(_Model):
+    url: str = "bench"          # "bench": the simulated bench's pty; else a pyserial URL or device
+    baudrate: int = Field(default=3_000_000, gt=0)
+    timeout_s: PosFloat = 0.5
+
+
+class UsbDevice(_Model):
+    usb: str = "bench"          # "bench" or "VID:PID" (hex), e.g. "0x0957:0x2807"
+    timeout_s: PosFloat = 2.0
+
+
+class AwgDevice(UsbDevice):
+    # the output stage's limit |offset| + amplitude (docs/protocols/awg.md); no drive beyond it is sent
+    max_output_v: float = Field(default=5.0, gt=0, le=50)
+
+
+class ControllerDevice(_Model):
+    host: str = "bench"
+    port: int = Field(default=502, ge=0, le=65535)
+    device_id: int = Field(default=1, ge=0, le=247)
+    timeout_s: PosFloat = 1.0
+    max_laser_current_ma: PosFloat = 150.0
+    max_hv_v: PosFloat = 60.0
+    laser_current_ma: PosFloat = 100.0
+
+
+class Devices(_Model):
+    fpsa: FpsaDevice = FpsaDevice()
+    awg: AwgDevice = AwgDevice()
+    digitizer: UsbDevice = UsbDevice()
+    controller: ControllerDevice = ControllerDevice()
+
+
+class Effects(_Model):
+    """Simulator effects; switching one off skips its cost (and its realism)."""
+
+    phase_noise: bool = True
+    mems_dynamics: bool = True
+    quantization: bool = True
+    noise: bool = True
+
+
+class Sim(_Model):
+    enabled: bool = False
+    scene: str = "scenes/cal_letters.toml"
+    seed: int = 1
+    bench: Literal["child", "embedded"] = "child"
+    effects: Effects = Effects()
+    # [[sim.faults]] tables, injected by the bench at start. Only their shape is checked here: the
+    # catalogue (kinds, parameters) belongs to the simulator, which checks each entry when the bench
+    # is built and raises a ConfigError naming it (the daemon side never imports the simulator).
+    faults: list[dict] = []
+
+    @field_validator("faults")
+    @classmethod
+    def _faults_have_a_kind(cls, v: list[dict]) -> list[dict]:
+        for i, entry in enumerate(v):
+            kind = entry.get("kind")
+            if not isinstance(kind, str) or not kind:
+                raise ValueError(f"entry {i}: every [[sim.faults]] table needs kind = \"<fault kind>\"")
+        return v
+
+
+class Daemon(_Model):
+    host: str = "127.0.0.1"
+    port: int = Field(default=8470, ge=0, le=65535)
+    data_dir: str = "~/.local/share/lidard"
+    # request body limit of the REST API (413 above it); scene uploads are the largest bodies
+    max_body_bytes: int = Field(default=1 << 20, ge=1024, le=1 << 30)
+    # the control lock's lease lapses this long after the holder's last request (POST /control)
+    lease_ttl_s: float = Field(default=300.0, gt=0, le=86_400)
+    # wall-clock period of the safety watch thread (interlock/fault flags while laser/HV may be on)
+    safety_period_s: float = Field(default=0.02, gt=0, le=1.0)
+
+
+class Live(_Model):
+    """Live publishers besides the REST API (lidard.live): the Foxglove WebSocket server, opt-in."""
+
+    foxglove: bool = False
+    # loopback unless the lab says otherwise: the stream has no authentication
+    foxglove_host: str = "127.0.0.1"
+    foxglove_port: int = Field(default=8765, ge=0, le=65535)  # 0: any free port

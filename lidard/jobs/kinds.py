@@ -1,0 +1,83 @@
+"""The job kinds of the scan worker's queue and what a job's record holds (lidard.jobs, issue 12).
+
+A scan (:class:`_ScanJob`, recorded in the store under its id), a chirp linearization (§2.2) and a
+switch self-test (both resolved through a future); the errors the queue raises; and the one-line
+description of a failure (type, message, causes) the store and the API show.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import threading
+from importlib import metadata
+from typing import Any
+
+from ..errors import LidardError, UnknownScan  # noqa: F401  (UnknownScan re-exported)
+from ..instrument.types import ScanRequest
+
+
+class QueueFull(LidardError):
+    """The job queue is at its limit; try again after the running jobs finish."""
+
+
+class WorkerStopped(LidardError):
+    """The worker is not running (daemon shutting down)."""
+
+
+def software_version() -> str:
+    try:
+        return metadata.version("lidard")
+    except metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def describe_error(exc: BaseException) -> str:
+    """One line: type, message and the chain of causes (the device error is usually the cause)."""
+    parts = [f"{type(exc).__name__}: {exc}"]
+    seen = {id(exc)}
+    cur = exc.__cause__ or exc.__context__
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        parts.append(f"caused by {type(cur).__name__}: {cur}")
+        cur = cur.__cause__ or cur.__context__
+    return "; ".join(parts)
+
+
+def request_to_dict(req: ScanRequest) -> dict[str, Any]:
+    d = dataclasses.asdict(req)
+    for k in ("rows", "cols"):
+        d[k] = None if d[k] is None else list(d[k])
+    d["pixels"] = None if d["pixels"] is None else [list(p) for p in d["pixels"]]
+    d["formats"] = list(d["formats"])
+    return d
+
+
+def request_from_dict(d: dict[str, Any]) -> ScanRequest:
+    return ScanRequest(
+        pattern=d.get("pattern", "raster"),
+        rows=None if d.get("rows") is None else tuple(d["rows"]),
+        cols=None if d.get("cols") is None else tuple(d["cols"]),
+        pixels=None if d.get("pixels") is None else tuple(tuple(p) for p in d["pixels"]),
+        averages=int(d.get("averages", 1)), max_range_m=float(d.get("max_range_m", 2.0)),
+        formats=tuple(d.get("formats", ("ply",))),
+        phase_noise_compensation=d.get("phase_noise_compensation"),
+        record_raw=bool(d.get("record_raw", False)))
+
+
+@dataclasses.dataclass
+class _ScanJob:
+    id: str
+    request: ScanRequest
+    cancel: threading.Event = dataclasses.field(default_factory=threading.Event)
+    done: threading.Event = dataclasses.field(default_factory=threading.Event)
+
+
+@dataclasses.dataclass
+class _CalibrationJob:
+    future: concurrent.futures.Future = dataclasses.field(default_factory=concurrent.futures.Future)
+
+
+@dataclasses.dataclass
+class _SelftestJob:
+    future: concurrent.futures.Future = dataclasses.field(default_factory=concurrent.futures.Future)

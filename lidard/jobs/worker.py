@@ -1,0 +1,269 @@
+"""The scan worker: the one thread that owns the instrument, and the FIFO queue in front of it.
+
+The queue, the worker thread, submitting, cancelling and waiting, and the calibration a scan uses;
+one scan's run is :class:`lidard.jobs.scan_job.ScanJobRun`, the job kinds and errors are
+:mod:`lidard.jobs.kinds`, subscribers and live listeners :mod:`lidard.jobs.events`. The policy is in
+the :mod:`lidard.jobs` package docstring (and docs/api.md).
+"""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import dataclasses
+import logging
+import math
+import threading
+import time
+from typing import Any, Callable
+
+from ..instrument.protocol import Instrument
+from ..instrument.types import CalibrationResult, ScanRequest
+from ..physics.optics import FpsaOptics
+from ..scan import planned_pixel_count
+from ..store import ScanRecord, Store
+from .events import EventHub, PointListener, Subscriber
+from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob,
+                    request_to_dict)
+from .scan_job import ScanJobRun, raw_path
+
+log = logging.getLogger("lidard.jobs")
+
+
+class ScanWorker:
+    """Owns ``instrument``; runs queued jobs one at a time in a daemon thread."""
+
+    def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
+                 progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
+                 pixels_planned: Callable[[ScanRequest], int] | None = None,
+                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5):
+        self.instrument = instrument
+        self.store = store
+        self.laser = laser
+        self.max_queue = max_queue
+        self.progress_interval_s = progress_interval_s
+        self.base_meta = dict(meta or {})
+        self._pixels_planned = pixels_planned
+        if pixels_planned is None and optics is not None:
+            self._pixels_planned = lambda req: planned_pixel_count(req, optics)
+        self.optics = optics
+        self.recalibrate_delta_c = float(recalibrate_delta_c)
+        self._cv = threading.Condition()
+        self._queue: collections.deque = collections.deque()
+        self._jobs: dict[str, _ScanJob] = {}
+        self._current: _ScanJob | _CalibrationJob | None = None
+        self.events = EventHub()
+        self._stopping = False
+        self._thread: threading.Thread | None = None
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name="lidard-scan-worker", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float | None = 30.0) -> None:
+        """Cancel the running scan (its points are kept), mark queued ones interrupted, join."""
+        with self._cv:
+            self._stopping = True
+            pending = list(self._queue)
+            self._queue.clear()
+            cur = self._current
+            if isinstance(cur, _ScanJob):
+                cur.cancel.set()
+            self._cv.notify_all()
+        for job in pending:
+            if isinstance(job, _ScanJob):
+                self.store.transition(job.id, ("queued",), state="interrupted", stage="interrupted",
+                                      error="daemon stopped before the scan started", finished=time.time())
+                self._finish(job)
+            else:
+                job.future.set_exception(WorkerStopped("daemon stopped before the calibration ran"))
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            self._thread = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def queue_length(self) -> int:
+        with self._cv:
+            return len(self._queue)
+
+    def current_scan_id(self) -> str | None:
+        cur = self._current
+        return cur.id if isinstance(cur, _ScanJob) else None
+
+    # -- submitting ----------------------------------------------------------------------------
+    def _check_room(self) -> None:
+        # called with self._cv held
+        if self._stopping:
+            raise WorkerStopped("the scan worker is stopping; no new jobs are accepted")
+        if len(self._queue) >= self.max_queue:
+            raise QueueFull(f"scan queue is full ({self.max_queue} jobs waiting); retry when one finishes")
+
+    def _enqueue(self, job) -> None:
+        # called with self._cv held
+        self._check_room()
+        self._queue.append(job)
+        self._cv.notify_all()
+
+    def submit_scan(self, request: ScanRequest) -> ScanRecord:
+        planned = self._pixels_planned(request) if self._pixels_planned else 0
+        with self._cv:
+            self._check_room()              # before the store records a scan that could not queue
+            rec = self.store.create_scan(request_to_dict(request), pixels_planned=planned)
+            job = _ScanJob(rec.id, request)
+            self._jobs[rec.id] = job
+            self._enqueue(job)
+        return rec
+
+    def submit_calibration(self) -> concurrent.futures.Future:
+        job = _CalibrationJob()
+        with self._cv:
+            self._enqueue(job)
+        return job.future
+
+    def submit_selftest(self) -> concurrent.futures.Future:
+        """Queue a switch self-test (``instrument.selftest()``); the future resolves to its report."""
+        job = _SelftestJob()
+        with self._cv:
+            self._enqueue(job)
+        return job.future
+
+    def cancel(self, scan_id: str) -> ScanRecord:
+        """Cancel a queued or running scan; a finished one is returned unchanged."""
+        with self._cv:
+            job = self._jobs.get(scan_id)
+            if job is not None and job in self._queue:
+                self._queue.remove(job)
+                self.store.transition(scan_id, ("queued",), state="cancelled", stage="cancelled",
+                                      finished=time.time())
+                self._finish(job)
+            elif job is not None:
+                job.cancel.set()
+        rec = self.store.get_scan(scan_id)
+        if rec is None:
+            raise UnknownScan(f"scan {scan_id!r} not found")
+        return rec
+
+    def wait(self, scan_id: str, timeout_s: float | None = None) -> ScanRecord:
+        """Block until the scan reaches a terminal state (or the timeout) and return its record."""
+        job = self._jobs.get(scan_id)
+        if job is not None:
+            job.done.wait(timeout_s)
+        rec = self.store.get_scan(scan_id)
+        if rec is None:
+            raise UnknownScan(f"scan {scan_id!r} not found")
+        return rec
+
+    # -- subscribers (lidard.jobs.events) -------------------------------------------------------
+    def subscribe(self, scan_id: str, fn: Subscriber) -> Callable[[], None]:
+        """Call ``fn(event)`` for each progress event of one scan and its end; returns the unsubscriber."""
+        return self.events.subscribe(scan_id, fn)
+
+    def add_point_listener(self, fn: PointListener) -> None:
+        """Call ``fn(scan_id, points, final)`` for every batch of points a scan hands over (when the
+        instrument's progress carries ``new_points``) and once with the whole cloud when it is written."""
+        self.events.add_point_listener(fn)
+
+    def add_event_listener(self, fn: Subscriber) -> None:
+        """Call ``fn(event)`` for the progress and end events of every scan (live publishers)."""
+        self.events.add_event_listener(fn)
+
+    def _finish(self, job: _ScanJob) -> None:
+        if job.request.record_raw:   # whatever the outcome: a capture (maybe a partial prefix) is on disk
+            from ..raw.capture import capture_size_bytes
+            size = capture_size_bytes(raw_path(self.store, job.id))
+            self.store.update_scan(job.id, raw_bytes=size or None)
+        rec = self.store.get_scan(job.id)
+        self.events.publish(job.id, {"event": "end", "id": job.id, "state": rec.state if rec else "unknown",
+                               "partial": bool(rec.partial) if rec else False,
+                               "error": rec.error if rec else None})
+        job.done.set()
+        self._jobs.pop(job.id, None)
+
+    # -- the worker ----------------------------------------------------------------------------
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._queue and not self._stopping:
+                    self._cv.wait()
+                if self._stopping and not self._queue:
+                    return
+                job = self._queue.popleft()
+                self._current = job
+            try:
+                if isinstance(job, _ScanJob):
+                    ScanJobRun(self, job).run()
+                elif isinstance(job, _SelftestJob):
+                    self._run_selftest(job)
+                else:
+                    self._run_calibration(job)
+            except Exception:  # never let the worker thread die
+                log.exception("scan worker job failed unexpectedly")
+            finally:
+                with self._cv:
+                    self._current = None
+
+    def _run_calibration(self, job: _CalibrationJob) -> None:
+        if not job.future.set_running_or_notify_cancel():
+            return
+        try:
+            cal = self._own_laser(self.instrument.linearize())
+            cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
+            job.future.set_result(cal)
+        except Exception as exc:
+            job.future.set_exception(exc)
+
+    def _run_selftest(self, job: _SelftestJob) -> None:
+        if not job.future.set_running_or_notify_cancel():
+            return
+        try:
+            report = self.instrument.selftest()
+            log.info("self-test: %s", "all switches respond" if report.get("ok") else
+                     f"stuck switches: {report.get('stuck')}")
+            job.future.set_result(report)
+        except Exception as exc:
+            job.future.set_exception(exc)
+
+    def _stale_reason(self, cal: CalibrationResult) -> str | None:
+        """Why a stored calibration must not be reused (the laser's temperature moved), or None."""
+        try:
+            now_c = float(self.instrument.laser_temperature_c())
+        except Exception as exc:
+            log.warning("laser temperature unreadable (%s); reusing calibration %s", exc, cal.meta.get("id"))
+            return None
+        then_c = float(cal.temperature_c)
+        if not (math.isfinite(now_c) and math.isfinite(then_c)):
+            return None
+        if abs(now_c - then_c) > self.recalibrate_delta_c:
+            return (f"laser at {now_c:.2f} C, calibration {cal.meta.get('id')} made at {then_c:.2f} C "
+                    f"(more than {self.recalibrate_delta_c:g} C apart)")
+        return None
+
+    def calibration_for_scan(self, job: _ScanJob) -> CalibrationResult:
+        """The newest stored calibration of the laser, or a new linearization when there is none or
+        the laser's temperature moved (announced as the scan's ``linearizing`` stage)."""
+        cal = self.store.latest_calibration(self.laser)
+        stale = None if cal is None else self._stale_reason(cal)
+        if stale is not None:
+            log.info("re-linearizing: %s", stale)
+        if cal is None or stale is not None:
+            self.store.update_scan(job.id, stage="linearizing")
+            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
+                                   "pixels_done": 0, "pixels_planned": 0, "points": 0,
+                                   "fraction": 0.0, "hardware_time_s": 0.0})
+            cal = self._own_laser(self.instrument.linearize())
+            cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
+        return cal
+
+    def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:
+        # Cache under the configured laser name, whatever the instrument calls it, so that the next
+        # scan finds it (latest_calibration looks up by the configured name).
+        if cal.laser != self.laser:
+            cal = dataclasses.replace(cal, laser=self.laser, meta={**cal.meta, "reported_laser": cal.laser})
+        return cal
