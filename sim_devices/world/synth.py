@@ -360,10 +360,9 @@ def _delay_split(tau_s: np.ndarray, fs: float):
     return m.astype(np.intp), w
 
 
-def _delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng, fast: bool = False):
+def _delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng):
     """phi(t_k - tau) for records `rows` of phi (n_rows, n_pre+n), tau fs = m - w: exact for w == 0,
-    else linear interpolation between samples k - m and k - m + 1 plus a Brownian-bridge term.
-    ``fast``: the bridge term is drawn in float32 (added to the float64 phase)."""
+    else linear interpolation between samples k - m and k - m + 1 plus a Brownian-bridge term."""
     win = np.lib.stride_tricks.sliding_window_view(phi, n, axis=1)    # win[r, j] = phi[r, j:j+n]
     out = win[rows, n_pre - m]                                        # contiguous row copies
     frac = np.nonzero(w > 0)[0]
@@ -372,12 +371,7 @@ def _delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng, fast: bool = False)
         step = win[rows[frac], n_pre - m[frac] + 1]
         step -= out[frac]
         step *= ww
-        if fast:
-            bridge = rng.standard_normal((frac.size, n), dtype=np.float32)
-            bridge *= np.sqrt(var_step * ww * (1.0 - ww)).astype(np.float32)
-            step += bridge
-        else:
-            step += rng.standard_normal((frac.size, n)) * np.sqrt(var_step * ww * (1.0 - ww))
+        step += rng.standard_normal((frac.size, n)) * np.sqrt(var_step * ww * (1.0 - ww))
         out[frac] += step
     return out
 
@@ -538,7 +532,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                 dphi += const[:, None]
             if phi is not None:
                 dphi += phi[lseg, n_pre:]
-                dphi -= _delayed_noise(phi, lseg, n_pre, n, m_hit[hs], w_hit[hs], var_step, rng, fast)
+                dphi -= _delayed_noise(phi, lseg, n_pre, n, m_hit[hs], w_hit[hs], var_step, rng)
             a = amp[hs, None]
             parts = {}
             cos_part, sin_part = _cos_sin(dphi, adc.iq, fast)
@@ -572,7 +566,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             if phi is not None:
                 mphi = mzi_det[0] + phi[:, n_pre:] if single_start else mzi_det[ub] + phi[:, n_pre:]
                 mphi -= _delayed_noise(phi, np.arange(nc), n_pre, n, np.full(nc, m_mzi[0]),
-                                       np.full(nc, w_mzi[0]), var_step, rng, fast)
+                                       np.full(nc, w_mzi[0]), var_step, rng)
                 mzi_v, mzi_s = _cos_sin(mphi, mzi_quadrature, fast)
                 mzi_v *= mzi_amplitude_v
                 acc["mzi"] = mzi_v
