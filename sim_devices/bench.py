@@ -521,22 +521,25 @@ class Bench:
         mzi_asd = self._monitor_asd(cfg) if light else 0.0
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
+        # the quadrature output exists only with the hybrid fitted ([monitor] quadrature); without
+        # it the mzi_q input is unconnected and reads 0
+        want_q = want_mzi and "mzi_q" in cfg.channels and self.cfg.monitor.quadrature
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
                          linewidth_hz=linewidth, rng=rng,
                          mzi_delay_s=self.cfg.monitor.delay_s if want_mzi else None,
                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
-                         mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0)
+                         mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q)
         codes = np.zeros((n, len(cfg.channels), cfg.record_length), dtype=np.int16)
         over = np.zeros((n, len(cfg.channels)), dtype=bool)
-        by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi}
+        by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi, "mzi_q": syn.mzi_q}
         for j, name in enumerate(cfg.channels):
             data = by_name.get(name)
             if data is not None:
                 codes[:, j] = data
                 if name in syn.channels:
                     over[:, j] = syn.overrange[:, syn.channels.index(name)]
-                if name == "mzi" and not lit.all():
+                if name in ("mzi", "mzi_q") and not lit.all():
                     codes[~lit, j] = 0  # no light, no MZI fringes
         if "tap" in cfg.channels and n:
             j = cfg.channels.index("tap")

@@ -15,7 +15,7 @@ payload (channel-major: all samples of channel 0, then channel 1, ...; little-en
       0   4  magic b"DGSG"
       4   1  version (1)
       5   1  bits per sample (8 | 16)
-      6   1  channel mask (bit0 beat, bit1 beat_i, bit2 beat_q, bit3 mzi, bit4 tap)
+      6   1  channel mask (bit0 beat, bit1 beat_i, bit2 beat_q, bit3 mzi, bit4 tap, bit5 mzi_q)
       7   1  overrange flags, bit i = i-th channel present in the mask (ascending bit order)
       8   4  segment index (u32)
      12   4  samples per channel (u32)
@@ -25,6 +25,8 @@ payload (channel-major: all samples of channel 0, then channel 1, ...; little-en
 
 Channel ``tap`` (bit 4, added for the FPSA self-test; older masks are unchanged) is the monitor
 photodiode on the light leaving the FPSA chip: a DC level proportional to the total emitted power.
+Channel ``mzi_q`` (bit 5, added for phase-noise compensation at any range, issue 15) is the monitor
+MZI's quadrature output (a 90-degree hybrid or 3x3 coupler): only together with ``mzi``.
 
 All integers little endian. This module is PURE; parsers raise only ``DigitizerProtocolError``.
 Golden bytes: docs/protocols/digitizer.md.
@@ -66,8 +68,8 @@ class Req(enum.IntEnum):
     READ_SEGMENTS = 0x40   # OUT, data u32 first, u32 count -> stream on EP 0x81
 
 
-CHANNEL_BITS = {"beat": 0x01, "beat_i": 0x02, "beat_q": 0x04, "mzi": 0x08, "tap": 0x10}
-ALL_CHANNELS_MASK = 0x1F
+CHANNEL_BITS = {"beat": 0x01, "beat_i": 0x02, "beat_q": 0x04, "mzi": 0x08, "tap": 0x10, "mzi_q": 0x20}
+ALL_CHANNELS_MASK = 0x3F
 MAGIC = b"DGSG"
 VERSION = 1
 HEADER = struct.Struct("<4sBBBBIIQII")
@@ -113,6 +115,8 @@ def validate_mask(mask: int) -> None:
         raise DigitizerProtocolError("I/Q option needs both beat_i and beat_q")
     if iq and mask & 0x01:
         raise DigitizerProtocolError("beat and beat_i/beat_q are exclusive (one ADC pair)")
+    if mask & CHANNEL_BITS["mzi_q"] and not mask & CHANNEL_BITS["mzi"]:
+        raise DigitizerProtocolError("mzi_q (the monitor's quadrature output) needs mzi (its in-phase output)")
 
 
 def channels_of(mask: int) -> tuple[str, ...]:

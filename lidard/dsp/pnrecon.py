@@ -48,6 +48,11 @@ def quadrature_delta(mzi_i: np.ndarray, mzi_q: np.ndarray, *, fs_hz: float, beat
     k = np.arange(i.shape[-1], dtype=np.float64)
     # the offsets (photodiode DC, ADC offset) would bias the angle: the fringe averages out over a ramp
     z = (i - i.mean(axis=-1, keepdims=True)) + 1j * (q - q.mean(axis=-1, keepdims=True))
+    # On a falling ramp the fringe turns backwards (frequency -beat_hz) and the laser phase enters the
+    # real beat with the opposite sign, which the beat's analytic signal (always turning forwards)
+    # absorbs by conjugation: read such a ramp as I - jQ so that delta has the beat's sign convention.
+    backwards = np.sum(np.angle(z[..., 1:] * np.conj(z[..., :-1])), axis=-1, keepdims=True) < 0
+    z = np.where(backwards, np.conj(z), z)
     return np.unwrap(np.angle(z * np.exp(-2j * np.pi * beat_hz / fs_hz * k)), axis=-1)
 
 

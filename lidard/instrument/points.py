@@ -25,17 +25,18 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class RawBatch:
-    """Consecutive pixels' segments as read: ``beat``/``mzi`` are (pixels, averages, samples)."""
+    """Consecutive pixels' segments as read: ``beat``/``mzi``/``mzi_q`` are (pixels, averages, samples)."""
 
     beat: np.ndarray
     pixels: np.ndarray               # (pixels, 2) row, col
     t_pix_s: np.ndarray              # hardware time of each pixel's first trigger since scan start
     clipped: np.ndarray              # a segment of the pixel was over range
     mzi: np.ndarray | None = None    # monitor MZI records (phase-noise compensation, §2.3)
+    mzi_q: np.ndarray | None = None  # the monitor's quadrature output (compensation at any range)
 
     @property
     def nbytes(self) -> int:
-        return self.beat.nbytes * (1 if self.mzi is None else 2)
+        return self.beat.nbytes * (1 + (self.mzi is not None) + (self.mzi_q is not None))
 
 
 class PointBuffer:
@@ -74,7 +75,9 @@ class PointBuffer:
         pend, self._pending, self._pending_bytes = self._pending, [], 0
         beat = np.concatenate([p.beat for p in pend])
         mzi = np.concatenate([p.mzi for p in pend]) if pend[0].mzi is not None else None
-        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v)
+        mzi_q = np.concatenate([p.mzi_q for p in pend]) if pend[0].mzi_q is not None else None
+        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v,
+                               mzi_q=mzi_q)
         self._chunks.append(points_from(res, self.optics, np.concatenate([p.pixels for p in pend]),
                                         np.concatenate([p.t_pix_s for p in pend]),
                                         np.concatenate([p.clipped for p in pend])))

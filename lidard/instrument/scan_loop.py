@@ -16,6 +16,7 @@ The run's state lives in one :class:`ScanRun` context passed between the stages.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from dataclasses import dataclass, field
 from typing import Any
@@ -66,18 +67,29 @@ class ScanPlan:
     acquisition: AcquisitionPlan
     dsp: FrameDsp
     lsb_v: float
+    quadrature: bool = False            # the monitor MZI read in quadrature ("mzi_q", [monitor] quadrature)
 
     @property
     def n_pixels(self) -> int:
         return len(self.pixels)
 
 
-def adc_plan(cfg: Config, max_range_m: float) -> AdcPlan:
-    """Sample rate and record length for beats up to ``max_range_m`` (plus the Doppler allowance)."""
+def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = False) -> AdcPlan:
+    """Sample rate and record length for beats up to ``max_range_m`` (plus the Doppler allowance).
+
+    ``whole_monitor_delay``: the quadrature reconstruction steps the laser phase by the monitor delay,
+    so the rate is raised to a whole number of samples per delay (lidard.dsp.pnrecon.whole_delay_samples).
+    """
     c, a = cfg.chirp, cfg.adc
     doppler = 2 * cfg.scan.max_speed_mps / c.wavelength_m
     fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
                      max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
+    if whole_monitor_delay:
+        tau_m = cfg.monitor.delay_s
+        fs = math.ceil(fs * tau_m - 1e-9) / tau_m
+        if fs > a.max_sample_rate_hz:
+            raise InstrumentError(f"scan: the quadrature monitor needs a whole number of samples per monitor delay "
+                                  f"({tau_m:g} s): {fs / 1e6:.1f} MHz is above adc.max_sample_rate_hz")
     r = int(round(fs * c.ramp_s))
     # 16-bit records: the digitizer decimates its full-rate core on board (more bits at low rates)
     return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r, bits=16)
@@ -99,15 +111,17 @@ def plan_scan(cfg: Config, optics, request: ScanRequest) -> ScanPlan:
     avg = int(request.averages)
     tau_m = cfg.monitor.delay_s
     pn_on = phase_noise_on(cfg, request)
+    quad = pn_on and cfg.monitor.quadrature
     # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
-    adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m)
-    channels = ("beat", "mzi") if pn_on else ("beat",)
+    adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m,
+                   whole_monitor_delay=quad)
+    channels = ("beat", "mzi", "mzi_q") if quad else ("beat", "mzi") if pn_on else ("beat",)
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
                    max_speed_mps=cfg.scan.max_speed_mps, window=cfg.scan.window, pfa=cfg.scan.pfa,
                    max_returns=cfg.scan.max_returns)
     acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
-    return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits)
+    return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
 
 
 def batch_pixels(cfg: Config, p: ScanPlan) -> int:
@@ -246,6 +260,7 @@ class ScanLoop:
             run.hw_t0_ns = t_ns[0] - run.t_shift_s * 1e9
         beat = samples[:, acq.channel_index("beat"), :].reshape(bp, avg, rl)
         mzi = samples[:, acq.channel_index("mzi"), :].reshape(bp, avg, rl) if p.phase_noise else None
+        mzi_q = samples[:, acq.channel_index("mzi_q"), :].reshape(bp, avg, rl) if p.quadrature else None
         # a clipped beat puts harmonics and a wrong amplitude into the spectrum
         over = np.array([h.overrange for h in headers], dtype=np.int64).reshape(bp, avg) != 0
         clipped = over.any(axis=1)
@@ -254,7 +269,7 @@ class ScanLoop:
         t_pix = (t_ns.reshape(bp, avg)[:, 0] - run.hw_t0_ns) * 1e-9
         if run.raw is not None:
             run.raw.add(samples, headers, t_pix, acq.layout.channels)
-        batch = RawBatch(beat, p.pixels[run.done:run.done + bp], t_pix, clipped, mzi)
+        batch = RawBatch(beat, p.pixels[run.done:run.done + bp], t_pix, clipped, mzi, mzi_q)
         run.done += bp
         run.hw_last_s = (t_ns[-1] - run.hw_t0_ns) * 1e-9 + rl / p.adc.fs_hz
         run.points.add(batch, last=run.done >= p.n_pixels)
@@ -305,7 +320,10 @@ class ScanLoop:
             meta["dsp"]["phase_noise"] = {
                 "mzi_delay_s": p.mzi_delay_s, "mzi_beat_hz": comp.mzi_beat_hz, "m_max": comp.m_max,
                 # nearest M of the bins inside the range gate (0 = uncompensated near ranges)
-                "m_range": list(gate_m_range(dsp, p.mzi_delay_s))}
+                "m_range": list(gate_m_range(dsp, p.mzi_delay_s)),
+                # quadrature: every bin at its own round trip, to the grid step; single MZI: nearest M tau_m
+                "method": "quadrature" if p.quadrature else "single MZI",
+                "tau_step_s": comp.step_s if p.quadrature else p.mzi_delay_s}
         if run.raw is not None:
             meta["raw"] = {"pixels": run.raw.pixels_recorded, "error": run.raw.error}
         if run.safe is not None:

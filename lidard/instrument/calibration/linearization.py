@@ -4,7 +4,10 @@ The ILC itself (:func:`lidard.dsp.ilc.linearize`) is pure: it asks for measureme
 waveform and learns the pre-distortion. Here each measurement is one acquisition on the centre pixel:
 the drive is loaded into the AWG, the FPGA fires ``n_avg`` chirps, the digitizer records the monitor
 MZI channel, and the safety monitor is checked before the samples are trusted. The ADC rate is set by
-the MZI beat (chirp rate x MZI delay), not by the scan range.
+the MZI beat (chirp rate x MZI delay), not by the scan range. With a quadrature monitor
+(``[monitor] quadrature``: channels ``mzi`` and ``mzi_q``) each record is the complex I + jQ and the ILC
+averages per-record phases (:mod:`lidard.dsp.ilcquad`), which reaches >= 1000x on the broad-linewidth
+laser where the averaged real fringe fades (issue 15).
 """
 
 from __future__ import annotations
@@ -40,12 +43,15 @@ class Linearization:
         self.record_length = 2 * int(round(self.fs_hz * c.ramp_s))
         rows = optics.bonded_rows
         self.centre = np.array([[rows[len(rows) // 2], optics.cols // 2]])
+        self.quadrature = bool(cfg.monitor.quadrature)
+        self.channels = ("mzi", "mzi_q") if self.quadrature else ("mzi",)
         self.measurements = 0
         self.faults: dict[str, Any] = {"batch_retries": 0}
 
     def measure(self, drive_v: np.ndarray, n_avg: int) -> np.ndarray:
-        """The ILC's measurement: ``n_avg`` MZI records (volts-proportional float64) of ``drive_v``."""
-        plan = AcquisitionPlan(self.centre, n_avg, ("mzi",), self.fs_hz, self.record_length, 16)
+        """The ILC's measurement: ``n_avg`` MZI records (volts-proportional) of ``drive_v``: float64, or
+        complex I + jQ with a quadrature monitor."""
+        plan = AcquisitionPlan(self.centre, n_avg, self.channels, self.fs_hz, self.record_length, 16)
         acq = self.lifecycle.ready(plan, drive_v=drive_v, faults=self.faults)
         self.lifecycle.start(acq)
         _, samples = self.lifecycle.read(acq, 0, n_avg)
@@ -57,7 +63,10 @@ class Linearization:
         self.measurements += 1
         if self.progress is not None:
             self.progress({"measurements": self.measurements})
-        return samples[:, 0, :].astype(np.float64)
+        i = samples[:, acq.channel_index("mzi"), :].astype(np.float64)
+        if not self.quadrature:
+            return i
+        return i + 1j * samples[:, acq.channel_index("mzi_q"), :]
 
     def run(self, plain_drive_v: np.ndarray, laser: str) -> CalibrationResult:
         c = self.cfg.chirp
@@ -77,4 +86,5 @@ class Linearization:
         return CalibrationResult(iterations=iters, reduction={k: float(v) for k, v in dict(res.reduction).items()},
                                  converged=bool(res.converged), laser=laser, temperature_c=temp,
                                  drive_v=np.asarray(res.drive_v, dtype=np.float64), fs_drive_hz=AWG_RATE_HZ,
-                                 meta={"mzi_delay_s": self.mzi_delay_s, "adc_rate_hz": self.fs_hz})
+                                 meta={"mzi_delay_s": self.mzi_delay_s, "adc_rate_hz": self.fs_hz,
+                                       "monitor": "quadrature" if self.quadrature else "single MZI"})

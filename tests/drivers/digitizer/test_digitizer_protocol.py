@@ -134,3 +134,25 @@ def test_golden_bandwidth_and_config_with_resolution():
         bad[21], bad[22] = fmt, res
         with pytest.raises(p.DigitizerProtocolError, match="resolution"):
             p.decode_config(bytes(bad))
+
+
+D11 = bytes.fromhex("44 47 53 47 01 10 29 04 09 00 00 00 01 00 00 00"
+                    "C0 C6 2D 00 00 00 00 00 2E 0F 9C 6D 8A 25 DF 96"
+                    "64 00 D0 07 30 F8")
+
+
+def test_golden_segment_quadrature_monitor_channel():
+    """Bit 5 = mzi_q (issue 15), payload after beat and mzi (ascending bit order)."""
+    mask = p.channel_mask(("beat", "mzi", "mzi_q"))
+    assert mask == 0x29
+    assert p.channels_of(mask) == ("beat", "mzi", "mzi_q")
+    assert p.encode_segment(9, 3_000_000, mask, 16, 0b100, np.array([[100], [2000], [-2000]])) == D11
+    h, s, _ = p.decode_segment(D11)
+    assert s[:, 0].tolist() == [100, 2000, -2000] and h.overrange == 0b100 and h.channel_mask == 0x29
+
+
+def test_quadrature_monitor_channel_needs_its_in_phase_channel():
+    with pytest.raises(p.DigitizerProtocolError, match="mzi_q"):
+        p.channel_mask(("beat", "mzi_q"))
+    with pytest.raises(p.DigitizerProtocolError):
+        p.validate_mask(0x40)     # bit 6 is still undefined
