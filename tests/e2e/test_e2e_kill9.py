@@ -11,13 +11,7 @@ file, every file parses). All waiting is bounded polling with deadlines, never a
 from __future__ import annotations
 
 import json
-import os
-import re
-import signal
 import sqlite3
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import httpx
@@ -25,59 +19,10 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
+from tests.helpers.daemon import kill_group, poll, start_daemon
+
 REPO = Path(__file__).resolve().parents[2]
-STARTUP_S = 60.0
-
-
-def _start_daemon(data_dir: Path) -> tuple[subprocess.Popen, str]:
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "lidard", "--config", str(REPO / "config" / "sim.toml"), "--port", "0",
-         "--data-dir", str(data_dir), "--log-level", "warning"],
-        cwd=REPO, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        start_new_session=True)     # own process group: kill -9 reaches the bench child too
-    deadline = time.monotonic() + STARTUP_S
-    lines = []
-    while time.monotonic() < deadline:
-        line = proc.stderr.readline().decode(errors="replace")
-        if not line:
-            if proc.poll() is not None:
-                break
-            continue
-        lines.append(line)
-        m = re.search(r"serving on (http://[\d.]+:\d+)", line)
-        if m:
-            url = m.group(1)
-            # the socket is bound before uvicorn starts: wait for the app to answer
-            while time.monotonic() < deadline:
-                try:
-                    if httpx.get(url + "/health", timeout=2.0).status_code == 200:
-                        return proc, url
-                except httpx.TransportError:
-                    time.sleep(0.05)   # polling interval only; the deadline decides
-            break
-    _kill_group(proc)
-    pytest.fail("lidard did not come up: " + "".join(lines[-20:]))
-
-
-def _kill_group(proc: subprocess.Popen) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait(timeout=30)
-    if proc.stderr:
-        proc.stderr.close()
-
-
-def _poll(fn, timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        got = fn()
-        if got:
-            return got
-        time.sleep(0.05)       # polling interval only; the deadline decides
-    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+_start_daemon, _kill_group, _poll = start_daemon, kill_group, poll   # names the other e2e files import
 
 
 def _scan(client: httpx.Client, sid: str) -> dict:

@@ -9,7 +9,6 @@ killed mid-scan leaves a capture whose committed prefix reads and reprocesses, m
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 
 import numpy as np

@@ -13,21 +13,17 @@ from __future__ import annotations
 
 import io
 import os
-import re
 import shutil
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
 
+from tests.helpers.daemon import start_daemon, stop_daemon
+
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = os.environ.get("LIDARD_CHROMIUM", "/usr/bin/chromium")
-STARTUP_S = 60.0
 # Software WebGL (SwiftShader) in a headless, sandbox-less container (CI runs as root).
 CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                  "--ignore-gpu-blocklist"]
@@ -41,50 +37,6 @@ def _browser_or_skip():
     except ImportError:
         pytest.skip("the playwright package is not installed (pip install -e '.[test]')")
     return sync_playwright
-
-
-def start_daemon(data_dir: Path, scene: str | None = None) -> tuple[subprocess.Popen, str]:
-    """``python -m lidard`` on a free port; answers the process and its base URL once /health is up."""
-    cmd = [sys.executable, "-m", "lidard", "--config", str(REPO / "config" / "sim.toml"), "--port", "0",
-           "--data-dir", str(data_dir), "--log-level", "warning"]
-    proc = subprocess.Popen(cmd, cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"},
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True)  # own process group: the bench child goes with it
-    deadline = time.monotonic() + STARTUP_S
-    lines: list[str] = []
-    while time.monotonic() < deadline:
-        line = proc.stderr.readline().decode(errors="replace")
-        if not line:
-            if proc.poll() is not None:
-                break
-            continue
-        lines.append(line)
-        m = re.search(r"serving on (http://[\d.]+:\d+)", line)
-        if m:
-            url = m.group(1)
-            while time.monotonic() < deadline:
-                try:
-                    if httpx.get(url + "/health", timeout=2.0).status_code == 200:
-                        return proc, url
-                except httpx.TransportError:
-                    time.sleep(0.05)  # polling interval only; the deadline decides
-            break
-    stop_daemon(proc)
-    pytest.fail("lidard did not come up: " + "".join(lines[-20:]))
-
-
-def stop_daemon(proc: subprocess.Popen) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait(timeout=20)
-    except (ProcessLookupError, subprocess.TimeoutExpired):
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait(timeout=20)
-    if proc.stderr:
-        proc.stderr.close()
 
 
 def run_scan_in_page(page, url: str, rows: tuple[int, int], cols: tuple[int, int], timeout_s: float) -> str:
