@@ -307,6 +307,9 @@ class ScanLoop:
         p, dsp, adc = run.plan, run.plan.dsp, run.plan.adc
         meta: dict[str, Any] = {
             "adc": {"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
+                    # the resolution asked of the digitizer (core bits + decimation gain + guard bits)
+                    "resolution_bits": self.cfg.adc.record_bits(adc.fs_hz, adc.bits),
+                    "bandwidth_hz": self.cfg.adc.bandwidth_hz,
                     "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
             "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
                     "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction,

@@ -59,6 +59,10 @@ def test_cal_letters_every_pixel_ranged_within_a_millimetre(embedded):
     # points lie along their beams: |xyz| = range
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
     assert np.allclose(np.linalg.norm(xyz, axis=1), pts["range"], rtol=1e-5)
+    # the record resolution asked of the digitizer: the 8-bit core at 1 GS/s decimated to fs gains
+    # log2(sqrt(1e9 / fs)) bits, plus 4 guard bits, capped at the 16-bit format
+    fs = res.meta["adc"]["sample_rate_hz"]
+    assert res.meta["adc"]["resolution_bits"] == min(16, 8 + round(0.5 * np.log2(1e9 / fs)) + 4)
 
 
 def test_empty_scene_gives_no_points(embedded):

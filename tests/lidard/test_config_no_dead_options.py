@@ -58,9 +58,8 @@ CONSUMED_IN_CONFIG = {
     ("Adc", "max_sample_rate_hz"): "Adc.record_bits",
 }
 
-# Wired on a parallel branch not yet merged (issue 15's quadrature monitor, branch h-quad: scan_loop
-# and linearization read cfg.monitor.quadrature). Delete the entry when that branch is in.
-PENDING_WIRING = {("Monitor", "quadrature")}
+# Fields whose wiring is still pending (none: keep it empty; an entry needs the reason next to it).
+PENDING_WIRING: set[tuple[str, str]] = set()
 
 
 # lidard.config and the models it re-exports (lidard/config_models/) are one module, split for size
