@@ -9,6 +9,9 @@ Identification, the health check of GET /devices (with one reconnect) and closin
 
 from __future__ import annotations
 
+import dataclasses
+import enum
+
 import logging
 from typing import Any, Callable, Iterator
 
@@ -50,7 +53,7 @@ class DeviceRegistry:
     def identify(self, name: str) -> None:
         try:
             ident = self._drivers[name].identify()
-            self.identity[name] = ident if isinstance(ident, str) else repr(ident)
+            self.identity[name] = ident if isinstance(ident, str) else describe(ident)
         except Exception as exc:  # reported by devices(); a scan will fail with the cause
             self.identity[name] = f"unreachable: {exc}"
 
@@ -84,7 +87,7 @@ class DeviceRegistry:
                              faults=[first] + ([f"reconnect: {type(exc2).__name__}: {exc2}"]
                                                if str(exc2) != str(exc) else []))
                 return entry
-        entry.update(connected=True, identity=self.identity.get(name), state=repr(state),
+        entry.update(connected=True, identity=self.identity.get(name), state=describe(state),
                      faults=faults_of(state))
         return entry
 
@@ -100,6 +103,36 @@ class DeviceRegistry:
                 self._drivers[name].close()
             except Exception:
                 pass
+
+
+def describe(reply: Any) -> str:
+    """A device's status or identity reply as one readable line for people (GET /devices, the
+    viewer, ``lidarctl devices``): ``key=value`` pairs of a dataclass or named tuple, enum members by
+    name, sets as sorted names, floats to 4 significant digits; never a Python repr."""
+    if dataclasses.is_dataclass(reply) and not isinstance(reply, type):
+        pairs = [(f.name, getattr(reply, f.name)) for f in dataclasses.fields(reply)]
+    elif isinstance(reply, tuple) and hasattr(reply, "_fields"):
+        pairs = list(zip(reply._fields, reply))
+    else:
+        return _plain(reply)
+    return ", ".join(f"{k}={_plain(v)}" for k, v in pairs)
+
+
+def _plain(v: Any) -> str:
+    if isinstance(v, enum.Flag) and not isinstance(v, enum.IntEnum):
+        names = [m.name for m in type(v) if m.value and m in v and m.name]
+        return "+".join(names) if names else "none"
+    if isinstance(v, enum.Enum):
+        return str(v.name)
+    if isinstance(v, (set, frozenset)):
+        return "+".join(sorted(_plain(x) for x in v)) or "none"
+    if isinstance(v, (list, tuple)):
+        if not v:
+            return "none"
+        return "[" + ", ".join(_plain(x) for x in v) + "]" if len(v) <= 8 else f"{len(v)} values"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
 
 
 def faults_of(state: Any) -> list[str]:
