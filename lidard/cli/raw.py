@@ -107,7 +107,8 @@ def _offline_store(args):
     from ..store import Store
     if not (Path(args.data_dir) / "lidard.sqlite3").is_file():
         raise CliError(f"--data-dir {args.data_dir}: not a lidard data directory (no lidard.sqlite3)")
-    return Store(args.data_dir)
+    # absolute: the chunk tasks carry the capture's path, and a remote worker's cwd is not ours
+    return Store(Path(args.data_dir).expanduser().resolve())
 
 
 DASK_MODULES = ("dask", "distributed")
