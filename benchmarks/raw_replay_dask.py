@@ -3,17 +3,23 @@
 Records one ROI on the embedded simulated bench (CAL-letters scene, as benchmarks/raw_replay.py), then
 reprocesses its raw capture (lidard.raw.service.reprocess_scan, one Zarr chunk per task) in this
 process and on a LocalCluster of 1 and 2 worker processes (lidard.offline.cluster.mapper). Measures
-the scheduling overhead per task (trivial tasks through the same mapper), and prints a MODEL, not a
-measurement, of 10 and 100 workers:
+the pure DSP time per chunk (reprocess_chunk in process), the client's serial part (reading nothing,
+merging, writing the cloud and sidecar: in-process wall minus the chunks' DSP), the scheduling
+overhead per task (trivial tasks through the same mapper), and the whole cost of one chunk task on
+Dask (1-worker wall minus the serial part, per chunk: DSP + scheduling + reading + sending points
+back). The MODEL (not a measurement) of W workers for a scan of C chunks of P pixels in all is
 
-    rate(W) = min(W * chunk_pixels / (t_chunk + t_sched),  1 / t_sched * chunk_pixels,  B / bytes_per_pixel)
+    T(W) = max(f * P + ceil(C / W) * t_task,  C * t_sched,  bytes / B)
 
-with t_chunk the measured in-process DSP time per chunk (reading it from the page cache included),
-t_sched the measured per-task overhead, and B an ASSUMED aggregate read bandwidth of the shared store
-(--bandwidth-gbps, default 1 GB/s: one 10 GbE NFS server); the scheduler's term assumes it hands out
-one task per t_sched. Prints whether every Dask result equals the in-process cloud.
+f the serial seconds per pixel, t_task the Dask cost per chunk, t_sched the per-task overhead (the
+scheduler hands out one task per t_sched at best), B an ASSUMED aggregate read bandwidth of the
+shared store (--bandwidth-gbps, default 1 GB/s: one 10 GbE NFS server). The model is checked
+against the measured 2-worker run before it is used for 10 and 100 workers on a larger scan
+(--model-chunks, default 1000 chunks of this scan's size). Prints whether every Dask result equals
+the in-process cloud.
 
     python benchmarks/raw_replay_dask.py [--rows 32:96] [--cols 32:96] [--repeat 3] [--bandwidth-gbps 1]
+                                         [--model-chunks 1000]
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ def run(rows, cols, repeat: int) -> dict:
     from lidard.pointcloud import read_points
     from lidard.raw import chunk_count
     from lidard.raw.capture import RAW_NAME
+    from lidard.raw.replay import reprocess_chunk
     from lidard.raw.service import reprocess_scan
 
     cfg = load_config(str(REPO / "config" / "sim.toml"))
@@ -60,6 +67,9 @@ def run(rows, cols, repeat: int) -> dict:
             out.update(pixels=rec.pixels_scanned, raw_bytes=rec.raw_bytes,
                        chunks=chunk_count(store.scan_dir(rec.id) / RAW_NAME))
             out["inproc_s"], r0 = _best(lambda: reprocess_scan(store, rec.id), repeat)
+            raw = str(store.scan_dir(rec.id) / RAW_NAME)
+            out["chunk_dsp_s"] = sum(_best(lambda: reprocess_chunk(raw, i), repeat)[0]
+                                     for i in range(out["chunks"])) / out["chunks"]
             same = [np.array_equal(pts(r0), ref)]
             for w in (1, 2):
                 with open_client(n_workers=w, processes=True) as c:
@@ -74,13 +84,19 @@ def run(rows, cols, repeat: int) -> dict:
     return out
 
 
-def model(r: dict, workers: int, bandwidth_bps: float) -> float:
-    """Modelled steady-state pixels/s on ``workers`` processes for a scan of many chunks."""
-    chunk_px = r["pixels"] / r["chunks"]
-    t_chunk = r["inproc_s"] / r["chunks"]
-    t_sched = r["sched2_s"]
-    bytes_per_px = r["raw_bytes"] / r["pixels"]
-    return min(workers * chunk_px / (t_chunk + t_sched), chunk_px / t_sched, bandwidth_bps / bytes_per_px)
+def costs(r: dict) -> dict:
+    """The model's inputs from the measurements: serial s/pixel, Dask s/chunk, scheduler s/task."""
+    serial_s = max(r["inproc_s"] - r["chunks"] * r["chunk_dsp_s"], 0.0)
+    return {"f": serial_s / r["pixels"], "t_task": (r["dask1_s"] - serial_s) / r["chunks"],
+            "t_sched": r["sched2_s"], "bytes_per_chunk": r["raw_bytes"] / r["chunks"],
+            "px_per_chunk": r["pixels"] / r["chunks"]}
+
+
+def model_s(k: dict, workers: int, chunks: int, bandwidth_bps: float) -> float:
+    """Modelled wall seconds of a scan of ``chunks`` chunks (this scan's chunk size) on ``workers``."""
+    pixels = chunks * k["px_per_chunk"]
+    return max(k["f"] * pixels + math.ceil(chunks / workers) * k["t_task"], chunks * k["t_sched"],
+               chunks * k["bytes_per_chunk"] / bandwidth_bps)
 
 
 def main() -> None:
@@ -88,6 +104,7 @@ def main() -> None:
     ap.add_argument("--rows", type=_range, default=[32, 96], help="ROI rows A:B (default 32:96)")
     ap.add_argument("--cols", type=_range, default=[32, 96], help="ROI columns A:B (default 32:96)")
     ap.add_argument("--repeat", type=int, default=3, help="runs of each measurement; the best is shown")
+    ap.add_argument("--model-chunks", type=int, default=1000, help="chunks of the modelled large scan")
     ap.add_argument("--bandwidth-gbps", type=float, default=1.0,
                     help="ASSUMED aggregate read bandwidth of the shared store for the model, GB/s")
     a = ap.parse_args()
@@ -100,12 +117,21 @@ def main() -> None:
     for name, key in (("in process", "inproc_s"), ("Dask, 1 worker process", "dask1_s"),
                       ("Dask, 2 worker processes", "dask2_s")):
         print(f"{name:34s}{r[key]:9.3f}{n / r[key]:11.0f}{r['inproc_s'] / r[key]:14.2f}x")
-    print(f"scheduling overhead per task: {r['sched1_s'] * 1e3:.2f} ms (1 worker), "
-          f"{r['sched2_s'] * 1e3:.2f} ms (2 workers); DSP per chunk in process "
-          f"{r['inproc_s'] / r['chunks'] * 1e3:.1f} ms")
-    print(f"MODEL (not measured), many chunks, store bandwidth {a.bandwidth_gbps:g} GB/s assumed:")
-    for w in (2, 10, 100):
-        print(f"  {w:4d} workers: {model(r, w, a.bandwidth_gbps * 1e9):11.0f} pixels/s")
+    k = costs(r)
+    print(f"DSP per chunk (in process) {r['chunk_dsp_s'] * 1e3:.1f} ms; client serial part "
+          f"{k['f'] * n * 1e3:.1f} ms ({k['f'] * 1e6:.2f} us/pixel); Dask cost per chunk task "
+          f"{k['t_task'] * 1e3:.1f} ms; scheduling overhead per task {r['sched1_s'] * 1e3:.2f} ms (1 worker), "
+          f"{r['sched2_s'] * 1e3:.2f} ms (2 workers)")
+    bw = a.bandwidth_gbps * 1e9
+    t2 = model_s(k, 2, r["chunks"], bw)
+    print(f"model check, this scan on 2 workers: {t2:.3f} s modelled vs {r['dask2_s']:.3f} s measured")
+    c = a.model_chunks
+    print(f"MODEL (not measured): {c} chunks = {c * k['px_per_chunk']:.0f} pixels, "
+          f"{c * k['bytes_per_chunk'] / 1e9:.2f} GB; store bandwidth {a.bandwidth_gbps:g} GB/s assumed")
+    t1 = model_s(k, 1, c, bw)
+    for w in (1, 2, 10, 100):
+        t = model_s(k, w, c, bw)
+        print(f"  {w:4d} workers: {t:8.2f} s, {c * k['px_per_chunk'] / t:9.0f} pixels/s, x{t1 / t:.1f} vs 1 worker")
     print(f"Dask results identical to the in-process cloud: {r['identical']}")
 
 
