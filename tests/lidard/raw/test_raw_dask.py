@@ -114,3 +114,22 @@ def test_missing_extra_names_the_install_command_and_default_stays_in_process(ca
     assert code == 0, err
     assert json.loads(out)["executor"] == "in-process"
     assert "reprocessing 1 scan(s): in-process" in err
+
+
+@pytest.mark.parametrize("flags, workers", [(["--workers", "2"], 2), (["--dask"], None)])
+def test_dask_and_workers_start_a_local_cluster_of_processes(capsys, data, monkeypatch, flags, workers):
+    """--dask/--workers ask open_client for a LocalCluster of processes (here swapped for threads)."""
+    import os
+
+    from lidard.offline import cluster
+    sid = _record(capsys, data)
+    asked, real = [], cluster.open_client
+    def fake_open_client(scheduler=None, **kw):     # noqa: E306 - records the request, runs in threads
+        asked.append((scheduler, kw["n_workers"], kw["processes"]))
+        return real(n_workers=kw["n_workers"], processes=False)
+    monkeypatch.setattr(cluster, "open_client", fake_open_client)
+    code, out, err = run(capsys, "reprocess", sid, "--data-dir", str(data), *flags, "--json", "--progress", "none")
+    assert code == 0, err
+    n = workers or os.cpu_count()
+    assert asked == [(None, n, True)]
+    assert json.loads(out)["executor"] == f"dask LocalCluster ({n} worker processes)"
