@@ -44,6 +44,7 @@ def test_reprocess_offline_reproduces_the_scan_and_links_it(capsys, recorded):
     assert code == 0, err
     s = json.loads(out)
     assert s["reprocessed_from"] == sid and s["state"] == "done" and s["out"] == str(tmp / "again.npz")
+    assert s["executor"].startswith("dask LocalCluster")   # the default: 3 chunks and the extra installed
     assert np.array_equal(read_points(tmp / "again.npz"), read_points(tmp / "orig.npz"))
     assert read_sidecar(tmp / "again.npz")["reprocessed_from"] == sid
 
@@ -51,7 +52,7 @@ def test_reprocess_offline_reproduces_the_scan_and_links_it(capsys, recorded):
 def test_reprocess_offline_with_overrides(capsys, recorded):
     data, sid, tmp = recorded
     code, out, err = run(capsys, "reprocess", sid, "--data-dir", str(data), "--estimator", "quinn2", "--pfa", "1e-4",
-                         "--window", "blackmanharris", "--out", str(tmp / "q.npz"))
+                         "--window", "blackmanharris", "--out", str(tmp / "q.npz"), "--in-process")
     assert code == 0, err and "reprocessed from" in out
     ref = reprocess(data / "scans" / sid / "raw.zarr",
                     ReprocessSettings(estimator="quinn2", pfa=1e-4, window="blackmanharris")).points
