@@ -1,4 +1,4 @@
-"""Offline work that outgrows one process: design sweeps (and, later, reprocessing raw captures) on Dask.
+"""Offline work that outgrows one process on Dask: design sweeps, and the cluster layer that `lidarctl reprocess` also uses for raw captures.
 
 Nothing here runs inside the daemon: the daemon stays one process per instrument. This package needs
 the ``offline`` extra (dask.distributed, pyarrow); :func:`require_offline_extra` turns a missing
