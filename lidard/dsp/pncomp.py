@@ -212,13 +212,7 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
                                        max_delay_s=max_delay_s, window=window, start=start, stop=stop,
                                        nfft=nfft, chirp_rate_hz_per_s=chirp_rate_hz_per_s,
                                        tau_step_s=tau_step_s, n_edge=n_edge)
-    z = hilbert(b - b.mean())[start:stop]
-    w = get_window(window, stop - start, fftbins=False)
-    nfft = int(nfft or (stop - start))
-    freq = np.fft.fftfreq(nfft, d=1.0 / fs_hz)
-    pos = (freq >= 0) & (freq < fs_hz / 2)
-    freq = freq[pos]
-    raw = np.abs(np.fft.fft(z * w, nfft))[pos]
+    z, w, nfft, pos, freq, raw = _analytic_spectrum(b, window, start, stop, nfft, fs_hz)
     m_of_bin = np.clip(np.rint(freq / pn.f_mzi_hz), 0, m_max).astype(int)
     comp = np.empty_like(raw)
     for m, s in cumulative_phase_noise(pn.delta_rad, m_max, d):
@@ -229,6 +223,18 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
         comp[sel] = spec[sel]
     return CompensatedSpectrum(freq_hz=freq, raw=raw, comp=comp, m_of_bin=m_of_bin, f_mzi_hz=pn.f_mzi_hz,
                                start=start)
+
+
+def _analytic_spectrum(b, window, start, stop, nfft, fs_hz):
+    """The beat's analytic signal over [start, stop), its window, and its uncompensated magnitude
+    spectrum on the positive frequencies (both compensations start from it)."""
+    z = hilbert(b - b.mean())[start:stop]
+    w = get_window(window, stop - start, fftbins=False)
+    nfft = int(nfft or (stop - start))
+    freq = np.fft.fftfreq(nfft, d=1.0 / fs_hz)
+    pos = (freq >= 0) & (freq < fs_hz / 2)
+    raw = np.abs(np.fft.fft(z * w, nfft))[pos]
+    return z, w, nfft, pos, freq[pos], raw
 
 
 def _reconstructed_spectrum(b, mzi_i, mzi_q, *, fs_hz, mzi_delay_s, max_delay_s, window, start, stop, nfft,
@@ -246,13 +252,7 @@ def _reconstructed_spectrum(b, mzi_i, mzi_q, *, fs_hz, mzi_delay_s, max_delay_s,
     valid = np.zeros(b.size, dtype=bool)
     valid[n_edge:b.size - n_edge] = True
     phi, _ = reconstruct_phase(delta, valid, d_samples)
-    z = hilbert(b - b.mean())[start:stop]
-    w = get_window(window, stop - start, fftbins=False)
-    nfft = int(nfft or (stop - start))
-    freq = np.fft.fftfreq(nfft, d=1.0 / fs_hz)
-    pos = (freq >= 0) & (freq < fs_hz / 2)
-    freq = freq[pos]
-    raw = np.abs(np.fft.fft(z * w, nfft))[pos]
+    z, w, nfft, pos, freq, raw = _analytic_spectrum(b, window, start, stop, nfft, fs_hz)
     g_max = int(math.ceil(max_delay_s / step))
     g_of_bin = np.clip(np.rint(freq / (gamma * step)), 0, g_max).astype(int)
     comp = np.empty_like(raw)
