@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -45,15 +43,13 @@ def _scan(worker, body: dict):
 
 
 def _machine() -> str:
-    model = "unknown CPU"
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}"
+        from benchmarks.report import machine_facts
+    except ImportError:       # run as a script: benchmarks/ itself is on sys.path
+        from report import machine_facts
+    f = machine_facts()
+    model = f["cpu_model"] or "unknown CPU"
+    return f"{model}, {f['cpus']} cores, Python {f['python']}, numpy {np.__version__}"
 
 
 def run(rows: list[int], cols: list[int], averages: int, workers: int, repeat: int, phase_noise: str) -> dict:
