@@ -32,7 +32,7 @@ from .config_models.presets import (  # noqa: F401  (re-exported: lidard.config 
     BondedRows, FpsaLosses, LaserPreset, Lens, Profile, SwitchTiming, ThermalTerm,
 )
 from .config_models.sections import (  # noqa: F401  (re-exported)
-    Adc, AwgDevice, Chirp, ControllerDevice, Daemon, Detector, Devices, Effects, FpsaDevice, Link, Live,
+    Adc, AwgDevice, Chirp, ControllerDevice, Daemon, Detector, Devices, Effects, FpsaDevice, Link, Live, Tolerances,
     Monitor, ScanDefaults, Sim, UsbDevice,
 )
 from .errors import ConfigError

@@ -183,12 +183,36 @@ class Effects(_Model):
     noise: bool = True
 
 
+class Tolerances(_Model):
+    """What a real bench has and the daemon does not know (issue 13): the simulated bench draws each
+    true value once (seeded by ``seed``, or ``sim.seed`` when None) uniformly within +- its bound, or
+    takes the bound itself with ``draw = false`` (sensitivity studies). A bound of 0 switches that
+    tolerance off; ``enabled = false`` switches them all off (the bench then matches the nominal
+    configuration exactly, as before issue 13). The daemon never reads this section: it learns the
+    truth only through its calibrations."""
+
+    enabled: bool = True
+    draw: bool = True
+    seed: int | None = None
+    mzi_delay_rel: float = Field(default=0.01, ge=0, le=0.05)      # true delay = nominal x (1 + eps)
+    zero_offset_m: float = Field(default=0.05, ge=0, le=1.0)        # reference reflection -> lens path
+    focal_rel: float = Field(default=0.01, ge=0, le=0.05)           # true f = nominal x (1 + eps)
+    decentre_px: float = Field(default=1.0, ge=0, le=10.0)          # per axis, in pixel pitches
+    rotation_deg: float = Field(default=0.5, ge=0, le=5.0)          # array about the optical axis
+    k1: float = Field(default=0.1, ge=0, le=1.0)                    # radial distortion (see Pointing)
+    tec_tuning_hz_per_c: float = Field(default=-12e9, le=0)         # DFB carrier shift per degree C
+    tec_response_per_c: float = Field(default=0.002, ge=0, le=0.05)  # relative FM-response change per C
+    tec_drift_c: float = Field(default=0.05, ge=0, le=5.0)          # slow drift of the TEC's true temperature (rms)
+    tec_drift_period_s: float = Field(default=600.0, gt=0)          # its correlation time
+
+
 class Sim(_Model):
     enabled: bool = False
     scene: str = "scenes/cal_letters.toml"
     seed: int = 1
     bench: Literal["child", "embedded"] = "child"
     effects: Effects = Effects()
+    tolerances: Tolerances = Tolerances()
     # [[sim.faults]] tables, injected by the bench at start. Only their shape is checked here: the
     # catalogue (kinds, parameters) belongs to the simulator, which checks each entry when the bench
     # is built and raises a ConfigError naming it (the daemon side never imports the simulator).
