@@ -57,11 +57,38 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, e
     if average_axis is not None:
         ax = average_axis % spec.ndim
         index = np.broadcast_to(np.expand_dims(index, ax), spec.shape[:-1] + index.shape[-1:])
+    valid = det.valid
+    if average_axis is not None:
+        valid = np.broadcast_to(np.expand_dims(valid, ax), index.shape)
     x, bins, spectrum = refine(index)
-    frac = estimate(x, bins, method=estimator, window=window, zero_pad=zero_pad, spectrum=spectrum)
+    frac = _refine_valid(x, bins, valid, spectrum, method=estimator, window=window, zero_pad=zero_pad)
     if average_axis is not None:
         frac = frac.mean(axis=average_axis % spec.ndim)
     return ChainResult(frac_bins=frac, detections=det)
+
+
+def _refine_valid(x: np.ndarray, bins: np.ndarray, valid: np.ndarray, spectrum: np.ndarray | None,
+                  **kw) -> np.ndarray:
+    """The estimator on the valid detection slots only (issue 18): a CAL pixel has about one return
+    among ``max_returns`` slots, and an empty slot's refinement is thrown away. ``x`` (lead..., N),
+    ``bins`` (lead..., K) or (lead...) and ``valid`` of the shape of ``bins``; empty slots give the
+    slot's integer bin (never read: the detection is invalid)."""
+    bins = np.asarray(bins)
+    if valid.all() or bins.shape != valid.shape:
+        return estimate(x, bins, spectrum=spectrum, **kw)
+    out = np.array(bins, dtype=np.float64, order="C")  # a broadcast view's astype keeps odd strides
+    if not valid.any():
+        return out
+    n = x.shape[-1]
+    per_row = bins.ndim == x.ndim  # (lead..., K): K peaks per ramp
+    k = bins.shape[-1] if per_row else 1
+    flat_valid = valid.reshape(-1, k)
+    rows, slots = np.nonzero(flat_valid)
+    xs = x.reshape(-1, n)[rows]
+    sp = None if spectrum is None else spectrum.reshape(-1, spectrum.shape[-1])[rows]
+    fr = estimate(xs, bins.reshape(-1, k)[rows, slots], spectrum=sp, **kw)
+    out.reshape(-1, k)[rows, slots] = fr
+    return out
 
 
 @dataclass(frozen=True)
