@@ -79,6 +79,7 @@ from .faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from .fpga import FpgaConfig, FpgaSim
 from .hv_drive import HvDrive
 from .usb_backend import SimUsbBackend, UsbBridgeServer
+from .world.fidelity import FidelityLedger, phase_noise_negligible
 from .world.laser import DfbLaser
 from .world.mems import SwitchDynamics
 from .world.scene import Scene, SceneError
@@ -143,6 +144,7 @@ class Bench:
         # FPGA run start (virtual s) -> 1, 2, ... in the order runs are first captured: the noise seed
         # (see _run_index)
         self._run_ids: dict[float, int] = {}
+        self.fidelity = FidelityLedger()  # which effects each captured batch modelled or skipped
         self.tap = TapSpec()
         # Serial line noise seeded from the bench seed: a run with faults repeats byte for byte.
         self.serial_line = SerialLineNoise((self.seed, 0x5E71A1))
@@ -469,6 +471,17 @@ class Bench:
             return 0
         return self._run_ids.setdefault(float(start), len(self._run_ids) + 1)
 
+    def _phase_noise_linewidth(self, linewidth_hz: float, hits, want_mzi: bool, noise_asd: float) -> float:
+        """The linewidth this batch is synthesized with: 0 when, for every hit, the beat's phase noise
+        is below the bounds of :mod:`sim_devices.world.fidelity` and no monitor channel needs it."""
+        if linewidth_hz <= 0:
+            return 0.0
+        c = self.cfg.chirp
+        skip = not want_mzi and (hits is None or phase_noise_negligible(
+            hits.tau_s, hits.amplitude_v, linewidth_hz, noise_asd, c.ramp_s, c.rate_hz_per_s))
+        self.fidelity.note("phase_noise", not skip)
+        return 0.0 if skip else linewidth_hz
+
     def capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
         with self._lock:
             return self._capture(first, count, cfg)
@@ -524,6 +537,11 @@ class Bench:
         # the quadrature output exists only with the hybrid fitted ([monitor] quadrature); without
         # it the mzi_q input is unconnected and reads 0
         want_q = want_mzi and "mzi_q" in cfg.channels and self.cfg.monitor.quadrature
+        linewidth = self._phase_noise_linewidth(linewidth, hits, want_mzi, noise_asd)
+        if hits is not None:
+            self.fidelity.note("doppler", bool(np.any(hits.doppler_hz != 0)))
+            self.fidelity.note("speckle", hits.phase_rad is not None)
+            self.fidelity.note("mixed_pixels", bool(self.world.scene.mixed_pixels))
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
                          linewidth_hz=linewidth, rng=rng,
@@ -608,6 +626,8 @@ class _ControlServer:
             return {"cleared": b.clear_faults(msg.get("kind"))}
         if cmd == "faults":
             return {"faults": b.active_faults()}
+        if cmd == "fidelity":
+            return {"fidelity": b.fidelity.snapshot()}
         if cmd == "ground_truth":
             truth = b.ground_truth(np.asarray(msg["rows"]), np.asarray(msg["cols"]))
             return {"range_m": [None if not np.isfinite(x) else float(x) for x in truth]}

@@ -51,6 +51,8 @@ class SimHooks:
     inject_fault: Callable[..., dict]
     clear_faults: Callable[[str | None], int]
     active_faults: Callable[[], list]
+    #: the bench's ledger of modelled / skipped effects (cumulative counts of captured batches)
+    fidelity: Callable[[], dict] | None = None
 
 
 class LidarInstrument:
@@ -159,7 +161,17 @@ class LidarInstrument:
         with self._lock:
             drive = (calibration.drive_v if (calibration is not None and calibration.drive_v.size)
                      else self._plain_drive())
-            return self.scan_loop.run(request, progress, cancel, drive, calibration, raw_path=raw_path)
+            before = self._fidelity()
+            result = self.scan_loop.run(request, progress, cancel, drive, calibration, raw_path=raw_path)
+            if before is not None:
+                result.meta["sim"] = {"fidelity": _ledger_difference(self._fidelity(), before)}
+            return result
+
+    def _fidelity(self) -> dict | None:
+        """The simulated bench's ledger of modelled / skipped effects (None on real hardware)."""
+        if self._sim is None or self._sim.fidelity is None:
+            return None
+        return self._sim.fidelity()
 
     def linearize(self, progress: Callable[[dict[str, Any]], None] | None = None) -> CalibrationResult:
         with self._lock:
@@ -216,3 +228,13 @@ class LidarInstrument:
             self.registry.close()
             if self._on_close is not None:
                 self._on_close()
+
+
+def _ledger_difference(after: dict, before: dict) -> dict:
+    """One scan's share of the bench's cumulative ledger: batches that modelled / skipped each effect."""
+    out: dict[str, Any] = {}
+    for key in ("modelled", "skipped"):
+        a, b = after.get(key, {}), before.get(key, {})
+        out[key] = {k: int(a[k]) - int(b.get(k, 0)) for k in a if int(a[k]) - int(b.get(k, 0)) > 0}
+    out["rules"] = after.get("rules", {})
+    return out
