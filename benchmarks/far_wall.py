@@ -8,7 +8,7 @@ resolution cell of the ray-cast truth. The transmitter is raised to 100 mW (as c
 and tests/e2e/test_e2e_phase_noise.py): the figure measures the phase noise, not the link budget.
 
 Run: python benchmarks/far_wall.py [--lasers dfb_broad_linewidth,dfb_default] [--walls 103,137.3,171.9,198]
-     [--quadrature true|false] [--ilc-only]
+     [--quadrature true|false] [--ilc-only] [--tx-power-w 0.1] [--averages 2]
 Prints one row per (laser, wall): ranged pixels / planned, and the ratio to the first laser's count.
 """
 
@@ -38,8 +38,9 @@ def ranged(res, bench) -> int:
     return len({(int(r), int(c)) for r, c in zip(pts["row"][good], pts["col"][good])})
 
 
-def run_laser(laser: str, walls: list[float], quadrature: bool, ilc_only: bool, max_range_m: float) -> list[dict]:
-    cfg = load_config("config/sim.toml", environ={"LIDARD__LASER": laser, "LIDARD__LINK__TX_POWER_W": "0.1",
+def run_laser(laser: str, walls: list[float], quadrature: bool, ilc_only: bool, max_range_m: float,
+              tx_power_w: float = 0.1, averages: int = 2) -> list[dict]:
+    cfg = load_config("config/sim.toml", environ={"LIDARD__LASER": laser, "LIDARD__LINK__TX_POWER_W": str(tx_power_w),
                                                    "LIDARD__MONITOR__QUADRATURE": str(quadrature).lower()})
     inst = open_instrument(cfg, scene_path="config/scenes/empty.toml", bench="embedded")
     bench = inst._on_close.__self__
@@ -54,7 +55,7 @@ def run_laser(laser: str, walls: list[float], quadrature: bool, ilc_only: bool, 
             return rows
         for z in walls:
             inst.set_scene(wall(z))
-            req = ScanRequest(pattern="roi", averages=2, max_range_m=max_range_m, phase_noise_compensation="on", **ROI)
+            req = ScanRequest(pattern="roi", averages=averages, max_range_m=max_range_m, phase_noise_compensation="on", **ROI)
             res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
             rows.append({"laser": laser, "wall_m": z, "ranged": ranged(res, bench), "planned": res.pixels_planned,
                          "method": res.meta["dsp"]["phase_noise"]["method"]})
@@ -71,10 +72,13 @@ def main() -> None:
     ap.add_argument("--quadrature", default="true", choices=("true", "false"))
     ap.add_argument("--max-range-m", type=float, default=210.0)
     ap.add_argument("--ilc-only", action="store_true")
+    ap.add_argument("--tx-power-w", type=float, default=0.1, help="transmit power (config/sim_far.toml's)")
+    ap.add_argument("--averages", type=int, default=2)
     a = ap.parse_args()
     walls = [float(w) for w in a.walls.split(",")]
     rows = [r for laser in a.lasers.split(",")
-            for r in run_laser(laser, walls, a.quadrature == "true", a.ilc_only, a.max_range_m)]
+            for r in run_laser(laser, walls, a.quadrature == "true", a.ilc_only, a.max_range_m,
+                               a.tx_power_w, a.averages)]
     if rows:
         print("| laser | monitor | wall (m) | ranged / planned |")
         print("|---|---|---|---|")

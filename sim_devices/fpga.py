@@ -749,25 +749,51 @@ class FpgaSim:
         with self._lock:
             self._parser = p.FrameParser()
 
-    def _beams(self, t0: np.ndarray, t1: np.ndarray):
-        """(window, row, col, transmission) of every beam above the floor in each window."""
+    def _beams(self, t0: np.ndarray, t1: np.ndarray, dwell: np.ndarray | None = None):
+        """(window, row, col, transmission) of every beam above the floor in each window.
+
+        ``dwell`` (optional, one id per window, non-decreasing): windows with the same id belong to
+        one pixel dwell. Candidate switches are then found once per dwell, over the dwell's whole
+        span (a switch that may be lit in a window may be lit in any span containing it: levels are
+        monotone between events and an ON command inside is caught), and the exact transmissions
+        are computed per window for those candidates only (issue 18: the averages of a pixel no
+        longer evaluate every switch each)."""
         rows_bank, cols_bank = self._switch_banks()
         floor = self.config.beam_floor
         bonded = self._candidate_rows()
-        # (windows x switches) in one pass each: a Python loop over the 2 x 128 lines cost ~30 ms
+        if dwell is None:
+            span0, span1, of = t0, t1, np.arange(t0.size)
+        else:
+            starts = np.flatnonzero(np.r_[True, dwell[1:] != dwell[:-1]])
+            ends = np.r_[starts[1:], dwell.size]
+            span0, span1 = np.minimum.reduceat(t0, starts), np.maximum.reduceat(t1, starts)
+            of = np.repeat(np.arange(starts.size), ends - starts)   # window -> its span
+        # (spans x switches) in one pass each: a Python loop over the 2 x 128 lines cost ~30 ms
         # per digitizer read
-        row_lit = rows_bank.possibly_lit_many(bonded, t0, t1, floor)
-        col_lit = cols_bank.possibly_lit_many(np.arange(self.config.cols), t0, t1, floor)
+        row_lit = rows_bank.possibly_lit_many(bonded, span0, span1, floor)
+        col_lit = cols_bank.possibly_lit_many(np.arange(self.config.cols), span0, span1, floor)
+        # candidate (span, row, col) beams, then every window of each span
         rk, ri = np.nonzero(row_lit)
         ck, cc = np.nonzero(col_lit)
-        n = t0.size
+        n = span0.size
         nc = np.bincount(ck, minlength=n)
         col_start = np.cumsum(nc) - nc
         rep = nc[rk]
-        pk = np.repeat(rk, rep)
+        sk = np.repeat(rk, rep)
         pr = bonded[np.repeat(ri, rep)]
-        within = np.arange(pk.size) - np.repeat(np.cumsum(rep) - rep, rep)
-        pc = cc[col_start[pk] + within]
+        within = np.arange(sk.size) - np.repeat(np.cumsum(rep) - rep, rep)
+        pc = cc[col_start[sk] + within]
+        if dwell is None:
+            pk = sk
+        else:
+            per_span = np.bincount(of, minlength=n)           # windows per span
+            first_win = np.cumsum(per_span) - per_span
+            rep_w = per_span[sk]
+            beam = np.repeat(np.arange(sk.size), rep_w)
+            pk = first_win[sk][beam] + (np.arange(beam.size) - np.repeat(np.cumsum(rep_w) - rep_w, rep_w))
+            pr, pc = pr[beam], pc[beam]
+            order = np.argsort(pk, kind="stable")             # window-major, as without dwells
+            pk, pr, pc = pk[order], pr[order], pc[order]
         trans = mean_path_transmission(rows_bank, pr, cols_bank, pc, t0[pk], t1[pk])
         keep = trans > floor
         return pk[keep], pr[keep], pc[keep], trans[keep]
@@ -799,7 +825,7 @@ class FpgaSim:
             t = sched.trigger_s(index)
             pixel = (index // sched.triggers_per_pixel).astype(np.int32)
             px = self._run.pattern[pixel]
-            bk, br, bc, bt = self._beams(t, t + capture_s)
+            bk, br, bc, bt = self._beams(t, t + capture_s, dwell=pixel)
             return TriggerBatch(
                 index=index, t_s=t, pixel_index=pixel, row=px[:, 0].astype(np.int16),
                 col=px[:, 1].astype(np.int16), beam_trigger=bk.astype(np.int32),
