@@ -145,6 +145,9 @@ class _DtftNearBin:
         self.n = n
         self.f0 = f0
         basis, coef = _moment_basis(n, n_terms)
+        if f0.size and np.all(f0 == np.rint(f0)):
+            self.g = _moments_on_bins(x, rows, f0, basis) * coef
+            return
         # exp(-j 2 pi f0 t / n) as an outer product over t = n2 a + b: n1 + n2 complex exponentials
         # per ramp instead of n (the per-ramp twiddle dominated the cost otherwise).
         n2 = int(np.ceil(np.sqrt(n)))
@@ -195,6 +198,37 @@ class _DtftNearBin:
     def dtft(self, delta: np.ndarray) -> np.ndarray:
         G, _, _ = self.eval(delta)
         return np.exp(-1j * np.pi * delta * (self.n - 1) / self.n) * G
+
+
+def _moments_on_bins(x: np.ndarray, rows: np.ndarray | None, f0: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """The moments mu_p around whole bins f0, grouped by bin (issue 18).
+
+    Around a whole bin k the demodulated basis s^p exp(-j 2 pi k t / N) is the same for every ramp
+    whose peak is at k, so each distinct bin costs one (N x 2P) table and its ramps one real matrix
+    product, with no per-ramp twiddle (which cost several times the product itself). A frame has
+    far fewer distinct peak bins (<= N/2) than ramps.
+    """
+    n, n_terms = basis.shape
+    k = f0.astype(np.int64)
+    mu = np.empty((k.size, n_terms), dtype=np.complex128)
+    order = np.argsort(k, kind="stable")
+    ks = k[order]
+    cuts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1], True])
+    t = np.arange(n)
+    is_complex = x.dtype.kind == "c"
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        idx = order[a:b]
+        tw = np.exp((-2j * np.pi / n) * np.mod(ks[a], n) * t)[:, None] * basis
+        table = np.concatenate([tw.real, tw.imag], axis=1)              # (N, 2P) real
+        xs = x[idx] if rows is None else x[rows[idx]]
+        if is_complex:   # (xr + j xi)(Br + j Bi)
+            r = _small_gemm(np.concatenate([xs.real, xs.imag]), table)
+            m = idx.size
+            mu[idx] = (r[:m, :n_terms] - r[m:, n_terms:]) + 1j * (r[:m, n_terms:] + r[m:, :n_terms])
+        else:
+            r = _small_gemm(np.ascontiguousarray(xs, dtype=np.float64), table)
+            mu[idx] = r[:, :n_terms] + 1j * r[:, n_terms:]
+    return mu
 
 
 def _terms_for(max_abs_delta: float) -> int:

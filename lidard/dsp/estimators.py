@@ -172,9 +172,13 @@ def _real_tone_fit(ev: _DtftNearBin, d: np.ndarray) -> np.ndarray:
 
 def _est_newton(b: _Batch, iterations: int = 3) -> np.ndarray:
     # Start from the window-aware three-bin estimate; Newton then moves at most _NEWTON_REACH.
-    f0 = (b.pb + _jacobsen_offset(b)) / b.zero_pad
-    ev = _near(b, f0, _NEWTON_REACH + 0.01)
-    d = np.zeros(ev.f0.shape)
+    start = ((b.pb + _jacobsen_offset(b)) / b.zero_pad).ravel()
+    # moments around the nearest whole bin (one table per distinct bin, see dtft._moments_on_bins);
+    # the search is the same window around the three-bin start as before
+    centre = np.rint(start)
+    ev = _near(b, centre, _NEWTON_REACH + 0.51)
+    d0 = start - centre
+    d = d0.copy()
     h = 1e-3  # finite-difference step (bins) for the real-tone objective
     for _ in range(iterations):
         if b.iq:
@@ -188,7 +192,7 @@ def _est_newton(b: _Batch, iterations: int = 3) -> np.ndarray:
             dpp = (jp - 2.0 * j0 + jm) / (h * h)
         # Concave: Newton step.  Not concave (start outside the lobe top): small uphill step.
         step = np.where(dpp < 0, -_safe_ratio(dp, dpp), 0.05 * np.sign(dp))
-        d = np.clip(d + np.clip(step, -0.25, 0.25), -_NEWTON_REACH, _NEWTON_REACH)
+        d = np.clip(d + np.clip(step, -0.25, 0.25), d0 - _NEWTON_REACH, d0 + _NEWTON_REACH)
     return ((ev.f0 + d) * b.zero_pad).reshape(b.pb.shape)
 
 
