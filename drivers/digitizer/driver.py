@@ -272,10 +272,14 @@ class DigitizerDriver:
             raise DigitizerDataError(DEVICE, command, "segment header does not match configuration")
         mv = memoryview(raw)
         size = recs.dtype.itemsize
-        for i in range(count):
+        crc = zlib.crc32
+        # the expected values as Python ints once (indexing a numpy field per segment cost more
+        # than the crc32 of its payload)
+        header_crc, payload_crc = recs["header_crc32"].tolist(), recs["payload_crc32"].tolist()
+        for i, (hc, pc) in enumerate(zip(header_crc, payload_crc)):
             o = i * size
-            if zlib.crc32(mv[o:o + 28]) != int(recs["header_crc32"][i]):
+            if crc(mv[o:o + 28]) != hc:
                 raise DigitizerDataError(DEVICE, command, f"segment {first + i} header crc32 mismatch")
-            if zlib.crc32(mv[o + p.HEADER_LEN:o + size]) != int(recs["payload_crc32"][i]):
+            if crc(mv[o + p.HEADER_LEN:o + size]) != pc:
                 raise DigitizerDataError(DEVICE, command, f"segment {first + i} payload crc32 mismatch")
 
