@@ -232,12 +232,10 @@ class SimDigitizer(SimUsbDevice):
         raw = recs.view(np.uint8)
         mv = memoryview(raw)
         size = rec.itemsize
-        pcrc = recs["payload_crc32"]
-        hcrc = recs["header_crc32"]
-        for i in range(count):
-            o = i * size
-            pcrc[i] = zlib.crc32(mv[o + p.HEADER_LEN:o + size])
-            hcrc[i] = zlib.crc32(mv[o:o + 28])
+        crc = zlib.crc32
+        # payloads first: the header's crc covers the payload crc's field (bytes 24..27)
+        recs["payload_crc32"] = [crc(mv[o + p.HEADER_LEN:o + size]) for o in range(0, count * size, size)]
+        recs["header_crc32"] = [crc(mv[o:o + 28]) for o in range(0, count * size, size)]
         # the capture of the batch's last segment must be over before it can be served
         record_s = cfg.record_length / cfg.sample_rate_hz
         self.clock.advance_to(float(t_s.max()) + record_s)
