@@ -80,6 +80,7 @@ from .fpga import FpgaConfig, FpgaSim
 from .hv_drive import HvDrive
 from .usb_backend import SimUsbBackend, UsbBridgeServer
 from .world.laser import DfbLaser
+from .world.tec import from_tolerances as tec_model
 from .world.mems import SwitchDynamics
 from .world.scene import Scene, SceneError
 from .world.synth import AdcSpec, HitBatch, synthesize, trajectory
@@ -97,7 +98,7 @@ class TapSpec:
 
 # Faults of which a bench holds at most one: a second injection replaces the first.
 _SINGLETONS = ("serial_drop", "serial_flip", "serial_disconnect", "digitizer_overrange", "hv_fault",
-               "interlock_open")
+               "interlock_open", "tec_offset")
 _USB_KIND = {"usb_timeout": "timeout", "usb_stall": "stall", "usb_disconnect": "disconnect"}
 
 
@@ -130,7 +131,9 @@ class Bench:
             row_dynamics=row_dyn, col_dynamics=col_dyn, threshold_spread_v=pr.threshold_spread_v))
         self.awg = SimAwg()
         self.digitizer = SimDigitizer(self.clock, source=self)
-        self.controller = ControllerSim(self.clock)
+        # the laser's true temperature moves its chirp (issue 13; sim_devices.world.tec)
+        self.tec_tuning, tec_drift = tec_model(cfg.sim.tolerances, self.seed)
+        self.controller = ControllerSim(self.clock, tec_drift=tec_drift)
         self.fpga.supply = self._hv_drive  # the controller's HV is the HV583 supply rail
         self._traj_key: bytes | None = None
         self._traj = None
@@ -325,6 +328,8 @@ class Bench:
             self.fpga.stick_switch(rec["line"], rec["index"], rec["state"] == "on")
         elif k == "hv_fault":
             self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, True)
+        elif k == "tec_offset":
+            self.controller.model.tec_offset_c = rec["offset_c"]
 
     def _undo(self, fid: int, rec: dict[str, Any], *, replacing: bool = False) -> None:
         self._faults.pop(fid, None)
@@ -359,6 +364,8 @@ class Bench:
             self.fpga.release_switch(rec["line"], rec["index"])
         elif k == "hv_fault":
             self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, False)
+        elif k == "tec_offset":
+            self.controller.model.tec_offset_c = 0.0
 
     def _expire(self, fid: int) -> None:
         """A fault that ends by itself (``reconnect_after_s``)."""
@@ -391,9 +398,13 @@ class Bench:
         drive, fs = self.awg.drive_volts()
         if not self.awg.output_on:
             drive = np.zeros_like(drive)
-        key = hashlib.sha1(np.ascontiguousarray(drive).tobytes() + repr(float(fs)).encode()).digest()
+        laser, temp_c = self.laser, None
+        if self.tec_tuning is not None:   # keyed on the 1 mK grid: not recomputed every batch
+            temp_c = self.tec_tuning.quantise(self.controller.model.laser_temperature_c())
+            laser = self.tec_tuning.laser_at(self.laser, temp_c)
+        key = hashlib.sha1(np.ascontiguousarray(drive).tobytes() + repr((float(fs), temp_c)).encode()).digest()
         if key != self._traj_key:
-            self._traj = trajectory(self.laser, drive, fs)
+            self._traj = trajectory(laser, drive, fs)
             self._traj_key = key
         return self._traj
 
