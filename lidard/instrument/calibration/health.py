@@ -24,41 +24,15 @@ Cost: one drive upload and ``linearity_check_records`` chirp periods on the cent
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
-from typing import Any
 
 import numpy as np
 
 from ...config import Config
 from ...dsp.chirpcheck import chirp_residual
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle
+from ..healthcheck import HealthCheck
 from ..safety import SafetyMonitor
 from .linearization import Linearization
-
-
-@dataclass(frozen=True)
-class HealthCheck:
-    """One check of a drive: the RMS error (Hz) of its chirp, per ramp and overall, and the verdict."""
-
-    residual_hz: float                  # RMS over both ramps against the ideal chirp
-    up_error_hz: float
-    down_error_hz: float
-    nonlinearity_hz: float              # max over the ramps, best-fit line removed
-    relative: float                     # residual_hz / excursion (the equivalent relative nonlinearity)
-    noise_floor_hz: float               # the measurement's own noise (two halves of the records)
-    threshold_hz: float
-    records: int
-    hardware_time_s: float              # triggers to end of the last record
-    wall_time_s: float                  # upload, acquisition and analysis on the host
-    temperature_c: float                # the TEC readback when checked (NaN if unreadable)
-
-    @property
-    def exceeded(self) -> bool:
-        return not self.residual_hz <= self.threshold_hz   # NaN (nothing measurable) counts as exceeded
-
-    def as_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "exceeded": self.exceeded}
-
 
 class LinearizationHealth:
     """``check(drive_v)`` measures the chirp of ``drive_v`` through the monitor MZI (laser and HV up
@@ -91,3 +65,4 @@ class LinearizationHealth:
                            relative=r.relative, noise_floor_hz=r.noise_floor_hz, threshold_hz=self.threshold_hz,
                            records=r.records, hardware_time_s=self._lin.hardware_s,
                            wall_time_s=time.perf_counter() - t0, temperature_c=temp)
+
