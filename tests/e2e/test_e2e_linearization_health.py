@@ -109,3 +109,18 @@ def test_a_tec_step_mid_run_is_caught_and_the_next_scan_relinearized(rig):
     assert abs(err_after) < 0.3e-3 and abs(err_after - err_before) < 0.2e-3
     assert worker.last_linearization == lin
     inst.clear_faults("tec_offset")
+
+
+def test_the_check_follows_its_configuration_keys(rig, monkeypatch):
+    cfg, inst, bench, store, worker = rig
+    cal = store.latest_calibration(cfg.laser)
+    scan = cfg.scan
+    monkeypatch.setattr(inst, "cfg", cfg.model_copy(update={"scan": scan.model_copy(update={
+        "linearity_threshold_hz": 1e3, "linearity_check_records": 4})}))
+    h = inst.check_linearization(cal)
+    assert h.records == 4 and h.threshold_hz == 1e3
+    assert h.exceeded                                   # no chirp is within 1 kHz of ideal
+    assert h.hardware_time_s == pytest.approx(4 * 2 * cfg.chirp.ramp_s, rel=0.2)
+    monkeypatch.setattr(inst, "cfg", cfg.model_copy(update={"scan": scan.model_copy(update={
+        "linearity_check": False})}))
+    assert inst.check_linearization(cal) is None
