@@ -61,4 +61,5 @@ def health_record(checked: HealthCheck | None, used: HealthCheck | None, reason:
            "hardware_time_s": last.hardware_time_s, "temperature_c": last.temperature_c}
     if reason is not None and checked is not None:
         out["stale_residual_hz"] = checked.residual_hz      # what the stored drive showed before
-    return out
+    # JSON (sidecar, REST) has no NaN: an unmeasurable figure is null
+    return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in out.items()}

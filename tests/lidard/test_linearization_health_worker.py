@@ -4,15 +4,18 @@ second trigger, and the scan's sidecar and GET /health say what happened."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
 
+from lidard.cli.lidarctl import main as lidarctl
 from lidard.instrument.healthcheck import NOISE_GUARD, HealthCheck, health_record
 from lidard.instrument.types import ScanRequest
 from lidard.jobs import ScanWorker
 from lidard.pointcloud import read_sidecar
 from lidard.store import Store
+from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FRESH_CHIRP_ERROR_HZ, FakeInstrument
 
 T = 20.0
@@ -86,3 +89,26 @@ def test_health_record_without_a_check():
     assert health_record(None, None, None) is None
     assert health_record(None, None, "no calibration stored") == {"relinearized": True,
                                                                   "reason": "no calibration stored"}
+
+
+def test_get_health_and_lidarctl_status_show_the_last_check(tmp_path, capsys):
+    inst = FakeInstrument()
+    inst.chirp_error_hz = 800e3                              # the first scan learns anyway (nothing stored)
+    with live_server(make_app(tmp_path, inst)) as url:
+        assert lidarctl(["status", "--url", url]) == 0
+        assert "linearization" not in capsys.readouterr().out            # no scan yet
+        assert lidarctl(["scan", "--url", url, "--pattern", "roi", "--rows", "0:3", "--cols", "0:20",
+                         "--progress", "none"]) == 0
+        capsys.readouterr()
+        inst.chirp_error_hz = 900e3
+        assert lidarctl(["scan", "--url", url, "--pattern", "roi", "--rows", "0:3", "--cols", "0:20",
+                         "--progress", "none"]) == 0
+        capsys.readouterr()
+        assert lidarctl(["status", "--url", url, "--json"]) == 0
+        lin = json.loads(capsys.readouterr().out)["linearization"]
+        assert lin["relinearized"] and lin["stale_residual_hz"] == 900e3
+        assert lin["residual_hz"] == FRESH_CHIRP_ERROR_HZ
+        assert lidarctl(["status", "--url", url]) == 0
+        out = capsys.readouterr().out
+        assert "linearization: chirp error 50 kHz rms (threshold 200 kHz); re-linearized: linearization " \
+               "health: chirp error 900 kHz rms above 200 kHz" in out
