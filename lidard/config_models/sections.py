@@ -208,6 +208,8 @@ class Tolerances(_Model):
     decentre_px: float = Field(default=1.0, ge=0, le=10.0)          # per axis, in pixel pitches
     rotation_deg: float = Field(default=0.5, ge=0, le=5.0)          # array about the optical axis
     k1: float = Field(default=0.1, ge=0, le=1.0)                    # radial distortion (see Pointing)
+    # the TEC coefficients are the laser's physics, taken as given (not drawn); the drift of the chip's
+    # true temperature is the random part (sim_devices.world.tec)
     tec_tuning_hz_per_c: float = Field(default=-12e9, le=0)         # DFB carrier shift per degree C
     tec_response_per_c: float = Field(default=0.002, ge=0, le=0.05)  # relative FM-response change per C
     tec_drift_c: float = Field(default=0.05, ge=0, le=5.0)          # slow drift of the TEC's true temperature (rms)
