@@ -153,8 +153,9 @@ class ControllerModel:
         """The laser chip's true temperature: the thermistor's plus the drift and any injected step."""
         with self._lock:
             self._advance()
-            drift = 0.0 if self.tec_drift is None else self.tec_drift.at(self.clock.now())
-            return self._state.tec_c + drift + self.tec_offset_c
+            now, tec_c, offset_c = self.clock.now(), self._state.tec_c, self.tec_offset_c
+        # outside the lock: the Modbus thread never waits for the drift's random draws
+        return tec_c + offset_c + (0.0 if self.tec_drift is None else self.tec_drift.at(now))
 
     # -- bench / fault hooks ----------------------------------------------------------------
     def _trip(self) -> None:

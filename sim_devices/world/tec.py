@@ -35,6 +35,7 @@ coefficient of 0 switches the effect off.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,27 +92,37 @@ class TecDrift:
         self.step_s = self.period_s / _STEPS_PER_PERIOD
         self._seed = tuple(np.atleast_1d(seed).astype(np.int64).tolist())
         self._a = math.exp(-self.step_s / self.period_s)
-        self._values = np.zeros(1)      # grid values from t0 on; x(t0) = 0
+        self._blocks: list[np.ndarray] = []   # grid values 1, 2, ... after x(t0) = 0
+        self._lock = threading.Lock()   # the bench's capture thread and the controller's Modbus thread
 
-    def _extend(self, n: int) -> None:
-        """Make sure grid values 0..n exist (whole seeded blocks, in order)."""
-        from scipy.signal import lfilter   # sim_devices may use scipy; imported when first needed
-        while self._values.size <= n:
-            b = (self._values.size - 1) // _BLOCK
-            w = np.random.default_rng((*self._seed, b)).standard_normal(_BLOCK)
+    def _value(self, i: int) -> float:
+        """Grid value i (0 at t0), drawing whole seeded blocks in order up to it."""
+        if i == 0:
+            return 0.0
+        b, k = divmod(i - 1, _BLOCK)
+        while len(self._blocks) <= b:
+            w = np.random.default_rng((*self._seed, len(self._blocks))).standard_normal(_BLOCK)
             w *= self.rms_c * math.sqrt(1.0 - self._a * self._a)
-            x, _ = lfilter([1.0], [1.0, -self._a], w, zi=[self._a * self._values[-1]])
-            self._values = np.concatenate([self._values, x])
+            # a plain loop, not scipy.signal.lfilter: its first import costs about a second, which
+            # the controller's Modbus thread would wait for (a block covers 256 grid steps)
+            x = np.empty(_BLOCK)
+            last = float(self._blocks[-1][-1]) if self._blocks else 0.0
+            for j in range(_BLOCK):
+                last = self._a * last + float(w[j])
+                x[j] = last
+            self._blocks.append(x)
+        return float(self._blocks[b][k])
 
     def at(self, t_s: float) -> float:
-        """The drift (C) at virtual time ``t_s``; 0 before the start."""
+        """The drift (C) at virtual time ``t_s``; 0 before the start. Thread-safe."""
         if self.rms_c == 0.0 or t_s <= self.t0_s:
             return 0.0
         k = (float(t_s) - self.t0_s) / self.step_s
         i = int(k)
-        self._extend(i + 1)
+        with self._lock:
+            v0, v1 = self._value(i), self._value(i + 1)
         f = k - i
-        return float((1.0 - f) * self._values[i] + f * self._values[i + 1])
+        return float((1.0 - f) * v0 + f * v1)
 
 
 def from_tolerances(tol, seed: int) -> tuple[TecTuning | None, TecDrift | None]:

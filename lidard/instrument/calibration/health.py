@@ -34,6 +34,7 @@ from ..healthcheck import HealthCheck
 from ..safety import SafetyMonitor
 from .linearization import Linearization
 
+
 class LinearizationHealth:
     """``check(drive_v)`` measures the chirp of ``drive_v`` through the monitor MZI (laser and HV up
     for the duration, as a linearization does) and answers a :class:`HealthCheck`."""
@@ -44,6 +45,7 @@ class LinearizationHealth:
         self.threshold_hz = float(cfg.scan.linearity_threshold_hz)
         # the same geometry and measurement as the ILC: centre pixel, MZI-rate ADC, one drive period
         self._lin = Linearization(cfg, optics, lifecycle, safety)
+        self._lin.what = "linearization health check (before the scan)"
 
     def check(self, drive_v: np.ndarray) -> HealthCheck:
         c = self.cfg.chirp

@@ -47,6 +47,7 @@ class Linearization:
         self.channels = ("mzi", "mzi_q") if self.quadrature else ("mzi",)
         self.measurements = 0
         self.hardware_s = 0.0          # trigger-to-end time of the records measured (the health check's cost)
+        self.what = "linearization"    # how a safety stop names the procedure
         self.faults: dict[str, Any] = {"batch_retries": 0}
 
     def measure(self, drive_v: np.ndarray, n_avg: int) -> np.ndarray:
@@ -63,7 +64,7 @@ class Linearization:
         reason = self.safety.check()
         if reason is not None:
             # the same safe path as a scan: outputs first, then give up the calibration
-            raise InstrumentError(f"linearization stopped: {reason}; {describe_safe(self.safety.trip())}")
+            raise InstrumentError(f"{self.what} stopped: {reason}; {describe_safe(self.safety.trip())}")
         self.measurements += 1
         if self.progress is not None:
             self.progress({"measurements": self.measurements})
