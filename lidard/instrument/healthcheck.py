@@ -42,6 +42,13 @@ class HealthCheck:
     def exceeded(self) -> bool:
         return not self.residual_hz <= self.limit_hz   # NaN (nothing measurable) counts as exceeded
 
+    def reason(self) -> str:
+        """Why this check re-linearizes (for the log and the sidecar)."""
+        why = (f"{self.limit_hz / 1e3:.0f} kHz (scan.linearity_threshold_hz)" if self.limit_hz == self.threshold_hz
+               else f"{self.limit_hz / 1e3:.0f} kHz ({NOISE_GUARD:g}x the check's noise floor, above "
+                    f"scan.linearity_threshold_hz {self.threshold_hz / 1e3:.0f} kHz)")
+        return f"linearization health: chirp error {self.residual_hz / 1e3:.0f} kHz rms above {why}"
+
     def as_dict(self) -> dict[str, Any]:
         return {**asdict(self), "limit_hz": self.limit_hz, "exceeded": self.exceeded}
 

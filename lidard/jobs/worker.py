@@ -255,8 +255,7 @@ class ScanWorker:
         reason = "no calibration stored" if cal is None else self._stale_reason(cal)
         checked = self.instrument.check_linearization(cal) if reason is None else None
         if checked is not None and checked.exceeded:
-            reason = (f"linearization health: chirp error {checked.residual_hz / 1e3:.0f} kHz rms above "
-                      f"{checked.limit_hz / 1e3:.0f} kHz (scan.linearity_threshold_hz)")
+            reason = checked.reason()
         used = checked
         if reason is not None:
             log.info("linearizing: %s", reason)

@@ -81,6 +81,9 @@ def test_the_limit_is_the_threshold_unless_the_check_itself_is_noisier():
     assert _check(210e3, 50e3).exceeded
     noisy = _check(250e3, 100e3)                             # a broad-linewidth monitor: 3 x 100 kHz
     assert noisy.limit_hz == NOISE_GUARD * 100e3 and not noisy.exceeded
+    assert _check(400e3, 100e3).reason() == ("linearization health: chirp error 400 kHz rms above 300 kHz "
+                                             "(3x the check's noise floor, above scan.linearity_threshold_hz "
+                                             "200 kHz)")
     assert _check(math.nan, math.nan).exceeded              # nothing measurable is not a pass
     assert _check(100e3, math.nan).limit_hz == 200e3        # one record: no noise estimate
 
