@@ -6,7 +6,9 @@ budget), one DFB laser model and one :class:`~sim_devices.clock.VirtualClock`:
 * the FPGA (``sim_devices.fpga``, served on a pty) steps the uploaded pattern and decides, per
   trigger, which pixel is commanded and which beams actually leave the chip (MEMS dynamics, §4.3.6);
 * the AWG (USBTMC over the pyusb backend) holds the drive waveform that the laser model turns into
-  nu(t) (the trajectory is computed once per waveform and cached);
+  nu(t) (the trajectory is computed once per waveform and laser temperature, to 1 mK, and cached; the
+  temperature is the laser chip's TRUE one, which the controller's TEC readback does not show:
+  sim_devices.world.tec);
 * the controller (Modbus TCP) gates the light: no laser output unless the laser is on and the
   interlock closed, no switch actuation unless the HV output is above the switches' pull-in voltage;
 * the digitizer (vendor bulk protocol over the pyusb backend) asks this bench, as its
@@ -35,8 +37,8 @@ same ``fpsa_url``.
 Fault injection (issue 6; catalogue and parameters in ``sim_devices.faults``):
 ``inject_fault(kind, **params) -> dict``, ``clear_faults(kind=None) -> int``, ``active_faults()``;
 ``[[sim.faults]]`` tables of the configuration are injected by :meth:`Bench.start`. Faults of the
-kinds ``serial_drop``, ``serial_flip``, ``digitizer_overrange``, ``hv_fault``, ``serial_disconnect``
-and ``interlock_open`` are one per bench: injecting one again replaces the earlier one (its ``id``
+kinds ``serial_drop``, ``serial_flip``, ``digitizer_overrange``, ``hv_fault``, ``serial_disconnect``,
+``interlock_open`` and ``tec_offset`` are one per bench: injecting one again replaces the earlier one (its ``id``
 changes). Count-limited faults (``n``) drop out of ``active_faults()`` once used up.
 
 Tap channel (self-test): digitizer channel ``tap`` is a monitor photodiode on the light leaving the
