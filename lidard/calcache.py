@@ -9,8 +9,10 @@ daemon (``scan``, ``daemon``, ``live``, the scene), the laser preset's own value
 ``lasers.toml`` invalidates it) and this cache's format version.
 
 The laser temperature is not part of the key: a cached calibration is seeded into the temporary
-store, and the scan worker's own check (``scan.recalibrate_delta_c``, lidard.jobs) re-linearizes
-when the TEC temperature moved further than that; the new calibration then replaces the entry.
+store, and the scan worker's own checks (``scan.recalibrate_delta_c`` and the linearization health
+check, ``scan.linearity_threshold_hz``; lidard.jobs) re-linearize when the TEC temperature moved
+further than that or the chirp measured before the scan is off; the new calibration then replaces
+the entry.
 With ``--data-dir`` the store itself keeps calibrations and this cache is not used.
 """
 

@@ -6,7 +6,9 @@ budget), one DFB laser model and one :class:`~sim_devices.clock.VirtualClock`:
 * the FPGA (``sim_devices.fpga``, served on a pty) steps the uploaded pattern and decides, per
   trigger, which pixel is commanded and which beams actually leave the chip (MEMS dynamics, §4.3.6);
 * the AWG (USBTMC over the pyusb backend) holds the drive waveform that the laser model turns into
-  nu(t) (the trajectory is computed once per waveform and cached);
+  nu(t) (the trajectory is computed once per waveform and laser temperature, to 1 mK, and cached; the
+  temperature is the laser chip's TRUE one, which the controller's TEC readback does not show:
+  sim_devices.world.tec);
 * the controller (Modbus TCP) gates the light: no laser output unless the laser is on and the
   interlock closed, no switch actuation unless the HV output is above the switches' pull-in voltage;
 * the digitizer (vendor bulk protocol over the pyusb backend) asks this bench, as its
@@ -35,8 +37,8 @@ same ``fpsa_url``.
 Fault injection (issue 6; catalogue and parameters in ``sim_devices.faults``):
 ``inject_fault(kind, **params) -> dict``, ``clear_faults(kind=None) -> int``, ``active_faults()``;
 ``[[sim.faults]]`` tables of the configuration are injected by :meth:`Bench.start`. Faults of the
-kinds ``serial_drop``, ``serial_flip``, ``digitizer_overrange``, ``hv_fault``, ``serial_disconnect``
-and ``interlock_open`` are one per bench: injecting one again replaces the earlier one (its ``id``
+kinds ``serial_drop``, ``serial_flip``, ``digitizer_overrange``, ``hv_fault``, ``serial_disconnect``,
+``interlock_open`` and ``tec_offset`` are one per bench: injecting one again replaces the earlier one (its ``id``
 changes). Count-limited faults (``n``) drop out of ``active_faults()`` once used up.
 
 Tap channel (self-test): digitizer channel ``tap`` is a monitor photodiode on the light leaving the
@@ -81,6 +83,7 @@ from .hv_drive import HvDrive
 from .usb_backend import SimUsbBackend, UsbBridgeServer
 from .world.fidelity import FidelityLedger, phase_noise_negligible
 from .world.laser import DfbLaser
+from .world.tec import from_tolerances as tec_model
 from .world.mems import SwitchDynamics
 from .world.scene import Scene, SceneError
 from .world.synth import AdcSpec, HitBatch, synthesize, trajectory
@@ -98,7 +101,7 @@ class TapSpec:
 
 # Faults of which a bench holds at most one: a second injection replaces the first.
 _SINGLETONS = ("serial_drop", "serial_flip", "serial_disconnect", "digitizer_overrange", "hv_fault",
-               "interlock_open")
+               "interlock_open", "tec_offset")
 _USB_KIND = {"usb_timeout": "timeout", "usb_stall": "stall", "usb_disconnect": "disconnect"}
 
 
@@ -131,7 +134,9 @@ class Bench:
             row_dynamics=row_dyn, col_dynamics=col_dyn, threshold_spread_v=pr.threshold_spread_v))
         self.awg = SimAwg()
         self.digitizer = SimDigitizer(self.clock, source=self)
-        self.controller = ControllerSim(self.clock)
+        # the laser's true temperature moves its chirp (issue 13; sim_devices.world.tec)
+        self.tec_tuning, tec_drift = tec_model(cfg.sim.tolerances, self.seed)
+        self.controller = ControllerSim(self.clock, tec_drift=tec_drift)
         self.fpga.supply = self._hv_drive  # the controller's HV is the HV583 supply rail
         self._traj_key: bytes | None = None
         self._traj = None
@@ -327,6 +332,8 @@ class Bench:
             self.fpga.stick_switch(rec["line"], rec["index"], rec["state"] == "on")
         elif k == "hv_fault":
             self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, True)
+        elif k == "tec_offset":
+            self.controller.model.tec_offset_c = rec["offset_c"]
 
     def _undo(self, fid: int, rec: dict[str, Any], *, replacing: bool = False) -> None:
         self._faults.pop(fid, None)
@@ -361,6 +368,8 @@ class Bench:
             self.fpga.release_switch(rec["line"], rec["index"])
         elif k == "hv_fault":
             self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, False)
+        elif k == "tec_offset":
+            self.controller.model.tec_offset_c = 0.0
 
     def _expire(self, fid: int) -> None:
         """A fault that ends by itself (``reconnect_after_s``)."""
@@ -393,9 +402,13 @@ class Bench:
         drive, fs = self.awg.drive_volts()
         if not self.awg.output_on:
             drive = np.zeros_like(drive)
-        key = hashlib.sha1(np.ascontiguousarray(drive).tobytes() + repr(float(fs)).encode()).digest()
+        laser, temp_c = self.laser, None
+        if self.tec_tuning is not None:   # keyed on the 1 mK grid: not recomputed every batch
+            temp_c = self.tec_tuning.quantise(self.controller.model.laser_temperature_c())
+            laser = self.tec_tuning.laser_at(self.laser, temp_c)
+        key = hashlib.sha1(np.ascontiguousarray(drive).tobytes() + repr((float(fs), temp_c)).encode()).digest()
         if key != self._traj_key:
-            self._traj = trajectory(self.laser, drive, fs)
+            self._traj = trajectory(laser, drive, fs)
             self._traj_key = key
         return self._traj
 

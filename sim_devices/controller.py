@@ -19,6 +19,10 @@ wire format in docs/protocols/controller.md). What it models:
   ``inject_fault(fault)`` latches a fault and trips the outputs; ``set_fault_cause(fault, True)``
   also keeps its cause present, so CLEAR_FAULTS cannot clear it until the cause goes away
   (``set_fault_cause(fault, False)``), like the interlock loop for INTERLOCK_OPEN.
+- TEC: the loop holds its thermistor at the set point and TEC_TEMPERATURE reads that thermistor; the
+  laser chip's TRUE temperature (``laser_temperature_c()``, what the bench's laser model uses) adds a
+  slow drift (``tec_drift``: sim_devices.world.tec.TecDrift) and an injected step (``tec_offset_c``,
+  fault ``tec_offset``) that the readback cannot show (issue 13).
 
 Start/stop from a thread (``start()``/``stop()``, or ``with ControllerSim(...) as sim``) or from a
 running asyncio loop (``await start_async()``/``await stop_async()``). Port 0 binds a free port,
@@ -106,8 +110,11 @@ class ControllerModel:
         model: str = "LHV-1550",
         firmware: tuple[int, int] = (1, 0),
         map_version: int = p.MAP_VERSION,
+        tec_drift=None,
     ) -> None:
         self.clock = clock
+        self.tec_drift = tec_drift       # anything with .at(t_s) -> C, or None
+        self.tec_offset_c = 0.0          # an injected step of the true temperature (fault tec_offset)
         self.map_version = map_version  # another value lets tests play an incompatible device
         self.dynamics = dynamics
         self.hw_limits = hw_limits
@@ -141,6 +148,14 @@ class ControllerModel:
             snap = copy.copy(self._state)
             snap.faults = set(self._state.faults)
             return snap
+
+    def laser_temperature_c(self) -> float:
+        """The laser chip's true temperature: the thermistor's plus the drift and any injected step."""
+        with self._lock:
+            self._advance()
+            now, tec_c, offset_c = self.clock.now(), self._state.tec_c, self.tec_offset_c
+        # outside the lock: the Modbus thread never waits for the drift's random draws
+        return tec_c + offset_c + (0.0 if self.tec_drift is None else self.tec_drift.at(now))
 
     # -- bench / fault hooks ----------------------------------------------------------------
     def _trip(self) -> None:
@@ -288,10 +303,11 @@ class ControllerSim:
         model: str = "LHV-1550",
         firmware: tuple[int, int] = (1, 0),
         map_version: int = p.MAP_VERSION,
+        tec_drift=None,
     ) -> None:
         self.clock = clock if clock is not None else VirtualClock()
-        self.model = ControllerModel(self.clock, dynamics=dynamics, hw_limits=hw_limits,
-                                     model=model, firmware=firmware, map_version=map_version)
+        self.model = ControllerModel(self.clock, dynamics=dynamics, hw_limits=hw_limits, model=model,
+                                     firmware=firmware, map_version=map_version, tec_drift=tec_drift)
         self.host = host
         self.device_id = device_id
         self._requested_port = port

@@ -11,7 +11,7 @@ Where this deviates from / adds to the task brief (read this first):
   (an armed digitizer acquisition, a USBTMC session), its settings survive. Old pyusb handles
   work again after a re-plug (a real host would need a re-find; drivers should re-find anyway).
 * ``serial_drop``, ``serial_flip``, ``serial_disconnect``, ``digitizer_overrange``, ``hv_fault``
-  and ``interlock_open`` are one per bench: injecting again replaces the earlier one. Faults with a
+  ``interlock_open`` and ``tec_offset`` are one per bench: injecting again replaces the earlier one. Faults with a
   count ``n`` leave ``Bench.active_faults()`` once the count is used up.
 * ``interlock_open`` ``after_segments`` counts segments the bench synthesizes (a host re-read of
   earlier segments counts too, and re-reads after the opening come back dark).
@@ -45,6 +45,10 @@ kind                      parameters (``*`` required)
                           actuator), so light leaves through the wrong pixels or not at all.
 ``hv_fault``              none: the HV supply trips to 0 V, HV_FAULT latches (and stays latched
                           through CLEAR_FAULTS until the fault is cleared on the bench).
+``tec_offset``            ``offset_c``* (C, within +-10): the laser chip's TRUE temperature steps
+                          by offset_c from now on (a thermistor offset or a new thermal gradient,
+                          issue 13); the TEC readback still shows the set point. Clearing it
+                          steps back. One per bench.
 ========================  =======================================================================
 
 ``validate_fault(kind, params)`` returns the normalised parameters or raises ``ValueError`` naming
@@ -63,6 +67,9 @@ import numpy as np
 USB_DEVICES = ("awg", "digitizer")
 #: Modbus exception codes defined by the Modbus application protocol v1.1b3 (§7).
 MODBUS_EXCEPTION_CODES = (1, 2, 3, 4, 5, 6, 8, 10, 11)
+
+#: a larger step of the laser's true temperature is a broken TEC, not a drift
+MAX_TEC_OFFSET_C = 10.0
 
 _REQUIRED = object()
 _Checker = Any  # (kind, name, value) -> normalised value, or ValueError
@@ -131,6 +138,13 @@ def _modbus_code(kind: str, name: str, v: Any) -> int:
     return c
 
 
+def _tec_step(kind: str, name: str, v: Any) -> float:
+    x = _number(kind, name, v)
+    if abs(x) > MAX_TEC_OFFSET_C:
+        raise ValueError(f"fault {kind}: {name} must be within +-{MAX_TEC_OFFSET_C:g} C, got {v!r}")
+    return x
+
+
 _USB = {"device": (_choice(*USB_DEVICES), _REQUIRED), "n": (_count, None)}
 
 # kind -> {param: (checker, default)}; default _REQUIRED = must be given, None = absent / until cleared
@@ -148,6 +162,7 @@ CATALOGUE: dict[str, dict[str, tuple[_Checker, Any]]] = {
     "stuck_switch": {"line": (_choice("row", "col"), _REQUIRED), "index": (_index, _REQUIRED),
                      "state": (_choice("on", "off"), _REQUIRED)},
     "hv_fault": {},
+    "tec_offset": {"offset_c": (_tec_step, _REQUIRED)},
 }
 
 FAULT_KINDS: tuple[str, ...] = tuple(CATALOGUE)

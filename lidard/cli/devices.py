@@ -30,7 +30,18 @@ def cmd_status(args) -> int:
                   f"cause, then run `lidarctl faults ack`")
         elif h.get("latched_faults") is None and "latched_faults" in h:
             print("controller faults: unknown (controller unreadable; see `lidarctl devices`)")
+        if h.get("linearization"):
+            print(linearization_line(h["linearization"]))
     return 0
+
+
+def linearization_line(lin: dict) -> str:
+    """The last scan's linearization health check in one line (GET /health ``linearization``)."""
+    if lin.get("residual_hz") is None:
+        return f"linearization: re-linearized ({lin.get('reason')}), not checked"
+    text = (f"linearization: chirp error {lin['residual_hz'] / 1e3:.0f} kHz rms "
+            f"(threshold {lin['threshold_hz'] / 1e3:.0f} kHz)")
+    return text + (f"; re-linearized: {lin['reason']}" if lin.get("relinearized") else "")
 
 
 def device_rows(devs: list[dict]) -> list[list[str]]:

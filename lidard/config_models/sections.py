@@ -139,6 +139,14 @@ class ScanDefaults(_Model):
     # A stored chirp linearization is reused only while the laser's TEC temperature stays within this
     # of the temperature it was made at: a DFB's tuning (and so the learned drive) moves with it.
     recalibrate_delta_c: float = Field(default=0.5, gt=0, le=50)
+    # Linearization health (issue 13, lidard.instrument.calibration.health): before each scan the
+    # monitor MZI records ``linearity_check_records`` periods of the drive in use; when their RMS error
+    # against the ideal chirp exceeds ``linearity_threshold_hz`` the chirp is re-linearized first (the
+    # temperature rule above stays as a second trigger). The default sits between the error of a fresh
+    # linearization and that of a 0.2 C TEC step (benchmarks/linearity_health.py, docs/benchmarks.md).
+    linearity_check: bool = True
+    linearity_threshold_hz: float = Field(default=200e3, gt=0, le=1e9)
+    linearity_check_records: int = Field(default=16, ge=2, le=512)
 
 
 class FpsaDevice(_Model):
@@ -200,6 +208,8 @@ class Tolerances(_Model):
     decentre_px: float = Field(default=1.0, ge=0, le=10.0)          # per axis, in pixel pitches
     rotation_deg: float = Field(default=0.5, ge=0, le=5.0)          # array about the optical axis
     k1: float = Field(default=0.1, ge=0, le=1.0)                    # radial distortion (see Pointing)
+    # the TEC coefficients are the laser's physics, taken as given (not drawn); the drift of the chip's
+    # true temperature is the random part (sim_devices.world.tec)
     tec_tuning_hz_per_c: float = Field(default=-12e9, le=0)         # DFB carrier shift per degree C
     tec_response_per_c: float = Field(default=0.002, ge=0, le=0.05)  # relative FM-response change per C
     tec_drift_c: float = Field(default=0.05, ge=0, le=5.0)          # slow drift of the TEC's true temperature (rms)

@@ -4,7 +4,7 @@
 from one thread; a lock keeps callers apart). It holds the rooms and delegates:
 
 * scans -> :mod:`.scan_loop` (plan -> acquire -> DSP -> points, §4.4.3 imaging);
-* chirp linearization -> :mod:`.calibration` (§2.2);
+* chirp linearization and its health check before each scan -> :mod:`.calibration` (§2.2);
 * the switch self-test -> :mod:`.selftest` (the FPSA's row/column lines, §4.3.3);
 * interlock, faults and the outputs -> :mod:`.safety`;
 * the four devices -> :mod:`.devices` (one registry: identities, GET /devices health and reconnect);
@@ -29,7 +29,7 @@ import numpy as np
 
 from ..config import Config
 from .acquisition import AcquisitionLifecycle, plain_drive
-from .calibration import Linearization
+from .calibration import HealthCheck, Linearization, LinearizationHealth
 from .devices import DeviceRegistry
 from .errors import NotSimulated, SimFaultError
 from .errors import on_device
@@ -177,6 +177,16 @@ class LidarInstrument:
         with self._lock:
             lin = Linearization(self.cfg, self.optics, self.acquisition, self.safety, progress)
             return lin.run(self._plain_drive(), self.cfg.laser)
+
+    def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:
+        """The linearization health check of the drive a scan with ``calibration`` would use (the
+        plain drive without one): :mod:`.calibration.health`. None when ``scan.linearity_check`` is off."""
+        if not self.cfg.scan.linearity_check:
+            return None
+        with self._lock:
+            drive = (calibration.drive_v if (calibration is not None and calibration.drive_v.size)
+                     else self._plain_drive())
+            return LinearizationHealth(self.cfg, self.optics, self.acquisition, self.safety).check(drive)
 
     def selftest(self, progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
         with self._lock:

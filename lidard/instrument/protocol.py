@@ -13,6 +13,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
+from .healthcheck import HealthCheck
 from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
 
 StageFn = Callable[[dict[str, Any]], None]
@@ -38,6 +39,10 @@ class Instrument(Protocol):
 
     def linearize(self, progress: StageFn | None = None) -> CalibrationResult:
         """Run the ILC chirp linearization through the monitor MZI."""
+
+    def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:
+        """The linearization health check of the drive a scan with ``calibration`` would use: its chirp
+        measured through the monitor MZI against the ideal (issue 13); None when the check is off."""
 
     def laser_temperature_c(self) -> float:
         """The laser's TEC temperature readback now (NaN when it cannot be read)."""
@@ -73,6 +78,7 @@ class Instrument(Protocol):
 
 
 #: The names callers may use on an instrument (what a fake must provide; checked in the tests).
-INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "linearize", "laser_temperature_c",
+INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "linearize", "check_linearization",
+                      "laser_temperature_c",
                       "selftest", "controller_faults", "acknowledge_faults", "set_scene", "inject_fault",
                       "clear_faults", "active_faults", "close")

@@ -14,7 +14,10 @@ Policy (also in docs/api.md):
   answers 503).
 * A scan uses the newest stored calibration of the configured laser; with none, or when the laser's
   TEC temperature is now more than ``recalibrate_delta_c`` (``scan.recalibrate_delta_c``) away from the
-  calibration's, the worker runs ``instrument.linearize()`` first and stores the result.
+  calibration's, the worker runs ``instrument.linearize()`` first and stores the result. Otherwise the
+  linearization health check (``instrument.check_linearization``, issue 13) measures the stored drive's
+  chirp and a chirp error above ``scan.linearity_threshold_hz`` re-linearizes first; the scan's sidecar
+  records the check as ``linearization``.
 * Cancel: a queued scan becomes ``cancelled`` at once; a running scan's cancel event is set, the
   instrument returns the points so far, which are written and marked ``partial``.
 * Failure: the state becomes ``failed`` and ``error`` holds the exception type, message and cause

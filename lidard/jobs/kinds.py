@@ -71,6 +71,8 @@ class _ScanJob:
     request: ScanRequest
     cancel: threading.Event = dataclasses.field(default_factory=threading.Event)
     done: threading.Event = dataclasses.field(default_factory=threading.Event)
+    # the linearization health check before the scan (lidard.instrument.healthcheck.health_record)
+    linearization: dict | None = None
 
 
 @dataclasses.dataclass

@@ -150,6 +150,7 @@ class ScanJobRun:
             "scan_id": job.id,
             "request": request_to_dict(job.request),
             "calibration_id": self.cal_id,
+            "linearization": job.linearization,
             "hardware_time_s": float(result.hardware_time_s),
             "wall_time_s": float(wall_s),
             "pixels_scanned": int(result.pixels_scanned),

@@ -17,6 +17,7 @@ import threading
 import time
 from typing import Any, Callable
 
+from ..instrument.healthcheck import health_record
 from ..instrument.protocol import Instrument
 from ..instrument.types import CalibrationResult, ScanRequest
 from ..physics.optics import FpsaOptics
@@ -48,6 +49,7 @@ class ScanWorker:
             self._pixels_planned = lambda req: planned_pixel_count(req, optics)
         self.optics = optics
         self.recalibrate_delta_c = float(recalibrate_delta_c)
+        self.last_linearization: dict[str, Any] | None = None   # the last scan's health check (GET /health)
         self._cv = threading.Condition()
         self._queue: collections.deque = collections.deque()
         self._jobs: dict[str, _ScanJob] = {}
@@ -246,19 +248,25 @@ class ScanWorker:
         return None
 
     def calibration_for_scan(self, job: _ScanJob) -> CalibrationResult:
-        """The newest stored calibration of the laser, or a new linearization when there is none or
-        the laser's temperature moved (announced as the scan's ``linearizing`` stage)."""
+        """The newest stored calibration of the laser, or a new linearization when there is none, when
+        the laser's temperature moved, or when the linearization health check finds its chirp off
+        (announced as the scan's ``linearizing`` stage). ``job.linearization`` records the check."""
         cal = self.store.latest_calibration(self.laser)
-        stale = None if cal is None else self._stale_reason(cal)
-        if stale is not None:
-            log.info("re-linearizing: %s", stale)
-        if cal is None or stale is not None:
+        reason = "no calibration stored" if cal is None else self._stale_reason(cal)
+        checked = self.instrument.check_linearization(cal) if reason is None else None
+        if checked is not None and checked.exceeded:
+            reason = checked.reason()
+        used = checked
+        if reason is not None:
+            log.info("linearizing: %s", reason)
             self.store.update_scan(job.id, stage="linearizing")
             self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
                                    "pixels_done": 0, "pixels_planned": 0, "points": 0,
                                    "fraction": 0.0, "hardware_time_s": 0.0})
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
+            used = self.instrument.check_linearization(cal)
+        job.linearization = self.last_linearization = health_record(checked, used, reason)
         return cal
 
     def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:

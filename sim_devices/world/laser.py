@@ -23,6 +23,11 @@ Phase noise (§2.3, eqs. 2-14/2-15): a Wiener process whose increments over dt h
 2 pi linewidth dt, linewidth = 1 / (pi tau_c), so Var[phi(t) - phi(t - tau)] = 2 tau / tau_c.
 A laser with tau_c = inf has no phase noise and ``phase_noise_rad`` returns None without touching
 the random generator (switched-off effects cost nothing).
+
+Temperature (issue 13): the preset describes the laser at its reference temperature. ``retuned``
+gives the same laser with its carrier moved and its whole FM response scaled, which is what a TEC
+temperature away from the reference does (the coefficients and their sources:
+:mod:`sim_devices.world.tec`).
 """
 
 from __future__ import annotations
@@ -81,10 +86,21 @@ class DfbLaser:
     ``phase_noise_rad(n, dt, rng, shape=...)`` draws Wiener phase noise (None if linewidth is 0).
     """
 
-    def __init__(self, preset: LaserPreset) -> None:
+    def __init__(self, preset: LaserPreset, *, nu0_offset_hz: float = 0.0, response_scale: float = 1.0) -> None:
         if not isinstance(preset, LaserPreset):
             raise TypeError(f"DfbLaser: preset must be a lidard.config.LaserPreset, got {type(preset).__name__}")
+        if not math.isfinite(nu0_offset_hz):
+            raise ValueError(f"DfbLaser: nu0_offset_hz must be finite, got {nu0_offset_hz!r}")
+        if not (math.isfinite(response_scale) and response_scale > 0):
+            raise ValueError(f"DfbLaser: response_scale must be finite and > 0, got {response_scale!r}")
         self.preset = preset
+        self.nu0_offset_hz = float(nu0_offset_hz)      # carrier shift from the preset's (temperature)
+        self.response_scale = float(response_scale)    # FM response relative to the preset's
+
+    def retuned(self, *, nu0_offset_hz: float, response_scale: float) -> "DfbLaser":
+        """This laser with its carrier moved by ``nu0_offset_hz`` and its FM response (carrier and
+        thermal terms alike) scaled by ``response_scale``, both relative to the preset."""
+        return DfbLaser(self.preset, nu0_offset_hz=nu0_offset_hz, response_scale=response_scale)
 
     # -- properties --------------------------------------------------------------------------------
     @property
@@ -98,7 +114,7 @@ class DfbLaser:
     @property
     def static_tuning_hz_per_v(self) -> float:
         """d nu / d u at DC for small drive (all thermal terms settled); negative for a DFB."""
-        return self.preset.static_tuning_hz_per_v
+        return self.response_scale * self.preset.static_tuning_hz_per_v
 
     @property
     def wavelength_m(self) -> float:
@@ -107,7 +123,7 @@ class DfbLaser:
     @property
     def nu0_hz(self) -> float:
         """Optical carrier frequency c / lambda (the Doppler shift and the constant beat phase use it)."""
-        return C_M_PER_S / self.preset.wavelength_m
+        return C_M_PER_S / self.preset.wavelength_m + self.nu0_offset_hz
 
     # -- FM response -------------------------------------------------------------------------------
     def static_nonlinearity(self, drive_v) -> np.ndarray:
@@ -123,7 +139,7 @@ class DfbLaser:
         h = np.full(z_inv.shape, complex(self.preset.carrier_hz_per_v))
         for s in self._sections(fs_hz):
             h = h + s.response(z_inv)
-        return h
+        return self.response_scale * h
 
     def frequency_hz(self, drive_v, fs_hz: float) -> np.ndarray:
         """Periodic steady state nu(t) - nu0 (Hz, float64) for one period of a periodic drive.
@@ -146,7 +162,7 @@ class DfbLaser:
         nu = self.preset.carrier_hz_per_v * gu
         for s in self._sections(fs_hz):
             nu = nu + lfilter([s.b0, s.b1], [1.0, -s.a], gu)
-        return nu
+        return self.response_scale * nu
 
     # -- phase noise -------------------------------------------------------------------------------
     def phase_noise_rad(self, n: int, dt_s: float, rng: np.random.Generator, *, shape=()) -> np.ndarray | None:

@@ -14,6 +14,7 @@ import time
 import httpx
 
 from lidard.cli.lidarctl import main as lidarctl
+from lidard.config import load_config
 from tests.e2e.test_e2e_kill9 import _kill_group, _poll, _scan, _start_daemon
 
 SCAN = {"pattern": "roi", "rows": [44, 48], "cols": [60, 70], "max_range_m": 2.0}
@@ -31,7 +32,9 @@ def test_interlock_trip_latches_refuses_scans_until_acknowledged_then_scans_agai
             c.headers["X-Lidard-Lease"] = lease
             r = c.post("/scans", json=SCAN)          # the first scan linearizes the chirp first
             assert r.status_code == 201 and _ended(c, r.json()["id"])["state"] == "done"
-            assert c.post("/sim/faults", json={"kind": "interlock_open", "after_segments": 3}).status_code == 201
+            # mid-scan: after the linearization health check's records and 3 of the scan's segments
+            after = load_config("config/sim.toml").scan.linearity_check_records + 3
+            assert c.post("/sim/faults", json={"kind": "interlock_open", "after_segments": after}).status_code == 201
             r = c.post("/scans", json=SCAN)
             assert r.status_code == 201, r.text
             failed = _ended(c, r.json()["id"])

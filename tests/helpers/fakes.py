@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from lidard.config import load_profile
+from lidard.instrument.healthcheck import HealthCheck
 from lidard.instrument.types import POINT_DTYPE, CalibrationResult, ScanProgress, ScanResult
 from lidard.scan import plan
 
@@ -22,6 +23,8 @@ from lidard.instrument.errors import FaultsStillOpen
 
 class DeviceFault(Exception):
     pass
+
+FRESH_CHIRP_ERROR_HZ = 50e3
 
 
 class FakeInstrument:
@@ -42,6 +45,10 @@ class FakeInstrument:
         self.temperature_c = 25.0            # the TEC readback laser_temperature_c() reports
         self.latched = []                    # controller faults latched (names), as controller_faults() reports
         self.interlock_closed = True
+        # the chirp error check_linearization() measures (None: the check is off); a linearization
+        # brings it down to FRESH_CHIRP_ERROR_HZ
+        self.chirp_error_hz = None
+        self.checks = 0
 
     def laser_temperature_c(self):
         return self.temperature_c
@@ -63,8 +70,20 @@ class FakeInstrument:
     def scanner(self):
         return self.optics.summary()
 
+    def check_linearization(self, calibration):
+        if self.chirp_error_hz is None:
+            return None
+        self.checks += 1
+        return HealthCheck(residual_hz=self.chirp_error_hz, up_error_hz=self.chirp_error_hz,
+                           down_error_hz=self.chirp_error_hz, nonlinearity_hz=0.0,
+                           relative=self.chirp_error_hz / 8.6e9, noise_floor_hz=0.0, threshold_hz=200e3,
+                           records=16, hardware_time_s=16 * 160e-6, wall_time_s=0.0,
+                           temperature_c=self.temperature_c)
+
     def linearize(self, progress=None):
         self.linearize_calls += 1
+        if self.chirp_error_hz is not None:
+            self.chirp_error_hz = FRESH_CHIRP_ERROR_HZ
         return CalibrationResult(
             iterations=[{"up_rms_hz": 4e6, "down_rms_hz": 5e6}, {"up_rms_hz": 4e4, "down_rms_hz": 1e5}],
             reduction={"up": 100.0, "down": 50.0}, converged=True, laser="dfb_default",

@@ -18,4 +18,5 @@ def health(worker: WorkerDep, instrument: InstrumentDep) -> Health:
         latched, interlock = None, None
     return Health(latched_faults=latched, interlock_closed=interlock,status="ok" if worker.running else "degraded", version=software_version(),
                   simulated=bool(instrument.simulated), worker_running=worker.running,
-                  queue_length=worker.queue_length(), running_scan=worker.current_scan_id())
+                  queue_length=worker.queue_length(), running_scan=worker.current_scan_id(),
+                  linearization=worker.last_linearization)

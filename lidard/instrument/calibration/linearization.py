@@ -46,6 +46,8 @@ class Linearization:
         self.quadrature = bool(cfg.monitor.quadrature)
         self.channels = ("mzi", "mzi_q") if self.quadrature else ("mzi",)
         self.measurements = 0
+        self.hardware_s = 0.0          # trigger-to-end time of the records measured (the health check's cost)
+        self.what = "linearization"    # how a safety stop names the procedure
         self.faults: dict[str, Any] = {"batch_retries": 0}
 
     def measure(self, drive_v: np.ndarray, n_avg: int) -> np.ndarray:
@@ -54,12 +56,15 @@ class Linearization:
         plan = AcquisitionPlan(self.centre, n_avg, self.channels, self.fs_hz, self.record_length, 16)
         acq = self.lifecycle.ready(plan, drive_v=drive_v, faults=self.faults)
         self.lifecycle.start(acq)
-        _, samples = self.lifecycle.read(acq, 0, n_avg)
+        headers, samples = self.lifecycle.read(acq, 0, n_avg)
         self.lifecycle.stop(acq)
+        if headers:
+            span_ns = float(headers[-1].trigger_time_ns) - float(headers[0].trigger_time_ns)
+            self.hardware_s += span_ns * 1e-9 + self.record_length / self.fs_hz
         reason = self.safety.check()
         if reason is not None:
             # the same safe path as a scan: outputs first, then give up the calibration
-            raise InstrumentError(f"linearization stopped: {reason}; {describe_safe(self.safety.trip())}")
+            raise InstrumentError(f"{self.what} stopped: {reason}; {describe_safe(self.safety.trip())}")
         self.measurements += 1
         if self.progress is not None:
             self.progress({"measurements": self.measurements})

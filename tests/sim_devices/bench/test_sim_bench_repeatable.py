@@ -6,6 +6,10 @@ used to be seeded from the run's virtual start time, so a loaded machine got oth
 ILC drive and other ranges (a CAL-letters RMS error of 2.57 mm instead of 0.11 mm once). The seed is
 now the index of the captured run. Checked end to end: a delay before the calibration (what retry
 backoffs add) changes nothing in the drive or in the scan's points.
+
+The one physical effect that does depend on virtual time, the slow drift of the laser chip's
+temperature (``[sim.tolerances] tec_drift_c``, sim_devices.world.tec: a later scan sees another
+temperature, by design), is switched off here.
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ from lidard.instrument import ScanRequest
 
 
 def _calibrate_and_scan(delay_s: float):
-    inst = open_instrument(load_config(CONFIG_DIR / "sim.toml"), bench="embedded")
+    cfg = load_config(CONFIG_DIR / "sim.toml", environ={"LIDARD__SIM__TOLERANCES__TEC_DRIFT_C": "0"})
+    inst = open_instrument(cfg, bench="embedded")
     try:
         inst._sleep(delay_s)                       # virtual time only, as a driver's backoff
         cal = inst.linearize()

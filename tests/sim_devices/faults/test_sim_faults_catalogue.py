@@ -144,7 +144,7 @@ def test_every_catalogue_kind_can_be_injected_and_cleared(bench):
     params = {"serial_drop": {"rate": 0.1}, "serial_flip": {"rate": 0.1},
               "usb_timeout": {"device": "awg"}, "usb_stall": {"device": "digitizer"},
               "usb_disconnect": {"device": "awg"}, "modbus_exception": {"code": 6},
-              "stuck_switch": {"line": "row", "index": 0, "state": "off"}}
+              "stuck_switch": {"line": "row", "index": 0, "state": "off"}, "tec_offset": {"offset_c": 0.2}}
     for kind in FAULT_KINDS:
         bench.inject_fault(kind, **params.get(kind, {}))
     assert sorted(f["kind"] for f in bench.active_faults()) == sorted(FAULT_KINDS)
@@ -153,6 +153,7 @@ def test_every_catalogue_kind_can_be_injected_and_cleared(bench):
     # normal behaviour is back everywhere
     assert not bench.serial_line.active and bench.awg.connected and bench.digitizer.connected
     assert bench.controller.state.interlock_closed and bench.fpga.stuck_switches == []
+    assert bench.controller.model.tec_offset_c == 0.0
     assert Path(bench.endpoints()["fpsa_url"]).exists()
 
 
