@@ -13,7 +13,8 @@ Nominal bench by default (issue 13): the simulated bench hides tolerances (``[si
 on in config/sim.toml: an uncalibrated lab), and most accuracy tests assume a bench that matches
 the configuration. The autouse fixture ``_nominal_bench`` sets ``LIDARD__SIM__TOLERANCES__ENABLED
 =false`` in the environment of every test, which every ``load_config`` that reads os.environ applies
-and every child bench or daemon a test starts inherits. A test that passes its own ``environ=``
+and every child bench or daemon a test starts inherits; ``pytest_configure`` sets it for the whole
+session too, so module- and session-scoped fixtures (built before any function fixture) see it. A test that passes its own ``environ=``
 to ``load_config`` gets nothing from os.environ: it adds ``tests.helpers.tolerances.NOMINAL_ENV``.
 Opt in with the marker ``@pytest.mark.tolerances`` (the configuration's tolerances, on unless
 it says otherwise), or set ``LIDARD__SIM__TOLERANCES__*`` variables with monkeypatch in it.
@@ -22,6 +23,7 @@ it says otherwise), or set ``LIDARD__SIM__TOLERANCES__*`` variables with monkeyp
 from __future__ import annotations
 
 import contextlib
+import os
 import tomllib
 from importlib import metadata
 from pathlib import Path
@@ -52,6 +54,11 @@ def toolchain_mismatches(requirements: list[Requirement], version_of=metadata.ve
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    # the nominal bench for the whole session (each xdist worker runs this too): module- and
+    # session-scoped fixtures that build benches run before any function-scoped fixture
+    from tests.helpers.tolerances import NOMINAL_ENV
+
+    os.environ.update(NOMINAL_ENV)
     problems = toolchain_mismatches(pinned_test_requirements())
     if problems:
         raise pytest.UsageError(
