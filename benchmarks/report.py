@@ -733,9 +733,17 @@ def sec_budget(quick: bool, img: Path, log) -> Section:
     return s
 
 
+def sec_tolerances(quick: bool, img: Path, log) -> Section:
+    from benchmarks.tolerances import report_section
+
+    s = Section("tolerances", "4d. The bench's hidden tolerances: nominal, uncalibrated, one at a time")
+    s.markdown, s.data, s.headline = report_section(quick, log)
+    return s
+
+
 SECTIONS: dict[str, Callable[[bool, Path, Callable], Section]] = {
     "estimators": sec_estimators, "ilc": sec_ilc, "phase_noise": sec_phase_noise, "scaling": sec_scaling,
-    "frame": sec_frame, "accuracy": sec_accuracy, "fidelity": sec_fidelity, "load": sec_load, "kernels": sec_kernels, "budget": sec_budget,
+    "frame": sec_frame, "accuracy": sec_accuracy, "tolerances": sec_tolerances, "fidelity": sec_fidelity, "load": sec_load, "kernels": sec_kernels, "budget": sec_budget,
 }
 
 

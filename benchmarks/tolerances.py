@@ -131,6 +131,29 @@ def run_tolerances(quick: bool = False, full: bool = False, log=print) -> dict[s
             "variants": rows}
 
 
+def report_section(quick: bool, log=print) -> tuple[str, dict, list[tuple[str, str, str]]]:
+    """(markdown, data, headline rows) for ``python -m benchmarks`` (its ``tolerances`` section).
+
+    Not run with ``--quick``: eight benches, each linearized, take minutes."""
+    if quick:
+        return ("Not run with `--quick` (eight benches, each linearized): "
+                "`python benchmarks/tolerances.py`.\n", {"skipped": "quick"}, [])
+    r = run_tolerances(False, False, log)
+    rows = [[name, f"{1e3 * v['rms_range_m']:.3f}", f"{1e3 * v['expected_rms_range_m']:.3f}",
+             f"{1e3 * v['rms_surface_m']:.3f}", f"{1e3 * v['p95_surface_m']:.3f}", f"{v['points']}/{v['pixels']}"]
+            for name, v in r["variants"].items()]
+    head = ["bench", "RMS range error (mm)", "expected (mm)", "RMS point-to-surface (mm)", "p95 (mm)", "pixels"]
+    md = ("CAL letters, ILC linearization only (no range or pointing calibration yet), "
+          f"ROI rows {r['request']['rows']} cols {r['request']['cols']}; see docs/tolerances.md.\n\n"
+          + "| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n"
+          + "".join("| " + " | ".join(row) + " |\n" for row in rows))
+    drawn = r["variants"]["default draws (uncalibrated)"]
+    headline = [("CAL letters, default tolerances, uncalibrated: RMS range / point-to-surface error",
+                 f"{1e3 * drawn['rms_range_m']:.2f} / {1e3 * drawn['rms_surface_m']:.2f} mm",
+                 "<= 0.3 / 0.5 mm after calibration (issue 13)")]
+    return md, r, headline
+
+
 def _machine() -> str:
     try:
         from benchmarks.report import machine_facts
