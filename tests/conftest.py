@@ -11,13 +11,14 @@ start-up with one line naming the package, the pin and what is installed.
 
 Nominal bench by default (issue 13): the simulated bench hides tolerances (``[sim.tolerances]``,
 on in config/sim.toml: an uncalibrated lab), and most accuracy tests assume a bench that matches
-the configuration. The autouse fixture ``_nominal_bench`` sets ``LIDARD__SIM__TOLERANCES__ENABLED
-=false`` in the environment of every test, which every ``load_config`` that reads os.environ applies
-and every child bench or daemon a test starts inherits; ``pytest_configure`` sets it for the whole
-session too, so module- and session-scoped fixtures (built before any function fixture) see it. A test that passes its own ``environ=``
-to ``load_config`` gets nothing from os.environ: it adds ``tests.helpers.tolerances.NOMINAL_ENV``.
-Opt in with the marker ``@pytest.mark.tolerances`` (the configuration's tolerances, on unless
-it says otherwise), or set ``LIDARD__SIM__TOLERANCES__*`` variables with monkeypatch in it.
+the configuration. ``pytest_configure`` sets ``LIDARD__SIM__TOLERANCES__ENABLED=false`` for the
+session (module- and session-scoped fixtures are built before any function fixture) and the autouse
+fixture ``_nominal_bench`` again for every test; every ``load_config`` that reads os.environ applies
+it and every child bench or daemon a test starts inherits it. A test that passes its own
+``environ=`` to ``load_config`` gets nothing from os.environ: it adds
+``tests.helpers.tolerances.NOMINAL_ENV``. Opt in with the marker ``@pytest.mark.tolerances``: the
+configuration's tolerances (on unless it says otherwise); such a test may set further
+``LIDARD__SIM__TOLERANCES__*`` variables with monkeypatch.
 """
 
 from __future__ import annotations

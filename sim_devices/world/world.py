@@ -152,7 +152,8 @@ class World:
             a, ph = speckle_factors(self.seed, rows[beam], cols[beam], tgt, ch)
             amp = np.where(rough, amp * a, amp)
             phase = np.where(rough, ph, np.nan)
-        return BeamHits(beam=beam, range_m=rng_m, tau_s=2.0 * (rng_m + self.zero_offset_m) / C_M_PER_S, amplitude_v=amp,
+        tau = 2.0 * (rng_m + self.zero_offset_m) / C_M_PER_S   # LO -> lens path z0 is in every round trip
+        return BeamHits(beam=beam, range_m=rng_m, tau_s=tau, amplitude_v=amp,
                         velocity_mps=vel, return_index=ret_idx, speckle_phase_rad=phase)
 
     def ground_truth(self, rows, cols) -> np.ndarray:
