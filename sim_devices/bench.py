@@ -27,7 +27,14 @@ re-read of the same batch gives the same bytes.
 Modes: in-process (``Bench(...).start(usb="inproc")``, the embedded default of ``lidarctl scan --sim``)
 or as its own process (``lidar-sim --json``: prints its endpoints as one JSON line and serves until
 stdin closes or it gets SIGTERM), with the USB transfers carried over a local socket and a small JSON
-control socket (set_scene, set_interlock, advance, ground_truth, ping, inject, clear_faults, faults).
+control socket (set_scene, set_interlock, advance, ground_truth, truth, ping, inject, clear_faults,
+faults, fidelity: the ledger of modelled / skipped effects).
+
+Hidden truths (issue 13, :mod:`sim_devices.world.tolerances`): the bench draws, from
+``[sim.tolerances]`` and its seed, the monitor MZI's true delay (used for the monitor fringes
+instead of the configured ``monitor.delay_s``), the range zero offset and the true pointing (both
+in the world). ``Bench.truth()`` and the control command ``truth`` give them to tests and
+benchmarks; the daemon has only the nominal configuration.
 
 The FPGA's serial port is published as a STABLE path, a symlink in the bench's temp dir (like
 ``/dev/serial/by-id/...``) that points at the current pty slave: after a ``serial_disconnect`` fault
@@ -87,6 +94,7 @@ from .world.tec import from_tolerances as tec_model
 from .world.mems import SwitchDynamics
 from .world.scene import Scene, SceneError
 from .world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from .world.tolerances import BenchTruth, draw_truth
 from .world.world import World
 
 
@@ -122,7 +130,9 @@ class Bench:
             scene = Scene.from_toml(cfg.resolve_path(cfg.sim.scene))
         self.seed = cfg.sim.seed if seed is None else int(seed)
         self.clock = VirtualClock()
-        self.world = World(cfg, self.profile, self.laser_preset, scene, seed=self.seed)
+        # the hidden truths (issue 13): drawn once, never told to the daemon
+        self._truth = draw_truth(cfg.sim.tolerances, nominal_mzi_delay_s=cfg.monitor.delay_s, seed=self.seed)
+        self.world = World(cfg, self.profile, self.laser_preset, scene, seed=self.seed, truth=self._truth)
         self.laser = DfbLaser(self.laser_preset)
         pr = self.profile
         row_dyn, col_dyn = (SwitchDynamics(sw.on_s, sw.off_s, pull_in_v=pr.pull_in_v,
@@ -397,6 +407,11 @@ class Bench:
         with self._lock:
             return self.world.ground_truth(rows, cols)
 
+    def truth(self) -> BenchTruth:
+        """The bench's hidden true values (sim_devices.world.tolerances): for tests and benchmarks
+        only, never for the daemon."""
+        return self._truth
+
     # -- SegmentSource ------------------------------------------------------------------------------
     def _trajectory(self):
         drive, fs = self.awg.drive_volts()
@@ -558,7 +573,7 @@ class Bench:
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
                          linewidth_hz=linewidth, rng=rng,
-                         mzi_delay_s=self.cfg.monitor.delay_s if want_mzi else None,
+                         mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
                          mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q)
         codes = np.zeros((n, len(cfg.channels), cfg.record_length), dtype=np.int16)
@@ -589,7 +604,8 @@ class _ControlServer:
     Every reply is ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``. Fault commands:
     ``{"cmd": "inject", "kind": K, **params}`` -> ``{"fault": {...}}``,
     ``{"cmd": "clear_faults", "kind": K | null}`` -> ``{"cleared": n}``,
-    ``{"cmd": "faults"}`` -> ``{"faults": [...]}``.
+    ``{"cmd": "faults"}`` -> ``{"faults": [...]}``. Tests and benchmarks only:
+    ``{"cmd": "truth"}`` -> ``{"truth": BenchTruth.as_dict()}`` (the hidden tolerances).
     """
 
     def __init__(self, bench: Bench) -> None:
@@ -641,6 +657,8 @@ class _ControlServer:
             return {"faults": b.active_faults()}
         if cmd == "fidelity":
             return {"fidelity": b.fidelity.snapshot()}
+        if cmd == "truth":   # the hidden tolerances, for tests/benchmarks of a child bench
+            return {"truth": b.truth().as_dict()}
         if cmd == "ground_truth":
             truth = b.ground_truth(np.asarray(msg["rows"]), np.asarray(msg["cols"]))
             return {"range_m": [None if not np.isfinite(x) else float(x) for x in truth]}

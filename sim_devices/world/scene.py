@@ -47,6 +47,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from sim_devices.world import surface_truth
 from sim_devices.world.raycast import Hits, cast
 from sim_devices.world.targets import (
     DEFAULT_REFLECTIVITY,
@@ -360,6 +361,16 @@ class Scene:
     ) -> Hits:
         """Cast rays from ``origin`` along unit ``directions`` (n, 3); see :func:`raycast.cast`."""
         return cast(self, directions, max_hits=max_hits, origin=origin)
+
+    def surface_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance (n,) of each point (n, 3) to the nearest true target surface (issue 13 scores;
+        :func:`sim_devices.world.surface_truth.surface_distance`)."""
+        return surface_truth.surface_distance(self.targets, points)
+
+    def range_error(self, points: np.ndarray, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """|p| minus the first-hit range along p's own ray (n,), NaN on a miss
+        (:func:`sim_devices.world.surface_truth.range_error`)."""
+        return surface_truth.range_error(self, points, origin)
 
 
 def _replace(t: Target, **changes: Any) -> Target:

@@ -11,6 +11,13 @@ Round trip through the switches: the FPSA is used as transmitter and receiver (Â
 switch-path transmission T (from the MEMS dynamics) multiplies the returned power twice (out and back).
 The back-reflection LO arises at the fibre array, before the switches, so P_ref does not depend on T.
 
+Hidden truths (issue 13; :mod:`sim_devices.world.tolerances`): given a ``BenchTruth``, the beams
+leave along the TRUE pointing (``optics.with_pointing(truth.pointing)``: focal scale, decentre,
+rotation, k1 bend eq. 4-1), and every hit's round trip is 2 (d + z0) / c, z0 the optical path from
+the reference reflection (the LO) to the lens, while ``range_m`` and :meth:`World.ground_truth` stay
+the geometric lens -> surface distance d along the true beam (what the scans are scored against).
+The link budget uses d too: z0 is inside the instrument, it neither spreads nor attenuates the beam.
+
 Target motion is frozen within a frame: velocities give Doppler shifts (and the within-segment range
 drift of the synthesis) but targets are not displaced between pixels. ``Scene.moved`` can advance a
 scene between frames.
@@ -30,6 +37,7 @@ from lidard.physics.optics import FpsaOptics
 from . import footprint as fp
 from .scene import Scene
 from .speckle import speckle_factors
+from .tolerances import BenchTruth
 
 WHITE_NOISES = ("shot", "rin", "thermal", "ambient")
 
@@ -40,7 +48,7 @@ class BeamHits:
 
     beam: np.ndarray           # int index into the beam batch
     range_m: np.ndarray
-    tau_s: np.ndarray          # round-trip delay 2 d / c
+    tau_s: np.ndarray          # round-trip delay 2 (d + z0) / c, z0 the hidden zero offset
     amplitude_v: np.ndarray    # beat amplitude at the ADC input (V), eq. 2-11 x G_TIA
     velocity_mps: np.ndarray   # radial, positive receding
     return_index: np.ndarray   # order along the beam (0 = nearest)
@@ -52,11 +60,15 @@ class World:
     """Scene + optics + link budget, with a per-pixel ray-cast cache."""
 
     def __init__(self, cfg: Config, profile: Profile, laser: LaserPreset, scene: Scene,
-                 *, max_hits: int = 4, seed: int = 0) -> None:
+                 *, max_hits: int = 4, seed: int = 0, truth: BenchTruth | None = None) -> None:
         self.cfg = cfg
         self.profile = profile
         self.laser = laser
-        self.optics: FpsaOptics = profile.optics(cfg.lens, cfg.chirp.wavelength_m)
+        # None: the nominal bench (what the configuration says, as before issue 13)
+        self.truth = truth
+        optics = profile.optics(cfg.lens, cfg.chirp.wavelength_m)
+        self.optics: FpsaOptics = optics if truth is None else optics.with_pointing(truth.pointing)
+        self.zero_offset_m = 0.0 if truth is None else float(truth.zero_offset_m)
         self.link: LinkParams = cfg.link_params(profile, laser)
         self.max_hits = max_hits
         self.seed = int(seed)  # speckle draws
@@ -140,11 +152,14 @@ class World:
             a, ph = speckle_factors(self.seed, rows[beam], cols[beam], tgt, ch)
             amp = np.where(rough, amp * a, amp)
             phase = np.where(rough, ph, np.nan)
-        return BeamHits(beam=beam, range_m=rng_m, tau_s=2.0 * rng_m / C_M_PER_S, amplitude_v=amp,
+        tau = 2.0 * (rng_m + self.zero_offset_m) / C_M_PER_S   # LO -> lens path z0 is in every round trip
+        return BeamHits(beam=beam, range_m=rng_m, tau_s=tau, amplitude_v=amp,
                         velocity_mps=vel, return_index=ret_idx, speckle_phase_rad=phase)
 
     def ground_truth(self, rows, cols) -> np.ndarray:
-        """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth."""
+        """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth.
+
+        The geometric lens -> surface distance along the TRUE beam (no zero offset)."""
         entries = self._cast_pixels(np.asarray(rows), np.asarray(cols))
         return np.array([e[0][0] if len(e[0]) else np.inf for e in entries])
 

@@ -41,7 +41,8 @@ def test_the_command_runs_every_section_and_leaves_docs_alone(report):
     assert report["docs_untouched"]
     secs = report["data"]["sections"]
     assert set(secs) == {"estimators", "ilc", "phase_noise", "scaling", "frame", "accuracy", "fidelity", "load", "kernels",
-                         "budget"}
+                         "budget", "tolerances"}
+    assert secs["tolerances"]["data"] == {"skipped": "quick"}     # eight linearized benches: not in --quick
     assert all(s["error"] is None for s in secs.values()), {k: s["error"] for k, s in secs.items()}
     # every section's time is printed and recorded
     for k, s in secs.items():

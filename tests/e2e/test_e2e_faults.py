@@ -22,12 +22,13 @@ from lidard.instrument import SAFETY_CHECK_S, open_instrument
 from lidard.instrument.types import ScanRequest
 from lidard.jobs import ScanWorker
 from lidard.store import Store
+from tests.helpers.tolerances import NOMINAL_ENV
 
 ROI = ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0)   # 384 bonded pixels
 N_PIX = 12 * 32
 # Short wall-clock timeouts: a swallowed answer costs one timeout of real waiting (the pty / TCP
 # read), so keep them small; they are not asserted on.
-ENV = {"LIDARD__DEVICES__CONTROLLER__TIMEOUT_S": "0.2", "LIDARD__DEVICES__FPSA__TIMEOUT_S": "0.1"}
+ENV = {**NOMINAL_ENV, "LIDARD__DEVICES__CONTROLLER__TIMEOUT_S": "0.2", "LIDARD__DEVICES__FPSA__TIMEOUT_S": "0.1"}
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ import pytest
 from lidard.config import load_config
 from lidard.instrument import open_instrument
 from lidard.instrument import ScanRequest
+from tests.helpers.tolerances import NOMINAL_ENV
 
 C = 299_792_458.0
 WALL_Z_M = 3 * 200e-9 * C / 2          # 89.94 m: round trip 3 tau_m
@@ -23,7 +24,7 @@ WALL_Z_M = 3 * 200e-9 * C / 2          # 89.94 m: round trip 3 tau_m
 
 @pytest.fixture(scope="module")
 def far_wall():
-    cfg = load_config("config/sim.toml", environ={"LIDARD__LASER": "dfb_broad_linewidth",
+    cfg = load_config("config/sim.toml", environ={**NOMINAL_ENV, "LIDARD__LASER": "dfb_broad_linewidth",
                                                   "LIDARD__LINK__TX_POWER_W": "0.1"})
     assert cfg.monitor.delay_s == pytest.approx(200e-9)
     inst = open_instrument(cfg, scene_path="config/scenes/empty.toml", bench="embedded")

@@ -14,6 +14,7 @@ from lidard.config import load_config
 from lidard.instrument import open_instrument
 from lidard.instrument import ScanRequest
 from sim_devices.world.scene import Scene
+from tests.helpers.tolerances import NOMINAL_ENV
 
 
 def _scan(inst, req, cal):
@@ -83,7 +84,7 @@ def test_empty_scene_gives_no_points(embedded):
 def test_moving_box_velocity_within_5_cm_per_s():
     # A 1.5 m/s target needs a 2 m/s Doppler allowance; with a real beat that makes only ranges whose
     # beat exceeds 2 x 2 m/s / lambda unambiguous (> 3.6 m): the box sits at 4.5 m.
-    cfg = load_config("config/sim.toml", environ={"LIDARD__SCAN__MAX_SPEED_MPS": "2.0"})
+    cfg = load_config("config/sim.toml", environ={**NOMINAL_ENV, "LIDARD__SCAN__MAX_SPEED_MPS": "2.0"})
     inst = open_instrument(cfg, scene_path="config/scenes/mixed.toml", bench="embedded")
     bench = inst._on_close.__self__
     cal = inst.linearize()

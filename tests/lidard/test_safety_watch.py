@@ -18,6 +18,7 @@ from lidard.instrument import ScanRequest, open_instrument
 from lidard.instrument import scan_loop
 from lidard.instrument.points import PointBuffer
 from lidard.instrument.safety import SafetyMonitor, SafetyWatch
+from tests.helpers.tolerances import NOMINAL_ENV
 
 REPO = Path(__file__).resolve().parents[2]
 WAIT_S = 60.0          # a deadline for a hung test, never the measured quantity
@@ -25,7 +26,7 @@ WAIT_S = 60.0          # a deadline for a hung test, never the measured quantity
 
 @pytest.fixture
 def inst():
-    cfg = load_config(REPO / "config" / "sim.toml", environ={})
+    cfg = load_config(REPO / "config" / "sim.toml", environ=dict(NOMINAL_ENV))
     i = open_instrument(cfg, scene_path=str(REPO / "config" / "scenes" / "cal_letters.toml"), bench="embedded")
     try:
         yield i
