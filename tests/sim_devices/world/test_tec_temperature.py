@@ -87,6 +87,7 @@ def test_tec_readback_shows_the_set_point_while_the_chip_drifts():
     assert model.laser_temperature_c() - 25.0 == pytest.approx(drift.at(900.0) + 0.2, abs=1e-12)
 
 
+@pytest.mark.tolerances   # the TEC model is part of [sim.tolerances]
 def test_tolerances_section_drives_the_model():
     cfg = load_config(CONFIG_DIR / "sim.toml")
     tol = cfg.sim.tolerances
@@ -98,6 +99,7 @@ def test_tolerances_section_drives_the_model():
     assert from_tolerances(off, seed=1) == (None, None)
 
 
+@pytest.mark.tolerances   # the TEC model is part of [sim.tolerances]
 def test_a_tec_offset_step_reaches_the_benchs_chirp_and_the_cache_keys_on_temperature():
     bench = Bench(load_config(CONFIG_DIR / "sim.toml"))
     chirp_on(bench)
