@@ -29,7 +29,8 @@ import numpy as np
 
 from ..config import Config
 from .acquisition import AcquisitionLifecycle, plain_drive
-from .calibration import Linearization
+from .calibration.applied import AppliedCalibrations
+from .calibration.linearization import Linearization
 from .devices import DeviceRegistry
 from .errors import NotSimulated, SimFaultError
 from .errors import on_device
@@ -76,6 +77,7 @@ class LidarInstrument:
                                     pull_in_v=self.profile.pull_in_v, spread_v=self.profile.threshold_spread_v)
         self.acquisition = AcquisitionLifecycle(self.registry, cfg, sleep)
         self.scan_loop = ScanLoop(cfg, self.optics, self.acquisition, self.safety, simulated=simulated)
+        self.applied = AppliedCalibrations()   # range / pointing calibrations in use (issue 13)
         self.registry.identify_all()
         # The HV583 registers power up with random contents (ghost beams): clear them first.
         try:
@@ -161,9 +163,21 @@ class LidarInstrument:
                      else self._plain_drive())
             return self.scan_loop.run(request, progress, cancel, drive, calibration, raw_path=raw_path)
 
+    def use_calibrations(self, applied: AppliedCalibrations) -> None:
+        """Use these range/pointing calibrations for the following linearizations and scans."""
+        with self._lock:
+            self.applied = applied
+            self.scan_loop.applied = applied
+
+    def monitor_delay_s(self) -> float:
+        """The monitor delay the linearization targets now: the range calibration's effective delay, or
+        the configuration's nominal ``monitor.delay_s`` without one."""
+        return self.applied.delay_or(self.cfg.monitor.delay_s)
+
     def linearize(self, progress: Callable[[dict[str, Any]], None] | None = None) -> CalibrationResult:
         with self._lock:
-            lin = Linearization(self.cfg, self.optics, self.acquisition, self.safety, progress)
+            lin = Linearization(self.cfg, self.optics, self.acquisition, self.safety, progress,
+                                mzi_delay_s=self.monitor_delay_s())
             return lin.run(self._plain_drive(), self.cfg.laser)
 
     def selftest(self, progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:

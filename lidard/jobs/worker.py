@@ -55,6 +55,7 @@ class ScanWorker:
         self.events = EventHub()
         self._stopping = False
         self._thread: threading.Thread | None = None
+        self.applied = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -213,6 +214,7 @@ class ScanWorker:
         if not job.future.set_running_or_notify_cancel():
             return
         try:
+            self.apply_geometry()   # the ILC targets the range-calibrated monitor delay
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             job.future.set_result(cal)
@@ -231,7 +233,13 @@ class ScanWorker:
             job.future.set_exception(exc)
 
     def _stale_reason(self, cal: CalibrationResult) -> str | None:
-        """Why a stored calibration must not be reused (the laser's temperature moved), or None."""
+        """Why a stored calibration must not be reused (the laser's temperature moved, or it targets
+        another monitor delay than the range calibration's), or None."""
+        used = cal.meta.get("mzi_delay_s")
+        want = self.instrument.monitor_delay_s()
+        if used is not None and abs(float(used) - want) > 1e-9 * want:
+            return (f"calibration {cal.meta.get('id')} was linearized against a {float(used) * 1e9:.4f} ns monitor "
+                    f"delay; the range calibration says {want * 1e9:.4f} ns")
         try:
             now_c = float(self.instrument.laser_temperature_c())
         except Exception as exc:
@@ -248,6 +256,7 @@ class ScanWorker:
     def calibration_for_scan(self, job: _ScanJob) -> CalibrationResult:
         """The newest stored calibration of the laser, or a new linearization when there is none or
         the laser's temperature moved (announced as the scan's ``linearizing`` stage)."""
+        self.apply_geometry()
         cal = self.store.latest_calibration(self.laser)
         stale = None if cal is None else self._stale_reason(cal)
         if stale is not None:
@@ -260,6 +269,15 @@ class ScanWorker:
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
         return cal
+
+    def apply_geometry(self):
+        """Hand the newest stored range and pointing calibrations to the instrument (issue 13); answers
+        the :class:`AppliedCalibrations`. Runs on the worker thread before every scan and linearization."""
+        from ..instrument.calibration.applied import AppliedCalibrations
+        self.applied = AppliedCalibrations.from_records(self.store.latest_geometry_calibration("range"),
+                                                        self.store.latest_geometry_calibration("pointing"))
+        self.instrument.use_calibrations(self.applied)
+        return self.applied
 
     def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:
         # Cache under the configured laser name, whatever the instrument calls it, so that the next
