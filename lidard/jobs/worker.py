@@ -23,7 +23,7 @@ from ..physics.optics import FpsaOptics
 from ..scan import planned_pixel_count
 from ..store import ScanRecord, Store
 from .events import EventHub, PointListener, Subscriber
-from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob,
+from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
                     request_to_dict)
 from .scan_job import ScanJobRun, raw_path
 
@@ -135,6 +135,14 @@ class ScanWorker:
             self._enqueue(job)
         return job.future
 
+    def submit_task(self, fn: Callable[[], Any]) -> concurrent.futures.Future:
+        """Queue ``fn()`` (a procedure that drives the instrument, e.g. a calibration measurement) behind
+        the jobs already waiting; the future resolves to its result or its exception."""
+        job = _TaskJob(fn)
+        with self._cv:
+            self._enqueue(job)
+        return job.future
+
     def cancel(self, scan_id: str) -> ScanRecord:
         """Cancel a queued or running scan; a finished one is returned unchanged."""
         with self._cv:
@@ -202,6 +210,8 @@ class ScanWorker:
                     ScanJobRun(self, job).run()
                 elif isinstance(job, _SelftestJob):
                     self._run_selftest(job)
+                elif isinstance(job, _TaskJob):
+                    self._run_task(job)
                 else:
                     self._run_calibration(job)
             except Exception:  # never let the worker thread die
@@ -218,6 +228,14 @@ class ScanWorker:
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             job.future.set_result(cal)
+        except Exception as exc:
+            job.future.set_exception(exc)
+
+    def _run_task(self, job: _TaskJob) -> None:
+        if not job.future.set_running_or_notify_cancel():
+            return
+        try:
+            job.future.set_result(job.fn())
         except Exception as exc:
             job.future.set_exception(exc)
 
@@ -256,16 +274,24 @@ class ScanWorker:
     def calibration_for_scan(self, job: _ScanJob) -> CalibrationResult:
         """The newest stored calibration of the laser, or a new linearization when there is none or
         the laser's temperature moved (announced as the scan's ``linearizing`` stage)."""
+        def announce() -> None:
+            self.store.update_scan(job.id, stage="linearizing")
+            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
+                                   "pixels_done": 0, "pixels_planned": 0, "points": 0,
+                                   "fraction": 0.0, "hardware_time_s": 0.0})
+        return self.current_linearization(announce)
+
+    def current_linearization(self, announce: Callable[[], None] | None = None) -> CalibrationResult:
+        """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
+        linearization, or a new one (``announce()`` first) when there is none or it is stale."""
         self.apply_geometry()
         cal = self.store.latest_calibration(self.laser)
         stale = None if cal is None else self._stale_reason(cal)
         if stale is not None:
             log.info("re-linearizing: %s", stale)
         if cal is None or stale is not None:
-            self.store.update_scan(job.id, stage="linearizing")
-            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
-                                   "pixels_done": 0, "pixels_planned": 0, "points": 0,
-                                   "fraction": 0.0, "hardware_time_s": 0.0})
+            if announce is not None:
+                announce()
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
         return cal

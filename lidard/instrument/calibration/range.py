@@ -112,7 +112,7 @@ def plate_request(optics, max_range_m: float) -> ScanRequest:
                        max_range_m=float(max_range_m), formats=())
 
 
-def plate_measurement(points: np.ndarray, optics, known_m: float, *, delay_s: float, zero_offset_used_m: float = 0.0,
+def plate_measurement(points: np.ndarray, known_m: float, *, delay_s: float, zero_offset_used_m: float = 0.0,
                       temperature_c: float = float("nan"), linearization_id: str | None = None) -> PlateMeasurement:
     """Reduce a plate scan's points (POINT_DTYPE) to a :class:`PlateMeasurement`.
 
@@ -128,7 +128,7 @@ def plate_measurement(points: np.ndarray, optics, known_m: float, *, delay_s: fl
         raise CalibrationRefused(
             f"range calibration: plate at known_m={known_m:g}: only {len(p)} of the centre pixels gave a valid "
             f"return (need {MIN_PIXELS}); is the plate there, bright enough and beyond the nearest unambiguous range?")
-    dz = optics.directions(p["row"], p["col"])[:, 2]
+    dz = p["z"].astype(np.float64) / p["range"]     # the unit ray's z component, as the scan placed it
     raw = p["range"].astype(np.float64) + float(zero_offset_used_m)
     # the spread about the plane (z = range * d_z), so the few-um geometric spread of known_m / d_z over
     # the region does not count as noise
