@@ -59,13 +59,13 @@ async def _wait(submit) -> Any:
     try:
         future = submit()
     except CalibrationRefused as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from None
+        raise HTTPException(422, str(exc)) from None
     except (QueueFull, WorkerStopped) as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
     try:
         return await asyncio.wrap_future(future)
     except CalibrationRefused as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from None
+        raise HTTPException(422, str(exc)) from None
     except Exception as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, f"calibration failed: {describe_error(exc)}") from None
 
@@ -106,7 +106,7 @@ def fit_range(store: StoreDep, cfg: ConfigDep) -> RecordOut:
     try:
         return RecordOut.model_validate(cal.fit_range(store, cfg.monitor.delay_s).to_dict())
     except CalibrationRefused as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from None
+        raise HTTPException(422, str(exc)) from None
 
 
 @router.post("/pointing", response_model=RecordOut, status_code=status.HTTP_201_CREATED, responses=REFUSED)

@@ -144,6 +144,37 @@ def _describe(i: int, m: PlateMeasurement, resid_m: float, norm: float) -> str:
             f"({norm:+.1f} standard errors)")
 
 
+def _wls(R: np.ndarray, q: np.ndarray, sig: np.ndarray):
+    """Weighted straight line q = a R + b: (a, b, covariance, normalised residuals, chi-square)."""
+    A = np.stack([R, np.ones_like(R)], axis=1) / sig[:, None]
+    coef, *_ = np.linalg.lstsq(A, q / sig, rcond=None)
+    a, b = float(coef[0]), float(coef[1])
+    norm = (q - (a * R + b)) / sig
+    return a, b, np.linalg.inv(A.T @ A), norm, float(np.sum(norm ** 2))
+
+
+def _culprit(ms, R, q, sig, resid_m, norm, p_min: float) -> str:
+    """Which plate to check. With four or more, the one whose removal leaves a consistent fit (leave
+    one out); with three, a straight line through any two predicts the third equally badly, so the
+    largest normalised residual is named with that caveat."""
+    n = len(ms)
+    if n >= 4:
+        keep = np.ones(n, dtype=bool)
+        chi_without = []
+        for i in range(n):
+            keep[:] = True
+            keep[i] = False
+            chi_without.append(_wls(R[keep], q[keep], sig[keep])[4])
+        k = int(np.argmin(chi_without))
+        if stats.chi2.sf(chi_without[k], n - 3) >= p_min:
+            return (f"{_describe(k, ms[k], resid_m[k], norm[k])}; without it the others agree "
+                    f"(chi-square {chi_without[k]:.1f} for {n - 3}): check its known distance, remove it and measure again")
+    k = int(np.argmax(np.abs(norm)))
+    return (f"largest: {_describe(k, ms[k], resid_m[k], norm[k])}"
+            + ("; three plates cannot tell which one is wrong: check every known distance or add a fourth plate"
+               if n == 3 else "; check the known distances, remove the wrong one and measure again"))
+
+
 def fit_range(measurements: Sequence[PlateMeasurement], nominal_delay_s: float, *, p_min: float = P_MIN) -> RangeFit:
     """Weighted least squares of q = R_raw / tau_used = a R + b over the plates (module docstring).
 
@@ -159,24 +190,18 @@ def fit_range(measurements: Sequence[PlateMeasurement], nominal_delay_s: float, 
     tau = np.array([m.delay_s for m in ms])
     q = np.array([m.raw_range_m for m in ms]) / tau
     sig = np.array([m.sem_m for m in ms]) / tau
-    A = np.stack([R, np.ones_like(R)], axis=1) / sig[:, None]
-    coef, *_ = np.linalg.lstsq(A, q / sig, rcond=None)
-    a, b = float(coef[0]), float(coef[1])
+    a, b, cov, norm, chi2 = _wls(R, q, sig)
     if not a > 0:
         raise CalibrationRefused(f"range calibration: the fitted range scale is not positive (a={a:g}); "
                                  "are the known distances entered in metres?")
-    cov = np.linalg.inv(A.T @ A)
-    norm = (q - (a * R + b)) / sig
-    resid_m = (q - (a * R + b)) * tau        # back in range metres
-    chi2 = float(np.sum(norm ** 2))
+    resid_m = norm * sig * tau               # back in range metres
     dof = len(ms) - 2
     p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else float("nan")
     if dof > 0 and p < p_min:
-        k = int(np.argmax(np.abs(norm)))
         raise CalibrationRefused(
             f"range calibration refused: chi-square {chi2:.1f} for {dof} degree(s) of freedom (p = {p:.2g} < "
-            f"{p_min:g}): the plates disagree more than their noise explains; {_describe(k, ms[k], resid_m[k], norm[k])}"
-            "; check its known distance, remove it and measure again")
+            f"{p_min:g}): the plates disagree more than their noise explains; "
+            + _culprit(ms, R, q, sig, resid_m, norm, p_min))
     tau_eff, z0 = 1.0 / a, b / a
     # propagate (a, b) -> (tau = 1/a, z0 = b/a)
     j = np.array([[-1.0 / a**2, 0.0], [-b / a**2, 1.0 / a]])

@@ -56,7 +56,15 @@ def test_range_fit_refuses_a_plate_at_the_wrong_known_distance_and_names_it():
     wrong = PlateMeasurement(**{**ms[1].as_dict(), "known_m": 1.15, "known_range_m": 1.15})
     with pytest.raises(CalibrationRefused, match=r"measurement #2 \(known_m=1.15\)") as e:
         fit_range([ms[0], wrong, ms[2]], TAU_NOM)
-    assert "chi-square" in str(e.value)
+    assert "chi-square" in str(e.value) and "three plates cannot tell which one is wrong" in str(e.value)
+
+
+def test_range_fit_with_four_plates_names_the_one_whose_removal_makes_the_others_agree():
+    rng = np.random.default_rng(9)
+    ms = _plates([0.8, 1.1, 1.4, 1.7], TAU_NOM * 0.996, -0.01, 20e-6, rng)
+    wrong = PlateMeasurement(**{**ms[3].as_dict(), "known_m": 1.75, "known_range_m": 1.75})   # an END plate
+    with pytest.raises(CalibrationRefused, match=r"measurement #4 \(known_m=1.75\).*without it the others agree"):
+        fit_range([*ms[:3], wrong], TAU_NOM)
 
 
 def test_range_fit_needs_two_distances():
