@@ -112,3 +112,38 @@ def test_pointing_through_lidarctl_refuses_what_does_not_fit(capsys, live, tmp_p
     # the fake shows a flat plate at 1 m, not the sphere the geometry promises
     code, out, err = run(capsys, "calibration", "pointing", "--geometry", str(geo), "--url", url)
     assert code != 0 and "pointing calibration" in err and "422" in err
+
+
+def test_sim_scan_says_uncalibrated_without_a_store_and_uses_the_stored_calibrations_with_one(
+        capsys, monkeypatch, tmp_path):
+    from lidard.cli import base as cli_base
+    from lidard.pointcloud import read_sidecar
+    from lidard.store import Store
+    inst = FakeInstrument()
+    monkeypatch.setattr(cli_base, "open_instrument", lambda cfg, **kw: inst)
+    out_file = tmp_path / "s.ply"
+    code, out, err = run(capsys, "scan", "--sim", "--rows", "2:4", "--out", str(out_file), "--json")
+    assert code == 0, err
+    assert json.loads(out)["calibrated"] == {"range": False, "pointing": False, "linearization": True}
+    assert err.count("warning: uncalibrated range and pointing") == 1
+    side = read_sidecar(out_file)
+    assert side["calibrated"]["range"] is False and side["pointing_calibration_id"] is None
+
+    data = tmp_path / "data"
+    st = Store(data)
+    rng = st.save_geometry_calibration("range", temperature_c=25.0, inputs={}, residuals={},
+                                       fitted={"delay_s": 201.2e-9, "zero_offset_m": 0.02})
+    pnt = st.save_geometry_calibration("pointing", temperature_c=25.0, inputs={}, residuals={},
+                                       fitted={"focal_scale": 1.01, "decentre_px": [0.5, -0.2],
+                                               "rotation_rad": 0.004, "k1": 0.1})
+    st.close()
+    code, out, err = run(capsys, "scan", "--sim", "--data-dir", str(data), "--rows", "2:4", "--out", str(out_file),
+                         "--json")
+    assert code == 0, err
+    assert json.loads(out)["calibrated"] == {"range": True, "pointing": True, "linearization": True}
+    assert "warning" not in err
+    side = read_sidecar(out_file)
+    assert (side["range_calibration_id"], side["pointing_calibration_id"]) == (rng.id, pnt.id)
+    # the worker handed both to the instrument before the scan
+    assert inst.applied.delay_s == 201.2e-9 and inst.applied.zero_offset_m == 0.02
+    assert inst.applied.pointing.decentre_px == (0.5, -0.2) and inst.monitor_delay_s() == 201.2e-9
