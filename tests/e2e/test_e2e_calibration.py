@@ -6,6 +6,7 @@ by tau_nom / tau_true (R_raw = 0.995 R: -5 mm at 1 m); the range calibration mus
 plates at known distances alone, and the next scan must range the plate right.
 """
 
+import contextlib
 import io
 import json
 
@@ -13,7 +14,9 @@ import numpy as np
 import pytest
 
 from lidard.config import load_config
+from lidard.instrument.calibration import AppliedCalibrations, run_pointing_calibration, run_range_calibration
 from lidard.instrument.calibration.range import plate_scene
+from lidard.store import Store
 from tests.helpers.api import app_client
 from tests.helpers.split_bench import open_split
 
@@ -28,8 +31,20 @@ def inst():
     daemon_cfg = load_config("config/sim.toml")
     bench_cfg = load_config("config/sim.toml", environ={"LIDARD__MONITOR__DELAY_S": str(TAU_TRUE)})
     inst = open_split(daemon_cfg, bench_cfg)
+    inst.nominal_linearization = inst.linearize()     # one ILC run (seconds) shared by the tests
     yield inst
     inst.close()
+
+
+@contextlib.contextmanager
+def _daemon(inst, tmp_path):
+    """The daemon's app on ``inst`` with a store that already holds the nominal-delay linearization."""
+    inst.use_calibrations(AppliedCalibrations())
+    st = Store(tmp_path)
+    st.save_calibration(inst.nominal_linearization)
+    st.close()
+    with app_client(tmp_path, inst, load_config("config/sim.toml"), close_instrument=False) as client:
+        yield client
 
 
 def _place(client, scene):
@@ -56,7 +71,7 @@ def _plate_error_m(pts, d):
 
 
 def test_range_calibration_finds_the_true_delay_and_refuses_a_wrong_plate(inst, tmp_path):
-    with app_client(tmp_path, inst, load_config("config/sim.toml"), close_instrument=False) as client:
+    with _daemon(inst, tmp_path) as client:
         _place(client, plate_scene(1.25))
         rec, pts, sidecar = _scan(client, tmp_path)
         # uncalibrated: said, and the raw range scale is off by tau_nom / tau_true
@@ -98,10 +113,11 @@ def test_range_calibration_finds_the_true_delay_and_refuses_a_wrong_plate(inst, 
         assert abs(_plate_error_m(pts, 1.25)) < 0.1e-3
         lin = client.get("/calibration/records", params={"kind": "linearization"}).json()
         assert len(lin) == 2 and lin[0]["fitted"]["mzi_delay_s"] == pytest.approx(f["delay_s"])
+        assert lin[1]["fitted"]["mzi_delay_s"] == 200e-9
 
 
 def test_pointing_calibration_needs_range_first_then_fits_the_spheres(inst, tmp_path):
-    with app_client(tmp_path, inst, load_config("config/sim.toml"), close_instrument=False) as client:
+    with _daemon(inst, tmp_path) as client:
         r = client.post("/calibration/pointing", json={"geometry": GEOMETRY})
         assert r.status_code == 422 and "no range calibration yet" in r.json()["detail"]
         for d in (0.8, 1.4):
@@ -128,3 +144,18 @@ def test_pointing_calibration_needs_range_first_then_fits_the_spheres(inst, tmp_
         assert sidecar["pointing_calibration_id"] == rec["id"]
         bad = dict(GEOMETRY, sphere=[{"centre": [0, 0, 1.0], "radius": -1}])
         assert client.post("/calibration/pointing", json={"geometry": bad}).status_code == 422
+
+
+def test_benchmark_entry_points_calibrate_an_embedded_instrument(inst):
+    inst.use_calibrations(AppliedCalibrations())          # what the REST tests left applied: gone
+    lin = inst.nominal_linearization
+    assert lin.meta["mzi_delay_s"] == 200e-9
+    run = run_range_calibration(inst, [0.8, 1.1, 1.4], linearization=lin)
+    assert run.fit.delay_s == pytest.approx(TAU_TRUE, rel=2e-4) and len(run.measurements) == 3
+    assert inst.monitor_delay_s() == run.fit.delay_s
+    assert run.linearization.meta["mzi_delay_s"] == run.fit.delay_s        # re-linearized against it
+    prun = run_pointing_calibration(inst, GEOMETRY, linearization=run.linearization,
+                                    noise_m=run.fit.pixel_std_m)
+    assert prun.linearization is run.linearization                          # the delay did not change
+    assert prun.fit.rms_m < 2 * run.fit.pixel_std_m and inst.applied.pointing == prun.fit.pointing
+    assert inst.applied.range_id is not None and inst.applied.delay_s == run.fit.delay_s
