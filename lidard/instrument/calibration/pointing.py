@@ -76,8 +76,10 @@ class Surface:
 
 def _vec(where: str, v: Any) -> tuple[float, float, float]:
     try:
+        if isinstance(v, (str, bytes)) or any(isinstance(x, bool) for x in v):
+            raise TypeError(v)
         out = tuple(float(x) for x in v)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         out = ()
     if len(out) != 3 or not all(math.isfinite(x) for x in out):
         raise CalibrationRefused(f"pointing geometry: {where} must be three finite numbers [x, y, z], got {v!r}")
@@ -91,15 +93,22 @@ def parse_geometry(d: dict[str, Any], source: str = "<geometry>") -> list[Surfac
     unknown = set(d) - {"sphere", "plane", "name", "description"}
     if unknown:
         raise CalibrationRefused(f"pointing geometry {source}: unknown key(s) {sorted(unknown)}; allowed: sphere, plane")
+    for kind in ("sphere", "plane"):
+        if not isinstance(d.get(kind, []), list):
+            raise CalibrationRefused(f"pointing geometry {source}: {kind} must be a list of tables ([[{kind}]])")
     out: list[Surface] = []
     for i, s in enumerate(d.get("sphere", [])):
         where = f"{source}: sphere[{i}]"
         if not isinstance(s, dict) or set(s) - {"centre", "radius", "name"} or not {"centre", "radius"} <= set(s):
             raise CalibrationRefused(f"pointing geometry {where}: needs exactly centre and radius (and an optional name)")
         r = s["radius"]
-        if not isinstance(r, (int, float)) or not (math.isfinite(r) and r > 0):
+        if isinstance(r, bool) or not isinstance(r, (int, float)) or not (math.isfinite(r) and r > 0):
             raise CalibrationRefused(f"pointing geometry {where}.radius: must be > 0 metres, got {r!r}")
-        out.append(Surface("sphere", _vec(f"{where}.centre", s["centre"]), float(r), str(s.get("name", f"sphere[{i}]"))))
+        centre = _vec(f"{where}.centre", s["centre"])
+        if not centre[2] > r:
+            raise CalibrationRefused(f"pointing geometry {where}: must lie wholly in front of the lens "
+                                     f"(centre z > radius), got centre {list(centre)}, radius {r}")
+        out.append(Surface("sphere", centre, float(r), str(s.get("name", f"sphere[{i}]"))))
     for i, p in enumerate(d.get("plane", [])):
         where = f"{source}: plane[{i}]"
         if not isinstance(p, dict) or set(p) - {"point", "normal", "name"} or not {"point", "normal"} <= set(p):
@@ -135,7 +144,11 @@ def scan_pixels(optics: FpsaOptics, surfaces: list[Surface]) -> np.ndarray:
         c = np.asarray(s.a)
         dist = float(np.linalg.norm(c))
         half = math.asin(min(1.0, s.b / dist)) + MARGIN_PX * step
-        keep |= dirs @ (c / dist) >= math.cos(half)
+        near = dirs @ (c / dist) >= math.cos(half)
+        if not near.any():
+            raise CalibrationRefused(f"pointing calibration: no bonded pixel looks at {s.name} (centre {list(s.a)} m): "
+                                     "it is outside the field of view")
+        keep |= near
     return bonded[keep]
 
 
@@ -160,6 +173,10 @@ class PointingFit:
 
 _NAMES = ("focal_scale", "decentre_x_px", "decentre_y_px", "rotation_rad", "k1")
 _X_SCALE = np.array([1e-2, 1.0, 1.0, 1e-2, 0.1])
+# far beyond any real tolerance (focal +-1 %, 1 pitch, 0.5 deg, |k1| < 0.2), but keeps every trial
+# model a valid Pointing (focal_scale > 0) however bad the data
+_LOWER = np.array([0.8, -20.0, -20.0, -0.2, -2.0])
+_UPPER = np.array([1.25, 20.0, 20.0, 0.2, 2.0])
 
 
 def _pointing(x: np.ndarray) -> Pointing:
@@ -202,7 +219,8 @@ def fit_pointing(optics: FpsaOptics, rows, cols, range_m, surfaces: list[Surface
     if not (math.isfinite(noise_m) and noise_m > 0):
         raise CalibrationRefused(f"pointing calibration: noise_m must be a positive range noise in metres, got {noise_m!r}")
     p0 = start or Pointing()
-    x = np.array([p0.focal_scale, *p0.decentre_px, p0.rotation_rad, p0.k1], dtype=np.float64)
+    x = np.clip(np.array([p0.focal_scale, *p0.decentre_px, p0.rotation_rad, p0.k1], dtype=np.float64),
+                _LOWER + 1e-9, _UPPER - 1e-9)
     gate = GATE_M
     first: np.ndarray | None = None
     for _ in range(3):   # assign under the current model, fit, tighten the gate, again
@@ -215,7 +233,8 @@ def fit_pointing(optics: FpsaOptics, rows, cols, range_m, surfaces: list[Surface
                 f"pointing calibration: {int(use.sum())} points lie within {gate * 1e3:.1f} mm of the known surfaces "
                 f"(need {min_points})" + (f"; no points on {', '.join(missing)}: is the geometry right?" if missing else ""))
         fn = _residual_fn(optics, surfaces, rows[use], cols[use], range_m[use], idx[use])
-        sol = least_squares(fn, x, loss="soft_l1", f_scale=2.0 * noise_m, x_scale=_X_SCALE, method="trf")
+        sol = least_squares(fn, x, loss="soft_l1", f_scale=2.0 * noise_m, x_scale=_X_SCALE, method="trf",
+                            bounds=(_LOWER, _UPPER))
         x = sol.x
         gate = max(10.0 * noise_m, 1e-4)   # wider than the refusal limit: the RMS test sees the tails
     _check_kept(surfaces, first, np.bincount(idx[use], minlength=len(surfaces)), gate)
