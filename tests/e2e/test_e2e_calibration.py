@@ -1,14 +1,17 @@
 """Range and pointing calibration end to end: REST -> worker -> instrument -> simulated bench (issue 13).
 
 The bench's monitor MZI is 201 ns while the daemon's configuration says 200 ns (tests.helpers.split_bench:
-until the bench hides its own tolerances, the test builds the disagreement). Raw ranges are then short
-by tau_nom / tau_true (R_raw = 0.995 R: -5 mm at 1 m); the range calibration must find the 201 ns from
-plates at known distances alone, and the next scan must range the plate right.
+with the bench's own ``[sim.tolerances]`` switched off, so that the truth is known exactly). Raw ranges
+are then short by tau_nom / tau_true (R_raw = 0.995 R: -5 mm at 1 m); the range calibration must find
+the 201 ns from plates at known distances alone, and the next scan must range the plate right.
+The last test runs both calibrations on a bench with its own hidden tolerances (whatever they are)
+and checks the outcome only: plates and spheres measured right afterwards.
 """
 
 import contextlib
 import io
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -29,7 +32,8 @@ GEOMETRY = {"sphere": [{"centre": [x, y, 1.0], "radius": 0.035, "name": f"s{i}"}
 @pytest.fixture(scope="module")
 def inst():
     daemon_cfg = load_config("config/sim.toml")
-    bench_cfg = load_config("config/sim.toml", environ={"LIDARD__MONITOR__DELAY_S": str(TAU_TRUE)})
+    bench_cfg = load_config("config/sim.toml", environ={"LIDARD__MONITOR__DELAY_S": str(TAU_TRUE),
+                                                        "LIDARD__SIM__TOLERANCES__ENABLED": "false"})
     inst = open_split(daemon_cfg, bench_cfg)
     inst.nominal_linearization = inst.linearize()     # one ILC run (seconds) shared by the tests
     yield inst
@@ -159,3 +163,41 @@ def test_benchmark_entry_points_calibrate_an_embedded_instrument(inst):
     assert prun.linearization is run.linearization                          # the delay did not change
     assert prun.fit.rms_m < 2 * run.fit.pixel_std_m and inst.applied.pointing == prun.fit.pointing
     assert inst.applied.range_id is not None and inst.applied.delay_s == run.fit.delay_s
+
+
+CHECK_SPHERES = [(0.05, -0.04, 1.2, 0.04), (-0.06, 0.05, 0.9, 0.03), (0.08, 0.07, 1.1, 0.03)]
+
+
+def _sphere_rms_m(pts, spheres):
+    good = pts[(pts["valid"] == 1) & (pts["return_index"] == 0)]
+    xyz = np.stack([good["x"], good["y"], good["z"]], axis=1).astype(np.float64)
+    d = np.min(np.abs(np.stack([np.linalg.norm(xyz - np.array(s[:3]), axis=1) - s[3] for s in spheres], axis=1)),
+               axis=1)
+    on = d < 0.02                    # the points of the spheres (nothing else is in the scene)
+    assert on.sum() > 300
+    return float(np.sqrt(np.mean(d[on] ** 2)))
+
+
+def test_both_calibrations_on_a_bench_with_its_own_hidden_tolerances():
+    """The outcome a lab wants, whatever the bench drew: after the range and pointing calibrations a
+    plate is ranged right and other spheres lie on their known surfaces (x, y, z, not only range)."""
+    from lidard.instrument import ScanRequest, open_instrument
+    from lidard.instrument.calibration.pointing import Surface, scan_pixels
+    cfg = load_config("config/sim.toml", environ={"LIDARD__SIM__TOLERANCES__SEED": "5"})
+    inst = open_instrument(cfg, scene_path="config/scenes/empty.toml", bench="embedded")
+    try:
+        run = run_range_calibration(inst, [0.8, 1.1, 1.4])
+        prun = run_pointing_calibration(inst, GEOMETRY, linearization=run.linearization, noise_m=run.fit.pixel_std_m)
+        lin = prun.linearization
+        inst.set_scene(plate_scene(1.25))
+        res = inst.run_scan(ScanRequest(**{k: v for k, v in ROI.items() if k != "formats"}), lambda p: None,
+                            threading.Event(), lin)
+        assert abs(_plate_error_m(res.points, 1.25)) < 0.1e-3
+        inst.set_scene({"target": [{"kind": "sphere", "center": list(s[:3]), "radius": s[3], "reflectivity": 0.5}
+                                   for s in CHECK_SPHERES]})
+        px = scan_pixels(inst.optics, [Surface("sphere", s[:3], s[3], "c") for s in CHECK_SPHERES])
+        res = inst.run_scan(ScanRequest(pattern="pixels", pixels=tuple(map(tuple, px.tolist())), max_range_m=2.0),
+                            lambda p: None, threading.Event(), lin)
+        assert _sphere_rms_m(res.points, CHECK_SPHERES) < 2 * run.fit.pixel_std_m + 50e-6
+    finally:
+        inst.close()
