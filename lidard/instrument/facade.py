@@ -4,7 +4,9 @@
 from one thread; a lock keeps callers apart). It holds the rooms and delegates:
 
 * scans -> :mod:`.scan_loop` (plan -> acquire -> DSP -> points, §4.4.3 imaging);
-* chirp linearization -> :mod:`.calibration` (§2.2);
+* chirp linearization -> :mod:`.calibration` (§2.2); the range and pointing calibrations it is handed
+  (``use_calibrations``: effective monitor delay, zero offset, pointing; issue 13) shape the
+  linearization's target and every scan's ranges and directions;
 * the switch self-test -> :mod:`.selftest` (the FPSA's row/column lines, §4.3.3);
 * interlock, faults and the outputs -> :mod:`.safety`;
 * the four devices -> :mod:`.devices` (one registry: identities, GET /devices health and reconnect);

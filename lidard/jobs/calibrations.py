@@ -20,11 +20,8 @@ import concurrent.futures
 import math
 from typing import Any
 
-from ..instrument.calibration.range import CalibrationRefused, PlateMeasurement, fit_range as _fit
+from ..instrument.calibration.range import DEFAULT_NOISE_M, CalibrationRefused, PlateMeasurement, fit_range as _fit
 from ..store_calibrations import CalibrationRecord
-
-# the single-point range noise the pointing fit expects when a range record does not say (older record)
-DEFAULT_NOISE_M = 150e-6
 
 
 def add_plate(worker, known_m: float) -> concurrent.futures.Future:
@@ -69,12 +66,12 @@ def pointing(worker, geometry: dict[str, Any]) -> concurrent.futures.Future:
     surfaces = parse_geometry(geometry, source="<request>")
 
     def task() -> CalibrationRecord:
-        lin = worker.current_linearization()
-        applied = worker.applied
+        applied = worker.apply_geometry()
         rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
-        if rng is None:
+        if rng is None:   # refused before any linearization or scan
             raise CalibrationRefused("pointing calibration: no range calibration yet; the fit places points with "
                                      "range-calibrated ranges: run `lidarctl calibration range add/fit` first")
+        lin = worker.current_linearization()
         # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
         noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
         fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)

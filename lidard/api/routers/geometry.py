@@ -41,6 +41,22 @@ class PointingIn(BaseModel):
                                                  "[[plane]] point, normal (sensor frame, m)")
 
 
+class PlateOut(BaseModel):
+    """A pending plate measurement (lidard.instrument.calibration.range.PlateMeasurement)."""
+
+    id: str
+    created: float
+    known_m: float
+    known_range_m: float = Field(description="mean of known_m / d_z over the pixels: the true ray ranges")
+    raw_range_m: float = Field(description="mean measured range, zero offset not removed")
+    sem_m: float = Field(description="standard error of raw_range_m")
+    pixel_std_m: float = Field(description="spread of the single pixels about the plate (range noise)")
+    n: int
+    delay_s: float = Field(description="the monitor delay the chirp was linearized against")
+    temperature_c: float | None = None
+    linearization_id: str | None = None
+
+
 class RecordOut(BaseModel):
     id: str
     kind: Literal["range", "pointing", "linearization"]
@@ -75,15 +91,15 @@ def _clean(d: dict[str, Any]) -> dict[str, Any]:
     return {**d, "temperature_c": t if isinstance(t, float) and t == t else None}
 
 
-@router.post("/range/plates", status_code=status.HTTP_201_CREATED, responses=REFUSED)
-async def add_plate(body: PlateIn, worker: WorkerDep) -> dict[str, Any]:
+@router.post("/range/plates", response_model=PlateOut, status_code=status.HTTP_201_CREATED, responses=REFUSED)
+async def add_plate(body: PlateIn, worker: WorkerDep) -> PlateOut:
     """Measure the plate now at ``known_m`` (centre pixels); the measurement waits for the fit."""
-    return _clean(await _wait(lambda: cal.add_plate(worker, body.known_m)))
+    return PlateOut.model_validate(_clean(await _wait(lambda: cal.add_plate(worker, body.known_m))))
 
 
-@router.get("/range/plates")
-def list_plates(store: StoreDep) -> list[dict[str, Any]]:
-    return [_clean(m) for m in cal.plates(store)]
+@router.get("/range/plates", response_model=list[PlateOut])
+def list_plates(store: StoreDep) -> list[PlateOut]:
+    return [PlateOut.model_validate(_clean(m)) for m in cal.plates(store)]
 
 
 @router.delete("/range/plates", response_model=Removed)

@@ -23,7 +23,7 @@ import numpy as np
 from ..types import CalibrationResult, ScanRequest
 from .applied import AppliedCalibrations
 from .pointing import PointingFit, Surface, fit_pointing, parse_geometry, scan_pixels, spheres_scene
-from .range import CalibrationRefused, PlateMeasurement, RangeFit, fit_range, plate_measurement, plate_request, plate_scene
+from .range import DEFAULT_NOISE_M, CalibrationRefused, PlateMeasurement, RangeFit, fit_range, plate_measurement, plate_request, plate_scene
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +94,7 @@ def run_range_calibration(instrument, known_m: Sequence[float], *, place: Callab
         place(float(d))
         ms.append(measure_plate(instrument, instrument.optics, float(d), lin, applied))
     fit: RangeFit = fit_range(ms, instrument.cfg.monitor.delay_s)
+    # no store here: the id only says "calibrated by a procedure run" in the sidecars
     new = dataclasses.replace(applied, range_id="range-run", delay_s=fit.delay_s, zero_offset_m=fit.zero_offset_m)
     instrument.use_calibrations(new)
     return CalibrationRun(fit, new, _linearization_for(instrument, lin), ms)
@@ -106,12 +107,13 @@ def run_pointing_calibration(instrument, geometry: dict[str, Any] | list[Surface
     """Scan the known targets (``geometry``: the geometry file's dict, or parsed surfaces), fit, apply.
 
     ``place(surfaces)`` puts them in front of the scanner (default on a simulated bench: spheres and
-    planes of the geometry as the scene). ``noise_m``: the single-point range noise (default: the
-    range calibration run's pooled pixel spread is not known here, so 150 um, the bench's at ~1 m)."""
+    planes of the geometry as the scene). ``noise_m``: the single-point range noise the residual is
+    judged by; pass the range run's ``fit.pixel_std_m`` (default ``DEFAULT_NOISE_M``, 150 um: the
+    simulated bench's plate spread at about 1 m is 75-130 um)."""
     surfaces = geometry if isinstance(geometry, list) else parse_geometry(geometry)
     (place or (lambda s: instrument.set_scene(spheres_scene(s))))(surfaces)
     lin = _linearization_for(instrument, linearization)
-    fit, _ = measure_pointing(instrument, instrument.optics, surfaces, lin, 150e-6 if noise_m is None else noise_m)
+    fit, _ = measure_pointing(instrument, instrument.optics, surfaces, lin, DEFAULT_NOISE_M if noise_m is None else noise_m)
     new = dataclasses.replace(instrument.applied, pointing_id="pointing-run", pointing=fit.pointing)
     instrument.use_calibrations(new)
     return CalibrationRun(fit, new, lin)

@@ -40,6 +40,7 @@ from ..types import ScanRequest
 P_MIN = 1e-3            # a fit whose chi-square is less likely than this under the noise is refused
 MIN_PIXELS = 8          # valid plate returns a measurement needs
 SEM_FLOOR_M = 1e-6      # float32 ranges (0.06 um at 1 m) and the DSP's interpolation: no plate is better
+DEFAULT_NOISE_M = 150e-6  # single-point range noise for the pointing check when no plate spread is known
 ROI_HALF = 3            # centre region: up to 2*ROI_HALF bonded rows x 2*ROI_HALF columns
 
 
