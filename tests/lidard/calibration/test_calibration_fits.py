@@ -144,3 +144,24 @@ def test_geometry_errors_name_the_entry():
         parse_geometry({"plane": [{"point": [0, 0, 1], "normal": [0, 0, 0]}]})
     with pytest.raises(CalibrationRefused, match="unknown key"):
         parse_geometry({"spheres": []})
+
+
+def test_pointing_fit_uses_planes_with_spheres_and_refuses_a_plane_alone():
+    truth = Pointing(focal_scale=0.995, decentre_px=(-0.6, 0.3), rotation_rad=-0.004, k1=-0.1)
+    wall = Surface("plane", (0.0, 0.0, 1.3), (0.0, 0.0, -1.0), "wall")
+    rng = np.random.default_rng(12)
+    px = scan_pixels(OPTICS, [*SPHERES, wall])
+    assert len(px) == len(OPTICS.bonded_pixels())              # a plane's extent is unknown: whole frame
+    px = px[::7]
+    d = OPTICS.with_pointing(truth).directions(px[:, 0], px[:, 1])
+    t_sph = np.stack([_ray_sphere(d, s.a, s.b) for s in SPHERES], axis=1)
+    t = np.fmin(np.nanmin(np.where(np.isnan(t_sph), np.inf, t_sph), axis=1), 1.3 / d[:, 2])
+    r = t + rng.normal(0, 100e-6, len(t))
+    fit = fit_pointing(OPTICS, px[:, 0], px[:, 1], r, [*SPHERES, wall], noise_m=100e-6)
+    assert abs(fit.pointing.decentre_px[0] + 0.6) < 4 * fit.stderr["decentre_x_px"] + 1e-3
+    assert abs(fit.pointing.focal_scale - 0.995) < 4 * fit.stderr["focal_scale"] + 1e-5
+    assert {s["name"]: s["points"] for s in fit.per_surface}["wall"] > 1000
+    # a wall perpendicular to the axis alone says almost nothing about where the beams point
+    flat = np.isinf(np.nanmin(np.where(np.isnan(t_sph), np.inf, t_sph), axis=1))
+    with pytest.raises(CalibrationRefused, match="do not fix the model"):
+        fit_pointing(OPTICS, px[flat, 0], px[flat, 1], r[flat], [wall], noise_m=100e-6)
