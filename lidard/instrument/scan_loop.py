@@ -201,8 +201,9 @@ class ScanLoop:
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
         from ..raw.record import ScanRecorder   # zarr is loaded only by scans that record
         p, adc = run.plan, run.plan.adc
+        optics = self.applied.optics(self.optics)      # the calibrated rays, as the points use
         return ScanRecorder.start(
-            raw_path, pixels=p.pixels, directions=self.applied.optics(self.optics).directions(p.pixels[:, 0], p.pixels[:, 1]),
+            raw_path, pixels=p.pixels, directions=optics.directions(p.pixels[:, 0], p.pixels[:, 1]),
             averages=p.averages, channels=tuple(acq.layout.channels), record_length=adc.record_length, dsp=p.dsp,
             lsb_v=p.lsb_v, phase_noise=p.phase_noise, mzi_delay_s=p.mzi_delay_s,
             adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,

@@ -15,6 +15,10 @@ Policy (also in docs/api.md):
 * A scan uses the newest stored calibration of the configured laser; with none, or when the laser's
   TEC temperature is now more than ``recalibrate_delta_c`` (``scan.recalibrate_delta_c``) away from the
   calibration's, the worker runs ``instrument.linearize()`` first and stores the result.
+* Before every scan and linearization the newest stored range and pointing calibrations
+  (:mod:`.calibrations`, issue 13) are handed to the instrument; a stored linearization made against
+  another monitor delay than the range calibration's is stale and redone. Calibration measurements
+  (plates, pointing targets) are queued like any job (``submit_task``).
 * Cancel: a queued scan becomes ``cancelled`` at once; a running scan's cancel event is set, the
   instrument returns the points so far, which are written and marked ``partial``.
 * Failure: the state becomes ``failed`` and ``error`` holds the exception type, message and cause

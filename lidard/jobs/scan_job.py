@@ -172,7 +172,6 @@ class ScanJobRun:
             files[fmt] = str(path.relative_to(self.store.data_dir))
         return files
 
-
     def _calibrated(self) -> dict[str, Any]:
         applied = self.w.applied
         rng = None if applied is None else applied.range_id
