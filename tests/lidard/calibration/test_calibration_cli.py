@@ -96,6 +96,8 @@ def test_range_steps_refusal_fit_and_records_through_lidarctl(capsys, live, tmp_
     assert code == 0
     assert json.loads(out)["calibrated"]["range"] is True
     assert err.count("warning: uncalibrated") == 1 and "uncalibrated pointing:" in err
+    code, out, err = run(capsys, "scans", "show", json.loads(out)["id"], "--url", url)
+    assert code == 0 and f"range {rec['id']}, pointing NO, linearization " in out
 
 
 def test_pointing_through_lidarctl_refuses_what_does_not_fit(capsys, live, tmp_path):
