@@ -7,6 +7,9 @@ Layout under the data directory::
     scans/<id>/raw.zarr/            the digitizer's raw segments of a scan with record_raw (lidard.raw)
     calibrations/<id>.npy           the linearized drive waveform u(t) of §2.2 (ILC, Fig. 2-5)
 
+Range and pointing calibrations (and the plates measured for the next range fit) are in tables of
+their own (:mod:`lidard.store_calibrations`, a mixin of :class:`Store`).
+
 One connection guarded by a lock serves all threads (the scan worker and the API's threadpool);
 SQLite in WAL mode lets outside readers (``sqlite3`` shell, a second daemon refusing to start) read
 while the daemon writes. A scan left ``queued`` or ``running`` by a process that died is marked
@@ -37,6 +40,7 @@ import numpy as np
 from .errors import LidardError
 from .instrument.types import CalibrationResult
 from .pointcloud import atomic_write
+from .store_calibrations import GEOMETRY_SCHEMA, GeometryCalibrationStore
 
 SCAN_STATES = ("queued", "running", "done", "failed", "cancelled", "interrupted")
 TERMINAL_STATES = frozenset({"done", "failed", "cancelled", "interrupted"})
@@ -152,6 +156,15 @@ class ScanRecord:
     calibration_id: str | None = None
     raw_bytes: int | None = None          # size of scans/<id>/raw.zarr (record_raw), None without one
     reprocessed_from: str | None = None   # the scan whose raw capture this one was computed from
+    range_calibration_id: str | None = None      # the range scale/zero calibration the scan used
+    pointing_calibration_id: str | None = None   # the pointing calibration the scan used
+
+    @property
+    def calibrated(self) -> dict[str, bool]:
+        """Which calibrations the scan used (issue 13 item 4: uncalibrated is said, not hidden)."""
+        return {"range": self.range_calibration_id is not None,
+                "pointing": self.pointing_calibration_id is not None,
+                "linearization": self.calibration_id is not None}
 
     @property
     def terminal(self) -> bool:
@@ -164,11 +177,14 @@ class ScanRecord:
 _SCAN_COLUMNS = tuple(ScanRecord.__dataclass_fields__)
 _JSON_COLUMNS = {"request", "files"}
 # columns added after the first release: a data directory made before gets them on open
-_ADDED_COLUMNS = {"raw_bytes": "INTEGER", "reprocessed_from": "TEXT"}
+_ADDED_COLUMNS = {"raw_bytes": "INTEGER", "reprocessed_from": "TEXT", "range_calibration_id": "TEXT",
+                  "pointing_calibration_id": "TEXT"}
 
 
-class Store:
+class Store(GeometryCalibrationStore):
     """SQLite + files under ``data_dir``; thread-safe (one connection, one lock)."""
+
+    _new_id = staticmethod(new_id)
 
     def __init__(self, data_dir: str | os.PathLike):
         self.data_dir = Path(data_dir).expanduser()
@@ -190,7 +206,7 @@ class Store:
             if str(mode).lower() != "wal":
                 raise StoreError(f"{self.db_path}: cannot switch SQLite to WAL mode (got {mode})")
             self._conn.execute("PRAGMA synchronous=NORMAL")
-            self._conn.executescript(_SCHEMA)
+            self._conn.executescript(_SCHEMA + GEOMETRY_SCHEMA)
             have = {r["name"] for r in self._conn.execute("PRAGMA table_info(scans)")}
             for col, typ in _ADDED_COLUMNS.items():
                 if col not in have:

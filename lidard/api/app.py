@@ -33,7 +33,7 @@ from ..store import Store
 from . import control
 from .control import BodySizeLimit, ControlLock, LockHeld
 from ..live.points import LivePoints
-from .routers import calibration, controller, devices, health, raw, scans, selftest, sim, viewer
+from .routers import calibration, controller, devices, geometry, health, raw, scans, selftest, sim, viewer
 
 log = logging.getLogger(__name__)
 
@@ -103,8 +103,8 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)
     control.document_gates(app)
-    for r in (health.router, devices.router, scans.router, raw.router, calibration.router, sim.router,
-              selftest.router, viewer.router, controller.router):
+    for r in (health.router, devices.router, scans.router, raw.router, calibration.router, geometry.router,
+              sim.router, selftest.router, viewer.router, controller.router):
         app.include_router(r)
     app.mount("/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer")
     _add_error_handlers(app)

@@ -144,6 +144,10 @@ class ScanOut(_Out):
     raw_bytes: int | None = Field(None, description="bytes of the scan's raw capture on disk (record_raw); "
                                                     "null without one")
     reprocessed_from: str | None = Field(None, description="the scan whose raw capture this one reprocessed")
+    range_calibration_id: str | None = Field(None, description="the range scale/zero calibration used")
+    pointing_calibration_id: str | None = Field(None, description="the pointing calibration used")
+    calibrated: dict[str, bool] = Field(default_factory=dict, description=(
+        "which calibrations the scan used: {range, pointing, linearization}; false is said, not hidden"))
 
     @classmethod
     def from_record(cls, rec) -> "ScanOut":
@@ -154,7 +158,9 @@ class ScanOut(_Out):
                    counts=Counts(points=rec.points, pixels_scanned=rec.pixels_scanned,
                                  pixels_planned=rec.pixels_planned),
                    formats=sorted(rec.files), calibration_id=rec.calibration_id,
-                   raw_bytes=getattr(rec, "raw_bytes", None), reprocessed_from=getattr(rec, "reprocessed_from", None))
+                   raw_bytes=getattr(rec, "raw_bytes", None), reprocessed_from=getattr(rec, "reprocessed_from", None),
+                   range_calibration_id=rec.range_calibration_id, pointing_calibration_id=rec.pointing_calibration_id,
+                   calibrated=rec.calibrated)
 
 
 class ScanList(_Out):

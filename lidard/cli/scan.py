@@ -9,6 +9,7 @@ keeps the points measured so far (written to ``--out`` with a partial sidecar) a
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -186,6 +187,7 @@ def cmd_scan(args) -> int:
         s = _scan_sim(args, body, bar, interrupted) if args.sim else _scan_daemon(args, body, bar, interrupted)
     finally:
         bar.close()
+    warn_uncalibrated(s.get("calibrated"))
     if args.json:
         output.emit_json({**s, "interrupted": interrupted[0]})
     else:
@@ -198,6 +200,14 @@ def cmd_scan(args) -> int:
     if s["state"] not in ("done", "cancelled"):
         raise CliError(f"scan {s['id']} {s['state']}: {s.get('error') or 'no detail'}")
     return 0
+
+
+def warn_uncalibrated(calibrated: dict[str, bool] | None) -> None:
+    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4)."""
+    missing = [k for k in ("range", "pointing") if calibrated is not None and not calibrated.get(k)]
+    if missing:
+        print(f"lidarctl: warning: uncalibrated {' and '.join(missing)}: ranges and x, y, z carry the scanner's "
+              "unmeasured range scale/zero and pointing errors (see `lidarctl calibration --help`)", file=sys.stderr)
 
 
 def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[str, Any]:
@@ -223,6 +233,7 @@ def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[bool]) -> di
             out = str(args.out)
         s = summary(flat, out, bool(c.get_json("/health").get("simulated")))
         s["error"] = rec.get("error")
+        s["calibrated"] = rec.get("calibrated")
         return s
 
 
@@ -250,4 +261,5 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
             out = str(args.out)
         s = summary(final.to_dict(), out, bool(inst.simulated))
         s["error"] = final.error
+        s["calibrated"] = final.calibrated
         return s

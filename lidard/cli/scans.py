@@ -38,6 +38,16 @@ def _request_text(req: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def _calibrated_text(s: dict[str, Any]) -> str | None:
+    """``range <id>, pointing NO, linearization <id>`` (issue 13: uncalibrated is said)."""
+    cal = s.get("calibrated")
+    if not cal:
+        return None
+    ids = {"range": s.get("range_calibration_id"), "pointing": s.get("pointing_calibration_id"),
+           "linearization": s.get("calibration_id")}
+    return ", ".join(f"{k} {ids[k] or 'yes' if cal.get(k) else 'NO'}" for k in ("range", "pointing", "linearization"))
+
+
 def show_text(s: dict[str, Any]) -> str:
     """GET /scans/{id} as a key/value table; a pixel list is counted, not printed."""
     t, n = s["timing"], s["counts"]
@@ -59,6 +69,7 @@ def show_text(s: dict[str, Any]) -> str:
         ("wall time", output.seconds(t.get("wall_time_s"))),
         ("files", ", ".join(s.get("formats") or []) or None),
         ("calibration", s.get("calibration_id")),
+        ("calibrated", _calibrated_text(s)),
         ("raw capture", f"{s['raw_bytes'] / 1e6:.1f} MB" if s.get("raw_bytes") else None),
         ("reprocessed from", s.get("reprocessed_from")),
     ])

@@ -10,7 +10,7 @@ Rooms (one responsibility each; the dissertation part each follows is in its doc
 ``acquisition``        one acquisition lifecycle ready -> start -> read -> stop, with its context
 ``scan_loop``          a scan as stages: plan -> acquire -> DSP -> points (§4.4.1, §4.4.3)
 ``points``             DSP results -> point records, batches buffered to bounded memory
-``calibration/``       chirp linearization (§2.2); later range, pointing and other calibrations
+``calibration/``       chirp linearization (§2.2), range scale/zero (§2.1.1) and pointing (§4.1.1)
 ``selftest``           the FPSA row/column switch self-test against the monitor tap (§4.3.3)
 ``safety``             interlock/fault check and the safe-state path (laser and HV off first)
 ``facade``             :class:`LidarInstrument`, what callers hold

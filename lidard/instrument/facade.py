@@ -4,7 +4,9 @@
 from one thread; a lock keeps callers apart). It holds the rooms and delegates:
 
 * scans -> :mod:`.scan_loop` (plan -> acquire -> DSP -> points, §4.4.3 imaging);
-* chirp linearization and its health check before each scan -> :mod:`.calibration` (§2.2);
+* chirp linearization and its health check before each scan -> :mod:`.calibration` (§2.2); the range
+  and pointing calibrations it is handed (``use_calibrations``: effective monitor delay, zero offset,
+  pointing; issue 13) shape the linearization's target and every scan's ranges and directions;
 * the switch self-test -> :mod:`.selftest` (the FPSA's row/column lines, §4.3.3);
 * interlock, faults and the outputs -> :mod:`.safety`;
 * the four devices -> :mod:`.devices` (one registry: identities, GET /devices health and reconnect);
@@ -29,7 +31,9 @@ import numpy as np
 
 from ..config import Config
 from .acquisition import AcquisitionLifecycle, plain_drive
-from .calibration import HealthCheck, Linearization, LinearizationHealth
+from .calibration.applied import AppliedCalibrations
+from .calibration.health import HealthCheck, LinearizationHealth
+from .calibration.linearization import Linearization
 from .devices import DeviceRegistry
 from .errors import NotSimulated, SimFaultError
 from .errors import on_device
@@ -78,6 +82,7 @@ class LidarInstrument:
                                     pull_in_v=self.profile.pull_in_v, spread_v=self.profile.threshold_spread_v)
         self.acquisition = AcquisitionLifecycle(self.registry, cfg, sleep)
         self.scan_loop = ScanLoop(cfg, self.optics, self.acquisition, self.safety, simulated=simulated)
+        self.applied = AppliedCalibrations()   # range / pointing calibrations in use (issue 13)
         self.registry.identify_all()
         # The HV583 registers power up with random contents (ghost beams): clear them first.
         try:
@@ -173,9 +178,21 @@ class LidarInstrument:
             return None
         return self._sim.fidelity()
 
+    def use_calibrations(self, applied: AppliedCalibrations) -> None:
+        """Use these range/pointing calibrations for the following linearizations and scans."""
+        with self._lock:
+            self.applied = applied
+            self.scan_loop.applied = applied
+
+    def monitor_delay_s(self) -> float:
+        """The monitor delay the linearization targets now: the range calibration's effective delay, or
+        the configuration's nominal ``monitor.delay_s`` without one."""
+        return self.applied.delay_or(self.cfg.monitor.delay_s)
+
     def linearize(self, progress: Callable[[dict[str, Any]], None] | None = None) -> CalibrationResult:
         with self._lock:
-            lin = Linearization(self.cfg, self.optics, self.acquisition, self.safety, progress)
+            lin = Linearization(self.cfg, self.optics, self.acquisition, self.safety, progress,
+                                mzi_delay_s=self.monitor_delay_s())
             return lin.run(self._plain_drive(), self.cfg.laser)
 
     def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:

@@ -11,6 +11,7 @@ until ``flush_bytes`` are together: memory stays bounded by one buffer, never a 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -42,8 +43,10 @@ class RawBatch:
 class PointBuffer:
     """Collects raw batches, runs the DSP once ``flush_bytes`` are together, keeps the points."""
 
-    def __init__(self, dsp: FrameDsp, optics, *, lsb_v: float, mzi_delay_s: float, flush_bytes: int):
+    def __init__(self, dsp: FrameDsp, optics, *, lsb_v: float, mzi_delay_s: float, flush_bytes: int,
+                 zero_offset_m: float = 0.0):
         self.dsp = dsp
+        self.zero_offset_m = zero_offset_m
         self.optics = optics
         self.lsb_v = lsb_v
         self.mzi_delay_s = mzi_delay_s
@@ -80,7 +83,7 @@ class PointBuffer:
                                mzi_q=mzi_q)
         self._chunks.append(points_from(res, self.optics, np.concatenate([p.pixels for p in pend]),
                                         np.concatenate([p.t_pix_s for p in pend]),
-                                        np.concatenate([p.clipped for p in pend])))
+                                        np.concatenate([p.clipped for p in pend]), self.zero_offset_m))
 
     def points(self) -> np.ndarray:
         """Every point so far; a batch still waiting is processed first (a failure there is logged:
@@ -92,8 +95,14 @@ class PointBuffer:
         return np.concatenate(self._chunks) if self._chunks else np.zeros(0, POINT_DTYPE)
 
 
-def points_from(res, optics, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None) -> np.ndarray:
+def points_from(res, optics, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None,
+                zero_offset_m: float = 0.0) -> np.ndarray:
     """Point records for every present return of a frame result (``res.present[pixel, k]``), along
     each pixel's beam direction. The record building itself is :func:`lidard.raw.points.frame_points`,
-    shared with the replay of raw captures so that a replay gives these points bit for bit."""
+    shared with the replay of raw captures so that a replay gives these points bit for bit.
+
+    ``zero_offset_m``: the range calibration's zero offset (the path from the reference reflection to
+    the lens every beat carries), taken off the range before x, y, z are placed along the ray."""
+    if zero_offset_m:
+        res = dataclasses.replace(res, range_m=res.range_m - zero_offset_m)
     return frame_points(res, px, t_pix, optics.directions(px[:, 0], px[:, 1]), clipped)

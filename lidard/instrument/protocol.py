@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
 from .healthcheck import HealthCheck
 from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
+
+if TYPE_CHECKING:   # the seam stays free of the calibration rooms at run time
+    from .calibration.applied import AppliedCalibrations
 
 StageFn = Callable[[dict[str, Any]], None]
 
@@ -43,6 +46,13 @@ class Instrument(Protocol):
     def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:
         """The linearization health check of the drive a scan with ``calibration`` would use: its chirp
         measured through the monitor MZI against the ideal (issue 13); None when the check is off."""
+
+    def use_calibrations(self, applied: "AppliedCalibrations") -> None:
+        """Use these range/pointing calibrations (effective monitor delay, zero offset, pointing) for the
+        following linearizations and scans (the job worker hands the newest stored ones over)."""
+
+    def monitor_delay_s(self) -> float:
+        """The monitor delay a linearization now targets (range-calibrated, else nominal)."""
 
     def laser_temperature_c(self) -> float:
         """The laser's TEC temperature readback now (NaN when it cannot be read)."""
@@ -79,6 +89,6 @@ class Instrument(Protocol):
 
 #: The names callers may use on an instrument (what a fake must provide; checked in the tests).
 INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "linearize", "check_linearization",
-                      "laser_temperature_c",
+                      "use_calibrations", "monitor_delay_s", "laser_temperature_c",
                       "selftest", "controller_faults", "acknowledge_faults", "set_scene", "inject_fault",
                       "clear_faults", "active_faults", "close")

@@ -30,6 +30,7 @@ from ..dsp.rangefft import C_M_PER_S
 from ..physics.chirp import adc_rate_hz
 from ..scan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
+from .calibration.applied import AppliedCalibrations
 from .errors import InstrumentError, ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
 from .points import PointBuffer, RawBatch
 from .safety import SafetyMonitor, describe_safe
@@ -74,7 +75,8 @@ class ScanPlan:
         return len(self.pixels)
 
 
-def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = False) -> AdcPlan:
+def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = False,
+             mzi_delay_s: float | None = None) -> AdcPlan:
     """Sample rate and record length for beats up to ``max_range_m`` (plus the Doppler allowance).
 
     ``whole_monitor_delay``: the quadrature reconstruction steps the laser phase by the monitor delay,
@@ -85,7 +87,7 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
     fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
                      max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
     if whole_monitor_delay:
-        tau_m = cfg.monitor.delay_s
+        tau_m = cfg.monitor.delay_s if mzi_delay_s is None else mzi_delay_s
         fs = math.ceil(fs * tau_m - 1e-9) / tau_m
         if fs > a.max_sample_rate_hz:
             raise InstrumentError(f"scan: the quadrature monitor needs a whole number of samples per monitor delay "
@@ -95,26 +97,27 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
     return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r, bits=16)
 
 
-def phase_noise_on(cfg: Config, request: ScanRequest) -> bool:
+def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None = None) -> bool:
     """Resolve scan.phase_noise_compensation (or the request's override): "auto" is on when the
     round trip of max_range_m is at least twice the monitor delay (config.ScanDefaults)."""
     mode = request.phase_noise_compensation or cfg.scan.phase_noise_compensation
     if mode not in ("auto", "on", "off"):
         raise InstrumentError(f"scan: phase_noise_compensation={mode!r} is not one of 'auto', 'on', 'off'")
     if mode == "auto":
-        return 2 * float(request.max_range_m) / C_M_PER_S >= 2 * cfg.monitor.delay_s
+        return 2 * float(request.max_range_m) / C_M_PER_S >= 2 * (mzi_delay_s or cfg.monitor.delay_s)
     return mode == "on"
 
 
-def plan_scan(cfg: Config, optics, request: ScanRequest) -> ScanPlan:
+def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | None = None) -> ScanPlan:
+    """``mzi_delay_s``: the range calibration's effective monitor delay (default: the nominal one)."""
     pixels = plan(request, optics)
     avg = int(request.averages)
-    tau_m = cfg.monitor.delay_s
-    pn_on = phase_noise_on(cfg, request)
+    tau_m = cfg.monitor.delay_s if mzi_delay_s is None else float(mzi_delay_s)
+    pn_on = phase_noise_on(cfg, request, tau_m)
     quad = pn_on and cfg.monitor.quadrature
     # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
     adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m,
-                   whole_monitor_delay=quad)
+                   whole_monitor_delay=quad, mzi_delay_s=tau_m)
     channels = ("beat", "mzi", "mzi_q") if quad else ("beat", "mzi") if pn_on else ("beat",)
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
@@ -157,14 +160,16 @@ class ScanLoop:
                  simulated: bool):
         self.cfg, self.optics, self.lifecycle, self.safety = cfg, optics, lifecycle, safety
         self.simulated = simulated
+        self.applied = AppliedCalibrations()   # the facade's use_calibrations sets it (issue 13)
 
     def run(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event, drive_v: np.ndarray,
             calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
         """``raw_path``: also record every accepted batch of segments there (:mod:`lidard.raw`)."""
-        p = plan_scan(self.cfg, self.optics, request)
+        p = plan_scan(self.cfg, self.optics, request, self.applied.delay_or(self.cfg.monitor.delay_s))
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
-        run = ScanRun(p, PointBuffer(p.dsp, self.optics, lsb_v=p.lsb_v, mzi_delay_s=p.mzi_delay_s,
-                                     flush_bytes=BATCH_BYTES),
+        run = ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
+                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=BATCH_BYTES,
+                                     zero_offset_m=self.applied.zero_offset_m),
                       calibration_id=(calibration.meta or {}).get("id") if calibration else None)
         self.safety.bring_up()
         try:
@@ -196,8 +201,9 @@ class ScanLoop:
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
         from ..raw.record import ScanRecorder   # zarr is loaded only by scans that record
         p, adc = run.plan, run.plan.adc
+        optics = self.applied.optics(self.optics)      # the calibrated rays, as the points use
         return ScanRecorder.start(
-            raw_path, pixels=p.pixels, directions=self.optics.directions(p.pixels[:, 0], p.pixels[:, 1]),
+            raw_path, pixels=p.pixels, directions=optics.directions(p.pixels[:, 0], p.pixels[:, 1]),
             averages=p.averages, channels=tuple(acq.layout.channels), record_length=adc.record_length, dsp=p.dsp,
             lsb_v=p.lsb_v, phase_noise=p.phase_noise, mzi_delay_s=p.mzi_delay_s,
             adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
@@ -317,6 +323,9 @@ class ScanLoop:
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),
+            # issue 13: the range / pointing calibrations the ranges and directions were computed with
+            "geometry": self.applied.meta(self.cfg.monitor.delay_s),
+            "calibrated": self.applied.calibrated(run.calibration_id is not None),
         }
         if p.phase_noise:
             comp = compensator_for(dsp, p.mzi_delay_s)

@@ -18,6 +18,10 @@ Policy (also in docs/api.md):
   linearization health check (``instrument.check_linearization``, issue 13) measures the stored drive's
   chirp and a chirp error above ``scan.linearity_threshold_hz`` re-linearizes first; the scan's sidecar
   records the check as ``linearization``.
+* Before every scan and linearization the newest stored range and pointing calibrations
+  (:mod:`.calibrations`, issue 13) are handed to the instrument; a stored linearization made against
+  another monitor delay than the range calibration's is stale and redone. Calibration measurements
+  (plates, pointing targets) are queued like any job (``submit_task``).
 * Cancel: a queued scan becomes ``cancelled`` at once; a running scan's cancel event is set, the
   instrument returns the points so far, which are written and marked ``partial``.
 * Failure: the state becomes ``failed`` and ``error`` holds the exception type, message and cause

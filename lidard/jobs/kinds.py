@@ -83,3 +83,11 @@ class _CalibrationJob:
 @dataclasses.dataclass
 class _SelftestJob:
     future: concurrent.futures.Future = dataclasses.field(default_factory=concurrent.futures.Future)
+
+
+@dataclasses.dataclass
+class _TaskJob:
+    """A procedure that needs the instrument (a calibration measurement): ``fn()`` on the worker thread."""
+
+    fn: Any
+    future: concurrent.futures.Future = dataclasses.field(default_factory=concurrent.futures.Future)

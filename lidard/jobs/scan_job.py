@@ -81,7 +81,9 @@ class ScanJobRun:
         job = self.job
         cal = self.w.calibration_for_scan(job)
         self.cal_id = cal.meta.get("id")
-        self.store.update_scan(job.id, stage="scanning", calibration_id=self.cal_id)
+        applied = self.w.applied
+        self.store.update_scan(job.id, stage="scanning", calibration_id=self.cal_id,
+                               range_calibration_id=applied.range_id, pointing_calibration_id=applied.pointing_id)
         if job.request.pattern == "adaptive" and self.w.optics is not None:
             return run_adaptive(self.instrument, job, self.progress, cal, self.w.optics)
         # the raw capture goes next to the point clouds; only asked of the instrument when wanted
@@ -151,6 +153,8 @@ class ScanJobRun:
             "request": request_to_dict(job.request),
             "calibration_id": self.cal_id,
             "linearization": job.linearization,
+            # issue 13 item 4: which calibrations the points were computed with, said in every sidecar
+            **self._calibrated(),
             "hardware_time_s": float(result.hardware_time_s),
             "wall_time_s": float(wall_s),
             "pixels_scanned": int(result.pixels_scanned),
@@ -168,6 +172,14 @@ class ScanJobRun:
             write_points(path, result.points, meta, fmt)
             files[fmt] = str(path.relative_to(self.store.data_dir))
         return files
+
+    def _calibrated(self) -> dict[str, Any]:
+        applied = self.w.applied
+        rng = None if applied is None else applied.range_id
+        pnt = None if applied is None else applied.pointing_id
+        return {"range_calibration_id": rng, "pointing_calibration_id": pnt,
+                "calibrated": {"range": rng is not None, "pointing": pnt is not None,
+                               "linearization": self.cal_id is not None}}
 
 
 def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], None],

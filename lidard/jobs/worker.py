@@ -24,7 +24,7 @@ from ..physics.optics import FpsaOptics
 from ..scan import planned_pixel_count
 from ..store import ScanRecord, Store
 from .events import EventHub, PointListener, Subscriber
-from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob,
+from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
                     request_to_dict)
 from .scan_job import ScanJobRun, raw_path
 
@@ -57,6 +57,7 @@ class ScanWorker:
         self.events = EventHub()
         self._stopping = False
         self._thread: threading.Thread | None = None
+        self.applied = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -136,6 +137,14 @@ class ScanWorker:
             self._enqueue(job)
         return job.future
 
+    def submit_task(self, fn: Callable[[], Any]) -> concurrent.futures.Future:
+        """Queue ``fn()`` (a procedure that drives the instrument, e.g. a calibration measurement) behind
+        the jobs already waiting; the future resolves to its result or its exception."""
+        job = _TaskJob(fn)
+        with self._cv:
+            self._enqueue(job)
+        return job.future
+
     def cancel(self, scan_id: str) -> ScanRecord:
         """Cancel a queued or running scan; a finished one is returned unchanged."""
         with self._cv:
@@ -203,6 +212,8 @@ class ScanWorker:
                     ScanJobRun(self, job).run()
                 elif isinstance(job, _SelftestJob):
                     self._run_selftest(job)
+                elif isinstance(job, _TaskJob):
+                    self._run_task(job)
                 else:
                     self._run_calibration(job)
             except Exception:  # never let the worker thread die
@@ -215,9 +226,18 @@ class ScanWorker:
         if not job.future.set_running_or_notify_cancel():
             return
         try:
+            self.apply_geometry()   # the ILC targets the range-calibrated monitor delay
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             job.future.set_result(cal)
+        except Exception as exc:
+            job.future.set_exception(exc)
+
+    def _run_task(self, job: _TaskJob) -> None:
+        if not job.future.set_running_or_notify_cancel():
+            return
+        try:
+            job.future.set_result(job.fn())
         except Exception as exc:
             job.future.set_exception(exc)
 
@@ -233,7 +253,13 @@ class ScanWorker:
             job.future.set_exception(exc)
 
     def _stale_reason(self, cal: CalibrationResult) -> str | None:
-        """Why a stored calibration must not be reused (the laser's temperature moved), or None."""
+        """Why a stored calibration must not be reused (the laser's temperature moved, or it targets
+        another monitor delay than the range calibration's), or None."""
+        used = cal.meta.get("mzi_delay_s")
+        want = self.instrument.monitor_delay_s()
+        if used is not None and abs(float(used) - want) > 1e-9 * want:
+            return (f"calibration {cal.meta.get('id')} was linearized against a {float(used) * 1e9:.4f} ns monitor "
+                    f"delay; the range calibration says {want * 1e9:.4f} ns")
         try:
             now_c = float(self.instrument.laser_temperature_c())
         except Exception as exc:
@@ -249,8 +275,23 @@ class ScanWorker:
 
     def calibration_for_scan(self, job: _ScanJob) -> CalibrationResult:
         """The newest stored calibration of the laser, or a new linearization when there is none, when
-        the laser's temperature moved, or when the linearization health check finds its chirp off
-        (announced as the scan's ``linearizing`` stage). ``job.linearization`` records the check."""
+        the laser's temperature moved, when the range calibration changed the monitor delay it targets,
+        or when the linearization health check finds its chirp off (announced as the scan's
+        ``linearizing`` stage). ``job.linearization`` records the check."""
+        def announce() -> None:
+            self.store.update_scan(job.id, stage="linearizing")
+            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
+                                   "pixels_done": 0, "pixels_planned": 0, "points": 0,
+                                   "fraction": 0.0, "hardware_time_s": 0.0})
+        cal = self.current_linearization(announce)
+        job.linearization = self.last_linearization
+        return cal
+
+    def current_linearization(self, announce: Callable[[], None] | None = None) -> CalibrationResult:
+        """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
+        linearization if it is fresh (temperature rule, monitor delay) and passes the health check,
+        else a new one (``announce()`` first). ``self.last_linearization`` records the check."""
+        self.apply_geometry()
         cal = self.store.latest_calibration(self.laser)
         reason = "no calibration stored" if cal is None else self._stale_reason(cal)
         checked = self.instrument.check_linearization(cal) if reason is None else None
@@ -259,15 +300,22 @@ class ScanWorker:
         used = checked
         if reason is not None:
             log.info("linearizing: %s", reason)
-            self.store.update_scan(job.id, stage="linearizing")
-            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
-                                   "pixels_done": 0, "pixels_planned": 0, "points": 0,
-                                   "fraction": 0.0, "hardware_time_s": 0.0})
+            if announce is not None:
+                announce()
             cal = self._own_laser(self.instrument.linearize())
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             used = self.instrument.check_linearization(cal)
-        job.linearization = self.last_linearization = health_record(checked, used, reason)
+        self.last_linearization = health_record(checked, used, reason)
         return cal
+
+    def apply_geometry(self):
+        """Hand the newest stored range and pointing calibrations to the instrument (issue 13); answers
+        the :class:`AppliedCalibrations`. Runs on the worker thread before every scan and linearization."""
+        from ..instrument.calibration.applied import AppliedCalibrations
+        self.applied = AppliedCalibrations.from_records(self.store.latest_geometry_calibration("range"),
+                                                        self.store.latest_geometry_calibration("pointing"))
+        self.instrument.use_calibrations(self.applied)
+        return self.applied
 
     def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:
         # Cache under the configured laser name, whatever the instrument calls it, so that the next

@@ -53,6 +53,13 @@ class FakeInstrument:
     def laser_temperature_c(self):
         return self.temperature_c
 
+    def use_calibrations(self, applied):
+        self.applied = applied
+
+    def monitor_delay_s(self):
+        delay = getattr(getattr(self, "applied", None), "delay_s", None)
+        return 200e-9 if delay is None else delay
+
     def devices(self):
         return [{"name": n, "connected": True, "identity": f"fake-{n}", "state": "ready", "faults": []}
                 for n in ("fpsa", "awg", "digitizer", "controller")]

@@ -32,10 +32,12 @@ class Linearization:
     """One linearization run: ``run(plain_drive_v)`` answers the :class:`CalibrationResult`."""
 
     def __init__(self, cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: SafetyMonitor,
-                 progress: Callable[[dict[str, Any]], None] | None = None):
+                 progress: Callable[[dict[str, Any]], None] | None = None, *, mzi_delay_s: float | None = None):
         self.cfg, self.lifecycle, self.safety, self.progress = cfg, lifecycle, safety, progress
         c = cfg.chirp
-        self.mzi_delay_s = cfg.monitor.delay_s
+        # the ILC's target beat is chirp rate x this delay: the range calibration's effective delay
+        # makes the true chirp rate the nominal one (range.py); without one, the nominal delay
+        self.mzi_delay_s = cfg.monitor.delay_s if mzi_delay_s is None else float(mzi_delay_s)
         f_mzi = c.rate_hz_per_s * self.mzi_delay_s
         self.fs_hz = adc_rate_hz(1.0, c.rate_hz_per_s, max_doppler_hz=f_mzi * 2.0, oversample=4.0,
                                  max_rate_hz=cfg.adc.max_sample_rate_hz, min_rate_hz=cfg.adc.min_sample_rate_hz,

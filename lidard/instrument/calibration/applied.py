@@ -1,0 +1,59 @@
+"""The geometric calibrations an instrument applies to its linearizations and scans (issue 13 item 2).
+
+* range scale and zero (:mod:`.range`): the effective monitor MZI delay replaces the configuration's
+  nominal ``monitor.delay_s`` as the ILC's target (§2.2) and in the phase-noise compensation (§2.3), so
+  the chirp rate itself becomes right; the zero offset is subtracted from every range;
+* pointing (:mod:`.pointing`): beam directions come from ``optics.with_pointing(fit)`` (eq. 4-1 with
+  the fitted deviations).
+
+The job worker loads the newest stored record of each kind and hands them over before every scan and
+linearization; an instrument with none applies the nominal values and its scans say
+``calibrated: {"range": false, "pointing": false}``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from ...physics.optics import Pointing
+
+
+@dataclass(frozen=True)
+class AppliedCalibrations:
+    range_id: str | None = None
+    delay_s: float | None = None          # tau_eff; None: the configuration's nominal monitor.delay_s
+    zero_offset_m: float = 0.0
+    pointing_id: str | None = None
+    pointing: Pointing | None = None
+
+    @classmethod
+    def from_records(cls, range_rec: Any = None, pointing_rec: Any = None) -> "AppliedCalibrations":
+        """From stored records (``.id``, ``.fitted``; lidard.store_calibrations.CalibrationRecord)."""
+        kw: dict[str, Any] = {}
+        if range_rec is not None:
+            kw.update(range_id=range_rec.id, delay_s=float(range_rec.fitted["delay_s"]),
+                      zero_offset_m=float(range_rec.fitted["zero_offset_m"]))
+        if pointing_rec is not None:
+            f = pointing_rec.fitted
+            kw.update(pointing_id=pointing_rec.id,
+                      pointing=Pointing(focal_scale=float(f["focal_scale"]),
+                                        decentre_px=(float(f["decentre_px"][0]), float(f["decentre_px"][1])),
+                                        rotation_rad=float(f["rotation_rad"]), k1=float(f["k1"])))
+        return cls(**kw)
+
+    def delay_or(self, nominal_s: float) -> float:
+        return float(nominal_s) if self.delay_s is None else float(self.delay_s)
+
+    def optics(self, optics):
+        return optics if self.pointing is None else optics.with_pointing(self.pointing)
+
+    def calibrated(self, linearization: bool) -> dict[str, bool]:
+        return {"range": self.range_id is not None, "pointing": self.pointing_id is not None,
+                "linearization": bool(linearization)}
+
+    def meta(self, nominal_delay_s: float) -> dict[str, Any]:
+        """What a scan's sidecar records about the geometry it was computed with."""
+        return {"range_calibration_id": self.range_id, "pointing_calibration_id": self.pointing_id,
+                "monitor_delay_s": self.delay_or(nominal_delay_s), "zero_offset_m": self.zero_offset_m,
+                "pointing": (self.pointing or Pointing()).as_dict()}

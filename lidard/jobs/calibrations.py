@@ -1,0 +1,109 @@
+"""Range and pointing calibrations as daemon procedures: queued on the worker, recorded in the store.
+
+The steps a lab runs (issue 13 item 2; the physics is in lidard.instrument.calibration.range / .pointing):
+
+* ``add_plate(known_m)``: queued behind the jobs waiting; scans the centre region against the plate
+  now in front of the sensor, keeps the measurement in the store (pending, survives a restart);
+* ``fit_range()``: fits the pending plates (no instrument needed); a refused fit keeps them so the bad
+  one can be removed (``remove_plates``) and measured again; an accepted fit is stored as a record and
+  consumes them; the next scan or linearization uses it (and re-linearizes: the ILC's target changed);
+* ``pointing(geometry)``: queued; scans around the known targets with the range calibration applied,
+  fits the pointing model and stores the record.
+
+The REST router (lidard.api.routers.geometry) and ``lidarctl calibration`` call these functions; they
+know nothing about HTTP. Refusals raise :class:`CalibrationRefused` with the reason.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import math
+from typing import Any
+
+from ..instrument.calibration.range import DEFAULT_NOISE_M, CalibrationRefused, PlateMeasurement, fit_range as _fit
+from ..store_calibrations import CalibrationRecord
+
+
+def add_plate(worker, known_m: float) -> concurrent.futures.Future:
+    """Queue a plate measurement at ``known_m``; the future resolves to the stored pending measurement."""
+    from ..instrument.calibration.procedures import measure_plate
+    known_m = float(known_m)
+    if not (math.isfinite(known_m) and known_m > 0):
+        raise CalibrationRefused(f"range calibration: known_m must be a positive distance in metres, got {known_m!r}")
+
+    def task() -> dict[str, Any]:
+        lin = worker.current_linearization()
+        m = measure_plate(worker.instrument, worker.optics, known_m, lin, worker.applied)
+        return worker.store.add_range_measurement(m.as_dict())
+    return worker.submit_task(task)
+
+
+def plates(store) -> list[dict[str, Any]]:
+    return store.range_measurements()
+
+
+def remove_plates(store, ids: list[str] | None = None) -> int:
+    return store.remove_range_measurements(ids)
+
+
+def fit_range(store, nominal_delay_s: float) -> CalibrationRecord:
+    """Fit the pending plates; store and answer the record (the plates are consumed)."""
+    pending = store.range_measurements()
+    fit = _fit([PlateMeasurement.from_dict(m) for m in pending], nominal_delay_s)
+    temps = [m["temperature_c"] for m in pending if m.get("temperature_c") is not None]
+    rec = store.save_geometry_calibration(
+        "range", temperature_c=sum(temps) / len(temps) if temps else None,
+        inputs={"measurements": pending}, fitted=fit.fitted(), residuals=fit.residuals())
+    store.remove_range_measurements([m["id"] for m in pending])
+    return rec
+
+
+def pointing(worker, geometry: dict[str, Any]) -> concurrent.futures.Future:
+    """Queue a pointing calibration against ``geometry`` (the geometry file's structure); the future
+    resolves to the stored record. Needs a range calibration first (the fit places points with ranges)."""
+    from ..instrument.calibration.pointing import parse_geometry
+    from ..instrument.calibration.procedures import measure_pointing
+    surfaces = parse_geometry(geometry, source="<request>")
+
+    def task() -> CalibrationRecord:
+        applied = worker.apply_geometry()
+        rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
+        if rng is None:   # refused before any linearization or scan
+            raise CalibrationRefused("pointing calibration: no range calibration yet; the fit places points with "
+                                     "range-calibrated ranges: run `lidarctl calibration range add/fit` first")
+        lin = worker.current_linearization()
+        # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
+        noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
+        fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)
+        return worker.store.save_geometry_calibration(
+            "pointing", temperature_c=worker.instrument.laser_temperature_c(),
+            inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
+                    "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan},
+            fitted=fit.fitted(), residuals=fit.residuals())
+    return worker.submit_task(task)
+
+
+def records(store, cfg, kind: str | None = None, limit: int = 20) -> list[dict[str, Any]]:
+    """Range and pointing records and the chirp linearizations, newest first, as one listing."""
+    out: list[dict[str, Any]] = []
+    if kind in (None, "range", "pointing"):
+        out += [r.to_dict() for r in store.list_geometry_calibrations(kind, limit)]
+    if kind in (None, "linearization"):
+        out += [linearization_record(c) for c in store.list_calibrations(limit, cfg.laser)]
+    return sorted(out, key=lambda r: r["created"] or 0.0, reverse=True)[:limit]
+
+
+def linearization_record(cal) -> dict[str, Any]:
+    """A chirp linearization in the records' shape (its own table keeps more: the drive waveform)."""
+    return {"id": cal.meta.get("id"), "kind": "linearization", "created": cal.meta.get("created"),
+            "temperature_c": cal.temperature_c, "inputs": {"laser": cal.laser},
+            "fitted": {"mzi_delay_s": cal.meta.get("mzi_delay_s"), "converged": bool(cal.converged)},
+            "residuals": {"reduction": cal.reduction, "iterations": cal.iterations}}
+
+
+def record(store, cal_id: str) -> dict[str, Any] | None:
+    rec = store.get_geometry_calibration(cal_id)
+    if rec is not None:
+        return rec.to_dict()
+    lin = store.get_calibration(cal_id)
+    return None if lin is None else linearization_record(lin)
