@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import Config
-from .acquisition import AcquisitionLifecycle, plain_drive
+from .acquisition import AcquisitionLifecycle, drive_for_chirp, plain_drive
 from .calibration import Linearization
 from .devices import DeviceRegistry
 from .errors import NotSimulated, SimFaultError
@@ -157,8 +157,8 @@ class LidarInstrument:
     def run_scan(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event,
                  calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
         with self._lock:
-            drive = (calibration.drive_v if (calibration is not None and calibration.drive_v.size)
-                     else self._plain_drive())
+            drive = (drive_for_chirp(self.cfg, calibration.drive_v)
+                     if (calibration is not None and calibration.drive_v.size) else self._plain_drive())
             return self.scan_loop.run(request, progress, cancel, drive, calibration, raw_path=raw_path)
 
     def linearize(self, progress: Callable[[dict[str, Any]], None] | None = None) -> CalibrationResult:
