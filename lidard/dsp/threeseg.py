@@ -114,7 +114,9 @@ def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz
     folded = t_f > t_n
     f_r = np.where(folded, regimes[1][0], regimes[0][0])
     d_abs = np.where(folded, regimes[1][1], regimes[0][1])
-    ambiguous = (lo < 2 * RHO_MAX * 0.5 * (hi + lo) + 2 * df_hz) & (t_n <= len(BAND_TIERS))
+    # which regime holds is unknown when both explain the CW spectrum equally, or when the two
+    # predictions of |f_D| (lo apart) lie within half the CW spread of each other
+    ambiguous = ((t_n == t_f) | (lo < 0.5 * RHO_MAX * 0.5 * (hi + lo) + 2 * df_hz)) & (t_n <= len(BAND_TIERS))
     present = vu[:, :, None] & vd[:, None, :]
     return np.where(present, np.maximum(t_n, t_f), 0.0), folded, f_r, sign * d_abs, ambiguous
 
