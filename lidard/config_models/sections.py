@@ -147,8 +147,9 @@ class ScanDefaults(_Model):
     pfa: float = Field(default=1e-6, gt=0, lt=0.1)
     max_returns: int = Field(default=2, ge=1, le=8)
     window: Literal["rectangular", "hann", "blackmanharris"] = "hann"
-    # A real (single-photodiode) beat cannot tell a Doppler shift from a range beat when the Doppler
-    # allowance exceeds the range beat (§2.1.2): the a-priori speed limit sets what is unambiguous.
+    # chirp.shape = "triangle" only: a real (single-photodiode) beat cannot tell a Doppler shift from a
+    # range beat when the Doppler allowance exceeds the range beat (§2.1.2): the a-priori speed limit
+    # sets what is unambiguous. The three-segment chirp needs no prior (chirp.doppler_band_mps).
     max_speed_mps: float = Field(default=0.4, gt=0, le=100)
     # Laser phase-noise compensation from the monitor MZI recorded with the beat (§2.3,
     # lidard.dsp.pnframe). "auto": on when the round trip of the scan's max_range_m is at least twice the
