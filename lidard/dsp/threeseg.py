@@ -12,31 +12,29 @@ Write hi = max(f_up, f_dn), lo = min(f_up, f_dn). Two regimes give the same ramp
 * not folded (|f_D| < f_R): f_R = (hi + lo) / 2, |f_D| = (hi - lo) / 2;
 * folded (|f_D| > f_R):     f_R = (hi - lo) / 2, |f_D| = (hi + lo) / 2;
 
-in both f_R = hi - |f_D| and sign(f_D) = sign(f_dn - f_up). The CW beat |f_D| says which regime holds:
-the hypothesis whose |f_D| is nearer the CW peak wins. Range and velocity are then taken from the two
-ramps (v = -lambda f_D / 2): the CW segment's frequency is held, not linearized, so its beat also
-carries the laser's thermal relaxation times the round trip; it only has to tell the two regimes
-apart, which differ by lo in |f_D|.
+in both f_R = hi - |f_D| and sign(f_D) = sign(f_dn - f_up). The CW beat |f_D| says which regime holds.
+Range and velocity are then taken from the two ramps (v = -lambda f_D / 2): the CW segment's frequency
+is held, not linearized, so its beat also carries the laser's thermal relaxation times the round trip
+(|f_D - rho f_R|, ``RHO_MAX``); it only has to tell the two regimes apart, whose |f_D| differ by lo.
 
-Peaks near DC: the CFAR excludes the DC bin and its window lobe. No CW peak means |f_D| below the
-CW's first bins (|v| under a few velocity resolutions): the not-folded regime, and the sign is
-irrelevant. A missing ramp peak means that ramp's beat |f_R -+ f_D| sits near DC (|f_D| ~ f_R): then
-f_R = hi - f_CW (the formula of the issue) and |f_D| = f_CW, the sign from which ramp is missing.
+Evidence, not peaks: the relaxation spreads a far return's CW beat over many bins, where a CFAR would
+miss it. For each (up, down) pair and each regime the CW power spectrum is searched for a peak
+``CW_BAND_SNR`` over its median inside bands of growing width around the predicted |f_D|
+(``BAND_TIERS``); the regime explained by the narrower band wins.
 
-Pairing across the three spectra with several returns: every triple (up i | none, down j | none,
-CW c | none) is scored in both regimes by how far the CW peak lies from the regime's |f_D| (a missing
-CW peak scores how far |f_D| lies above the CW's DC guard), a missing ramp costs one tolerance; the
-cheapest triples within ``tol_hz`` are taken greedily, each peak used once (after ``velocity``'s
-up/down matcher). Pure numpy.
+Peaks near DC: the CFAR of the ramps and this search both leave out the DC bin and its window lobe.
+A regime predicting |f_D| inside that guard (|v| within a few velocity resolutions) expects no CW beat
+and needs none: the not-folded regime, the sign irrelevant. Near |f_D| = f_R one ramp beat sits near DC
+and the two regimes predict nearly the same |f_D|: such pairs are reported present but not valid.
+
+Several returns: every (up i, down j) pair is scored; pairs are taken greedily, best tier first, each
+peak used once (after :func:`lidard.dsp.velocity.pair_up_down`'s matcher). Pure numpy.
 """
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
-from .chain import detect_and_refine
 from .rangefft import C_M_PER_S, RangeFFT
 
 
