@@ -19,11 +19,31 @@ class Chirp(_Model):
     wavelength_m: PosFloat = 1.55e-6
     excursion_hz: PosFloat = 8.6e9
     ramp_s: PosFloat = 80e-6
-    shape: Literal["triangle"] = "triangle"
+    # "three_segment" (default): up ramp, down ramp, then a constant-frequency segment whose beat is the
+    # Doppler shift alone: signed velocity with one photodiode and no speed prior (lidard.dsp.threeseg).
+    # "triangle": up + down only; a real beat then needs scan.max_speed_mps as a prior (static scenes).
+    shape: Literal["triangle", "three_segment"] = "three_segment"
+    # three_segment: the constant segment lasts lambda / (2 velocity_resolution_mps) (its Doppler bin)
+    velocity_resolution_mps: float = Field(default=0.01, gt=0, le=10)
+    # three_segment: the digitizer band covers Doppler shifts up to this speed (a band, not a validity
+    # prior: nothing is invalidated by its speed; a faster target's beat lies beyond the band)
+    doppler_band_mps: float = Field(default=10.0, gt=0, le=100)
 
     @property
     def rate_hz_per_s(self) -> float:
         return self.excursion_hz / self.ramp_s
+
+    @property
+    def cw_s(self) -> float:
+        """Length of the constant-frequency segment (0 for a triangle), rounded up to a whole us."""
+        if self.shape != "three_segment":
+            return 0.0
+        return math.ceil(self.wavelength_m / (2 * self.velocity_resolution_mps) * 1e6 - 1e-6) * 1e-6
+
+    @property
+    def period_s(self) -> float:
+        """One trigger period: up + down ramp (+ the constant segment)."""
+        return 2 * self.ramp_s + self.cw_s
 
 
 class Detector(_Model):
@@ -127,8 +147,9 @@ class ScanDefaults(_Model):
     pfa: float = Field(default=1e-6, gt=0, lt=0.1)
     max_returns: int = Field(default=2, ge=1, le=8)
     window: Literal["rectangular", "hann", "blackmanharris"] = "hann"
-    # A real (single-photodiode) beat cannot tell a Doppler shift from a range beat when the Doppler
-    # allowance exceeds the range beat (§2.1.2): the a-priori speed limit sets what is unambiguous.
+    # chirp.shape = "triangle" only: a real (single-photodiode) beat cannot tell a Doppler shift from a
+    # range beat when the Doppler allowance exceeds the range beat (§2.1.2): the a-priori speed limit
+    # sets what is unambiguous. The three-segment chirp needs no prior (chirp.doppler_band_mps).
     max_speed_mps: float = Field(default=0.4, gt=0, le=100)
     # Laser phase-noise compensation from the monitor MZI recorded with the beat (§2.3,
     # lidard.dsp.pnframe). "auto": on when the round trip of the scan's max_range_m is at least twice the

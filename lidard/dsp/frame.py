@@ -13,6 +13,8 @@ A segment is one triangle period captured after one trigger: the up ramp then th
    and averages those frequencies (the dissertation averages 10 distance measurements per pixel),
 5. pairs up- and down-ramp peaks (eqs. 2-6, 2-7): range, radial velocity (positive receding),
    validity (folding, harmonic ghosts, unresolved peaks are flagged, not reported as clean points).
+   With a three-segment chirp (``cw_samples`` > 0: the record holds a constant-frequency segment after
+   the ramps) the CW spectrum joins the pairing and no speed prior is used (:mod:`.threeseg`).
 
 Only paired detections become points; unpaired peaks (mostly noise) are dropped. Pure numpy.
 """
@@ -28,6 +30,7 @@ from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
+from .threeseg import cw_front_end, pair_frame_three
 from .velocity import pair_up_down
 
 
@@ -58,6 +61,7 @@ class FrameDsp:
     use_fraction: float = 0.9
     estimator: str = DEFAULT_METHOD
     iq: bool = False
+    cw_samples: int = 0         # samples of the constant-frequency segment after the ramps (0: triangle)
 
     def __post_init__(self) -> None:
         if not 0.2 <= self.use_fraction <= 1.0:
@@ -119,6 +123,8 @@ class FrameDsp:
                                                    mzi_lsb_v=mzi_lsb_v, mzi_q=mzi_q)
         else:
             out_f, out_det = self._plain_front_end(x, lsb_v)
+        if self.cw_samples:
+            return FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v)))
         return self._pair(out_f, out_det)
 
     def _plain_front_end(self, x: np.ndarray, lsb_v: float) -> tuple[list, list]:

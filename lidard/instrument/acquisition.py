@@ -28,7 +28,7 @@ import numpy as np
 from drivers.usbtmc import DeviceDisconnected, DeviceStall, DeviceTimeout as UsbTimeout, UsbDeviceError
 
 from ..config import Config
-from ..physics.chirp import triangle_drive_v
+from ..physics.chirp import hold_segment_v, three_segment_drive_v, triangle_drive_v
 from .devices import DeviceRegistry
 from .errors import InstrumentError, SegmentsLost, on_device
 
@@ -112,7 +112,7 @@ class AcquisitionLifecycle:
             fpsa.upload_pattern(plan.pixels)
             fpsa.set_timing(settle_ns=int(self.cfg.scan.settle_s * 1e9), dwell_ns=0,
                             triggers_per_pixel=int(plan.triggers_per_pixel),
-                            trigger_period_ns=int(round(2 * self.cfg.chirp.ramp_s * 1e9)))
+                            trigger_period_ns=int(round(self.cfg.chirp.period_s * 1e9)))
         with on_device("digitizer", "configure"):
             dig.abort()   # an acquisition a failed job left armed would lock the settings
             layout = dig.configure(channels=plan.channels, sample_rate_hz=plan.fs_hz,
@@ -198,6 +198,23 @@ class AcquisitionLifecycle:
 
 
 def plain_drive(cfg: Config, static_tuning_hz_per_v: float) -> np.ndarray:
-    """The unlinearized triangle drive (volts) for the configured chirp ."""
+    """The unlinearized drive (volts) for the configured chirp: one triangle or three-segment period."""
     c = cfg.chirp
+    if c.shape == "three_segment":
+        return three_segment_drive_v(c.excursion_hz, c.ramp_s, c.cw_s, AWG_RATE_HZ, static_tuning_hz_per_v)
     return triangle_drive_v(c.excursion_hz, c.ramp_s, AWG_RATE_HZ, static_tuning_hz_per_v)
+
+
+def drive_for_chirp(cfg: Config, drive_v: np.ndarray) -> np.ndarray:
+    """``drive_v`` as one period of the configured chirp: a triangle period (e.g. a linearization
+    stored before the three-segment chirp, or learned on its ramps) gets the constant segment
+    appended (:func:`lidard.physics.chirp.hold_segment_v`); a drive of another length is refused."""
+    c = cfg.chirp
+    d = np.asarray(drive_v, dtype=np.float64)
+    n_tri, n_period = int(round(2 * c.ramp_s * AWG_RATE_HZ)), int(round(c.period_s * AWG_RATE_HZ))
+    if d.size == n_period:
+        return d
+    if d.size == n_tri:
+        return hold_segment_v(d, n_period - n_tri)
+    raise InstrumentError(f"awg: a drive of {d.size} samples is neither one chirp period ({n_period} samples, "
+                          f"chirp.shape={c.shape!r}) nor one triangle period ({n_tri}); relinearize")

@@ -30,7 +30,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import Config
-from .acquisition import AcquisitionLifecycle, plain_drive
+from .acquisition import AcquisitionLifecycle, drive_for_chirp, plain_drive
 from .calibration.applied import AppliedCalibrations
 from .calibration.health import HealthCheck, LinearizationHealth
 from .calibration.linearization import Linearization
@@ -164,8 +164,8 @@ class LidarInstrument:
     def run_scan(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event,
                  calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
         with self._lock:
-            drive = (calibration.drive_v if (calibration is not None and calibration.drive_v.size)
-                     else self._plain_drive())
+            drive = (drive_for_chirp(self.cfg, calibration.drive_v)
+                     if (calibration is not None and calibration.drive_v.size) else self._plain_drive())
             before = self._fidelity()
             result = self.scan_loop.run(request, progress, cancel, drive, calibration, raw_path=raw_path)
             if before is not None:
@@ -201,8 +201,8 @@ class LidarInstrument:
         if not self.cfg.scan.linearity_check:
             return None
         with self._lock:
-            drive = (calibration.drive_v if (calibration is not None and calibration.drive_v.size)
-                     else self._plain_drive())
+            drive = (drive_for_chirp(self.cfg, calibration.drive_v)
+                     if (calibration is not None and calibration.drive_v.size) else self._plain_drive())
             return LinearizationHealth(self.cfg, self.optics, self.acquisition, self.safety).check(drive)
 
     def selftest(self, progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:

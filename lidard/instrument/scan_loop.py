@@ -83,7 +83,7 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
     so the rate is raised to a whole number of samples per delay (lidard.dsp.pnrecon.whole_delay_samples).
     """
     c, a = cfg.chirp, cfg.adc
-    doppler = 2 * cfg.scan.max_speed_mps / c.wavelength_m
+    doppler = 2 * speed_span_mps(cfg) / c.wavelength_m
     fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
                      max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
     if whole_monitor_delay:
@@ -93,8 +93,15 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
             raise InstrumentError(f"scan: the quadrature monitor needs a whole number of samples per monitor delay "
                                   f"({tau_m:g} s): {fs / 1e6:.1f} MHz is above adc.max_sample_rate_hz")
     r = int(round(fs * c.ramp_s))
-    # 16-bit records: the digitizer decimates its full-rate core on board (more bits at low rates)
-    return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r, bits=16)
+    # 16-bit records: the digitizer decimates its full-rate core on board (more bits at low rates);
+    # a three-segment record also holds the constant segment (whole samples inside its cw_s)
+    return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r + int(fs * c.cw_s + 1e-9), bits=16)
+
+
+def speed_span_mps(cfg: Config) -> float:
+    """The Doppler the ADC band and the ramps' search cover: the triangle's speed prior
+    (scan.max_speed_mps), or the three-segment chirp's band (chirp.doppler_band_mps, not a prior)."""
+    return cfg.chirp.doppler_band_mps if cfg.chirp.shape == "three_segment" else cfg.scan.max_speed_mps
 
 
 def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None = None) -> bool:
@@ -121,8 +128,8 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
     channels = ("beat", "mzi", "mzi_q") if quad else ("beat", "mzi") if pn_on else ("beat",)
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
-                   max_speed_mps=cfg.scan.max_speed_mps, window=cfg.scan.window, pfa=cfg.scan.pfa,
-                   max_returns=cfg.scan.max_returns)
+                   max_speed_mps=speed_span_mps(cfg), window=cfg.scan.window, pfa=cfg.scan.pfa,
+                   max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples)
     acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
     return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
 
@@ -130,7 +137,7 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
 def batch_pixels(cfg: Config, p: ScanPlan) -> int:
     """Pixels per read: bounded by BATCH_BYTES of raw samples and SAFETY_CHECK_S of hardware time."""
     bytes_per_pix = p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
-    pixel_s = p.averages * 2 * cfg.chirp.ramp_s + cfg.scan.settle_s
+    pixel_s = p.averages * cfg.chirp.period_s + cfg.scan.settle_s
     return max(1, min(p.n_pixels, BATCH_BYTES // max(1, bytes_per_pix), int(SAFETY_CHECK_S / pixel_s)))
 
 

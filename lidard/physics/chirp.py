@@ -1,4 +1,9 @@
-"""Chirp arithmetic (§2.1): chirp rate, beat frequency <-> range, triangle drive, ADC plan.
+"""Chirp arithmetic (§2.1): chirp rate, beat frequency <-> range, triangle and three-segment drives,
+ADC plan.
+
+The three-segment waveform (issue 14) is the triangle followed by a constant-frequency segment: the
+drive holds between the end of the down ramp and the start of the next up ramp, so the segment's beat
+is the Doppler shift alone (docs/physics.md derives the pairing).
 
 Pure numpy; no I/O.
 """
@@ -42,6 +47,31 @@ def triangle_drive_v(excursion_hz: float, ramp_s: float, fs_hz: float, static_tu
     k = np.arange(2 * n_ramp, dtype=np.float64)
     s = np.where(k <= n_ramp, k / n_ramp, (2 * n_ramp - k) / n_ramp)
     return (excursion_hz / static_tuning_hz_per_v) * (s - 0.5)
+
+
+def hold_segment_v(drive_v: np.ndarray, n_hold: int) -> np.ndarray:
+    """``drive_v`` (one triangle period) followed by ``n_hold`` samples that hold its level.
+
+    The hold goes in a straight line from the last sample to the first (a learned drive need not end
+    exactly where it starts), so the periodic waveform has no step; for a plain triangle it is flat.
+    """
+    d = np.asarray(drive_v, dtype=np.float64)
+    if d.ndim != 1 or d.size < 2:
+        raise ValueError(f"hold_segment: drive_v must be a 1-D period of >= 2 samples, got shape {d.shape}")
+    if int(n_hold) != n_hold or n_hold < 0:
+        raise ValueError(f"hold_segment: n_hold must be a whole number >= 0, got {n_hold!r}")
+    w = (np.arange(int(n_hold)) + 1.0) / (int(n_hold) + 1.0)
+    return np.concatenate([d, d[-1] + (d[0] - d[-1]) * w])
+
+
+def three_segment_drive_v(excursion_hz: float, ramp_s: float, cw_s: float, fs_hz: float,
+                          static_tuning_hz_per_v: float) -> np.ndarray:
+    """One period (2 ramp_s + cw_s) of the plain three-segment drive: up, down, constant frequency."""
+    n_cw_f = cw_s * fs_hz
+    n_cw = int(round(n_cw_f))
+    if not (math.isfinite(cw_s) and cw_s > 0) or abs(n_cw_f - n_cw) > 1e-6 * max(1.0, n_cw_f):
+        raise ValueError(f"three_segment_drive: cw_s * fs_hz = {n_cw_f!r} must be a positive integer")
+    return hold_segment_v(triangle_drive_v(excursion_hz, ramp_s, fs_hz, static_tuning_hz_per_v), n_cw)
 
 
 def adc_rate_hz(max_range_m: float, chirp_rate_hz_per_s: float, *, max_doppler_hz: float = 0.0,

@@ -100,25 +100,26 @@ def test_growth_laws_and_hardware_time_physics(report):
     # the growth law on process CPU time: other jobs on a shared machine stretch wall time, not CPU time
     assert 0.5 <= sc["pixels"]["cpu_fit"]["slope"] <= 1.5, sc["pixels"]
     assert sc["pixels"]["fit"]["slope"] > 0 and sc["pixels"]["fit"]["slope_stderr"] > 0
-    # hardware time is modelled, not measured: exactly one (settle + triangle period) per trigger
-    per_trigger = cfg.scan.settle_s + 2 * cfg.chirp.ramp_s
+    # hardware time is modelled, not measured: exactly one (settle + chirp period) per trigger
+    per_trigger = cfg.scan.settle_s + cfg.chirp.period_s
     for r in sc["pixels"]["rows"]:
         assert r["hardware_s"] == pytest.approx(r["pixels"] * per_trigger, rel=0.05)
     assert sc["pixels"]["hw_fit"]["slope"] == pytest.approx(1.0, abs=0.02)
-    # averages: hardware time grows linearly (to 5 %), by one ramp period per extra average per pixel
+    # averages: hardware time grows linearly (to 5 %), by one chirp period per extra average per pixel
     av = sc["averages"]
     assert av["hw_linear"]["max_rel_residual"] <= 0.05
     n_px = av["rows"][0]["pixels"]
-    assert av["hw_linear"]["slope"] == pytest.approx(n_px * 2 * cfg.chirp.ramp_s, rel=0.05)
+    assert av["hw_linear"]["slope"] == pytest.approx(n_px * cfg.chirp.period_s, rel=0.05)
     # range: the ADC rate holds the highest beat 2 gamma d / c at oversample x Nyquist (eq. 2-1) and the
-    # record is one triangle period
+    # record is one chirp period (up and down ramps, and the constant segment's whole samples)
     rows = sc["range"]["rows"]
     rate = cfg.chirp.excursion_hz / cfg.chirp.ramp_s
     fs = [r["adc_rate_hz"] for r in rows]
     assert fs == sorted(fs) and fs[-1] > fs[0]
     for r in rows:
         assert r["adc_rate_hz"] >= cfg.adc.oversample * 2 * rate * r["max_range_m"] / C
-        assert r["record_length"] == round(2 * r["adc_rate_hz"] * cfg.chirp.ramp_s)
+        assert r["record_length"] == (round(2 * r["adc_rate_hz"] * cfg.chirp.ramp_s)
+                                      + int(r["adc_rate_hz"] * cfg.chirp.cw_s + 1e-9))
         assert r["wall_s"] > 0 and r["realtime_factor"] > 0
     assert math.isfinite(sc["range"]["fit_record"]["slope"])
 

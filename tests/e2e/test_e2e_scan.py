@@ -84,7 +84,9 @@ def test_empty_scene_gives_no_points(embedded):
 def test_moving_box_velocity_within_5_cm_per_s():
     # A 1.5 m/s target needs a 2 m/s Doppler allowance; with a real beat that makes only ranges whose
     # beat exceeds 2 x 2 m/s / lambda unambiguous (> 3.6 m): the box sits at 4.5 m.
-    cfg = load_config("config/sim.toml", environ={**NOMINAL_ENV, "LIDARD__SCAN__MAX_SPEED_MPS": "2.0"})
+    # the triangle with its speed prior (the three-segment chirp needs none: test_e2e_motion.py)
+    cfg = load_config("config/sim.toml", environ={**NOMINAL_ENV, "LIDARD__SCAN__MAX_SPEED_MPS": "2.0",
+                                                  "LIDARD__CHIRP__SHAPE": "triangle"})
     inst = open_instrument(cfg, scene_path="config/scenes/mixed.toml", bench="embedded")
     bench = inst._on_close.__self__
     cal = inst.linearize()
@@ -130,7 +132,7 @@ def test_cancel_keeps_the_points_so_far(embedded):
 
 
 def test_child_process_bench_over_pty_modbus_and_usb_socket():
-    cfg = load_config("config/sim.toml")
+    cfg = load_config("config/sim.toml", environ={"LIDARD__CHIRP__SHAPE": "triangle"})   # a plain triangle
     inst = open_instrument(cfg, scene_path="config/scenes/cal_letters.toml", bench="child")
     try:
         devs = {d["name"]: d for d in inst.devices()}

@@ -53,6 +53,7 @@ CONSUMED_IN_CONFIG = {
     ("Detector", "cmrr_db"): "Detector.effective_cmrr_db (link_params)",
     ("Detector", "balanced"): "Detector.effective_cmrr_db (link_params)",
     ("Chirp", "excursion_hz"): "Chirp.rate_hz_per_s",
+    ("Chirp", "velocity_resolution_mps"): "Chirp.cw_s (the constant segment's length: trigger period, records)",
     ("ThermalTerm", "gain_hz_per_v"): "LaserPreset.static_tuning_hz_per_v",
     ("Adc", "bits"): "Adc.record_bits (the digitizer's configured resolution) and link_params",
     ("Adc", "max_sample_rate_hz"): "Adc.record_bits",

@@ -12,7 +12,9 @@ TAU_M = 200e-9
 
 
 def _plan(quadrature: bool, max_range_m: float, mode: str = "on"):
-    cfg = load_config("config/sim.toml", environ={"LIDARD__MONITOR__QUADRATURE": str(quadrature).lower()})
+    # the triangle: these plans are about the monitor channels and the rate, not the constant segment
+    cfg = load_config("config/sim.toml", environ={"LIDARD__MONITOR__QUADRATURE": str(quadrature).lower(),
+                                                  "LIDARD__CHIRP__SHAPE": "triangle"})
     req = ScanRequest(pattern="roi", rows=(60, 62), cols=(60, 62), max_range_m=max_range_m,
                       phase_noise_compensation=mode)
     return cfg, plan_scan(cfg, cfg.optics(), req)
@@ -29,11 +31,12 @@ def test_quadrature_records_both_monitor_outputs_on_a_whole_number_of_samples_pe
 
 def test_rate_is_raised_only_to_the_next_whole_delay():
     # 30 m with compensation on: the plain plan's rate, ceiled to k / tau_m (never lower, < 1 / tau_m more)
-    cfg = load_config("config/sim.toml")
+    cfg = load_config("config/sim.toml", environ={"LIDARD__CHIRP__SHAPE": "triangle"})   # its speed prior
     base = adc_plan(cfg, 1.5 * 299_792_458.0 * TAU_M / 2).fs_hz
     fs = adc_plan(cfg, 1.5 * 299_792_458.0 * TAU_M / 2, whole_monitor_delay=True).fs_hz
     assert base <= fs < base + 1 / TAU_M
-    cfg_slow = load_config("config/sim.toml", environ={"LIDARD__ADC__MAX_SAMPLE_RATE_HZ": "1.22e8"})
+    cfg_slow = load_config("config/sim.toml", environ={"LIDARD__ADC__MAX_SAMPLE_RATE_HZ": "1.22e8",
+                                                       "LIDARD__CHIRP__SHAPE": "triangle"})
     with pytest.raises(InstrumentError, match="adc.max_sample_rate_hz"):
         adc_plan(cfg_slow, 60.0, whole_monitor_delay=True)     # 122 MHz: 24.4 samples per delay, 25 too fast
 

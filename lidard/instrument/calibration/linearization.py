@@ -8,6 +8,12 @@ the MZI beat (chirp rate x MZI delay), not by the scan range. With a quadrature 
 (``[monitor] quadrature``: channels ``mzi`` and ``mzi_q``) each record is the complex I + jQ and the ILC
 averages per-record phases (:mod:`lidard.dsp.ilcquad`), which reaches >= 1000x on the broad-linewidth
 laser where the averaged real fringe fades (issue 15).
+
+Three-segment chirp (issue 14): the ILC learns the two ramps as before, but each measurement plays the
+whole period, the ramps followed by the held constant segment (:func:`drive_for_chirp`), so the ramps
+are learned under the thermal history they will see in a scan; the record stops after the down ramp.
+The constant segment is held, not learned: its MZI beat is ~0 (nothing to demodulate), and the DSP
+needs from it only the Doppler beat's size and which side of the range beat it lies (lidard.dsp.threeseg).
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import numpy as np
 from ...config import Config
 from ...dsp.ilc import linearize as ilc_linearize
 from ...physics.chirp import adc_rate_hz
-from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan
+from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan, drive_for_chirp
 from ..errors import InstrumentError
 from ..safety import SafetyMonitor, describe_safe
 from ..types import CalibrationResult
@@ -56,7 +62,7 @@ class Linearization:
         """The ILC's measurement: ``n_avg`` MZI records (volts-proportional) of ``drive_v``: float64, or
         complex I + jQ with a quadrature monitor."""
         plan = AcquisitionPlan(self.centre, n_avg, self.channels, self.fs_hz, self.record_length, 16)
-        acq = self.lifecycle.ready(plan, drive_v=drive_v, faults=self.faults)
+        acq = self.lifecycle.ready(plan, drive_v=drive_for_chirp(self.cfg, drive_v), faults=self.faults)
         self.lifecycle.start(acq)
         headers, samples = self.lifecycle.read(acq, 0, n_avg)
         self.lifecycle.stop(acq)
@@ -77,6 +83,8 @@ class Linearization:
 
     def run(self, plain_drive_v: np.ndarray, laser: str) -> CalibrationResult:
         c = self.cfg.chirp
+        # the ILC learns one triangle period (the ramps); the constant segment is appended per play
+        plain_drive_v = np.asarray(plain_drive_v)[:int(round(2 * c.ramp_s * AWG_RATE_HZ))]
         self.safety.bring_up()
         try:
             res = ilc_linearize(self.measure, plain_drive_v, fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self.fs_hz,
@@ -92,6 +100,6 @@ class Linearization:
             temp = float("nan")
         return CalibrationResult(iterations=iters, reduction={k: float(v) for k, v in dict(res.reduction).items()},
                                  converged=bool(res.converged), laser=laser, temperature_c=temp,
-                                 drive_v=np.asarray(res.drive_v, dtype=np.float64), fs_drive_hz=AWG_RATE_HZ,
+                                 drive_v=drive_for_chirp(self.cfg, res.drive_v), fs_drive_hz=AWG_RATE_HZ,
                                  meta={"mzi_delay_s": self.mzi_delay_s, "adc_rate_hz": self.fs_hz,
                                        "monitor": "quadrature" if self.quadrature else "single MZI"})

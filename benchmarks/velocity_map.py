@@ -1,0 +1,136 @@
+"""Velocity map (issue 14 item 6): range x radial speed, per chirp mode, on the embedded simulated bench.
+
+For every cell of a grid of ranges (0.3 .. 20 m) and radial speeds (-10 .. +10 m/s) a wide plane
+faces the sensor at that range, moving along the optical axis at that speed, and a few pixels near
+the centre are scanned (gate: the largest range of the grid). Per mode it prints, over all cells:
+
+* ``ranged_right_sign``: the fraction of scanned pixels with a valid point whose range is within
+  ``--range-tol`` of the truth and whose velocity has the right sign (|v| < the velocity resolution
+  counts as any sign), the same per cell in the table;
+* range RMSE and velocity RMSE over those points; hardware time and wall time per pixel.
+
+Truth: the bench's ray-cast range of each pixel, moved to the point's own time ``t`` at the target's
+radial speed when ``--moving`` (a world whose targets move during a scan); the radial velocity is the
+direction . velocity. Modes: ``three_segment`` (the default configuration, no speed prior) and
+``triangle`` with its speed prior (``scan.max_speed_mps``, ``--prior``).
+
+    python benchmarks/velocity_map.py [--quick] [--pixels 6] [--prior 0.4] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import threading
+import time
+
+import numpy as np
+
+from lidard.config import CONFIG_DIR, load_config
+from lidard.instrument import ScanRequest, open_instrument
+from sim_devices.world.scene import Scene
+
+RANGES_M = (0.3, 0.6, 1.0, 2.0, 5.0, 10.0, 20.0)
+SPEEDS_MPS = (-10.0, -5.0, -2.0, -1.0, -0.3, 0.0, 0.3, 1.0, 2.0, 5.0, 10.0)
+QUICK_RANGES_M = (0.3, 1.0, 5.0, 20.0)
+QUICK_SPEEDS_MPS = (-10.0, -2.0, -0.3, 0.0, 0.3, 2.0, 10.0)
+
+
+def plane(z_m: float, v_mps: float) -> Scene:
+    return Scene.from_dict({"name": "velocity_map", "target": [{
+        "kind": "plane", "point": [0.0, 0.0, z_m], "normal": [0.0, 0.0, -1.0], "size": [4.0 * z_m, 4.0 * z_m],
+        "up": [0.0, 1.0, 0.0], "reflectivity": 0.3, "velocity": [0.0, 0.0, v_mps]}]})
+
+
+def open_mode(mode: str, prior_mps: float):
+    env = {"LIDARD__CHIRP__SHAPE": mode}
+    if mode == "triangle":
+        env["LIDARD__SCAN__MAX_SPEED_MPS"] = str(prior_mps)
+    cfg = load_config(CONFIG_DIR / "sim.toml", environ=env)
+    inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"), bench="embedded")
+    return cfg, inst, inst._on_close.__self__
+
+
+def cell(inst, bench, cal, pixels, z_m, v_mps, gate_m, moving, v_res_mps, range_tol_m):
+    bench.set_scene(plane(z_m, v_mps))
+    req = ScanRequest(pattern="pixels", pixels=tuple(map(tuple, pixels.tolist())), max_range_m=gate_m)
+    t0 = time.perf_counter()
+    res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
+    wall = time.perf_counter() - t0
+    pts = res.points[res.points["valid"] == 1]
+    d = inst.optics.directions(pts["row"], pts["col"])
+    v_true = d @ np.array([0.0, 0.0, v_mps])
+    r_true = bench.ground_truth(pts["row"], pts["col"])
+    if moving:
+        r_true = r_true + v_true * pts["t"]
+    dr, dv = pts["range"] - r_true, pts["velocity"] - v_true
+    sign_ok = (np.sign(pts["velocity"]) == np.sign(v_true)) | (np.abs(v_true) < v_res_mps)
+    good = (np.abs(dr) <= range_tol_m) & sign_ok
+    # one point per pixel counts (the nearest good one)
+    n_good = len(np.unique(pts["row"][good].astype(np.int64) * 10_000 + pts["col"][good]))
+    return {"range_m": z_m, "speed_mps": v_mps, "pixels": len(pixels), "ranged_right_sign": n_good,
+            "sq_dr": float(np.sum(dr[good] ** 2)), "sq_dv": float(np.sum(dv[good] ** 2)), "n": int(good.sum()),
+            "hardware_s": res.hardware_time_s, "wall_s": wall}
+
+
+def run_mode(mode: str, args) -> dict:
+    cfg, inst, bench = open_mode(mode, args.prior)
+    try:
+        cal = inst.linearize()
+        px = inst.optics.bonded_pixels()
+        mid = px[np.argsort(np.hypot(px[:, 0] - px[:, 0].mean(), px[:, 1] - px[:, 1].mean()))[:args.pixels]]
+        ranges = QUICK_RANGES_M if args.quick else RANGES_M
+        speeds = QUICK_SPEEDS_MPS if args.quick else SPEEDS_MPS
+        gate = max(ranges) * 1.02
+        cells = [cell(inst, bench, cal, mid, z, v, gate, args.moving, cfg.chirp.velocity_resolution_mps,
+                      args.range_tol) for z in ranges for v in speeds]
+    finally:
+        inst.close()
+    n_pix = sum(c["pixels"] for c in cells)
+    n = sum(c["n"] for c in cells)
+    return {"mode": mode, "cells": cells, "ranges_m": list(ranges), "speeds_mps": list(speeds),
+            "ranged_right_sign": sum(c["ranged_right_sign"] for c in cells) / n_pix,
+            "range_rmse_mm": 1e3 * np.sqrt(sum(c["sq_dr"] for c in cells) / max(n, 1)),
+            "velocity_rmse_mps": np.sqrt(sum(c["sq_dv"] for c in cells) / max(n, 1)),
+            "hardware_us_per_pixel": 1e6 * sum(c["hardware_s"] for c in cells) / n_pix,
+            "wall_ms_per_pixel": 1e3 * sum(c["wall_s"] for c in cells) / n_pix,
+            "chirp_period_us": 1e6 * cfg.chirp.period_s}
+
+
+def table(r: dict) -> str:
+    lines = [f"{r['mode']}: fraction of pixels ranged with the right sign (rows: range m, cols: speed m/s)",
+             "| R \\ v | " + " | ".join(f"{v:+g}" for v in r["speeds_mps"]) + " |",
+             "|---" * (len(r["speeds_mps"]) + 1) + "|"]
+    for z in r["ranges_m"]:
+        row = [c for c in r["cells"] if c["range_m"] == z]
+        lines.append(f"| {z:g} | " + " | ".join(f"{c['ranged_right_sign'] / c['pixels']:.2f}" for c in row) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="a coarser grid (4 ranges x 7 speeds)")
+    ap.add_argument("--pixels", type=int, default=6, help="pixels scanned per cell")
+    ap.add_argument("--prior", type=float, default=0.4, help="the triangle's scan.max_speed_mps")
+    ap.add_argument("--range-tol", type=float, default=0.01, help="a point counts as ranged within this (m)")
+    ap.add_argument("--moving", action="store_true", help="truth moved to each point's t (moving world)")
+    ap.add_argument("--modes", default="three_segment,triangle")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    out = [run_mode(m, args) for m in args.modes.split(",")]
+    if args.json:
+        print(json.dumps(out, default=float))
+        return 0
+    print("| mode | ranged, right sign | range RMSE mm | velocity RMSE m/s | hardware us/pixel | wall ms/pixel |")
+    print("|---|---|---|---|---|---|")
+    for r in out:
+        print(f"| {r['mode']} | {r['ranged_right_sign']:.3f} | {r['range_rmse_mm']:.3f} | "
+              f"{r['velocity_rmse_mps']:.4f} | {r['hardware_us_per_pixel']:.0f} | {r['wall_ms_per_pixel']:.1f} |")
+    for r in out:
+        print()
+        print(table(r))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,199 @@
+"""Signed velocity with one photodiode and no speed prior: the three-segment chirp (issue 14; §2.1.2).
+
+A period is an up ramp, a down ramp and a constant-frequency (CW) segment. With the range beat
+f_R = 2 kappa R / c and the return's Doppler shift f_D (``sim_devices``' convention f_D = -2 v / lambda,
+v > 0 receding), a real (single-photodiode) receiver sees only magnitudes:
+
+    up: |f_R - f_D|        down: |f_R + f_D|        CW: |f_D|
+
+Write hi = max(f_up, f_dn), lo = min(f_up, f_dn). Two regimes give the same ramp pair with f_R and
+|f_D| swapped (docs/physics.md, "Three-segment chirp"):
+
+* not folded (|f_D| < f_R): f_R = (hi + lo) / 2, |f_D| = (hi - lo) / 2;
+* folded (|f_D| > f_R):     f_R = (hi - lo) / 2, |f_D| = (hi + lo) / 2;
+
+in both f_R = hi - |f_D| and sign(f_D) = sign(f_dn - f_up). The CW beat |f_D| says which regime holds.
+Range and velocity are then taken from the two ramps (v = -lambda f_D / 2): the CW segment's frequency
+is held, not linearized, so its beat also carries the laser's thermal relaxation times the round trip
+(|f_D - rho f_R|, ``RHO_MAX``); it only has to tell the two regimes apart, whose |f_D| differ by lo.
+
+Evidence, not peaks: the relaxation spreads a far return's CW beat over many bins, where a CFAR would
+miss it. For each (up, down) pair and each regime the CW power spectrum is searched for a peak
+``CW_BAND_SNR`` over its median inside bands of growing width around the predicted |f_D|
+(``BAND_TIERS``); the regime explained by the narrower band wins.
+
+Peaks near DC: the CFAR of the ramps and this search both leave out the DC bin and its window lobe.
+A regime predicting |f_D| inside that guard (|v| within a few velocity resolutions) expects no CW beat
+and needs none: the not-folded regime, the sign irrelevant. Near |f_D| = f_R one ramp beat sits near DC
+and the two regimes predict nearly the same |f_D|: such pairs are reported present but not valid.
+
+Several returns: every (up i, down j) pair is scored; pairs are taken greedily, best tier first, each
+peak used once (after :func:`lidard.dsp.velocity.pair_up_down`'s matcher). Pure numpy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .rangefft import C_M_PER_S, RangeFFT
+
+
+#: the held segment's frequency still relaxes (the DFB's thermal terms, ~20 us): over the CW window its
+#: slope is taken to lie within RHO_MAX x the ramps' rate (the default DFB after the skip: -9 % .. -1 %,
+#: docs/physics.md), so a return's CW beat is spread over |f_D - rho f_R|, |rho| <= RHO_MAX
+RHO_MAX = 0.12
+#: a regime's CW band must peak this far above the CW spectrum's median bin (13 dB: a noise bin of an
+#: exponential power spectrum passes with probability exp(-20 ln 2) ~ 1e-6)
+CW_BAND_SNR = 20.0
+#: the CW segment starts this far in: the fastest part of the relaxation is skipped
+CW_SKIP_FRACTION = 0.25
+
+
+def _range_max_table(p: np.ndarray) -> list[np.ndarray]:
+    """Sparse table: level k holds the max of p over [i, i + 2**k) for every i (range-max queries)."""
+    levels = [p]
+    while 2 ** len(levels) <= p.shape[-1]:
+        prev, w = levels[-1], 2 ** (len(levels) - 1)
+        levels.append(np.maximum(prev[..., :-w], prev[..., w:]))
+    return levels
+
+
+def cw_band_power(p_cw: np.ndarray, df_hz: float, centre_hz: np.ndarray, half_hz: np.ndarray,
+                  guard_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Peak power of ``p_cw`` (n, n_bins) over [centre - half, centre + half] per row and candidate
+    (n, T), bins below ``guard_bins`` (DC and its window lobe) left out; and whether the band lies
+    wholly inside that guard (no CW beat can be seen there). The peak, not the mean: a sharp CW beat
+    must not be diluted by a wide band."""
+    n_bins = p_cw.shape[-1]
+    lo = np.clip(np.floor((centre_hz - half_hz) / df_hz).astype(np.int64), guard_bins, n_bins)
+    hi = np.clip(np.ceil((centre_hz + half_hz) / df_hz).astype(np.int64) + 1, guard_bins, n_bins)
+    width = hi - lo
+    table = _range_max_table(p_cw)
+    k = np.floor(np.log2(np.maximum(width, 1))).astype(np.int64)
+    rows = np.broadcast_to(np.arange(p_cw.shape[0])[:, None], lo.shape)
+    peak = np.zeros(lo.shape)
+    for level in np.unique(k[width > 0]):
+        m = (k == level) & (width > 0)
+        t = table[level]
+        peak[m] = np.maximum(t[rows[m], lo[m]], t[rows[m], hi[m] - 2 ** level])
+    return peak, width <= 0
+
+
+#: CW bands tried per regime, narrowest first (fractions of RHO_MAX): a pair whose CW beat sits in a
+#: narrower band around its predicted |f_D| ranks before one that only a wide band explains
+BAND_TIERS = (0.25, 0.5, 1.0)
+
+
+def _regime_tier(p_cw, df_hz, f_r, d_abs, noise, guard_bins, guard_hz):
+    """Per candidate: len(BAND_TIERS) + 1 when the regime predicts |f_D| inside the CW's DC guard (no
+    beat can be seen there), else the number of tiers whose band peaks CW_BAND_SNR over the median."""
+    n = p_cw.shape[0]
+    tier = np.zeros(f_r.reshape(n, -1).shape)
+    for frac in BAND_TIERS:
+        pw, in_guard = cw_band_power(p_cw, df_hz, d_abs.reshape(n, -1), (frac * RHO_MAX * f_r + 2 * df_hz).reshape(n, -1),
+                                     guard_bins)
+        tier += pw >= CW_BAND_SNR * noise
+    tier = np.where(d_abs.reshape(n, -1) < guard_hz, len(BAND_TIERS) + 1, tier)
+    return tier.reshape(f_r.shape)
+
+
+def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz: float):
+    """Every (up i, down j) pair of every row: (tier (n, K, K), folded, f_range, f_dopp (signed), ambiguous).
+
+    tier: how well the chosen regime's CW band explains the CW spectrum (0: not at all, a pair that is
+    no target; see :func:`_regime_tier`); ambiguous: both regimes' bands overlap (|f_D| ~ f_R within
+    the CW spread), which holds is not known."""
+    a, b = fu[:, :, None], fd[:, None, :]
+    hi, lo = np.maximum(a, b), np.minimum(a, b)
+    sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
+    noise = np.median(p_cw, axis=-1)[:, None]
+    regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
+    t_n, t_f = (_regime_tier(p_cw, df_hz, f_r, d, noise, guard_bins, guard_hz) for f_r, d in regimes)
+    folded = t_f > t_n
+    f_r = np.where(folded, regimes[1][0], regimes[0][0])
+    d_abs = np.where(folded, regimes[1][1], regimes[0][1])
+    # which regime holds is unknown when both explain the CW spectrum equally, or when the two
+    # predictions of |f_D| (lo apart) lie within half the CW spread of each other
+    ambiguous = ((t_n == t_f) | (lo < 0.5 * RHO_MAX * 0.5 * (hi + lo) + 2 * df_hz)) & (t_n <= len(BAND_TIERS))
+    present = vu[:, :, None] & vd[:, None, :]
+    return np.where(present, np.maximum(t_n, t_f), 0.0), folded, f_r, sign * d_abs, ambiguous
+
+
+def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float, wavelength_m: float,
+               guard_bins: int, max_targets: int):
+    """Greedy assignment of up/down pairs per row, strongest CW evidence first (module doc).
+
+    Inputs (n, K) ramp magnitudes (Hz) and masks, the CW power spectrum (n, n_bins) with bin spacing
+    ``df_hz``. Returns per row and slot (n, max_targets): range_m, velocity_mps (positive receding),
+    valid, present (valid, or a pair whose regime is ambiguous: drawn, flagged), up and down index.
+    """
+    fu, fd = np.abs(np.asarray(fu, dtype=np.float64)), np.abs(np.asarray(fd, dtype=np.float64))
+    vu, vd = np.asarray(vu, dtype=bool), np.asarray(vd, dtype=bool)
+    n, ku = fu.shape
+    kd = fd.shape[1]
+    ev, folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
+                                            guard_hz=guard_bins * df_hz)
+    score = np.where(ev >= 1, ev, -np.inf).reshape(n, -1)
+    out = {k: np.zeros((n, max_targets)) for k in ("range_m", "velocity_mps")}
+    valid = np.zeros((n, max_targets), dtype=bool)
+    present = np.zeros((n, max_targets), dtype=bool)
+    iu = np.full((n, max_targets), -1, dtype=np.int64)
+    idn = np.full((n, max_targets), -1, dtype=np.int64)
+    rows = np.arange(n)
+    for s in range(min(max_targets, ku, kd)):
+        k = np.argmax(score, axis=1)
+        good = score[rows, k] > -np.inf
+        r, i, j = rows[good], k[good] // kd, k[good] % kd
+        out["range_m"][r, s] = C_M_PER_S * f_r[r, i, j] / (2.0 * chirp_rate_hz_per_s)
+        out["velocity_mps"][r, s] = -wavelength_m * f_d[r, i, j] / 2.0
+        present[r, s] = True
+        valid[r, s] = ~amb[r, i, j]
+        iu[r, s], idn[r, s] = i, j
+        sc = score.reshape(n, ku, kd)                # a view: each peak used once
+        sc[r, i, :] = -np.inf
+        sc[r, :, j] = -np.inf
+    return out["range_m"], out["velocity_mps"], valid, present, iu, idn
+
+
+# -- the frame DSP's three-segment stage (lidard.dsp.frame.FrameDsp with cw_samples > 0) --------------
+def cw_window(dsp) -> tuple[int, int]:
+    """(first sample, samples used) of the CW segment in a record (after the two ramps)."""
+    skip = int(dsp.cw_samples * CW_SKIP_FRACTION)
+    n = (dsp.cw_samples - skip) & ~1
+    return 2 * dsp.ramp_samples + skip, n
+
+
+def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
+    """The CW segment's power spectrum (n_pix, n_bins), averaged over the pixel's records, and its
+    bin spacing (Hz)."""
+    a, n = cw_window(dsp)
+    rf = RangeFFT(n, dsp.fs_hz, dsp.chirp_rate_hz_per_s, window=dsp.window)
+    spec = rf(x[..., a:a + n].astype(np.float64) * lsb_v)
+    return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
+
+
+def pair_frame_three(dsp, out_f: list, out_det: list, cw) -> dict:
+    """The FrameResult fields (as a dict) of a three-segment frame."""
+    (fu, fd), (du, dd) = out_f, out_det
+    p_cw, df = cw
+    lead = fu.shape[:-1]
+    k = fu.shape[-1]
+    flat = [np.abs(a).reshape(-1, a.shape[-1]) for a in (fu, fd)]
+    vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
+    rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
+                                             chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
+                                             wavelength_m=dsp.wavelength_m, guard_bins=2, max_targets=k)
+
+    def pick(field_up, field_dn):
+        a = np.take_along_axis(field_up.reshape(-1, k), np.maximum(iu, 0), axis=1)
+        b = np.take_along_axis(field_dn.reshape(-1, k), np.maximum(idn, 0), axis=1)
+        return np.where(iu >= 0, a, b)
+
+    flagged = pick(du.harmonic | du.unresolved, dd.harmonic | dd.unresolved).astype(bool)
+    in_gate = (rng >= dsp.min_range_m) & (rng <= dsp.max_range_m * 1.05)
+    present = seen & in_gate
+    shape = lead + (k,)
+    return dict(present=present.reshape(shape), valid=(present & ok & ~flagged).reshape(shape),
+                range_m=rng.reshape(shape), velocity_mps=vel.reshape(shape),
+                snr_db=pick(du.snr_db, dd.snr_db).reshape(shape),
+                intensity_v=(2.0 * np.sqrt(pick(du.power, dd.power))).reshape(shape))

@@ -1,0 +1,114 @@
+"""Motion on the default configuration (issue 14 item 1, half of item 5): the three-segment chirp ranges
+approaching and receding targets, folded and not, from 0.3 m to the gate, with no speed prior.
+
+Truth: the bench's ray-cast range of each pixel and the radial velocity direction . v (positive
+receding); ``_truth_range`` moves a target to each point's own hardware time ``t`` when the world
+moves targets during a scan (``MOVING_WORLD``; until then the targets give Doppler but hold still).
+"""
+
+import threading
+
+import numpy as np
+import pytest
+
+from lidard.config import load_config
+from lidard.instrument import ScanRequest, open_instrument
+from sim_devices.world.scene import Scene
+
+WL = 1.55e-6
+KAPPA = 8.6e9 / 80e-6
+C = 299_792_458.0
+# True once sim_devices.world moves targets during a scan (issue 14 item 3): the truth then follows t
+MOVING_WORLD = False
+
+
+def _plane(z_m, v_mps, x_m=0.0, y_m=0.0, size_m=None):
+    return {"kind": "plane", "point": [x_m, y_m, z_m], "normal": [0.0, 0.0, -1.0],
+            "size": [size_m or 4 * z_m, size_m or 4 * z_m], "up": [0.0, 1.0, 0.0], "reflectivity": 0.3,
+            "velocity": [0.0, 0.0, v_mps]}
+
+
+@pytest.fixture(scope="module")
+def motion():
+    cfg = load_config("config/sim.toml")
+    assert cfg.chirp.shape == "three_segment"           # the default: no speed prior
+    inst = open_instrument(cfg, scene_path="config/scenes/cal_letters.toml", bench="embedded")
+    bench = inst._on_close.__self__
+    cal = inst.linearize()
+    yield inst, bench, cal
+    inst.close()
+
+
+def _truth(inst, bench, pts, v_mps):
+    d = inst.optics.directions(pts["row"], pts["col"])
+    v_r = d @ np.array([0.0, 0.0, v_mps])
+    r = bench.ground_truth(pts["row"], pts["col"])
+    return (r + v_r * pts["t"] if MOVING_WORLD else r), v_r
+
+
+def _scan(inst, cal, req):
+    return inst.run_scan(req, lambda p: None, threading.Event(), cal)
+
+
+def _regime_boundary_speed(range_m):
+    return WL * (2 * KAPPA * range_m / C) / 2          # |f_D| = f_R
+
+
+# (range, speed): not folded, folded (|f_D| > f_R), approaching and receding, 0.3 m to the 2 m gate
+CASES = [(0.3, 0.0), (0.3, 4.7), (0.3, -5.0), (0.7, 0.12), (0.7, -2.2), (1.3, 0.45), (1.3, -0.6), (1.3, 5.0),
+         (1.9, -0.8), (1.9, 3.3), (1.95, -5.0)]
+
+
+@pytest.mark.parametrize("range_m, v_mps", CASES)
+def test_region_scan_ranges_moving_targets_with_signed_velocity(motion, range_m, v_mps):
+    inst, bench, cal = motion
+    # keep clear of the regime boundary |f_D| ~ f_R, where the pixel is flagged (see the next test)
+    assert abs(abs(v_mps) - _regime_boundary_speed(range_m)) > 0.15 * _regime_boundary_speed(range_m)
+    bench.set_scene(Scene.from_dict({"name": "one", "target": [_plane(range_m, v_mps)]}))
+    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 64), cols=(62, 66), max_range_m=2.0))
+    pts = res.points[res.points["valid"] == 1]
+    assert len(pts) == res.pixels_scanned                 # every pixel ranged, one point each
+    r_true, v_true = _truth(inst, bench, pts, v_mps)
+    assert np.all(np.abs(pts["velocity"] - v_true) <= 0.05)
+    assert np.sqrt(np.mean((pts["range"] - r_true) ** 2)) <= 1e-3
+    if v_mps:
+        assert np.all(np.sign(pts["velocity"]) == np.sign(v_mps))
+
+
+def test_regime_boundary_is_flagged_not_misranged(motion):
+    # |f_D| = f_R: one ramp beat sits on DC and both regimes explain the CW beat; drawn, not valid
+    inst, bench, cal = motion
+    v = -_regime_boundary_speed(1.0)
+    bench.set_scene(Scene.from_dict({"name": "edge", "target": [_plane(1.0, v)]}))
+    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 64), max_range_m=2.0))
+    assert not np.any(res.points["valid"] == 1) or np.all(
+        np.abs(res.points["range"][res.points["valid"] == 1] - 1.0) < 0.02)
+
+
+def test_full_frame_of_moving_targets_near_and_far(motion):
+    # four patches over the field of view: 0.3 m approaching fast (folded), 0.8 m receding slowly,
+    # 1.4 m approaching slowly, 1.9 m receding fast (folded); the rest of the frame sees nothing
+    inst, bench, cal = motion
+    patches = [(0.3, -4.0, -0.03, -0.03), (0.8, 0.2, 0.08, -0.08), (1.4, -0.5, -0.14, 0.14), (1.9, 3.0, 0.2, 0.2)]
+    bench.set_scene(Scene.from_dict({"name": "patches", "target": [
+        _plane(z, v, x, y, size_m=0.09 if z == 0.3 else 0.12 * z) for z, v, x, y in patches]}))
+    res = _scan(inst, cal, ScanRequest(pattern="raster", max_range_m=2.0))
+    assert res.pixels_scanned == res.pixels_planned
+    pts = res.points[res.points["valid"] == 1]
+    # analytic truth: a plane z = z_k (+ v_k t in a moving world) facing the sensor is at range
+    # z / d_z along the beam d, and its radial velocity is v_k d_z; a pixel whose footprint spans two
+    # patches may range both, so each point is held to the patch whose range it is nearest
+    d_z = inst.optics.directions(pts["row"], pts["col"])[:, 2]
+    t = pts["t"] if MOVING_WORLD else 0.0
+    r_k = np.stack([(z + v * t) / d_z for z, v, _, _ in patches])
+    k = np.argmin(np.abs(r_k - pts["range"]), axis=0)
+    r_true = r_k[k, np.arange(len(pts))]
+    v_true = np.array([v for _, v, _, _ in patches])[k] * d_z
+    assert np.all(np.abs(pts["range"] - r_true) <= 0.01)   # no valid point at a range no patch has
+    for i, (z, v, _, _) in enumerate(patches):
+        on = k == i
+        assert on.sum() >= 20, (z, v, on.sum())
+        bad = np.abs(pts["velocity"][on] - v_true[on]) > 0.05
+        assert not bad.any(), (z, v, pts[on][bad])
+        assert np.sign(pts["velocity"][on]).tolist() == [np.sign(v)] * int(on.sum())
+        assert np.sqrt(np.mean((pts["range"][on] - r_true[on]) ** 2)) <= 1e-3, (z, v)
