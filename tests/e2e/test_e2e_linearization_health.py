@@ -120,7 +120,7 @@ def test_the_check_follows_its_configuration_keys(rig, monkeypatch):
     h = inst.check_linearization(cal)
     assert h.records == 4 and h.threshold_hz == 1e3
     assert h.exceeded                                   # no chirp is within 1 kHz of ideal
-    assert h.hardware_time_s == pytest.approx(4 * 2 * cfg.chirp.ramp_s, rel=0.2)
+    assert h.hardware_time_s == pytest.approx(4 * cfg.chirp.period_s, rel=0.2)   # whole chirp periods
     monkeypatch.setattr(inst, "cfg", cfg.model_copy(update={"scan": scan.model_copy(update={
         "linearity_check": False})}))
     assert inst.check_linearization(cal) is None

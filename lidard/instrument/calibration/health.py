@@ -49,11 +49,13 @@ class LinearizationHealth:
 
     def check(self, drive_v: np.ndarray) -> HealthCheck:
         c = self.cfg.chirp
+        # the two ramps the ILC learns (a three-segment drive's held segment is added back by measure)
+        drive_v = np.asarray(drive_v, dtype=np.float64)[:int(round(2 * c.ramp_s * AWG_RATE_HZ))]
         t0 = time.perf_counter()
         self._lin.hardware_s = 0.0
         self.safety.bring_up()
         try:
-            records = self._lin.measure(np.asarray(drive_v, dtype=np.float64), self.records)
+            records = self._lin.measure(drive_v, self.records)
         finally:
             self.safety.bring_down()
         r = chirp_residual(records, drive_v, fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self._lin.fs_hz, ramp_s=c.ramp_s,
