@@ -74,7 +74,7 @@ from lidard.physics.budget import monitor_noise_asd, quantization_asd
 from .awg import SimAwg
 from .clock import VirtualClock
 from .controller import ControllerSim
-from .digitizer import CaptureConfig, CapturedSegments, SimDigitizer
+from .digitizer import CaptureConfig, CapturedSegments, SimDigitizer, decimation_filter
 from .faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from .fpga import FpgaConfig, FpgaSim
 from .hv_drive import HvDrive
@@ -525,7 +525,9 @@ class Bench:
         # it the mzi_q input is unconnected and reads 0
         want_q = want_mzi and "mzi_q" in cfg.channels and self.cfg.monitor.quadrature
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
-        syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
+        a = self.cfg.adc
+        aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
+        syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd, beat_filter=aa,
                          linewidth_hz=linewidth, rng=rng,
                          mzi_delay_s=self.cfg.monitor.delay_s if want_mzi else None,
                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
@@ -539,6 +541,8 @@ class Bench:
                 codes[:, j] = data
                 if name in syn.channels:
                     over[:, j] = syn.overrange[:, syn.channels.index(name)]
+                if name in ("beat", "beat_i", "beat_q") and hits is not None:
+                    over[:, j] |= core_overrange(hits, n, cfg.input_range_v)
                 if name in ("mzi", "mzi_q") and not lit.all():
                     codes[~lit, j] = 0  # no light, no MZI fringes
         if "tap" in cfg.channels and n:
@@ -550,6 +554,14 @@ class Bench:
         self.segments_synthesized += n
         return CapturedSegments(trigger_time_s=np.asarray(trig.t_s, dtype=np.float64), codes=codes,
                                 overrange=over)
+
+
+def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:
+    """Segments whose returns, BEFORE the decimation filter, exceed the core's full scale (+-range/2):
+    a strong return beyond the gate clips the converter even though the filter hides it from the
+    record, and the digitizer flags the segment (what bounds a leak: lidard.physics.decimation)."""
+    peak = np.bincount(np.asarray(hits.seg, np.intp), weights=np.abs(hits.amplitude_v), minlength=n_seg)
+    return peak > 0.5 * input_range_v
 
 
 class _ControlServer:

@@ -26,6 +26,7 @@ import numpy as np
 
 from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
+from .gate import aliased, gate_top_hz, point_flags
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .velocity import pair_up_down
@@ -41,6 +42,7 @@ class FrameResult:
     velocity_mps: np.ndarray
     snr_db: np.ndarray
     intensity_v: np.ndarray
+    flags: np.ndarray | None = None     # uint8 lidard.dsp.gate.PointFlag bits (why not valid)
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,10 @@ class FrameDsp:
     use_fraction: float = 0.9
     estimator: str = DEFAULT_METHOD
     iq: bool = False
+    # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.gate): the top of its
+    # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
+    alias_free_hz: float | None = None
+    alias_ceiling_v: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.2 <= self.use_fraction <= 1.0:
@@ -92,7 +98,8 @@ class FrameDsp:
     def _bin_range(self, rf: RangeFFT) -> tuple[int, int]:
         doppler = 2 * self.max_speed_mps / self.wavelength_m
         f_lo = max(2 * self.chirp_rate_hz_per_s * self.min_range_m / C_M_PER_S - doppler, 0.0)
-        f_hi = 2 * self.chirp_rate_hz_per_s * self.max_range_m / C_M_PER_S + doppler
+        f_hi = gate_top_hz(2 * self.chirp_rate_hz_per_s * self.max_range_m / C_M_PER_S + doppler,
+                           self.alias_free_hz)
         df = rf.delta_f
         n_bins = rf.n_fft // 2 + 1
         lo = int(np.floor(f_lo / df))
@@ -144,16 +151,18 @@ class FrameDsp:
                                       self.wavelength_m, iq=self.iq, max_speed_mps=self.max_speed_mps)
         paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, self.max_speed_mps, self.wavelength_m)
         present = (ok | paired_any) & du.valid
-        flagged = du.harmonic | du.unresolved
+        intensity = 2.0 * np.sqrt(du.power)                    # |X| = A/2 for a real tone
+        leak = du.valid & aliased(intensity, self.alias_ceiling_v)
+        flagged = du.harmonic | du.unresolved | leak
         valid = ok & ~flagged
         # Flagged or ambiguous pairs keep a range from the up ramp alone so they can be drawn (valid=0).
         rng_fallback = C_M_PER_S * out_f[0] / (2 * self.chirp_rate_hz_per_s)
         rng_m = np.where(ok, rng_m, rng_fallback)
-        intensity = 2.0 * np.sqrt(du.power)                    # |X| = A/2 for a real tone
         in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
         present &= in_gate
+        flags = point_flags(unresolved=du.unresolved, aliased_=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
-                           snr_db=du.snr_db, intensity_v=intensity)
+                           snr_db=du.snr_db, intensity_v=intensity, flags=flags)
 
 
 def _paired(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..config import Config
 from ..dsp.frame import FrameDsp
+from ..dsp.gate import decimation_gate
 from ..dsp.pnframe import compensator_for, gate_m_range
 from ..dsp.rangefft import C_M_PER_S
 from ..physics.chirp import adc_rate_hz
@@ -119,7 +120,8 @@ def plan_scan(cfg: Config, optics, request: ScanRequest) -> ScanPlan:
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
                    max_speed_mps=cfg.scan.max_speed_mps, window=cfg.scan.window, pfa=cfg.scan.pfa,
-                   max_returns=cfg.scan.max_returns)
+                   max_returns=cfg.scan.max_returns,
+                   **decimation_gate(adc.fs_hz, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db, cfg.adc.input_range_v))
     acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
     return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
 
