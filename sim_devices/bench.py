@@ -382,9 +382,14 @@ class Bench:
         with self._lock:
             self.world.set_scene(scene)
 
-    def ground_truth(self, rows, cols) -> np.ndarray:
+    def ground_truth(self, rows, cols, t_s=None) -> np.ndarray:
+        """First-hit range per pixel; ``t_s``: scene time per pixel (a point's ``t``) for moving targets."""
         with self._lock:
-            return self.world.ground_truth(rows, cols)
+            return self.world.ground_truth(rows, cols, t_s)
+
+    def _run_first_trigger_s(self) -> float:
+        sched = self.fpga.schedule
+        return 0.0 if sched is None else float(sched.trigger_s(np.array([0]))[0])
 
     # -- SegmentSource ------------------------------------------------------------------------------
     def _trajectory(self):
@@ -505,7 +510,9 @@ class Bench:
         emitting = lit[beam_seg] & switches
         if light and switches and n and emitting.any():
             chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
-            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp)
+            # scene time: since the run's first trigger (a point's t counts from the same trigger)
+            t_scene = np.asarray(trig.t_s)[np.asarray(beam_seg)[emitting]] - self._run_first_trigger_s()
+            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp, t_s=t_scene)
             if bh.beam.size:
                 phase = None
                 if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
