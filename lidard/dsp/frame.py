@@ -19,7 +19,7 @@ Only paired detections become points; unpaired peaks (mostly noise) are dropped.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -29,6 +29,7 @@ from .estimators import DEFAULT_METHOD
 from .gate import aliased, gate_top_hz, point_flags
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
+from .resolve import unresolved
 from .velocity import pair_up_down
 
 
@@ -140,8 +141,12 @@ class FrameDsp:
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, idx, spec), window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa,
                 max_detections=self.max_returns, bin_range=self.bin_range)
+            det = res.detections
+            # two surfaces closer than a bin: the peak's shape is not one tone's (lidard.dsp.resolve)
+            shape = unresolved(spec, det.index, res.frac_bins, det.valid, det.noise, window=self.window,
+                               n_samples=n, zero_pad=rf.zero_pad, iq=self.iq, average_axis=1)
             out_f.append(res.frac_bins * rf.delta_f)
-            out_det.append(res.detections)
+            out_det.append(replace(det, unresolved=det.unresolved | shape))
         return out_f, out_det
 
     def _pair(self, out_f: list, out_det: list) -> FrameResult:
@@ -153,20 +158,28 @@ class FrameDsp:
         present = (ok | paired_any) & du.valid
         intensity = 2.0 * np.sqrt(du.power)                    # |X| = A/2 for a real tone
         leak = du.valid & aliased(intensity, self.alias_ceiling_v)
-        flagged = du.harmonic | du.unresolved | leak
+        # unresolved on either ramp: the pair's relative phase differs between up and down ramps
+        unres = du.unresolved | _near_down(out_f[0], out_f[1], du.valid, dd.valid & dd.unresolved,
+                                           self.max_speed_mps, self.wavelength_m)
+        flagged = du.harmonic | unres | leak
         valid = ok & ~flagged
         # Flagged or ambiguous pairs keep a range from the up ramp alone so they can be drawn (valid=0).
         rng_fallback = C_M_PER_S * out_f[0] / (2 * self.chirp_rate_hz_per_s)
         rng_m = np.where(ok, rng_m, rng_fallback)
         in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
         present &= in_gate
-        flags = point_flags(unresolved=du.unresolved, aliased_=leak, harmonic=du.harmonic, unpaired=~ok)
+        flags = point_flags(unresolved=unres, aliased_=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
                            snr_db=du.snr_db, intensity_v=intensity, flags=flags)
 
 
 def _paired(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
     """Up detections that have SOME down detection within the Doppler allowance (maybe ambiguous)."""
+    return _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m)
+
+
+def _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
+    """Up detections with a down detection of ``vd`` within the Doppler allowance."""
     tol = 4.0 * max_speed_mps / wavelength_m
     close = np.abs(np.abs(fd)[:, None, :] - np.abs(fu)[:, :, None]) <= tol
     return (close & vu[:, :, None] & vd[:, None, :]).any(axis=-1)
