@@ -168,7 +168,7 @@ class FrameDsp:
         rng_m = np.where(ok, rng_m, rng_fallback)
         in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
         present &= in_gate
-        flags = point_flags(unresolved=unres, aliased_=leak, harmonic=du.harmonic, unpaired=~ok)
+        flags = point_flags(unresolved=unres, leak=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
                            snr_db=du.snr_db, intensity_v=intensity, flags=flags)
 

@@ -54,10 +54,10 @@ def aliased(intensity_v: np.ndarray, ceiling_v: float) -> np.ndarray:
     return np.asarray(intensity_v) <= ALIAS_MARGIN * float(ceiling_v)
 
 
-def point_flags(*, unresolved, aliased_, harmonic, unpaired) -> np.ndarray:
-    """The uint8 flags of (pixel, return) slots from the DSP's boolean verdicts."""
+def point_flags(*, unresolved, leak, harmonic, unpaired) -> np.ndarray:
+    """The uint8 flags of (pixel, return) slots from the DSP's boolean verdicts (``leak``: aliased)."""
     f = np.zeros(np.shape(unresolved), np.uint8)
-    for mask, bit in ((unresolved, PointFlag.UNRESOLVED), (aliased_, PointFlag.ALIASED),
+    for mask, bit in ((unresolved, PointFlag.UNRESOLVED), (leak, PointFlag.ALIASED),
                       (harmonic, PointFlag.HARMONIC), (unpaired, PointFlag.AMBIGUOUS)):
         f |= np.where(mask, np.uint8(bit), np.uint8(0))
     return f

@@ -94,7 +94,10 @@ def merge(static: list[np.ndarray], beam: np.ndarray, moving: tuple, transmissio
     opaque = np.cumsum(own == 0.0)
     with np.errstate(divide="ignore"):
         logs = np.cumsum(np.where(own > 0.0, np.log(np.where(own > 0.0, own, 1.0)), 0.0))
-    before = lambda c: np.r_[0.0, c[:-1]] - np.r_[0.0, c][first[group]]  # noqa: E731  exclusive, per beam
+
+    def before(c):          # exclusive running sum within each beam's group
+        return np.r_[0.0, c[:-1]] - np.r_[0.0, c][first[group]]
+
     chain = np.where(before(opaque) > 0, 0.0, np.exp(before(logs)))
     keep = (chain > 0.0) & (rank < max_hits)
     cols[4] = chain

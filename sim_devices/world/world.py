@@ -63,6 +63,8 @@ class World:
         self.link: LinkParams = cfg.link_params(profile, laser)
         self.max_hits = max_hits
         self.seed = int(seed)  # speckle draws
+        self.rays_cast = 0          # pixels cast into the static targets (then cached)
+        self.moving_rays_cast = 0   # beams cast into the moving targets, each at its own time
         self.set_scene(scene)
 
     def set_scene(self, scene: Scene) -> None:
@@ -71,8 +73,6 @@ class World:
         self._speckle = np.array([bool(t.speckle) for t in scene.targets], bool)
         self._moving = np.array([bool(np.any(t.velocity != 0)) for t in scene.targets], bool)
         self._motion = motion.SceneMotion.of(scene)
-        self.rays_cast = getattr(self, "rays_cast", 0)            # cached (static) casts, per pixel
-        self.moving_rays_cast = getattr(self, "moving_rays_cast", 0)  # per beam, at its own time
 
     # -- noise ------------------------------------------------------------------------------------
     def white_noise_asd_v(self) -> float:
