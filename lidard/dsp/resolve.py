@@ -23,6 +23,8 @@ is 2 pi nu_mid d_tau on both ramps) sum to one tone with a tapered envelope, ~-3
 from one tone's shape: under the noise at the bench's ~35 dB, such a pixel gives one valid point
 between the two surfaces (tests/dsp/test_dsp_resolve.py, tests/e2e/test_e2e_unresolved.py: ~5 % of
 pixels at 10 mm). A cell apart (20 mm) every pair is flagged.
+The test runs on the plain range FFT's spectra (lidard.dsp.frame); the phase-noise compensated front
+end (lidard.dsp.pnframe) keeps the -6 dB width test only.
 Peaks within ``DC_BINS`` of DC (or of Nyquist) are not judged: their image overlaps the fit.
 
 Pure numpy.

@@ -65,3 +65,10 @@ def test_tones_are_filtered_at_their_true_beat_then_fold(traj, d_m):
     spec = np.abs(np.fft.rfft(beat[: n // 2] * np.hanning(n // 2)))
     f_peak = np.fft.rfftfreq(n // 2, 1 / FS)[np.argmax(spec)]
     assert abs(f_peak - f_alias) <= 2 * FS / (n // 2)
+
+
+def test_the_core_clips_before_the_filter():
+    from sim_devices.bench import core_overrange
+    hits = HitBatch(seg=np.array([0, 1, 2, 2]), tau_s=np.full(4, 1e-7), amplitude_v=np.array([0.6, 0.4, 0.3, 0.3]))
+    # +-0.5 V full scale: 0.6 V clips, 0.4 V does not, two returns of 0.3 V can (their peaks align)
+    assert list(core_overrange(hits, 4, 1.0)) == [True, False, True, False]
