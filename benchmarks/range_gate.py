@@ -4,7 +4,7 @@ Each configuration is linearized through the embedded simulated bench; an 8 x 8 
 bonded pixels) is scanned at a 2 m maximum range against a retro-reflective wall (albedo 2.0) behind
 nothing else at 1.2x, 2.5x and 5x that range. Printed per wall: points, valid points, valid points at a
 wrong range (every one here: the wall is beyond the gate), points flagged ``aliased``. Configurations:
-the default 80 dB decimation filter, a poor 20 dB one (tx 10 mW: its leak is bright), and "no filter"
+the default 100 dB decimation filter, a poor 20 dB one (tx 10 mW: its leak is bright), and "no filter"
 (a 1e-6 dB stop band: what the bench did before issue 14; the DSP's alias ceiling is then the full
 scale, so its leaks are flagged, not valid). Then a pane-and-sheet pair 10 and 20 mm apart at 1 m:
 pixels, pixels flagged ``unresolved``, valid points, pixels with two valid points.
@@ -24,7 +24,7 @@ from lidard.dsp.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
 
 MAX_RANGE_M = 2.0
-CONFIGS = {"80 dB filter (default)": {}, "20 dB filter, tx 10 mW": {"LIDARD__ADC__STOPBAND_DB": "20",
+CONFIGS = {"100 dB filter (default)": {}, "20 dB filter, tx 10 mW": {"LIDARD__ADC__STOPBAND_DB": "20",
                                                                     "LIDARD__LINK__TX_POWER_W": "0.01"},
            "no filter (1e-6 dB)": {"LIDARD__ADC__STOPBAND_DB": "1e-6"}}
 

@@ -64,7 +64,7 @@ class Adc(_Model):
     max_sample_rate_hz: PosFloat = 1e9
     min_sample_rate_hz: PosFloat = 1e6
     oversample: float = Field(default=2.5, ge=2.0, le=16.0)
-    stopband_db: float = Field(default=80.0, gt=0, le=200)
+    stopband_db: float = Field(default=100.0, gt=0, le=200)
     # Real (single-photodiode) beat only: an I/Q receiver is not built yet, so true is refused.
     iq: bool = False
 

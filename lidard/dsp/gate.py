@@ -15,7 +15,7 @@ Why not tell the fold from the data? With a triangle chirp a folded static targe
 and down beats as an in-gate static target (the fold flips the Doppler sign only), the two peaks'
 ratio is the same, and changing the sample rate between averages doubles the acquisition. The
 instrument knows its filter and its full scale, so the ceiling is exact and costs nothing; on the
-default 80 dB filter it sits below the CFAR threshold, so no real in-gate return is given up.
+default 100 dB filter it sits below the CFAR threshold, so no real in-gate return is given up.
 
 Point flags (``flags`` field of lidard.instrument.types.POINT_DTYPE): a bit set says why a point
 is not valid. Pure numpy.

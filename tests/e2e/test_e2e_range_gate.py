@@ -63,6 +63,19 @@ def test_in_gate_wall_is_valid_and_unflagged(default):
     assert np.all(pts["valid"] == 1) and np.all(pts["flags"] == 0)
 
 
+def test_weak_in_gate_returns_are_not_given_up(default):
+    # a dark wall (albedo 0.05) at 4 m: ~16 dB SNR, the weakest detections ~80 uV; the default 100 dB
+    # stop band puts the alias ceiling at 5 uV (10 uV with the margin): nothing is flagged aliased
+    inst, bench, cal = default
+    inst.set_scene({"target": [dict(wall(4.0)["target"][0], reflectivity=0.05)]})
+    res = inst.run_scan(ScanRequest(max_range_m=5.2, **ROI), lambda p: None, threading.Event(), cal)
+    pts = res.points
+    on_wall = np.abs(pts["range"] - bench.ground_truth(pts["row"], pts["col"])) < 5e-3
+    assert on_wall.sum() >= 20 and np.median(pts["snr_db"][on_wall]) < 20      # weak, near the threshold
+    assert not np.any(pts["flags"] & PointFlag.ALIASED)
+    assert np.all(pts["valid"][on_wall] == 1)                                  # every one detected is kept
+
+
 def test_a_leak_through_a_poor_filter_is_flagged_aliased():
     inst, bench, cal = _instrument(LIDARD__ADC__STOPBAND_DB="20", LIDARD__LINK__TX_POWER_W="0.01")
     try:
