@@ -3,9 +3,9 @@
 The converter core samples at ``adc.max_sample_rate_hz`` (Table 2-2: 1 GS/s, behind the analogue
 front end's ``adc.bandwidth_hz``); a record at a lower rate fs = f_core / D is decimated on board by a
 digital down-converter. That is the class of digitizer modelled here: the DDC of a GS/s converter
-(a CIC stage followed by a cascade of half-band FIRs, as in the DDCs of the TI ADC12DJ/ADC32RF and ADI
-AD9680 families, or the "digital anti-alias FIR" of acquisition systems such as the HBM GEN3i, whose
-data sheet gives 0.1 dB passband flatness and 60 dB stop band). Its response, relative to the OUTPUT
+(a cascade of half-band FIRs, often after a CIC stage, as in the DDCs of GS/s converters such as the
+TI ADC12DJ/ADC32RF and ADI AD9680 families, or the "digital anti-alias FIR" of acquisition systems
+such as the HBM GEN3i, whose data sheet gives 0.1 dB passband flatness and a 60 dB stop band). Its response, relative to the OUTPUT
 rate fs (it tracks the rate, as those filters do):
 
 * pass band 0 .. f_p = 0.4 fs: flat (the ripple, hundredths of a dB, is not modelled);
