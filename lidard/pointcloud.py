@@ -11,7 +11,7 @@ only here, at the file edge.
   and the offsets at the cloud's minimum; LAS ``intensity`` (uint16) holds the amplitude scaled to
   the largest one, ``return_number``/``number_of_returns`` the per-pixel return ordering and
   ``gps_time`` the scan time ``t``; the physical values travel as extra bytes (range, velocity,
-  snr_db, amplitude, row, col, valid) so that a reader gets them back exactly.
+  snr_db, amplitude, row, col, valid, flags) so that a reader gets them back exactly.
 * NPZ: ``numpy.savez`` of the record array ``points`` and a 0-d string array ``meta`` (JSON).
 * Sidecar ``<file>.json``: what was measured with which settings (profile, chirp, ADC, calibration
   id, hardware and wall time, coverage, software version, simulated, partial).
@@ -43,7 +43,8 @@ LAS_SCALE_M = 1e-4
 # Extra-bytes dimensions of the LAS file and their POINT_DTYPE source field.
 _LAS_EXTRA = (("range", "range", np.float32), ("velocity", "velocity", np.float32),
               ("snr_db", "snr_db", np.float32), ("amplitude", "intensity", np.float32),
-              ("row", "row", np.uint16), ("col", "col", np.uint16), ("valid", "valid", np.uint8))
+              ("row", "row", np.uint16), ("col", "col", np.uint16), ("valid", "valid", np.uint8),
+              ("flags", "flags", np.uint8))
 
 
 class PointCloudError(ValueError):

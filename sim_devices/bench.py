@@ -83,7 +83,7 @@ from lidard.physics.budget import monitor_noise_asd, quantization_asd
 from .awg import SimAwg
 from .clock import VirtualClock
 from .controller import ControllerSim
-from .digitizer import CaptureConfig, CapturedSegments, SimDigitizer
+from .digitizer import CaptureConfig, CapturedSegments, SimDigitizer, decimation_filter
 from .faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from .fpga import FpgaConfig, FpgaSim
 from .hv_drive import HvDrive
@@ -403,9 +403,14 @@ class Bench:
         with self._lock:
             self.world.set_scene(scene)
 
-    def ground_truth(self, rows, cols) -> np.ndarray:
+    def ground_truth(self, rows, cols, t_s=None) -> np.ndarray:
+        """First-hit range per pixel; ``t_s``: scene time per pixel (a point's ``t``) for moving targets."""
         with self._lock:
-            return self.world.ground_truth(rows, cols)
+            return self.world.ground_truth(rows, cols, t_s)
+
+    def _run_first_trigger_s(self) -> float:
+        sched = self.fpga.schedule
+        return 0.0 if sched is None else float(sched.trigger_s(np.array([0]))[0])
 
     def truth(self) -> BenchTruth:
         """The bench's hidden true values (sim_devices.world.tolerances): for tests and benchmarks
@@ -546,7 +551,9 @@ class Bench:
         emitting = lit[beam_seg] & switches
         if light and switches and n and emitting.any():
             chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
-            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp)
+            # scene time: since the run's first trigger (a point's t counts from the same trigger)
+            t_scene = np.asarray(trig.t_s)[np.asarray(beam_seg)[emitting]] - self._run_first_trigger_s()
+            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp, t_s=t_scene)
             if bh.beam.size:
                 phase = None
                 if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
@@ -571,7 +578,9 @@ class Bench:
             self.fidelity.note("speckle", hits.phase_rad is not None)
             self.fidelity.note("mixed_pixels", bool(self.world.scene.mixed_pixels))
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
-        syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd,
+        a = self.cfg.adc
+        aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
+        syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd, beat_filter=aa,
                          linewidth_hz=linewidth, rng=rng,
                          mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
@@ -585,6 +594,8 @@ class Bench:
                 codes[:, j] = data
                 if name in syn.channels:
                     over[:, j] = syn.overrange[:, syn.channels.index(name)]
+                if name in ("beat", "beat_i", "beat_q") and hits is not None:
+                    over[:, j] |= core_overrange(hits, n, cfg.input_range_v)
                 if name in ("mzi", "mzi_q") and not lit.all():
                     codes[~lit, j] = 0  # no light, no MZI fringes
         if "tap" in cfg.channels and n:
@@ -596,6 +607,14 @@ class Bench:
         self.segments_synthesized += n
         return CapturedSegments(trigger_time_s=np.asarray(trig.t_s, dtype=np.float64), codes=codes,
                                 overrange=over)
+
+
+def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:
+    """Segments whose returns, BEFORE the decimation filter, exceed the core's full scale (+-range/2):
+    a strong return beyond the gate clips the converter even though the filter hides it from the
+    record, and the digitizer flags the segment (what bounds a leak: lidard.physics.decimation)."""
+    peak = np.bincount(np.asarray(hits.seg, np.intp), weights=np.abs(hits.amplitude_v), minlength=n_seg)
+    return peak > 0.5 * input_range_v
 
 
 class _ControlServer:

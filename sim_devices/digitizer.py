@@ -26,6 +26,12 @@ corner f_d forward and backward squares its magnitude, 1 / (1 + (t / t_d)**(2N))
 t = tan(pi f / fs); the design corner t_d = t_c * (sqrt(2) - 1) ** (-1 / (2N)) puts the -3 dB point
 of the pair at f_c. A corner at or above fs / 2 leaves the record as it is.
 
+Decimation filter (issue 14): a record below the core's rate is decimated on board, behind a
+digital filter that tracks the record rate (pass band to 0.4 fs, stop band from 0.6 fs,
+``stopband_db`` down; lidard.physics.decimation). It must act before the rate reduction, so it is
+applied by the synthesis to every return at its true beat frequency (:func:`decimation_filter`,
+sim_devices.world.antialias); the corner filter above then acts on the record as before.
+
 Wire format: drivers/digitizer/protocol.py and docs/protocols/digitizer.md.
 """
 
@@ -39,8 +45,10 @@ from typing import Protocol
 import numpy as np
 
 from drivers.digitizer import protocol as p
+from lidard.physics.decimation import PASSBAND_FRACTION, DecimationFilter
 from sim_devices.clock import VirtualClock
 from sim_devices.usb_backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_stall, usb_timeout
+from sim_devices.world.antialias import BeatFilter
 
 
 def butter(*args, **kwargs):
@@ -330,3 +338,13 @@ def _replace(c: p.Config, **kw) -> p.Config:
     d = c.__dict__.copy()
     d.update(kw)
     return p.Config(**d)
+
+
+def decimation_filter(sample_rate_hz: float, core_rate_hz: float, stopband_db: float) -> BeatFilter | None:
+    """The decimation filter of a record at ``sample_rate_hz`` from a core at ``core_rate_hz`` (None at
+    the core's own rate: no decimation, the analogue front end is the only anti-alias filter)."""
+    fs = float(sample_rate_hz)
+    if core_rate_hz / fs < 2.0 - 1e-9:
+        return None
+    filt = DecimationFilter(stopband_db)
+    return BeatFilter(response=lambda f: filt.gain(f, fs), passband_hz=PASSBAND_FRACTION * fs)

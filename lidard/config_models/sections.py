@@ -73,7 +73,9 @@ class Adc(_Model):
     capped at the record format's 16 bits), so the digitizer's rounding of its output words adds
     1/256 of the core's noise power, not as much again (docs/protocols/digitizer.md).
     ``bandwidth_hz`` is the anti-alias low-pass corner the digitizer applies to every record (a corner
-    at or above half the record's rate leaves it unfiltered).
+    at or above half the record's rate leaves it unfiltered). ``stopband_db``: the stop-band rejection
+    of the on-board decimation filter (data sheet; lidard.physics.decimation): it sets the range gate's
+    alias ceiling, and the simulated digitizer's filter.
     """
 
     bits: Literal[8, 10, 12, 14, 16] = 8
@@ -82,6 +84,7 @@ class Adc(_Model):
     max_sample_rate_hz: PosFloat = 1e9
     min_sample_rate_hz: PosFloat = 1e6
     oversample: float = Field(default=2.5, ge=2.0, le=16.0)
+    stopband_db: float = Field(default=100.0, gt=0, le=200)
     # Real (single-photodiode) beat only: an I/Q receiver is not built yet, so true is refused.
     iq: bool = False
 

@@ -21,16 +21,18 @@ Only paired detections become points; unpaired peaks (mostly noise) are dropped.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
 
 from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
+from .gate import aliased, gate_top_hz, point_flags
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .threeseg import cw_front_end, pair_frame_three
+from .resolve import unresolved
 from .velocity import pair_up_down
 
 
@@ -44,6 +46,7 @@ class FrameResult:
     velocity_mps: np.ndarray
     snr_db: np.ndarray
     intensity_v: np.ndarray
+    flags: np.ndarray | None = None     # uint8 lidard.dsp.gate.PointFlag bits (why not valid)
 
 
 @dataclass(frozen=True)
@@ -62,6 +65,10 @@ class FrameDsp:
     estimator: str = DEFAULT_METHOD
     iq: bool = False
     cw_samples: int = 0         # samples of the constant-frequency segment after the ramps (0: triangle)
+    # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.gate): the top of its
+    # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
+    alias_free_hz: float | None = None
+    alias_ceiling_v: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.2 <= self.use_fraction <= 1.0:
@@ -96,7 +103,8 @@ class FrameDsp:
     def _bin_range(self, rf: RangeFFT) -> tuple[int, int]:
         doppler = 2 * self.max_speed_mps / self.wavelength_m
         f_lo = max(2 * self.chirp_rate_hz_per_s * self.min_range_m / C_M_PER_S - doppler, 0.0)
-        f_hi = 2 * self.chirp_rate_hz_per_s * self.max_range_m / C_M_PER_S + doppler
+        f_hi = gate_top_hz(2 * self.chirp_rate_hz_per_s * self.max_range_m / C_M_PER_S + doppler,
+                           self.alias_free_hz)
         df = rf.delta_f
         n_bins = rf.n_fft // 2 + 1
         lo = int(np.floor(f_lo / df))
@@ -139,8 +147,12 @@ class FrameDsp:
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, idx, spec), window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa,
                 max_detections=self.max_returns, bin_range=self.bin_range)
+            det = res.detections
+            # two surfaces closer than a bin: the peak's shape is not one tone's (lidard.dsp.resolve)
+            shape = unresolved(spec, det.index, res.frac_bins, det.valid, det.noise, window=self.window,
+                               n_samples=n, zero_pad=rf.zero_pad, iq=self.iq, average_axis=1)
             out_f.append(res.frac_bins * rf.delta_f)
-            out_det.append(res.detections)
+            out_det.append(replace(det, unresolved=det.unresolved | shape))
         return out_f, out_det
 
     def _pair(self, out_f: list, out_det: list) -> FrameResult:
@@ -150,20 +162,30 @@ class FrameDsp:
                                       self.wavelength_m, iq=self.iq, max_speed_mps=self.max_speed_mps)
         paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, self.max_speed_mps, self.wavelength_m)
         present = (ok | paired_any) & du.valid
-        flagged = du.harmonic | du.unresolved
+        intensity = 2.0 * np.sqrt(du.power)                    # |X| = A/2 for a real tone
+        leak = du.valid & aliased(intensity, self.alias_ceiling_v)
+        # unresolved on either ramp: the pair's relative phase differs between up and down ramps
+        unres = du.unresolved | _near_down(out_f[0], out_f[1], du.valid, dd.valid & dd.unresolved,
+                                           self.max_speed_mps, self.wavelength_m)
+        flagged = du.harmonic | unres | leak
         valid = ok & ~flagged
         # Flagged or ambiguous pairs keep a range from the up ramp alone so they can be drawn (valid=0).
         rng_fallback = C_M_PER_S * out_f[0] / (2 * self.chirp_rate_hz_per_s)
         rng_m = np.where(ok, rng_m, rng_fallback)
-        intensity = 2.0 * np.sqrt(du.power)                    # |X| = A/2 for a real tone
         in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
         present &= in_gate
+        flags = point_flags(unresolved=unres, leak=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
-                           snr_db=du.snr_db, intensity_v=intensity)
+                           snr_db=du.snr_db, intensity_v=intensity, flags=flags)
 
 
 def _paired(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
     """Up detections that have SOME down detection within the Doppler allowance (maybe ambiguous)."""
+    return _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m)
+
+
+def _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
+    """Up detections with a down detection of ``vd`` within the Doppler allowance."""
     tol = 4.0 * max_speed_mps / wavelength_m
     close = np.abs(np.abs(fd)[:, None, :] - np.abs(fu)[:, :, None]) <= tol
     return (close & vu[:, :, None] & vd[:, None, :]).any(axis=-1)

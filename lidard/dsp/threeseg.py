@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .gate import aliased, point_flags
 from .rangefft import C_M_PER_S, RangeFFT
 
 
@@ -189,11 +190,17 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw) -> dict:
         b = np.take_along_axis(field_dn.reshape(-1, k), np.maximum(idn, 0), axis=1)
         return np.where(iu >= 0, a, b)
 
-    flagged = pick(du.harmonic | du.unresolved, dd.harmonic | dd.unresolved).astype(bool)
+    harmonic = pick(du.harmonic, dd.harmonic).astype(bool)
+    unres = pick(du.unresolved, dd.unresolved).astype(bool)
+    intensity = 2.0 * np.sqrt(pick(du.power, dd.power))
+    # no stronger than what the decimation filter lets through from beyond the gate (lidard.dsp.gate)
+    leak = seen & aliased(intensity, dsp.alias_ceiling_v)
+    flagged = harmonic | unres | leak
     in_gate = (rng >= dsp.min_range_m) & (rng <= dsp.max_range_m * 1.05)
     present = seen & in_gate
     shape = lead + (k,)
+    flags = point_flags(unresolved=unres, leak=leak, harmonic=harmonic, unpaired=~ok)
     return dict(present=present.reshape(shape), valid=(present & ok & ~flagged).reshape(shape),
                 range_m=rng.reshape(shape), velocity_mps=vel.reshape(shape),
-                snr_db=pick(du.snr_db, dd.snr_db).reshape(shape),
-                intensity_v=(2.0 * np.sqrt(pick(du.power, dd.power))).reshape(shape))
+                snr_db=pick(du.snr_db, dd.snr_db).reshape(shape), intensity_v=intensity.reshape(shape),
+                flags=flags.reshape(shape))

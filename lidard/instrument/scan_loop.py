@@ -25,6 +25,7 @@ import numpy as np
 
 from ..config import Config
 from ..dsp.frame import FrameDsp
+from ..dsp.gate import decimation_gate
 from ..dsp.pnframe import compensator_for, gate_m_range
 from ..dsp.rangefft import C_M_PER_S
 from ..physics.chirp import adc_rate_hz
@@ -129,7 +130,8 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
                    max_speed_mps=speed_span_mps(cfg), window=cfg.scan.window, pfa=cfg.scan.pfa,
-                   max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples)
+                   max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples,
+                   **decimation_gate(adc.fs_hz, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db, cfg.adc.input_range_v))
     acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
     return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
 

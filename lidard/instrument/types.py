@@ -27,6 +27,8 @@ POINT_DTYPE = np.dtype([
     ("return_index", "u1"),   # 0 = first (nearest) return of that beam
     ("t", "f8"),              # s since scan start (hardware time of the pixel's first trigger)
     ("valid", "u1"),          # 0 where the DSP flagged the point (folding, harmonic, unresolved)
+    ("flags", "u1"),          # why not valid: bits of lidard.dsp.gate.PointFlag (1 unresolved, 2 aliased,
+                              # 4 harmonic, 8 ambiguous pairing, 16 clipped); 0 on a clean point
 ])
 
 

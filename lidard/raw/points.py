@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dsp.frame import FrameResult
+from ..dsp.gate import PointFlag
 from ..instrument.types import POINT_DTYPE
 
 
@@ -44,6 +45,10 @@ def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directio
     out["return_index"] = ri
     out["t"] = np.asarray(t_s, dtype=np.float64)[pi]
     out["valid"] = res.valid[pi, ki]
+    if res.flags is not None:
+        out["flags"] = res.flags[pi, ki]
     if clipped is not None:
-        out["valid"][np.asarray(clipped, dtype=bool)[pi]] = 0   # a clipped record's spectrum has harmonics
+        clip = np.asarray(clipped, dtype=bool)[pi]
+        out["valid"][clip] = 0   # a clipped record's spectrum has harmonics
+        out["flags"][clip] |= np.uint8(PointFlag.CLIPPED)
     return out

@@ -52,7 +52,8 @@ class PixelSpectrum:
         pts = np.zeros(len(d["points"]), POINT_DTYPE)
         for i, p in enumerate(d["points"]):
             for k in POINT_DTYPE.names:
-                pts[i][k] = p[k]
+                if k in p:          # a server older than a field (e.g. ``flags``) leaves it 0
+                    pts[i][k] = p[k]
         return cls(row=int(d["row"]), col=int(d["col"]), range_m=np.asarray(d["range_m"], np.float64),
                    power={k: np.asarray(v, np.float64) for k, v in d["power_v2"].items()},
                    threshold={k: np.asarray(v, np.float64) for k, v in d["threshold_v2"].items()},

@@ -92,9 +92,14 @@ class Hits:
 # --------------------------------------------------------------------------------------------------
 
 
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product; either side may be one (3,) vector shared by every row."""
+    return np.einsum("...j,...j->...", a, b)
+
+
 def _plane_t(o: np.ndarray, d: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
     denom = d @ normal
-    num = float(np.dot(point - o, normal))
+    num = (point - o) @ normal            # scalar, or one per ray for per-ray origins (n, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = num / denom
     # Parallel rays (denom == 0) never hit; t <= 0 is at or behind the origin.
@@ -150,15 +155,18 @@ def _cast_box(o: np.ndarray, d: np.ndarray, tg: BoxTarget) -> tuple[np.ndarray, 
     # than that from the centre, or that points away from a sphere it is outside of, cannot hit.
     oc = tg.center - o
     r2 = 0.25 * float(tg.size @ tg.size)
-    along = d @ oc
-    perp2 = float(oc @ oc) - along * along
-    inside_sphere = float(oc @ oc) <= r2
+    along = _rowdot(d, oc)
+    oc2 = _rowdot(oc, oc)
+    perp2 = oc2 - along * along
+    inside_sphere = oc2 <= r2
     cand = np.flatnonzero((perp2 <= r2 * (1 + 1e-12)) & ((along > 0.0) | inside_sphere))
     if cand.size == 0:
         return t_out, n_out
     dc = d[cand]
     rot = tg.rotation  # local -> sensor; rows of rot.T are the box axes in the sensor frame
-    o_l = rot.T @ (o - tg.center)  # (3,)
+    o_l = (o - tg.center) @ rot  # (3,) = rot.T @ (o - c); (k, 3) with per-ray origins
+    if o_l.ndim == 2:
+        o_l = o_l[cand]
     d_l = dc @ rot  # (k, 3) = (rot.T @ d_i) for each row
     half = 0.5 * tg.size
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -191,8 +199,8 @@ def _cast_sphere(
     o: np.ndarray, d: np.ndarray, tg: SphereTarget
 ) -> tuple[np.ndarray, np.ndarray]:
     oc = o - tg.center
-    b = d @ oc  # half the linear coefficient (|d| = 1)
-    c = float(oc @ oc) - tg.radius**2
+    b = _rowdot(d, oc)  # half the linear coefficient (|d| = 1)
+    c = _rowdot(oc, oc) - tg.radius**2
     disc = b * b - c
     ok = disc >= 0.0
     sq = np.sqrt(np.where(ok, disc, 0.0))
@@ -209,6 +217,9 @@ def intersect_target(
     target: Target, directions: np.ndarray, origin: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nearest hit of each ray on one target: (range_m (n,), surface normal (n, 3)); inf = miss.
+
+    ``origin``: (3,), or (n, 3) for one origin per ray (a moving target cast at each ray's own time is
+    the target at rest seen from a moved origin: sim_devices.world.motion).
 
     The normal's sign is not normalised (incidence uses |cos|). No argument checking: see cast().
     """

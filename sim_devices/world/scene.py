@@ -21,7 +21,10 @@ Scene file format (TOML; see config/scenes/*.toml)::
     kind = "plane" | "box" | "sphere" | "polygon"
     reflectivity = 0.1      # >= 0, default 0.1
     transmission = 0.0      # in [0, 1], default 0
-    velocity = [vx, vy, vz] # m/s, default 0
+    velocity = [vx, vy, vz] # m/s, default 0. Positions are those at scene time t = 0, the scan's first
+                            # measured pixel (the run's first trigger; t = 0 of every point's ``t``).
+                            # Each beam sees the target at its own trigger time t, moved by velocity * t
+                            # (sim_devices.world.motion); the radial part also gives the Doppler shift
     speckle = false         # true: rough surface, fully developed speckle on its returns (Rayleigh
                             # amplitude, uniform phase; new per pixel, and per chirp if it moves;
                             # sim_devices.world.speckle). Default false (a smooth, non-fading return)

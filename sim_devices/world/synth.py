@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidard.physics.constants import C_M_PER_S
+from sim_devices.world import antialias
 from sim_devices.world.laser import DfbLaser, wiener_phase
 
 _CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
@@ -402,7 +403,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                mzi_delay_s: float | None = None, mzi_amplitude_v: float | None = None,
                mzi_noise_asd_v_per_rthz: float = 0.0, dc_v: float = 0.0,
                return_volts: bool = False, return_phase_noise: bool = False, mzi_quadrature: bool = False,
-               fast_trig: bool | None = None) -> Synthesized:
+               fast_trig: bool | None = None, beat_filter: antialias.BeatFilter | None = None) -> Synthesized:
     """Synthesize the digitized LiDAR beat (and the monitor MZI) for ``len(t_start_s)`` segments.
 
     ``t_start_s[s]`` is the time of segment s's first sample on the AWG's time axis (t = 0 at the
@@ -414,6 +415,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     ``fast_trig`` (default: ``adc.quantize``) evaluates cos/sin in float32 after an exact float64
     range reduction (error ~1e-7 of the amplitude, invisible after quantization); unquantized output
     uses float64 trig so that tests can compare volts to 1e-9.
+    ``beat_filter``: the digitizer's anti-alias filter at each return's true beat frequency
+    (:mod:`sim_devices.world.antialias`); None: an ideal one (nothing beyond fs/2 is synthesized).
     """
     fast = adc.quantize if fast_trig is None else bool(fast_trig)
     t0 = np.asarray(t_start_s, dtype=np.float64)
@@ -463,6 +466,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     periods = back + int(math.ceil((n * ratio + 1) / n_awg)) + 1
     off = back * n_awg
     mean_w = 2.0 * np.pi * traj.mean_hz
+    aa_rate = antialias.max_chirp_rate_hz_per_s(traj.nu_hz, traj.fs_hz) if beat_filter is not None else 0.0
     need_base = seg.size > 0 or want_mzi
     base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
     single_start = u_start.size == 1
@@ -530,6 +534,10 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                 del lin
             else:
                 dphi += const[:, None]
+            aa = None
+            if beat_filter is not None:   # before phase noise: the filter sees the chirp's beat
+                bound = tau[hs] * aa_rate + np.abs(dop[hs])
+                aa = antialias.sample_gains(dphi, fs, beat_filter, bound)
             if phi is not None:
                 dphi += phi[lseg, n_pre:]
                 dphi -= _delayed_noise(phi, lseg, n_pre, n, m_hit[hs], w_hit[hs], var_step, rng)
@@ -538,9 +546,13 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             cos_part, sin_part = _cos_sin(dphi, adc.iq, fast)
             del dphi
             cos_part *= a
+            if aa is not None:
+                cos_part[aa[0]] *= aa[1]
             parts["beat"] = cos_part
             if adc.iq:
                 sin_part *= a
+                if aa is not None:
+                    sin_part[aa[0]] *= aa[1]
                 parts["beat_q"] = sin_part
             rk = rank[hs]
             dense = max_rank == 0 and nh == nc          # one hit in every segment (sorted): no scatter

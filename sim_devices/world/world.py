@@ -18,14 +18,16 @@ the reference reflection (the LO) to the lens, while ``range_m`` and :meth:`Worl
 the geometric lens -> surface distance d along the true beam (what the scans are scored against).
 The link budget uses d too: z0 is inside the instrument, it neither spreads nor attenuates the beam.
 
-Target motion is frozen within a frame: velocities give Doppler shifts (and the within-segment range
-drift of the synthesis) but targets are not displaced between pixels. ``Scene.moved`` can advance a
-scene between frames.
+Targets move during a scan (issue 14): a beam fired at scene time t (its trigger, counted from the
+run's first trigger) sees every moving target translated by v t; velocities also give the Doppler
+shifts and the within-segment range drift of the synthesis. Static targets are cast once per pixel
+and cached; moving ones are cast per beam at its time (sim_devices.world.motion). ``rays_cast``
+counts the cached casts, ``moving_rays_cast`` the per-beam ones.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -35,6 +37,7 @@ from lidard.physics.constants import C_M_PER_S
 from lidard.physics.optics import FpsaOptics
 
 from . import footprint as fp
+from . import motion
 from .scene import Scene
 from .speckle import speckle_factors
 from .tolerances import BenchTruth
@@ -72,6 +75,8 @@ class World:
         self.link: LinkParams = cfg.link_params(profile, laser)
         self.max_hits = max_hits
         self.seed = int(seed)  # speckle draws
+        self.rays_cast = 0          # pixels cast into the static targets (then cached)
+        self.moving_rays_cast = 0   # beams cast into the moving targets, each at its own time
         self.set_scene(scene)
 
     def set_scene(self, scene: Scene) -> None:
@@ -79,6 +84,7 @@ class World:
         self._cache: dict[int, tuple] = {}
         self._speckle = np.array([bool(t.speckle) for t in scene.targets], bool)
         self._moving = np.array([bool(np.any(t.velocity != 0)) for t in scene.targets], bool)
+        self._motion = motion.SceneMotion.of(scene)
 
     # -- noise ------------------------------------------------------------------------------------
     def white_noise_asd_v(self) -> float:
@@ -92,12 +98,22 @@ class World:
         missing = np.unique(keys[[k not in self._cache for k in keys]]) if len(keys) else keys
         if len(missing):
             d = self.optics.directions(missing // 4096, missing % 4096)
-            h = self.scene.cast(d, max_hits=self.max_hits)
+            h = self._static_cast(d)
+            self.rays_cast += len(missing)
             for i, k in enumerate(missing):
                 self._cache[int(k)] = (*_entry(h, i), np.ones(int(h.count[i])))
             if self.scene.mixed_pixels:
                 self._sample_footprints(missing, d)
         return [self._cache[int(k)] for k in keys]
+
+    def _static_cast(self, d: np.ndarray):
+        """Cast into the static targets, hits naming their index in the whole scene."""
+        m = self._motion
+        h = m.static.cast(d, max_hits=self.max_hits)
+        if m.static is self.scene or m.static_index.size == 0:
+            return h            # (nothing static: every slot is empty, -1)
+        idx = np.where(h.target_index >= 0, m.static_index[np.maximum(h.target_index, 0)], -1)
+        return replace(h, target_index=idx)
 
     def _footprint_radius(self, range_m):
         lens = self.profile.lenses[self.cfg.lens or self.profile.default_lens]
@@ -107,14 +123,14 @@ class World:
 
     def _sample_footprints(self, keys: np.ndarray, d: np.ndarray) -> None:
         """Mixed pixels: re-cast the footprints that may straddle an edge (sim_devices.world.footprint)."""
-        cand = np.flatnonzero(fp.edge_candidates(self.scene.targets, d, self._footprint_radius))
+        cand = np.flatnonzero(fp.edge_candidates(self._motion.static.targets, d, self._footprint_radius))
         if cand.size == 0:
             return
         first = np.array([self._cache[int(keys[i])][0][:1].tolist() or [np.inf] for i in cand]).ravel()
         probe = np.where(np.isfinite(first), first, 1e3)   # a miss: the footprint far away
         half = np.arctan(self._footprint_radius(probe) / probe)
         sub = fp.sub_ray_directions(d[cand], half)
-        h = self.scene.cast(sub.reshape(-1, 3), max_hits=self.max_hits)
+        h = self._static_cast(sub.reshape(-1, 3))
         bin_m = C_M_PER_S / (2.0 * abs(self.cfg.chirp.excursion_hz))  # one range bin
         for j, i in enumerate(cand):
             key = int(keys[i])
@@ -123,22 +139,35 @@ class World:
             if mixed is not None:
                 self._cache[key] = mixed
 
-    def beam_hits(self, rows, cols, transmission, chirp=None) -> BeamHits:
+    def _hits(self, rows, cols, t_s):
+        """(7 flat hit arrays, beam index) of beams at (rows, cols) fired at scene times ``t_s``."""
+        entries = self._cast_pixels(rows, cols)
+        counts = np.fromiter((len(e[0]) for e in entries), dtype=np.int64, count=len(entries))
+        beam = np.repeat(np.arange(len(entries)), counts)
+        cat = [np.concatenate([e[j] for e in entries]) if len(entries) else np.zeros(0) for j in range(7)]
+        if self._motion.any_moving and len(rows):
+            t = np.zeros(len(rows)) if t_s is None else np.broadcast_to(np.asarray(t_s, np.float64), (len(rows),))
+            mov = motion.cast_moving(self.scene, self._motion, self.optics.directions(rows, cols), t)
+            self.moving_rays_cast += len(rows)
+            cat, beam = motion.merge(cat, beam, mov, self._motion.transmission, self.max_hits)
+        return cat, beam
+
+    def beam_hits(self, rows, cols, transmission, chirp=None, t_s=None) -> BeamHits:
         """Beat tones of beams lit at (rows, cols) with switch-path transmissions ``transmission``;
-        ``chirp``: each beam's chirp (trigger) index, which decorrelates speckle on moving targets."""
+        ``chirp``: each beam's chirp (trigger) index, which decorrelates speckle on moving targets;
+        ``t_s``: each beam's scene time (s since the run's first trigger; None: 0), where moving
+        targets are."""
         rows = np.asarray(rows)
         cols = np.asarray(cols)
         trans = np.asarray(transmission, dtype=np.float64)
-        entries = self._cast_pixels(rows, cols)
-        counts = np.fromiter((len(e[0]) for e in entries), dtype=np.int64, count=len(entries))
-        total = int(counts.sum())
+        cat, beam = self._hits(rows, cols, t_s)
+        total = int(beam.size)
         if total == 0:
             z = np.zeros(0)
             return BeamHits(np.zeros(0, np.int64), z, z, z, z, np.zeros(0, np.int64))
-        beam = np.repeat(np.arange(len(entries)), counts)
-        cat = [np.concatenate([e[j] for e in entries]) for j in range(7)]
         rng_m, inc, rho, vel, chain, tgt, weight = cat
-        ret_idx = np.concatenate([np.arange(c) for c in counts])
+        first = np.searchsorted(beam, beam, side="left")   # hits are grouped by beam, nearest first
+        ret_idx = np.arange(total) - first
         p = self.link
         p_rx = (p.received_power_w(rng_m, reflectivity=rho, incidence_rad=inc)
                 * chain**2 * trans[beam] ** 2)
@@ -156,12 +185,16 @@ class World:
         return BeamHits(beam=beam, range_m=rng_m, tau_s=tau, amplitude_v=amp,
                         velocity_mps=vel, return_index=ret_idx, speckle_phase_rad=phase)
 
-    def ground_truth(self, rows, cols) -> np.ndarray:
-        """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth.
-
+    def ground_truth(self, rows, cols, t_s=None) -> np.ndarray:
+        """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth; with
+        ``t_s`` (per pixel, s since the run's first trigger) moving targets are where they are then.
         The geometric lens -> surface distance along the TRUE beam (no zero offset)."""
-        entries = self._cast_pixels(np.asarray(rows), np.asarray(cols))
-        return np.array([e[0][0] if len(e[0]) else np.inf for e in entries])
+        rows, cols = np.asarray(rows), np.asarray(cols)
+        cat, beam = self._hits(rows, cols, t_s)
+        out = np.full(len(rows), np.inf)
+        first = np.r_[True, beam[1:] != beam[:-1]] if beam.size else np.zeros(0, bool)
+        out[beam[first]] = cat[0][first]
+        return out
 
 
 def _entry(h, i: int) -> tuple:
