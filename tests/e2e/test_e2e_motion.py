@@ -2,8 +2,8 @@
 approaching and receding targets, folded and not, from 0.3 m to the gate, with no speed prior.
 
 Truth: the bench's ray-cast range of each pixel and the radial velocity direction . v (positive
-receding); ``_truth_range`` moves a target to each point's own hardware time ``t`` when the world
-moves targets during a scan (``MOVING_WORLD``; until then the targets give Doppler but hold still).
+receding); ``_truth_range`` moves a target to each point's own hardware time ``t`` (the bench moves
+targets during a scan, issue 14 item 3).
 """
 
 import threading
@@ -18,8 +18,6 @@ from sim_devices.world.scene import Scene
 WL = 1.55e-6
 KAPPA = 8.6e9 / 80e-6
 C = 299_792_458.0
-# True once sim_devices.world moves targets during a scan (issue 14 item 3): the truth then follows t
-MOVING_WORLD = False
 
 
 def _plane(z_m, v_mps, x_m=0.0, y_m=0.0, size_m=None):
@@ -43,7 +41,7 @@ def _truth(inst, bench, pts, v_mps):
     d = inst.optics.directions(pts["row"], pts["col"])
     v_r = d @ np.array([0.0, 0.0, v_mps])
     r = bench.ground_truth(pts["row"], pts["col"])
-    return (r + v_r * pts["t"] if MOVING_WORLD else r), v_r
+    return r + v_r * pts["t"], v_r
 
 
 def _scan(inst, cal, req):
@@ -99,7 +97,7 @@ def test_full_frame_of_moving_targets_near_and_far(motion):
     # z / d_z along the beam d, and its radial velocity is v_k d_z; a pixel whose footprint spans two
     # patches may range both, so each point is held to the patch whose range it is nearest
     d_z = inst.optics.directions(pts["row"], pts["col"])[:, 2]
-    t = pts["t"] if MOVING_WORLD else 0.0
+    t = pts["t"]
     r_k = np.stack([(z + v * t) / d_z for z, v, _, _ in patches])
     k = np.argmin(np.abs(r_k - pts["range"]), axis=0)
     r_true = r_k[k, np.arange(len(pts))]

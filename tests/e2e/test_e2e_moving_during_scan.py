@@ -10,6 +10,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
+from tests.helpers.tolerances import NOMINAL_ENV
 
 V_MPS = (1.0, 0.0, 1.1)          # |v| = 1.49 m/s: across the beams and along them
 FRAME = dict(pattern="roi", rows=(48, 80), cols=(48, 80))
@@ -27,7 +28,8 @@ def embedded():
     # a real beat needs a speed prior above 1.5 m/s; ranges beyond ~3.6 m are then unambiguous. The
     # triangle's greedy up/down pairing takes a CFAR false alarm near the box's up beat for its down
     # beat (a point metres off, ~1 per 10^6 cells at pfa 1e-6): pfa 1e-9 keeps this test about motion.
-    cfg = load_config("config/sim.toml", environ={"LIDARD__SCAN__MAX_SPEED_MPS": "2.0", "LIDARD__SCAN__PFA": "1e-9"})
+    cfg = load_config("config/sim.toml", environ={**NOMINAL_ENV, "LIDARD__SCAN__MAX_SPEED_MPS": "2.0",
+                                                  "LIDARD__SCAN__PFA": "1e-9"})
     inst = open_instrument(cfg, scene_path="config/scenes/empty.toml", bench="embedded")
     bench = inst._on_close.__self__
     cal = inst.linearize()

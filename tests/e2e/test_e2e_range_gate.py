@@ -12,6 +12,7 @@ import pytest
 from lidard.config import load_config
 from lidard.dsp.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
+from tests.helpers.tolerances import NOMINAL_ENV
 
 MAX_RANGE_M = 2.0
 ROI = dict(pattern="roi", rows=(60, 68), cols=(60, 68))
@@ -23,7 +24,7 @@ def wall(z_m: float) -> dict:
 
 
 def _instrument(**env):
-    cfg = load_config("config/sim.toml", environ=env)
+    cfg = load_config("config/sim.toml", environ={**NOMINAL_ENV, **env})
     inst = open_instrument(cfg, scene_path="config/scenes/empty.toml", bench="embedded")
     return inst, inst._on_close.__self__, inst.linearize()
 
@@ -77,7 +78,9 @@ def test_weak_in_gate_returns_are_not_given_up(default):
 
 
 def test_a_leak_through_a_poor_filter_is_flagged_aliased():
-    inst, bench, cal = _instrument(LIDARD__ADC__STOPBAND_DB="20", LIDARD__LINK__TX_POWER_W="0.01")
+    # the triangle's 5 MHz records at a 2 m gate (the three-segment chirp's 40 MHz would not fold 5 m)
+    inst, bench, cal = _instrument(LIDARD__ADC__STOPBAND_DB="20", LIDARD__LINK__TX_POWER_W="0.01",
+                                   LIDARD__CHIRP__SHAPE="triangle")
     try:
         res = _scan(inst, cal, 2.5 * MAX_RANGE_M, MAX_RANGE_M)
     finally:
