@@ -120,7 +120,7 @@ def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float):
     return noise, alpha
 
 
-def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None):
+def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, exact: bool = False):
     """OS-CFAR noise per bin, exact wherever the threshold test can pass (issue 18).
 
     The k-th smallest of a set is never below the k-th smallest of a superset, so the k-th smallest
@@ -129,7 +129,8 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
     whose power is under alpha times that bound cannot pass the exact test; only the others get the
     exact order statistic (in white noise ~1e-4 of the bins, plus the targets). The detections are
     the same as with the exact statistic at every bin; the noise reported for a bin that was not
-    computed exactly is its lower bound (only detections' noise is used downstream)."""
+    computed exactly is its lower bound (only detections' noise is used downstream); ``exact=True``
+    computes every bin exactly (a spectrum view that draws the threshold)."""
     n_ref = 2 * n_ref_side
     k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
     reach = n_guard + n_ref_side
@@ -148,7 +149,7 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
         pp, (rows, n_blocks, _OS_BLOCK + 2 * reach), (pp.strides[0], _OS_BLOCK * pp.strides[1], pp.strides[1]))
     lower = np.partition(hood, k - 1, axis=-1)[..., k - 1]
     kth = np.repeat(lower, _OS_BLOCK, axis=1)[:, :n]
-    r, c = np.nonzero(p > alpha * kth)
+    r, c = np.nonzero((p > alpha * kth) | exact)
     if r.size:
         win = np.lib.stride_tricks.sliding_window_view(pp[:, :n + 2 * reach], 2 * reach + 1, axis=-1)
         w = win[r, c]

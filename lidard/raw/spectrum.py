@@ -100,7 +100,7 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
         p = _ramp_power(replay, beat, mzi, mzi_q, start)
         det = cfar_detect(p, method="os", pfa=d.pfa, max_detections=d.max_returns, window=d.window,
                           bin_range=gate)
-        noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.pfa, None)
+        noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.pfa, None, exact=True)   # drawn at every bin
         power[name], threshold[name] = p[0], (alpha * noise)[0]
         for j in np.flatnonzero(det.valid[0]):
             b = int(det.index[0, j])

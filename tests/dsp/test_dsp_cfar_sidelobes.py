@@ -76,6 +76,7 @@ def test_os_noise_is_the_per_cell_sort_wherever_the_threshold_can_pass(shape, to
         p.reshape(-1, shape[-1])[:, ::7] *= 300.0
     n_side, guard, k = 4, 2, 6
     noise, alpha = cfar._noise_os(p, n_side, guard, 1e-4, k)
+    exact = cfar._noise_os(p, n_side, guard, 1e-4, k, exact=True)[0].reshape(-1, shape[-1])
     n = shape[-1]
     mean_kth = np.sum(1.0 / np.arange(2 * n_side - k + 1, 2 * n_side + 1))
     flat, got = p.reshape(-1, n), noise.reshape(-1, n)
@@ -87,6 +88,7 @@ def test_os_noise_is_the_per_cell_sort_wherever_the_threshold_can_pass(shape, to
             j = [-x if x < 0 else (2 * (n - 1) - x if x >= n else x) for x in j]  # reflect
             want = np.sort(flat[r, j])[k - 1] / mean_kth
             assert got[r, i] <= want * (1 + 1e-15)                       # never above the exact
+            assert exact[r, i] == pytest.approx(want, rel=1e-15)          # exact=True: every cell
             # a cell under alpha x its bound is under alpha x the exact: the same decision; one that
             # may pass was computed exactly
             if flat[r, i] > alpha[i] * got[r, i]:
