@@ -39,23 +39,10 @@ PLATES_M = (0.8, 1.1, 1.4)
 
 def open_split(bench_delay_s: float):
     """The bench with ``bench_delay_s``, the daemon's instrument with the nominal configuration."""
-    from lidard.instrument.compose import _connect          # the composition root's own wiring
-    from lidard.instrument.facade import LidarInstrument, SimHooks
-    from sim_devices.bench import Bench
-    daemon = load_config("config/sim.toml")
+    from lidard.instrument.compose import open_split_bench
     bench_cfg = load_config("config/sim.toml", environ={"LIDARD__MONITOR__DELAY_S": repr(bench_delay_s),
                                                         "LIDARD__SIM__TOLERANCES__ENABLED": "false"})
-    b = Bench(bench_cfg, Scene.from_dict({"target": []}))
-    ep = b.start(usb="inproc")
-
-    def set_scene(d: dict) -> dict:
-        s = Scene.from_dict(d)
-        b.set_scene(s)
-        return {"name": s.name, "targets": len(s)}
-    hooks = SimHooks(set_scene=set_scene, inject_fault=b.inject_fault, clear_faults=b.clear_faults,
-                     active_faults=b.active_faults)
-    return LidarInstrument(daemon, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
-                           on_close=b.close, **_connect(daemon, ep, b.usb_backend, b.clock.advance))
+    return open_split_bench(load_config("config/sim.toml"), bench_cfg)
 
 
 def score(inst, bench, lin) -> dict[str, float]:

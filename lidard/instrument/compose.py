@@ -112,11 +112,16 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
     return _open_child(cfg, scene_path)
 
 
-def _open_embedded(cfg: Config, scene_path: str | None) -> LidarInstrument:
+def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | None = None,
+                   scene: dict | None = None) -> LidarInstrument:
     from sim_devices.bench import Bench
     from sim_devices.world.scene import Scene, SceneError
 
-    b = Bench(cfg, Scene.from_toml(scene_path) if scene_path else None)
+    if scene is not None:
+        start_scene = Scene.from_dict(scene, source="<scene>")
+    else:
+        start_scene = Scene.from_toml(scene_path) if scene_path else None
+    b = Bench(bench_cfg or cfg, start_scene)
     ep = b.start(usb="inproc")
     parts = _connect(cfg, ep, b.usb_backend, b.clock.advance)
 
@@ -136,6 +141,14 @@ def _open_embedded(cfg: Config, scene_path: str | None) -> LidarInstrument:
     # on_close is the bench's own close: tests reach the embedded bench as ``inst._on_close.__self__``
     return LidarInstrument(cfg, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
                            on_close=b.close, **parts)
+
+
+def open_split_bench(daemon_cfg: Config, bench_cfg: Config, scene: dict | None = None) -> LidarInstrument:
+    """An embedded bench built from ``bench_cfg`` driven by the instrument of ``daemon_cfg`` (tests and
+    benchmarks: a known deviation between the daemon's nominal values and the bench's truth, e.g. its
+    monitor MZI at 201 ns while the daemon says 200 ns). ``scene``: the scene file's structure (default:
+    an empty scene)."""
+    return _open_embedded(daemon_cfg, None, bench_cfg=bench_cfg, scene=scene if scene is not None else {"target": []})
 
 
 def _start_child(cfg: Config, scene_path: str | None) -> tuple[subprocess.Popen, dict[str, Any]]:
