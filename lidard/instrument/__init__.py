@@ -26,8 +26,8 @@ imports, can import the types without a cycle).
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from .._lazy import lazy_getattr
+
 
 from .errors import (DeviceFault, InstrumentError, NotSimulated, ScanFailed, SceneRejected, SegmentsLost,
                      SimFaultError)
@@ -54,9 +54,4 @@ __all__ = ["POINT_DTYPE", "CalibrationResult", "DeviceFault", "Instrument", "Ins
            "ScanRequest", "ScanResult", "SceneRejected", "SegmentsLost", "SimFaultError", *_LAZY]
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY, globals())

@@ -18,8 +18,8 @@ Names are imported on first use (PEP 562): the API and the job queue load the li
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from ..._lazy import lazy_getattr
+
 
 _LAZY = {
     "Linearization": "linearization",
@@ -34,9 +34,4 @@ _LAZY = {
 __all__ = list(_LAZY)
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY, globals())
