@@ -11,6 +11,7 @@ from lidard.cli.progress import Progress
 from lidard.pointcloud import read_points, read_sidecar
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FakeInstrument
+from tests.helpers.cli import run
 
 TABLE_2_2 = """
 profile = "fpsa20"
@@ -26,14 +27,6 @@ eta_rx = 0.5
 rx_aperture_m = 0.01
 """
 
-
-def run(capsys, *argv):
-    try:
-        code = cli.lidarctl_main(list(argv))
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def one_json(out):

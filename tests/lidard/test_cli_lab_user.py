@@ -17,15 +17,8 @@ from lidard.config import CONFIG_DIR, load_config
 from lidard.pointcloud import read_points, read_sidecar
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FakeInstrument
+from tests.helpers.cli import run
 
-
-def run(capsys, *argv):
-    try:
-        code = cli.lidarctl_main(list(argv))
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture

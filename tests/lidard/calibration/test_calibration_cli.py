@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from lidard import cli
 from lidard.instrument.types import POINT_DTYPE, ScanProgress, ScanResult
 from lidard.scan import plan
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FakeInstrument
+from tests.helpers.cli import run
 
 S_TRUE, Z0_TRUE = 200 / 201.4, 0.031
 
@@ -33,14 +33,6 @@ class PlateFake(FakeInstrument):
         progress(ScanProgress(len(px), len(px), len(px), 1e-3))
         return ScanResult(points=pts, meta={}, pixels_scanned=len(px), pixels_planned=len(px), hardware_time_s=1e-3)
 
-
-def run(capsys, *argv):
-    try:
-        code = cli.lidarctl_main(list(argv))
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture

@@ -7,21 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from lidard import cli
 from lidard.cli import base as cli_base
 from lidard.pointcloud import read_points, read_sidecar
 from lidard.raw import ReprocessSettings, reprocess
 from tests.helpers.api import live_server, make_app
 from tests.helpers.raw_capture import RecordingFake
+from tests.helpers.cli import run
 
-
-def run(capsys, *argv):
-    try:
-        code = cli.lidarctl_main(list(argv))
-    except SystemExit as exc:      # argparse's refusals
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture

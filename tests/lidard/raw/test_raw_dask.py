@@ -13,23 +13,15 @@ import sys
 import numpy as np
 import pytest
 
-from lidard import cli
 from lidard.cli import base as cli_base
 from lidard.pointcloud import read_points
 from lidard.raw import ReprocessSettings, reprocess
 from lidard.raw.replay import chunk_count
 from tests.helpers.raw_capture import RecordingFake
+from tests.helpers.cli import run
 
 pytest.importorskip("distributed")
 
-
-def run(capsys, *argv):
-    try:
-        code = cli.lidarctl_main(list(argv))
-    except SystemExit as exc:      # argparse's refusals
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def _record(capsys, data, cols="0:12") -> str:
