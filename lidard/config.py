@@ -25,7 +25,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from .config_models.base import Fraction, NonNegFloat, PosFloat, _Model  # noqa: F401  (re-exported)
 from .config_models.presets import (  # noqa: F401  (re-exported: lidard.config is the public path)
@@ -74,6 +74,13 @@ class Config(_Model):
         if not v or "/" in v or "\\" in v:
             raise ValueError("must be a plain preset name (a file under config/profiles)")
         return v
+
+    @model_validator(mode="after")
+    def _iq_on_the_triangle(self) -> "Config":
+        if self.adc.iq and self.chirp.shape != "triangle":
+            raise ValueError("adc.iq = true: a coherent (I/Q) receiver measures the beat's sign on the triangle "
+                             "alone; set chirp.shape = \"triangle\" (the three-segment chirp is for one photodiode)")
+        return self
 
     # -- resolved views -------------------------------------------------------------------------
     def resolve_path(self, path: str) -> Path:

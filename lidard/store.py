@@ -158,13 +158,19 @@ class ScanRecord:
     reprocessed_from: str | None = None   # the scan whose raw capture this one was computed from
     range_calibration_id: str | None = None      # the range scale/zero calibration the scan used
     pointing_calibration_id: str | None = None   # the pointing calibration the scan used
+    receiver: str | None = None                  # "real" (one photodiode) or "iq" (adc.iq, issue 14)
+    iq_calibration_id: str | None = None         # the I/Q imbalance calibration the scan used
 
     @property
     def calibrated(self) -> dict[str, bool]:
-        """Which calibrations the scan used (issue 13 item 4: uncalibrated is said, not hidden)."""
-        return {"range": self.range_calibration_id is not None,
-                "pointing": self.pointing_calibration_id is not None,
-                "linearization": self.calibration_id is not None}
+        """Which calibrations the scan used (issue 13 item 4: uncalibrated is said, not hidden); an
+        I/Q receiver's scan also says whether its imbalance was calibrated."""
+        out = {"range": self.range_calibration_id is not None,
+               "pointing": self.pointing_calibration_id is not None,
+               "linearization": self.calibration_id is not None}
+        if self.receiver == "iq":
+            out["iq"] = self.iq_calibration_id is not None
+        return out
 
     @property
     def terminal(self) -> bool:
@@ -178,7 +184,7 @@ _SCAN_COLUMNS = tuple(ScanRecord.__dataclass_fields__)
 _JSON_COLUMNS = {"request", "files"}
 # columns added after the first release: a data directory made before gets them on open
 _ADDED_COLUMNS = {"raw_bytes": "INTEGER", "reprocessed_from": "TEXT", "range_calibration_id": "TEXT",
-                  "pointing_calibration_id": "TEXT"}
+                  "pointing_calibration_id": "TEXT", "receiver": "TEXT", "iq_calibration_id": "TEXT"}
 
 
 class Store(GeometryCalibrationStore):

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 GeometryKind = Literal["range", "pointing"]
-GEOMETRY_KINDS = ("range", "pointing")
+GEOMETRY_KINDS = ("range", "pointing", "iq")
 
 GEOMETRY_SCHEMA = """
 CREATE TABLE IF NOT EXISTS geometry_calibrations (

@@ -584,7 +584,8 @@ class Bench:
                          linewidth_hz=linewidth, rng=rng,
                          mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
-                         mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q)
+                         mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,
+                         iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad))
         codes = np.zeros((n, len(cfg.channels), cfg.record_length), dtype=np.int16)
         over = np.zeros((n, len(cfg.channels)), dtype=bool)
         by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi, "mzi_q": syn.mzi_q}

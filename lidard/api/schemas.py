@@ -146,8 +146,10 @@ class ScanOut(_Out):
     reprocessed_from: str | None = Field(None, description="the scan whose raw capture this one reprocessed")
     range_calibration_id: str | None = Field(None, description="the range scale/zero calibration used")
     pointing_calibration_id: str | None = Field(None, description="the pointing calibration used")
+    iq_calibration_id: str | None = Field(None, description="the I/Q imbalance calibration used (adc.iq)")
     calibrated: dict[str, bool] = Field(default_factory=dict, description=(
-        "which calibrations the scan used: {range, pointing, linearization}; false is said, not hidden"))
+        "which calibrations the scan used: {range, pointing, linearization} and, with the I/Q receiver, iq; "
+        "false is said, not hidden"))
 
     @classmethod
     def from_record(cls, rec) -> "ScanOut":
@@ -160,7 +162,7 @@ class ScanOut(_Out):
                    formats=sorted(rec.files), calibration_id=rec.calibration_id,
                    raw_bytes=getattr(rec, "raw_bytes", None), reprocessed_from=getattr(rec, "reprocessed_from", None),
                    range_calibration_id=rec.range_calibration_id, pointing_calibration_id=rec.pointing_calibration_id,
-                   calibrated=rec.calibrated)
+                   iq_calibration_id=rec.iq_calibration_id, calibrated=rec.calibrated)
 
 
 class ScanList(_Out):

@@ -1,4 +1,4 @@
-"""``lidarctl calibration``: the range scale/zero and pointing calibrations on a running daemon, and the
+"""``lidarctl calibration``: the range scale/zero, pointing and I/Q calibrations on a running daemon, and the
 records of every calibration (issue 13 item 2; REST: lidard.api.routers.geometry).
 
 The steps a lab runs (the reference plate on a rail, perpendicular to the optical axis)::
@@ -8,6 +8,7 @@ The steps a lab runs (the reference plate on a rail, perpendicular to the optica
     lidarctl calibration range add --known-m 1.4
     lidarctl calibration range fit                   # effective monitor delay + zero offset
     lidarctl calibration pointing --geometry targets.toml
+    lidarctl calibration iq                          # I/Q receiver only (adc.iq): any targets in view
     lidarctl calibration list
     lidarctl calibration show ID
 
@@ -49,15 +50,19 @@ def add_parser(sub) -> None:
     pnt.add_argument("--geometry", required=True, metavar="FILE.toml",
                      help="[[sphere]] centre, radius / [[plane]] point, normal in the sensor frame, metres")
     pnt.set_defaults(fn=cmd_pointing)
-    lst = csub.add_parser("list", help="calibration records (range, pointing, linearization), newest first")
-    lst.add_argument("--kind", choices=("range", "pointing", "linearization"), default=None,
+    iqp = csub.add_parser("iq", help="the I/Q receiver's gain ratio and phase error, on any targets in view (adc.iq)")
+    iqp.add_argument("--max-range-m", type=float, default=2.0,
+                     help="range gate of the calibration scan (default 2 m): targets inside it are used")
+    iqp.set_defaults(fn=cmd_iq)
+    lst = csub.add_parser("list", help="calibration records (range, pointing, iq, linearization), newest first")
+    lst.add_argument("--kind", choices=("range", "pointing", "iq", "linearization"), default=None,
                      help="only records of this kind")
     lst.add_argument("--limit", type=int, default=20, help="at most this many records (default 20)")
     lst.set_defaults(fn=cmd_list)
     show = csub.add_parser("show", help="one calibration record: inputs, fitted values, residuals")
     show.add_argument("id", help="the record's id (`calibration list`)")
     show.set_defaults(fn=cmd_show)
-    for p in (add, rsub.choices["list"], drop, rsub.choices["fit"], pnt, lst, show):
+    for p in (add, rsub.choices["list"], drop, rsub.choices["fit"], pnt, iqp, lst, show):
         daemon_opts(p)
 
 
@@ -70,6 +75,9 @@ def _summary(rec: dict[str, Any]) -> str:
         return (f"focal x{f['focal_scale']:.5f}, decentre ({f['decentre_px'][0]:+.3f}, {f['decentre_px'][1]:+.3f}) px, "
                 f"rotation {f['rotation_rad'] * 57.29578:+.4f} deg, k1 {f['k1']:+.4f}; "
                 f"residual {r['rms_mm']:.3f} mm / {r['rms_px']:.3f} px rms")
+    if rec["kind"] == "iq":
+        return (f"gain x{f['gain']:.5f}, phase {f['phase_deg']:+.3f} deg; image {r['image_rejection_before_db']:.1f} dB "
+                f"-> {r['image_rejection_after_db']:.1f} dB after correction ({r['tones']} tones)")
     red = r.get("reduction", {})
     return "linearization: " + ", ".join(f"{k} {v:.3g}x" for k, v in red.items())
 
@@ -121,6 +129,12 @@ def cmd_pointing(args) -> int:
     with client(args) as c:
         rec = c.request("POST", "/calibration/pointing", json={"geometry": geometry}, timeout=None).json()
     return _emit(args, rec, f"pointing calibration {rec['id']}: {_summary(rec)}")
+
+
+def cmd_iq(args) -> int:
+    with client(args) as c:
+        rec = c.request("POST", "/calibration/iq", json={"max_range_m": args.max_range_m}, timeout=None).json()
+    return _emit(args, rec, f"I/Q calibration {rec['id']}: {_summary(rec)}")
 
 
 def cmd_list(args) -> int:

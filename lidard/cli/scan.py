@@ -208,6 +208,9 @@ def warn_uncalibrated(calibrated: dict[str, bool] | None) -> None:
     if missing:
         print(f"lidarctl: warning: uncalibrated {' and '.join(missing)}: ranges and x, y, z carry the scanner's "
               "unmeasured range scale/zero and pointing errors (see `lidarctl calibration --help`)", file=sys.stderr)
+    if calibrated is not None and calibrated.get("iq") is False:
+        print("lidarctl: warning: uncalibrated I/Q receiver: the hybrid's image of every return is only "
+              "suppressed to its own imbalance (see `lidarctl calibration iq`)", file=sys.stderr)
 
 
 def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[str, Any]:

@@ -85,16 +85,10 @@ class Adc(_Model):
     min_sample_rate_hz: PosFloat = 1e6
     oversample: float = Field(default=2.5, ge=2.0, le=16.0)
     stopband_db: float = Field(default=100.0, gt=0, le=200)
-    # Real (single-photodiode) beat only: an I/Q receiver is not built yet, so true is refused.
+    # false: one photodiode, the real beat (channel "beat"); true: a coherent receiver (90-degree hybrid,
+    # two photodiodes, channels "beat_i" and "beat_q"; the monitor MZI stays on its own channel), whose
+    # two-sided spectrum gives the beat's sign on the triangle alone (lidard.dsp.iqbalance)
     iq: bool = False
-
-    @field_validator("iq")
-    @classmethod
-    def _no_iq_yet(cls, v: bool) -> bool:
-        if v:
-            raise ValueError("an I/Q receiver (adc.iq = true) is not supported yet: the instrument records "
-                             "the real beat of one photodiode; set adc.iq = false")
-        return v
 
     def record_bits(self, sample_rate_hz: float, format_bits: int = 16) -> int:
         """Resolution of a record at ``sample_rate_hz``: the core's bits plus the decimation gain
@@ -232,6 +226,9 @@ class Tolerances(_Model):
     decentre_px: float = Field(default=1.0, ge=0, le=10.0)          # per axis, in pixel pitches
     rotation_deg: float = Field(default=0.5, ge=0, le=5.0)          # array about the optical axis
     k1: float = Field(default=0.1, ge=0, le=1.0)                    # radial distortion (see Pointing)
+    # the coherent receiver's 90-degree hybrid and photodiode pair (adc.iq; lidard.dsp.iqbalance)
+    hybrid_gain_db: float = Field(default=0.5, ge=0, le=3.0)        # Q / I gain ratio, dB
+    hybrid_phase_deg: float = Field(default=5.0, ge=0, le=20.0)     # quadrature phase error
     # the TEC coefficients are the laser's physics, taken as given (not drawn); the drift of the chip's
     # true temperature is the random part (sim_devices.world.tec)
     tec_tuning_hz_per_c: float = Field(default=-12e9, le=0)         # DFB carrier shift per degree C

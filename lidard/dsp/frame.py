@@ -29,6 +29,7 @@ import numpy as np
 from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
 from .gate import aliased, gate_top_hz, point_flags
+from .iqbalance import check_imbalance, correct, mirror_images
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .threeseg import cw_front_end, pair_frame_three
@@ -63,7 +64,9 @@ class FrameDsp:
     max_returns: int = 2
     use_fraction: float = 0.9
     estimator: str = DEFAULT_METHOD
-    iq: bool = False
+    iq: bool = False            # I/Q receiver: process() takes beat (I) and beat_q (Q), two-sided spectra
+    iq_gain: float = 1.0        # its calibrated imbalance (lidard.dsp.iqbalance): Q / I gain ratio ...
+    iq_phase_rad: float = 0.0   # ... and quadrature phase error, removed before the FFT
     cw_samples: int = 0         # samples of the constant-frequency segment after the ramps (0: triangle)
     # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.gate): the top of its
     # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
@@ -75,6 +78,9 @@ class FrameDsp:
             raise ValueError(f"use_fraction must be in [0.2, 1], got {self.use_fraction!r}")
         if not self.max_range_m > self.min_range_m >= 0:
             raise ValueError(f"need max_range_m > min_range_m >= 0, got {self.max_range_m}, {self.min_range_m}")
+        if self.iq and self.cw_samples:
+            raise ValueError("an I/Q receiver measures the beat's sign on the triangle: no constant-frequency segment")
+        check_imbalance(self.iq_gain, self.iq_phase_rad)
 
     @property
     def n_used(self) -> int:
@@ -101,20 +107,29 @@ class FrameDsp:
         return C_M_PER_S / (2 * self.chirp_rate_hz_per_s * self.n_used / self.fs_hz)
 
     def _bin_range(self, rf: RangeFFT) -> tuple[int, int]:
+        """A real beat is searched over [f_R,min - D, f_R,max + D] folded to >= 0; an I/Q beat (the
+        down ramp conjugated, so that both ramps put a static target at +f_R) over the same signed
+        band, which may reach below 0 Hz (a Doppler larger than the range beat does not fold)."""
         doppler = 2 * self.max_speed_mps / self.wavelength_m
-        f_lo = max(2 * self.chirp_rate_hz_per_s * self.min_range_m / C_M_PER_S - doppler, 0.0)
+        f_lo = 2 * self.chirp_rate_hz_per_s * self.min_range_m / C_M_PER_S - doppler
         f_hi = gate_top_hz(2 * self.chirp_rate_hz_per_s * self.max_range_m / C_M_PER_S + doppler,
                            self.alias_free_hz)
         df = rf.delta_f
+        if self.iq:
+            f_lo = max(f_lo, -gate_top_hz(self.fs_hz / 2, self.alias_free_hz))
+            lo = int(rf.bin_to_index(int(np.floor(f_lo / df))))
+            hi = int(min(rf.bin_to_index(int(np.ceil(f_hi / df)) + 2), rf.n_fft - 1))
+            return max(lo, 0), hi
         n_bins = rf.n_fft // 2 + 1
-        lo = int(np.floor(f_lo / df))
+        lo = int(np.floor(max(f_lo, 0.0) / df))
         hi = min(int(np.ceil(f_hi / df)) + 2, n_bins - 1)
         return lo, hi
 
     def process(self, beat: np.ndarray, lsb_v: float = 1.0, *, mzi: np.ndarray | None = None,
                 mzi_delay_s: float | None = None, mzi_lsb_v: float = 1.0,
-                mzi_q: np.ndarray | None = None) -> FrameResult:
-        """``beat``: (n_pix, averages, 2 * ramp_samples) real samples (codes or volts).
+                mzi_q: np.ndarray | None = None, beat_q: np.ndarray | None = None) -> FrameResult:
+        """``beat``: (n_pix, averages, 2 * ramp_samples) real samples (codes or volts); with ``iq`` the
+        I channel, and ``beat_q`` the Q channel (same shape and LSB; its imbalance is corrected here).
 
         ``mzi``: the monitor MZI recorded in the same segments (same shape): laser phase-noise
         compensation (§2.3, :mod:`lidard.dsp.pnframe`) with the monitor delay ``mzi_delay_s``;
@@ -124,6 +139,14 @@ class FrameDsp:
         x = np.asarray(beat)
         if x.ndim != 3 or x.shape[-1] < 2 * self.ramp_samples:
             raise ValueError(f"beat must be (n_pix, averages, >= {2 * self.ramp_samples}), got {x.shape}")
+        if self.iq:
+            if beat_q is None:
+                raise ValueError("an I/Q FrameDsp needs beat_q (the Q channel) beside beat (I)")
+            if mzi is not None:
+                raise ValueError("phase-noise compensation of I/Q records is not implemented (real beat only)")
+            x = correct(x, beat_q, self.iq_gain, self.iq_phase_rad)
+        elif beat_q is not None:
+            raise ValueError("beat_q given to a FrameDsp built with iq=False")
         if mzi is not None:     # same chain and pairing on the compensated spectrum
             if mzi_delay_s is None:
                 raise ValueError("mzi given without mzi_delay_s (the monitor MZI delay)")
@@ -141,13 +164,18 @@ class FrameDsp:
         rf = self.rfft
         out_f, out_det = [], []
         for r0 in (0, r):
-            ramp = x[..., r0 + a:r0 + a + n].astype(np.float64) * lsb_v
+            ramp = x[..., r0 + a:r0 + a + n] * lsb_v if self.iq else x[..., r0 + a:r0 + a + n].astype(np.float64) * lsb_v
+            if self.iq and r0:
+                np.conjugate(ramp, out=ramp)     # the down ramp in the up ramp's sign (velocity.py)
             spec = rf(ramp)                                    # (n_pix, n_avg, n_bins)
             res = detect_and_refine(
-                spec, lambda idx, ramp=ramp, spec=spec: (ramp, idx, spec), window=self.window,
-                estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa,
-                max_detections=self.max_returns, bin_range=self.bin_range)
+                spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
+                estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa, iq=self.iq,
+                max_detections=self.max_returns, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)))
             det = res.detections
+            if self.iq:     # the hybrid's image of a stronger return is not a return
+                img = mirror_images(det.index, det.power, det.valid, rf.n_fft)
+                det = replace(det, valid=det.valid & ~img)
             # two surfaces closer than a bin: the peak's shape is not one tone's (lidard.dsp.resolve)
             shape = unresolved(spec, det.index, res.frac_bins, det.valid, det.noise, window=self.window,
                                n_samples=n, zero_pad=rf.zero_pad, iq=self.iq, average_axis=1)
@@ -162,7 +190,8 @@ class FrameDsp:
                                       self.wavelength_m, iq=self.iq, max_speed_mps=self.max_speed_mps)
         paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, self.max_speed_mps, self.wavelength_m)
         present = (ok | paired_any) & du.valid
-        intensity = 2.0 * np.sqrt(du.power)                    # |X| = A/2 for a real tone
+        # |X| = A/2 for a real tone, A for a complex one
+        intensity = np.sqrt(du.power) * (1.0 if self.iq else 2.0)
         leak = du.valid & aliased(intensity, self.alias_ceiling_v)
         # unresolved on either ramp: the pair's relative phase differs between up and down ramps
         unres = du.unresolved | _near_down(out_f[0], out_f[1], du.valid, dd.valid & dd.unresolved,
@@ -170,7 +199,7 @@ class FrameDsp:
         flagged = du.harmonic | unres | leak
         valid = ok & ~flagged
         # Flagged or ambiguous pairs keep a range from the up ramp alone so they can be drawn (valid=0).
-        rng_fallback = C_M_PER_S * out_f[0] / (2 * self.chirp_rate_hz_per_s)
+        rng_fallback = C_M_PER_S * np.abs(out_f[0]) / (2 * self.chirp_rate_hz_per_s)
         rng_m = np.where(ok, rng_m, rng_fallback)
         in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
         present &= in_gate

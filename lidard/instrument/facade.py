@@ -184,6 +184,11 @@ class LidarInstrument:
             self.applied = applied
             self.scan_loop.applied = applied
 
+    @property
+    def iq_receiver(self) -> bool:
+        """The beat arrives from a coherent (I/Q) receiver (adc.iq): its imbalance calibration applies."""
+        return bool(self.cfg.adc.iq)
+
     def monitor_delay_s(self) -> float:
         """The monitor delay the linearization targets now: the range calibration's effective delay, or
         the configuration's nominal ``monitor.delay_s`` without one."""

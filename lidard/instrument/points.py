@@ -34,10 +34,11 @@ class RawBatch:
     clipped: np.ndarray              # a segment of the pixel was over range
     mzi: np.ndarray | None = None    # monitor MZI records (phase-noise compensation, §2.3)
     mzi_q: np.ndarray | None = None  # the monitor's quadrature output (compensation at any range)
+    beat_q: np.ndarray | None = None  # the I/Q receiver's Q channel (``beat`` is then I)
 
     @property
     def nbytes(self) -> int:
-        return self.beat.nbytes * (1 + (self.mzi is not None) + (self.mzi_q is not None))
+        return self.beat.nbytes * (1 + (self.mzi is not None) + (self.mzi_q is not None) + (self.beat_q is not None))
 
 
 class PointBuffer:
@@ -79,8 +80,9 @@ class PointBuffer:
         beat = np.concatenate([p.beat for p in pend])
         mzi = np.concatenate([p.mzi for p in pend]) if pend[0].mzi is not None else None
         mzi_q = np.concatenate([p.mzi_q for p in pend]) if pend[0].mzi_q is not None else None
+        beat_q = np.concatenate([p.beat_q for p in pend]) if pend[0].beat_q is not None else None
         res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v,
-                               mzi_q=mzi_q)
+                               mzi_q=mzi_q, beat_q=beat_q)
         self._chunks.append(points_from(res, self.optics, np.concatenate([p.pixels for p in pend]),
                                         np.concatenate([p.t_pix_s for p in pend]),
                                         np.concatenate([p.clipped for p in pend]), self.zero_offset_m))

@@ -102,7 +102,9 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
 def speed_span_mps(cfg: Config) -> float:
     """The Doppler the ADC band and the ramps' search cover: the triangle's speed prior
     (scan.max_speed_mps), or the three-segment chirp's band (chirp.doppler_band_mps, not a prior)."""
-    return cfg.chirp.doppler_band_mps if cfg.chirp.shape == "three_segment" else cfg.scan.max_speed_mps
+    if cfg.chirp.shape == "three_segment" or cfg.adc.iq:   # the sign is measured: a band, not a prior
+        return cfg.chirp.doppler_band_mps
+    return cfg.scan.max_speed_mps
 
 
 def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None = None) -> bool:
@@ -111,13 +113,20 @@ def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None 
     mode = request.phase_noise_compensation or cfg.scan.phase_noise_compensation
     if mode not in ("auto", "on", "off"):
         raise InstrumentError(f"scan: phase_noise_compensation={mode!r} is not one of 'auto', 'on', 'off'")
+    if cfg.adc.iq:    # the compensation works on the real beat only (lidard.dsp.pnframe): "auto" is off
+        if mode == "on":
+            raise InstrumentError("scan: phase_noise_compensation='on' is not available with the I/Q receiver "
+                                  "(adc.iq = true): the compensation is built for the real beat; use 'auto' or 'off'")
+        return False
     if mode == "auto":
         return 2 * float(request.max_range_m) / C_M_PER_S >= 2 * (mzi_delay_s or cfg.monitor.delay_s)
     return mode == "on"
 
 
-def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | None = None) -> ScanPlan:
-    """``mzi_delay_s``: the range calibration's effective monitor delay (default: the nominal one)."""
+def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | None = None,
+              iq_imbalance: tuple[float, float] = (1.0, 0.0)) -> ScanPlan:
+    """``mzi_delay_s``: the range calibration's effective monitor delay (default: the nominal one);
+    ``iq_imbalance``: the I/Q calibration's (gain ratio, phase error) the DSP removes (adc.iq)."""
     pixels = plan(request, optics)
     avg = int(request.averages)
     tau_m = cfg.monitor.delay_s if mzi_delay_s is None else float(mzi_delay_s)
@@ -126,11 +135,13 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
     # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
     adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m,
                    whole_monitor_delay=quad, mzi_delay_s=tau_m)
-    channels = ("beat", "mzi", "mzi_q") if quad else ("beat", "mzi") if pn_on else ("beat",)
+    beat = ("beat_i", "beat_q") if cfg.adc.iq else ("beat",)
+    channels = beat + (("mzi", "mzi_q") if quad else ("mzi",) if pn_on else ())
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
                    max_speed_mps=speed_span_mps(cfg), window=cfg.scan.window, pfa=cfg.scan.pfa,
                    max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples,
+                   iq=cfg.adc.iq, iq_gain=iq_imbalance[0], iq_phase_rad=iq_imbalance[1],
                    **decimation_gate(adc.fs_hz, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db, cfg.adc.input_range_v))
     acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
     return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
@@ -174,7 +185,8 @@ class ScanLoop:
     def run(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event, drive_v: np.ndarray,
             calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
         """``raw_path``: also record every accepted batch of segments there (:mod:`lidard.raw`)."""
-        p = plan_scan(self.cfg, self.optics, request, self.applied.delay_or(self.cfg.monitor.delay_s))
+        p = plan_scan(self.cfg, self.optics, request, self.applied.delay_or(self.cfg.monitor.delay_s),
+                      self.applied.iq_imbalance)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
         run = ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
                                      mzi_delay_s=p.mzi_delay_s, flush_bytes=BATCH_BYTES,
@@ -273,7 +285,9 @@ class ScanLoop:
         if run.hw_t0_ns is None:
             # after a resume the new run's clock continues where the last pixel read ended
             run.hw_t0_ns = t_ns[0] - run.t_shift_s * 1e9
-        beat = samples[:, acq.channel_index("beat"), :].reshape(bp, avg, rl)
+        iq = p.dsp.iq
+        beat = samples[:, acq.channel_index("beat_i" if iq else "beat"), :].reshape(bp, avg, rl)
+        beat_q = samples[:, acq.channel_index("beat_q"), :].reshape(bp, avg, rl) if iq else None
         mzi = samples[:, acq.channel_index("mzi"), :].reshape(bp, avg, rl) if p.phase_noise else None
         mzi_q = samples[:, acq.channel_index("mzi_q"), :].reshape(bp, avg, rl) if p.quadrature else None
         # a clipped beat puts harmonics and a wrong amplitude into the spectrum
@@ -284,7 +298,7 @@ class ScanLoop:
         t_pix = (t_ns.reshape(bp, avg)[:, 0] - run.hw_t0_ns) * 1e-9
         if run.raw is not None:
             run.raw.add(samples, headers, t_pix, acq.layout.channels)
-        batch = RawBatch(beat, p.pixels[run.done:run.done + bp], t_pix, clipped, mzi, mzi_q)
+        batch = RawBatch(beat, p.pixels[run.done:run.done + bp], t_pix, clipped, mzi, mzi_q, beat_q)
         run.done += bp
         run.hw_last_s = (t_ns[-1] - run.hw_t0_ns) * 1e-9 + rl / p.adc.fs_hz
         run.points.add(batch, last=run.done >= p.n_pixels)
@@ -328,13 +342,14 @@ class ScanLoop:
                     "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
             "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
                     "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction,
-                    "phase_noise_compensation": p.phase_noise},
+                    "phase_noise_compensation": p.phase_noise,
+                    "receiver": "iq" if dsp.iq else "real"},
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),
             # issue 13: the range / pointing calibrations the ranges and directions were computed with
             "geometry": self.applied.meta(self.cfg.monitor.delay_s),
-            "calibrated": self.applied.calibrated(run.calibration_id is not None),
+            "calibrated": self.applied.calibrated(run.calibration_id is not None, iq=p.dsp.iq),
         }
         if p.phase_noise:
             comp = compensator_for(dsp, p.mzi_delay_s)

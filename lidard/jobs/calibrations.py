@@ -1,4 +1,4 @@
-"""Range and pointing calibrations as daemon procedures: queued on the worker, recorded in the store.
+"""Range, pointing and I/Q calibrations as daemon procedures: queued on the worker, recorded in the store.
 
 The steps a lab runs (issue 13 item 2; the physics is in lidard.instrument.calibration.range / .pointing):
 
@@ -8,7 +8,9 @@ The steps a lab runs (issue 13 item 2; the physics is in lidard.instrument.calib
   one can be removed (``remove_plates``) and measured again; an accepted fit is stored as a record and
   consumes them; the next scan or linearization uses it (and re-linearizes: the ILC's target changed);
 * ``pointing(geometry)``: queued; scans around the known targets with the range calibration applied,
-  fits the pointing model and stores the record.
+  fits the pointing model and stores the record;
+* ``iq()``: queued; scans the centre region keeping the raw I/Q records and fits the coherent
+  receiver's gain ratio and phase error (adc.iq only; lidard.instrument.calibration.iq).
 
 The REST router (lidard.api.routers.geometry) and ``lidarctl calibration`` call these functions; they
 know nothing about HTTP. Refusals raise :class:`CalibrationRefused` with the reason.
@@ -83,10 +85,30 @@ def pointing(worker, geometry: dict[str, Any]) -> concurrent.futures.Future:
     return worker.submit_task(task)
 
 
+def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
+    """Queue an I/Q imbalance calibration on the targets in front of the sensor (issue 14 item 2); the
+    future resolves to the stored record."""
+    from ..instrument.calibration.iq import measure_iq, require_iq_receiver
+    max_range_m = float(max_range_m)
+    if not (math.isfinite(max_range_m) and max_range_m > 0):
+        raise CalibrationRefused(f"I/Q calibration: max_range_m must be a positive distance, got {max_range_m!r}")
+    require_iq_receiver(worker.instrument)     # refused before anything is queued
+
+    def task() -> CalibrationRecord:
+        worker.apply_geometry()
+        lin = worker.current_linearization()
+        fit, scan = measure_iq(worker.instrument, worker.optics, lin, max_range_m=max_range_m)
+        return worker.store.save_geometry_calibration(
+            "iq", temperature_c=worker.instrument.laser_temperature_c(),
+            inputs={"linearization_id": lin.meta.get("id"), **scan},
+            fitted=fit.fitted(), residuals=fit.residuals())
+    return worker.submit_task(task)
+
+
 def records(store, cfg, kind: str | None = None, limit: int = 20) -> list[dict[str, Any]]:
-    """Range and pointing records and the chirp linearizations, newest first, as one listing."""
+    """Range, pointing and I/Q records and the chirp linearizations, newest first, as one listing."""
     out: list[dict[str, Any]] = []
-    if kind in (None, "range", "pointing"):
+    if kind in (None, "range", "pointing", "iq"):
         out += [r.to_dict() for r in store.list_geometry_calibrations(kind, limit)]
     if kind in (None, "linearization"):
         out += [linearization_record(c) for c in store.list_calibrations(limit, cfg.laser)]

@@ -82,8 +82,10 @@ class ScanJobRun:
         cal = self.w.calibration_for_scan(job)
         self.cal_id = cal.meta.get("id")
         applied = self.w.applied
+        iq = bool(getattr(self.instrument, "iq_receiver", False))
         self.store.update_scan(job.id, stage="scanning", calibration_id=self.cal_id,
-                               range_calibration_id=applied.range_id, pointing_calibration_id=applied.pointing_id)
+                               range_calibration_id=applied.range_id, pointing_calibration_id=applied.pointing_id,
+                               receiver="iq" if iq else "real", iq_calibration_id=applied.iq_id if iq else None)
         if job.request.pattern == "adaptive" and self.w.optics is not None:
             return run_adaptive(self.instrument, job, self.progress, cal, self.w.optics)
         # the raw capture goes next to the point clouds; only asked of the instrument when wanted
@@ -177,9 +179,10 @@ class ScanJobRun:
         applied = self.w.applied
         rng = None if applied is None else applied.range_id
         pnt = None if applied is None else applied.pointing_id
-        return {"range_calibration_id": rng, "pointing_calibration_id": pnt,
-                "calibrated": {"range": rng is not None, "pointing": pnt is not None,
-                               "linearization": self.cal_id is not None}}
+        calibrated = {"range": rng is not None, "pointing": pnt is not None, "linearization": self.cal_id is not None}
+        if getattr(self.instrument, "iq_receiver", False):
+            calibrated["iq"] = applied is not None and applied.iq_id is not None
+        return {"range_calibration_id": rng, "pointing_calibration_id": pnt, "calibrated": calibrated}
 
 
 def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], None],

@@ -309,11 +309,12 @@ class ScanWorker:
         return cal
 
     def apply_geometry(self):
-        """Hand the newest stored range and pointing calibrations to the instrument (issue 13); answers
+        """Hand the newest stored range, pointing and I/Q calibrations to the instrument (issues 13, 14); answers
         the :class:`AppliedCalibrations`. Runs on the worker thread before every scan and linearization."""
         from ..instrument.calibration.applied import AppliedCalibrations
         self.applied = AppliedCalibrations.from_records(self.store.latest_geometry_calibration("range"),
-                                                        self.store.latest_geometry_calibration("pointing"))
+                                                        self.store.latest_geometry_calibration("pointing"),
+                                                        self.store.latest_geometry_calibration("iq"))
         self.instrument.use_calibrations(self.applied)
         return self.applied
 

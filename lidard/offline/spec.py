@@ -57,7 +57,7 @@ SWEEPABLE = ("profile", "lens", "laser", "chirp.", "detector.", "link.", "monito
 # Keys that exist but that the task cannot honour (yet), with the reason given to the user.
 REFUSED = {
     "link.reflectivity": "the target's reflectivity is [target] reflectivity",
-    "adc.iq": "the sweep task runs the real-beat DSP only (an I/Q receiver variant is not simulated yet)",
+    "adc.iq": "the sweep task runs the real-beat DSP only (the I/Q receiver runs in scans and replays, not in sweeps yet)",
     "adc.bandwidth_hz": "it only enters the budget's eq. 2-19 term, which the synthesis replaces by real quantization",
     "monitor.quadrature": "the daemon's scan loop does not read a quadrature monitor yet",
 }

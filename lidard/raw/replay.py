@@ -85,9 +85,12 @@ class ReplayDsp:
         return chunk.channel("mzi", channels, averages), q
 
     def points(self, chunk: RawChunk, channels: list[str], averages: int) -> np.ndarray:
-        beat = chunk.channel("beat", channels, averages)
+        # an I/Q capture (adc.iq) holds beat_i and beat_q; its imbalance correction is in the dsp settings
+        beat = chunk.channel("beat_i" if self.dsp.iq else "beat", channels, averages)
         mzi, mzi_q = self.monitor(chunk, channels, averages)
         kw = {} if mzi_q is None else {"mzi_q": mzi_q}
+        if self.dsp.iq:
+            kw["beat_q"] = chunk.channel("beat_q", channels, averages)
         res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v, **kw)
         return frame_points(res, chunk.pixels, chunk.t_s, chunk.directions, chunk.clipped)
 

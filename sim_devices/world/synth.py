@@ -403,7 +403,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                mzi_delay_s: float | None = None, mzi_amplitude_v: float | None = None,
                mzi_noise_asd_v_per_rthz: float = 0.0, dc_v: float = 0.0,
                return_volts: bool = False, return_phase_noise: bool = False, mzi_quadrature: bool = False,
-               fast_trig: bool | None = None, beat_filter: antialias.BeatFilter | None = None) -> Synthesized:
+               fast_trig: bool | None = None, beat_filter: antialias.BeatFilter | None = None,
+               iq_imbalance: tuple[float, float] = (1.0, 0.0)) -> Synthesized:
     """Synthesize the digitized LiDAR beat (and the monitor MZI) for ``len(t_start_s)`` segments.
 
     ``t_start_s[s]`` is the time of segment s's first sample on the AWG's time axis (t = 0 at the
@@ -417,6 +418,9 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     uses float64 trig so that tests can compare volts to 1e-9.
     ``beat_filter``: the digitizer's anti-alias filter at each return's true beat frequency
     (:mod:`sim_devices.world.antialias`); None: an ideal one (nothing beyond fs/2 is synthesized).
+    ``iq_imbalance``: (g, eps) of the coherent receiver's 90-degree hybrid and photodiode pair: the Q
+    channel is g A sin(dPhi + eps) (lidard.dsp.iqbalance); (1, 0) is an ideal hybrid. Each channel
+    draws its own white noise (two photodiodes, two digitizer channels).
     """
     fast = adc.quantize if fast_trig is None else bool(fast_trig)
     t0 = np.asarray(t_start_s, dtype=np.float64)
@@ -545,12 +549,15 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             parts = {}
             cos_part, sin_part = _cos_sin(dphi, adc.iq, fast)
             del dphi
+            if adc.iq and iq_imbalance[1]:   # sin(dPhi + eps) from the same cos and sin: no second evaluation
+                sin_part *= math.cos(iq_imbalance[1])
+                sin_part += math.sin(iq_imbalance[1]) * cos_part
             cos_part *= a
             if aa is not None:
                 cos_part[aa[0]] *= aa[1]
             parts["beat"] = cos_part
             if adc.iq:
-                sin_part *= a
+                sin_part *= a * iq_imbalance[0]
                 if aa is not None:
                     sin_part[aa[0]] *= aa[1]
                 parts["beat_q"] = sin_part

@@ -24,6 +24,12 @@ construction, from ``[sim.tolerances]`` (:class:`lidard.config.Tolerances`):
   one-term Brown model u (1 + k1 |u|^2) (a low-distortion F/1.4 25 mm lens: |k1| <~ 0.2, i.e.
   < 0.4 % barrel or pincushion at the FPSA's 8 deg edge field; the default bound 0.1 is half that).
 
+* the coherent receiver (``adc.iq``): the 90-degree hybrid's quadrature error eps ~ U(-hybrid_phase_deg,
+  +hybrid_phase_deg) and the Q/I gain ratio g = 10^(U(-hybrid_gain_db, +hybrid_gain_db) / 20) of its
+  two photodiode chains (Q = g A sin(dPhi + eps), lidard.dsp.iqbalance). The bounds, 5 deg and 0.5 dB:
+  what fibre 90-degree hybrids are specified to (+-5 deg) and two photodiodes' responsivities and TIA
+  gains match to.
+
 ``draw = false`` takes each bound itself (+bound; z0 = bound) instead of a draw: sensitivity
 studies. A bound of 0 switches that tolerance off; ``enabled = false`` switches all off (nominal,
 the bench of before issue 13). Each tolerance has its own random stream (seeded by
@@ -50,7 +56,7 @@ __all__ = ["BenchTruth", "draw_truth"]
 
 # One random stream per tolerance: [seed, tag] (tags are arbitrary fixed constants).
 _TAGS = {"mzi_delay": 0x13A1, "zero_offset": 0x13A2, "focal": 0x13A3, "decentre": 0x13A4,
-         "rotation": 0x13A5, "k1": 0x13A6}
+         "rotation": 0x13A5, "k1": 0x13A6, "hybrid_gain": 0x13A7, "hybrid_phase": 0x13A8}
 
 
 @dataclass(frozen=True)
@@ -62,6 +68,8 @@ class BenchTruth:
     pointing: Pointing = field(default_factory=Pointing)
     #: the nominal MZI delay the daemon is configured with (for the relative error)
     nominal_mzi_delay_s: float | None = None
+    iq_gain: float = 1.0          # the coherent receiver's Q / I gain ratio
+    iq_phase_rad: float = 0.0     # and its quadrature phase error
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.mzi_delay_s) and self.mzi_delay_s > 0):
@@ -85,7 +93,7 @@ class BenchTruth:
         """JSON-friendly (the control socket's ``truth`` reply); :meth:`from_dict` inverts it."""
         return {"mzi_delay_s": self.mzi_delay_s, "nominal_mzi_delay_s": self.nominal_mzi_delay_s,
                 "mzi_delay_rel": self.mzi_delay_rel, "zero_offset_m": self.zero_offset_m,
-                "pointing": self.pointing.as_dict()}
+                "pointing": self.pointing.as_dict(), "iq_gain": self.iq_gain, "iq_phase_rad": self.iq_phase_rad}
 
     @classmethod
     def from_dict(cls, d: dict) -> BenchTruth:
@@ -93,7 +101,7 @@ class BenchTruth:
         return cls(float(d["mzi_delay_s"]), float(d["zero_offset_m"]),
                    Pointing(float(p["focal_scale"]), tuple(float(x) for x in p["decentre_px"]),
                             float(p["rotation_rad"]), float(p["k1"])),
-                   d.get("nominal_mzi_delay_s"))
+                   d.get("nominal_mzi_delay_s"), float(d.get("iq_gain", 1.0)), float(d.get("iq_phase_rad", 0.0)))
 
 
 def _symmetric(rng_seed: list[int], bound: float, draw: bool, size: int | None = None):
@@ -132,5 +140,8 @@ def draw_truth(tolerances, *, nominal_mzi_delay_s: float, seed: int) -> BenchTru
         decentre_px=(float(decentre[0]), float(decentre[1])),
         rotation_rad=math.radians(float(_symmetric(stream("rotation"), tol.rotation_deg, draw))),
         k1=float(_symmetric(stream("k1"), tol.k1, draw)))
+    gain_db = float(_symmetric(stream("hybrid_gain"), tol.hybrid_gain_db, draw))
+    phase_deg = float(_symmetric(stream("hybrid_phase"), tol.hybrid_phase_deg, draw))
     return BenchTruth(mzi_delay_s=float(nominal_mzi_delay_s) * (1.0 + eps), zero_offset_m=z0,
-                      pointing=pointing, nominal_mzi_delay_s=float(nominal_mzi_delay_s))
+                      pointing=pointing, nominal_mzi_delay_s=float(nominal_mzi_delay_s),
+                      iq_gain=10.0 ** (gain_db / 20.0), iq_phase_rad=math.radians(phase_deg))

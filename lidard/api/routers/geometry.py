@@ -1,10 +1,11 @@
-"""Range scale/zero and pointing calibrations over REST (issue 13 item 2), and every calibration's record.
+"""Range scale/zero, pointing and I/Q calibrations over REST (issue 13 item 2), and every calibration's record.
 
 Range: ``POST /calibration/range/plates`` measures the plate now in front of the sensor at the given
 known distance (queued like a scan; the measurement is kept in the store); ``GET`` lists the pending
 plates, ``DELETE`` (all, or one by id) drops them; ``POST /calibration/range/fit`` fits them and stores
 the record (a refused fit answers 422 naming the plate to check, the plates are kept).
 Pointing: ``POST /calibration/pointing`` with the known target geometry scans and fits.
+I/Q (``adc.iq``): ``POST /calibration/iq`` scans the centre region and fits the receiver's imbalance.
 Records: ``GET /calibration/records`` (range, pointing and linearization, newest first) and
 ``GET /calibration/records/{id}``. The domain functions are :mod:`lidard.jobs.calibrations`.
 
@@ -41,6 +42,12 @@ class PointingIn(BaseModel):
                                                  "[[plane]] point, normal (sensor frame, m)")
 
 
+class IqIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    max_range_m: float = Field(default=2.0, gt=0, le=1000,
+                               description="range gate of the calibration scan: the targets whose beats are used lie inside it")
+
+
 class PlateOut(BaseModel):
     """A pending plate measurement (lidard.instrument.calibration.range.PlateMeasurement)."""
 
@@ -59,7 +66,7 @@ class PlateOut(BaseModel):
 
 class RecordOut(BaseModel):
     id: str
-    kind: Literal["range", "pointing", "linearization"]
+    kind: Literal["range", "pointing", "iq", "linearization"]
     created: float | None
     temperature_c: float | None
     inputs: dict[str, Any]
@@ -132,8 +139,17 @@ async def pointing(body: PointingIn, worker: WorkerDep) -> RecordOut:
     return RecordOut.model_validate(rec.to_dict())
 
 
+@router.post("/iq", response_model=RecordOut, status_code=status.HTTP_201_CREATED, responses=REFUSED)
+async def iq(worker: WorkerDep, body: IqIn | None = None) -> RecordOut:
+    """Fit the I/Q receiver's gain ratio and phase error on the targets in front of the sensor (adc.iq);
+    later scans remove it."""
+    body = body or IqIn()
+    rec = await _wait(lambda: cal.iq(worker, body.max_range_m))
+    return RecordOut.model_validate(_clean(rec.to_dict()))
+
+
 @router.get("/records", response_model=list[RecordOut])
-def records(store: StoreDep, cfg: ConfigDep, kind: Literal["range", "pointing", "linearization"] | None = None,
+def records(store: StoreDep, cfg: ConfigDep, kind: Literal["range", "pointing", "iq", "linearization"] | None = None,
             limit: int = Query(20, ge=1, le=200)) -> list[RecordOut]:
     return [RecordOut.model_validate(_clean(r)) for r in cal.records(store, cfg, kind, limit)]
 

@@ -4,7 +4,9 @@
   nominal ``monitor.delay_s`` as the ILC's target (§2.2) and in the phase-noise compensation (§2.3), so
   the chirp rate itself becomes right; the zero offset is subtracted from every range;
 * pointing (:mod:`.pointing`): beam directions come from ``optics.with_pointing(fit)`` (eq. 4-1 with
-  the fitted deviations).
+  the fitted deviations);
+* I/Q imbalance (:mod:`.iq`, only with ``adc.iq``): the DSP removes the fitted gain ratio and phase
+  error of the coherent receiver before its two-sided spectrum (lidard.dsp.iqbalance).
 
 The job worker loads the newest stored record of each kind and hands them over before every scan and
 linearization; an instrument with none applies the nominal values and its scans say
@@ -26,11 +28,15 @@ class AppliedCalibrations:
     zero_offset_m: float = 0.0
     pointing_id: str | None = None
     pointing: Pointing | None = None
+    iq_id: str | None = None
+    iq_imbalance: tuple[float, float] = (1.0, 0.0)   # the I/Q receiver's (gain ratio, phase error rad)
 
     @classmethod
-    def from_records(cls, range_rec: Any = None, pointing_rec: Any = None) -> "AppliedCalibrations":
+    def from_records(cls, range_rec: Any = None, pointing_rec: Any = None, iq_rec: Any = None) -> "AppliedCalibrations":
         """From stored records (``.id``, ``.fitted``; lidard.store_calibrations.CalibrationRecord)."""
         kw: dict[str, Any] = {}
+        if iq_rec is not None:
+            kw.update(iq_id=iq_rec.id, iq_imbalance=(float(iq_rec.fitted["gain"]), float(iq_rec.fitted["phase_rad"])))
         if range_rec is not None:
             kw.update(range_id=range_rec.id, delay_s=float(range_rec.fitted["delay_s"]),
                       zero_offset_m=float(range_rec.fitted["zero_offset_m"]))
@@ -48,12 +54,18 @@ class AppliedCalibrations:
     def optics(self, optics):
         return optics if self.pointing is None else optics.with_pointing(self.pointing)
 
-    def calibrated(self, linearization: bool) -> dict[str, bool]:
-        return {"range": self.range_id is not None, "pointing": self.pointing_id is not None,
-                "linearization": bool(linearization)}
+    def calibrated(self, linearization: bool, iq: bool = False) -> dict[str, bool]:
+        """What a scan was computed with; ``iq``: the instrument has the I/Q receiver (adc.iq), whose
+        imbalance calibration is then listed too."""
+        out = {"range": self.range_id is not None, "pointing": self.pointing_id is not None,
+               "linearization": bool(linearization)}
+        if iq:
+            out["iq"] = self.iq_id is not None
+        return out
 
     def meta(self, nominal_delay_s: float) -> dict[str, Any]:
         """What a scan's sidecar records about the geometry it was computed with."""
         return {"range_calibration_id": self.range_id, "pointing_calibration_id": self.pointing_id,
                 "monitor_delay_s": self.delay_or(nominal_delay_s), "zero_offset_m": self.zero_offset_m,
-                "pointing": (self.pointing or Pointing()).as_dict()}
+                "pointing": (self.pointing or Pointing()).as_dict(),
+                "iq_calibration_id": self.iq_id, "iq_gain": self.iq_imbalance[0], "iq_phase_rad": self.iq_imbalance[1]}

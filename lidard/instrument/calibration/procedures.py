@@ -6,7 +6,7 @@ geometry as input: the plate's known distance, the targets' known poses. On a si
 caller places the targets through the scene first (``place``), as a lab does by hand.
 
 Entry points for benchmarks (a :class:`lidard.instrument.facade.LidarInstrument`, no daemon):
-:func:`run_range_calibration` and :func:`run_pointing_calibration`; each applies its fit to the
+:func:`run_range_calibration`, :func:`run_pointing_calibration` and :func:`run_iq_calibration`; each applies its fit to the
 instrument (``use_calibrations``) and returns the linearization to scan with afterwards.
 """
 
@@ -22,6 +22,7 @@ import numpy as np
 
 from ..types import CalibrationResult, ScanRequest
 from .applied import AppliedCalibrations
+from .iq import measure_iq, require_iq_receiver
 from .pointing import PointingFit, Surface, fit_pointing, parse_geometry, scan_pixels, spheres_scene
 from .range import DEFAULT_NOISE_M, CalibrationRefused, PlateMeasurement, RangeFit, fit_range, plate_measurement, plate_request, plate_scene
 
@@ -115,5 +116,16 @@ def run_pointing_calibration(instrument, geometry: dict[str, Any] | list[Surface
     lin = _linearization_for(instrument, linearization)
     fit, _ = measure_pointing(instrument, instrument.optics, surfaces, lin, DEFAULT_NOISE_M if noise_m is None else noise_m)
     new = dataclasses.replace(instrument.applied, pointing_id="pointing-run", pointing=fit.pointing)
+    instrument.use_calibrations(new)
+    return CalibrationRun(fit, new, lin)
+
+
+def run_iq_calibration(instrument, *, linearization: CalibrationResult | None = None,
+                       max_range_m: float = 2.0) -> CalibrationRun:
+    """Measure the I/Q receiver's imbalance on the scene in front of it (any targets), apply it."""
+    require_iq_receiver(instrument)
+    lin = _linearization_for(instrument, linearization)
+    fit, _ = measure_iq(instrument, instrument.optics, lin, max_range_m=max_range_m)
+    new = dataclasses.replace(instrument.applied, iq_id="iq-run", iq_imbalance=(fit.gain, fit.phase_rad))
     instrument.use_calibrations(new)
     return CalibrationRun(fit, new, lin)

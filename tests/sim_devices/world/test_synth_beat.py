@@ -208,3 +208,17 @@ def test_dc_offset_and_codes_match_the_analog_volts_within_half_an_lsb(ideal_tra
         # float32 trig errs by ~1e-7 x amplitude ~ 2e-4 LSB here: it may move a sample across a
         # rounding boundary, never further
         assert np.max(np.abs(codes * q.lsb_v - volts)) <= 0.501 * q.lsb_v
+
+
+def test_hybrid_imbalance_puts_g_sin_of_the_phase_plus_eps_on_q(ideal_traj):
+    """Q = g A sin(dPhi + eps) (lidard.dsp.iqbalance's model), I unchanged, the same hits and phase."""
+    fs, n = 20e6, 1600
+    adc = AdcSpec(fs, n, bits=12, input_range_v=2.0, iq=True, quantize=False)
+    hits = HitBatch.from_targets([0, 1, 1], [3.0, 7.5, 22.0], [0.2, 0.15, 0.1], radial_velocity_m_s=[0.5, -2.0, 0.0])
+    t0 = np.array([0.0, 3e-5])
+    ideal = synthesize(ideal_traj, adc, t0, hits)
+    g, eps = 1.08, 0.09
+    bad = synthesize(ideal_traj, adc, t0, hits, iq_imbalance=(g, eps))
+    assert np.array_equal(bad.beat, ideal.beat)
+    # sin(x + eps) = sin x cos eps + cos x sin eps, summed over the hits of a segment
+    assert np.allclose(bad.beat_q, g * (ideal.beat_q * np.cos(eps) + ideal.beat * np.sin(eps)), atol=1e-12)

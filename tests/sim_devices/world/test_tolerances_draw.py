@@ -21,6 +21,8 @@ def _within(t: BenchTruth, tol: Tolerances) -> None:
     assert all(abs(d) <= tol.decentre_px for d in p.decentre_px)
     assert abs(p.rotation_rad) <= math.radians(tol.rotation_deg)
     assert abs(p.k1) <= tol.k1
+    assert abs(20 * math.log10(t.iq_gain)) <= tol.hybrid_gain_db + 1e-12
+    assert abs(t.iq_phase_rad) <= math.radians(tol.hybrid_phase_deg)
 
 
 def test_draws_are_reproducible_seeded_and_within_bounds():
@@ -46,6 +48,21 @@ def test_draw_false_takes_each_bound():
     assert t.mzi_delay_s == pytest.approx(NOM * 1.02, rel=1e-15)
     assert t.zero_offset_m == 0.03
     assert t.pointing == Pointing(1.01, (0.5, 0.5), math.radians(0.4), 0.15)
+    hyb = draw_truth(Tolerances(draw=False, hybrid_gain_db=0.6, hybrid_phase_deg=4.0), nominal_mzi_delay_s=NOM, seed=3)
+    assert hyb.iq_gain == pytest.approx(10 ** (0.6 / 20), rel=1e-15)
+    assert hyb.iq_phase_rad == pytest.approx(math.radians(4.0), rel=1e-15)
+
+
+def test_hybrid_imbalance_is_drawn_on_its_own_streams():
+    draws = [draw_truth(Tolerances(), nominal_mzi_delay_s=NOM, seed=s) for s in range(40)]
+    g_db = [20 * math.log10(t.iq_gain) for t in draws]
+    ph = [t.iq_phase_rad for t in draws]
+    assert min(g_db) < -0.25 and max(g_db) > 0.25 and min(ph) < -0.04 and max(ph) > 0.04
+    # switching the hybrid off leaves the other draws as they were, and gives an ideal hybrid
+    off = draw_truth(Tolerances(hybrid_gain_db=0.0, hybrid_phase_deg=0.0), nominal_mzi_delay_s=NOM, seed=2)
+    on = draw_truth(Tolerances(), nominal_mzi_delay_s=NOM, seed=2)
+    assert (off.iq_gain, off.iq_phase_rad) == (1.0, 0.0)
+    assert (off.mzi_delay_s, off.zero_offset_m, off.pointing) == (on.mzi_delay_s, on.zero_offset_m, on.pointing)
 
 
 def test_disabled_is_the_nominal_bench():
