@@ -44,8 +44,9 @@ def _calibrated_text(s: dict[str, Any]) -> str | None:
     if not cal:
         return None
     ids = {"range": s.get("range_calibration_id"), "pointing": s.get("pointing_calibration_id"),
-           "linearization": s.get("calibration_id")}
-    return ", ".join(f"{k} {ids[k] or 'yes' if cal.get(k) else 'NO'}" for k in ("range", "pointing", "linearization"))
+           "linearization": s.get("calibration_id"), "iq": s.get("iq_calibration_id")}
+    kinds = ("range", "pointing", "linearization") + (("iq",) if "iq" in cal else ())   # iq: adc.iq only
+    return ", ".join(f"{k} {ids[k] or 'yes' if cal.get(k) else 'NO'}" for k in kinds)
 
 
 def show_text(s: dict[str, Any]) -> str:

@@ -122,3 +122,34 @@ def test_iq_calibration_is_refused_on_a_single_photodiode():
             run_iq_calibration(inst)   # refused before it linearizes
     finally:
         inst.close()
+
+
+def test_iq_calibration_through_lidarctl_and_the_daemon(iq_bench, capsys, tmp_path):
+    """CLI -> REST -> worker -> store: the record, its summary, and scans that say they used it."""
+    import json
+
+    from tests.helpers.api import live_server, make_app
+    from tests.helpers.cli import run
+    inst, bench, _ = iq_bench
+    inst.set_scene(scene())
+    app = make_app(tmp_path / "data", inst, cfg=inst.cfg, progress_interval_s=0.0)
+    with live_server(app) as url:
+        code, out, err = run(capsys, "scan", "--url", url, "--rows", "60:62", "--cols", "60:64", "--json")
+        assert code == 0, err
+        assert json.loads(out)["calibrated"]["iq"] is False
+        assert "uncalibrated I/Q receiver" in err
+        code, out, err = run(capsys, "calibration", "iq", "--url", url, "--max-range-m", "5", "--json")
+        assert code == 0, err
+        rec = json.loads(out)
+        assert rec["kind"] == "iq" and rec["fitted"]["gain"] == pytest.approx(bench.truth().iq_gain, abs=3e-3)
+        code, out, err = run(capsys, "calibration", "list", "--kind", "iq", "--url", url)
+        assert code == 0 and rec["id"] in out and "image" in out
+        code, out, err = run(capsys, "scan", "--url", url, "--rows", "60:62", "--cols", "60:64", "--json")
+        assert code == 0, err
+        s = json.loads(out)
+        assert s["calibrated"]["iq"] is True
+        assert "uncalibrated I/Q" not in err
+        code, out, err = run(capsys, "scans", "show", s["id"], "--url", url)
+        assert code == 0 and f"iq {rec['id']}" in out
+        code, out, err = run(capsys, "calibration", "iq", "--url", url, "--max-range-m", "-1")
+        assert code != 0 and "max_range_m" in err

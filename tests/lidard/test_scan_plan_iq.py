@@ -1,0 +1,45 @@
+"""The I/Q receiver in the configuration and the scan plan (issue 14 item 2): which channels are
+recorded, which Doppler band the DSP searches (a band, not a prior), what it refuses and why."""
+
+import pytest
+
+from lidard.config import ConfigError, load_config
+from lidard.instrument import ScanRequest
+from lidard.instrument.errors import InstrumentError
+from lidard.instrument.scan_loop import plan_scan, speed_span_mps
+from tests.helpers.tolerances import NOMINAL_ENV
+
+
+def cfg(**env):
+    return load_config("config/sim_iq.toml", environ={**NOMINAL_ENV, **env})
+
+
+def test_iq_plan_records_i_and_q_and_searches_the_doppler_band_without_a_prior():
+    c = cfg()
+    assert c.adc.iq and c.chirp.shape == "triangle"
+    p = plan_scan(c, c.optics(), ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=2.0),
+                  iq_imbalance=(1.05, 0.03))
+    assert p.acquisition.channels == ("beat_i", "beat_q")
+    assert p.dsp.iq and (p.dsp.iq_gain, p.dsp.iq_phase_rad) == (1.05, 0.03)
+    assert p.dsp.cw_samples == 0
+    # the band is chirp.doppler_band_mps, whatever the triangle's prior says
+    assert speed_span_mps(c) == c.chirp.doppler_band_mps == p.dsp.max_speed_mps
+    assert speed_span_mps(cfg(LIDARD__SCAN__MAX_SPEED_MPS="0.4")) == c.chirp.doppler_band_mps
+    # a record covers the band: its rate grows with the band
+    fast = cfg(LIDARD__CHIRP__DOPPLER_BAND_MPS="20")
+    p2 = plan_scan(fast, fast.optics(), ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=2.0))
+    assert p2.adc.fs_hz > p.adc.fs_hz
+
+
+def test_iq_with_the_three_segment_chirp_is_refused_naming_both_keys():
+    with pytest.raises(ConfigError, match=r"adc.iq = true.*chirp.shape"):
+        load_config("config/sim.toml", environ={**NOMINAL_ENV, "LIDARD__ADC__IQ": "true"})
+
+
+def test_phase_noise_compensation_is_off_with_iq_and_on_is_refused():
+    c = cfg()
+    far = ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=200.0)
+    assert plan_scan(c, c.optics(), far).phase_noise is False       # "auto" at 200 m: off for I/Q
+    on = ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=2.0, phase_noise_compensation="on")
+    with pytest.raises(InstrumentError, match="not available with the I/Q receiver"):
+        plan_scan(c, c.optics(), on)
