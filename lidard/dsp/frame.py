@@ -186,16 +186,25 @@ class FrameDsp:
     def _pair(self, out_f: list, out_det: list) -> FrameResult:
         """Up/down pairing (eqs. 2-6, 2-7), validity flags and the range gate."""
         du, dd = out_det
+        # I/Q: the band is not a prior; a target at its edge keeps its pair (two bins of search margin)
+        speed = self.max_speed_mps + (self.wavelength_m * self.rfft.delta_f if self.iq else 0.0)
         rng_m, vel, ok = pair_up_down(out_f[0], out_f[1], du.valid, dd.valid, self.chirp_rate_hz_per_s,
-                                      self.wavelength_m, iq=self.iq, max_speed_mps=self.max_speed_mps)
-        paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, self.max_speed_mps, self.wavelength_m)
-        present = (ok | paired_any) & du.valid
+                                      self.wavelength_m, iq=self.iq, max_speed_mps=speed,
+                                      strength=(du.power, dd.power) if self.iq else None)
         # |X| = A/2 for a real tone, A for a complex one
         intensity = np.sqrt(du.power) * (1.0 if self.iq else 2.0)
         leak = du.valid & aliased(intensity, self.alias_ceiling_v)
-        # unresolved on either ramp: the pair's relative phase differs between up and down ramps
-        unres = du.unresolved | _near_down(out_f[0], out_f[1], du.valid, dd.valid & dd.unresolved,
-                                           self.max_speed_mps, self.wavelength_m)
+        if self.iq:
+            # signs measured, nothing folds: a point is a pair, and only ITS down peak's shape counts
+            # (the band is wide: "some down peak within the band" would be any noise peak of the ramp)
+            present = ok & du.valid
+            unres = du.unresolved | _paired_down_unresolved(out_f[0], out_f[1], rng_m, ok, dd, self.chirp_rate_hz_per_s)
+        else:
+            paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, self.max_speed_mps, self.wavelength_m)
+            present = (ok | paired_any) & du.valid
+            # unresolved on either ramp: the pair's relative phase differs between up and down ramps
+            unres = du.unresolved | _near_down(out_f[0], out_f[1], du.valid, dd.valid & dd.unresolved,
+                                               self.max_speed_mps, self.wavelength_m)
         flagged = du.harmonic | unres | leak
         valid = ok & ~flagged
         # Flagged or ambiguous pairs keep a range from the up ramp alone so they can be drawn (valid=0).
@@ -206,6 +215,13 @@ class FrameDsp:
         flags = point_flags(unresolved=unres, leak=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
                            snr_db=du.snr_db, intensity_v=intensity, flags=flags)
+
+
+def _paired_down_unresolved(fu, fd, rng_m, ok, dd, rate_hz_per_s) -> np.ndarray:
+    """Per up slot of an accepted pair: its down peak (f_dn = 2 f_R - f_up, eq. 2-6) is unresolved."""
+    f_dn = 4.0 * rate_hz_per_s * rng_m / C_M_PER_S - fu                # (n, K) the matched down beats
+    same = np.abs(fd[:, None, :] - f_dn[:, :, None]) <= 1e-6 * np.maximum(np.abs(f_dn[:, :, None]), 1.0)
+    return ok & (same & (dd.valid & dd.unresolved)[:, None, :]).any(axis=-1)
 
 
 def _paired(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:

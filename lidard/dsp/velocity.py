@@ -51,6 +51,7 @@ def pair_up_down(
     *,
     max_speed_mps: float | None = None,
     min_beat_hz: float = 0.0,
+    strength: tuple[object, object] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pair up/down-ramp peaks and solve eqs. 2-6/2-7 (velocity positive when receding).
 
@@ -58,6 +59,9 @@ def pair_up_down(
     valid_up, valid_down: (..., K) masks of which entries are detections.
     Returns range_m, velocity_mps, valid, each (..., K) aligned with the UP-ramp detections;
     range and velocity are 0.0 where ``valid`` is False.
+    ``strength``: (up, down) peak powers (..., K): pairs are then matched strongest first (the weaker
+    peak of the pair decides) instead of smallest Doppler first -- for a wide Doppler band without a
+    prior (I/Q), where "smallest Doppler" would prefer a noise peak near a return's mirror beat.
     """
     fu = _as_2d(f_up_hz, "f_up_hz", np.float64)
     fd = _as_2d(f_down_hz, "f_down_hz", np.float64)
@@ -85,7 +89,13 @@ def pair_up_down(
         fu2, fd2 = np.abs(fu2), np.abs(fd2)
     f_dmax = np.inf if max_speed_mps is None else 2.0 * max_speed_mps / wavelength_m
 
-    match = _greedy_match(fu2, fd2, vu2, vd2, f_dmax)
+    if strength is not None:
+        su = np.asarray(strength[0], dtype=np.float64).reshape(-1, ku)
+        sd = np.asarray(strength[1], dtype=np.float64).reshape(-1, kd)
+        rank = -np.minimum(su[:, :, None], sd[:, None, :])
+    else:
+        rank = None
+    match = _greedy_match(fu2, fd2, vu2, vd2, f_dmax, rank)
     paired = match >= 0
     fdn = np.take_along_axis(fd2, np.maximum(match, 0), axis=-1)
     f_range = 0.5 * (fu2 + fdn)  # 2 gamma d / c
@@ -105,13 +115,14 @@ def pair_up_down(
     return range_m.reshape(lead + (ku,)), velocity_mps.reshape(lead + (ku,)), valid.reshape(lead + (ku,))
 
 
-def _greedy_match(fu2, fd2, vu2, vd2, f_dmax) -> np.ndarray:
-    """Per row, the down-ramp peak paired with each up-ramp peak (-1: none), cheapest pair first."""
+def _greedy_match(fu2, fd2, vu2, vd2, f_dmax, rank=None) -> np.ndarray:
+    """Per row, the down-ramp peak paired with each up-ramp peak (-1: none), cheapest pair first
+    (``rank`` [row, i, j]: the order to take allowed pairs in; default their Doppler)."""
     ku, kd = fu2.shape[-1], fd2.shape[-1]
     # Pair cost: disagreement of the two single-ramp beats = 2 |Doppler|.
     cost = np.abs(fd2[:, None, :] - fu2[:, :, None])  # [row, up i, down j]
     ok = vu2[:, :, None] & vd2[:, None, :] & (cost <= 2.0 * f_dmax)
-    cost = np.where(ok, cost, np.inf)
+    cost = np.where(ok, cost if rank is None else rank, np.inf)
     match = np.full(fu2.shape, -1, dtype=np.int64)
     rows = np.arange(fu2.shape[0])
     for _ in range(min(ku, kd)):

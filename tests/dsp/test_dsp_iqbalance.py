@@ -139,3 +139,20 @@ def test_frame_dsp_refuses_what_it_cannot_do():
                  max_range_m=10.0).process(i, beat_q=q)
     with pytest.raises(ValueError, match="constant-frequency"):
         dsp(cw_samples=100)
+
+
+def test_pairs_are_taken_strongest_first_not_smallest_doppler_first():
+    # a weak peak in the up ramp near the down beat (a noise peak, or a far weak return) would pair
+    # with the strong return's down beat at "smaller Doppler"; the strong pair must win, the weak
+    # up peak then has no partner and is no point
+    d_m, v_mps = 2.0, 0.3
+    i, q = frame(d_m, v_mps, g=1.0, eps=0.0)
+    f_r, f_d = 2 * GAMMA * d_m / C, 2 * v_mps / LAM
+    t = np.arange(R) / FS
+    weak = 0.1 * np.exp(1j * (2 * np.pi * (f_r - f_d + 200e3) * t + 0.7))   # -20 dB
+    i[..., :R] += weak.real
+    q[..., :R] += weak.imag
+    res = dsp(iq_gain=1.0, iq_phase_rad=0.0).process(i, beat_q=q)
+    assert res.present.sum(axis=1).tolist() == [1, 1, 1]
+    assert np.allclose(res.range_m[res.present], d_m, atol=1e-3)
+    assert np.allclose(res.velocity_mps[res.present], v_mps, atol=5e-3)
