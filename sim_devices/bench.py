@@ -560,7 +560,7 @@ class Bench:
                     plain = 2.0 * np.pi * np.mod(self._trajectory().nu0_hz * bh.tau_s, 1.0)
                     phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
                 hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
-                                tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain,
+                                tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain * (HYBRID_CHANNEL_AMPLITUDE if iq else 1.0),
                                 doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
                                 phase_rad=phase)
         noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
@@ -608,6 +608,13 @@ class Bench:
         self.segments_synthesized += n
         return CapturedSegments(trigger_time_s=np.asarray(trig.t_s, dtype=np.float64), codes=codes,
                                 overrange=over)
+
+
+#: a 90-degree hybrid splits the LO and the return four ways: each balanced pair (I or Q) carries
+#: R sqrt(P_LO P_rx) of AC current against 2 R sqrt(P_LO P_rx) for the single photodiode of the §4.4
+#: circulator set-up, i.e. half the amplitude per channel; each channel keeps the single photodiode's
+#: noise (its own TIA and converter) -- docs/physics.md, "The coherent (I/Q) receiver"
+HYBRID_CHANNEL_AMPLITUDE = 0.5
 
 
 def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:
