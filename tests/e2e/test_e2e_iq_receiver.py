@@ -124,6 +124,24 @@ def test_iq_calibration_is_refused_on_a_single_photodiode():
         inst.close()
 
 
+def test_an_iq_capture_replays_to_the_same_points_with_its_correction(iq_bench, tmp_path):
+    """The raw capture keeps beat_i and beat_q; its dsp settings carry the imbalance correction, so a
+    replay gives the scan's points bit for bit."""
+    from lidard.raw import RawCapture, reprocess
+    inst, _, cal = iq_bench
+    inst.set_scene(scene())
+    run_iq_calibration(inst, linearization=cal, max_range_m=5.0)
+    path = tmp_path / "raw.zarr"
+    res = inst.run_scan(ScanRequest(max_range_m=5.0, pattern="roi", rows=(60, 64), cols=(48, 80)),
+                        lambda p: None, threading.Event(), cal, raw_path=path)
+    cap = RawCapture(path)
+    assert cap.channels == ["beat_i", "beat_q"] and cap.attrs["dsp"]["iq"] is True
+    assert cap.attrs["dsp"]["iq_gain"] == pytest.approx(inst.applied.iq_imbalance[0])
+    again = reprocess(path)
+    assert np.array_equal(again.points, res.points) and again.meta["dsp"]["receiver"] == "iq"
+
+
+# last in the module: the app's shutdown closes the instrument it was given (the fixture's)
 def test_iq_calibration_through_lidarctl_and_the_daemon(iq_bench, capsys, tmp_path):
     """CLI -> REST -> worker -> store: the record, its summary, and scans that say they used it."""
     import json
@@ -153,20 +171,3 @@ def test_iq_calibration_through_lidarctl_and_the_daemon(iq_bench, capsys, tmp_pa
         assert code == 0 and f"iq {rec['id']}" in out
         code, out, err = run(capsys, "calibration", "iq", "--url", url, "--max-range-m", "-1")
         assert code != 0 and "max_range_m" in err
-
-
-def test_an_iq_capture_replays_to_the_same_points_with_its_correction(iq_bench, tmp_path):
-    """The raw capture keeps beat_i and beat_q; its dsp settings carry the imbalance correction, so a
-    replay gives the scan's points bit for bit."""
-    from lidard.raw import RawCapture, reprocess
-    inst, _, cal = iq_bench
-    inst.set_scene(scene())
-    run_iq_calibration(inst, linearization=cal, max_range_m=5.0)
-    path = tmp_path / "raw.zarr"
-    res = inst.run_scan(ScanRequest(max_range_m=5.0, pattern="roi", rows=(60, 64), cols=(48, 80)),
-                        lambda p: None, threading.Event(), cal, raw_path=path)
-    cap = RawCapture(path)
-    assert cap.channels == ["beat_i", "beat_q"] and cap.attrs["dsp"]["iq"] is True
-    assert cap.attrs["dsp"]["iq_gain"] == pytest.approx(inst.applied.iq_imbalance[0])
-    again = reprocess(path)
-    assert np.array_equal(again.points, res.points) and again.meta["dsp"]["receiver"] == "iq"
