@@ -382,8 +382,8 @@ def _cos_sin(phase: np.ndarray, want_sin: bool, fast: bool):
     """cos (and sin) of a float64 phase array, which may be consumed.
 
     ``fast``: reduce to [-pi, pi] in float64, then evaluate in float32 (SIMD, ~20x faster than the
-    float64 libm path here): absolute error ~1e-7, far below one LSB of a 16-bit ADC (1.5e-5 of full
-    scale), so it is used only when the output is quantized.
+    float64 libm path here) and answer float32: absolute error ~1e-7, far below one LSB of a 16-bit
+    ADC (1.5e-5 of full scale), so it is used only when the output is quantized.
     """
     if not fast:
         s = np.sin(phase) if want_sin else None
@@ -394,8 +394,10 @@ def _cos_sin(phase: np.ndarray, want_sin: bool, fast: bool):
     del turns
     phase *= 2.0 * np.pi
     r32 = phase.astype(np.float32)
-    c = np.cos(r32).astype(np.float64)
-    s = np.sin(r32).astype(np.float64) if want_sin else None
+    # the record stays float32 from here (amplitude, filter gains, noise): 7 digits against the
+    # 16-bit converter's 4.6, and half the memory traffic of float64 (issue 18)
+    c = np.cos(r32, out=r32) if not want_sin else np.cos(r32)
+    s = np.sin(r32, out=r32) if want_sin else None
     return c, s
 
 
@@ -568,7 +570,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                 if dense:
                     acc[c] = part
                     continue
-                acc[c] = np.zeros((nc, n))
+                acc[c] = np.zeros((nc, n), dtype=part.dtype)
                 for r in range(max_rank + 1):
                     sel = np.nonzero(rk == r)[0]
                     if sel.size == 0:
@@ -580,7 +582,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             del parts, cos_part, sin_part
         for c in channels:
             if c not in ("mzi", "mzi_q") and c not in acc:
-                acc[c] = np.zeros((nc, n))
+                acc[c] = np.zeros((nc, n), dtype=np.float32 if fast else np.float64)
         if want_mzi:
             ub = u_inv[s0:s1]
             if phi is not None:
