@@ -142,8 +142,6 @@ class FrameDsp:
         if self.iq:
             if beat_q is None:
                 raise ValueError("an I/Q FrameDsp needs beat_q (the Q channel) beside beat (I)")
-            if mzi is not None:
-                raise ValueError("phase-noise compensation of I/Q records is not implemented (real beat only)")
             x = correct(x, beat_q, self.iq_gain, self.iq_phase_rad)
         elif beat_q is not None:
             raise ValueError("beat_q given to a FrameDsp built with iq=False")

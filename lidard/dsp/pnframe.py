@@ -31,12 +31,13 @@ Pure numpy/scipy (no per-pixel Python loops: loops run over M and over the two r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
 
 from .chain import detect_and_refine
+from .iqbalance import mirror_images
 from .instfreq import check_positive
 from .pncomp import demodulated_phase
 from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
@@ -165,12 +166,15 @@ class PhaseNoiseCompensator:
                 mzi_q: np.ndarray | None = None) -> "CompensatedRamps":
         """Analytic beat and the compensation phases of the window [start, start + n) of every ramp.
 
-        ``beat``, ``mzi``: (..., ramp_samples) real, sample-aligned (same trigger, same record).
+        ``beat``, ``mzi``: (..., ramp_samples) real, sample-aligned (same trigger, same record). A
+        complex ``beat`` is an I/Q receiver's (already analytic: no Hilbert transform; a conjugated down
+        ramp carries the negated phase noise, as the down ramp's demodulated MZI does).
         ``mzi_q``: the quadrature output of the same MZI (a second monitor channel): the laser phase is
         rebuilt per sample (:mod:`lidard.dsp.pnrecon`) and every bin is compensated at its own round
         trip (to ``tau_step_s``) instead of the nearest multiple of tau_m.
         """
-        b = np.asarray(beat, dtype=np.float64)
+        b = np.asarray(beat)
+        b = b.astype(np.complex128 if np.iscomplexobj(b) else np.float64, copy=False)
         m = np.asarray(mzi, dtype=np.float64)
         if b.shape != m.shape:
             raise DspInputError(f"beat and mzi must have the same shape, got {b.shape} and {m.shape}")
@@ -183,7 +187,10 @@ class PhaseNoiseCompensator:
                 f"+ edge) and end <= {stop}; lower max_range_m or raise use_fraction's margin")
         if not np.all(np.isfinite(b)):
             raise DspInputError("beat contains NaN or inf")
-        z = hilbert(b - b.mean(axis=-1, keepdims=True), axis=-1)[..., start:start + n]
+        if np.iscomplexobj(b):
+            z = (b - b.mean(axis=-1, keepdims=True))[..., start:start + n]
+        else:
+            z = hilbert(b - b.mean(axis=-1, keepdims=True), axis=-1)[..., start:start + n]
         if mzi_q is not None:
             if np.shape(mzi_q) != b.shape:
                 raise DspInputError(f"mzi_q must have the beat's shape {b.shape}, got {np.shape(mzi_q)}")
@@ -191,7 +198,7 @@ class PhaseNoiseCompensator:
             valid = np.zeros(r, dtype=bool)
             valid[self.edge_samples:stop] = True
             phi, _ = reconstruct_phase(delta, valid, whole_delay_samples(self.mzi_delay_s, self.fs_hz))
-            return CompensatedRamps(z=z, s=None, comp=self, phi=phi, start=start)
+            return CompensatedRamps(z=z, s=None, comp=self, phi=phi, start=start, iq=np.iscomplexobj(b))
         delta, _ = mzi_phase_noise_batch(m, fs_hz=self.fs_hz, edge_s=self.edge_seconds,
                                          beat_hz=self.mzi_beat_hz, bandwidth_hz=self.bandwidth_hz)
         d = self.delay_samples
@@ -201,7 +208,7 @@ class PhaseNoiseCompensator:
         for mm in range(self.m_max):
             acc += delayed(delta, mm * d)
             s[mm + 1] = acc[..., start:start + n]
-        return CompensatedRamps(z=z, s=s, comp=self)
+        return CompensatedRamps(z=z, s=s, comp=self, iq=np.iscomplexobj(b))
 
 
 @dataclass(frozen=True)
@@ -215,6 +222,7 @@ class CompensatedRamps:
     comp: PhaseNoiseCompensator
     phi: np.ndarray | None = None
     start: int = 0
+    iq: bool = False            # ``z`` is an I/Q receiver's complex beat: two-sided spectra, complex signals
 
     @property
     def unit_s(self) -> float:
@@ -240,34 +248,40 @@ class CompensatedRamps:
         """(spectrum (..., n_fft // 2 + 1) complex, index of each bin (n_fft // 2 + 1,): M or g).
 
         Scale as :class:`RangeFFT` for a real ramp: FFT(z e^{-j S} w) / (2 sum w), so that the
-        compensated spectrum of a zero-linewidth beat matches the plain one.
+        compensated spectrum of a zero-linewidth beat matches the plain one. I/Q (``iq``): the two-sided,
+        fft-shifted spectrum (n_fft,) scaled FFT / sum w as RangeFFT's, each bin at the M of its |f|.
         """
         n = self.z.shape[-1]
         n_fft = int(n_fft or n)
-        nb = n_fft // 2 + 1
-        # fftfreq's arithmetic, so that ties (bins exactly half-way between two M) break as in pncomp
-        freq = np.arange(nb) * (1.0 / (n_fft * (1.0 / self.comp.fs_hz)))
-        m_of_bin = self.index_of_freq(freq)
-        out = np.empty(self.z.shape[:-1] + (nb,), dtype=np.complex128)
+        if self.iq:
+            freq = (np.arange(n_fft) - n_fft // 2) * (self.comp.fs_hz / n_fft)
+            layout, scale = "shifted", 1.0 / np.sum(window)
+        else:
+            # fftfreq's arithmetic, so that ties (bins exactly half-way between two M) break as in pncomp
+            freq = np.arange(n_fft // 2 + 1) * (1.0 / (n_fft * (1.0 / self.comp.fs_hz)))
+            layout, scale = "analytic", 1.0 / (2.0 * np.sum(window))
+        m_of_bin = self.index_of_freq(np.abs(freq))
+        out = np.empty(self.z.shape[:-1] + (freq.size,), dtype=np.complex128)
         for mm in np.unique(m_of_bin):
             sel = m_of_bin == mm
             y = self.z if mm == 0 else self.z * np.exp(-1j * self.phase(mm))
-            out[..., sel] = windowed_fft(y, window, n_fft, "analytic")[..., sel]
-        out *= 1.0 / (2.0 * np.sum(window))
+            out[..., sel] = windowed_fft(y, window, n_fft, layout)[..., sel]
+        out *= scale
         return out, m_of_bin
 
     def real_signals(self, m_idx: np.ndarray) -> np.ndarray:
-        """Re(z exp(-j S)) for each index in ``m_idx`` (..., K): shape (..., K, n)."""
+        """Re(z exp(-j S)) for each index in ``m_idx`` (..., K): shape (..., K, n); for an I/Q beat
+        the complex z exp(-j S) itself (the estimator's complex path)."""
         m_idx = np.asarray(m_idx, dtype=np.int64)
         lead = self.z.shape[:-1]
         if m_idx.shape[:-1] != lead:
             raise DspInputError(f"m_idx shape {m_idx.shape} does not match the ramps {lead} + (K,)")
-        out = np.empty(m_idx.shape + self.z.shape[-1:])
+        out = np.empty(m_idx.shape + self.z.shape[-1:], dtype=np.complex128 if self.iq else np.float64)
         for g in np.unique(m_idx):
             sel = m_idx == g                               # (..., K)
             lead_sel = np.nonzero(sel)
-            y = (self.z * np.exp(-1j * self.phase(int(g)))).real      # (..., n)
-            out[lead_sel] = y[lead_sel[:-1]]
+            y = self.z * np.exp(-1j * self.phase(int(g)))      # (..., n)
+            out[lead_sel] = (y if self.iq else y.real)[lead_sel[:-1]]
         return out
 
 
@@ -313,8 +327,6 @@ def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray,
         raise DspInputError(f"mzi must have the beat's shape {x.shape}, got {mz.shape}")
     if mzi_q is not None and np.shape(mzi_q) != x.shape:
         raise DspInputError(f"mzi_q must have the beat's shape {x.shape}, got {np.shape(mzi_q)}")
-    if dsp.iq:
-        raise DspInputError("phase-noise compensation of I/Q ramps is not implemented (real beat only)")
     comp = comp or compensator_for(dsp, mzi_delay_s)
     a, n, r = dsp.offset, dsp.n_used, dsp.ramp_samples
     rf = dsp.rfft
@@ -322,17 +334,25 @@ def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray,
     out_f, out_det = [], []
     for r0 in (0, r):
         q = None if mzi_q is None else np.asarray(mzi_q)[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v
-        ramps = comp.prepare(x[..., r0:r0 + r].astype(np.float64) * lsb_v,
-                             mz[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v, a, n, mzi_q=q)
+        b = x[..., r0:r0 + r] * lsb_v if dsp.iq else x[..., r0:r0 + r].astype(np.float64) * lsb_v
+        if dsp.iq and r0:       # an I/Q down ramp in the up ramp's sign (lidard.dsp.frame)
+            b = np.conjugate(b)
+        # the conjugated down ramp carries -(phase noise), and so does the down ramp's demodulated MZI
+        # (its fringe runs at -gamma tau_m): the compensation is applied as to the up ramp
+        ramps = comp.prepare(b, mz[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v, a, n, mzi_q=q)
         spec, m_of_bin = ramps.composite_spectrum(w, rf.n_fft)
-        # the estimator refines each detection on the real compensated ramp of its own delay (its
-        # time-domain path, so ``newton`` still models the negative-frequency image)
+        # the estimator refines each detection on the compensated ramp of its own delay (real: its
+        # time-domain path, so ``newton`` still models the negative-frequency image; I/Q: complex)
         res = detect_and_refine(
-            spec, lambda idx, ramps=ramps, m_of_bin=m_of_bin: (ramps.real_signals(m_of_bin[idx]), idx, None),
-            window=dsp.window, estimator=dsp.estimator, average_axis=1, method="os", pfa=dsp.pfa,
-            max_detections=dsp.max_returns, bin_range=dsp.bin_range)
+            spec, lambda idx, ramps=ramps, m_of_bin=m_of_bin: (ramps.real_signals(m_of_bin[idx]),
+                                                               rf.index_to_bin(idx), None),
+            window=dsp.window, estimator=dsp.estimator, average_axis=1, method="os", pfa=dsp.pfa, iq=dsp.iq,
+            max_detections=dsp.max_returns, bin_range=dsp.bin_range, idle_index=int(rf.bin_to_index(1)))
+        det = res.detections
+        if dsp.iq:      # the hybrid's image of a stronger return is not a return
+            det = replace(det, valid=det.valid & ~mirror_images(det.index, det.power, det.valid, rf.n_fft))
         out_f.append(res.frac_bins * rf.delta_f)
-        out_det.append(res.detections)
+        out_det.append(det)
     return out_f, out_det
 
 

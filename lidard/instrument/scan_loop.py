@@ -113,11 +113,6 @@ def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None 
     mode = request.phase_noise_compensation or cfg.scan.phase_noise_compensation
     if mode not in ("auto", "on", "off"):
         raise InstrumentError(f"scan: phase_noise_compensation={mode!r} is not one of 'auto', 'on', 'off'")
-    if cfg.adc.iq:    # the compensation works on the real beat only (lidard.dsp.pnframe): "auto" is off
-        if mode == "on":
-            raise InstrumentError("scan: phase_noise_compensation='on' is not available with the I/Q receiver "
-                                  "(adc.iq = true): the compensation is built for the real beat; use 'auto' or 'off'")
-        return False
     if mode == "auto":
         return 2 * float(request.max_range_m) / C_M_PER_S >= 2 * (mzi_delay_s or cfg.monitor.delay_s)
     return mode == "on"

@@ -5,7 +5,6 @@ import pytest
 
 from lidard.config import ConfigError, load_config
 from lidard.instrument import ScanRequest
-from lidard.instrument.errors import InstrumentError
 from lidard.instrument.scan_loop import plan_scan, speed_span_mps
 from tests.helpers.tolerances import NOMINAL_ENV
 
@@ -36,10 +35,12 @@ def test_iq_with_the_three_segment_chirp_is_refused_naming_both_keys():
         load_config("config/sim.toml", environ={**NOMINAL_ENV, "LIDARD__ADC__IQ": "true"})
 
 
-def test_phase_noise_compensation_is_off_with_iq_and_on_is_refused():
+def test_phase_noise_compensation_records_the_monitor_beside_i_and_q():
     c = cfg()
     far = ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=200.0)
-    assert plan_scan(c, c.optics(), far).phase_noise is False       # "auto" at 200 m: off for I/Q
-    on = ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=2.0, phase_noise_compensation="on")
-    with pytest.raises(InstrumentError, match="not available with the I/Q receiver"):
-        plan_scan(c, c.optics(), on)
+    p = plan_scan(c, c.optics(), far)                      # "auto" at 200 m: on
+    assert p.phase_noise and p.acquisition.channels == ("beat_i", "beat_q", "mzi")
+    quad = cfg(LIDARD__MONITOR__QUADRATURE="true")
+    assert plan_scan(quad, quad.optics(), far).acquisition.channels == ("beat_i", "beat_q", "mzi", "mzi_q")
+    near = ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=2.0)
+    assert plan_scan(c, c.optics(), near).acquisition.channels == ("beat_i", "beat_q")
