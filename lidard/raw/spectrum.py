@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..dsp.cfar import _noise_os, cfar_detect   # the kernel cfar_detect thresholds with (no public twin)
+from ..dsp.iqbalance import correct
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
 from ..instrument.types import POINT_DTYPE
@@ -65,13 +66,16 @@ def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, mzi
     """(1, n_bins) averaged power of one ramp as the frame DSP computes it before CFAR."""
     d = replay.dsp
     a, n, r = d.offset, d.n_used, d.ramp_samples
+    # an I/Q capture's beat is the corrected complex I + jQ; its down ramp in the up ramp's sign
+    b = beat[..., start:start + r] * replay.lsb_v if d.iq else beat[..., start:start + r].astype(np.float64) * replay.lsb_v
+    if d.iq and start:
+        b = np.conjugate(b)
     if mzi is None:
-        spec = d.rfft(beat[..., start + a:start + a + n].astype(np.float64) * replay.lsb_v)
+        spec = d.rfft(b[..., a:a + n])
     else:
         comp = compensator_for(d, replay.mzi_delay_s)
         q = None if mzi_q is None else mzi_q[..., start:start + r].astype(np.float64) * replay.lsb_v
-        ramps = comp.prepare(beat[..., start:start + r].astype(np.float64) * replay.lsb_v,
-                             mzi[..., start:start + r].astype(np.float64) * replay.lsb_v, a, n, mzi_q=q)
+        ramps = comp.prepare(b, mzi[..., start:start + r].astype(np.float64) * replay.lsb_v, a, n, mzi_q=q)
         spec, _ = ramps.composite_spectrum(get_window(d.window, n), d.rfft.n_fft)
     return (spec.real**2 + spec.imag**2).mean(axis=1)
 
@@ -91,15 +95,19 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
     one = dataclasses.replace(chunk, segments=chunk.segments[s0:s1], overrange=chunk.overrange[s0:s1],
                               trigger_time_ns=chunk.trigger_time_ns[s0:s1], pixels=chunk.pixels[k:k + 1],
                               directions=chunk.directions[k:k + 1], t_s=chunk.t_s[k:k + 1])
-    beat = one.channel("beat", cap.channels, cap.averages)
-    mzi, mzi_q = replay.monitor(one, cap.channels, cap.averages)
     d = replay.dsp
+    if d.iq:    # the coherent receiver: I and Q, the recorded imbalance removed (lidard.dsp.iqbalance)
+        beat = correct(one.channel("beat_i", cap.channels, cap.averages),
+                       one.channel("beat_q", cap.channels, cap.averages), d.iq_gain, d.iq_phase_rad)
+    else:
+        beat = one.channel("beat", cap.channels, cap.averages)
+    mzi, mzi_q = replay.monitor(one, cap.channels, cap.averages)
     gate = d.bin_range
     power, threshold, dets = {}, {}, []
     for name, start in (("up", 0), ("down", d.ramp_samples)):
         p = _ramp_power(replay, beat, mzi, mzi_q, start)
         det = cfar_detect(p, method="os", pfa=d.pfa, max_detections=d.max_returns, window=d.window,
-                          bin_range=gate)
+                          bin_range=gate, iq=d.iq)
         noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.pfa, None, exact=True)   # drawn at every bin
         power[name], threshold[name] = p[0], (alpha * noise)[0]
         for j in np.flatnonzero(det.valid[0]):

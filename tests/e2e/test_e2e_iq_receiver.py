@@ -139,6 +139,16 @@ def test_an_iq_capture_replays_to_the_same_points_with_its_correction(iq_bench, 
     assert cap.attrs["dsp"]["iq_gain"] == pytest.approx(inst.applied.iq_imbalance[0])
     again = reprocess(path)
     assert np.array_equal(again.points, res.points) and again.meta["dsp"]["receiver"] == "iq"
+    # the pixel spectrum view of the capture: two-sided, the down ramp in the up ramp's sign, both
+    # ramps' detection at the point's own beat (range +- its Doppler share)
+    from lidard.raw.spectrum import pixel_spectrum
+    p = res.points[res.points["valid"] == 1][0]
+    spec = pixel_spectrum(path, int(p["row"]), int(p["col"]))
+    assert spec.range_m.min() < 0 < spec.range_m.max()
+    doppler_m = 2 * abs(float(p["velocity"])) / inst.cfg.chirp.wavelength_m * 299_792_458.0 / (2 * inst.cfg.chirp.rate_hz_per_s)
+    for ramp in ("up", "down"):
+        rng = [d["range_m"] for d in spec.detections if d["ramp"] == ramp]
+        assert rng and min(abs(abs(r - float(p["range"])) - doppler_m) for r in rng) < 0.02, (ramp, rng, p)
 
 
 # last in the module: the app's shutdown closes the instrument it was given (the fixture's)
