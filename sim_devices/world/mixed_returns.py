@@ -1,0 +1,67 @@
+"""The returns of a mixed pixel from its footprint samples, and the truth its point is scored against.
+
+Issue 15 item 5 (:mod:`sim_devices.world.footprint` samples the footprint). A pixel's samples are
+grouped into returns: a new return where the target changes or the depth jumps by more than one
+range bin ``c / 2B`` (closer than that a real FMCW receiver cannot separate two tones: they blend).
+Each return's weight is its share of the samples, i.e. of the beam power (the sunflower samples
+are equal-power), and scales the beat amplitude (field sum over the footprint, §2.4 eq. 2-11 with
+the power of that share).
+
+Ground truth of a mixed pixel (:func:`nearest_truth`): the instrument measures one of the surfaces
+in the footprint, or the blend of surfaces closer than a range bin (a blended tone lies between its
+components). A point is therefore scored against the footprint's return nearest to it, or, for a
+blend, against the nearest point of the blend's range interval; pixels without a mixed footprint
+keep the central ray's first hit (the single-ray truth, unchanged).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["agreeing", "mix_samples", "nearest_truth"]
+
+
+def agreeing(sample_targets: np.ndarray, central_targets: np.ndarray) -> np.ndarray:
+    """(k,) True where every sample (k, N, max_hits target indices, -1 = none) sees the same targets
+    in the same order as the central ray (k, max_hits): the pixel keeps its single ray. On one
+    convex or planar target the depth is continuous across the footprint: a slanted surface's range
+    spread is no mixed pixel (the fitted beat is its centre's)."""
+    return np.all(sample_targets == central_targets[:, None, :], axis=(1, 2))
+
+
+def mix_samples(samples: list[tuple], bin_m: float, max_hits: int) -> tuple:
+    """Weighted returns of one pixel from its samples' hit tuples (range, incidence, reflectivity,
+    velocity, transmission, target), nearest first, at most ``max_hits``: 7 arrays, the 7th the
+    weight (share of the samples). A sample that hits nothing adds to no return."""
+    hits = sorted(((int(s[5][k]), float(s[0][k]), [float(c[k]) for c in s])
+                   for s in samples for k in range(len(s[0]))), key=lambda h: (h[0], h[1]))
+    groups: list[list] = []
+    for i, (t, r, vals) in enumerate(hits):
+        # a new return where the target changes or the depth jumps by more than a range bin
+        if i == 0 or t != hits[i - 1][0] or r - hits[i - 1][1] > bin_m:
+            groups.append([])
+        groups[-1].append(vals)
+    rows = sorted(([*np.mean(g, axis=0)[:6], len(g) / len(samples)] for g in groups),
+                  key=lambda r: r[0])[:max_hits]
+    if not rows:
+        return tuple(np.zeros(0) for _ in range(7))
+    cols = np.array(rows, np.float64).T
+    return tuple(cols[j].copy() for j in range(7))
+
+
+def nearest_truth(measured_m: float, ranges_m: np.ndarray, bin_m: float) -> float:
+    """The range a measurement is scored against among a mixed pixel's returns ``ranges_m``:
+    returns chained within ``bin_m`` of each other form a blend interval [lo, hi]; the truth is the
+    point of the nearest interval closest to the measurement (inf when there is no return)."""
+    r = np.sort(np.asarray(ranges_m, np.float64)[np.isfinite(ranges_m)])
+    if r.size == 0:
+        return float("inf")
+    if not np.isfinite(measured_m):
+        return float(r[0])
+    cuts = np.flatnonzero(np.diff(r) > bin_m) + 1
+    best, best_d = float(r[0]), np.inf
+    for seg in np.split(r, cuts):
+        t = float(np.clip(measured_m, seg[0], seg[-1]))
+        if abs(t - measured_m) < best_d:
+            best, best_d = t, abs(t - measured_m)
+    return best
