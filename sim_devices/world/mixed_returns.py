@@ -29,24 +29,33 @@ def agreeing(sample_targets: np.ndarray, central_targets: np.ndarray) -> np.ndar
     return np.all(sample_targets == central_targets[:, None, :], axis=(1, 2))
 
 
-def mix_samples(samples: list[tuple], bin_m: float, max_hits: int) -> tuple:
-    """Weighted returns of one pixel from its samples' hit tuples (range, incidence, reflectivity,
-    velocity, transmission, target), nearest first, at most ``max_hits``: 7 arrays, the 7th the
-    weight (share of the samples). A sample that hits nothing adds to no return."""
-    hits = sorted(((int(s[5][k]), float(s[0][k]), [float(c[k]) for c in s])
-                   for s in samples for k in range(len(s[0]))), key=lambda h: (h[0], h[1]))
-    groups: list[list] = []
-    for i, (t, r, vals) in enumerate(hits):
-        # a new return where the target changes or the depth jumps by more than a range bin
-        if i == 0 or t != hits[i - 1][0] or r - hits[i - 1][1] > bin_m:
-            groups.append([])
-        groups[-1].append(vals)
-    rows = sorted(([*np.mean(g, axis=0)[:6], len(g) / len(samples)] for g in groups),
-                  key=lambda r: r[0])[:max_hits]
-    if not rows:
-        return tuple(np.zeros(0) for _ in range(7))
-    cols = np.array(rows, np.float64).T
-    return tuple(cols[j].copy() for j in range(7))
+def mix_samples(columns: list[np.ndarray], bin_m: float, max_hits: int) -> list[tuple]:
+    """Weighted returns of k mixed pixels from their samples' hits, vectorized over pixels.
+
+    ``columns``: the 6 hit arrays of the samples (range, incidence, reflectivity, radial velocity,
+    transmission, target index; each (k, N, max_hits), target -1 = no hit). Returns per pixel 7
+    arrays (the 6 columns averaged over each return's samples, and its weight: its share of the N
+    samples), nearest first, at most ``max_hits``. A sample that hits nothing adds to no return."""
+    k, n, _ = columns[0].shape
+    pix, samp, slot = np.nonzero(columns[5] >= 0)
+    vals = [c[pix, samp, slot].astype(np.float64) for c in columns]
+    tgt, rng = vals[5], vals[0]
+    order = np.lexsort((rng, tgt, pix))
+    pix, vals = pix[order], [v[order] for v in vals]
+    tgt, rng = vals[5], vals[0]
+    # a new return where the pixel or the target changes, or the depth jumps by more than a range bin
+    new = np.r_[True, (pix[1:] != pix[:-1]) | (tgt[1:] != tgt[:-1]) | (np.diff(rng) > bin_m)]
+    start = np.flatnonzero(new)
+    count = np.diff(np.r_[start, pix.size])
+    means = [np.add.reduceat(v, start) / count for v in vals]
+    g_pix = pix[start]
+    # per pixel: returns nearest first (the grouping sorted them by target)
+    g_order = np.lexsort((means[0], g_pix))
+    g_pix, means, weight = g_pix[g_order], [m[g_order] for m in means], count[g_order] / n
+    bounds = np.searchsorted(g_pix, np.arange(k + 1))
+    cols = [*means, weight]
+    return [tuple(c[bounds[j]:min(bounds[j + 1], bounds[j] + max_hits)].copy() for c in cols)
+            for j in range(k)]
 
 
 def nearest_truth(measured_m: float, ranges_m: np.ndarray, bin_m: float) -> float:

@@ -154,11 +154,16 @@ class World:
         sub = self._static_cast(sd.reshape(-1, 3), o.reshape(-1, 3))
         self.sub_rays_cast += sub.count.size
         n = fp.SAMPLES
-        bin_m = self.range_bin_m()
         agree = mr.agreeing(sub.target_index.reshape(cand.size, n, -1), h.target_index[cand])
-        for j in np.flatnonzero(~agree):
-            samples = [_entry(sub, j * n + s) for s in range(n)]
-            self._mixed[int(keys[cand[j]])] = mr.mix_samples(samples, bin_m, self.max_hits)
+        mixed = np.flatnonzero(~agree)
+        if mixed.size == 0:
+            return
+        rows = (mixed[:, None] * n + np.arange(n)).ravel()        # the mixed pixels' samples
+        cols = [a[rows].reshape(mixed.size, n, -1) for a in
+                (sub.range_m, sub.incidence_rad, sub.reflectivity, sub.radial_velocity_mps,
+                 sub.transmission, sub.target_index)]
+        for j, entry in zip(mixed, mr.mix_samples(cols, self.range_bin_m(), self.max_hits)):
+            self._mixed[int(keys[cand[j]])] = entry
 
     def _hits(self, rows, cols, t_s, footprint: bool = True):
         """(7 flat hit arrays, beam index) of beams at (rows, cols) fired at scene times ``t_s``."""
