@@ -84,6 +84,26 @@ def test_cal_letters_every_pixel_ranged_within_a_millimetre(embedded):
     assert led["modelled"]["mixed_pixels"] > 0         # the scene file does not ask: the bench decides
 
 
+def test_fidelity_ledger_says_where_mixed_pixels_were_modelled(embedded):
+    inst, bench, cal = embedded
+    req = ScanRequest(pattern="roi", rows=(44, 48), cols=(44, 52), max_range_m=2.0)   # across a letter's outline
+    letters = Scene.from_toml("config/scenes/cal_letters.toml")
+    wall = Scene.from_dict({"target": [{"kind": "plane", "point": [0, 0, 0.9], "normal": [0, 0, -1]}]})
+    off = Scene(letters.targets, mixed_pixels=False)
+    ledgers = {}
+    for name, scene in (("letters", letters), ("wall", wall), ("off", off)):
+        bench.set_scene(scene)
+        res = _scan(inst, req, cal)
+        ledgers[name] = (res.meta["sim"]["fidelity"], res.points)
+    led, _ = ledgers["letters"]
+    assert led["modelled"].get("mixed_pixels", 0) > 0
+    for name in ("wall", "off"):    # no outline in view / switched off by the scene: one ray per pixel
+        led, pts = ledgers[name]
+        assert "mixed_pixels" not in led["modelled"] and led["skipped"]["mixed_pixels"] > 0
+        assert np.all(pts["return_index"] == 0)
+    assert "mixed_pixels" in led["rules"]
+
+
 def test_empty_scene_gives_no_points(embedded):
     inst, bench, cal = embedded
     bench.set_scene(Scene.from_dict({"target": []}))
