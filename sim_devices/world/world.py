@@ -23,6 +23,13 @@ run's first trigger) sees every moving target translated by v t; velocities also
 shifts and the within-segment range drift of the synthesis. Static targets are cast once per pixel
 and cached; moving ones are cast per beam at its time (sim_devices.world.motion). ``rays_cast``
 counts the cached casts, ``moving_rays_cast`` the per-beam ones.
+
+Mixed pixels (issue 15): on every scene that does not switch them off (``mixed_pixels = false``),
+pixels whose beam footprint can reach a static target's outline are re-cast with footprint sub-rays
+(``sub_rays_cast`` counts them; sim_devices.world.footprint) and, where the samples see other targets
+than the central ray, give the footprint's weighted returns instead (sim_devices.world.mixed_returns).
+The central ray's hits stay cached: :meth:`World.ground_truth` is still the single-ray truth, and
+scores a mixed pixel's point against its footprint's nearest surface when given ``measured_m``.
 """
 
 from __future__ import annotations
