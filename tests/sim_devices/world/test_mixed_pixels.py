@@ -51,24 +51,18 @@ def _centre_beam_shares(world: World, rows, cols):
 @pytest.mark.parametrize("rot_deg", [0.0, 30.0])
 def test_box_edge_gives_two_weaker_returns_with_the_footprints_power_shares(rot_deg):
     w = _w_m(1.0)
-    offsets = np.linspace(-1.5, 1.5, 31) * w           # edge at s from the axial beam's centre
-    box_share, wall_share = [], []
-    for s in offsets:
-        # rotating about the optical axis tilts the edge; the -x face edge still crosses the axis
-        # at distance s along the face normal direction in the image
-        c = np.deg2rad(rot_deg)
-        centre = np.array([0.1 - s, 0.0, 1.1])
-        centre[:2] = np.array([np.cos(c), np.sin(c)]) * (0.1 - s)
-        box = {**BOX, "center": centre.tolist(), "rotation_deg": [0.0, 0.0, rot_deg]}
-        world = _world((box, WALL))
+    axis = np.array([np.cos(np.deg2rad(rot_deg)), np.sin(np.deg2rad(rot_deg))])   # the box's local x
+    rows = []
+    for s in np.linspace(-1.5, 1.5, 31) * w:
+        # the box (rotated about the optical axis: a tilted edge) slides along its local x so that
+        # its -x face's edge passes the axial beam at distance ~s (s > 0: the beam is on the box)
+        centre = [*((0.1 - s) * axis), 1.1]
+        world = _world(({**BOX, "center": centre, "rotation_deg": [0.0, 0.0, rot_deg]}, WALL))
         d = world.optics.directions(np.array([64]), np.array([64]))[0]
-        # the axial beam's offset from the edge, in the face plane (z = 1.0): x' = (p - c) . axis + 0.1
-        p = d / d[2] * 1.0
-        x_local = (p[:2] - centre[:2]) @ np.array([np.cos(c), np.sin(c)]) + 0.1
-        b, wl, h = _centre_beam_shares(world, np.array([64]), np.array([64]))
-        box_share.append((x_local, b[0], wl[0], h.range_m))
-    x = np.array([e[0] for e in box_share])
-    got_box, got_wall = np.array([e[1] for e in box_share]), np.array([e[2] for e in box_share])
+        x_edge = (d[:2] / d[2] - np.array(centre[:2])) @ axis + 0.1   # the beam's exact offset at z = 1 m
+        box, wall, h = _centre_beam_shares(world, np.array([64]), np.array([64]))
+        rows.append((x_edge, box[0], wall[0], sorted(np.round(h.range_m, 2))))
+    x, got_box, got_wall = (np.array([r[k] for r in rows]) for k in range(3))
     expect = 0.5 * erfc(-np.sqrt(2) * x / w)          # Gaussian power on the box side of the edge
     assert np.max(np.abs(got_box - expect)) <= 0.16    # N = 16 equal-power samples (footprint.py)
     assert np.sqrt(np.mean((got_box - expect) ** 2)) <= 0.06
@@ -76,8 +70,9 @@ def test_box_edge_gives_two_weaker_returns_with_the_footprints_power_shares(rot_
     assert np.all(np.diff(got_box) >= -1e-9)           # more of the box as the beam moves onto it
     straddle = (got_box > 0.01) & (got_wall > 0.01)
     assert straddle.sum() >= 10                        # two weaker returns, each below a full one
-    for _x, b, wl, ranges in (e for e, s in zip(box_share, straddle) if s):
-        assert sorted(np.round(ranges, 2)) == [1.0, 2.0] and b < 1 and wl < 1
+    for (_, b, wl, ranges), both in zip(rows, straddle):
+        if both:
+            assert ranges == [1.0, 2.0] and b < 1 and wl < 1
 
 
 def test_returns_of_one_edge_pixel_are_at_the_two_surfaces_and_sum_to_one():
