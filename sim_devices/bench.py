@@ -560,7 +560,6 @@ class Bench:
             # scene time: since the run's first trigger (a point's t counts from the same trigger)
             t_scene = np.asarray(trig.t_s)[np.asarray(beam_seg)[emitting]] - self._run_first_trigger_s()
             bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp, t_s=t_scene)
-            mixed_beams = bh.mixed_beams
             if bh.beam.size:
                 phase = None
                 if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
@@ -583,7 +582,7 @@ class Bench:
         if hits is not None:
             self.fidelity.note("doppler", bool(np.any(hits.doppler_hz != 0)))
             self.fidelity.note("speckle", hits.phase_rad is not None)
-            self.fidelity.note("mixed_pixels", mixed_beams > 0)
+            self.fidelity.note("mixed_pixels", bh.mixed_beams > 0)   # hits come from bh
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
