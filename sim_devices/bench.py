@@ -403,10 +403,16 @@ class Bench:
         with self._lock:
             self.world.set_scene(scene)
 
-    def ground_truth(self, rows, cols, t_s=None) -> np.ndarray:
-        """First-hit range per pixel; ``t_s``: scene time per pixel (a point's ``t``) for moving targets."""
+    def ground_truth(self, rows, cols, t_s=None, measured_m=None) -> np.ndarray:
+        """First-hit range per pixel; ``t_s``: scene time per pixel (a point's ``t``) for moving targets;
+        ``measured_m``: score mixed pixels against their footprint's nearest return (World.ground_truth)."""
         with self._lock:
-            return self.world.ground_truth(rows, cols, t_s)
+            return self.world.ground_truth(rows, cols, t_s, measured_m)
+
+    def mixed_pixels(self, rows, cols) -> np.ndarray:
+        """True per pixel where the footprint crosses a target outline (weighted returns)."""
+        with self._lock:
+            return self.world.is_mixed(rows, cols)
 
     def _run_first_trigger_s(self) -> float:
         sched = self.fpga.schedule
@@ -576,7 +582,7 @@ class Bench:
         if hits is not None:
             self.fidelity.note("doppler", bool(np.any(hits.doppler_hz != 0)))
             self.fidelity.note("speckle", hits.phase_rad is not None)
-            self.fidelity.note("mixed_pixels", bool(self.world.scene.mixed_pixels))
+            self.fidelity.note("mixed_pixels", bh.mixed_beams > 0)   # hits come from bh
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)

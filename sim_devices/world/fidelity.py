@@ -112,5 +112,7 @@ class FidelityLedger:
                                          "(sim_devices/world/fidelity.py)",
                           "doppler": "modelled only for hits on moving targets",
                           "speckle": "modelled only for targets with speckle = true",
-                          "mixed_pixels": "sub-rays only where the scene sets mixed_pixels = true"}}
+                          "mixed_pixels": "modelled for a batch with a beam whose footprint crosses a target outline "
+                                          "(sub-rays only there, on every scene unless it sets mixed_pixels = "
+                                          "false; sim_devices/world/footprint.py)"}}
 

@@ -257,8 +257,9 @@ def _check_args(
             f"directions[{bad}] has norm {float(norms[bad])!r}"
         )
     o = np.asarray(origin, dtype=np.float64)
-    if o.shape != (3,) or not np.all(np.isfinite(o)):
-        raise RayError(f"cast: origin must be 3 finite numbers, got {np.asarray(origin).tolist()}")
+    if o.shape not in ((3,), (d.shape[0], 3)) or not np.all(np.isfinite(o)):
+        raise RayError("cast: origin must be 3 finite numbers (or one row of 3 per ray), "
+                       f"got shape {o.shape}")
     if isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer)) or max_hits < 1:
         raise RayError(f"cast: max_hits must be an integer >= 1, got {max_hits!r}")
     return d, o, int(max_hits)
@@ -270,7 +271,8 @@ def cast(
     max_hits: int = 4,
     origin: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> Hits:
-    """Cast rays from ``origin`` along unit ``directions`` (n, 3) into ``scene``.
+    """Cast rays from ``origin`` ((3,), or (n, 3): one per ray, e.g. the footprint sub-rays that
+    leave the lens off its centre) along unit ``directions`` (n, 3) into ``scene``.
 
     Returns :class:`Hits` with up to ``max_hits`` hits per ray, sorted by range, ties and
     transmission handled as described in the module docstring.
@@ -332,7 +334,8 @@ def cast(
     radial = np.where(valid, np.einsum("nkj,nj->nk", vel_t[order], d), 0.0)
     transmission = np.where(valid, reach, 0.0)
     with np.errstate(invalid="ignore"):
-        points = np.where(valid[..., None], o + range_m[..., None] * d[:, None, :], np.nan)
+        o_b = o if o.ndim == 1 else o[:, None, :]
+        points = np.where(valid[..., None], o_b + range_m[..., None] * d[:, None, :], np.nan)
     return Hits(
         range_m=range_m,
         incidence_rad=incidence,

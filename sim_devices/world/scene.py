@@ -14,9 +14,10 @@ Scene file format (TOML; see config/scenes/*.toml)::
 
     name = "..."            # optional
     description = "..."     # optional
-    mixed_pixels = false    # optional: true samples the beam footprint with sub-rays where it
-                            # straddles a target edge or a depth step (two weaker or one blended
-                            # return; sim_devices.world.footprint); false: one ray per pixel
+    mixed_pixels = true     # optional, default true: the bench samples the beam footprint with
+                            # sub-rays where it crosses a target's outline (a depth step or a
+                            # target edge: two weaker returns or one blended; sim_devices.world.
+                            # footprint), one ray elsewhere; false: one ray per pixel everywhere
     [[target]]
     kind = "plane" | "box" | "sphere" | "polygon"
     reflectivity = 0.1      # >= 0, default 0.1
@@ -275,7 +276,7 @@ class Scene:
     name: str | None = None
     description: str | None = None
     source: str = "<scene>"
-    mixed_pixels: bool = False  # sample edge pixels' footprints (sim_devices.world.footprint)
+    mixed_pixels: bool = True  # sample edge pixels' footprints (sim_devices.world.footprint)
 
     # -- loading -----------------------------------------------------------------------------------
 
@@ -312,7 +313,7 @@ class Scene:
         description = d.get("description")
         if description is not None and not isinstance(description, str):
             raise ctx.error("description", f"must be a string, got {description!r}")
-        mixed = d.get("mixed_pixels", False)
+        mixed = d.get("mixed_pixels", True)
         if not isinstance(mixed, bool):
             raise ctx.error("mixed_pixels", f"must be true or false, got {mixed!r}")
         raw_targets = d.get("target", [])
@@ -329,8 +330,8 @@ class Scene:
             d["name"] = self.name
         if self.description is not None:
             d["description"] = self.description
-        if self.mixed_pixels:
-            d["mixed_pixels"] = True
+        if not self.mixed_pixels:
+            d["mixed_pixels"] = False
         d["target"] = [t.to_dict() for t in self.targets]
         return d
 

@@ -23,6 +23,13 @@ run's first trigger) sees every moving target translated by v t; velocities also
 shifts and the within-segment range drift of the synthesis. Static targets are cast once per pixel
 and cached; moving ones are cast per beam at its time (sim_devices.world.motion). ``rays_cast``
 counts the cached casts, ``moving_rays_cast`` the per-beam ones.
+
+Mixed pixels (issue 15): on every scene that does not switch them off (``mixed_pixels = false``),
+pixels whose beam footprint can reach a static target's outline are re-cast with footprint sub-rays
+(``sub_rays_cast`` counts them; sim_devices.world.footprint) and, where the samples see other targets
+than the central ray, give the footprint's weighted returns instead (sim_devices.world.mixed_returns).
+The central ray's hits stay cached: :meth:`World.ground_truth` is still the single-ray truth, and
+scores a mixed pixel's point against its footprint's nearest surface when given ``measured_m``.
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ from lidard.physics.constants import C_M_PER_S
 from lidard.physics.optics import FpsaOptics
 
 from . import footprint as fp
+from . import mixed_returns as mr
 from . import motion
 from .scene import Scene
 from .speckle import speckle_factors
@@ -57,6 +65,8 @@ class BeamHits:
     return_index: np.ndarray   # order along the beam (0 = nearest)
     #: beat phase of hits on speckle targets (NaN elsewhere); None when no hit is on one
     speckle_phase_rad: np.ndarray | None = None
+    #: beams of the batch whose footprint crossed an outline (weighted returns; fidelity ledger)
+    mixed_beams: int = 0
 
 
 class World:
@@ -77,11 +87,13 @@ class World:
         self.seed = int(seed)  # speckle draws
         self.rays_cast = 0          # pixels cast into the static targets (then cached)
         self.moving_rays_cast = 0   # beams cast into the moving targets, each at its own time
+        self.sub_rays_cast = 0      # footprint sub-rays (mixed pixels: only around target outlines)
         self.set_scene(scene)
 
     def set_scene(self, scene: Scene) -> None:
         self.scene = scene
-        self._cache: dict[int, tuple] = {}
+        self._cache: dict[int, tuple] = {}   # central ray's hits per pixel
+        self._mixed: dict[int, tuple] = {}   # footprint-weighted returns of the mixed pixels
         self._speckle = np.array([bool(t.speckle) for t in scene.targets], bool)
         self._moving = np.array([bool(np.any(t.velocity != 0)) for t in scene.targets], bool)
         self._motion = motion.SceneMotion.of(scene)
@@ -93,7 +105,9 @@ class World:
         return float(np.sqrt(sum(float(c[k]) ** 2 for k in WHITE_NOISES)))
 
     # -- beams ------------------------------------------------------------------------------------
-    def _cast_pixels(self, rows: np.ndarray, cols: np.ndarray) -> list[tuple]:
+    def _cast_pixels(self, rows: np.ndarray, cols: np.ndarray, footprint: bool = True) -> list[tuple]:
+        """Cached hit tuples per pixel: the footprint's weighted returns where the pixel is mixed
+        (``footprint``), else the central ray's hits."""
         keys = rows.astype(np.int64) * 4096 + cols.astype(np.int64)
         missing = np.unique(keys[[k not in self._cache for k in keys]]) if len(keys) else keys
         if len(missing):
@@ -103,45 +117,64 @@ class World:
             for i, k in enumerate(missing):
                 self._cache[int(k)] = (*_entry(h, i), np.ones(int(h.count[i])))
             if self.scene.mixed_pixels:
-                self._sample_footprints(missing, d)
+                self._sample_footprints(missing, d, h)
+        if footprint and self._mixed:
+            return [self._mixed.get(int(k)) or self._cache[int(k)] for k in keys]
         return [self._cache[int(k)] for k in keys]
 
-    def _static_cast(self, d: np.ndarray):
+    def is_mixed(self, rows, cols) -> np.ndarray:
+        """(n,) True where the bench gives the pixel footprint-weighted returns (cast on demand)."""
+        rows, cols = np.asarray(rows), np.asarray(cols)
+        self._cast_pixels(rows, cols, footprint=False)
+        keys = rows.astype(np.int64) * 4096 + cols.astype(np.int64)
+        return np.fromiter((int(k) in self._mixed for k in keys), bool, count=len(keys))
+
+    def _static_cast(self, d: np.ndarray, origin=(0.0, 0.0, 0.0)):
         """Cast into the static targets, hits naming their index in the whole scene."""
         m = self._motion
-        h = m.static.cast(d, max_hits=self.max_hits)
+        h = m.static.cast(d, max_hits=self.max_hits, origin=origin)
         if m.static is self.scene or m.static_index.size == 0:
             return h            # (nothing static: every slot is empty, -1)
         idx = np.where(h.target_index >= 0, m.static_index[np.maximum(h.target_index, 0)], -1)
         return replace(h, target_index=idx)
 
-    def _footprint_radius(self, range_m):
+    def _beam(self) -> dict:
         lens = self.profile.lenses[self.cfg.lens or self.profile.default_lens]
-        return fp.footprint_radius_m(range_m, emission_w_m=self.optics.emission_w_m,
-                                     focal_m=self.optics.focal_m, wavelength_m=self.optics.wavelength_m,
-                                     aperture_m=lens.aperture_m)
+        return {"emission_w_m": self.optics.emission_w_m, "focal_m": self.optics.focal_m,
+                "wavelength_m": self.optics.wavelength_m, "aperture_m": lens.aperture_m}
 
-    def _sample_footprints(self, keys: np.ndarray, d: np.ndarray) -> None:
-        """Mixed pixels: re-cast the footprints that may straddle an edge (sim_devices.world.footprint)."""
+    def _footprint_radius(self, range_m):
+        return fp.footprint_radius_m(range_m, **self._beam())
+
+    def range_bin_m(self) -> float:
+        """One range bin c / 2B: closer returns blend into one tone."""
+        return C_M_PER_S / (2.0 * abs(self.cfg.chirp.excursion_hz))
+
+    def _sample_footprints(self, keys: np.ndarray, d: np.ndarray, h) -> None:
+        """Mixed pixels: re-cast the footprints that may cross a target outline (sim_devices.world.footprint)."""
         cand = np.flatnonzero(fp.edge_candidates(self._motion.static.targets, d, self._footprint_radius))
         if cand.size == 0:
             return
-        first = np.array([self._cache[int(keys[i])][0][:1].tolist() or [np.inf] for i in cand]).ravel()
-        probe = np.where(np.isfinite(first), first, 1e3)   # a miss: the footprint far away
-        half = np.arctan(self._footprint_radius(probe) / probe)
-        sub = fp.sub_ray_directions(d[cand], half)
-        h = self._static_cast(sub.reshape(-1, 3))
-        bin_m = C_M_PER_S / (2.0 * abs(self.cfg.chirp.excursion_hz))  # one range bin
-        for j, i in enumerate(cand):
-            key = int(keys[i])
-            samples = [self._cache[key][:6]] + [_entry(h, j * fp.RING + s) for s in range(fp.RING)]
-            mixed = fp.mix_samples(samples, bin_m, self.max_hits)
-            if mixed is not None:
-                self._cache[key] = mixed
+        b = self._beam()
+        o, sd = fp.sub_rays(d[cand], fp.beam_waist_m(**b),
+                            fp.divergence_half_angle_rad(emission_w_m=b["emission_w_m"], focal_m=b["focal_m"]))
+        sub = self._static_cast(sd.reshape(-1, 3), o.reshape(-1, 3))
+        self.sub_rays_cast += sub.count.size
+        n = fp.SAMPLES
+        agree = mr.agreeing(sub.target_index.reshape(cand.size, n, -1), h.target_index[cand])
+        mixed = np.flatnonzero(~agree)
+        if mixed.size == 0:
+            return
+        rows = (mixed[:, None] * n + np.arange(n)).ravel()        # the mixed pixels' samples
+        cols = [a[rows].reshape(mixed.size, n, -1) for a in
+                (sub.range_m, sub.incidence_rad, sub.reflectivity, sub.radial_velocity_mps,
+                 sub.transmission, sub.target_index)]
+        for j, entry in zip(mixed, mr.mix_samples(cols, self.range_bin_m(), self.max_hits)):
+            self._mixed[int(keys[cand[j]])] = entry
 
-    def _hits(self, rows, cols, t_s):
+    def _hits(self, rows, cols, t_s, footprint: bool = True):
         """(7 flat hit arrays, beam index) of beams at (rows, cols) fired at scene times ``t_s``."""
-        entries = self._cast_pixels(rows, cols)
+        entries = self._cast_pixels(rows, cols, footprint)
         counts = np.fromiter((len(e[0]) for e in entries), dtype=np.int64, count=len(entries))
         beam = np.repeat(np.arange(len(entries)), counts)
         cat = [np.concatenate([e[j] for e in entries]) if len(entries) else np.zeros(0) for j in range(7)]
@@ -182,18 +215,31 @@ class World:
             amp = np.where(rough, amp * a, amp)
             phase = np.where(rough, ph, np.nan)
         tau = 2.0 * (rng_m + self.zero_offset_m) / C_M_PER_S   # LO -> lens path z0 is in every round trip
+        n_mixed = int(self.is_mixed(rows, cols).sum()) if self._mixed else 0
         return BeamHits(beam=beam, range_m=rng_m, tau_s=tau, amplitude_v=amp,
-                        velocity_mps=vel, return_index=ret_idx, speckle_phase_rad=phase)
+                        velocity_mps=vel, return_index=ret_idx, speckle_phase_rad=phase,
+                        mixed_beams=n_mixed)
 
-    def ground_truth(self, rows, cols, t_s=None) -> np.ndarray:
-        """Range of the first hit per pixel (inf where nothing is hit): the scan tests' truth; with
-        ``t_s`` (per pixel, s since the run's first trigger) moving targets are where they are then.
-        The geometric lens -> surface distance along the TRUE beam (no zero offset)."""
+    def ground_truth(self, rows, cols, t_s=None, measured_m=None) -> np.ndarray:
+        """Range of the central ray's first hit per pixel (inf where nothing is hit): the scan tests'
+        truth; with ``t_s`` (per pixel, s since the run's first trigger) moving targets are where
+        they are then. The geometric lens -> surface distance along the TRUE beam (no zero offset).
+
+        ``measured_m`` (per pixel): on a MIXED pixel (:meth:`is_mixed`) the truth is instead the
+        footprint's return, or blend of returns within a range bin, nearest to the measurement
+        (:func:`sim_devices.world.mixed_returns.nearest_truth`): the surface the point came from."""
         rows, cols = np.asarray(rows), np.asarray(cols)
-        cat, beam = self._hits(rows, cols, t_s)
+        cat, beam = self._hits(rows, cols, t_s, footprint=False)
         out = np.full(len(rows), np.inf)
         first = np.r_[True, beam[1:] != beam[:-1]] if beam.size else np.zeros(0, bool)
         out[beam[first]] = cat[0][first]
+        if measured_m is None or not self._mixed:
+            return out
+        meas = np.broadcast_to(np.asarray(measured_m, np.float64), (len(rows),))
+        keys = rows.astype(np.int64) * 4096 + cols.astype(np.int64)
+        for i in np.flatnonzero(self.is_mixed(rows, cols)):
+            ranges = np.r_[self._mixed[int(keys[i])][0], out[i]]   # + the central ray's (moving) hit
+            out[i] = mr.nearest_truth(float(meas[i]), ranges, self.range_bin_m())
         return out
 
 

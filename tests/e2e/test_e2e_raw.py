@@ -55,7 +55,13 @@ def test_cal_letters_replay_is_identical_and_another_estimator_is_that_estimator
     cap = RawCapture(path)
     assert cap.complete and cap.n_pixels == res.pixels_planned == 12 * 32 and cap.n_chunks >= 4
     assert cap.channels == ["beat"] and res.meta["raw"] == {"pixels": 384, "error": None}
-    assert len(res.points) >= 0.9 * 384          # unlinearized chirp: a few letter edges drop out
+    # unlinearized chirp: a few letter edges drop out, more where a beam straddles a letter's
+    # outline (issue 15: its power splits into two weaker returns); the pixels off the outlines range
+    planned = np.concatenate([cap.chunk(i).pixels for i in range(cap.n_chunks)]).astype(int)
+    plain = planned[~bench._on_close.__self__.mixed_pixels(planned[:, 0], planned[:, 1])]
+    ranged = np.isin(plain[:, 0] * 128 + plain[:, 1], res.points["row"].astype(int) * 128 + res.points["col"])
+    assert ranged.mean() >= 0.95
+    assert len(res.points) >= 0.8 * 384
     again = reprocess(path)
     assert again.points.dtype == res.points.dtype and np.array_equal(again.points, res.points)
     assert again.meta["dsp"] == res.meta["dsp"]
@@ -65,7 +71,11 @@ def test_cal_letters_replay_is_identical_and_another_estimator_is_that_estimator
     # the same CFAR detections, other sub-bin refinements: within half a range bin of each other
     assert np.array_equal(jac.points[["row", "col"]], res.points[["row", "col"]])
     bin_m = FrameDsp(**cap.attrs["dsp"]).range_resolution_m
-    assert np.max(np.abs(jac.points["range"] - res.points["range"])) < 0.5 * bin_m
+    diff = np.abs(jac.points["range"] - res.points["range"])
+    # on a mixed pixel (issue 15) a second tone a few bins away, smeared by the unlinearized chirp,
+    # pulls the two interpolators apart differently: the half-bin agreement holds off the outlines
+    mixed = bench._on_close.__self__.mixed_pixels(res.points["row"], res.points["col"])
+    assert np.max(diff[~mixed]) < 0.5 * bin_m
 
 
 def test_phase_noise_scan_records_the_monitor_and_replays_identically(bench, tmp_path):

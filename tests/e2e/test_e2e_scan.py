@@ -50,11 +50,22 @@ def test_cal_letters_every_pixel_ranged_within_a_millimetre(embedded):
     pts = res.points
     assert res.pixels_planned == 12 * 32            # rows 43, 47, 51, 55 are not bonded
     assert not res.partial and res.hardware_time_s > 0
-    truth = bench.ground_truth(pts["row"], pts["col"])
     good = pts["valid"] == 1
-    assert good.sum() >= 0.98 * res.pixels_planned
+    assert len(np.unique(pts["row"][good] * 128 + pts["col"][good])) >= 0.98 * res.pixels_planned
+    # Mixed pixels (issue 15): a beam whose footprint straddles a letter's outline sees the letter
+    # AND the cardboard (two weaker returns, return_index 0 and 1). Each point is scored against the
+    # footprint's surface nearest to it; every other pixel against its single central ray, as before.
+    mixed = bench.mixed_pixels(pts["row"], pts["col"])
+    truth = bench.ground_truth(pts["row"], pts["col"], measured_m=pts["range"])
+    single = bench.ground_truth(pts["row"], pts["col"])
+    assert np.array_equal(truth[~mixed], single[~mixed])
     err = pts["range"][good] - truth[good]
     assert np.sqrt(np.mean(err**2)) <= 1e-3
+    plain = good & ~mixed
+    assert plain.sum() >= 0.5 * res.pixels_planned
+    assert np.sqrt(np.mean((pts["range"][plain] - single[plain]) ** 2)) <= 1e-3
+    # the letters' outlines are mixed pixels, and some give both returns
+    assert mixed.any() and np.any(pts["return_index"][good & mixed] == 1)
     # both the letters (0.8 m) and the cardboard behind them (0.9 m) are there
     assert np.any(np.abs(truth[good] - 0.8) < 0.01) and np.any(np.abs(truth[good] - 0.9) < 0.01)
     # points lie along their beams: |xyz| = range
@@ -70,6 +81,27 @@ def test_cal_letters_every_pixel_ranged_within_a_millimetre(embedded):
     assert led["skipped"]["phase_noise"] > 0 and "phase_noise" not in led["modelled"]
     assert led["skipped"]["doppler"] > 0 and "doppler" not in led["modelled"]
     assert "phase_noise" in led["rules"]
+    assert led["modelled"]["mixed_pixels"] > 0         # the scene file does not ask: the bench decides
+
+
+def test_fidelity_ledger_says_where_mixed_pixels_were_modelled(embedded):
+    inst, bench, cal = embedded
+    req = ScanRequest(pattern="roi", rows=(44, 48), cols=(44, 52), max_range_m=2.0)   # across a letter's outline
+    letters = Scene.from_toml("config/scenes/cal_letters.toml")
+    wall = Scene.from_dict({"target": [{"kind": "plane", "point": [0, 0, 0.9], "normal": [0, 0, -1]}]})
+    off = Scene(letters.targets, mixed_pixels=False)
+    ledgers = {}
+    for name, scene in (("letters", letters), ("wall", wall), ("off", off)):
+        bench.set_scene(scene)
+        res = _scan(inst, req, cal)
+        ledgers[name] = (res.meta["sim"]["fidelity"], res.points)
+    led, _ = ledgers["letters"]
+    assert led["modelled"].get("mixed_pixels", 0) > 0
+    for name in ("wall", "off"):    # no outline in view / switched off by the scene: one ray per pixel
+        led, pts = ledgers[name]
+        assert "mixed_pixels" not in led["modelled"] and led["skipped"]["mixed_pixels"] > 0
+        assert np.all(pts["return_index"] == 0)
+    assert "mixed_pixels" in led["rules"]
 
 
 def test_empty_scene_gives_no_points(embedded):
