@@ -41,6 +41,8 @@ def test_the_watch_trips_while_the_scan_thread_is_blocked_in_the_dsp(inst, monke
 
     def blocking_flush(self):
         if not seen:                      # the first DSP batch: open the interlock, then block
+            # the watch is running here (it ends once it trips, which may be before the main thread looks)
+            seen["watching_before_fault"] = inst.safety.watching
             inst.inject_fault("interlock_open")
             in_dsp.set()
             seen["released"] = release.wait(WAIT_S)
@@ -55,7 +57,7 @@ def test_the_watch_trips_while_the_scan_thread_is_blocked_in_the_dsp(inst, monke
                          daemon=True)
     t.start()
     assert in_dsp.wait(WAIT_S), "the scan never reached the DSP"
-    assert inst.safety.watching and inst.safety.period_s == 0.02      # [daemon] safety_period_s
+    assert seen["watching_before_fault"] and inst.safety.period_s == 0.02      # [daemon] safety_period_s
     # the scan thread is inside the DSP call; the watch must trip on its own
     assert inst.safety.trip_event.wait(WAIT_S), "the safety watch did not trip while the DSP was busy"
     trip = inst.safety.tripped
@@ -65,7 +67,7 @@ def test_the_watch_trips_while_the_scan_thread_is_blocked_in_the_dsp(inst, monke
     release.set()
     t.join(WAIT_S)
     assert not t.is_alive()
-    assert seen == {"released": True, "tripped_before_return": True}
+    assert seen == {"watching_before_fault": True, "released": True, "tripped_before_return": True}
     res = out["res"]
     # the scan stops and keeps the points of the batch already in the DSP, as after a check-trip
     assert res.partial and "interlock" in res.stop_reason and "read back" in res.stop_reason
