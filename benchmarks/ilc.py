@@ -15,6 +15,7 @@ import numpy as np
 
 from lidard.config import Monitor, load_laser, load_lasers
 from lidard.dsp.ilc import linearize
+from lidard.instrument.calibration.linearization import MAX_AVERAGES, MAX_ITERATIONS   # the instrument's policy
 from sim_devices.world.laser import DfbLaser, ramp_nonlinearity_hz, triangle_drive
 from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
 
@@ -23,7 +24,8 @@ TAU_M = Monitor().delay_s
 DISSERTATION = {"reduction_up": 140.0, "reduction_down": 600.0, "iterations": 14}
 
 
-def _run(preset, seed=1, averages=32, max_iter=14, max_averages=512, quadrature=False, **ilc_kw):
+def _run(preset, seed=1, averages=32, max_iter=MAX_ITERATIONS, max_averages=MAX_AVERAGES, quadrature=False,
+         **ilc_kw):
     laser = DfbLaser(preset)
     rng = np.random.default_rng(seed)
     n = int(2 * RAMP_S * FS)

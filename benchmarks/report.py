@@ -231,8 +231,8 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
         "`benchmarks.ilc.convergence(preset, seed=1, quadrature=...)` per preset: RMS nonlinearity over the ROI as the daemon "
         "measures it through the monitor MZI, per iteration; the true residual (RMS over the ROI / excursion) comes "
         f"from the laser model's nu(t). Monitor MZI delay {runs[0].get('mzi_delay_s', float('nan')) * 1e9:.0f} ns; "
-        "32 averaged periods per measurement, doubled (up to 512) when the noise floor stops learning above "
-        "4e-6 of the excursion, as the instrument does. Monitor `real`: one photodiode (the dissertation's); "
+        "32 averaged periods per measurement, doubled (up to 2048, the instrument's MAX_AVERAGES) when the "
+        "noise floor stops learning above 4e-6 of the excursion, as the instrument does. Monitor `real`: one photodiode (the dissertation's); "
         "`quadrature`: the same MZI read as I + jQ (`[monitor] quadrature`), each record's phase demodulated and "
         "the phases averaged (lidard.dsp.ilcquad).\n\n"
         + table(["preset", "monitor", "plain triangle RMS / swing", "reduction up", "reduction down", "iterations",

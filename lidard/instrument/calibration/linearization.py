@@ -33,6 +33,11 @@ from ..types import CalibrationResult
 
 log = logging.getLogger(__name__)
 
+#: the ILC's step limit: well above what any shipped laser needs to reach its measurement noise floor
+MAX_ITERATIONS = 24
+#: averages per measurement may double up to this when the noise floor stops learning above the target
+MAX_AVERAGES = 2048
+
 
 class Linearization:
     """One linearization run: ``run(plain_drive_v)`` answers the :class:`CalibrationResult`."""
@@ -89,7 +94,10 @@ class Linearization:
         try:
             res = ilc_linearize(self.measure, plain_drive_v, fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self.fs_hz,
                                 ramp_s=c.ramp_s, excursion_hz=c.excursion_hz, mzi_delay_s=self.mzi_delay_s,
-                                averages=32, max_averages=512, max_drive_v=self.cfg.devices.awg.max_output_v)
+                                averages=32, max_averages=MAX_AVERAGES, max_drive_v=self.cfg.devices.awg.max_output_v,
+                                # a slow thermal term needs ~19 steps to its noise floor (issue 15;
+                                # the default DFB stops at ~8 by itself)
+                                max_iter=MAX_ITERATIONS)
         finally:
             self.safety.bring_down()
         iters = [{"up_rms_hz": float(it["up_rms_hz"]), "down_rms_hz": float(it["down_rms_hz"])}
