@@ -74,21 +74,30 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
 
 
-def score_points(points: np.ndarray, scene, ground_truth: Callable | None = None) -> dict[str, Any]:
+def score_points(points: np.ndarray, scene, ground_truth: Callable | None = None,
+                 mixed: Callable | None = None) -> dict[str, Any]:
     """Both scores of a scan's points (POINT_DTYPE records; valid first returns are scored).
 
     ``scene``: a ``sim_devices.world.scene.Scene`` (the true surfaces). ``ground_truth(rows, cols)``:
     the true range per pixel along the true beam (``Bench.ground_truth``); without it the range error
     is taken along each point's own ray (``Scene.range_error``), which mixes pointing into it.
+    ``mixed(rows, cols)`` (``Bench.mixed_pixels``): pixels whose beam footprint crosses a target's
+    outline are left out and counted (``mixed_pixels``): their returns blend two surfaces, which is edge
+    blur, not the range or pointing error these scores measure (docs/physics.md, "Mixed pixels").
     """
     p = points[(points["valid"] == 1) & (points["return_index"] == 0)]
+    n_mixed = 0
+    if mixed is not None and len(p):
+        edge = np.asarray(mixed(p["row"], p["col"]), dtype=bool)
+        n_mixed, p = int(edge.sum()), p[~edge]
     xyz = np.stack([p["x"], p["y"], p["z"]], axis=1).astype(np.float64)
     if ground_truth is not None:
         range_err = p["range"].astype(np.float64) - ground_truth(p["row"], p["col"])
     else:
         range_err = scene.range_error(xyz)
     surf = scene.surface_distance(xyz)
-    return {"points": int(len(p)), "rms_range_m": _rms(range_err), "mean_range_m": float(np.nanmean(range_err))
+    return {"points": int(len(p)), "mixed_pixels": n_mixed, "rms_range_m": _rms(range_err),
+            "mean_range_m": float(np.nanmean(range_err))
             if len(p) else float("nan"), "rms_surface_m": _rms(surf),
             "p95_surface_m": float(np.percentile(surf, 95)) if len(p) else float("nan")}
 
@@ -112,8 +121,9 @@ def run_variant(env: dict[str, str], req: ScanRequest,
             calibrate(inst)
         res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
         wall = time.perf_counter() - t0
-        out = score_points(res.points, bench.world.scene, bench.ground_truth)
+        out = score_points(res.points, bench.world.scene, bench.ground_truth, bench.mixed_pixels)
         p = res.points[(res.points["valid"] == 1) & (res.points["return_index"] == 0)]
+        p = p[~bench.mixed_pixels(p["row"], p["col"])]
         truth = bench.truth()
         d_true = bench.ground_truth(p["row"], p["col"])
         # the pointing error alone, without noise: true ranges placed along the daemon's beams

@@ -57,10 +57,10 @@ def run_bench(env: dict[str, str], req) -> dict[str, Any]:
         lin = inst.linearize()
         before = inst.run_scan(req, lambda p: None, threading.Event(), lin)
         out = {"truth": bench.truth().as_dict(), "pixels": int(before.pixels_planned),
-               "before": score_points(before.points, bench.world.scene, bench.ground_truth)}
+               "before": score_points(before.points, bench.world.scene, bench.ground_truth, bench.mixed_pixels)}
         lin2, fitted = calibrate(inst, lin)
         after = inst.run_scan(req, lambda p: None, threading.Event(), lin2)
-        out["after"] = score_points(after.points, bench.world.scene, bench.ground_truth)
+        out["after"] = score_points(after.points, bench.world.scene, bench.ground_truth, bench.mixed_pixels)
         out["fitted"] = fitted
         return out
     finally:

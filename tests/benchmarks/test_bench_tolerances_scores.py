@@ -52,3 +52,12 @@ def test_each_sensitivity_bench_has_one_tolerance_on():
         zeros = {k for k, val in env.items() if val == "0"}
         assert zeros == {f"LIDARD__SIM__TOLERANCES__{o.upper()}" for o in TOLERANCES if o != name}
         assert env["LIDARD__SIM__TOLERANCES__DRAW"] == "false"
+
+
+def test_mixed_pixels_are_left_out_and_counted():
+    # three beams on the wall; the third's footprint crosses an outline (its return blends two surfaces)
+    pts = _points([[0, 0, 1.0], [0.1, 0, 1.0], [0.2, 0, 1.3]], [1.0, 1.0, 1.3])
+    pts["row"] = [1, 2, 3]
+    s = score_points(pts, WALL, ground_truth=lambda r, c: np.full(len(r), 1.0),
+                     mixed=lambda r, c: np.asarray(r) == 3)
+    assert s["points"] == 2 and s["mixed_pixels"] == 1 and s["rms_range_m"] == pytest.approx(0.0, abs=1e-6)
