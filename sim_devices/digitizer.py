@@ -330,8 +330,29 @@ def quantize_codes(x: np.ndarray, resolution_bits: int, format_bits: int) -> tup
 
 def front_end(codes: np.ndarray, cfg: p.Config) -> tuple[np.ndarray, int]:
     """Band limit then quantize the source's codes (both channels alike); (codes, highest code)."""
-    x = band_limit(codes, float(cfg.bandwidth_hz), float(cfg.sample_rate_hz))
+    codes = np.asarray(codes)
+    fs = float(cfg.sample_rate_hz)
+    if codes.dtype.kind in "iu" and not 0 < float(cfg.bandwidth_hz) < fs / 2:
+        # no filter at this rate (a corner at or above fs / 2): integer codes stay integers
+        return quantize_int_codes(codes, cfg.resolution_bits, cfg.bits)
+    x = band_limit(codes, float(cfg.bandwidth_hz), fs)
     return quantize_codes(x, cfg.resolution_bits, cfg.bits)
+
+
+def quantize_int_codes(codes: np.ndarray, resolution_bits: int, format_bits: int) -> tuple[np.ndarray, int]:
+    """:func:`quantize_codes` of integer codes in integer arithmetic (issue 18: the float64 round
+    trip of every sample was most of the simulated transport's time). Same values: round half to
+    even, as ``np.round`` does; int32 out, so codes beyond full scale survive for the clip."""
+    step = 1 << (format_bits - resolution_bits)
+    hi = (1 << (format_bits - 1)) - step
+    if step == 1:
+        return codes, hi
+    q = codes.astype(np.int32)
+    rem = q & (step - 1)                       # q - step * floor(q / step), in [0, step)
+    base = q - rem
+    half = step >> 1
+    up = (rem > half) | ((rem == half) & (((base >> (format_bits - resolution_bits)) & 1) == 1))
+    return base + up * np.int32(step), hi
 
 
 def _replace(c: p.Config, **kw) -> p.Config:
