@@ -81,3 +81,13 @@ def test_half_a_cell_apart_flagged_unless_in_phase(ratio):
     flags, rng_m, _ = _one_point_flags(res)
     ok = (flags & PointFlag.UNRESOLVED) == 0
     assert np.all((rng_m[ok] > d[ok] - 1e-3) & (rng_m[ok] < d[ok] + 0.5 * CELL_M + 1e-3))
+
+
+def test_floor_median_is_numpys_median():
+    # the one-partition median of floor_noise (issue 18) against np.median, odd and even lengths
+    from lidard.dsp.resolve import _median_last
+
+    rng = np.random.default_rng(5)
+    for n in (361, 360, 7, 2):
+        p = rng.exponential(size=(3, 4, n))
+        np.testing.assert_array_equal(_median_last(p), np.median(p, axis=-1))
