@@ -142,22 +142,36 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
     alpha = os_cfar_alpha(n_ref, k, float(pfa))
     mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
     n_blocks = -(-n // _OS_BLOCK)
-    # padded as the exact windows see it (mirrored), then zeros: a zero only lowers the bound
-    pp = np.zeros((rows, n_blocks * _OS_BLOCK + 2 * reach))
-    pp[:, :n + 2 * reach] = np.pad(p, [(0, 0), (reach, reach)], mode="reflect")
+    pp = _mirror_padded(p, reach, n_blocks * _OS_BLOCK - n + reach)
     hood = np.lib.stride_tricks.as_strided(
         pp, (rows, n_blocks, _OS_BLOCK + 2 * reach), (pp.strides[0], _OS_BLOCK * pp.strides[1], pp.strides[1]))
     lower = np.partition(hood, k - 1, axis=-1)[..., k - 1]
-    kth = np.repeat(lower, _OS_BLOCK, axis=1)[:, :n]
-    r, c = np.nonzero((p > alpha * kth) | exact)
+    # the test against each block's bound, block by block (no per-bin copy of the bound)
+    cells = pp[:, reach:reach + n_blocks * _OS_BLOCK].reshape(rows, n_blocks, _OS_BLOCK)
+    maybe = (cells > (alpha * lower)[..., None]).reshape(rows, -1)[:, :n]
+    r, c = np.nonzero(maybe | exact)
+    # Scale the order statistic to a mean-noise estimate for the SNR report:
+    # E[k-th of N exponentials] = sum_{i=N-k+1}^{N} 1/i.
+    noise = np.repeat(lower / mean_kth, _OS_BLOCK, axis=1)[:, :n]
     if r.size:
         win = np.lib.stride_tricks.sliding_window_view(pp[:, :n + 2 * reach], 2 * reach + 1, axis=-1)
         w = win[r, c]
         ref = np.concatenate([w[:, :n_ref_side], w[:, -n_ref_side:]], axis=1)
-        kth[r, c] = np.partition(ref, k - 1, axis=-1)[:, k - 1]
-    # Scale the order statistic to a mean-noise estimate for the SNR report:
-    # E[k-th of N exponentials] = sum_{i=N-k+1}^{N} 1/i.
-    return (kth / mean_kth).reshape(lead + (n,)), alpha * mean_kth * np.ones(n)
+        noise[r, c] = np.partition(ref, k - 1, axis=-1)[:, k - 1] / mean_kth
+    return noise.reshape(lead + (n,)), alpha * mean_kth * np.ones(n)
+
+
+def _mirror_padded(p: np.ndarray, reach: int, tail: int) -> np.ndarray:
+    """``p`` (rows, n) with ``reach`` mirrored cells on each side (np.pad's "reflect": the edge cell
+    is not repeated), as the exact windows see it, then zeros up to ``tail`` cells after the last
+    cell (a zero only lowers the block bound). One pass, no intermediate padded copy."""
+    rows, n = p.shape
+    pp = np.empty((rows, reach + n + tail))
+    pp[:, reach:reach + n] = p
+    pp[:, :reach] = p[:, reach - np.arange(reach)]
+    pp[:, reach + n:2 * reach + n] = p[:, n - 2 - np.arange(reach)]
+    pp[:, 2 * reach + n:] = 0.0
+    return pp
 
 
 _OS_BLOCK = 16   # bins per lower-bound block of the OS-CFAR (cost ~ (16 + 2 reach) / (16 n_ref) of exact)
@@ -345,10 +359,12 @@ def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_b
     # A noiseless (all-zero) spectrum has noise 0, and FFT round-off (~1e-32 of the strongest
     # bin) must never pass as a target: require positive noise and a 200 dB dynamic-range floor.
     floor = 1e-20 * p2.max(axis=-1, keepdims=True)
-    above = (p2 > alpha * noise) & (noise > 0) & (p2 > floor)
-    left = np.concatenate([np.full((p2.shape[0], 1), -np.inf), p2[:, :-1]], axis=1)
-    right = np.concatenate([p2[:, 1:], np.full((p2.shape[0], 1), -np.inf)], axis=1)
-    cand = above & (p2 >= left) & (p2 > right)
+    cand = p2 > alpha * noise
+    cand &= noise > 0
+    cand &= p2 > floor
+    # local maxima (beyond either edge is -inf), compared in place: no shifted copies of p2
+    cand[:, 1:] &= p2[:, 1:] >= p2[:, :-1]
+    cand[:, :-1] &= p2[:, :-1] > p2[:, 1:]
 
     info = window_info(window, 64)
     env = info.leakage_envelope
@@ -373,13 +389,21 @@ def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_b
 
 def _strongest(p2, noise, cand, max_detections):
     """The ``k`` strongest candidates per ramp, strongest first: (k, index, valid, power, noise, snr_db)."""
-    n_bins = p2.shape[-1]
+    n_rows, n_bins = p2.shape
     k = min(max_detections, n_bins)
-    score = np.where(cand, p2, -np.inf)
-    part = np.argpartition(-score, k - 1, axis=-1)[:, :k] if k < n_bins else np.tile(np.arange(n_bins), (p2.shape[0], 1))
-    order = np.argsort(-np.take_along_axis(score, part, axis=-1), axis=-1, kind="stable")
-    idx = np.take_along_axis(part, order, axis=-1)
-    valid = np.isfinite(np.take_along_axis(score, idx, axis=-1))
+    # Candidates are few (about one per ramp): rank them per ramp instead of partitioning every
+    # bin of every ramp (issue 18). Equal powers keep the lower bin first; empty slots are invalid.
+    rows, cols = np.nonzero(cand)
+    pw = p2[rows, cols]
+    order = np.lexsort((-pw, rows))                     # by ramp, then strongest first
+    rows, cols = rows[order], cols[order]
+    start = np.cumsum(np.bincount(rows, minlength=n_rows)) - np.bincount(rows, minlength=n_rows)
+    rank = np.arange(rows.size) - start[rows]
+    top = rank < k
+    idx = np.zeros((n_rows, k), dtype=np.int64)
+    valid = np.zeros((n_rows, k), dtype=bool)
+    idx[rows[top], rank[top]] = cols[top]
+    valid[rows[top], rank[top]] = True
     pk = np.where(valid, np.take_along_axis(p2, idx, axis=-1), 0.0)
     nz = np.where(valid, np.take_along_axis(noise, idx, axis=-1), 0.0)
     with np.errstate(divide="ignore"):
