@@ -182,18 +182,34 @@ class _DtftNearBin:
         self.g = mu * coef
 
     def eval(self, delta: np.ndarray, derivs: int = 0):
-        """G, G', G'' at ``delta`` by Horner; X = exp(-j pi delta (n-1)/n) G."""
-        g = self.g
-        G = np.zeros(delta.shape, dtype=np.complex128)
-        G1 = np.zeros_like(G)
-        G2 = np.zeros_like(G)
-        for p in range(g.shape[1] - 1, -1, -1):
+        """G, G', G'' at ``delta`` by Horner; X = exp(-j pi delta (n-1)/n) G.
+
+        ``delta`` (..., m) for the m pairs: several offsets per pair in one pass (the leading axes).
+        """
+        g = self._terms()
+        shape = np.broadcast_shapes(np.shape(delta), g.shape[1:])
+        G = np.zeros(shape, dtype=np.complex128)
+        G1 = np.zeros(shape, dtype=np.complex128) if derivs >= 1 else None
+        G2 = np.zeros(shape, dtype=np.complex128) if derivs >= 2 else None
+        # in place (the same products and sums as G = G * delta + g_p, without a temporary per term)
+        for p in range(g.shape[0] - 1, -1, -1):
             if derivs >= 2:
-                G2 = G2 * delta + 2.0 * G1
+                G2 *= delta
+                G2 += 2.0 * G1
             if derivs >= 1:
-                G1 = G1 * delta + G
-            G = G * delta + g[:, p]
-        return G, G1, G2
+                G1 *= delta
+                G1 += G
+            G *= delta
+            G += g[p]
+        return G, (np.zeros(shape, np.complex128) if G1 is None else G1), \
+            (np.zeros(shape, np.complex128) if G2 is None else G2)
+
+    def _terms(self) -> np.ndarray:
+        """The coefficients term-major (P, m), contiguous per term (a column of g is strided)."""
+        gt = getattr(self, "_gt", None)
+        if gt is None:
+            gt = self._gt = np.ascontiguousarray(self.g.T)
+        return gt
 
     def dtft(self, delta: np.ndarray) -> np.ndarray:
         G, _, _ = self.eval(delta)
