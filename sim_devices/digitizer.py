@@ -224,9 +224,16 @@ class SimDigitizer(SimUsbDevice):
         lo, hi = (-128, 127) if cfg.bits == 8 else (-32768, 32767)
         if cfg.bandwidth_hz or cfg.resolution_bits < cfg.bits:
             codes, hi = front_end(codes, cfg)
-        clipped = (codes < lo) | (codes > hi)
-        over = np.asarray(cap.overrange, dtype=bool) | clipped.any(axis=2)
-        recs = np.zeros(count, dtype=rec)
+        over = np.asarray(cap.overrange, dtype=bool)
+        sample_dt = p.sample_dtype(cfg.bits)
+        full_scale = (lo, hi) == (np.iinfo(sample_dt).min, np.iinfo(sample_dt).max)
+        if not (full_scale and codes.dtype == sample_dt):
+            # codes of the format's own type that may use all of it cannot be over range (no pass)
+            clipped = (codes < lo) | (codes > hi)
+            over = over | clipped.any(axis=2)
+            if clipped.any():
+                codes = np.clip(codes, lo, hi)
+        recs = np.empty(count, dtype=rec)      # every field is written below (the header is packed)
         recs["magic"] = p.MAGIC
         recs["version"] = p.VERSION
         recs["bits"] = cfg.bits
@@ -236,7 +243,7 @@ class SimDigitizer(SimUsbDevice):
         recs["n_samples"] = cfg.record_length
         t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
         recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
-        recs["data"] = (np.clip(codes, lo, hi) if clipped.any() else codes).astype(p.sample_dtype(cfg.bits))
+        recs["data"] = codes                   # cast on assignment: one pass
         raw = recs.view(np.uint8)
         mv = memoryview(raw)
         size = rec.itemsize
