@@ -167,9 +167,10 @@ def _real_tone_fit(ev: _DtftNearBin, d: np.ndarray) -> np.ndarray:
     # sum_n exp(j 2 w n) = exp(j w (n-1)) sin(n w) / sin(w)  (-> +-n where sin(w) = 0)
     sw = np.sin(w)
     near = np.abs(sw) < 1e-12
-    dirichlet = np.where(near, n * np.cos(w * (n - 1)), np.sin(n * w) / np.where(near, 1.0, sw))
-    scc = 0.5 * (n + np.cos(w * (n - 1)) * dirichlet)
-    sss = 0.5 * (n - np.cos(w * (n - 1)) * dirichlet)
+    cos_n1 = np.cos(w * (n - 1))     # once (it was evaluated three times: the same values)
+    dirichlet = np.where(near, n * cos_n1, np.sin(n * w) / np.where(near, 1.0, sw))
+    scc = 0.5 * (n + cos_n1 * dirichlet)
+    sss = 0.5 * (n - cos_n1 * dirichlet)
     scs = 0.5 * np.sin(w * (n - 1)) * dirichlet
     det = scc * sss - scs**2
     ok = det > 1e-6 * n * n
