@@ -90,13 +90,21 @@ def quantize_int16_into(out: np.ndarray, codes: np.ndarray, resolution_bits: int
     rounding is :func:`quantize_int_codes`'s (half to even), tested equal to :func:`quantize_codes`."""
     shift = 16 - resolution_bits
     step = 1 << shift
-    np.minimum(codes, _int16_top(resolution_bits), out=out)
-    odd = out >> shift
-    odd &= 1
-    out += (step >> 1) - 1
-    out += odd
-    out >>= shift
-    out <<= shift
+    top = _int16_top(resolution_bits)
+    # blocks of records: the temporary stays small (in cache, and off the heap's high-water mark)
+    per = max(1, _BLOCK_SAMPLES // max(1, int(np.prod(codes.shape[1:]))))
+    for i in range(0, codes.shape[0], per):
+        o = out[i:i + per]
+        np.minimum(codes[i:i + per], top, out=o)
+        odd = o >> shift
+        odd &= 1
+        o += (step >> 1) - 1
+        o += odd
+        o >>= shift
+        o <<= shift
+
+
+_BLOCK_SAMPLES = 1 << 16
 
 
 def quantize_int_codes(codes: np.ndarray, resolution_bits: int, format_bits: int) -> tuple[np.ndarray, int]:
