@@ -22,6 +22,7 @@ import numpy as np
 from lidard.dsp.window import get_window
 
 _CHUNK_ROWS = 4096  # bounds the (rows x N) temporaries of the moment computation
+_GEMM_BLOCK_MNK = 500_000   # rows x columns x inner length of one BLAS call of _small_gemm (below)
 
 
 def _safe_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
@@ -120,10 +121,13 @@ def _small_gemm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     OpenBLAS runs one large product on all its threads; these products are too small for that to
     pay, and on a busy 2-core host the woken threads spin and wait for a core (about half the CPU
     time of the frame DSP went there). A stacked matmul calls BLAS per block, and a block below
-    OpenBLAS's multithreading threshold (M*N*K ~ 2.6e5) runs on the calling thread. Same sums.
+    OpenBLAS's multithreading threshold runs on the calling thread. OpenBLAS 0.3.2x+ (numpy's wheels)
+    gives a product M*N*K / 2.6e5 threads, so blocks under 5.2e5 stay on one (measured with numpy
+    2.4's OpenBLAS 0.3.31: 1.0e6 still one thread, 1.2e6 two); 5e5 rather than 2e5 (issue 18):
+    at N = 2880 the old budget made single-row products, each re-reading the whole table. Same sums.
     """
     rows, n = a.shape
-    g = max(1, min(64, 200_000 // max(1, n * b.shape[1])))
+    g = max(1, min(64, _GEMM_BLOCK_MNK // max(1, n * b.shape[1])))
     full = rows // g * g
     out = np.empty((rows, b.shape[1]), dtype=np.result_type(a, b))
     if full:
