@@ -5,9 +5,9 @@ trigger, i.e. one segment per chirp per FPSA pixel, and hands the records to the
 a pyusb ``Device`` from the caller (``usb.core.find(..., backend=backend)``, backend from
 configuration); it does not know whether the bus is real or simulated.
 
-Bulk data is read in large transfers (1 MiB by default) into one preallocated buffer and parsed
-with a numpy record dtype (``np.frombuffer``): per-segment work is two crc32 calls, per-sample work
-is none in Python. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
+Bulk data is read in large transfers (1 MiB by default) into kept transfer buffers and parsed with
+a numpy record dtype (``np.frombuffer``; a read that one transfer fills is parsed in that buffer, and
+the samples are copied out): per-segment work is two crc32 calls, per-sample work is none in Python. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
 timeouts are retried a bounded number of times then ``DeviceTimeout("digitizer", command)``.
 
 Reconnect: with a ``finder`` (``usb.core.find`` for the digitizer's VID:PID again), a transfer that
