@@ -47,8 +47,8 @@ from drivers.digitizer import protocol as p
 from lidard.physics.decimation import PASSBAND_FRACTION, DecimationFilter
 from sim_devices.clock import VirtualClock
 from sim_devices.digitizer_front_end import (  # noqa: F401  (re-exported: tests, benchmarks, the bench)
-    ANTI_ALIAS_ORDER, _int16_top, _quantizes_in_record, band_limit, butter, front_end, quantize_codes,
-    quantize_int16_into, quantize_int_codes, sosfiltfilt,
+    ANTI_ALIAS_ORDER, band_limit, butter, front_end, quantize_codes, quantize_int16_into, quantize_int_codes,
+    sosfiltfilt, write_samples,
 )
 from sim_devices.usb_backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_stall, usb_timeout
 from sim_devices.world.antialias import BeatFilter
@@ -210,24 +210,8 @@ class SimDigitizer(SimUsbDevice):
         if codes.shape != (count, n_ch, cfg.record_length):
             raise ValueError(f"SegmentSource returned codes {codes.shape}, expected "
                              f"{(count, n_ch, cfg.record_length)}")
-        lo, hi = (-128, 127) if cfg.bits == 8 else (-32768, 32767)
-        over = np.asarray(cap.overrange, dtype=bool)
-        in_record = _quantizes_in_record(codes, cfg)
-        if in_record:       # quantized into the record below; over range from each row's largest code
-            over = over | (quantize_int_codes(codes.max(axis=2).astype(np.int32), cfg.resolution_bits, 16)[0]
-                           > _int16_top(cfg.resolution_bits))
-        elif cfg.bandwidth_hz or cfg.resolution_bits < cfg.bits:
-            codes, hi = front_end(codes, cfg)
-        sample_dt = p.sample_dtype(cfg.bits)
-        full_scale = (lo, hi) == (np.iinfo(sample_dt).min, np.iinfo(sample_dt).max)
-        if not (in_record or full_scale and codes.dtype == sample_dt):
-            # codes of the format's own type that may use all of it cannot be over range (no pass);
-            # else a channel is over range when its extremes are (two reductions, no mask)
-            clipped = (codes.max(axis=2) > hi) | (codes.min(axis=2) < lo)
-            over = over | clipped
-            if clipped.any():
-                codes = np.clip(codes, lo, hi)
         recs = np.empty(count, dtype=rec)      # every field is written below (the header is packed)
+        over = write_samples(recs["data"], codes, np.asarray(cap.overrange, dtype=bool), cfg)
         recs["magic"] = p.MAGIC
         recs["version"] = p.VERSION
         recs["bits"] = cfg.bits
@@ -237,10 +221,6 @@ class SimDigitizer(SimUsbDevice):
         recs["n_samples"] = cfg.record_length
         t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
         recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
-        if in_record:
-            quantize_int16_into(recs["data"], codes, cfg.resolution_bits)
-        else:
-            recs["data"] = codes               # cast on assignment: one pass
         raw = recs.view(np.uint8)
         mv = memoryview(raw)
         size = rec.itemsize

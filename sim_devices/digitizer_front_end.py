@@ -126,3 +126,27 @@ def quantize_int_codes(codes: np.ndarray, resolution_bits: int, format_bits: int
     q >>= shift
     q <<= shift
     return q, hi
+
+
+def write_samples(out: np.ndarray, codes: np.ndarray, over: np.ndarray, cfg: p.Config) -> np.ndarray:
+    """The converter's output for ``codes`` (count, n_channels, n) written into ``out`` (a record
+    array's samples): band limit and quantizer (:func:`front_end`), clipped to the range of the
+    resolution. Returns ``over`` (count, n_channels) with the clipped channels added."""
+    lo, hi = (-128, 127) if cfg.bits == 8 else (-32768, 32767)
+    if _quantizes_in_record(codes, cfg):
+        quantize_int16_into(out, codes, cfg.resolution_bits)
+        # over range where a row's largest code quantizes above the top (quantizing is monotone)
+        top_q = quantize_int_codes(codes.max(axis=2).astype(np.int32), cfg.resolution_bits, 16)[0]
+        return over | (top_q > _int16_top(cfg.resolution_bits))
+    if cfg.bandwidth_hz or cfg.resolution_bits < cfg.bits:
+        codes, hi = front_end(codes, cfg)
+    sample_dt = p.sample_dtype(cfg.bits)
+    if not ((lo, hi) == (np.iinfo(sample_dt).min, np.iinfo(sample_dt).max) and codes.dtype == sample_dt):
+        # codes of the format's own type that may use all of it cannot be over range (no pass);
+        # else a channel is over range when its extremes are (two reductions, no mask)
+        clipped = (codes.max(axis=2) > hi) | (codes.min(axis=2) < lo)
+        over = over | clipped
+        if clipped.any():
+            codes = np.clip(codes, lo, hi)
+    out[...] = codes                           # cast on assignment: one pass
+    return over

@@ -218,11 +218,7 @@ def cfar_detect(
     if n_bins < 3:
         raise DspInputError(f"power has {n_bins} bins; at least 3 are needed")
 
-    if method == "ca":
-        noise, alpha = _noise_ca(p2, n_ref // 2, n_guard, pfa)
-        where = None
-    else:
-        noise, alpha, where = _noise_os(p2, n_ref // 2, n_guard, pfa, os_rank, with_where=True)
+    noise, alpha, where = _noise(p2, method, n_ref // 2, n_guard, pfa, os_rank)
     cand = _candidates(p2, noise, alpha, where=where,
                        window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
                        dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db)
@@ -247,6 +243,13 @@ def cfar_detect(
         unresolved=unresolved.reshape(shape),
         width_bins=width.reshape(shape),
     )
+
+
+def _noise(p2, method, n_ref_side, n_guard, pfa, os_rank):
+    """(noise, alpha, cells outside which nothing passes the threshold or None) of either method."""
+    if method == "ca":
+        return _noise_ca(p2, n_ref_side, n_guard, pfa) + (None,)
+    return _noise_os(p2, n_ref_side, n_guard, pfa, os_rank, with_where=True)
 
 
 def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa) -> np.ndarray:
