@@ -37,7 +37,6 @@ Wire format: drivers/digitizer/protocol.py and docs/protocols/digitizer.md.
 
 from __future__ import annotations
 
-import math
 import zlib
 from dataclasses import dataclass
 from typing import Protocol
@@ -47,20 +46,12 @@ import numpy as np
 from drivers.digitizer import protocol as p
 from lidard.physics.decimation import PASSBAND_FRACTION, DecimationFilter
 from sim_devices.clock import VirtualClock
+from sim_devices.digitizer_front_end import (  # noqa: F401  (re-exported: tests, benchmarks, the bench)
+    ANTI_ALIAS_ORDER, band_limit, butter, front_end, quantize_codes, quantize_int16_into, quantize_int_codes,
+    sosfiltfilt, write_samples,
+)
 from sim_devices.usb_backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_stall, usb_timeout
 from sim_devices.world.antialias import BeatFilter
-
-
-def butter(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
-    from scipy.signal import butter as fn
-    return fn(*args, **kwargs)
-
-
-def sosfiltfilt(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
-    from scipy.signal import sosfiltfilt as fn
-    return fn(*args, **kwargs)
 
 
 SAMPLE_RATE_MIN_HZ = 1_000
@@ -69,8 +60,6 @@ RECORD_LENGTH_MAX = 16 * 1024 * 1024
 SEGMENTS_MAX = 1 << 24
 RANGE_MV_MIN = 10
 RANGE_MV_MAX = 10_000
-#: Butterworth order of the anti-alias filter, run forward and backward (zero phase, order doubles)
-ANTI_ALIAS_ORDER = 4
 
 
 @dataclass(frozen=True)
@@ -221,12 +210,8 @@ class SimDigitizer(SimUsbDevice):
         if codes.shape != (count, n_ch, cfg.record_length):
             raise ValueError(f"SegmentSource returned codes {codes.shape}, expected "
                              f"{(count, n_ch, cfg.record_length)}")
-        lo, hi = (-128, 127) if cfg.bits == 8 else (-32768, 32767)
-        if cfg.bandwidth_hz or cfg.resolution_bits < cfg.bits:
-            codes, hi = front_end(codes, cfg)
-        clipped = (codes < lo) | (codes > hi)
-        over = np.asarray(cap.overrange, dtype=bool) | clipped.any(axis=2)
-        recs = np.zeros(count, dtype=rec)
+        recs = np.empty(count, dtype=rec)      # every field is written below (the header is packed)
+        over = write_samples(recs["data"], codes, np.asarray(cap.overrange, dtype=bool), cfg)
         recs["magic"] = p.MAGIC
         recs["version"] = p.VERSION
         recs["bits"] = cfg.bits
@@ -236,7 +221,6 @@ class SimDigitizer(SimUsbDevice):
         recs["n_samples"] = cfg.record_length
         t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
         recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
-        recs["data"] = (np.clip(codes, lo, hi) if clipped.any() else codes).astype(p.sample_dtype(cfg.bits))
         raw = recs.view(np.uint8)
         mv = memoryview(raw)
         size = rec.itemsize
@@ -299,39 +283,6 @@ _NUMERIC = {
     p.Req.SET_RANGE: ("input_range_mv", p.dec_u32, RANGE_MV_MIN, RANGE_MV_MAX, "mV"),
     p.Req.SET_BANDWIDTH: ("bandwidth_hz", p.dec_u64, 0, p.MAX_BANDWIDTH_HZ, "Hz"),
 }
-
-
-def band_limit(x: np.ndarray, bandwidth_hz: float, sample_rate_hz: float) -> np.ndarray:
-    """The anti-alias filter along the last axis (module docstring); float64 out.
-
-    A corner of 0 or at/above fs/2 returns ``x`` unfiltered (as float64).
-    """
-    x = np.asarray(x, dtype=np.float64)
-    if not 0 < bandwidth_hz < sample_rate_hz / 2 or x.shape[-1] < 2:
-        return x
-    n = ANTI_ALIAS_ORDER
-    t_design = math.tan(math.pi * bandwidth_hz / sample_rate_hz) * (math.sqrt(2.0) - 1.0) ** (-1.0 / (2 * n))
-    sos = butter(n, math.atan(t_design) * sample_rate_hz / math.pi, fs=sample_rate_hz, output="sos")
-    # odd extension as long as the record allows: keeps the record ends free of start-up transients
-    pad = min(x.shape[-1] - 1, 3 * (2 * len(sos) + 1))
-    return sosfiltfilt(sos, x, axis=-1, padlen=pad)
-
-
-def quantize_codes(x: np.ndarray, resolution_bits: int, format_bits: int) -> tuple[np.ndarray, int]:
-    """Mid-tread quantizer of ``resolution_bits`` inside the ``format_bits`` container.
-
-    Returns (codes as float64 multiples of the step 2**(format - resolution), highest code of the
-    resolution). Values beyond full scale are left for the caller to clip and flag.
-    """
-    step = 1 << (format_bits - resolution_bits)
-    hi = (1 << (format_bits - 1)) - step
-    return np.round(np.asarray(x, dtype=np.float64) / step) * step, hi
-
-
-def front_end(codes: np.ndarray, cfg: p.Config) -> tuple[np.ndarray, int]:
-    """Band limit then quantize the source's codes (both channels alike); (codes, highest code)."""
-    x = band_limit(codes, float(cfg.bandwidth_hz), float(cfg.sample_rate_hz))
-    return quantize_codes(x, cfg.resolution_bits, cfg.bits)
 
 
 def _replace(c: p.Config, **kw) -> p.Config:

@@ -5,9 +5,9 @@ trigger, i.e. one segment per chirp per FPSA pixel, and hands the records to the
 a pyusb ``Device`` from the caller (``usb.core.find(..., backend=backend)``, backend from
 configuration); it does not know whether the bus is real or simulated.
 
-Bulk data is read in large transfers (1 MiB by default) into one preallocated buffer and parsed
-with a numpy record dtype (``np.frombuffer``): per-segment work is two crc32 calls, per-sample work
-is none in Python. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
+Bulk data is read in large transfers (1 MiB by default) into kept transfer buffers and parsed with
+a numpy record dtype (``np.frombuffer``; a read that one transfer fills is parsed in that buffer, and
+the samples are copied out): per-segment work is two crc32 calls, per-sample work is none in Python. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
 timeouts are retried a bounded number of times then ``DeviceTimeout("digitizer", command)``.
 
 Reconnect: with a ``finder`` (``usb.core.find`` for the digitizer's VID:PID again), a transfer that
@@ -71,6 +71,7 @@ class DigitizerDriver:
         self._timeout_ms = int(timeout_ms)
         self._retries = int(retries)
         self._chunk = array.array("B", bytes(chunk_bytes))
+        self._spare: dict[int, array.array] = {}     # transfer buffers of other sizes, by size
         try:
             device.set_configuration()
         except usb.core.USBError as exc:
@@ -228,36 +229,57 @@ class DigitizerDriver:
         self._guard(command, lambda: self._dev.ctrl_transfer(
             p.REQTYPE_OUT, int(p.Req.READ_SEGMENTS), 0, 0, p.enc_read_segments(first, count),
             self._timeout_ms))
-        total = rec.itemsize * count
-        raw = np.empty(total, dtype=np.uint8)
-        self._read_into(memoryview(raw), command)
-
+        raw = self._read_stream(rec.itemsize * count, command)
         recs = raw.view(rec)
         self._validate(recs, raw, first, count, cfg, command)
         cols = [recs[f].tolist() for f in ("index", "trigger_time_ns", "n_samples", "mask", "bits",
                                             "overrange", "payload_crc32")]
         headers = [p.SegmentHeader(*vals) for vals in zip(*cols)]
-        samples = np.ascontiguousarray(recs["data"])
+        samples = np.array(recs["data"], copy=True)     # a copy: ``raw`` may be a reused transfer buffer
         if cfg.bits == 16:
             samples = samples.astype(np.int16, copy=False)
         else:
             samples = samples.astype(np.int8, copy=False)
         return headers, samples
 
-    def _read_into(self, out: memoryview, command: str) -> None:
-        chunk = self._chunk
-        cview = memoryview(chunk)
-        pos = 0
-        total = len(out)
+    def _read_stream(self, total: int, command: str) -> np.ndarray:
+        """``total`` bytes of the bulk-IN stream as uint8; the array may be one of the driver's
+        transfer buffers, valid until the next read (read_segments copies the samples out).
+
+        Each transfer asks for exactly the bytes still due, at most ``chunk_bytes`` (a device
+        that has sent all it has ends the transfer without a zero-length packet). A read that one
+        transfer fills is parsed in the transfer buffer itself: no copy (issue 18)."""
+        first = self._transfer_buffer(min(len(self._chunk), total))
+        n = self._bulk_in(first, command, 0, total)
+        if n == total:
+            return np.frombuffer(first, dtype=np.uint8)
+        out = np.empty(total, dtype=np.uint8)
+        out[:n] = np.frombuffer(first, dtype=np.uint8, count=n)
+        pos = n
         while pos < total:
-            want = min(len(chunk), total - pos)
-            buf = chunk if want == len(chunk) else array.array("B", bytes(want))
-            n = self._guard(command, lambda: self._dev.read(p.EP_DATA_IN, buf, self._timeout_ms))
-            if n <= 0:
-                raise DigitizerDataError(DEVICE, command, f"empty bulk transfer at byte {pos} of {total}")
-            src = cview if buf is chunk else memoryview(buf)
-            out[pos:pos + n] = src[:n]
+            buf = self._transfer_buffer(min(len(self._chunk), total - pos))
+            n = self._bulk_in(buf, command, pos, total)
+            out[pos:pos + n] = np.frombuffer(buf, dtype=np.uint8, count=n)
             pos += n
+        return out
+
+    def _bulk_in(self, buf: array.array, command: str, pos: int, total: int) -> int:
+        n = self._guard(command, lambda: self._dev.read(p.EP_DATA_IN, buf, self._timeout_ms))
+        if n <= 0:
+            raise DigitizerDataError(DEVICE, command, f"empty bulk transfer at byte {pos} of {total}")
+        return n
+
+    def _transfer_buffer(self, size: int) -> array.array:
+        """An array of exactly ``size`` bytes for one transfer (pyusb reads len(buffer) bytes):
+        the chunk, or a kept buffer of that size (a scan's reads repeat a few sizes)."""
+        if size == len(self._chunk):
+            return self._chunk
+        buf = self._spare.get(size)
+        if buf is None:
+            if len(self._spare) >= 4:
+                self._spare.pop(next(iter(self._spare)))
+            buf = self._spare[size] = array.array("B", bytes(size))
+        return buf
 
     @staticmethod
     def _validate(recs: np.ndarray, raw: np.ndarray, first: int, count: int, cfg: p.Config,

@@ -39,13 +39,10 @@ from typing import Literal, get_args
 
 import numpy as np
 
+from lidard.dsp.cfar_os import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
+    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, brentq, os_cfar_alpha, os_cfar_pfa,
+)
 from lidard.dsp.window import DspInputError, WindowName, check_window_name, get_window, window_info
-
-
-def brentq(*args, **kwargs):
-    # imported on first use: scipy.optimize costs about a second of every command's start-up (issue 18)
-    from scipy.optimize import brentq as fn
-    return fn(*args, **kwargs)
 
 
 CfarMethod = Literal["ca", "os"]
@@ -57,29 +54,6 @@ def ca_cfar_alpha(n_ref: int | np.ndarray, pfa: float) -> np.ndarray | float:
     _check_pfa(pfa)
     n = np.asarray(n_ref, dtype=np.float64)
     return n * (pfa ** (-1.0 / n) - 1.0)
-
-
-def os_cfar_pfa(alpha: float, n_ref: int, k: int) -> float:
-    """Exact Pfa of OS-CFAR (k-th of N cells, exponential noise) for threshold factor alpha."""
-    i = np.arange(k)
-    return float(np.prod((n_ref - i) / (n_ref - i + alpha)))
-
-
-@lru_cache(maxsize=256)
-def os_cfar_alpha(n_ref: int, k: int, pfa: float) -> float:
-    """OS-CFAR threshold factor solving os_cfar_pfa(alpha) = pfa (bisection, cached)."""
-    _check_pfa(pfa)
-    if not 1 <= k <= n_ref:
-        raise DspInputError(f"OS-CFAR rank k={k} must lie in 1..n_ref={n_ref}")
-    hi = 1.0
-    while os_cfar_pfa(hi, n_ref, k) > pfa:
-        hi *= 2.0
-    return float(brentq(lambda a: np.log(os_cfar_pfa(a, n_ref, k)) - np.log(pfa), 0.0, hi, xtol=1e-12, rtol=1e-12))
-
-
-def _check_pfa(pfa: float) -> None:
-    if not (0.0 < pfa < 1.0):
-        raise DspInputError(f"pfa={pfa!r} must lie strictly between 0 and 1")
 
 
 @dataclass(frozen=True)
@@ -118,49 +92,6 @@ def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float):
     noise = (lag_s + lead_s) / np.maximum(count, 1.0)
     alpha = ca_cfar_alpha(np.maximum(count, 1.0), pfa)
     return noise, alpha
-
-
-def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, exact: bool = False):
-    """OS-CFAR noise per bin, exact wherever the threshold test can pass (issue 18).
-
-    The k-th smallest of a set is never below the k-th smallest of a superset, so the k-th smallest
-    of a block's whole neighbourhood (``_OS_BLOCK`` bins plus their reach on both sides, the cell
-    under test and guards included) bounds every reference window of the block from below. A bin
-    whose power is under alpha times that bound cannot pass the exact test; only the others get the
-    exact order statistic (in white noise ~1e-4 of the bins, plus the targets). The detections are
-    the same as with the exact statistic at every bin; the noise reported for a bin that was not
-    computed exactly is its lower bound (only detections' noise is used downstream); ``exact=True``
-    computes every bin exactly (a spectrum view that draws the threshold)."""
-    n_ref = 2 * n_ref_side
-    k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
-    reach = n_guard + n_ref_side
-    lead = p.shape[:-1]
-    p = p.reshape(-1, p.shape[-1])
-    rows, n = p.shape
-    if n <= reach:
-        raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
-    alpha = os_cfar_alpha(n_ref, k, float(pfa))
-    mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
-    n_blocks = -(-n // _OS_BLOCK)
-    # padded as the exact windows see it (mirrored), then zeros: a zero only lowers the bound
-    pp = np.zeros((rows, n_blocks * _OS_BLOCK + 2 * reach))
-    pp[:, :n + 2 * reach] = np.pad(p, [(0, 0), (reach, reach)], mode="reflect")
-    hood = np.lib.stride_tricks.as_strided(
-        pp, (rows, n_blocks, _OS_BLOCK + 2 * reach), (pp.strides[0], _OS_BLOCK * pp.strides[1], pp.strides[1]))
-    lower = np.partition(hood, k - 1, axis=-1)[..., k - 1]
-    kth = np.repeat(lower, _OS_BLOCK, axis=1)[:, :n]
-    r, c = np.nonzero((p > alpha * kth) | exact)
-    if r.size:
-        win = np.lib.stride_tricks.sliding_window_view(pp[:, :n + 2 * reach], 2 * reach + 1, axis=-1)
-        w = win[r, c]
-        ref = np.concatenate([w[:, :n_ref_side], w[:, -n_ref_side:]], axis=1)
-        kth[r, c] = np.partition(ref, k - 1, axis=-1)[:, k - 1]
-    # Scale the order statistic to a mean-noise estimate for the SNR report:
-    # E[k-th of N exponentials] = sum_{i=N-k+1}^{N} 1/i.
-    return (kth / mean_kth).reshape(lead + (n,)), alpha * mean_kth * np.ones(n)
-
-
-_OS_BLOCK = 16   # bins per lower-bound block of the OS-CFAR (cost ~ (16 + 2 reach) / (16 n_ref) of exact)
 
 
 def _width_6db(p: np.ndarray, idx: np.ndarray, max_half: int) -> np.ndarray:
@@ -287,11 +218,9 @@ def cfar_detect(
     if n_bins < 3:
         raise DspInputError(f"power has {n_bins} bins; at least 3 are needed")
 
-    if method == "ca":
-        noise, alpha = _noise_ca(p2, n_ref // 2, n_guard, pfa)
-    else:
-        noise, alpha = _noise_os(p2, n_ref // 2, n_guard, pfa, os_rank)
-    cand = _candidates(p2, noise, alpha, window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
+    noise, alpha, where = _noise(p2, method, n_ref // 2, n_guard, pfa, os_rank)
+    cand = _candidates(p2, noise, alpha, where=where,
+                       window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
                        dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db)
     k, idx, valid, pk, nz, snr_db = _strongest(p2, noise, cand, max_detections)
 
@@ -314,6 +243,13 @@ def cfar_detect(
         unresolved=unresolved.reshape(shape),
         width_bins=width.reshape(shape),
     )
+
+
+def _noise(p2, method, n_ref_side, n_guard, pfa, os_rank):
+    """(noise, alpha, cells outside which nothing passes the threshold or None) of either method."""
+    if method == "ca":
+        return _noise_ca(p2, n_ref_side, n_guard, pfa) + (None,)
+    return _noise_os(p2, n_ref_side, n_guard, pfa, os_rank, with_where=True)
 
 
 def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa) -> np.ndarray:
@@ -339,16 +275,25 @@ def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa
     return p
 
 
-def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_bins, sidelobe_margin_db):
-    """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate."""
+def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_bins, sidelobe_margin_db,
+                where=None):
+    """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate.
+
+    ``where``: (rows, bins) outside which no bin is above the threshold (OS-CFAR's exactly computed
+    bins): the tests run on those cells only."""
     n_bins = p2.shape[-1]
     # A noiseless (all-zero) spectrum has noise 0, and FFT round-off (~1e-32 of the strongest
     # bin) must never pass as a target: require positive noise and a 200 dB dynamic-range floor.
     floor = 1e-20 * p2.max(axis=-1, keepdims=True)
-    above = (p2 > alpha * noise) & (noise > 0) & (p2 > floor)
-    left = np.concatenate([np.full((p2.shape[0], 1), -np.inf), p2[:, :-1]], axis=1)
-    right = np.concatenate([p2[:, 1:], np.full((p2.shape[0], 1), -np.inf)], axis=1)
-    cand = above & (p2 >= left) & (p2 > right)
+    if where is None:
+        cand = p2 > alpha * noise
+        cand &= noise > 0
+        cand &= p2 > floor
+        # local maxima (beyond either edge is -inf), compared in place: no shifted copies of p2
+        cand[:, 1:] &= p2[:, 1:] >= p2[:, :-1]
+        cand[:, :-1] &= p2[:, :-1] > p2[:, 1:]
+    else:
+        cand = _sparse_candidates(p2, noise, alpha, floor, *where)
 
     info = window_info(window, 64)
     env = info.leakage_envelope
@@ -371,15 +316,36 @@ def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_b
     return cand & keep
 
 
+def _sparse_candidates(p2, noise, alpha, floor, r, c) -> np.ndarray:
+    """The dense tests of :func:`_candidates` on the cells (r, c) only (the same comparisons)."""
+    n_bins = p2.shape[-1]
+    pr, nr = p2[r, c], noise[r, c]
+    ok = (pr > alpha[c] * nr) & (nr > 0) & (pr > floor[r, 0])
+    left = np.where(c > 0, p2[r, np.maximum(c - 1, 0)], -np.inf)
+    right = np.where(c < n_bins - 1, p2[r, np.minimum(c + 1, n_bins - 1)], -np.inf)
+    ok &= (pr >= left) & (pr > right)
+    cand = np.zeros(p2.shape, dtype=bool)
+    cand[r[ok], c[ok]] = True
+    return cand
+
+
 def _strongest(p2, noise, cand, max_detections):
     """The ``k`` strongest candidates per ramp, strongest first: (k, index, valid, power, noise, snr_db)."""
-    n_bins = p2.shape[-1]
+    n_rows, n_bins = p2.shape
     k = min(max_detections, n_bins)
-    score = np.where(cand, p2, -np.inf)
-    part = np.argpartition(-score, k - 1, axis=-1)[:, :k] if k < n_bins else np.tile(np.arange(n_bins), (p2.shape[0], 1))
-    order = np.argsort(-np.take_along_axis(score, part, axis=-1), axis=-1, kind="stable")
-    idx = np.take_along_axis(part, order, axis=-1)
-    valid = np.isfinite(np.take_along_axis(score, idx, axis=-1))
+    # Candidates are few (about one per ramp): rank them per ramp instead of partitioning every
+    # bin of every ramp (issue 18). Equal powers keep the lower bin first; empty slots are invalid.
+    rows, cols = np.nonzero(cand)
+    pw = p2[rows, cols]
+    order = np.lexsort((-pw, rows))                     # by ramp, then strongest first
+    rows, cols = rows[order], cols[order]
+    start = np.cumsum(np.bincount(rows, minlength=n_rows)) - np.bincount(rows, minlength=n_rows)
+    rank = np.arange(rows.size) - start[rows]
+    top = rank < k
+    idx = np.zeros((n_rows, k), dtype=np.int64)
+    valid = np.zeros((n_rows, k), dtype=bool)
+    idx[rows[top], rank[top]] = cols[top]
+    valid[rows[top], rank[top]] = True
     pk = np.where(valid, np.take_along_axis(p2, idx, axis=-1), 0.0)
     nz = np.where(valid, np.take_along_axis(noise, idx, axis=-1), 0.0)
     with np.errstate(divide="ignore"):

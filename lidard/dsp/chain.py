@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from .cfar import Detections, cfar_detect
-from .estimators import DEFAULT_METHOD, EstimatorName, estimate
+from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .rangefft import RangeFFT, check_samples
 from .window import DspInputError
 
@@ -84,9 +84,8 @@ def _refine_valid(x: np.ndarray, bins: np.ndarray, valid: np.ndarray, spectrum: 
     k = bins.shape[-1] if per_row else 1
     flat_valid = valid.reshape(-1, k)
     rows, slots = np.nonzero(flat_valid)
-    xs = x.reshape(-1, n)[rows]
-    sp = None if spectrum is None else spectrum.reshape(-1, spectrum.shape[-1])[rows]
-    fr = estimate(xs, bins.reshape(-1, k)[rows, slots], spectrum=sp, **kw)
+    sp = None if spectrum is None else spectrum.reshape(-1, spectrum.shape[-1])
+    fr = estimate_rows(x.reshape(-1, n), rows, bins.reshape(-1, k)[rows, slots], spectrum=sp, **kw)
     out.reshape(-1, k)[rows, slots] = fr
     return out
 

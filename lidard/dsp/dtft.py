@@ -22,6 +22,7 @@ import numpy as np
 from lidard.dsp.window import get_window
 
 _CHUNK_ROWS = 4096  # bounds the (rows x N) temporaries of the moment computation
+_GEMM_BLOCK_MNK = 500_000   # rows x columns x inner length of one BLAS call of _small_gemm (below)
 
 
 def _safe_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
@@ -120,10 +121,13 @@ def _small_gemm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     OpenBLAS runs one large product on all its threads; these products are too small for that to
     pay, and on a busy 2-core host the woken threads spin and wait for a core (about half the CPU
     time of the frame DSP went there). A stacked matmul calls BLAS per block, and a block below
-    OpenBLAS's multithreading threshold (M*N*K ~ 2.6e5) runs on the calling thread. Same sums.
+    OpenBLAS's multithreading threshold runs on the calling thread. OpenBLAS 0.3.2x+ (numpy's wheels)
+    gives a product M*N*K / 2.6e5 threads, so blocks under 5.2e5 stay on one (measured with numpy
+    2.4's OpenBLAS 0.3.31: 1.0e6 still one thread, 1.2e6 two); 5e5 rather than 2e5 (issue 18):
+    at N = 2880 the old budget made single-row products, each re-reading the whole table. Same sums.
     """
     rows, n = a.shape
-    g = max(1, min(64, 200_000 // max(1, n * b.shape[1])))
+    g = max(1, min(64, _GEMM_BLOCK_MNK // max(1, n * b.shape[1])))
     full = rows // g * g
     out = np.empty((rows, b.shape[1]), dtype=np.result_type(a, b))
     if full:
@@ -182,18 +186,34 @@ class _DtftNearBin:
         self.g = mu * coef
 
     def eval(self, delta: np.ndarray, derivs: int = 0):
-        """G, G', G'' at ``delta`` by Horner; X = exp(-j pi delta (n-1)/n) G."""
-        g = self.g
-        G = np.zeros(delta.shape, dtype=np.complex128)
-        G1 = np.zeros_like(G)
-        G2 = np.zeros_like(G)
-        for p in range(g.shape[1] - 1, -1, -1):
+        """G, G', G'' at ``delta`` by Horner; X = exp(-j pi delta (n-1)/n) G.
+
+        ``delta`` (..., m) for the m pairs: several offsets per pair in one pass (the leading axes).
+        """
+        g = self._terms()
+        shape = np.broadcast_shapes(np.shape(delta), g.shape[1:])
+        G = np.zeros(shape, dtype=np.complex128)
+        G1 = np.zeros(shape, dtype=np.complex128) if derivs >= 1 else None
+        G2 = np.zeros(shape, dtype=np.complex128) if derivs >= 2 else None
+        # in place (the same products and sums as G = G * delta + g_p, without a temporary per term)
+        for p in range(g.shape[0] - 1, -1, -1):
             if derivs >= 2:
-                G2 = G2 * delta + 2.0 * G1
+                G2 *= delta
+                G2 += 2.0 * G1
             if derivs >= 1:
-                G1 = G1 * delta + G
-            G = G * delta + g[:, p]
-        return G, G1, G2
+                G1 *= delta
+                G1 += G
+            G *= delta
+            G += g[p]
+        return G, (np.zeros(shape, np.complex128) if G1 is None else G1), \
+            (np.zeros(shape, np.complex128) if G2 is None else G2)
+
+    def _terms(self) -> np.ndarray:
+        """The coefficients term-major (P, m), contiguous per term (a column of g is strided)."""
+        gt = getattr(self, "_gt", None)
+        if gt is None:
+            gt = self._gt = np.ascontiguousarray(self.g.T)
+        return gt
 
     def dtft(self, delta: np.ndarray) -> np.ndarray:
         G, _, _ = self.eval(delta)

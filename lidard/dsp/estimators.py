@@ -56,14 +56,19 @@ DEFAULT_METHOD: EstimatorName = "newton"
 class _Batch:
     """Flattened view of a call: rows of samples, one peak per (row, k) and the spectrum grid."""
 
-    def __init__(self, x: np.ndarray, peak_bins: np.ndarray, window: str, zero_pad: int, spectrum):
+    def __init__(self, x: np.ndarray, peak_bins: np.ndarray, window: str, zero_pad: int, spectrum,
+                 rows: np.ndarray | None = None):
         self.x = x.reshape(-1, x.shape[-1])
         self.n = x.shape[-1]
         self.zero_pad = zero_pad
         self.n_fft = self.n * zero_pad
         self.iq = x.dtype.kind == "c"
         self.window = window
-        self.pb = peak_bins.reshape(self.x.shape[0], -1).astype(np.int64)
+        # rows: peak row i sits on ramp x[rows[i]] (and spectrum[rows[i]]): the refined ramps are
+        # read in place instead of being gathered first (:func:`estimate_rows`)
+        self.rows = rows
+        n_rows = self.x.shape[0] if rows is None else rows.size
+        self.pb = peak_bins.reshape(n_rows, -1).astype(np.int64)
         self._spectrum = None if spectrum is None else spectrum.reshape(self.x.shape[0], -1)
 
     @property
@@ -77,7 +82,7 @@ class _Batch:
     def three_bins(self, spec: np.ndarray, centre: np.ndarray, n_fft: int):
         m, k = centre.shape
         idx = (centre[:, :, None] + np.array([-1, 0, 1])).reshape(m, 3 * k)
-        v = gather_bins(spec, idx, n_fft, self.iq).reshape(m, k, 3)
+        v = gather_bins(spec, idx, n_fft, self.iq, self.rows if spec is self._spectrum else None).reshape(m, k, 3)
         return v[..., 0], v[..., 1], v[..., 2]
 
 
@@ -131,7 +136,10 @@ def _est_quinn2(b: _Batch) -> np.ndarray:
 def _near(b: _Batch, f0_bins: np.ndarray, max_abs_delta: float) -> _DtftNearBin:
     """Moment evaluator around original-grid frequencies f0 (one per (ramp, peak))."""
     k = b.pb.shape[1]
-    rows = None if k == 1 else np.repeat(np.arange(b.x.shape[0]), k)
+    if b.rows is not None:
+        rows = b.rows if k == 1 else np.repeat(b.rows, k)
+    else:
+        rows = None if k == 1 else np.repeat(np.arange(b.x.shape[0]), k)
     return _DtftNearBin(b.x, rows, np.ascontiguousarray(f0_bins, dtype=np.float64).ravel(), _terms_for(max_abs_delta))
 
 
@@ -159,9 +167,10 @@ def _real_tone_fit(ev: _DtftNearBin, d: np.ndarray) -> np.ndarray:
     # sum_n exp(j 2 w n) = exp(j w (n-1)) sin(n w) / sin(w)  (-> +-n where sin(w) = 0)
     sw = np.sin(w)
     near = np.abs(sw) < 1e-12
-    dirichlet = np.where(near, n * np.cos(w * (n - 1)), np.sin(n * w) / np.where(near, 1.0, sw))
-    scc = 0.5 * (n + np.cos(w * (n - 1)) * dirichlet)
-    sss = 0.5 * (n - np.cos(w * (n - 1)) * dirichlet)
+    cos_n1 = np.cos(w * (n - 1))     # once (it was evaluated three times: the same values)
+    dirichlet = np.where(near, n * cos_n1, np.sin(n * w) / np.where(near, 1.0, sw))
+    scc = 0.5 * (n + cos_n1 * dirichlet)
+    sss = 0.5 * (n - cos_n1 * dirichlet)
     scs = 0.5 * np.sin(w * (n - 1)) * dirichlet
     det = scc * sss - scs**2
     ok = det > 1e-6 * n * n
@@ -187,7 +196,8 @@ def _est_newton(b: _Batch, iterations: int = 3) -> np.ndarray:
             dp = 2.0 * np.real(np.conj(G) * G1)
             dpp = 2.0 * (np.abs(G1) ** 2 + np.real(np.conj(G) * G2))
         else:
-            jm, j0, jp = (_real_tone_fit(ev, d + o) for o in (-h, 0.0, h))
+            # the three offsets in one pass over the Taylor terms (same values as one by one)
+            jm, j0, jp = _real_tone_fit(ev, d[None, :] + np.array([-h, 0.0, h])[:, None])
             dp = (jp - jm) / (2.0 * h)
             dpp = (jp - 2.0 * j0 + jm) / (h * h)
         # Concave: Newton step.  Not concave (start outside the lobe top): small uphill step.
@@ -262,3 +272,38 @@ def estimate(
         return np.zeros(out_shape, dtype=np.float64)
     batch = _Batch(a, pb, window, int(zero_pad), spectrum)
     return np.asarray(ESTIMATORS[method](batch), dtype=np.float64).reshape(out_shape)
+
+
+# estimators that read the ramps only through the spectrum's three bins and the moments
+_ROW_METHODS = frozenset({"argmax", "parabolic", "jacobsen", "aboutanios", "newton"})
+
+
+def estimate_rows(x: np.ndarray, rows: np.ndarray, peak_bins: np.ndarray, *, method: EstimatorName = DEFAULT_METHOD,
+                  window: WindowName = "hann", zero_pad: int = 1, spectrum: np.ndarray | None = None) -> np.ndarray:
+    """``estimate(x[rows], peak_bins, ..., spectrum=spectrum[rows])`` without copying those rows.
+
+    For the detection chain (:mod:`lidard.dsp.chain`), which refines a few slots of many ramps:
+    ``x`` (M, N) ramps the chain already checked (their spectrum went through CFAR), ``spectrum``
+    (M, n_bins) theirs, ``rows`` (m,) and ``peak_bins`` (m,) one peak each. Copying every refined
+    ramp and its whole spectrum cost as much as the estimator's moments (issue 18). Methods that
+    transform the ramps themselves, or a missing spectrum, take the copying path.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    if method not in _ROW_METHODS or spectrum is None or x.ndim != 2:
+        return estimate(x[rows], peak_bins, method=method, window=window, zero_pad=zero_pad,
+                        spectrum=None if spectrum is None else spectrum[rows])
+    check_window_name(window)
+    pb = np.asarray(peak_bins, dtype=np.int64)
+    n_fft = x.shape[-1] * int(zero_pad)
+    if pb.shape != rows.shape or spectrum.shape[0] != x.shape[0]:
+        raise DspInputError(f"peak_bins {pb.shape} / rows {rows.shape} / spectrum {spectrum.shape} do not match "
+                            f"x {x.shape}")
+    if pb.size == 0:
+        return np.zeros(0)
+    if pb.min() < -n_fft or pb.max() > n_fft:
+        raise DspInputError(f"peak_bins outside the spectrum grid of {n_fft} bins: {pb.min()}..{pb.max()}")
+    out = np.asarray(ESTIMATORS[method](_Batch(x, pb, window, int(zero_pad), spectrum, rows=rows)),
+                     dtype=np.float64).reshape(pb.shape)
+    if not np.all(np.isfinite(out)):   # a NaN or infinite sample in a refined ramp shows here
+        raise DspInputError("x contains NaN or infinite samples in a refined ramp")
+    return out

@@ -66,20 +66,28 @@ def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str) -> 
     raise DspInputError(f"layout={layout!r}: expected 'real', 'shifted' or 'analytic'")
 
 
-def gather_bins(spec: np.ndarray, bins: np.ndarray, n_fft: int, iq: bool) -> np.ndarray:
+def gather_bins(spec: np.ndarray, bins: np.ndarray, n_fft: int, iq: bool,
+                rows: np.ndarray | None = None) -> np.ndarray:
     """Complex spectrum values at signed integer ``bins`` (broadcast against spec[..., :1]).
 
     Works for any integer bin, including beyond the edges: bins wrap modulo n_fft, and for a real
-    signal's one-sided spectrum X[-k] = conj(X[k]) supplies the mirror half.
+    signal's one-sided spectrum X[-k] = conj(X[k]) supplies the mirror half. ``rows``: ``spec`` is
+    (M, n_bins) and row i of ``bins`` (m, j) reads spectrum row ``rows[i]`` (no copy of the rows).
     """
     b = np.mod(np.asarray(bins, dtype=np.int64), n_fft)
     if iq:
         idx = np.mod(b + n_fft // 2, n_fft)
-        return np.take_along_axis(spec, idx, axis=-1)
+        return _take(spec, idx, rows)
     mirror = b > n_fft // 2
     idx = np.where(mirror, n_fft - b, b)
-    vals = np.take_along_axis(spec, idx, axis=-1)
+    vals = _take(spec, idx, rows)
     return np.where(mirror, np.conj(vals), vals)
+
+
+def _take(spec: np.ndarray, idx: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+    if rows is None:
+        return np.take_along_axis(spec, idx, axis=-1)
+    return spec[np.asarray(rows)[:, None], idx]
 
 
 @dataclass(frozen=True)

@@ -51,33 +51,58 @@ def single_tone_residual(spec: np.ndarray, index: np.ndarray, frac_bins: np.ndar
     detections' spectrum indices (any value where invalid); ``frac_bins`` (batch..., K) their refined
     signed frequencies in bins of the spectrum's grid.
     """
+    s3 = _by_ramp(spec, average_axis)
+    index = np.asarray(index)
+    k = index.shape[-1]
+    b = np.repeat(np.arange(s3.shape[0]), k)
+    resid, energy = _residual_at(s3, b, index.reshape(-1), np.asarray(frac_bins, dtype=np.float64).reshape(-1),
+                                 window=window, n_samples=n_samples, zero_pad=zero_pad, iq=iq)
+    return resid.reshape(index.shape), energy.reshape(index.shape)
+
+
+def _by_ramp(spec: np.ndarray, average_axis: int | None) -> np.ndarray:
+    """``spec`` as (pixels, averages, n_bins) (a view in the frame DSP's layout)."""
     s = np.asarray(spec)
-    if average_axis is None:
-        s = s[..., None, :]
-    else:
-        s = np.moveaxis(s, average_axis, -2)                       # (batch..., A, n_bins)
-    n_bins = s.shape[-1]
+    s = s[..., None, :] if average_axis is None else np.moveaxis(s, average_axis, -2)
+    return s.reshape((-1,) + s.shape[-2:])
+
+
+def _residual_at(s3: np.ndarray, b: np.ndarray, index: np.ndarray, frac: np.ndarray, *, window: str,
+                 n_samples: int, zero_pad: int, iq: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The single-tone fit of detections (pixel ``b``, spectrum index, refined bin), one each: only
+    the 2 h + 1 cells around each peak are read (issue 18: not the detection slots that are empty)."""
+    n_avg, n_bins = s3.shape[-2:]
     n_fft = n_bins if iq else 2 * (n_bins - 1)
     offs = np.arange(-HALF_BINS, HALF_BINS + 1)
-    k = np.clip(np.asarray(index)[..., None] + offs, 0, n_bins - 1)  # (batch..., K, 2h+1)
+    k = np.clip(index[:, None] + offs, 0, n_bins - 1)                 # (m, 2h+1)
     kbin = (k - n_fft // 2) if iq else k                              # signed bins of each cell
-    w = _window_dtft_bins(window, n_samples, (kbin - np.asarray(frac_bins)[..., None]) / zero_pad)
-    flat = k.reshape(k.shape[:-2] + (1, -1))                          # (batch..., 1, K (2h+1))
-    flat = np.broadcast_to(flat, s.shape[:-1] + flat.shape[-1:])
-    x = np.take_along_axis(s, flat, axis=-1).reshape(s.shape[:-1] + k.shape[-2:])  # (batch..., A, K, 2h+1)
-    ww = np.sum(np.abs(w) ** 2, axis=-1)                             # (batch..., K)
-    proj = np.sum(x * np.conj(w)[..., None, :, :], axis=-1)          # (batch..., A, K)
-    energy = np.abs(proj) ** 2 / np.where(ww > 0, ww, 1.0)[..., None, :]
+    w = _window_dtft_bins(window, n_samples, (kbin - frac[:, None]) / zero_pad)
+    # (averages, m, 2h+1): the sums over the averages run along the first axis, one after the other
+    x = s3[b[None, :, None], np.arange(n_avg)[:, None, None], k[None, :, :]]
+    ww = np.sum(np.abs(w) ** 2, axis=-1)                             # (m,)
+    proj = np.sum(x * np.conj(w)[None, :, :], axis=-1)               # (averages, m)
+    energy = np.abs(proj) ** 2 / np.where(ww > 0, ww, 1.0)[None, :]
     resid = np.sum(np.abs(x) ** 2, axis=-1) - energy
-    return np.maximum(resid, 0.0).sum(axis=-2), energy.sum(axis=-2)
+    return np.maximum(resid, 0.0).sum(axis=0), energy.sum(axis=0)
 
 
 def floor_noise(spec: np.ndarray, average_axis: int | None) -> np.ndarray:
     """Mean noise power per cell of each ramp, from the median of its whole spectrum (exponential
     cells: median = ln 2 x mean; a few peaks do not move it), averaged over the averages."""
     p = np.abs(np.asarray(spec)) ** 2
-    med = np.median(p, axis=-1) / np.log(2.0)
+    med = _median_last(p) / np.log(2.0)
     return med if average_axis is None else med.mean(axis=average_axis)
+
+
+def _median_last(p: np.ndarray) -> np.ndarray:
+    """np.median over the last axis of a finite array, by one partition (issue 18: np.median also
+    partitions for its NaN check and was a fifth of the frame DSP; the spectra here are finite)."""
+    n = p.shape[-1]
+    h = n // 2
+    if n % 2:
+        return np.partition(p, h, axis=-1)[..., h]
+    part = np.partition(p, (h - 1, h), axis=-1)
+    return (part[..., h - 1] + part[..., h]) * 0.5
 
 
 def unresolved(spec: np.ndarray, index: np.ndarray, frac_bins: np.ndarray, valid: np.ndarray,
@@ -86,13 +111,21 @@ def unresolved(spec: np.ndarray, index: np.ndarray, frac_bins: np.ndarray, valid
     """Detections whose peak is not one tone (module docstring); (batch..., K) bool."""
     idx = np.where(valid, index, 0)
     frac = np.where(valid, frac_bins, 0.0)
-    resid, energy = single_tone_residual(spec, idx, frac, window=window, n_samples=n_samples, zero_pad=zero_pad, iq=iq,
-                              average_axis=average_axis)
-    n_avg = 1 if average_axis is None else np.asarray(spec).shape[average_axis]
-    n_bins = np.asarray(spec).shape[-1]
+    s3 = _by_ramp(spec, average_axis)
+    n_avg, n_bins = s3.shape[-2:]
     edge = np.abs(frac) / zero_pad
     judged = (edge >= DC_BINS) & (edge <= n_samples / 2 - DC_BINS) if not iq else (edge >= DC_BINS)
     judged &= (idx - HALF_BINS >= 0) & (idx + HALF_BINS <= n_bins - 1)
-    expected = NOISE_FACTOR * (2 * HALF_BINS + 1) * n_avg * floor_noise(spec, average_axis)[..., None]
-    return valid & judged & (resid > expected) & (resid > MODEL_FLOOR * energy)
-
+    out = np.zeros(idx.shape, dtype=bool)
+    k = idx.shape[-1] if idx.ndim else 1
+    b, slot = np.nonzero((valid & judged).reshape(-1, k))     # only these are tested
+    if b.size == 0:
+        return out
+    resid, energy = _residual_at(s3, b, idx.reshape(-1, k)[b, slot], frac.reshape(-1, k)[b, slot],
+                                 window=window, n_samples=n_samples, zero_pad=zero_pad, iq=iq)
+    # the floor of the pixels tested (all of them, or fewer: then only theirs is computed)
+    pix, at = np.unique(b, return_inverse=True)
+    floor = floor_noise(s3 if pix.size == s3.shape[0] else s3[pix], 1)[at]
+    expected = NOISE_FACTOR * (2 * HALF_BINS + 1) * n_avg * floor
+    out.reshape(-1, k)[b, slot] = (resid > expected) & (resid > MODEL_FLOOR * energy)
+    return out

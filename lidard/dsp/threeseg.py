@@ -37,6 +37,7 @@ import numpy as np
 
 from .gate import aliased, point_flags
 from .rangefft import C_M_PER_S, RangeFFT
+from .resolve import _median_last
 
 
 #: the held segment's frequency still relaxes (the DFB's thermal terms, ~20 us): over the CW window its
@@ -50,17 +51,32 @@ CW_BAND_SNR = 20.0
 CW_SKIP_FRACTION = 0.25
 
 
-def _range_max_table(p: np.ndarray) -> list[np.ndarray]:
-    """Sparse table: level k holds the max of p over [i, i + 2**k) for every i (range-max queries)."""
+def _range_max_table(p: np.ndarray, top_level: int | None = None) -> list[np.ndarray]:
+    """Sparse table: level k holds the max of p over [i, i + 2**k) for every i (range-max queries);
+    levels up to ``top_level`` (default: all), or more already built in a ``_RangeMax``."""
     levels = [p]
-    while 2 ** len(levels) <= p.shape[-1]:
+    while 2 ** len(levels) <= p.shape[-1] and (top_level is None or len(levels) <= top_level):
         prev, w = levels[-1], 2 ** (len(levels) - 1)
         levels.append(np.maximum(prev[..., :-w], prev[..., w:]))
     return levels
 
 
+class _RangeMax:
+    """The sparse table of one CW spectrum, built once for every band query and only as deep as the
+    widest band asks (issue 18: six full tables per batch were a third of the three-segment DSP)."""
+
+    def __init__(self, p: np.ndarray):
+        self.p = p
+        self.levels = [p]
+
+    def __getitem__(self, level: int) -> np.ndarray:
+        if level >= len(self.levels):
+            self.levels = _range_max_table(self.p, level)
+        return self.levels[level]
+
+
 def cw_band_power(p_cw: np.ndarray, df_hz: float, centre_hz: np.ndarray, half_hz: np.ndarray,
-                  guard_bins: int) -> tuple[np.ndarray, np.ndarray]:
+                  guard_bins: int, table: _RangeMax | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Peak power of ``p_cw`` (n, n_bins) over [centre - half, centre + half] per row and candidate
     (n, T), bins below ``guard_bins`` (DC and its window lobe) left out; and whether the band lies
     wholly inside that guard (no CW beat can be seen there). The peak, not the mean: a sharp CW beat
@@ -69,7 +85,7 @@ def cw_band_power(p_cw: np.ndarray, df_hz: float, centre_hz: np.ndarray, half_hz
     lo = np.clip(np.floor((centre_hz - half_hz) / df_hz).astype(np.int64), guard_bins, n_bins)
     hi = np.clip(np.ceil((centre_hz + half_hz) / df_hz).astype(np.int64) + 1, guard_bins, n_bins)
     width = hi - lo
-    table = _range_max_table(p_cw)
+    table = _RangeMax(p_cw) if table is None else table
     k = np.floor(np.log2(np.maximum(width, 1))).astype(np.int64)
     rows = np.broadcast_to(np.arange(p_cw.shape[0])[:, None], lo.shape)
     peak = np.zeros(lo.shape)
@@ -88,11 +104,13 @@ BAND_TIERS = (0.25, 0.5, 1.0)
 def _regime_tier(p_cw, df_hz, f_r, d_abs, noise, guard_bins, guard_hz):
     """Per candidate: len(BAND_TIERS) + 1 when the regime predicts |f_D| inside the CW's DC guard (no
     beat can be seen there), else the number of tiers whose band peaks CW_BAND_SNR over the median."""
+    table = p_cw if isinstance(p_cw, _RangeMax) else _RangeMax(p_cw)   # a built table is reused
+    p_cw = table.p
     n = p_cw.shape[0]
     tier = np.zeros(f_r.reshape(n, -1).shape)
     for frac in BAND_TIERS:
         pw, in_guard = cw_band_power(p_cw, df_hz, d_abs.reshape(n, -1), (frac * RHO_MAX * f_r + 2 * df_hz).reshape(n, -1),
-                                     guard_bins)
+                                     guard_bins, table)
         tier += pw >= CW_BAND_SNR * noise
     tier = np.where(d_abs.reshape(n, -1) < guard_hz, len(BAND_TIERS) + 1, tier)
     return tier.reshape(f_r.shape)
@@ -107,9 +125,10 @@ def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz
     a, b = fu[:, :, None], fd[:, None, :]
     hi, lo = np.maximum(a, b), np.minimum(a, b)
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
-    noise = np.median(p_cw, axis=-1)[:, None]
+    noise = _median_last(p_cw)[:, None]
     regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
-    t_n, t_f = (_regime_tier(p_cw, df_hz, f_r, d, noise, guard_bins, guard_hz) for f_r, d in regimes)
+    table = _RangeMax(p_cw)                      # one table for both regimes and every tier
+    t_n, t_f = (_regime_tier(table, df_hz, f_r, d, noise, guard_bins, guard_hz) for f_r, d in regimes)
     folded = t_f > t_n
     f_r = np.where(folded, regimes[1][0], regimes[0][0])
     d_abs = np.where(folded, regimes[1][1], regimes[0][1])

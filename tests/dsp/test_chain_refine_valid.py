@@ -21,13 +21,13 @@ def test_valid_slots_match_a_refinement_of_every_slot_and_empty_slots_are_skippe
     rf = RangeFFT(x.shape[-1], 1.0, 1.0, window="hann")
     spec = rf(x)
     rows_seen = []
-    real_estimate = chain.estimate
+    real_estimate = chain.estimate_rows
 
-    def counting(xs, bins, **kw):
+    def counting(xs, rows, bins, **kw):
         rows_seen.append(np.asarray(bins).size)
-        return real_estimate(xs, bins, **kw)
+        return real_estimate(xs, rows, bins, **kw)
 
-    monkeypatch.setattr(chain, "estimate", counting)
+    monkeypatch.setattr(chain, "estimate_rows", counting)
     res = chain.detect_and_refine(spec, lambda idx: (x, idx, spec), window="hann", estimator="newton",
                                   average_axis=1, method="os", pfa=1e-6, max_detections=2, bin_range=(2, 170))
     det = res.detections
@@ -38,3 +38,23 @@ def test_valid_slots_match_a_refinement_of_every_slot_and_empty_slots_are_skippe
     np.testing.assert_allclose(res.frac_bins[det.valid], full[det.valid], rtol=0, atol=1e-9)
     # the estimator saw only the valid slots (x the averages), not every slot
     assert rows_seen == [int(det.valid.sum()) * x.shape[1]]
+
+
+def test_estimate_rows_reads_the_rows_in_place_with_the_same_answers():
+    from lidard.dsp.estimators import ESTIMATOR_NAMES, estimate_rows
+    from lidard.dsp.window import DspInputError
+    import pytest
+
+    x = _ramps(n_pix=30, n_avg=1)[:, 0]
+    rf = RangeFFT(x.shape[-1], 1.0, 1.0, window="hann")
+    spec = rf(x)
+    p = spec.real ** 2 + spec.imag ** 2
+    rows = np.array([3, 0, 7, 7, 21, 29])
+    bins = np.argmax(p[rows, 5:170], axis=-1) + 5
+    for m in ESTIMATOR_NAMES:
+        want = estimate(x[rows], bins, method=m, window="hann", spectrum=spec[rows])
+        np.testing.assert_array_equal(estimate_rows(x, rows, bins, method=m, window="hann", spectrum=spec), want)
+    bad = x.copy()
+    bad[7, 11] = np.nan
+    with pytest.raises(DspInputError, match="NaN"):
+        estimate_rows(bad, rows, bins, method="newton", window="hann", spectrum=spec)

@@ -81,3 +81,40 @@ def test_half_a_cell_apart_flagged_unless_in_phase(ratio):
     flags, rng_m, _ = _one_point_flags(res)
     ok = (flags & PointFlag.UNRESOLVED) == 0
     assert np.all((rng_m[ok] > d[ok] - 1e-3) & (rng_m[ok] < d[ok] + 0.5 * CELL_M + 1e-3))
+
+
+def test_floor_median_is_numpys_median():
+    # the one-partition median of floor_noise (issue 18) against np.median, odd and even lengths
+    from lidard.dsp.resolve import _median_last
+
+    rng = np.random.default_rng(5)
+    for n in (361, 360, 7, 2):
+        p = rng.exponential(size=(3, 4, n))
+        np.testing.assert_array_equal(_median_last(p), np.median(p, axis=-1))
+
+
+def test_unresolved_tests_only_valid_slots_and_matches_the_all_slot_residual():
+    # the single-tone test on the valid, judged slots alone (issue 18) decides as the residual of
+    # every slot does; an empty slot is never flagged
+    from lidard.dsp.resolve import (DC_BINS, HALF_BINS, MODEL_FLOOR, NOISE_FACTOR, floor_noise,
+                                    single_tone_residual, unresolved)
+
+    rng = np.random.default_rng(8)
+    n, n_pix, n_avg = 256, 12, 3
+    t = np.arange(n)
+    f = rng.uniform(30, 90, (n_pix, 1, 1))
+    x = np.cos(2 * np.pi * f * t / n) + 0.7 * np.cos(2 * np.pi * (f + 0.45) * t / n + 1.0) * (np.arange(n_pix) % 2)[:, None, None]
+    x = x + rng.normal(0, 0.05, (n_pix, n_avg, n))
+    w = np.hanning(n + 1)[:-1]
+    spec = np.fft.rfft(x * w, axis=-1) / w.sum()
+    idx = np.stack([np.argmax(np.abs(spec).mean(axis=1), axis=-1), np.full(n_pix, 5)], axis=-1)
+    frac = np.stack([f[:, 0, 0], np.full(n_pix, 5.0)], axis=-1)     # the (first) tone's frequency
+    valid = np.stack([np.ones(n_pix, bool), np.zeros(n_pix, bool)], axis=-1)
+    got = unresolved(spec, idx, frac, valid, np.ones(idx.shape), window="hann", n_samples=n, average_axis=1)
+    resid, energy = single_tone_residual(spec, idx, frac, window="hann", n_samples=n, average_axis=1)
+    expected = NOISE_FACTOR * (2 * HALF_BINS + 1) * n_avg * floor_noise(spec, 1)[:, None]
+    judged = (frac >= DC_BINS) & (idx - HALF_BINS >= 0)
+    want = valid & judged & (resid > expected) & (resid > MODEL_FLOOR * energy)
+    np.testing.assert_array_equal(got, want)
+    assert not got[:, 1].any()
+    assert got[1::2, 0].all() and not got[0::2, 0].any()   # the two-tone pixels, and only those
