@@ -161,6 +161,8 @@ def test_estimator_and_budget_figures(report):
     b = secs["budget"]["data"]
     assert b["shot_crossing_m"] == pytest.approx(220.0, rel=0.05)     # Fig. 2-8
     assert secs["kernels"]["data"]["usb"]["inproc_mb_s"] > 0
+    ch = secs["kernels"]["data"]["chain"]        # the chain finds the tones the plain argmax is timed on
+    assert ch["detected"] > 0.9 and 0 < ch["ratio"] < 1.5
 
 
 def test_phase_noise_any_range_sweep_meets_3_db_with_the_quadrature_monitor(report):
