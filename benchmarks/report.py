@@ -509,7 +509,8 @@ def sec_frame(quick: bool, img: Path, log) -> Section:
                    "< 2 GB")]
     s.markdown = (
         "`benchmarks/frame.py`, one process per frame (so the peak RSS is the frame's own): a fresh embedded bench, "
-        "default profile (fpsa128, 25 mm lens), CAL scene, max range 2 m (ADC 5 MS/s, 800 samples per trigger), "
+        "default profile (fpsa128, 25 mm lens) and chirp, CAL scene, max range 2 m (ADC "
+        f"{f0['adc_rate_hz'] / 1e6:g} MS/s, {f0['record_length']:,} samples per trigger), "
         "16-bit records. Real-time factor = hardware frame time / wall "
         "time; on CPU time it is what an unloaded machine would reach (the scan runs on one thread; other jobs "
         "on a shared machine stretch wall time only).\n\n"
