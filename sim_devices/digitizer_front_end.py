@@ -89,22 +89,29 @@ def quantize_int16_into(out: np.ndarray, codes: np.ndarray, resolution_bits: int
     top)), whose sums stay below 32768 - step / 2 (no overflow); the bottom, -32768, is a code. The
     rounding is :func:`quantize_int_codes`'s (half to even), tested equal to :func:`quantize_codes`."""
     shift = 16 - resolution_bits
-    step = 1 << shift
     top = _int16_top(resolution_bits)
     # blocks of records: the temporary stays small (in cache, and off the heap's high-water mark)
     per = max(1, _BLOCK_SAMPLES // max(1, int(np.prod(codes.shape[1:]))))
     for i in range(0, codes.shape[0], per):
         o = out[i:i + per]
         np.minimum(codes[i:i + per], top, out=o)
-        odd = o >> shift
-        odd &= 1
-        o += (step >> 1) - 1
-        o += odd
-        o >>= shift
-        o <<= shift
+        _round_half_even_in_place(o, shift)
 
 
 _BLOCK_SAMPLES = 1 << 16
+
+
+def _round_half_even_in_place(q: np.ndarray, shift: int) -> None:
+    """q -> the nearest multiple of step = 2**shift, ties to the even multiple (as ``np.round``), in place.
+
+    q = m step + r: floor((q + step/2 - 1 + (m & 1)) / step) rounds r > step/2 up, r < step/2 down and
+    r = step/2 to the even m (a few passes over the integers, no bool temporaries)."""
+    odd = q >> shift
+    odd &= 1
+    q += (1 << (shift - 1)) - 1
+    q += odd
+    q >>= shift
+    q <<= shift
 
 
 def quantize_int_codes(codes: np.ndarray, resolution_bits: int, format_bits: int) -> tuple[np.ndarray, int]:
@@ -115,16 +122,8 @@ def quantize_int_codes(codes: np.ndarray, resolution_bits: int, format_bits: int
     hi = (1 << (format_bits - 1)) - step
     if step == 1:
         return codes, hi
-    shift = format_bits - resolution_bits
     q = codes.astype(np.int32)
-    # q = m step + r: floor((q + step/2 - 1 + (m & 1)) / step) rounds r > step/2 up, r < step/2
-    # down and r = step/2 to the even m (in place: a few passes over int32, no bool temporaries)
-    odd = q >> shift
-    odd &= 1
-    q += (step >> 1) - 1
-    q += odd
-    q >>= shift
-    q <<= shift
+    _round_half_even_in_place(q, format_bits - resolution_bits)
     return q, hi
 
 
