@@ -29,6 +29,23 @@ def started_bench() -> Iterator[Bench]:
         b.close()
 
 
+@contextlib.contextmanager
+def lit_bench(environ: dict, pixels, scene=None, *, triggers_per_pixel: int = 2) -> Iterator[Bench]:
+    """A started bench (``environ`` over config/sim.toml, ``scene`` or its configured one) with the laser
+    and HV up, a plain triangle on the AWG and a run over ``pixels`` started: ready to ``capture``."""
+    b = Bench(load_config(SIM_TOML, environ=environ), scene)
+    b.start(usb="inproc")
+    try:
+        power_up(b)
+        chirp_on(b)
+        fp = fpsa(b)
+        fp.reset()
+        run_pattern(fp, pixels, triggers_per_pixel=triggers_per_pixel)
+        yield b
+    finally:
+        b.close()
+
+
 def controller(bench: Bench, **kw) -> LaserHvController:
     ep = bench.endpoints()
     kw.setdefault("timeout_s", 1.0)

@@ -2,32 +2,17 @@
 digitizer serves the same MZI's 90-degree output on an input of its own; without it that input is
 unconnected. Checked against the definition I = A cos(theta), Q = A sin(theta) of one fringe theta."""
 
-import contextlib
-
 import numpy as np
 
-from lidard.config import load_config
-from sim_devices.bench import Bench
 from sim_devices.digitizer import CaptureConfig
-from tests.helpers.sim_bench import SIM_TOML, chirp_on, fpsa, power_up, run_pattern
+from tests.helpers.sim_bench import lit_bench
 
 FS = 100e6
 CAP = CaptureConfig(FS, 8000, ("beat", "mzi", "mzi_q"), 16, 1.0)
 
 
-@contextlib.contextmanager
 def _bench(quadrature: bool):
-    b = Bench(load_config(SIM_TOML, environ={"LIDARD__MONITOR__QUADRATURE": str(quadrature).lower()}))
-    b.start(usb="inproc")
-    try:
-        power_up(b)
-        chirp_on(b)
-        fp = fpsa(b)
-        fp.reset()
-        run_pattern(fp, [[60, 60], [61, 61]], triggers_per_pixel=2)
-        yield b
-    finally:
-        b.close()
+    return lit_bench({"LIDARD__MONITOR__QUADRATURE": str(quadrature).lower()}, [[60, 60], [61, 61]])
 
 
 def test_quadrature_channel_is_the_same_fringe_90_degrees_on_with_its_own_noise():

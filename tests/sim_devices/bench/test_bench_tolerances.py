@@ -10,7 +10,6 @@ Each bench is built from config/sim.toml with explicit overrides (``environ=``),
 off where a frequency is measured, so the comparisons are exact up to the fit.
 """
 
-import contextlib
 import math
 
 import numpy as np
@@ -22,7 +21,7 @@ from lidard.physics.constants import C_M_PER_S
 from sim_devices.bench import Bench, BenchControlClient
 from sim_devices.digitizer import CaptureConfig
 from sim_devices.world.scene import Scene
-from tests.helpers.sim_bench import SIM_TOML, chirp_on, fpsa, power_up, run_pattern
+from tests.helpers.sim_bench import SIM_TOML, lit_bench
 from tests.helpers.tolerances import NOMINAL_ENV
 
 FS = 100e6
@@ -40,21 +39,10 @@ def _env(**bounds) -> dict:
     return env
 
 
-@contextlib.contextmanager
 def _lit_bench(environ: dict):
     scene = Scene.from_dict({"target": [{"kind": "plane", "point": [0, 0, WALL_M], "normal": [0, 0, -1],
                                          "reflectivity": 1.0}]})
-    b = Bench(load_config(SIM_TOML, environ=environ), scene)
-    b.start(usb="inproc")
-    try:
-        power_up(b)
-        chirp_on(b)
-        fp = fpsa(b)
-        fp.reset()
-        run_pattern(fp, [[64, 64]], triggers_per_pixel=2)
-        yield b
-    finally:
-        b.close()
+    return lit_bench(environ, [[64, 64]], scene)
 
 
 def _mean_freq_hz(x: np.ndarray) -> float:
