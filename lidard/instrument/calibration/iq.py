@@ -25,7 +25,7 @@ import numpy as np
 from ...dsp.iqbalance import ImbalanceFit, estimate_imbalance
 from ...dsp.window import DspInputError
 from ..types import CalibrationResult, ScanRequest
-from .range import CalibrationRefused
+from .range import CalibrationRefused, centre_request
 
 #: the centre region scanned (pixels per side): 256 pixels x 2 ramps, ~50 ms of hardware time
 REGION_PX = 16
@@ -33,13 +33,7 @@ REGION_PX = 16
 
 def iq_request(optics, max_range_m: float = 2.0, region_px: int = REGION_PX) -> ScanRequest:
     """The centre ``region_px`` x ``region_px`` pixels (bonded rows only), one chirp each, no outputs."""
-    rows = list(optics.bonded_rows)
-    h = max(1, min(region_px, len(rows)) // 2)
-    mid = len(rows) // 2
-    r_lo, r_hi = rows[max(0, mid - h)], rows[min(len(rows) - 1, mid + h - 1)] + 1
-    c_mid = optics.cols // 2
-    return ScanRequest(pattern="roi", rows=(r_lo, r_hi), cols=(max(0, c_mid - h), min(optics.cols, c_mid + h)),
-                       averages=1, max_range_m=float(max_range_m), formats=())
+    return centre_request(optics, max_range_m, max(1, region_px // 2), averages=1)
 
 
 def ramps_of_capture(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -105,12 +105,18 @@ class RangeFit:
 
 def plate_request(optics, max_range_m: float) -> ScanRequest:
     """The centre-region ROI a plate measurement scans (bonded rows only are scanned)."""
+    return centre_request(optics, max_range_m, ROI_HALF)
+
+
+def centre_request(optics, max_range_m: float, half: int, **kw) -> ScanRequest:
+    """An ROI of up to 2 ``half`` bonded rows x 2 ``half`` columns around the array's centre, no
+    outputs written (the calibration scans); ``kw``: other ScanRequest fields (averages)."""
     rows = list(optics.bonded_rows)
     mid = len(rows) // 2
-    r_lo, r_hi = rows[max(0, mid - ROI_HALF)], rows[min(len(rows) - 1, mid + ROI_HALF - 1)] + 1
+    r_lo, r_hi = rows[max(0, mid - half)], rows[min(len(rows) - 1, mid + half - 1)] + 1
     c_mid = optics.cols // 2
-    return ScanRequest(pattern="roi", rows=(r_lo, r_hi), cols=(max(0, c_mid - ROI_HALF), c_mid + ROI_HALF),
-                       max_range_m=float(max_range_m), formats=())
+    return ScanRequest(pattern="roi", rows=(r_lo, r_hi), cols=(max(0, c_mid - half), min(optics.cols, c_mid + half)),
+                       max_range_m=float(max_range_m), formats=(), **kw)
 
 
 def plate_measurement(points: np.ndarray, known_m: float, *, delay_s: float, zero_offset_used_m: float = 0.0,
