@@ -23,7 +23,9 @@ spectra of the two channels at +f are X_I = A/2 e^{j theta} W and X_Q = g A / (2
 so j X_Q / X_I = g e^{j eps} = c, whatever the tone's amplitude, phase and window W. A tone of
 negative frequency gives -conj(c) at +|f|; the two are told apart by the sign of the real part
 (valid for |eps| < 90 deg). Every strong tone of a record (a target's beat: any target, static or
-moving) is one estimate; they are averaged with weights |X_I|^2 (their SNR). A tone at SNR s gives c
+moving) is one estimate; they are combined by least squares (weights |X_I|^2, their SNR), with the
+noise power of X_I's bins taken off the denominator (errors in the variable: without it the gain
+comes out low by about 1 / SNR). A tone at SNR s gives c
 with a relative error ~ 1/sqrt(s) per tone, so a few hundred tones at 30 dB pin g to ~1e-3 and eps to
 ~1 mrad: images then sit ~60 dB down, below the noise of any return.
 
@@ -98,10 +100,11 @@ class ImbalanceFit:
 
 
 def tone_ratios(i: np.ndarray, q: np.ndarray, *, window: str = "hann", min_bin: int = 4,
-                min_snr: float = MIN_TONE_SNR) -> tuple[np.ndarray, np.ndarray]:
+                min_snr: float = MIN_TONE_SNR) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per record (rows of ``i``, ``q``: (..., N) real), j X_Q / X_I at the strongest bin of I from
-    ``min_bin`` up (DC and the window's lobe left out), folded onto c (see the module docstring), and
-    the weight |X_I|^2; only records whose tone stands ``min_snr`` above their median bin."""
+    ``min_bin`` up (DC and the window's lobe left out), folded onto c (see the module docstring), the
+    weight |X_I|^2 and the record's mean noise power per bin (median / ln 2 of an exponential
+    spectrum); only records whose tone stands ``min_snr`` above their median bin."""
     i = np.asarray(i, dtype=np.float64)
     q = np.asarray(q, dtype=np.float64)
     if i.shape != q.shape or i.ndim < 1 or i.shape[-1] < 4 * min_bin:
@@ -115,22 +118,25 @@ def tone_ratios(i: np.ndarray, q: np.ndarray, *, window: str = "hann", min_bin: 
     k = min_bin + np.argmax(p[:, min_bin:], axis=-1)
     rows = np.arange(p.shape[0])
     peak = p[rows, k]
-    strong = peak > min_snr * np.median(p[:, min_bin:], axis=-1)
+    med = np.median(p[:, min_bin:], axis=-1)
+    strong = peak > min_snr * med
     r = 1j * xq[rows, k] / np.where(peak > 0, xi[rows, k], 1.0)
     r = np.where(r.real < 0, -np.conj(r), r)        # a negative-frequency tone gives -conj(c)
-    return r[strong], peak[strong]
+    return r[strong], peak[strong], med[strong] / math.log(2.0)
 
 
 def estimate_imbalance(i: np.ndarray, q: np.ndarray, *, window: str = "hann",
                        min_tones: int = MIN_TONES) -> ImbalanceFit:
     """Gain ratio and phase error from records of I and Q (..., N) holding beat tones (module doc)."""
-    r, wgt = tone_ratios(i, q, window=window)
+    r, wgt, noise = tone_ratios(i, q, window=window)
     if r.size < min_tones:
         raise DspInputError(f"I/Q imbalance: {r.size} records carry a tone 30 dB above their noise, at least "
                             f"{min_tones} are needed: point the receiver at a target (any surface within "
                             f"the range gate) and measure again")
     wn = wgt / wgt.sum()
-    c = complex(np.sum(wn * r))
+    # least squares, sum j X_Q X_I* / sum |X_I|^2, with the denominator's noise power taken off: X_I's
+    # own noise inflates |X_I|^2 by the bin's noise power and would pull the gain low by 1 / SNR
+    c = complex(np.sum(wgt * r) / (wgt.sum() - noise.sum()))
     gain, phase = abs(c), math.atan2(c.imag, c.real)
     check_imbalance(gain, phase)
     # scatter of the single tones about the weighted mean -> standard error of the mean
