@@ -29,7 +29,7 @@ import numpy as np
 from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
 from .gate import aliased, gate_top_hz, point_flags
-from .iqbalance import check_imbalance, correct, mirror_images
+from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .threeseg import cw_front_end, pair_frame_three
@@ -162,9 +162,7 @@ class FrameDsp:
         rf = self.rfft
         out_f, out_det = [], []
         for r0 in (0, r):
-            ramp = x[..., r0 + a:r0 + a + n] * lsb_v if self.iq else x[..., r0 + a:r0 + a + n].astype(np.float64) * lsb_v
-            if self.iq and r0:
-                np.conjugate(ramp, out=ramp)     # the down ramp in the up ramp's sign (velocity.py)
+            ramp = ramp_volts(x[..., r0 + a:r0 + a + n], lsb_v, iq=self.iq, down=bool(r0))
             spec = rf(ramp)                                    # (n_pix, n_avg, n_bins)
             res = detect_and_refine(
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,

@@ -150,6 +150,16 @@ def estimate_imbalance(i: np.ndarray, q: np.ndarray, *, window: str = "hann",
     return ImbalanceFit(gain, phase, g_sem, p_sem, int(r.size), image_rejection_db(gain, phase), after)
 
 
+def ramp_volts(seg: np.ndarray, lsb_v: float, *, iq: bool, down: bool) -> np.ndarray:
+    """One ramp's samples as the DSP takes them: float64 volts of a real beat; for an I/Q beat (the
+    corrected complex I + jQ) complex volts, a down ramp conjugated so that it puts a static target at
+    the up ramp's +f_R (the sign convention of lidard.dsp.velocity)."""
+    if not iq:
+        return np.multiply(seg, lsb_v, dtype=np.float64)
+    z = seg * lsb_v
+    return np.conjugate(z, out=z) if down else z
+
+
 #: a detection at the mirror frequency of a stronger one, at most this far below it, is taken as its
 #: image and dropped: -15 dB leaves room for an uncalibrated hybrid (0.5 dB, 5 deg: -25.6 dB) and is
 #: far above a calibrated one's residual (below -60 dB), so a real second return is lost only if it

@@ -37,7 +37,7 @@ from typing import Protocol
 import numpy as np
 
 from .chain import detect_and_refine
-from .iqbalance import mirror_images
+from .iqbalance import mirror_images, ramp_volts
 from .instfreq import check_positive
 from .pncomp import demodulated_phase
 from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
@@ -334,9 +334,7 @@ def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray,
     out_f, out_det = [], []
     for r0 in (0, r):
         q = None if mzi_q is None else np.asarray(mzi_q)[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v
-        b = x[..., r0:r0 + r] * lsb_v if dsp.iq else x[..., r0:r0 + r].astype(np.float64) * lsb_v
-        if dsp.iq and r0:       # an I/Q down ramp in the up ramp's sign (lidard.dsp.frame)
-            b = np.conjugate(b)
+        b = ramp_volts(x[..., r0:r0 + r], lsb_v, iq=dsp.iq, down=bool(r0))
         # the conjugated down ramp carries -(phase noise), and so does the down ramp's demodulated MZI
         # (its fringe runs at -gamma tau_m): the compensation is applied as to the up ramp
         ramps = comp.prepare(b, mz[..., r0:r0 + r].astype(np.float64) * mzi_lsb_v, a, n, mzi_q=q)

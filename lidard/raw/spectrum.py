@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..dsp.cfar import _noise_os, cfar_detect   # the kernel cfar_detect thresholds with (no public twin)
-from ..dsp.iqbalance import correct
+from ..dsp.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
 from ..instrument.types import POINT_DTYPE
@@ -67,9 +67,7 @@ def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, mzi
     d = replay.dsp
     a, n, r = d.offset, d.n_used, d.ramp_samples
     # an I/Q capture's beat is the corrected complex I + jQ; its down ramp in the up ramp's sign
-    b = beat[..., start:start + r] * replay.lsb_v if d.iq else beat[..., start:start + r].astype(np.float64) * replay.lsb_v
-    if d.iq and start:
-        b = np.conjugate(b)
+    b = ramp_volts(beat[..., start:start + r], replay.lsb_v, iq=d.iq, down=bool(start))
     if mzi is None:
         spec = d.rfft(b[..., a:a + n])
     else:
