@@ -14,6 +14,7 @@ import logging
 import time
 from typing import Any, Callable
 
+from ..instrument.calibration.applied import AppliedCalibrations
 from ..instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from ..pointcloud import write_points
 from ..scan import adaptive_plans, planned_pixel_count
@@ -176,13 +177,11 @@ class ScanJobRun:
         return files
 
     def _calibrated(self) -> dict[str, Any]:
-        applied = self.w.applied
-        rng = None if applied is None else applied.range_id
-        pnt = None if applied is None else applied.pointing_id
-        calibrated = {"range": rng is not None, "pointing": pnt is not None, "linearization": self.cal_id is not None}
-        if getattr(self.instrument, "iq_receiver", False):
-            calibrated["iq"] = applied is not None and applied.iq_id is not None
-        return {"range_calibration_id": rng, "pointing_calibration_id": pnt, "calibrated": calibrated}
+        # what the scan was computed with (none handed over yet: the nominal geometry)
+        applied = self.w.applied or AppliedCalibrations()
+        return {"range_calibration_id": applied.range_id, "pointing_calibration_id": applied.pointing_id,
+                "calibrated": applied.calibrated(self.cal_id is not None,
+                                                 iq=bool(getattr(self.instrument, "iq_receiver", False)))}
 
 
 def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], None],
