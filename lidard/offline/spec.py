@@ -222,7 +222,9 @@ def _point(source: str, base: Config, overrides: dict[str, Scalar], where: str) 
                               f"allowed: {', '.join(sorted(profile.lenses))}")
     except ConfigError as exc:
         raise SweepSpecError(f"{source}: {where}: {exc} (in {shown})") from None
-    blob = json.dumps({"config": cfg.model_dump(mode="json"), "profile": profile.model_dump(mode="json"),
+    # the configuration's content, not where its file lies: a sweep's tasks (and their seeds) are the
+    # same in any checkout or data directory
+    blob = json.dumps({"config": cfg.model_dump(mode="json", exclude={"path"}), "profile": profile.model_dump(mode="json"),
                        "laser": laser.model_dump(mode="json"), "dsp": dsp_settings.model_dump(mode="json")},
                       sort_keys=True)
     return SweepPoint(params=tuple(overrides.items()), cfg=cfg, profile=profile, laser=laser, dsp=dsp_settings,
