@@ -79,7 +79,7 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
     # the test against each block's bound, block by block (no per-bin copy of the bound), with the
     # products the detector compares against (so a bin left out here fails it there too)
     cells = pp[:, reach:reach + n_blocks * _OS_BLOCK].reshape(rows, n_blocks, _OS_BLOCK)
-    maybe = (cells > (scaled_alpha * lower)[..., None]).reshape(rows, -1)[:, :n]
+    maybe = (cells > (scaled_alpha * lower)[..., None]).reshape(rows, n_blocks * _OS_BLOCK)[:, :n]   # rows may be 0
     r, c = np.nonzero(maybe | exact)
     noise = np.repeat(lower, _OS_BLOCK, axis=1)[:, :n]
     if r.size:

@@ -139,6 +139,10 @@ class FrameDsp:
         x = np.asarray(beat)
         if x.ndim != 3 or x.shape[-1] < 2 * self.ramp_samples:
             raise ValueError(f"beat must be (n_pix, averages, >= {2 * self.ramp_samples}), got {x.shape}")
+        if x.shape[0] == 0:     # no pixel (e.g. an empty last chunk of a raw capture cut by a kill)
+            z = np.zeros((0, self.max_returns))
+            return FrameResult(present=z.astype(bool), valid=z.astype(bool), range_m=z, velocity_mps=z, snr_db=z,
+                               intensity_v=z, flags=z.astype(np.uint8))
         if self.iq:
             if beat_q is None:
                 raise ValueError("an I/Q FrameDsp needs beat_q (the Q channel) beside beat (I)")

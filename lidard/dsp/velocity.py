@@ -126,7 +126,7 @@ def _greedy_match(fu2, fd2, vu2, vd2, f_dmax, rank=None) -> np.ndarray:
     match = np.full(fu2.shape, -1, dtype=np.int64)
     rows = np.arange(fu2.shape[0])
     for _ in range(min(ku, kd)):
-        flat = np.argmin(cost.reshape(cost.shape[0], -1), axis=-1)
+        flat = np.argmin(cost.reshape(cost.shape[0], ku * kd), axis=-1)
         i, j = np.divmod(flat, kd)
         good = np.isfinite(cost[rows, i, j])
         match[rows[good], i[good]] = j[good]

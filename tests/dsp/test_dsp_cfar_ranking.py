@@ -1,6 +1,7 @@
 """OS-CFAR's ranking of candidates and its mirrored padding (issue 18 rewrites) against plain references."""
 
 import numpy as np
+import pytest
 
 from lidard.dsp import cfar
 
@@ -49,3 +50,20 @@ def test_os_noise_is_exact_wherever_the_threshold_can_pass():
     assert passing[:, 60].all()
     np.testing.assert_array_equal(fast[passing], full[passing])
     assert np.all(fast <= full)                     # elsewhere a lower bound
+
+
+def test_an_empty_batch_gives_empty_detections():
+    # a raw capture's last committed chunk can hold no pixel (a daemon killed between its writes): the
+    # detector answers empty arrays of the batch's shape, as the frame DSP did before the ranking
+    from lidard.dsp.cfar import cfar_detect
+    det = cfar_detect(np.zeros((0, 3, 257)), window="hann", max_detections=2)
+    assert det.index.shape == (0, 3, 2) and not det.valid.any()
+
+
+@pytest.mark.parametrize("cw_samples", [0, 3120])
+def test_the_frame_dsp_answers_no_points_for_no_pixels(cw_samples):
+    from lidard.dsp.frame import FrameDsp
+    d = FrameDsp(ramp_samples=800, fs_hz=5e6, chirp_rate_hz_per_s=1.075e14, wavelength_m=1.55e-6, max_range_m=2.0,
+                 cw_samples=cw_samples)
+    res = d.process(np.zeros((0, 2, 1600 + cw_samples), np.int16))
+    assert res.present.shape == (0, d.max_returns) and res.flags.dtype == np.uint8
