@@ -246,7 +246,9 @@ class RawCapture:
         self.averages = int(self.attrs["averages"])
         self.chunk_pixels = int(self.attrs["chunk_pixels"])
         self.n_pixels = int(self.attrs["pixels_written"])
-        self.n_chunks = int(self.attrs["chunks_complete"])
+        # a daemon killed between a chunk's count and its pixels' count leaves the count one ahead:
+        # a chunk without a written pixel is not committed data
+        self.n_chunks = min(int(self.attrs["chunks_complete"]), -(-self.n_pixels // max(self.chunk_pixels, 1)))
         self.complete = bool(self.attrs["complete"])
 
     def chunk(self, index: int) -> RawChunk:

@@ -135,3 +135,13 @@ def test_a_process_killed_mid_scan_leaves_a_readable_prefix_marked_partial(tmp_p
     assert meta["attributes"]["complete"] is False
     # zarr's LocalStore writes to a temporary name and renames: no torn or temporary files remain
     assert not list(path.rglob("*.partial"))
+
+
+def test_a_chunk_count_ahead_of_the_pixels_written_is_not_a_chunk(capture):
+    # kill -9 between a chunk's count and its pixels' count: the reader answers only the chunks that
+    # hold written pixels (an empty one made the reprocessing of a killed scan fail)
+    g = zarr.open_group(zarr.storage.LocalStore(capture.path), mode="r+")
+    g.attrs.update({"chunks_complete": 4, "pixels_written": 32})
+    cap = RawCapture(capture.path)
+    assert cap.n_pixels == 32 and cap.n_chunks == 2
+    assert all(len(cap.chunk(i).t_s) == 16 for i in range(cap.n_chunks))
