@@ -68,6 +68,9 @@ class FrameDsp:
     iq_gain: float = 1.0        # its calibrated imbalance (lidard.dsp.iqbalance): Q / I gain ratio ...
     iq_phase_rad: float = 0.0   # ... and quadrature phase error, removed before the FFT
     cw_samples: int = 0         # samples of the constant-frequency segment after the ramps (0: triangle)
+    # the held segment's measured drift (lidard.dsp.cwhold.HoldProfile.as_dict; the linearization's):
+    # where the real receiver's two regimes meet, |f_D| comes from the dechirped CW segment
+    hold_profile: dict | None = None
     # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.gate): the top of its
     # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
     alias_free_hz: float | None = None

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .cwhold import HoldProfile, resolve_boundary
 from .gate import aliased, point_flags
 from .rangefft import C_M_PER_S, RangeFFT
 from .resolve import _median_last
@@ -189,13 +190,13 @@ def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     a, n = cw_window(dsp)
     rf = RangeFFT(n, dsp.fs_hz, dsp.chirp_rate_hz_per_s, window=dsp.window)
     spec = rf(x[..., a:a + n].astype(np.float64) * lsb_v)
-    return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
+    return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f, x
 
 
 def pair_frame_three(dsp, out_f: list, out_det: list, cw) -> dict:
     """The FrameResult fields (as a dict) of a three-segment frame."""
     (fu, fd), (du, dd) = out_f, out_det
-    p_cw, df = cw
+    p_cw, df, x = cw
     lead = fu.shape[:-1]
     k = fu.shape[-1]
     flat = [np.abs(a).reshape(-1, a.shape[-1]) for a in (fu, fd)]
@@ -203,6 +204,10 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw) -> dict:
     rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
                                              chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
                                              wavelength_m=dsp.wavelength_m, guard_bins=2, max_targets=k)
+    if dsp.hold_profile:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
+        resolve_boundary(dsp, x, HoldProfile.from_dict(dsp.hold_profile), flat, vflat,
+                         (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,
+                         cw_window=cw_window(dsp))
 
     def pick(field_up, field_dn):
         a = np.take_along_axis(field_up.reshape(-1, k), np.maximum(iu, 0), axis=1)

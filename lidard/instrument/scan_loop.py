@@ -119,9 +119,10 @@ def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None 
 
 
 def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | None = None,
-              iq_imbalance: tuple[float, float] = (1.0, 0.0)) -> ScanPlan:
+              iq_imbalance: tuple[float, float] = (1.0, 0.0), hold_profile: dict | None = None) -> ScanPlan:
     """``mzi_delay_s``: the range calibration's effective monitor delay (default: the nominal one);
-    ``iq_imbalance``: the I/Q calibration's (gain ratio, phase error) the DSP removes (adc.iq)."""
+    ``iq_imbalance``: the I/Q calibration's (gain ratio, phase error) the DSP removes (adc.iq);
+    ``hold_profile``: the linearization's measured drift of the held segment (three-segment chirp)."""
     pixels = plan(request, optics)
     avg = int(request.averages)
     tau_m = cfg.monitor.delay_s if mzi_delay_s is None else float(mzi_delay_s)
@@ -137,6 +138,7 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
                    max_speed_mps=speed_span_mps(cfg), window=cfg.scan.window, pfa=cfg.scan.pfa,
                    max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples,
                    iq=cfg.adc.iq, iq_gain=iq_imbalance[0], iq_phase_rad=iq_imbalance[1],
+                   hold_profile=hold_profile if cfg.chirp.shape == "three_segment" else None,
                    **decimation_gate(adc.fs_hz, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db, cfg.adc.input_range_v))
     acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
     return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
@@ -181,7 +183,7 @@ class ScanLoop:
             calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
         """``raw_path``: also record every accepted batch of segments there (:mod:`lidard.raw`)."""
         p = plan_scan(self.cfg, self.optics, request, self.applied.delay_or(self.cfg.monitor.delay_s),
-                      self.applied.iq_imbalance)
+                      self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
         run = ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
                                      mzi_delay_s=p.mzi_delay_s, flush_bytes=BATCH_BYTES,

@@ -12,8 +12,11 @@ laser where the averaged real fringe fades (issue 15).
 Three-segment chirp (issue 14): the ILC learns the two ramps as before, but each measurement plays the
 whole period, the ramps followed by the held constant segment (:func:`drive_for_chirp`), so the ramps
 are learned under the thermal history they will see in a scan; the record stops after the down ramp.
-The constant segment is held, not learned: its MZI beat is ~0 (nothing to demodulate), and the DSP
-needs from it only the Doppler beat's size and which side of the range beat it lies (lidard.dsp.threeseg).
+The constant segment is held, not learned: the laser's thermal terms keep drifting there (some
+300-650 MHz over the hold). Once the ramps are learned, one more acquisition of ``HOLD_AVERAGES``
+whole periods measures that drift from the MZI fringe over the hold (:func:`lidard.dsp.cwhold.hold_profile`);
+it is stored with the linearization (``meta["hold_profile"]``) and the DSP takes it out of the CW beat
+where the real receiver's two regimes meet (|f_D| ~ f_R, lidard.dsp.threeseg).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ...config import Config
+from ...dsp.cwhold import hold_profile
 from ...dsp.ilc import linearize as ilc_linearize
 from ...physics.chirp import adc_rate_hz
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan, drive_for_chirp
@@ -37,6 +41,9 @@ log = logging.getLogger(__name__)
 MAX_ITERATIONS = 24
 #: averages per measurement may double up to this when the noise floor stops learning above the target
 MAX_AVERAGES = 2048
+#: periods averaged for the held segment's drift (three-segment chirp): the repeatable fringe stays,
+#: the laser's phase noise and the monitor's noise average out (61 ms of hardware time at 238 us)
+HOLD_AVERAGES = 256
 
 
 class Linearization:
@@ -63,17 +70,18 @@ class Linearization:
         self.what = "linearization"    # how a safety stop names the procedure
         self.faults: dict[str, Any] = {"batch_retries": 0}
 
-    def measure(self, drive_v: np.ndarray, n_avg: int) -> np.ndarray:
+    def measure(self, drive_v: np.ndarray, n_avg: int, record_length: int | None = None) -> np.ndarray:
         """The ILC's measurement: ``n_avg`` MZI records (volts-proportional) of ``drive_v``: float64, or
-        complex I + jQ with a quadrature monitor."""
-        plan = AcquisitionPlan(self.centre, n_avg, self.channels, self.fs_hz, self.record_length, 16)
+        complex I + jQ with a quadrature monitor. ``record_length``: default the two ramps."""
+        record_length = self.record_length if record_length is None else int(record_length)
+        plan = AcquisitionPlan(self.centre, n_avg, self.channels, self.fs_hz, record_length, 16)
         acq = self.lifecycle.ready(plan, drive_v=drive_for_chirp(self.cfg, drive_v), faults=self.faults)
         self.lifecycle.start(acq)
         headers, samples = self.lifecycle.read(acq, 0, n_avg)
         self.lifecycle.stop(acq)
         if headers:
             span_ns = float(headers[-1].trigger_time_ns) - float(headers[0].trigger_time_ns)
-            self.hardware_s += span_ns * 1e-9 + self.record_length / self.fs_hz
+            self.hardware_s += span_ns * 1e-9 + record_length / self.fs_hz
         reason = self.safety.check()
         if reason is not None:
             # the same safe path as a scan: outputs first, then give up the calibration
@@ -98,6 +106,7 @@ class Linearization:
                                 # a slow thermal term needs ~19 steps to its noise floor (issue 15;
                                 # the default DFB stops at ~8 by itself)
                                 max_iter=MAX_ITERATIONS)
+            hold = self.measure_hold(res.drive_v) if c.shape == "three_segment" else None
         finally:
             self.safety.bring_down()
         iters = [{"up_rms_hz": float(it["up_rms_hz"]), "down_rms_hz": float(it["down_rms_hz"])}
@@ -110,4 +119,11 @@ class Linearization:
                                  converged=bool(res.converged), laser=laser, temperature_c=temp,
                                  drive_v=drive_for_chirp(self.cfg, res.drive_v), fs_drive_hz=AWG_RATE_HZ,
                                  meta={"mzi_delay_s": self.mzi_delay_s, "adc_rate_hz": self.fs_hz,
-                                       "monitor": "quadrature" if self.quadrature else "single MZI"})
+                                       "monitor": "quadrature" if self.quadrature else "single MZI",
+                                       **({"hold_profile": hold.as_dict()} if hold is not None else {})})
+
+    def measure_hold(self, drive_v: np.ndarray):
+        """The held segment's drift under ``drive_v`` (the learned ramps): whole-period MZI records."""
+        period = int(round(self.cfg.chirp.period_s * self.fs_hz)) & ~1
+        x = self.measure(drive_v, HOLD_AVERAGES, record_length=period)
+        return hold_profile(x, self.fs_hz, self.record_length, self.mzi_delay_s)

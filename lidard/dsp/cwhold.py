@@ -1,0 +1,221 @@
+"""The held segment's frequency drift, measured once and taken out of the CW beat (issue 14; §2.2).
+
+The three-segment chirp's constant-frequency (CW) segment is held, not linearized: a DFB's thermal
+terms keep relaxing after the drive stops, so the optical frequency drifts by some 300 MHz over the
+hold (the sim's default laser). A return of round trip tau then beats at |tau nu'(t) - f_D| there,
+spread over many bins (lidard.dsp.threeseg), which is enough to choose between the two regimes of a
+real receiver except where they meet (|f_D| ~ f_R), where their predictions of |f_D| differ by less
+than the spread. There one ramp beat sits near DC and both readings agree on the sign; what is missing
+is |f_D| precisely, for R = c (max(f_up, f_dn) - f_cw) / (2 kappa).
+
+The drift is a property of the laser and its drive, the same in every period of the same drive.
+
+* **Measurement** (:func:`hold_profile`): after the ILC, the monitor MZI is recorded over a whole
+  period and averaged over many periods. Its fringe over the hold has phase 2 pi tau_m nu(t - tau_m/2)
+  (the fringe runs at tau_m nu', 0.2-3.4 MHz on the default laser: tens of cycles over the hold, and
+  averaging the repeatable fringe takes the laser's phase noise out). The profile nu(t) - nu(t_0) is
+  stored with the linearization. A real fringe does not tell the drift's sign; the DSP searches both.
+* **Use** (:func:`dechirp_peak`): a return's CW segment multiplied by exp(-2 pi j tau nu(t - tau/2))
+  is a tone at -/+f_D (its mirror term is spread), sharp to one bin; its sub-bin peak gives f_cw.
+  tau comes from the ramps (f_R = hi - f_cw, iterated once).
+
+Pure numpy: no I/O, no clock, no logging.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .instfreq import analytic_phase
+from .rangefft import C_M_PER_S
+from .window import get_window
+
+#: the stored profile's sample spacing (its drift is smooth: thermal time constants of >= ~5 us)
+PROFILE_DT_S = 1e-7
+#: zero padding of the dechirped CW segment's spectrum (sub-bin peak by a parabola on its log power)
+_ZERO_PAD = 8
+
+
+@dataclass(frozen=True)
+class HoldProfile:
+    """nu(t) - nu(t0) (Hz) of the held segment on the record's time axis: nu_hz[k] at t0_s + k dt_s."""
+
+    t0_s: float
+    dt_s: float
+    nu_hz: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        nu = np.asarray(self.nu_hz, dtype=np.float64)
+        if nu.ndim != 1 or nu.size < 2 or not np.all(np.isfinite(nu)):
+            raise ValueError(f"hold profile: nu_hz must be >= 2 finite values, got shape {nu.shape}")
+        if not (math.isfinite(self.dt_s) and self.dt_s > 0 and math.isfinite(self.t0_s)):
+            raise ValueError(f"hold profile: need finite t0_s and dt_s > 0, got {self.t0_s!r}, {self.dt_s!r}")
+        object.__setattr__(self, "nu_hz", tuple(float(v) for v in nu))
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "HoldProfile | None":
+        if not d:
+            return None
+        try:
+            return cls(float(d["t0_s"]), float(d["dt_s"]), tuple(d["nu_hz"]))
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"hold profile: {exc} missing or malformed (need t0_s, dt_s, nu_hz)") from None
+
+    def as_dict(self) -> dict:
+        return {"t0_s": self.t0_s, "dt_s": self.dt_s, "nu_hz": list(self.nu_hz)}
+
+    def at(self, t_s: np.ndarray) -> np.ndarray:
+        """nu at the record times ``t_s`` (linear interpolation, held at the ends)."""
+        grid = self.t0_s + self.dt_s * np.arange(len(self.nu_hz))
+        return np.interp(t_s, grid, np.asarray(self.nu_hz))
+
+
+def hold_profile(records, fs_hz: float, start: int, mzi_delay_s: float) -> HoldProfile:
+    """The hold's drift from monitor-MZI records (n_avg, n) of whole periods, the hold from ``start``.
+
+    Real records: the averaged fringe's Hilbert phase; complex (quadrature monitor): the phase of the
+    averaged I + jQ. Either way nu = phase / (2 pi tau_m), placed at t - tau_m / 2."""
+    x = np.asarray(records)
+    if x.ndim != 2 or not 0 < start < x.shape[1] - 16:
+        raise ValueError(f"hold_profile: need records (n_avg, n) with the hold from sample {start}, got {x.shape}")
+    seg = x[:, start:].mean(axis=0)
+    if np.iscomplexobj(seg):
+        phase = np.unwrap(np.angle(seg - seg.mean()))
+    else:
+        # averaged over many periods the fringe is clean: its Hilbert phase, mirror-padded at the ends
+        phase, _ = analytic_phase(seg - seg.mean(), pad=seg.size // 4)
+    nu = (phase - phase[0]) / (2 * math.pi * mzi_delay_s)
+    step = max(1, int(round(PROFILE_DT_S * fs_hz)))
+    t0 = start / fs_hz - mzi_delay_s / 2
+    return HoldProfile(t0, step / fs_hz, tuple(nu[::step]))
+
+
+def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: np.ndarray, fs_hz: float,
+                 band_hz: tuple[np.ndarray, np.ndarray], window: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """|f_D| (Hz), its peak power and the spectrum's median power per candidate: ``cw`` (m, n_avg, n)
+    CW samples at record times ``t_s`` (n,), each candidate's round trip ``tau_s`` (m,), the band
+    [lo, hi] (m,) searched on both sides of 0 Hz (the drift's sign is not known). Powers are averaged
+    over the records; NaN where the band holds no bin."""
+    m, _, n = cw.shape
+    nu = profile.at(t_s[None, :] - 0.5 * tau_s[:, None])              # (m, n)
+    ref = np.exp(-2j * np.pi * tau_s[:, None] * (nu - nu[:, :1])) * window
+    n_fft = _ZERO_PAD * n
+    spec = np.fft.fft(cw * ref[:, None, :], n=n_fft, axis=-1)
+    p = (spec.real ** 2 + spec.imag ** 2).mean(axis=1)                  # (m, n_fft)
+    df = fs_hz / n_fft
+    k = np.arange(1, n_fft // 2 - 1)
+    rows = np.arange(m)
+    best_f, best_p = np.full(m, np.nan), np.zeros(m)
+    for side in (1, -1):
+        idx = (side * k[None, :] + np.array([[-1], [0], [1]]) * side) % n_fft     # (3, len(k))
+        inside = (k * df >= band_hz[0][:, None]) & (k * df <= band_hz[1][:, None])
+        ps_in = np.where(inside, p[:, idx[1]], -1.0)
+        j = np.argmax(ps_in, axis=1)
+        y0, y1, y2 = (np.log(np.maximum(p[rows, idx[d, j]], 1e-300)) for d in range(3))
+        den = y0 - 2 * y1 + y2
+        frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
+        better = ps_in[rows, j] > best_p
+        best_f = np.where(better, (k[j] + np.clip(frac, -0.5, 0.5)) * df, best_f)
+        best_p = np.where(better, ps_in[rows, j], best_p)
+    return best_f, best_p, np.median(p, axis=1)
+
+
+# -- the frame DSP's use (lidard.dsp.threeseg.pair_frame_three) ---------------------------------------
+#: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB, as the
+#: regime search's CW_BAND_SNR)
+PEAK_SNR = 20.0
+
+
+@dataclass
+class Candidates:
+    """Pairs (or lone ramp peaks) whose |f_D| the CW segment must give: pixel row, slot, hi (Hz), the
+    band of |f_D| searched, the sign of v (+1: the up ramp holds hi), and the largest lo accepted."""
+
+    row: np.ndarray
+    slot: np.ndarray
+    hi: np.ndarray
+    sign: np.ndarray
+    lo_max: np.ndarray
+
+
+def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates, cw_start: int, n_cw: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Range (m), velocity (m/s, positive receding) and acceptance per candidate, from the dechirped
+    CW segment: R = c (hi - f_cw) / (2 kappa), v = sign lambda f_cw / 2 (docs/physics.md)."""
+    if cand.row.size == 0:
+        z = np.zeros(0)
+        return z, z, z.astype(bool)
+    cw = x[cand.row, :, cw_start:cw_start + n_cw].astype(np.float64)
+    t_s = (cw_start + np.arange(n_cw)) / dsp.fs_hz
+    w = get_window(dsp.window, n_cw)
+    lo_band = np.maximum(0.5 * (cand.hi - cand.lo_max), 0.0)
+    band = (lo_band, 0.5 * (cand.hi + cand.lo_max))
+    kappa = dsp.chirp_rate_hz_per_s
+    f_cw = 0.5 * cand.hi                                # first guess: the regimes meet at f_R = |f_D|
+    for _ in range(2):                                  # tau from the ramps and the last f_cw
+        tau = (cand.hi - f_cw) / kappa
+        f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, tau, dsp.fs_hz, band, w)
+        f_cw = np.where(np.isfinite(f_new), f_new, f_cw)
+    ok = np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise) & (np.abs(2 * f_cw - cand.hi) <= cand.lo_max)
+    rng = C_M_PER_S * (cand.hi - f_cw) / (2 * kappa)
+    vel = cand.sign * dsp.wavelength_m * f_cw / 2
+    return rng, vel, ok
+
+
+def boundary_candidates(flat_f, flat_valid, pairs, cw_df_hz: float, ramp_df_hz: float) -> Candidates:
+    """Ambiguous pairs (present, not valid), and ramp peaks left without a partner whose partner may
+    sit under the DC guard (placed in a free slot): their |f_D| lies within lo_max / 2 of hi / 2."""
+    (fu, fd), (vu, vd) = flat_f, flat_valid
+    _, _, ok, seen, iu, idn = pairs
+    a = np.take_along_axis(fu, np.maximum(iu, 0), axis=1)
+    b = np.take_along_axis(fd, np.maximum(idn, 0), axis=1)
+    amb = seen & ~ok & (iu >= 0) & (idn >= 0)
+    r_a, s_a = np.nonzero(amb)
+    hi_a, lo_a = np.maximum(a, b)[amb], np.minimum(a, b)[amb]
+    sign_a = np.where(a[amb] >= b[amb], 1.0, -1.0)
+    lone_r, lone_s, lone_hi, lone_sign = [], [], [], []
+    used_u = np.zeros(fu.shape, bool)
+    used_d = np.zeros(fd.shape, bool)
+    np.put_along_axis(used_u, np.maximum(iu, 0), iu >= 0, axis=1)
+    np.put_along_axis(used_d, np.maximum(idn, 0), idn >= 0, axis=1)
+    free = ~seen
+    for f, v, used, sign, which in ((fu, vu, used_u, 1.0, 0), (fd, vd, used_d, -1.0, 1)):
+        for r, j in zip(*np.nonzero(v & ~used)):
+            slots = np.flatnonzero(free[r])
+            if slots.size == 0:
+                continue
+            free[r, slots[0]] = False
+            lone_r.append(r), lone_s.append(slots[0]), lone_hi.append(f[r, j]), lone_sign.append(sign)
+            (iu if which == 0 else idn)[r, slots[0]] = j
+    lo_lone = 3.0 * ramp_df_hz                     # a ramp beat closer to DC than this is not detected
+    return Candidates(row=np.concatenate([r_a, np.asarray(lone_r, dtype=np.int64)]),
+                      slot=np.concatenate([s_a, np.asarray(lone_s, dtype=np.int64)]),
+                      hi=np.concatenate([hi_a, np.asarray(lone_hi, dtype=np.float64)]),
+                      sign=np.concatenate([sign_a, np.asarray(lone_sign, dtype=np.float64)]),
+                      lo_max=np.concatenate([lo_a + 2 * ramp_df_hz + 2 * cw_df_hz,
+                                             np.full(len(lone_r), lo_lone + 2 * cw_df_hz)]))
+
+
+def resolve_boundary(dsp, x: np.ndarray, profile: HoldProfile, flat_f, flat_valid, pairs, *,
+                     ramp_df_hz: float, cw_window: tuple[int, int]) -> None:
+    """Update ``pairs`` = (range, velocity, valid, present, up index, down index), each (n, K), in
+    place: candidates (:func:`boundary_candidates`) whose dechirped CW peak is found become valid
+    points at R = c (hi - f_cw) / (2 kappa); lone peaks that fail leave their slot empty.
+    ``cw_window``: (first sample, samples) of the CW segment used."""
+    a, n_cw = cw_window
+    cand = boundary_candidates(flat_f, flat_valid, pairs, dsp.fs_hz / n_cw, ramp_df_hz)
+    if cand.row.size == 0:
+        return
+    rng, vel, ok, seen, iu, idn = pairs
+    r_m, v_mps, good = measure_boundary(dsp, x, profile, cand, a, n_cw)
+    r, s = cand.row, cand.slot
+    was_seen = seen[r, s].copy()
+    rng[r[good], s[good]], vel[r[good], s[good]] = r_m[good], v_mps[good]
+    ok[r, s] = good
+    seen[r, s] = was_seen | good
+    drop = ~was_seen & ~good                       # lone peaks not confirmed: no point in that slot
+    iu[r[drop], s[drop]], idn[r[drop], s[drop]] = -1, -1
