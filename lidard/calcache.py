@@ -30,7 +30,8 @@ from .instrument.types import CalibrationResult
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
+# 2: a three-segment linearization carries the held segment's measured drift (meta["hold_profile"])
+FORMAT_VERSION = 2
 # config sections that shape a scan or the daemon, never the linearized drive waveform
 _NOT_IN_KEY = ("scan", "daemon", "live", "path")
 

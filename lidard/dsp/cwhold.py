@@ -115,6 +115,10 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
         inside = (k * df >= band_hz[0][:, None]) & (k * df <= band_hz[1][:, None])
         ps_in = np.where(inside, p[:, idx[1]], -1.0)
         j = np.argmax(ps_in, axis=1)
+        # a peak on the band's edge is the skirt of something outside it (a static target's CW tone
+        # at DC, a stronger return): not a tone inside the band
+        edge = ~inside[rows, np.maximum(j - 1, 0)] | ~inside[rows, np.minimum(j + 1, k.size - 1)]
+        ps_in[rows, j] = np.where(edge, -1.0, ps_in[rows, j])
         y0, y1, y2 = (np.log(np.maximum(p[rows, idx[d, j]], 1e-300)) for d in range(3))
         den = y0 - 2 * y1 + y2
         frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
@@ -178,13 +182,14 @@ def boundary_candidates(flat_f, flat_valid, pairs, cw_df_hz: float, ramp_df_hz: 
     hi_a, lo_a = np.maximum(a, b)[amb], np.minimum(a, b)[amb]
     sign_a = np.where(a[amb] >= b[amb], 1.0, -1.0)
     lone_r, lone_s, lone_hi, lone_sign = [], [], [], []
-    used_u = np.zeros(fu.shape, bool)
-    used_d = np.zeros(fd.shape, bool)
-    np.put_along_axis(used_u, np.maximum(iu, 0), iu >= 0, axis=1)
-    np.put_along_axis(used_d, np.maximum(idn, 0), idn >= 0, axis=1)
+    used_u = (iu[:, :, None] == np.arange(fu.shape[1])).any(axis=1)       # peaks some pair holds
+    used_d = (idn[:, :, None] == np.arange(fd.shape[1])).any(axis=1)
     free = ~seen
     for f, v, used, sign, which in ((fu, vu, used_u, 1.0, 0), (fd, vd, used_d, -1.0, 1)):
-        for r, j in zip(*np.nonzero(v & ~used)):
+        # a second detection within a few bins of a paired peak of the same ramp is that return's
+        # (a sidelobe, two surfaces unresolved), not a return of its own
+        near_used = (np.abs(f[:, :, None] - np.where(used, f, np.inf)[:, None, :]) <= 3.0 * ramp_df_hz).any(axis=-1)
+        for r, j in zip(*np.nonzero(v & ~used & ~near_used)):
             slots = np.flatnonzero(free[r])
             if slots.size == 0:
                 continue
