@@ -15,7 +15,7 @@ direction . velocity. Modes: ``three_segment`` (the default configuration, no sp
 ``triangle`` with its speed prior (``scan.max_speed_mps``, ``--prior``) and ``iq`` (config/sim_iq.toml:
 the coherent receiver on the triangle, no prior, its hybrid's imbalance calibrated first).
 
-    python benchmarks/velocity_map.py [--quick] [--pixels 6] [--prior 0.4] [--json]
+    python benchmarks/velocity_map.py [--quick | --boundary] [--pixels 6] [--prior 0.4] [--json]
 """
 
 from __future__ import annotations
@@ -35,6 +35,14 @@ RANGES_M = (0.3, 0.6, 1.0, 2.0, 5.0, 10.0, 20.0)
 SPEEDS_MPS = (-10.0, -5.0, -2.0, -1.0, -0.3, 0.0, 0.3, 1.0, 2.0, 5.0, 10.0)
 QUICK_RANGES_M = (0.3, 1.0, 5.0, 20.0)
 QUICK_SPEEDS_MPS = (-10.0, -2.0, -0.3, 0.0, 0.3, 2.0, 10.0)
+#: ``--boundary``: speeds as multiples of the regime-boundary speed lambda f_R / 2 (|f_D| = f_R) at each range
+BOUNDARY_RANGES_M = (0.3, 0.6, 1.0, 2.0, 5.0)
+BOUNDARY_FACTORS = (-1.1, -1.05, -1.01, -1.0, -0.99, -0.95, -0.9, 0.9, 0.95, 0.99, 1.0, 1.01, 1.05, 1.1)
+
+
+def boundary_speed_mps(cfg, range_m: float) -> float:
+    """|f_D| = f_R: lambda (2 kappa R / c) / 2."""
+    return cfg.chirp.wavelength_m * (2 * cfg.chirp.rate_hz_per_s * range_m / 299_792_458.0) / 2
 
 
 def plane(z_m: float, v_mps: float) -> Scene:
@@ -99,13 +107,13 @@ def run_mode(mode: str, args) -> dict:
                   f"{fit.irr_after_db:.1f} dB")
         px = inst.optics.bonded_pixels()
         mid = px[np.argsort(np.hypot(px[:, 0] - px[:, 0].mean(), px[:, 1] - px[:, 1].mean()))[:args.pixels]]
-        ranges = QUICK_RANGES_M if args.quick else RANGES_M
-        speeds = QUICK_SPEEDS_MPS if args.quick else SPEEDS_MPS
+        ranges = BOUNDARY_RANGES_M if args.boundary else QUICK_RANGES_M if args.quick else RANGES_M
+        speeds = BOUNDARY_FACTORS if args.boundary else QUICK_SPEEDS_MPS if args.quick else SPEEDS_MPS
         gate = max(ranges) * 1.02
         v_res = cfg.chirp.velocity_resolution_mps if cfg.chirp.shape == "three_segment" else \
             cfg.chirp.wavelength_m / (4 * cfg.chirp.ramp_s)    # a triangle's: lambda / (4 T) per ramp pair
-        cells = [cell(inst, bench, cal, mid, z, v, gate, args.moving, v_res,
-                      args.range_tol) for z in ranges for v in speeds]
+        cells = [cell(inst, bench, cal, mid, z, v * boundary_speed_mps(cfg, z) if args.boundary else v, gate,
+                      args.moving, v_res, args.range_tol) for z in ranges for v in speeds]
     finally:
         inst.close()
     n_pix = sum(c["pixels"] for c in cells)
@@ -119,13 +127,19 @@ def run_mode(mode: str, args) -> dict:
             "chirp_period_us": 1e6 * cfg.chirp.period_s}
 
 
-def table(r: dict) -> str:
-    lines = [f"{r['mode']}: fraction of pixels ranged with the right sign (rows: range m, cols: speed m/s)",
+def table(r: dict, boundary: bool = False) -> str:
+    """Fraction per cell; ``boundary``: columns are multiples of the boundary speed, each cell also
+    giving its range RMSE (mm)."""
+    cols = "speed / boundary speed" if boundary else "speed m/s"
+    lines = [f"{r['mode']}: fraction of pixels ranged with the right sign (rows: range m, cols: {cols})",
              "| R \\ v | " + " | ".join(f"{v:+g}" for v in r["speeds_mps"]) + " |",
              "|---" * (len(r["speeds_mps"]) + 1) + "|"]
+
+    def fmt(c):
+        frac = f"{c['ranged_right_sign'] / c['pixels']:.2f}"
+        return f"{frac} ({1e3 * np.sqrt(c['sq_dr'] / c['n']):.2f})" if boundary and c["n"] else frac
     for z in r["ranges_m"]:
-        row = [c for c in r["cells"] if c["range_m"] == z]
-        lines.append(f"| {z:g} | " + " | ".join(f"{c['ranged_right_sign'] / c['pixels']:.2f}" for c in row) + " |")
+        lines.append(f"| {z:g} | " + " | ".join(fmt(c) for c in r["cells"] if c["range_m"] == z) + " |")
     return "\n".join(lines)
 
 
@@ -136,6 +150,8 @@ def main(argv=None) -> int:
     ap.add_argument("--prior", type=float, default=0.4, help="the triangle's scan.max_speed_mps")
     ap.add_argument("--range-tol", type=float, default=0.01, help="a point counts as ranged within this (m)")
     ap.add_argument("--moving", action="store_true", help="truth moved to each point's t (moving world)")
+    ap.add_argument("--boundary", action="store_true", help="speeds around the regime boundary |f_D| = f_R "
+                    "(multiples 0.9-1.1 of lambda f_R / 2, both signs) at 0.3-5 m; cells give range RMSE mm")
     ap.add_argument("--modes", default="three_segment,triangle,iq")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
@@ -150,7 +166,7 @@ def main(argv=None) -> int:
               f"{r['velocity_rmse_mps']:.4f} | {r['hardware_us_per_pixel']:.0f} | {r['wall_ms_per_pixel']:.1f} |")
     for r in out:
         print()
-        print(table(r))
+        print(table(r, args.boundary))
     return 0
 
 

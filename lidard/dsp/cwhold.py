@@ -37,6 +37,8 @@ from .window import get_window
 PROFILE_DT_S = 1e-7
 #: zero padding of the dechirped CW segment's spectrum (sub-bin peak by a parabola on its log power)
 _ZERO_PAD = 8
+#: complex elements of zero-padded spectra per pass over the candidates (~64 MB)
+PASS_ELEMENTS = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -150,21 +152,22 @@ def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates,
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Range (m), velocity (m/s, positive receding) and acceptance per candidate, from the dechirped
     CW segment: R = c (hi - f_cw) / (2 kappa), v = sign lambda f_cw / 2 (docs/physics.md)."""
-    if cand.row.size == 0:
-        z = np.zeros(0)
-        return z, z, z.astype(bool)
-    cw = x[cand.row, :, cw_start:cw_start + n_cw].astype(np.float64)
     t_s = (cw_start + np.arange(n_cw)) / dsp.fs_hz
     w = get_window(dsp.window, n_cw)
-    lo_band = np.maximum(0.5 * (cand.hi - cand.lo_max), 0.0)
-    band = (lo_band, 0.5 * (cand.hi + cand.lo_max))
     kappa = dsp.chirp_rate_hz_per_s
     f_cw = 0.5 * cand.hi                                # first guess: the regimes meet at f_R = |f_D|
-    for _ in range(2):                                  # tau from the ramps and the last f_cw
-        tau = (cand.hi - f_cw) / kappa
-        f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, tau, dsp.fs_hz, band, w)
-        f_cw = np.where(np.isfinite(f_new), f_new, f_cw)
-    ok = np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise) & (np.abs(2 * f_cw - cand.hi) <= cand.lo_max)
+    ok = np.zeros(cand.row.size, dtype=bool)
+    # candidates per pass: the zero-padded spectra of their records stay within ~64 MB
+    step = max(1, PASS_ELEMENTS // (x.shape[1] * _ZERO_PAD * n_cw))
+    for c0 in range(0, cand.row.size, step):
+        sl = slice(c0, c0 + step)
+        cw = x[cand.row[sl], :, cw_start:cw_start + n_cw].astype(np.float64)
+        hi, lo_max = cand.hi[sl], cand.lo_max[sl]
+        band = (np.maximum(0.5 * (hi - lo_max), 0.0), 0.5 * (hi + lo_max))
+        for _ in range(2):                              # tau from the ramps and the last f_cw
+            f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, (hi - f_cw[sl]) / kappa, dsp.fs_hz, band, w)
+            f_cw[sl] = np.where(np.isfinite(f_new), f_new, f_cw[sl])
+        ok[sl] = np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise) & (np.abs(2 * f_cw[sl] - hi) <= lo_max)
     rng = C_M_PER_S * (cand.hi - f_cw) / (2 * kappa)
     vel = cand.sign * dsp.wavelength_m * f_cw / 2
     return rng, vel, ok

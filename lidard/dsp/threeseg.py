@@ -25,7 +25,10 @@ miss it. For each (up, down) pair and each regime the CW power spectrum is searc
 Peaks near DC: the CFAR of the ramps and this search both leave out the DC bin and its window lobe.
 A regime predicting |f_D| inside that guard (|v| within a few velocity resolutions) expects no CW beat
 and needs none: the not-folded regime, the sign irrelevant. Near |f_D| = f_R one ramp beat sits near DC
-and the two regimes predict nearly the same |f_D|: such pairs are reported present but not valid.
+and the two regimes predict nearly the same |f_D|: such pairs are ambiguous. With the linearization's
+measured drift of the held segment (``FrameDsp.hold_profile``) :mod:`.cwhold` dechirps their CW beat
+and ranges them from R = c (hi - f_cw) / (2 kappa) (lone ramp peaks whose partner sits at DC too);
+without it they are reported present but not valid.
 
 Several returns: every (up i, down j) pair is scored; pairs are taken greedily, best tier first, each
 peak used once (after :func:`lidard.dsp.velocity.pair_up_down`'s matcher). Pure numpy.

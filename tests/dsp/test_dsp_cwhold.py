@@ -153,3 +153,19 @@ def test_hold_profile_does_not_add_points_to_a_static_target():
     a, b = dsp.process(x), dataclasses.replace(dsp, hold_profile=prof.as_dict()).process(x)
     assert a.valid.sum() == b.valid.sum() == 1
     assert np.array_equal(a.range_m[a.valid], b.range_m[b.valid])
+
+
+def test_candidates_in_several_passes_give_the_same_points(monkeypatch):
+    # three pixels where the regimes meet, one batch; memory-bounded passes of one candidate each
+    import lidard.dsp.cwhold as cwhold
+    rng = np.random.default_rng(2)
+    dsp = _frame_dsp()
+    dsp = dataclasses.replace(dsp, hold_profile=_profile(t0_s=2 * dsp.ramp_samples / FS).as_dict())
+    cases = [(0.5, 1.0), (1.2, -0.99), (1.7, 1.02)]
+    x = np.concatenate([_records(dsp, r, -f * 2 * KAPPA * r / C_M_PER_S * WL / 2, rng) for r, f in cases])
+    whole = dsp.process(x)
+    monkeypatch.setattr(cwhold, "PASS_ELEMENTS", 1)
+    split = dataclasses.replace(dsp).process(x)
+    assert whole.valid.sum(axis=1).tolist() == [1, 1, 1]
+    np.testing.assert_array_equal(whole.range_m[whole.valid], split.range_m[split.valid])
+    assert whole.range_m[whole.valid] == pytest.approx([r for r, _ in cases], abs=1e-3)
