@@ -475,11 +475,13 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
         + "\n**Maximum range** (a wall at 0.7 x the maximum range; the ADC rate and record length follow the range; "
           "fewer pixels at long range; first-scan overhead = one-off DSP tables at a new record length; beyond a "
           "few tens of metres the wall is below the detection threshold of the §4.4 link (1 mW out), so 'points' "
-          "drops to zero: the cost does not depend on it)\n\n"
+          "drops to zero: the cost does not depend on it). Phase-noise compensation is off in every row, so the "
+          "law is of one workload; where `auto` turns it on (a second digitizer channel and its DSP) its cost is "
+          "measured beside, below.\n\n"
         + table(hdr + ["ms/pixel wall", "first-scan overhead (s)"],
                 [row + [q["wall_per_pixel_s"] * 1e3, q["first_scan_overhead_s"]]
                  for row, q in zip(rowsof("range"), r["range"]["rows"])])
-        + f"\n![scaling]({png})\n")
+        + _pn_rows(r["range"]) + f"\n![scaling]({png})\n")
     return s
 
 
@@ -525,6 +527,18 @@ def sec_frame(quick: bool, img: Path, log) -> Section:
                                                  for k in ("synthesis", "transport", "dsp", "points")]
                  + [f"{f['ratio_scan_cpu']:.1f}x ({f['ratio_scan_wall']:.1f}x)"] for f in runs]))
     return s
+
+
+def _pn_rows(rng: dict) -> str:
+    """The range sweep's rows re-measured with phase-noise compensation on (where "auto" turns it on)."""
+    pn = rng.get("pn_rows") or []
+    if not pn:
+        return ""
+    off = {q["max_range_m"]: q for q in rng["rows"]}
+    return ("\nWith phase-noise compensation (`auto`), same pixels:\n\n"
+            + table(["max range (m)", "ms/pixel wall, compensated", "ms/pixel wall, off", "ratio (CPU)"],
+                    [[q["max_range_m"], q["wall_per_pixel_s"] * 1e3, off[q["max_range_m"]]["wall_per_pixel_s"] * 1e3,
+                      f"{q['cpu_per_pixel_s'] / off[q['max_range_m']]['cpu_per_pixel_s']:.2f}"] for q in pn]))
 
 
 def _limit_headline(f: dict, facts: dict) -> tuple[str, str, str]:

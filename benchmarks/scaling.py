@@ -45,6 +45,7 @@ from benchmarks.frame import peak_rss_mb, reset_peak_rss  # noqa: E402
 from lidard.config import CONFIG_DIR, load_config  # noqa: E402
 from lidard.instrument import open_instrument  # noqa: E402
 from lidard.instrument import ScanRequest  # noqa: E402
+from lidard.instrument.scan_loop import phase_noise_on  # noqa: E402
 
 FULL = {"pixels": (1024, 2048, 4096, 8192, 16384), "averages": (1, 2, 5, 10), "avg_pixels": 1024,
         "ranges_m": (2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 150.0), "samples_budget": 2.0e7,
@@ -103,19 +104,22 @@ class FrameRig:
         # the embedded Bench owns the world: ground truth comes from it (as tests/e2e do)
         return self.inst._on_close.__self__
 
-    def scan(self, pixels, averages: int = 1, max_range_m: float = 2.0):
-        """(wall_s, ScanResult) of one scan of an explicit pixel list."""
-        req = ScanRequest(pattern="pixels", pixels=tuple(pixels), averages=int(averages), max_range_m=max_range_m)
+    def scan(self, pixels, averages: int = 1, max_range_m: float = 2.0, phase_noise: str | None = None):
+        """(wall_s, ScanResult) of one scan of an explicit pixel list (``phase_noise``: the request's
+        phase_noise_compensation, default the configuration's)."""
+        req = ScanRequest(pattern="pixels", pixels=tuple(pixels), averages=int(averages), max_range_m=max_range_m,
+                          phase_noise_compensation=phase_noise)
         t = time.perf_counter()
         res = self.inst.run_scan(req, lambda p: None, threading.Event(), self.cal)
         return time.perf_counter() - t, res
 
-    def best_of(self, repeats: int, pixels, averages: int = 1, max_range_m: float = 2.0) -> dict:
+    def best_of(self, repeats: int, pixels, averages: int = 1, max_range_m: float = 2.0,
+                phase_noise: str | None = None) -> dict:
         walls, cpus, rss = [], [], []
         for _ in range(max(1, repeats)):
             reset_peak_rss()
             c0 = time.process_time()
-            wall, res = self.scan(pixels, averages, max_range_m)
+            wall, res = self.scan(pixels, averages, max_range_m, phase_noise)
             cpus.append(time.process_time() - c0)
             walls.append(wall)
             rss.append(peak_rss_mb())
@@ -124,10 +128,16 @@ class FrameRig:
                 "wall_s": wall, "cpu_s": min(cpus), "peak_rss_mb": max(rss), "hardware_s": float(res.hardware_time_s),
                 "realtime_factor": float(res.hardware_time_s) / wall, "points": int(len(res.points)),
                 "adc_rate_hz": float(res.meta["adc"]["sample_rate_hz"]),
-                "record_length": int(res.meta["adc"]["record_length"])}
+                "record_length": int(res.meta["adc"]["record_length"]),
+                "phase_noise": bool(res.meta["dsp"]["phase_noise_compensation"])}
 
     def close(self) -> None:
         self.inst.close()
+
+
+def _per_pixel(r: dict, n: int) -> dict:
+    r.update(wall_per_pixel_s=r["wall_s"] / n, cpu_per_pixel_s=r["cpu_s"] / n, hardware_per_pixel_s=r["hardware_s"] / n)
+    return r
 
 
 def run_scaling(quick: bool = False, repeats: int = 2, log=print) -> dict:
@@ -158,23 +168,26 @@ def run_scaling(quick: bool = False, repeats: int = 2, log=print) -> dict:
                            "hw_linear": fit_linear(xs, [r["hardware_s"] for r in rows]),
                            "wall_linear": fit_linear(xs, [r["wall_s"] for r in rows])}
 
-        rows = []
+        # the growth law is of one workload: phase-noise compensation off at every range ("auto" turns
+        # it on from 60 m, a second channel and its DSP: measured beside, as its own cost)
+        rows, pn_rows = [], []
         for d in sizes["ranges_m"]:
             rig.inst.set_scene(_wall_scene(0.7 * d))
             t = time.perf_counter()
-            _, first = rig.scan(cycled_pixels(4, optics), max_range_m=d)   # new record length: cold caches
+            _, first = rig.scan(cycled_pixels(4, optics), max_range_m=d, phase_noise="off")   # cold caches
             cold = time.perf_counter() - t
             n_rec = int(first.meta["adc"]["record_length"])
             n = int(np.clip(sizes["samples_budget"] // n_rec, 16, sizes["range_pixels_max"]))
-            r = rig.best_of(repeats, cycled_pixels(n, optics), max_range_m=d)
+            r = _per_pixel(rig.best_of(repeats, cycled_pixels(n, optics), max_range_m=d, phase_noise="off"), n)
             r["first_scan_overhead_s"] = cold
-            r["wall_per_pixel_s"] = r["wall_s"] / n
-            r["cpu_per_pixel_s"] = r["cpu_s"] / n
-            r["hardware_per_pixel_s"] = r["hardware_s"] / n
             rows.append(r)
             log(f"  range {d:6.1f} m: {r['adc_rate_hz'] / 1e6:7.2f} MS/s x {n_rec} samples, {n} pixels, "
                 f"wall {r['wall_s']:.3f} s ({1e3 * r['wall_per_pixel_s']:.2f} ms/pixel), first scan {cold:.2f} s")
-        out["range"] = {"rows": rows,
+            if phase_noise_on(rig.cfg, ScanRequest(max_range_m=d)):
+                rig.scan(cycled_pixels(4, optics), max_range_m=d)            # its tables, cold
+                pn_rows.append(_per_pixel(rig.best_of(repeats, cycled_pixels(n, optics), max_range_m=d), n))
+                log(f"    with phase-noise compensation (auto): {1e3 * pn_rows[-1]['wall_per_pixel_s']:.2f} ms/pixel")
+        out["range"] = {"rows": rows, "pn_rows": pn_rows,
                         "fit_record": fit_growth([r["record_length"] for r in rows], [r["wall_per_pixel_s"] for r in rows]),
                         "cpu_affine_record": fit_linear([r["record_length"] for r in rows],
                                                         [r["cpu_per_pixel_s"] for r in rows]),

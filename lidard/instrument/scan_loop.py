@@ -340,7 +340,10 @@ class ScanLoop:
             "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
                     "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction,
                     "phase_noise_compensation": p.phase_noise,
-                    "receiver": "iq" if dsp.iq else "real"},
+                    "receiver": "iq" if dsp.iq else "real",
+                    # three-segment: the linearization's measured drift of the held segment resolves
+                    # the regimes' meeting (|f_D| ~ f_R); without it such pixels are drawn, not valid
+                    "hold_profile": dsp.hold_profile is not None},
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),

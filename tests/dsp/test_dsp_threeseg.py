@@ -109,3 +109,24 @@ def test_frame_dsp_three_segment_sub_bin(range_m, v):
     k = int(np.argmax(res.valid[0]))
     assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
     assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
+
+
+def test_cw_window_is_fft_friendly_and_ends_with_the_record():
+    # the CW FFT's length: the largest even 2-3-5-smooth size that skips at least the first quarter
+    from lidard.dsp.threeseg import CW_SKIP_FRACTION, _smooth_at_most, cw_window
+
+    def smooth(m):
+        for p in (2, 3, 5):
+            while m % p == 0:
+                m //= p
+        return m == 1
+    for n in range(4, 1200):
+        m = _smooth_at_most(n)
+        assert m <= n and m % 2 == 0 and smooth(m)
+        assert not any(smooth(k) for k in range(m + 2, n + 1, 2))
+    dsp = FrameDsp(ramp_samples=20000, fs_hz=250e6, chirp_rate_hz_per_s=KAPPA, wavelength_m=WL, max_range_m=100.0,
+                   cw_samples=19500)
+    a, n = cw_window(dsp)
+    assert a + n == 2 * 20000 + 19500                   # ends with the record
+    assert a >= 2 * 20000 + int(19500 * CW_SKIP_FRACTION)
+    assert n == 14580                                   # 2^2 3^6 5 (not 14,624 = 2^5 x 457)

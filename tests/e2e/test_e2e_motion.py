@@ -102,8 +102,10 @@ def test_regime_boundary_without_a_hold_profile_is_flagged_not_misranged(motion)
     bench.set_scene(Scene.from_dict({"name": "edge", "target": [_plane(1.0, v)]}))
     res = _scan(inst, old, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 64), max_range_m=2.0))
     assert not np.any(res.points["valid"] == 1)
+    assert res.meta["dsp"]["hold_profile"] is False          # the sidecar says why
     with_profile = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 64), max_range_m=2.0))
     assert np.count_nonzero(with_profile.points["valid"] == 1) == with_profile.pixels_scanned
+    assert with_profile.meta["dsp"]["hold_profile"] is True
 
 
 @pytest.fixture(scope="module")
