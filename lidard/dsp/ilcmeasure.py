@@ -16,10 +16,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import hilbert
 
 from .ilcquad import quadrature_ramp_nu
-from .instfreq import best_fit_residual, fft_filter, lowpass_padded, ramp_frequency
+from .instfreq import best_fit_residual, fft_filter, hilbert, lowpass_padded, ramp_frequency
 
 # narrow-band refinement of the MZI phase (see _Analyzer._refine)
 _RIDGE_WINDOW_S = 2e-6

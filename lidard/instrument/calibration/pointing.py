@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ...physics.optics import FpsaOptics, Pointing
 from ...physics.surfaces import distance_to_plane, distance_to_sphere
@@ -221,6 +220,7 @@ def fit_pointing(optics: FpsaOptics, rows, cols, range_m, surfaces: list[Surface
                 f"pointing calibration: {int(use.sum())} points lie within {gate * 1e3:.1f} mm of the known surfaces "
                 f"(need {min_points})" + (f"; no points on {', '.join(missing)}: is the geometry right?" if missing else ""))
         fn = _residual_fn(optics, surfaces, rows[use], cols[use], range_m[use], idx[use])
+        from scipy.optimize import least_squares   # on first use: start-up time (issue 18)
         sol = least_squares(fn, x, loss="soft_l1", f_scale=2.0 * noise_m, x_scale=_X_SCALE, method="trf",
                             bounds=(_LOWER, _UPPER))
         x = sol.x
