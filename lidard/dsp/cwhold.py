@@ -35,7 +35,8 @@ from .window import get_window
 
 #: the stored profile's sample spacing (its drift is smooth: thermal time constants of >= ~5 us)
 PROFILE_DT_S = 1e-7
-#: zero padding of the dechirped CW segment's spectrum (sub-bin peak by a parabola on its log power)
+#: zero padding of the dechirped CW segment's spectrum for the estimate (sub-bin peak by a parabola on
+#: its log power)
 _ZERO_PAD = 8
 #: complex elements of zero-padded spectra per pass over the candidates (~64 MB)
 PASS_ELEMENTS = 1 << 22
@@ -96,16 +97,17 @@ def hold_profile(records, fs_hz: float, start: int, mzi_delay_s: float) -> HoldP
 
 
 def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: np.ndarray, fs_hz: float,
-                 band_hz: tuple[np.ndarray, np.ndarray], window: np.ndarray
+                 band_hz: tuple[np.ndarray, np.ndarray], window: np.ndarray, zero_pad: int = _ZERO_PAD
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """|f_D| (Hz), its peak power and the spectrum's median power per candidate: ``cw`` (m, n_avg, n)
     CW samples at record times ``t_s`` (n,), each candidate's round trip ``tau_s`` (m,), the band
     [lo, hi] (m,) searched on both sides of 0 Hz (the drift's sign is not known). Powers are averaged
-    over the records; NaN where the band holds no bin."""
+    over the records; NaN where the band holds no bin. ``zero_pad``: of the spectrum (the sub-bin
+    peak's accuracy; 2 suffices to screen, 8 to estimate)."""
     m, _, n = cw.shape
     nu = profile.at(t_s[None, :] - 0.5 * tau_s[:, None])              # (m, n)
     ref = np.exp(-2j * np.pi * tau_s[:, None] * (nu - nu[:, :1])) * window
-    n_fft = _ZERO_PAD * n
+    n_fft = zero_pad * n
     spec = np.fft.fft(cw * ref[:, None, :], n=n_fft, axis=-1)
     p = (spec.real ** 2 + spec.imag ** 2).mean(axis=1)                  # (m, n_fft)
     df = fs_hz / n_fft
@@ -164,10 +166,23 @@ def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates,
         cw = x[cand.row[sl], :, cw_start:cw_start + n_cw].astype(np.float64)
         hi, lo_max = cand.hi[sl], cand.lo_max[sl]
         band = (np.maximum(0.5 * (hi - lo_max), 0.0), 0.5 * (hi + lo_max))
-        for _ in range(2):                              # tau from the ramps and the last f_cw
-            f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, (hi - f_cw[sl]) / kappa, dsp.fs_hz, band, w)
-            f_cw[sl] = np.where(np.isfinite(f_new), f_new, f_cw[sl])
-        ok[sl] = np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise) & (np.abs(2 * f_cw[sl] - hi) <= lo_max)
+        # a screen (2x padding: scalloping <= 0.4 dB), then once more with tau from the ramps and this
+        # f_cw, 8x padded, for the candidates that can pass (a first guess of tau off by lo / 2 smears
+        # the tone by a few dB at most): most lone peaks are noise
+        f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, (hi - f_cw[sl]) / kappa, dsp.fs_hz, band, w,
+                                            zero_pad=2)
+        f_cw[sl] = np.where(np.isfinite(f_new), f_new, f_cw[sl])
+        ok_screen = np.zeros(cw.shape[0], dtype=bool)
+        again = np.flatnonzero(p_peak >= 0.5 * PEAK_SNR * noise)
+        if again.size:
+            idx = np.arange(c0, c0 + cw.shape[0])[again]
+            f2, p2, n2 = dechirp_peak(cw[again], t_s, profile, (cand.hi[idx] - f_cw[idx]) / kappa, dsp.fs_hz,
+                                      (band[0][again], band[1][again]), w)
+            f_new[again], p_peak[again], noise[again] = f2, p2, n2
+            f_cw[idx] = np.where(np.isfinite(f2), f2, f_cw[idx])
+            ok_screen[again] = True
+        ok[sl] = (ok_screen & np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise)
+                  & (np.abs(2 * f_cw[sl] - hi) <= lo_max))
     rng = C_M_PER_S * (cand.hi - f_cw) / (2 * kappa)
     vel = cand.sign * dsp.wavelength_m * f_cw / 2
     return rng, vel, ok
