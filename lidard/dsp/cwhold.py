@@ -14,9 +14,15 @@ The drift is a property of the laser and its drive, the same in every period of 
   period and averaged over many periods. Its fringe over the hold has phase 2 pi tau_m nu(t - tau_m/2)
   (the fringe runs at tau_m nu', 0.2-3.4 MHz on the default laser: tens of cycles over the hold, and
   averaging the repeatable fringe takes the laser's phase noise out). The profile nu(t) - nu(t_0) is
-  stored with the linearization. A real fringe does not tell the drift's sign; the DSP searches both.
+  stored with the linearization, in the chirp's frame (the up ramp raises nu). A quadrature monitor
+  measures the drift's sign against the up ramp's. A real fringe's phase always rises, so its sign is
+  taken from the physics: the thermal terms lag the drive, so when the drive stops after the down ramp
+  the temperature (and nu) keeps moving the way the down ramp moved it, whatever the laser's tuning
+  sign (the sim's laser model agrees: tests/e2e/test_e2e_motion.py).
 * **Use** (:func:`dechirp_peak`): a return's CW segment multiplied by exp(-2 pi j tau nu(t - tau/2))
-  is a tone at -/+f_D (its mirror term is spread), sharp to one bin; its sub-bin peak gives f_cw.
+  is a tone at -f_D (its mirror term lies at +f_D, spread by 2 tau nu'), sharp to one bin; the sign
+  of f_D is the ramps' (the sign of f_dn - f_up), and the tone's sub-bin peak on that side gives f_cw.
+  Near the sensor the mirror is nearly as sharp, which is why the side must be known.
   tau comes from the ramps (f_R = hi - f_cw, iterated once).
 
 Pure numpy: no I/O, no clock, no logging.
@@ -77,33 +83,42 @@ class HoldProfile:
 
 
 def hold_profile(records, fs_hz: float, start: int, mzi_delay_s: float) -> HoldProfile:
-    """The hold's drift from monitor-MZI records (n_avg, n) of whole periods, the hold from ``start``.
+    """The hold's drift from monitor-MZI records (n_avg, n) of whole periods (up ramp, down ramp, hold),
+    the hold from ``start``, in the chirp's frame: the up ramp raises nu.
 
-    Real records: the averaged fringe's Hilbert phase; complex (quadrature monitor): the phase of the
-    averaged I + jQ. Either way nu = phase / (2 pi tau_m), placed at t - tau_m / 2."""
+    Complex records (quadrature monitor): the phase of the averaged I + jQ, its sign taken against the
+    up ramp's. Real records: the averaged fringe's Hilbert phase, which always rises; the drift is taken
+    to continue the down ramp's direction (module doc). Either way nu = phase / (2 pi tau_m), placed
+    at t - tau_m / 2."""
     x = np.asarray(records)
     if x.ndim != 2 or not 0 < start < x.shape[1] - 16:
         raise ValueError(f"hold_profile: need records (n_avg, n) with the hold from sample {start}, got {x.shape}")
     seg = x[:, start:].mean(axis=0)
     if np.iscomplexobj(seg):
         phase = np.unwrap(np.angle(seg - seg.mean()))
+        up = x[:, :start // 2].mean(axis=0)
+        up_phase = np.unwrap(np.angle(up - up.mean()))
+        sign = 1.0 if up_phase[-1] > up_phase[0] else -1.0
     else:
         # averaged over many periods the fringe is clean: its Hilbert phase, mirror-padded at the ends
         phase, _ = analytic_phase(seg - seg.mean(), pad=seg.size // 4)
-    nu = (phase - phase[0]) / (2 * math.pi * mzi_delay_s)
+        sign = -1.0
+    nu = sign * (phase - phase[0]) / (2 * math.pi * mzi_delay_s)
     step = max(1, int(round(PROFILE_DT_S * fs_hz)))
     t0 = start / fs_hz - mzi_delay_s / 2
     return HoldProfile(t0, step / fs_hz, tuple(nu[::step]))
 
 
 def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: np.ndarray, fs_hz: float,
-                 band_hz: tuple[np.ndarray, np.ndarray], window: np.ndarray, zero_pad: int = _ZERO_PAD
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 band_hz: tuple[np.ndarray, np.ndarray], side: np.ndarray, window: np.ndarray,
+                 zero_pad: int = _ZERO_PAD) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """|f_D| (Hz), its peak power and the spectrum's median power per candidate: ``cw`` (m, n_avg, n)
     CW samples at record times ``t_s`` (n,), each candidate's round trip ``tau_s`` (m,), the band
-    [lo, hi] (m,) searched on both sides of 0 Hz (the drift's sign is not known). Powers are averaged
-    over the records; NaN where the band holds no bin. ``zero_pad``: of the spectrum (the sub-bin
-    peak's accuracy; 2 suffices to screen, 8 to estimate)."""
+    [lo, hi] (m,) of |f_D| searched on the ``side`` (m,) of 0 Hz where the tone lies: +1 for a
+    receding target (the beat's CW phase is 2 pi (tau nu(t) - f_D t) with f_D = -2 v / lambda; its
+    e^{+j psi} half lands on -f_D, the other half is the spread mirror). Powers are averaged over the
+    records; NaN where the band holds no bin. ``zero_pad``: of the spectrum (the sub-bin peak's
+    accuracy; 2 suffices to screen, 8 to estimate)."""
     m, _, n = cw.shape
     nu = profile.at(t_s[None, :] - 0.5 * tau_s[:, None])              # (m, n)
     ref = np.exp(-2j * np.pi * tau_s[:, None] * (nu - nu[:, :1])) * window
@@ -112,24 +127,22 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
     p = (spec.real ** 2 + spec.imag ** 2).mean(axis=1)                  # (m, n_fft)
     df = fs_hz / n_fft
     k = np.arange(1, n_fft // 2 - 1)
-    rows = np.arange(m)
-    best_f, best_p = np.full(m, np.nan), np.zeros(m)
-    for side in (1, -1):
-        idx = (side * k[None, :] + np.array([[-1], [0], [1]]) * side) % n_fft     # (3, len(k))
-        inside = (k * df >= band_hz[0][:, None]) & (k * df <= band_hz[1][:, None])
-        ps_in = np.where(inside, p[:, idx[1]], -1.0)
-        j = np.argmax(ps_in, axis=1)
-        # a peak on the band's edge is the skirt of something outside it (a static target's CW tone
-        # at DC, a stronger return): not a tone inside the band
-        edge = ~inside[rows, np.maximum(j - 1, 0)] | ~inside[rows, np.minimum(j + 1, k.size - 1)]
-        ps_in[rows, j] = np.where(edge, -1.0, ps_in[rows, j])
-        y0, y1, y2 = (np.log(np.maximum(p[rows, idx[d, j]], 1e-300)) for d in range(3))
-        den = y0 - 2 * y1 + y2
-        frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
-        better = ps_in[rows, j] > best_p
-        best_f = np.where(better, (k[j] + np.clip(frac, -0.5, 0.5)) * df, best_f)
-        best_p = np.where(better, ps_in[rows, j], best_p)
-    return best_f, best_p, np.median(p, axis=1)
+    rows = np.arange(m)[:, None]
+    s = np.where(np.asarray(side) < 0, -1, 1)[:, None]
+    idx = (s[:, :, None] * (k[None, :, None] + np.array([-1, 0, 1]))) % n_fft       # (m, len(k), 3)
+    inside = (k * df >= band_hz[0][:, None]) & (k * df <= band_hz[1][:, None])
+    ps_in = np.where(inside, p[rows, idx[..., 1]], -1.0)
+    j = np.argmax(ps_in, axis=1)
+    r = np.arange(m)
+    # a peak on the band's edge is the skirt of something outside it (a static target's CW tone at DC,
+    # a stronger return): not a tone inside the band
+    edge = ~inside[r, np.maximum(j - 1, 0)] | ~inside[r, np.minimum(j + 1, k.size - 1)]
+    best_p = np.where(edge, -1.0, ps_in[r, j])
+    y0, y1, y2 = (np.log(np.maximum(p[r, idx[r, j, d]], 1e-300)) for d in range(3))
+    den = y0 - 2 * y1 + y2
+    frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
+    best_f = np.where(best_p > 0, (k[j] + np.clip(frac, -0.5, 0.5)) * df, np.nan)
+    return best_f, np.maximum(best_p, 0.0), np.median(p, axis=1)
 
 
 # -- the frame DSP's use (lidard.dsp.threeseg.pair_frame_three) ---------------------------------------
@@ -169,15 +182,16 @@ def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates,
         # a screen (2x padding: scalloping <= 0.4 dB), then once more with tau from the ramps and this
         # f_cw, 8x padded, for the candidates that can pass (a first guess of tau off by lo / 2 smears
         # the tone by a few dB at most): most lone peaks are noise
-        f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, (hi - f_cw[sl]) / kappa, dsp.fs_hz, band, w,
-                                            zero_pad=2)
+        side = cand.sign[sl]
+        f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, (hi - f_cw[sl]) / kappa, dsp.fs_hz, band, side,
+                                            w, zero_pad=2)
         f_cw[sl] = np.where(np.isfinite(f_new), f_new, f_cw[sl])
         ok_screen = np.zeros(cw.shape[0], dtype=bool)
         again = np.flatnonzero(p_peak >= 0.5 * PEAK_SNR * noise)
         if again.size:
             idx = np.arange(c0, c0 + cw.shape[0])[again]
             f2, p2, n2 = dechirp_peak(cw[again], t_s, profile, (cand.hi[idx] - f_cw[idx]) / kappa, dsp.fs_hz,
-                                      (band[0][again], band[1][again]), w)
+                                      (band[0][again], band[1][again]), side[again], w)
             f_new[again], p_peak[again], noise[again] = f2, p2, n2
             f_cw[idx] = np.where(np.isfinite(f2), f2, f_cw[idx])
             ok_screen[again] = True

@@ -44,19 +44,32 @@ def _fringes(n_avg, rng, linewidth_hz=500e3, quadrature=False):
     return t, x + 0.05 * rng.standard_normal(x.shape)
 
 
-@pytest.mark.parametrize("quadrature", [False, True])
-def test_hold_profile_recovers_the_drift_through_phase_noise(quadrature):
+def _ramps(n_avg, start, quadrature, up_sign):
+    """1 us up ramp and 1 us down ramp of the MZI fringe (beat kappa tau_m = 21.5 MHz): the up ramp
+    raises nu when ``up_sign`` is +1 (a quadrature monitor's I + jQ then turns counter-clockwise)."""
+    t = np.arange(start // 2) / FS_MZI
+    ph = 2 * np.pi * KAPPA * TAU_M * t * up_sign
+    ramps = np.concatenate([ph, ph[-1] - 2 * np.pi * KAPPA * TAU_M * t * up_sign])
+    z = np.exp(1j * ramps) if quadrature else np.cos(ramps)
+    return np.broadcast_to(z, (n_avg, start))
+
+
+@pytest.mark.parametrize("quadrature, up_sign", [(False, 1), (True, 1), (True, -1)])
+def test_hold_profile_recovers_the_drift_through_phase_noise(quadrature, up_sign):
+    # the drift continues the down ramp's direction (nu falls in the chirp's frame); a quadrature
+    # monitor whose I + jQ turns the other way (up_sign -1) must give the same profile
     rng = np.random.default_rng(3)
     t, x = _fringes(256, rng, quadrature=quadrature)
-    start = 400                                   # the record's hold begins here (2 us of ramp before)
-    rec = np.concatenate([np.zeros((x.shape[0], start), x.dtype), x], axis=1)
+    if quadrature and up_sign < 0:
+        x = np.conj(x)
+    start = 400                                   # the record's hold begins here (2 us of ramps before)
+    rec = np.concatenate([_ramps(x.shape[0], start, quadrature, up_sign), x], axis=1)
     prof = hold_profile(rec, FS_MZI, start, TAU_M)
     tp = prof.t0_s + prof.dt_s * np.arange(len(prof.nu_hz)) - start / FS_MZI
     truth = _drift_hz(tp) - _drift_hz(tp[0])
     excursion = np.ptp(truth)
     assert excursion > 500e6
-    # a real fringe does not tell the drift's sign: magnitudes; skip the Hilbert edge (first 10 %)
-    err = np.abs(prof.nu_hz) - np.abs(truth)
+    err = np.asarray(prof.nu_hz) - truth            # signed, in the chirp's frame; past the Hilbert edge
     assert np.max(np.abs(err[len(err) // 10:])) < 0.005 * excursion
     # placed on the record's time axis, half the monitor delay early (the fringe is nu(t - tau_m / 2))
     assert prof.t0_s == pytest.approx(start / FS_MZI - TAU_M / 2)
@@ -94,17 +107,21 @@ def test_dechirped_cw_beat_is_one_sharp_tone_at_the_doppler_shift(range_m, v_mps
     cw = _cw_beat(range_m, f_d, t, 4, rng)[None]
     tau = np.array([2 * range_m / C_M_PER_S])
     band = (np.array([0.5 * abs(f_d)]), np.array([1.5 * abs(f_d)]))
+    side = np.array([np.sign(v_mps)])                                   # the tone at -f_D = 2 v / lambda
     w = get_window("hann", t.size)
-    f, p, noise = dechirp_peak(cw, t, _profile(), tau, FS, band, w)
+    f, p, noise = dechirp_peak(cw, t, _profile(), tau, FS, band, side, w)
     bin_hz = FS / t.size
     assert abs(f[0] - abs(f_d)) < 0.03 * bin_hz                          # ~0.5 kHz: 0.4 mm/s
     assert p[0] > 100 * noise[0]
     # without the drift taken out, the beat's peak sits tau nu' off |f_D| (several mm of range): the
     # error the regime search's bands allow for (lidard.dsp.threeseg.RHO_MAX)
     flat = HoldProfile(0.0, 1e-7, tuple(np.zeros(len(_profile().nu_hz))))
-    f0, _, _ = dechirp_peak(cw, t, flat, tau, FS, band, w)
+    f0, _, _ = dechirp_peak(cw, t, flat, tau, FS, band, side, w)
     assert abs(f0[0] - abs(f_d)) > 0.3 * bin_hz
     assert abs(f0[0] - abs(f_d)) > 20 * abs(f[0] - abs(f_d))
+    # the other side holds the mirror half, shifted by 2 tau nu' (and spread): never the estimate
+    fm, pm, _ = dechirp_peak(cw, t, _profile(), tau, FS, band, -side, w)
+    assert abs(fm[0] - abs(f_d)) > 20 * abs(f[0] - abs(f_d))
 
 
 def _records(dsp, range_m, v_mps, rng, n_avg=4, noise=0.3):

@@ -88,8 +88,11 @@ def test_linearization_measures_the_held_segments_drift(motion):
     truth = np.interp(t, np.arange(nu.size) / AWG_RATE_HZ, nu)
     truth -= truth[0]
     assert np.ptp(truth) > 100e6                          # a drift the CW beat cannot ignore
-    # the fringe's sign is not known: compare magnitudes of the excursion
-    err = np.abs(np.asarray(prof.nu_hz)) - np.abs(truth)
+    # signed: the real fringe's drift is taken to continue the down ramp (lidard.dsp.cwhold), and the
+    # bench's laser (its up ramp raises nu) drifts that way
+    nu_up = bench.laser.frequency_hz(cal.drive_v, AWG_RATE_HZ)[:int(80e-6 * AWG_RATE_HZ)]
+    assert nu_up[-1] > nu_up[0]
+    err = np.asarray(prof.nu_hz) - truth
     assert np.max(np.abs(err[len(err) // 10:])) < 0.005 * np.ptp(truth)
 
 
