@@ -105,46 +105,70 @@ def cw_band_power(p_cw: np.ndarray, df_hz: float, centre_hz: np.ndarray, half_hz
 BAND_TIERS = (0.25, 0.5, 1.0)
 
 
-def _regime_tier(p_cw, df_hz, f_r, d_abs, noise, guard_bins, guard_hz):
+def _regime_tier(p_cw, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band=None):
     """Per candidate: len(BAND_TIERS) + 1 when the regime predicts |f_D| inside the CW's DC guard (no
-    beat can be seen there), else the number of tiers whose band peaks CW_BAND_SNR over the median."""
+    beat can be seen there), else the number of tiers whose band peaks CW_BAND_SNR over the median.
+    ``band``: (centre, half width) of the CW beat predicted from the measured drift (:func:`drift_band`),
+    searched with 2.5-4 bins of slack per tier; without it, tiers of the RHO_MAX spread around |f_D|."""
     table = p_cw if isinstance(p_cw, _RangeMax) else _RangeMax(p_cw)   # a built table is reused
     p_cw = table.p
     n = p_cw.shape[0]
     tier = np.zeros(f_r.reshape(n, -1).shape)
     for frac in BAND_TIERS:
-        pw, in_guard = cw_band_power(p_cw, df_hz, d_abs.reshape(n, -1), (frac * RHO_MAX * f_r + 2 * df_hz).reshape(n, -1),
-                                     guard_bins, table)
+        centre, half = (d_abs, frac * RHO_MAX * f_r + 2 * df_hz) if band is None else \
+            (band[0], band[1] + 2 * df_hz * (1 + frac))
+        pw, in_guard = cw_band_power(p_cw, df_hz, centre.reshape(n, -1), half.reshape(n, -1), guard_bins, table)
         tier += pw >= CW_BAND_SNR * noise
     tier = np.where(d_abs.reshape(n, -1) < guard_hz, len(BAND_TIERS) + 1, tier)
     return tier.reshape(f_r.shape)
 
 
-def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz: float):
+def drift_band(f_r, f_d, rho):
+    """(centre, half width) of |f_R rho(t) - f_D| over the CW window: the band a return's CW beat
+    occupies when the held segment's drift rate, relative to the ramps', spans ``rho`` = (lo, hi)
+    (measured: lidard.dsp.cwhold; f_D signed, the bench's convention)."""
+    e1, e2 = f_r * rho[0] - f_d, f_r * rho[1] - f_d
+    top = np.maximum(np.abs(e1), np.abs(e2))
+    bottom = np.where(e1 * e2 > 0, np.minimum(np.abs(e1), np.abs(e2)), 0.0)
+    return 0.5 * (top + bottom), 0.5 * (top - bottom)
+
+
+def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz: float, rho=None):
     """Every (up i, down j) pair of every row: (tier (n, K, K), folded, f_range, f_dopp (signed), ambiguous).
 
     tier: how well the chosen regime's CW band explains the CW spectrum (0: not at all, a pair that is
     no target; see :func:`_regime_tier`); ambiguous: both regimes' bands overlap (|f_D| ~ f_R within
-    the CW spread), which holds is not known."""
+    the CW spread), which holds is not known. ``rho``: the measured drift rate's range over the CW
+    window (relative to the ramps'): each regime's band is then where its beat must lie, not a spread
+    allowed around |f_D| (a noise peak paired with a true one is no longer explained by the true
+    return's spread CW beat)."""
     a, b = fu[:, :, None], fd[:, None, :]
     hi, lo = np.maximum(a, b), np.minimum(a, b)
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
     noise = _median_last(p_cw)[:, None]
     regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
+    bands = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
     table = _RangeMax(p_cw)                      # one table for both regimes and every tier
-    t_n, t_f = (_regime_tier(table, df_hz, f_r, d, noise, guard_bins, guard_hz) for f_r, d in regimes)
+    t_n, t_f = (_regime_tier(table, df_hz, f_r, d, noise, guard_bins, guard_hz, band)
+                for (f_r, d), band in zip(regimes, bands))
     folded = t_f > t_n
     f_r = np.where(folded, regimes[1][0], regimes[0][0])
     d_abs = np.where(folded, regimes[1][1], regimes[0][1])
     # which regime holds is unknown when both explain the CW spectrum equally, or when the two
-    # predictions of |f_D| (lo apart) lie within half the CW spread of each other
-    ambiguous = ((t_n == t_f) | (lo < 0.5 * RHO_MAX * 0.5 * (hi + lo) + 2 * df_hz)) & (t_n <= len(BAND_TIERS))
+    # predictions of |f_D| (lo apart) lie within half the CW spread of each other (with the measured
+    # drift: when the two bands overlap)
+    if rho is None:
+        close = lo < 0.5 * RHO_MAX * 0.5 * (hi + lo) + 2 * df_hz
+    else:
+        (c_n, h_n), (c_f, h_f) = bands
+        close = np.abs(c_n - c_f) < h_n + h_f + 4 * df_hz
+    ambiguous = ((t_n == t_f) | close) & (t_n <= len(BAND_TIERS))
     present = vu[:, :, None] & vd[:, None, :]
     return np.where(present, np.maximum(t_n, t_f), 0.0), folded, f_r, sign * d_abs, ambiguous
 
 
 def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float, wavelength_m: float,
-               guard_bins: int, max_targets: int):
+               guard_bins: int, max_targets: int, rho=None):
     """Greedy assignment of up/down pairs per row, strongest CW evidence first (module doc).
 
     Inputs (n, K) ramp magnitudes (Hz) and masks, the CW power spectrum (n, n_bins) with bin spacing
@@ -156,7 +180,7 @@ def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float
     n, ku = fu.shape
     kd = fd.shape[1]
     ev, folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
-                                            guard_hz=guard_bins * df_hz)
+                                            guard_hz=guard_bins * df_hz, rho=rho)
     score = np.where(ev >= 1, ev, -np.inf).reshape(n, -1)
     out = {k: np.zeros((n, max_targets)) for k in ("range_m", "velocity_mps")}
     valid = np.zeros((n, max_targets), dtype=bool)
@@ -200,6 +224,16 @@ def cw_window(dsp) -> tuple[int, int]:
     return 2 * dsp.ramp_samples + dsp.cw_samples - n, n
 
 
+def drift_rho(dsp, profile: HoldProfile) -> tuple[float, float]:
+    """The measured drift rate's range over the CW window, relative to the ramps' chirp rate (1st to
+    99th percentile: the profile's Hilbert edge at the hold's end is not the laser)."""
+    a, n = cw_window(dsp)
+    t = (a + np.arange(n)) / dsp.fs_hz
+    rho = np.gradient(profile.at(t), t) / dsp.chirp_rate_hz_per_s
+    lo, hi = np.percentile(rho, [1.0, 99.0])
+    return float(lo), float(hi)
+
+
 def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     """The CW segment's power spectrum (n_pix, n_bins), averaged over the pixel's records, and its
     bin spacing (Hz)."""
@@ -217,11 +251,13 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw) -> dict:
     k = fu.shape[-1]
     flat = [np.abs(a).reshape(-1, a.shape[-1]) for a in (fu, fd)]
     vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
+    profile = HoldProfile.from_dict(dsp.hold_profile)
     rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
                                              chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
-                                             wavelength_m=dsp.wavelength_m, guard_bins=2, max_targets=k)
-    if dsp.hold_profile:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
-        resolve_boundary(dsp, x, HoldProfile.from_dict(dsp.hold_profile), flat, vflat,
+                                             wavelength_m=dsp.wavelength_m, guard_bins=2, max_targets=k,
+                                             rho=None if profile is None else drift_rho(dsp, profile))
+    if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
+        resolve_boundary(dsp, x, profile, flat, vflat,
                          (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,
                          cw_window=cw_window(dsp))
 

@@ -186,3 +186,25 @@ def test_candidates_in_several_passes_give_the_same_points(monkeypatch):
     assert whole.valid.sum(axis=1).tolist() == [1, 1, 1]
     np.testing.assert_array_equal(whole.range_m[whole.valid], split.range_m[split.valid])
     assert whole.range_m[whole.valid] == pytest.approx([r for r, _ in cases], abs=1e-3)
+
+
+def test_a_noise_peak_is_not_paired_on_the_true_returns_spread_cw_beat():
+    # 1 m approaching at 0.99 x the boundary speed: the up beat sits at DC (not detected), and a spurious
+    # peak in the up ramp (2.5 x the down beat, as a noise false alarm once gave) pairs with it into
+    # a "not folded" reading whose |f_D| lies inside the RHO_MAX spread allowed around the true return's
+    # CW beat. With the measured drift the band is where that reading's beat must be: refused, and the
+    # lone down peak is ranged at 1 m.
+    rng = np.random.default_rng(4)
+    dsp = _frame_dsp()
+    range_m = 1.0
+    f_r = 2 * KAPPA * range_m / C_M_PER_S
+    v = -0.99 * f_r * WL / 2
+    x = _records(dsp, range_m, v, rng)
+    f_dn = abs(f_r - 2 * v / WL)                     # |f_R + f_D|, f_D = -2 v / lambda
+    r = dsp.ramp_samples
+    x[..., :r] += 0.5 * np.cos(2 * np.pi * 2.5 * f_dn * np.arange(r) / FS + 0.4)
+    res = dataclasses.replace(dsp, hold_profile=_profile(t0_s=2 * r / FS).as_dict()).process(x)
+    assert res.valid[0].sum() == 1
+    k = int(np.argmax(res.valid[0]))
+    assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
+    assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
