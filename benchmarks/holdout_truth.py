@@ -121,6 +121,36 @@ def ranges(surfaces: list[Surface], d: np.ndarray, t_s: np.ndarray) -> np.ndarra
     return np.stack(cols, axis=1) if cols else np.zeros((len(d), 0))
 
 
+def _normal(s: Surface, hit: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """Unit surface normal (n, 3) of target s at hit points (n, 3) (the target moved by shift)."""
+    p = s.params
+    if s.kind == "sphere":
+        n = hit - (np.asarray(p["center"], float) + shift)
+    elif s.kind == "box":
+        rot = _rot(p.get("rotation_deg", [0.0, 0.0, 0.0]))
+        loc = (hit - (np.asarray(p["center"], float) + shift)) @ rot
+        face = np.argmax(np.abs(loc) / (np.asarray(p["size"], float) / 2), axis=1)
+        n = rot[:, face].T
+    elif s.kind == "plane":
+        n = np.broadcast_to(np.asarray(p["normal"], float), hit.shape)
+    else:
+        v = np.asarray(p["vertices"], float)
+        n = np.broadcast_to(np.cross(v[1] - v[0], v[2] - v[0]), hit.shape)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def incidence_rad(surfaces: list[Surface], d: np.ndarray, t_s: np.ndarray, rng: np.ndarray) -> np.ndarray:
+    """(n, k) angle between ray d and target k's normal at its hit (NaN on a miss): a Lambertian
+    return falls as its cosine, so a beam grazing a face (> 80 deg) is an SNR question, not motion."""
+    t_s = np.broadcast_to(np.asarray(t_s, float), (len(d),))
+    out = np.full(rng.shape, np.nan)
+    for k, s in enumerate(surfaces):
+        hit = d * np.nan_to_num(rng[:, k])[:, None]
+        n = _normal(s, hit, np.outer(t_s, s.velocity))
+        out[:, k] = np.where(np.isfinite(rng[:, k]), np.arccos(np.clip(np.abs(np.einsum("nj,nj->n", n, d)), 0, 1)), np.nan)
+    return out
+
+
 def visible(surfaces: list[Surface], rng: np.ndarray) -> np.ndarray:
     """(n, k) True where target k is seen along the ray: hit, and no opaque target in front."""
     r = np.where(np.isnan(rng), np.inf, rng)

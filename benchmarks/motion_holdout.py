@@ -13,9 +13,11 @@ documentation only, not from the DSP or its motion tests. Each runs on the embed
 
 Truth (benchmarks/holdout_truth.py): every target moved to the point's own ``t`` and intersected in
 closed form with the pixel's nominal beam; radial velocity = beam direction . target velocity. Pixels
-whose footprint the bench mixes (``Bench.mixed_pixels``, static outlines) and pixels where a moving
+whose footprint the bench mixes (``Bench.mixed_pixels``, static outlines), pixels where a moving
 target's outline crosses the beam within one pixel time, or whose range along the beam changes during
-it by > 1 mm more than the radial velocity says (grazing a limb), are excluded from the scores and
+it by > 1 mm more than the radial velocity says (grazing a limb), and pixels whose beam meets a face
+more than 80 deg off its normal (a Lambertian return under 0.17 of normal: sensitivity, not motion)
+are excluded from the scores and
 counted. Printed per target and per scene: visible (pixel, target) pairs, fraction found (a valid point
 within 1 cm with the right sign of radial velocity), range RMSE and mean (mm), RMS and worst velocity
 error (m/s), points flagged (valid = 0), and valid points > 1 cm from every visible target (all pixels).
@@ -55,6 +57,7 @@ SCENES = {"spheres": ({}, "regions"), "boxes_planes": ({}, "regions"), "crossing
 MATCH_M = 0.01          # a valid point within 1 cm of a visible target is that target's
 STATIC_MPS = 0.05       # |v| below this: no sign to get right
 GRAZE_M = 1e-3
+GRAZE_DEG = 80.0        # a beam this far off a face's normal: its Lambertian return is < 0.17 of normal
 AIM_S = 5e-3
 
 
@@ -104,6 +107,8 @@ def score_points(points, planned, surfaces, optics, bench, pixel_s: float) -> di
     vrad = ht.radial_velocity(surfaces, d)
     drift = np.abs(np.nan_to_num(rng1 - rng0) - vrad * pixel_s)
     graze = np.any(vis0 & (drift > GRAZE_M), axis=1)
+    inc = ht.incidence_rad(surfaces, d, t_pix, rng0)
+    graze |= np.any(vis0 & (np.nan_to_num(inc) > np.radians(GRAZE_DEG)), axis=1)
     edge = np.any(vis0 != vis1, axis=1) | graze
     mixed = bench.mixed_pixels(pix[:, 0], pix[:, 1])
     excluded = edge | mixed
