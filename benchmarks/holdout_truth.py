@@ -147,7 +147,8 @@ def incidence_rad(surfaces: list[Surface], d: np.ndarray, t_s: np.ndarray, rng: 
     for k, s in enumerate(surfaces):
         hit = d * np.nan_to_num(rng[:, k])[:, None]
         n = _normal(s, hit, np.outer(t_s, s.velocity))
-        out[:, k] = np.where(np.isfinite(rng[:, k]), np.arccos(np.clip(np.abs(np.einsum("nj,nj->n", n, d)), 0, 1)), np.nan)
+        cos = np.clip(np.abs(np.einsum("nj,nj->n", n, d)), 0.0, 1.0)
+        out[:, k] = np.where(np.isfinite(rng[:, k]), np.arccos(cos), np.nan)
     return out
 
 

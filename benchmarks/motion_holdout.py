@@ -46,6 +46,7 @@ except ImportError:       # run as a script: python benchmarks/motion_holdout.py
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
+from lidard.physics.constants import C_M_PER_S
 from lidard.scan import plan
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -155,6 +156,12 @@ def tally(sc: dict, k: int | None) -> dict:
             "wrong_sign": int((good & ~sc["sign_ok"]).sum())}
 
 
+def boundary_mps_per_m(cfg) -> float:
+    """Radial speed per metre of range where |f_D| = f_R: 2 v / lambda = 2 kappa R / c (§2.1.2)."""
+    kappa = cfg.chirp.excursion_hz / cfg.chirp.ramp_s
+    return float(kappa * cfg.chirp.wavelength_m / C_M_PER_S)
+
+
 def run_scene(name: str, roi: int, seed: int | None = None) -> list[dict]:
     extra, mode = SCENES[name]
     path = SCENE_DIR / f"{name}.toml"
@@ -174,7 +181,7 @@ def run_scene(name: str, roi: int, seed: int | None = None) -> list[dict]:
             planned = plan(req, cfg.optics()).astype(np.int64)
             sc = score_points(res.points, planned, surfaces, cfg.optics(), bench, pixel_s)
             rows.append({"scene": name, "req": req, "res": res, "sc": sc, "wall_s": wall,
-                         "pixel_s": pixel_s})
+                         "pixel_s": pixel_s, "boundary": boundary_mps_per_m(cfg)})
     finally:
         inst.close()
     return rows
@@ -197,20 +204,23 @@ def report(name: str, rows: list[dict], surfaces: list[ht.Surface]) -> None:
             if not m.any():
                 continue
             r, v = sc["rng"][m, k], sc["vrad"][m, k]
-            ratio = np.abs(v) / (0.5556 * r)   # |f_D| / f_R = (2|v|/lambda) / (2 kappa R / c)
+            ratio = np.abs(v) / (row["boundary"] * r)   # |f_D| / f_R
             tt = tally(sc, k)
+            found = tt["found"] / max(tt["visible"], 1)
             print(f"| {scan} | {k} | {s.kind} | {r.min():.3f}-{r.max():.3f} | {v.min():+.2f}..{v.max():+.2f} | "
-                  f"{ratio.min():.2f}-{ratio.max():.2f} | {tt['visible']} | {tt['found'] / max(tt['visible'], 1):.3f} | "
+                  f"{ratio.min():.2f}-{ratio.max():.2f} | {tt['visible']} | {found:.3f} | "
                   f"{_fmt(tt['rmse_mm'], '.3f')} | {_fmt(tt['mean_mm'], '+.3f')} | {_fmt(tt['v_rms'], '.4f')} | "
                   f"{_fmt(tt['v_max'], '.4f')} | {tt['wrong_sign']} |")
     print("\n| scan | pixels | excluded (edge/mixed) | hw ms | wall s | pairs | found | range RMSE mm | "
-          "v RMS m/s | v worst m/s | flagged pts | pixels w/o valid pt | valid pts > 1 cm off | truth vs bench max mm |")
+          "v RMS m/s | v worst m/s | flagged pts | pixels w/o valid pt | valid pts > 1 cm off | "
+          "truth vs bench max mm |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         sc, req, res = row["sc"], row["req"], row["res"]
         tt = tally(sc, None)
         print(f"| r{req.rows[0]}:{req.rows[1]} c{req.cols[0]}:{req.cols[1]} | {res.pixels_scanned} | "
-              f"{int(sc['excluded'].sum())} ({sc['n_edge']}/{sc['n_mixed']}) | {res.hardware_time_s * 1e3:.1f} | "
+              f"{int(sc['excluded'].sum())} ({sc['n_edge']}/{sc['n_mixed']}) | "
+              f"{res.hardware_time_s * 1e3:.1f} | "
               f"{row['wall_s']:.1f} | {tt['visible']} | {tt['found'] / max(tt['visible'], 1):.3f} | "
               f"{_fmt(tt['rmse_mm'], '.3f')} | {_fmt(tt['v_rms'], '.4f')} | {_fmt(tt['v_max'], '.4f')} | "
               f"{sc['flagged']} | {sc['no_valid']} | {int(sc['wrong'].sum())} | {sc['xcheck_m'] * 1e3:.2g} |")
@@ -237,9 +247,10 @@ def misses(rows: list[dict], limit: int = 8) -> None:
         sc, pts = row["sc"], row["res"].points
         for i in np.flatnonzero(sc["wrong"])[:limit]:
             j = sc["idx"][i]
+            seen = [(int(k), round(float(sc["rng"][j, k]), 4), round(float(sc["vrad"][j, k]), 3))
+                    for k in np.flatnonzero(sc["vis"][j])]
             print(f"  wrong: pixel ({pts['row'][i]},{pts['col'][i]}) t={pts['t'][i] * 1e3:.3f} ms range "
-                  f"{pts['range'][i]:.4f} v {pts['velocity'][i]:+.3f}; visible "
-                  f"{[(int(k), round(float(sc['rng'][j, k]), 4), round(float(sc['vrad'][j, k]), 3)) for k in np.flatnonzero(sc['vis'][j])]}")
+                  f"{pts['range'][i]:.4f} v {pts['velocity'][i]:+.3f}; visible (target, range, v) {seen}")
         vis = sc["vis"] & ~sc["excluded"][:, None]
         hit = sc["valid"] & sc["near"] & sc["sign_ok"]
         found = np.zeros_like(vis)
