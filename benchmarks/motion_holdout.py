@@ -18,7 +18,9 @@ target's outline crosses the beam within one pixel time, or whose range along th
 it by > 1 mm more than the radial velocity says (grazing a limb), and pixels whose beam meets a face
 more than 80 deg off its normal (a Lambertian return under 0.17 of normal: sensitivity, not motion)
 are excluded from the scores and
-counted. Printed per target and per scene: visible (pixel, target) pairs, fraction found (a valid point
+counted. A valid point of a mixed pixel that is > 1 cm from the central ray's targets but within 1 cm
+of a surface its footprint reaches (``Bench.ground_truth(..., measured_m=...)``) is counted apart
+("+ on footprint"), not as wrong. Printed per target and per scene: visible (pixel, target) pairs, fraction found (a valid point
 within 1 cm with the right sign of radial velocity), range RMSE and mean (mm), RMS and worst velocity
 error (m/s), points flagged (valid = 0), and valid points > 1 cm from every visible target (all pixels).
 A cross-check prints the largest difference between this truth's first hit and the bench's ray cast.
@@ -131,10 +133,19 @@ def score_points(points, planned, surfaces, optics, bench, pixel_s: float) -> di
     v_true = vrad[idx, best]
     v_err = points["velocity"].astype(float) - v_true
     sign_ok = (np.abs(v_true) < STATIC_MPS) | (np.sign(points["velocity"]) == np.sign(v_true))
+    # a mixed pixel's footprint reaches surfaces its central ray misses (a static outline nearby): a
+    # point on one of them is that surface's (the bench's footprint truth), not a made-up range
+    fp_near = np.zeros(len(points), bool)
+    on_mixed = mixed[idx]
+    if on_mixed.any():
+        i = np.flatnonzero(on_mixed)
+        fp = bench.ground_truth(points["row"][i], points["col"][i], points["t"][i],
+                                measured_m=points["range"][i])
+        fp_near[i] = np.abs(points["range"][i] - fp) <= MATCH_M
     return {"pix": pix, "t": t_pix, "vis": vis0, "rng": rng0, "vrad": vrad, "excluded": excluded,
             "n_edge": int(edge.sum()), "n_mixed": int(mixed.sum()), "xcheck_m": xcheck, "idx": idx,
             "valid": valid, "near": near, "best": best, "err": err, "v_err": v_err, "sign_ok": sign_ok,
-            "wrong": valid & ~near, "flagged": int((~valid).sum()),
+            "wrong": valid & ~near & ~fp_near, "footprint_pts": int((valid & ~near & fp_near).sum()), "flagged": int((~valid).sum()),
             "no_valid": int(len(pix) - np.unique(idx[valid]).size)}
 
 
@@ -212,7 +223,7 @@ def report(name: str, rows: list[dict], surfaces: list[ht.Surface]) -> None:
                   f"{_fmt(tt['rmse_mm'], '.3f')} | {_fmt(tt['mean_mm'], '+.3f')} | {_fmt(tt['v_rms'], '.4f')} | "
                   f"{_fmt(tt['v_max'], '.4f')} | {tt['wrong_sign']} |")
     print("\n| scan | pixels | excluded (edge/mixed) | hw ms | wall s | pairs | found | range RMSE mm | "
-          "v RMS m/s | v worst m/s | flagged pts | pixels w/o valid pt | valid pts > 1 cm off | "
+          "v RMS m/s | v worst m/s | flagged pts | pixels w/o valid pt | valid pts > 1 cm off (+ on footprint) | "
           "truth vs bench max mm |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
@@ -223,7 +234,7 @@ def report(name: str, rows: list[dict], surfaces: list[ht.Surface]) -> None:
               f"{res.hardware_time_s * 1e3:.1f} | "
               f"{row['wall_s']:.1f} | {tt['visible']} | {tt['found'] / max(tt['visible'], 1):.3f} | "
               f"{_fmt(tt['rmse_mm'], '.3f')} | {_fmt(tt['v_rms'], '.4f')} | {_fmt(tt['v_max'], '.4f')} | "
-              f"{sc['flagged']} | {sc['no_valid']} | {int(sc['wrong'].sum())} | {sc['xcheck_m'] * 1e3:.2g} |")
+              f"{sc['flagged']} | {sc['no_valid']} | {int(sc['wrong'].sum())} (+{sc['footprint_pts']}) | {sc['xcheck_m'] * 1e3:.2g} |")
 
 
 def range_lag_us(rows: list[dict]) -> tuple[float, int]:
