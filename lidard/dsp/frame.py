@@ -109,6 +109,15 @@ class FrameDsp:
     def range_resolution_m(self) -> float:
         return C_M_PER_S / (2 * self.chirp_rate_hz_per_s * self.n_used / self.fs_hz)
 
+    def sidecar(self, phase_noise: bool) -> dict:
+        """The ``dsp`` block of a scan's sidecar (the scan loop's and a reprocessing's alike)."""
+        return {"window": self.window, "estimator": self.estimator, "pfa": self.pfa,
+                "range_resolution_m": self.range_resolution_m, "use_fraction": self.use_fraction,
+                "phase_noise_compensation": phase_noise, "receiver": "iq" if self.iq else "real",
+                # three-segment: the linearization's measured drift of the held segment resolves the
+                # regimes' meeting (|f_D| ~ f_R); without it such pixels are drawn, not valid
+                "hold_profile": self.hold_profile is not None}
+
     def _bin_range(self, rf: RangeFFT) -> tuple[int, int]:
         """A real beat is searched over [f_R,min - D, f_R,max + D] folded to >= 0; an I/Q beat (the
         down ramp conjugated, so that both ramps put a static target at +f_R) over the same signed

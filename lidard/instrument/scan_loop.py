@@ -337,13 +337,7 @@ class ScanLoop:
                     "resolution_bits": self.cfg.adc.record_bits(adc.fs_hz, adc.bits),
                     "bandwidth_hz": self.cfg.adc.bandwidth_hz,
                     "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
-            "dsp": {"window": dsp.window, "estimator": dsp.estimator, "pfa": dsp.pfa,
-                    "range_resolution_m": dsp.range_resolution_m, "use_fraction": dsp.use_fraction,
-                    "phase_noise_compensation": p.phase_noise,
-                    "receiver": "iq" if dsp.iq else "real",
-                    # three-segment: the linearization's measured drift of the held segment resolves
-                    # the regimes' meeting (|f_D| ~ f_R); without it such pixels are drawn, not valid
-                    "hold_profile": dsp.hold_profile is not None},
+            "dsp": dsp.sidecar(p.phase_noise),
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),

@@ -72,9 +72,7 @@ class ReplayDsp:
 
     def meta(self) -> dict[str, Any]:
         """The ``dsp`` block of a scan's sidecar, as the scan loop writes it."""
-        return {"window": self.dsp.window, "estimator": self.dsp.estimator, "pfa": self.dsp.pfa,
-                "range_resolution_m": self.dsp.range_resolution_m, "use_fraction": self.dsp.use_fraction,
-                "phase_noise_compensation": self.phase_noise, "receiver": "iq" if self.dsp.iq else "real"}
+        return self.dsp.sidecar(self.phase_noise)
 
     def monitor(self, chunk: RawChunk, channels: list[str], averages: int):
         """(mzi, mzi_q) as the DSP takes them: None without compensation; ``mzi_q`` (the monitor's
