@@ -85,7 +85,8 @@ class PointBuffer:
                                mzi_q=mzi_q, beat_q=beat_q)
         self._chunks.append(points_from(res, self.optics, np.concatenate([p.pixels for p in pend]),
                                         np.concatenate([p.t_pix_s for p in pend]),
-                                        np.concatenate([p.clipped for p in pend]), self.zero_offset_m))
+                                        np.concatenate([p.clipped for p in pend]), self.zero_offset_m,
+                                        delay_s=self.dsp.measurement_delay_s(beat.shape[1])))
 
     def points(self) -> np.ndarray:
         """Every point so far; a batch still waiting is processed first (a failure there is logged:
@@ -98,13 +99,14 @@ class PointBuffer:
 
 
 def points_from(res, optics, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None,
-                zero_offset_m: float = 0.0) -> np.ndarray:
+                zero_offset_m: float = 0.0, delay_s: float = 0.0) -> np.ndarray:
     """Point records for every present return of a frame result (``res.present[pixel, k]``), along
     each pixel's beam direction. The record building itself is :func:`lidard.raw.points.frame_points`,
     shared with the replay of raw captures so that a replay gives these points bit for bit.
 
     ``zero_offset_m``: the range calibration's zero offset (the path from the reference reflection to
-    the lens every beat carries), taken off the range before x, y, z are placed along the ray."""
+    the lens every beat carries), taken off the range before x, y, z are placed along the ray;
+    ``delay_s``: ranges moved back to each point's ``t`` (:func:`lidard.raw.points.frame_points`)."""
     if zero_offset_m:
         res = dataclasses.replace(res, range_m=res.range_m - zero_offset_m)
-    return frame_points(res, px, t_pix, optics.directions(px[:, 0], px[:, 1]), clipped)
+    return frame_points(res, px, t_pix, optics.directions(px[:, 0], px[:, 1]), clipped, delay_s)

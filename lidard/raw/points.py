@@ -15,12 +15,15 @@ from ..instrument.types import POINT_DTYPE
 
 
 def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directions: np.ndarray,
-                 clipped: np.ndarray | None = None) -> np.ndarray:
+                 clipped: np.ndarray | None = None, delay_s: float = 0.0) -> np.ndarray:
     """Point records (POINT_DTYPE) for every present return of a batch.
 
     ``pixels`` (n_pix, 2) rows/cols of the batch in scan order, ``t_s`` (n_pix,) their times,
     ``directions`` (n_pix, 3) their unit beam directions (x, y, z = direction * range),
     ``clipped`` (n_pix,) pixels with an overranged record: their points are never valid.
+    ``delay_s``: from ``t`` to the instant the DSP's ranges refer to
+    (:meth:`lidard.dsp.frame.FrameDsp.measurement_delay_s`): each range is moved back to its point's
+    ``t`` with its own radial velocity, R(t) = R - v delay_s.
     Order: by pixel, then by the DSP's return slot; ``return_index`` counts returns along one beam
     by range (0 = nearest).
     """
@@ -29,6 +32,8 @@ def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directio
     if not len(pi):
         return out
     rng_m = res.range_m[pi, ki]
+    if delay_s:
+        rng_m = rng_m - res.velocity_mps[pi, ki] * delay_s
     xyz = np.asarray(directions, dtype=np.float64)[pi] * rng_m[:, None]
     out["x"], out["y"], out["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     out["range"] = rng_m

@@ -90,7 +90,8 @@ class ReplayDsp:
         if self.dsp.iq:
             kw["beat_q"] = chunk.channel("beat_q", channels, averages)
         res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v, **kw)
-        return frame_points(res, chunk.pixels, chunk.t_s, chunk.directions, chunk.clipped)
+        return frame_points(res, chunk.pixels, chunk.t_s, chunk.directions, chunk.clipped,
+                            self.dsp.measurement_delay_s(averages))
 
 
 def replay_dsp(attrs: dict[str, Any], settings: ReprocessSettings | None = None) -> ReplayDsp:

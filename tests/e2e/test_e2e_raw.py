@@ -45,7 +45,7 @@ def _direct(path, **dsp_over):
     pixels, dirs = (np.concatenate([getattr(c, k) for c in chunks]) for k in ("pixels", "directions"))
     t_s, clipped = (np.concatenate([getattr(c, k) for c in chunks]) for k in ("t_s", "clipped"))
     res = dsp.process(beat, cap.attrs["adc"]["lsb_v"])
-    return frame_points(res, pixels, t_s, dirs, clipped)
+    return frame_points(res, pixels, t_s, dirs, clipped, dsp.measurement_delay_s(cap.averages))
 
 
 def test_cal_letters_replay_is_identical_and_another_estimator_is_that_estimator(bench, tmp_path, monkeypatch):

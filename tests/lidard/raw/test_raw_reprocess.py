@@ -17,7 +17,8 @@ def _direct(syn, dsp, *, mzi=False):
     kw = dict(mzi=syn.channel("mzi"), mzi_delay_s=10e-9, mzi_lsb_v=2.0 / 2**16) if mzi else {}
     res = dsp.process(syn.channel("beat"), 2.0 / 2**16, **kw)
     clipped = syn.overrange.reshape(len(syn.pixels), -1).any(axis=1)
-    return frame_points(res, syn.pixels, syn.t_s, syn.directions, clipped)
+    return frame_points(res, syn.pixels, syn.t_s, syn.directions, clipped,
+                        dsp.measurement_delay_s(syn.channel("beat").shape[1]))
 
 
 def test_original_settings_reproduce_the_direct_points_exactly(capture):
@@ -111,9 +112,26 @@ def test_a_recorded_quadrature_monitor_is_replayed_with_it(make_capture):
     lsb = 2.0 / 2**16
     res = syn.dsp.process(syn.channel("beat"), lsb, mzi=syn.channel("mzi"), mzi_q=syn.channel("mzi_q"),
                           mzi_delay_s=100e-9, mzi_lsb_v=lsb)
-    ref = frame_points(res, syn.pixels, syn.t_s, syn.directions, syn.overrange.reshape(6, -1).any(axis=1))
+    ref = frame_points(res, syn.pixels, syn.t_s, syn.directions, syn.overrange.reshape(6, -1).any(axis=1),
+                       syn.dsp.measurement_delay_s(syn.channel("beat").shape[1]))
     assert len(ref) >= 5 and np.array_equal(out.points, ref)
     # without the quadrature channel this monitor (beat above Nyquist) could not be used at all
     from lidard.dsp.window import DspInputError
     with pytest.raises(DspInputError, match="above Nyquist"):
         syn.dsp.process(syn.channel("beat"), lsb, mzi=syn.channel("mzi"), mzi_delay_s=100e-9, mzi_lsb_v=lsb)
+
+
+def test_frame_points_move_each_range_back_to_its_t():
+    # R(t) = R - v delay: a receding return measured later was nearer at t; x, y, z follow the range
+    from lidard.dsp.frame import FrameDsp, FrameResult
+    ones = np.ones((2, 1))
+    res = FrameResult(present=ones.astype(bool), valid=ones.astype(bool), range_m=np.array([[1.0], [2.0]]),
+                      velocity_mps=np.array([[4.0], [-2.0]]), snr_db=ones, intensity_v=ones)
+    dsp = FrameDsp(ramp_samples=3200, fs_hz=40e6, chirp_rate_hz_per_s=1.075e14, wavelength_m=1.55e-6,
+                   max_range_m=2.0, cw_samples=3120)
+    delay = dsp.measurement_delay_s(10)
+    assert delay == pytest.approx(80e-6 + 4.5 * 238e-6)      # ramp time + (averages - 1) / 2 periods
+    pts = frame_points(res, np.array([[0, 0], [0, 1]]), np.zeros(2), np.array([[0, 0, 1.0], [0, 0, 1.0]]),
+                       delay_s=delay)
+    assert pts["range"].tolist() == pytest.approx([1.0 - 4.0 * delay, 2.0 + 2.0 * delay])
+    assert pts["z"].tolist() == pytest.approx(pts["range"].tolist())
