@@ -12,6 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from lidard.dsp import jit
 from lidard.dsp.window import DspInputError
 
 
@@ -111,13 +112,17 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
     alpha = os_cfar_alpha(n_ref, k, float(pfa))
     mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
     scaled_alpha = alpha * mean_kth
+    # the margin covers the rounding of the detector's scaled_alpha * (kth / mean_kth) (a few ulps)
+    thr_factor = (1.0 + 1e-9) / alpha
+    kern = jit.kernels()
+    if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.jit)
+        return jit.os_screen(p, n_ref_side, n_guard, k, thr_factor, mean_kth, kern) + (scaled_alpha,)
     n_blocks = -(-n // _OS_BLOCK)
     pp = _mirror_padded(p, reach, n_blocks * _OS_BLOCK - n + reach)
     hood = np.lib.stride_tricks.as_strided(
         pp, (rows, n_blocks, _OS_BLOCK + 2 * reach), (pp.strides[0], _OS_BLOCK * pp.strides[1], pp.strides[1]))
     top = pp[:, reach:reach + n_blocks * _OS_BLOCK].reshape(rows, n_blocks, _OS_BLOCK).max(axis=-1)
-    # the margin covers the rounding of the detector's scaled_alpha * (kth / mean_kth) (a few ulps)
-    below = hood < (top * ((1.0 + 1e-9) / alpha))[..., None]
+    below = hood < (top * thr_factor)[..., None]
     rb, jb = np.nonzero(np.count_nonzero(below, axis=-1) >= k)
     lower = np.partition(hood[rb, jb], k - 1, axis=-1)[:, k - 1] / mean_kth
     c = jb[:, None] * _OS_BLOCK + np.arange(_OS_BLOCK)

@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from .cfar import Detections, cfar_detect
+from .jit import power
 from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .rangefft import RangeFFT, check_samples
 from .window import DspInputError
@@ -46,7 +47,7 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, e
     given to the estimator for empty detection slots (their result is ignored);
     ``cfar_kwargs``: pfa, max_detections, bin_range, ... of :func:`lidard.dsp.cfar.cfar_detect`.
     """
-    p = spec.real ** 2 + spec.imag ** 2
+    p = power(spec)
     if average_axis is not None:
         p = p.mean(axis=average_axis)
     det = cfar_detect(p, window=window, zero_pad=zero_pad, iq=iq, **cfar_kwargs)
