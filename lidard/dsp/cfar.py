@@ -116,7 +116,10 @@ def _width_6db_at(p, base, idx, n, max_half):
     steps = np.arange(1, max_half + 1)
     for direction in (-1, 1):
         j = base[..., None] + np.clip(idx[..., None] + direction * steps, 0, n - 1)    # (..., K, max_half)
-        v = np.take_along_axis(p, j.reshape(j.shape[:-2] + (-1,)), axis=-1).reshape(j.shape)
+        if p.shape[0] == 1:     # one row (the flattened spectra): a plain take
+            v = np.take(p, j)
+        else:
+            v = np.take_along_axis(p, j.reshape(j.shape[:-2] + (-1,)), axis=-1).reshape(j.shape)
         cross = v < level[..., None]
         found = cross.any(axis=-1)
         s = np.argmax(cross, axis=-1)                       # first crossing (0 where none)
@@ -268,9 +271,14 @@ def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa
     if p.dtype.kind not in "fiu" or p.ndim < 1:
         raise DspInputError(f"power must be a real array (..., n_bins), got dtype {p.dtype} ndim {p.ndim}")
     p = p.astype(np.float64, copy=False)
-    if not np.all(np.isfinite(p)):
+    # two reductions instead of two full boolean maps: min is NaN if any cell is, negative if any is;
+    # then a finite sum of non-negative cells has no infinite one (a sum that overflows is re-checked)
+    low = p.min() if p.size else 0.0
+    with np.errstate(over="ignore"):
+        total = p.sum()
+    if not np.isfinite(low) or (low >= 0 and not np.isfinite(total) and not np.all(np.isfinite(p))):
         raise DspInputError("power contains NaN or infinite values")
-    if np.any(p < 0):
+    if low < 0:
         raise DspInputError("power contains negative values; pass |X|^2")
     if method not in CFAR_METHODS:
         raise DspInputError(f"method={method!r} is not a CFAR method; choose one of {CFAR_METHODS}")
