@@ -197,7 +197,9 @@ class RangeFFT:
         a = check_samples(x, self.n_samples)
         if a.dtype.kind == "c" and not self.iq:
             raise DspInputError("complex (I/Q) samples given to a RangeFFT built with iq=False; build it with iq=True")
-        return windowed_fft(a, self._w, self.n_fft, "shifted" if self.iq else "real") * (1.0 / np.sum(self._w))
+        spec = windowed_fft(a, self._w, self.n_fft, "shifted" if self.iq else "real")
+        spec *= 1.0 / np.sum(self._w)   # in place: no second spectrum-sized array (issue 18: reuse buffers)
+        return spec
 
     def power(self, x: object, average_axis: int | None = None) -> np.ndarray:
         """|X|^2; with ``average_axis`` the powers of several chirps are averaged (incoherently)."""
