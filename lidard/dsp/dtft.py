@@ -242,6 +242,7 @@ def _moments_on_bins(x: np.ndarray, rows: np.ndarray | None, f0: np.ndarray, bas
     n, n_terms = basis.shape
     k = f0.astype(np.int64)
     mu = np.empty((k.size, n_terms), dtype=np.complex128)
+    parts = mu.view(np.float64).reshape(k.size, n_terms, 2)
     order = np.argsort(k, kind="stable")
     ks = k[order]
     cuts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1], True])
@@ -261,7 +262,8 @@ def _moments_on_bins(x: np.ndarray, rows: np.ndarray | None, f0: np.ndarray, bas
             mu[idx] = (r[:m, :n_terms] - r[m:, n_terms:]) + 1j * (r[:m, n_terms:] + r[m:, :n_terms])
         else:
             r = _small_gemm(np.ascontiguousarray(xs, dtype=np.float64), table)
-            mu[idx] = r[:, :n_terms] + 1j * r[:, n_terms:]
+            parts[idx, :, 0] = r[:, :n_terms]     # the parts written in place (no complex temporaries)
+            parts[idx, :, 1] = r[:, n_terms:]
     return mu
 
 
