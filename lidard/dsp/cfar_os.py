@@ -2,8 +2,11 @@
 
 Ordered statistic (Rohling 1983): the noise of a cell is the k-th smallest of its N reference cells;
 alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential noise (§2.4: detection
-at a chosen false-alarm rate). The statistic is computed exactly only where a cell could pass the
-threshold; a lower bound elsewhere (issue 18, :func:`_noise_os`). Pure numpy (scipy.optimize on first use).
+at a chosen false-alarm rate). The detector computes the statistic exactly only at the local maxima
+that could pass the threshold (issue 18, :func:`_os_screened`: screens that are necessary conditions of
+the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
+every bin (exactly, or a lower bound where nothing can pass). Pure numpy (scipy.optimize on first use),
+or the same screen compiled (:mod:`lidard.dsp.jit`, when numba is installed).
 """
 
 from __future__ import annotations
