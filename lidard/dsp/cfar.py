@@ -40,7 +40,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from lidard.dsp.cfar_os import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
-    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, brentq, os_cfar_alpha, os_cfar_pfa,
+    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_screened, brentq, os_cfar_alpha, os_cfar_pfa,
 )
 from lidard.dsp.window import DspInputError, WindowName, check_window_name, get_window, window_info
 
@@ -94,28 +94,40 @@ def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float):
     return noise, alpha
 
 
-def _width_6db(p: np.ndarray, idx: np.ndarray, max_half: int) -> np.ndarray:
-    """-6 dB (power 1/4) full width around each peak, linear interpolation of the crossings."""
-    n = p.shape[-1]
-    peak = np.take_along_axis(p, idx, axis=-1)
+def _width_6db(p: np.ndarray, idx: np.ndarray, max_half: int, rows: np.ndarray | None = None,
+               cols: np.ndarray | None = None) -> np.ndarray:
+    """-6 dB (power 1/4) full width around each peak, linear interpolation of the crossings.
+
+    Each side: the first of the ``max_half`` bins out from the peak below a quarter of its power,
+    interpolated with the bin before it (``max_half`` if none is); every offset is read in one gather.
+    ``rows``/``cols``: the peaks are the cells (rows, cols) of ``p`` (n_rows, n) instead (result (m,))."""
+    if rows is not None:    # one peak per listed row, read in place (no copy of the rows)
+        n = p.shape[-1]
+        flat = p.reshape(1, -1)
+        return _width_6db_at(flat, (rows * n)[None, :], cols[None, :], n, max_half)[0]
+    return _width_6db_at(p, np.zeros(idx.shape[:-1] + (1,), dtype=np.int64), idx, p.shape[-1], max_half)
+
+
+def _width_6db_at(p, base, idx, n, max_half):
+    """:func:`_width_6db` of the peaks at ``base + idx`` of ``p``'s last axis (rows of ``n`` bins from ``base``)."""
+    peak = np.take_along_axis(p, base + idx, axis=-1)
     level = peak / 4.0
     widths = np.zeros(idx.shape)
+    steps = np.arange(1, max_half + 1)
     for direction in (-1, 1):
-        found = np.zeros(idx.shape, dtype=bool)
-        prev = peak
-        half = np.full(idx.shape, float(max_half))
-        for s in range(1, max_half + 1):
-            j = np.clip(idx + direction * s, 0, n - 1)
-            v = np.take_along_axis(p, j, axis=-1)
-            cross = ~found & (v < level)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                frac = np.where(prev > v, (prev - level) / (prev - v), 0.0)
-            half = np.where(cross, s - 1 + frac, half)
-            found |= cross
-            prev = v
-            if found.all():
-                break
-        widths += half
+        j = base[..., None] + np.clip(idx[..., None] + direction * steps, 0, n - 1)    # (..., K, max_half)
+        if p.shape[0] == 1:     # one row (the flattened spectra): a plain take
+            v = np.take(p, j)
+        else:
+            v = np.take_along_axis(p, j.reshape(j.shape[:-2] + (-1,)), axis=-1).reshape(j.shape)
+        cross = v < level[..., None]
+        found = cross.any(axis=-1)
+        s = np.argmax(cross, axis=-1)                       # first crossing (0 where none)
+        cur = np.take_along_axis(v, s[..., None], axis=-1)[..., 0]
+        prev = np.where(s > 0, np.take_along_axis(v, np.maximum(s - 1, 0)[..., None], axis=-1)[..., 0], peak)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            frac = np.where(prev > cur, (prev - level) / (prev - cur), 0.0)
+        widths += np.where(found, s + frac, float(max_half))
     return widths
 
 
@@ -126,7 +138,17 @@ _SPARSE_PAIRS_PER_CELL = 8
 
 def _drop_sidelobes(p2: np.ndarray, cand: np.ndarray, env: np.ndarray, null: int, max_dist: int,
                     zero_pad: int, margin: float) -> np.ndarray:
-    """``cand`` without the local maxima lying below another candidate's worst-case leakage.
+    """``cand`` without the local maxima lying below another candidate's worst-case leakage."""
+    rows, idx = np.nonzero(cand)
+    out = np.zeros_like(cand)
+    keep = _not_sidelobes(p2, rows, idx, env, null, max_dist, zero_pad, margin)
+    out[rows[keep], idx[keep]] = True
+    return out
+
+
+def _not_sidelobes(p2: np.ndarray, rows: np.ndarray, idx: np.ndarray, env: np.ndarray, null: int, max_dist: int,
+                   zero_pad: int, margin: float) -> np.ndarray:
+    """Which candidates (``rows``, ``idx``: row-major cells of ``p2``) are not side-lobes of another.
 
     Only candidates are tested and only candidates leak, so the test runs on the candidate pairs
     of each ramp (a few per ramp) instead of sweeping the whole (ramps x bins) array once per
@@ -138,29 +160,27 @@ def _drop_sidelobes(p2: np.ndarray, cand: np.ndarray, env: np.ndarray, null: int
     e = env[np.minimum(dist_tab // zero_pad, env.size - 1)]
     use = (dist_tab > null) & (dist_tab <= max_dist) & (e * margin >= 1e-12)
     factor[use] = e[use]
-    rows, idx = np.nonzero(cand)
     counts = np.bincount(rows, minlength=p2.shape[0]).astype(np.int64)
     if int(np.sum(counts * counts)) > _SPARSE_PAIRS_PER_CELL * p2.size:
-        cand_p = np.where(cand, p2, 0.0)
+        cand_p = np.zeros_like(p2)
+        cand_p[rows, idx] = p2[rows, idx]
         leak = np.zeros_like(p2)
         for dist in np.flatnonzero(factor):
             f = factor[dist]
             leak[:, dist:] = np.maximum(leak[:, dist:], cand_p[:, :-dist] * f)
             leak[:, :-dist] = np.maximum(leak[:, :-dist], cand_p[:, dist:] * f)
-        return cand & (p2 > leak * margin)
+        return p2[rows, idx] > leak[rows, idx] * margin
     if rows.size == 0:
-        return cand
+        return np.ones(0, dtype=bool)
     first = np.cumsum(counts) - counts  # candidates are row-major: each row's are contiguous
     rep = counts[rows]
     tgt = np.repeat(np.arange(rows.size), rep)
     group = np.cumsum(rep) - rep
     src = first[rows[tgt]] + (np.arange(tgt.size) - np.repeat(group, rep))
     dist = np.minimum(np.abs(idx[tgt] - idx[src]), max_dist + 1)
-    leak = np.maximum.reduceat(p2[rows[src], idx[src]] * factor[dist], group)  # self-pair gives 0
-    side = p2[rows, idx] <= leak * margin
-    out = cand.copy()
-    out[rows[side], idx[side]] = False
-    return out
+    pc = p2[rows, idx]
+    leak = np.maximum.reduceat(pc[src] * factor[dist], group)  # self-pair gives 0
+    return pc > leak * margin
 
 
 @lru_cache(maxsize=32)
@@ -218,15 +238,15 @@ def cfar_detect(
     if n_bins < 3:
         raise DspInputError(f"power has {n_bins} bins; at least 3 are needed")
 
-    noise, alpha, where = _noise(p2, method, n_ref // 2, n_guard, pfa, os_rank)
-    cand = _candidates(p2, noise, alpha, where=where,
-                       window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
-                       dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db)
-    k, idx, valid, pk, nz, snr_db = _strongest(p2, noise, cand, max_detections)
+    rows, cols, nz = _candidates(p2, method=method, n_ref_side=n_ref // 2, n_guard=n_guard, pfa=pfa,
+                                 os_rank=os_rank, window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
+                                 dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db)
+    k, idx, valid, pk, nz, snr_db = _strongest_cells(p2, rows, cols, nz, max_detections)
 
     # Resolution: the merged lobe of two close targets is wider than one tone's main lobe.
     lobe = _single_tone_width(window, zero_pad)
-    width = np.where(valid, _width_6db(p2, np.where(valid, idx, 0), int(np.ceil(4 * lobe)) + 2), 0.0)
+    width = np.zeros(idx.shape)
+    width[valid] = _width_6db(p2, idx, int(np.ceil(4 * lobe)) + 2, rows=np.nonzero(valid)[0], cols=idx[valid])
     unresolved = valid & (width > unresolved_factor * lobe)
     harm = _harmonic_ghosts(idx, pk, valid, n_bins=n_bins, iq=iq, zero_pad=zero_pad,
                             harmonic_ratio_db=harmonic_ratio_db)
@@ -245,22 +265,20 @@ def cfar_detect(
     )
 
 
-def _noise(p2, method, n_ref_side, n_guard, pfa, os_rank):
-    """(noise, alpha, cells outside which nothing passes the threshold or None) of either method."""
-    if method == "ca":
-        return _noise_ca(p2, n_ref_side, n_guard, pfa) + (None,)
-    return _noise_os(p2, n_ref_side, n_guard, pfa, os_rank, with_where=True)
-
-
 def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa) -> np.ndarray:
     """``power`` as float64 after checking it and the detector's knobs (a DspInputError names the bad one)."""
     p = np.asarray(power)
     if p.dtype.kind not in "fiu" or p.ndim < 1:
         raise DspInputError(f"power must be a real array (..., n_bins), got dtype {p.dtype} ndim {p.ndim}")
     p = p.astype(np.float64, copy=False)
-    if not np.all(np.isfinite(p)):
+    # two reductions instead of two full boolean maps: min is NaN if any cell is, negative if any is;
+    # then a finite sum of non-negative cells has no infinite one (a sum that overflows is re-checked)
+    low = p.min() if p.size else 0.0
+    with np.errstate(over="ignore"):
+        total = p.sum()
+    if not np.isfinite(low) or (low >= 0 and not np.isfinite(total) and not np.all(np.isfinite(p))):
         raise DspInputError("power contains NaN or infinite values")
-    if np.any(p < 0):
+    if low < 0:
         raise DspInputError("power contains negative values; pass |X|^2")
     if method not in CFAR_METHODS:
         raise DspInputError(f"method={method!r} is not a CFAR method; choose one of {CFAR_METHODS}")
@@ -275,25 +293,29 @@ def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa
     return p
 
 
-def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_bins, sidelobe_margin_db,
-                where=None):
-    """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate.
-
-    ``where``: (rows, bins) outside which no bin is above the threshold (OS-CFAR's exactly computed
-    bins): the tests run on those cells only."""
+def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_pad, iq, bin_range, dc_guard_bins,
+                sidelobe_margin_db) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate:
+    (rows, bins, noise) of each, row-major (a few per ramp: the detector never builds a dense map)."""
     n_bins = p2.shape[-1]
     # A noiseless (all-zero) spectrum has noise 0, and FFT round-off (~1e-32 of the strongest
     # bin) must never pass as a target: require positive noise and a 200 dB dynamic-range floor.
-    floor = 1e-20 * p2.max(axis=-1, keepdims=True)
-    if where is None:
+    floor = 1e-20 * p2.max(axis=-1)
+    if method == "ca":
+        noise, alpha = _noise_ca(p2, n_ref_side, n_guard, pfa)
         cand = p2 > alpha * noise
         cand &= noise > 0
-        cand &= p2 > floor
+        cand &= p2 > floor[:, None]
         # local maxima (beyond either edge is -inf), compared in place: no shifted copies of p2
         cand[:, 1:] &= p2[:, 1:] >= p2[:, :-1]
         cand[:, :-1] &= p2[:, :-1] > p2[:, 1:]
-    else:
-        cand = _sparse_candidates(p2, noise, alpha, floor, *where)
+        r, c = np.nonzero(cand)
+        nz = noise[r, c]
+    else:   # OS: only the local maxima that may pass were given the exact statistic (cfar_os)
+        r, c, nz, scaled_alpha = _os_screened(p2, n_ref_side, n_guard, pfa, os_rank)
+        pr = p2[r, c]
+        ok = (pr > scaled_alpha * nz) & (nz > 0) & (pr > floor[r])
+        r, c, nz = r[ok], c[ok], nz[ok]
 
     info = window_info(window, 64)
     env = info.leakage_envelope
@@ -301,7 +323,7 @@ def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_b
     margin = 10 ** (sidelobe_margin_db / 10.0)
     # Side-lobes: leakage of every above-threshold peak (DC included) into farther bins.
     max_dist = min(n_bins - 1, (env.size - 1) * zero_pad)
-    cand = _drop_sidelobes(p2, cand, env, null, max_dist, zero_pad, margin)
+    ok = _not_sidelobes(p2, r, c, env, null, max_dist, zero_pad, margin)
 
     # The DC lobe (offsets, constant ramps, balanced-detector residue) is not a target.
     dc_guard = null if dc_guard_bins is None else int(dc_guard_bins)
@@ -313,43 +335,40 @@ def _candidates(p2, noise, alpha, *, window, zero_pad, iq, bin_range, dc_guard_b
         in_range = np.zeros(n_bins, dtype=bool)
         in_range[max(lo, 0) : min(hi, n_bins - 1) + 1] = True
         keep &= in_range
-    return cand & keep
-
-
-def _sparse_candidates(p2, noise, alpha, floor, r, c) -> np.ndarray:
-    """The dense tests of :func:`_candidates` on the cells (r, c) only (the same comparisons)."""
-    n_bins = p2.shape[-1]
-    pr, nr = p2[r, c], noise[r, c]
-    ok = (pr > alpha[c] * nr) & (nr > 0) & (pr > floor[r, 0])
-    left = np.where(c > 0, p2[r, np.maximum(c - 1, 0)], -np.inf)
-    right = np.where(c < n_bins - 1, p2[r, np.minimum(c + 1, n_bins - 1)], -np.inf)
-    ok &= (pr >= left) & (pr > right)
-    cand = np.zeros(p2.shape, dtype=bool)
-    cand[r[ok], c[ok]] = True
-    return cand
+    ok &= keep[c]
+    return r[ok], c[ok], nz[ok]
 
 
 def _strongest(p2, noise, cand, max_detections):
-    """The ``k`` strongest candidates per ramp, strongest first: (k, index, valid, power, noise, snr_db)."""
+    """:func:`_strongest_cells` of a dense candidate map (and a dense noise array)."""
+    rows, cols = np.nonzero(cand)
+    return _strongest_cells(p2, rows, cols, noise[rows, cols], max_detections)
+
+
+def _strongest_cells(p2, rows, cols, noise, max_detections):
+    """The ``k`` strongest candidates (row-major cells with their noise) per ramp, strongest first:
+    (k, index, valid, power, noise, snr_db), (n_rows, k) each."""
     n_rows, n_bins = p2.shape
     k = min(max_detections, n_bins)
     # Candidates are few (about one per ramp): rank them per ramp instead of partitioning every
     # bin of every ramp (issue 18). Equal powers keep the lower bin first; empty slots are invalid.
-    rows, cols = np.nonzero(cand)
     pw = p2[rows, cols]
     order = np.lexsort((-pw, rows))                     # by ramp, then strongest first
-    rows, cols = rows[order], cols[order]
-    start = np.cumsum(np.bincount(rows, minlength=n_rows)) - np.bincount(rows, minlength=n_rows)
-    rank = np.arange(rows.size) - start[rows]
+    rows, cols, pw, noise = rows[order], cols[order], pw[order], noise[order]
+    count = np.bincount(rows, minlength=n_rows)
+    rank = np.arange(rows.size) - (np.cumsum(count) - count)[rows]
     top = rank < k
+    rows, rank = rows[top], rank[top]
     idx = np.zeros((n_rows, k), dtype=np.int64)
     valid = np.zeros((n_rows, k), dtype=bool)
-    idx[rows[top], rank[top]] = cols[top]
-    valid[rows[top], rank[top]] = True
-    pk = np.where(valid, np.take_along_axis(p2, idx, axis=-1), 0.0)
-    nz = np.where(valid, np.take_along_axis(noise, idx, axis=-1), 0.0)
-    with np.errstate(divide="ignore"):
-        snr_db = np.where(valid, 10.0 * np.log10(np.where(valid, pk, 1.0) / np.where(valid, nz, 1.0)), -np.inf)
+    pk = np.zeros((n_rows, k))
+    nz = np.zeros((n_rows, k))
+    idx[rows, rank] = cols[top]
+    valid[rows, rank] = True
+    pk[rows, rank] = pw[top]
+    nz[rows, rank] = noise[top]
+    snr_db = np.full((n_rows, k), -np.inf)
+    snr_db[rows, rank] = 10.0 * np.log10(pw[top] / noise[top])
     return k, idx, valid, pk, nz, snr_db
 
 

@@ -2,8 +2,11 @@
 
 Ordered statistic (Rohling 1983): the noise of a cell is the k-th smallest of its N reference cells;
 alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential noise (§2.4: detection
-at a chosen false-alarm rate). The statistic is computed exactly only where a cell could pass the
-threshold; a lower bound elsewhere (issue 18, :func:`_noise_os`). Pure numpy (scipy.optimize on first use).
+at a chosen false-alarm rate). The detector computes the statistic exactly only at the local maxima
+that could pass the threshold (issue 18, :func:`_os_screened`: screens that are necessary conditions of
+the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
+every bin (exactly, or a lower bound where nothing can pass). Pure numpy (scipy.optimize on first use),
+or the same screen compiled (:mod:`lidard.dsp.jit`, when numba is installed).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from lidard.dsp import jit
 from lidard.dsp.window import DspInputError
 
 
@@ -44,8 +48,7 @@ def _check_pfa(pfa: float) -> None:
         raise DspInputError(f"pfa={pfa!r} must lie strictly between 0 and 1")
 
 
-def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, exact: bool = False,
-              with_where: bool = False):
+def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, exact: bool = False):
     """OS-CFAR noise per bin, exact wherever the threshold test can pass (issue 18).
 
     The k-th smallest of a set is never below the k-th smallest of a superset, so the k-th smallest
@@ -55,8 +58,8 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
     exact order statistic (in white noise ~1e-4 of the bins, plus the targets). The detections are
     the same as with the exact statistic at every bin; the noise reported for a bin that was not
     computed exactly is its lower bound (only detections' noise is used downstream); ``exact=True``
-    computes every bin exactly (a spectrum view that draws the threshold). ``with_where``: also
-    return the (rows, bins) computed exactly, outside which ``p > alpha * noise`` is False."""
+    computes every bin exactly (a spectrum view that draws the threshold). The detector itself uses
+    :func:`_os_screened` (the same decisions without a dense noise array)."""
     n_ref = 2 * n_ref_side
     k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
     reach = n_guard + n_ref_side
@@ -87,8 +90,57 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
         w = win[r, c]
         ref = np.concatenate([w[:, :n_ref_side], w[:, -n_ref_side:]], axis=1)
         noise[r, c] = np.partition(ref, k - 1, axis=-1)[:, k - 1] / mean_kth
-    out = noise.reshape(lead + (n,)), scaled_alpha * np.ones(n)
-    return out + ((r, c),) if with_where else out
+    return noise.reshape(lead + (n,)), scaled_alpha * np.ones(n)
+
+
+def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None):
+    """The detector's sparse OS-CFAR (issue 18): ``(r, c, noise, scaled_alpha)`` for the local maxima
+    of ``p`` (rows, n) that may pass the threshold, with the exact statistic at each (as
+    :func:`_noise_os` computes it); no local maximum left out passes ``p > scaled_alpha * noise``.
+
+    Three screens, each a necessary condition of the exact test, so the decisions are the exact ones:
+    1. per block of ``_OS_BLOCK`` bins, with its largest cell m: a cell c of the block passes only if
+       the k-th smallest of its window is below p[c] / alpha <= m / alpha, so at least k cells of its
+       window, hence of the block's neighbourhood (a superset), lie below m / alpha: a count against
+       one threshold per block (no order statistic; the sort-free test that most blocks of noise fail);
+    2. in the blocks left, the k-th smallest of the neighbourhood bounds every window from below
+       (:func:`_noise_os`'s bound), per cell;
+    3. a local maximum (the detector keeps no other cell)."""
+    n_ref = 2 * n_ref_side
+    k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
+    reach = n_guard + n_ref_side
+    rows, n = p.shape
+    if n <= reach:
+        raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
+    alpha = os_cfar_alpha(n_ref, k, float(pfa))
+    mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
+    scaled_alpha = alpha * mean_kth
+    # the margin covers the rounding of the detector's scaled_alpha * (kth / mean_kth) (a few ulps)
+    thr_factor = (1.0 + 1e-9) / alpha
+    kern = jit.kernels()
+    if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.jit)
+        return jit.os_screen(p, n_ref_side, n_guard, k, thr_factor, mean_kth, kern) + (scaled_alpha,)
+    n_blocks = -(-n // _OS_BLOCK)
+    pp = _mirror_padded(p, reach, n_blocks * _OS_BLOCK - n + reach)
+    hood = np.lib.stride_tricks.as_strided(
+        pp, (rows, n_blocks, _OS_BLOCK + 2 * reach), (pp.strides[0], _OS_BLOCK * pp.strides[1], pp.strides[1]))
+    top = pp[:, reach:reach + n_blocks * _OS_BLOCK].reshape(rows, n_blocks, _OS_BLOCK).max(axis=-1)
+    below = hood < (top * thr_factor)[..., None]
+    rb, jb = np.nonzero(np.count_nonzero(below, axis=-1) >= k)
+    lower = np.partition(hood[rb, jb], k - 1, axis=-1)[:, k - 1] / mean_kth
+    c = jb[:, None] * _OS_BLOCK + np.arange(_OS_BLOCK)
+    r = np.broadcast_to(rb[:, None], c.shape)
+    inside = c < n
+    pc = pp[r, np.where(inside, c, 0) + reach]
+    ok = inside & (pc > scaled_alpha * lower[:, None])
+    ok &= (pc >= pp[r, c + reach - 1]) | (c == 0)            # local maxima (beyond either edge: -inf)
+    ok &= (pc > pp[r, c + reach + 1]) | (c == n - 1)
+    r, c = r[ok], c[ok]
+    win = np.lib.stride_tricks.sliding_window_view(pp[:, :n + 2 * reach], 2 * reach + 1, axis=-1)
+    w = win[r, c]
+    ref = np.concatenate([w[:, :n_ref_side], w[:, -n_ref_side:]], axis=1)
+    noise = np.partition(ref, k - 1, axis=-1)[:, k - 1] / mean_kth
+    return r, c, noise, scaled_alpha
 
 
 def _mirror_padded(p: np.ndarray, reach: int, tail: int) -> np.ndarray:

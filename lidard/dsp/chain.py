@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from .cfar import Detections, cfar_detect
+from .jit import power
 from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .rangefft import RangeFFT, check_samples
 from .window import DspInputError
@@ -29,10 +30,12 @@ RefineSignals = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray 
 
 @dataclass(frozen=True)
 class ChainResult:
-    """Refined fractional bins (batch..., K) (mean over ``average_axis``) and the CFAR detections."""
+    """Refined fractional bins (batch..., K) (mean over ``average_axis``) and the CFAR detections;
+    ``power``: |spec|^2 of every ramp (before the average), for the tests that read the spectrum again."""
 
     frac_bins: np.ndarray
     detections: Detections
+    power: np.ndarray | None = None
 
 
 def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, estimator: str,
@@ -46,7 +49,7 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, e
     given to the estimator for empty detection slots (their result is ignored);
     ``cfar_kwargs``: pfa, max_detections, bin_range, ... of :func:`lidard.dsp.cfar.cfar_detect`.
     """
-    p = spec.real ** 2 + spec.imag ** 2
+    p_ramps = p = power(spec)
     if average_axis is not None:
         p = p.mean(axis=average_axis)
     det = cfar_detect(p, window=window, zero_pad=zero_pad, iq=iq, **cfar_kwargs)
@@ -64,7 +67,7 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, e
     frac = _refine_valid(x, bins, valid, spectrum, method=estimator, window=window, zero_pad=zero_pad)
     if average_axis is not None:
         frac = frac.mean(axis=average_axis % spec.ndim)
-    return ChainResult(frac_bins=frac, detections=det)
+    return ChainResult(frac_bins=frac, detections=det, power=p_ramps)
 
 
 def _refine_valid(x: np.ndarray, bins: np.ndarray, valid: np.ndarray, spectrum: np.ndarray | None,

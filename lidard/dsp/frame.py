@@ -198,7 +198,7 @@ class FrameDsp:
                 det = replace(det, valid=det.valid & ~img)
             # two surfaces closer than a bin: the peak's shape is not one tone's (lidard.dsp.resolve)
             shape = unresolved(spec, det.index, res.frac_bins, det.valid, det.noise, window=self.window,
-                               n_samples=n, zero_pad=rf.zero_pad, iq=self.iq, average_axis=1)
+                               n_samples=n, zero_pad=rf.zero_pad, iq=self.iq, average_axis=1, power=res.power)
             out_f.append(res.frac_bins * rf.delta_f)
             out_det.append(replace(det, unresolved=det.unresolved | shape))
         return out_f, out_det

@@ -39,6 +39,11 @@ def check_samples(x: object, n_samples: int | None = None, name: str = "x") -> n
     if n_samples is not None and a.shape[-1] != n_samples:
         raise DspInputError(f"{name} has {a.shape[-1]} samples on its last axis, expected {n_samples}")
     a = a.astype(np.complex128 if a.dtype.kind == "c" else np.float64, copy=False)
+    # one reduction: a sum is finite unless a sample is not (or the sum overflows: then the full map)
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = np.add.reduce(a, axis=None) if a.size else 0.0
+    if np.isfinite(total):
+        return a
     finite = np.isfinite(a)
     if not finite.all():
         n_nan = int(np.count_nonzero(np.isnan(a)))
@@ -192,7 +197,9 @@ class RangeFFT:
         a = check_samples(x, self.n_samples)
         if a.dtype.kind == "c" and not self.iq:
             raise DspInputError("complex (I/Q) samples given to a RangeFFT built with iq=False; build it with iq=True")
-        return windowed_fft(a, self._w, self.n_fft, "shifted" if self.iq else "real") * (1.0 / np.sum(self._w))
+        spec = windowed_fft(a, self._w, self.n_fft, "shifted" if self.iq else "real")
+        spec *= 1.0 / np.sum(self._w)   # in place: no second spectrum-sized array (issue 18: reuse buffers)
+        return spec
 
     def power(self, x: object, average_axis: int | None = None) -> np.ndarray:
         """|X|^2; with ``average_axis`` the powers of several chirps are averaged (incoherently)."""

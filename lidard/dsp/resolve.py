@@ -86,10 +86,11 @@ def _residual_at(s3: np.ndarray, b: np.ndarray, index: np.ndarray, frac: np.ndar
     return np.maximum(resid, 0.0).sum(axis=0), energy.sum(axis=0)
 
 
-def floor_noise(spec: np.ndarray, average_axis: int | None) -> np.ndarray:
+def floor_noise(spec: np.ndarray, average_axis: int | None, power: np.ndarray | None = None) -> np.ndarray:
     """Mean noise power per cell of each ramp, from the median of its whole spectrum (exponential
-    cells: median = ln 2 x mean; a few peaks do not move it), averaged over the averages."""
-    p = np.abs(np.asarray(spec)) ** 2
+    cells: median = ln 2 x mean; a few peaks do not move it), averaged over the averages.
+    ``power``: re^2 + im^2 of ``spec`` when the caller has it already (|spec|^2 up to rounding)."""
+    p = np.abs(np.asarray(spec)) ** 2 if power is None else power
     med = _median_last(p) / np.log(2.0)
     return med if average_axis is None else med.mean(axis=average_axis)
 
@@ -107,8 +108,9 @@ def _median_last(p: np.ndarray) -> np.ndarray:
 
 def unresolved(spec: np.ndarray, index: np.ndarray, frac_bins: np.ndarray, valid: np.ndarray,
                noise: np.ndarray, *, window: str, n_samples: int, zero_pad: int = 1, iq: bool = False,
-               average_axis: int | None = None) -> np.ndarray:
-    """Detections whose peak is not one tone (module docstring); (batch..., K) bool."""
+               average_axis: int | None = None, power: np.ndarray | None = None) -> np.ndarray:
+    """Detections whose peak is not one tone (module docstring); (batch..., K) bool. ``power``:
+    re^2 + im^2 of ``spec`` if the caller has it (the detection chain does), else computed here."""
     idx = np.where(valid, index, 0)
     frac = np.where(valid, frac_bins, 0.0)
     s3 = _by_ramp(spec, average_axis)
@@ -125,7 +127,11 @@ def unresolved(spec: np.ndarray, index: np.ndarray, frac_bins: np.ndarray, valid
                                  window=window, n_samples=n_samples, zero_pad=zero_pad, iq=iq)
     # the floor of the pixels tested (all of them, or fewer: then only theirs is computed)
     pix, at = np.unique(b, return_inverse=True)
-    floor = floor_noise(s3 if pix.size == s3.shape[0] else s3[pix], 1)[at]
+    p3 = None if power is None else _by_ramp(power, average_axis)
+    if pix.size == s3.shape[0]:
+        floor = floor_noise(s3, 1, p3)[at]
+    else:
+        floor = floor_noise(s3[pix], 1, None if p3 is None else p3[pix])[at]
     expected = NOISE_FACTOR * (2 * HALF_BINS + 1) * n_avg * floor
     out.reshape(-1, k)[b, slot] = (resid > expected) & (resid > MODEL_FLOOR * energy)
     return out
