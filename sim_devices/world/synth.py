@@ -60,6 +60,7 @@ import numpy as np
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import antialias
 from sim_devices.world.laser import DfbLaser, wiener_phase
+from sim_devices.world.synth_grid import rational_ratio, static_beat_phase
 
 _CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
 _INTEGER_DELAY_TOL = 1e-6      # in ADC samples: a delay this close to m / fs is treated as exact
@@ -477,6 +478,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     need_base = seg.size > 0 or want_mzi
     base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
     single_start = u_start.size == 1
+    # the fast path needs float64 tables (the float32 trajectory exists for the precision test only)
+    grid = rational_ratio(ratio) if traj.phase_rad.dtype == np.float64 else None
     if want_mzi:
         # the MZI's deterministic phase depends only on the start offset: once per distinct offset
         tau_m = float(mzi_delay_s)
@@ -521,26 +524,29 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             nh = h1 - h0
             lseg = seg[hs] - s0
             useg = u_inv[seg[hs]]
-            # delayed position x = x_start + k ratio - tau(t) fs_awg with the Doppler-varying delay
-            # tau(t) = tau0 - (f_D / nu0) t, t = k / fs: linear in k per hit
-            x = np.multiply.outer(ratio + dop[hs] * (traj.fs_hz / (traj.nu0_hz * fs)), k)
-            x += (u_start[useg] + off - tau[hs] * traj.fs_hz)[:, None]
-            dphi = traj._phase_nonneg(x, periods)
-            del x
-            if single_start:
-                np.subtract(base[0], dphi, out=dphi)
-            else:
-                np.subtract(base[useg], dphi, out=dphi)
             # + 2 pi nu_mean tau(t) + phase0 - 2 pi f_D t  (constant + linear in k per hit)
             const = mean_w * tau[hs] + ph[hs]
             slope = -(mean_w / traj.nu0_hz + 2.0 * np.pi) * dop[hs] / fs
-            if np.any(slope != 0.0):
-                lin = np.multiply.outer(slope, k)
-                lin += const[:, None]
-                dphi += lin
-                del lin
+            moving = bool(np.any(slope != 0.0))
+            if grid is not None and single_start and not moving:
+                # static returns on a rational grid: no per-sample gathers (synth_grid)
+                dphi = static_beat_phase(traj._tiled(periods), float(u_start[0]) + off, ratio, grid, n,
+                                         tau[hs] * traj.fs_hz, const)
             else:
-                dphi += const[:, None]
+                # delayed position x = x_start + k ratio - tau(t) fs_awg with the Doppler-varying delay
+                # tau(t) = tau0 - (f_D / nu0) t, t = k / fs: linear in k per hit
+                x = np.multiply.outer(ratio + dop[hs] * (traj.fs_hz / (traj.nu0_hz * fs)), k)
+                x += (u_start[useg] + off - tau[hs] * traj.fs_hz)[:, None]
+                dphi = traj._phase_nonneg(x, periods)
+                del x
+                np.subtract(base[0] if single_start else base[useg], dphi, out=dphi)
+                if moving:
+                    lin = np.multiply.outer(slope, k)
+                    lin += const[:, None]
+                    dphi += lin
+                    del lin
+                else:
+                    dphi += const[:, None]
             aa = None
             if beat_filter is not None:   # before phase noise: the filter sees the chirp's beat
                 bound = tau[hs] * aa_rate + np.abs(dop[hs])
