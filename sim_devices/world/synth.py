@@ -60,6 +60,7 @@ import numpy as np
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import antialias
 from sim_devices.world.laser import DfbLaser, wiener_phase
+from sim_devices.world.gauss import standard_normal_f32
 from sim_devices.world.synth_grid import rational_ratio, static_beat_phase
 
 _CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
@@ -609,7 +610,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             v = acc[c]
             if c in ("mzi", "mzi_q"):
                 if mzi_noise_asd_v_per_rthz > 0:
-                    noise = rng.standard_normal((nc, n), dtype=np.float32)
+                    noise = standard_normal_f32(rng, (nc, n))
                     noise *= np.float32(mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
                     v += noise
                     del noise
@@ -618,8 +619,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                     v += dc_v
                 std = noise_std[s0:s1]
                 if std.max(initial=0.0) > 0:
-                    # float32 draws: twice as fast, and 7 digits are plenty for a noise sample
-                    noise = rng.standard_normal((nc, n), dtype=np.float32)
+                    # float32 Box-Muller draws (gauss.py): 7 digits are plenty for a noise sample
+                    noise = standard_normal_f32(rng, (nc, n))
                     noise *= std[:, None].astype(np.float32)
                     v += noise
                     del noise
