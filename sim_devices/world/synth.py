@@ -119,6 +119,15 @@ class ChirpTrajectory:
             self._cache["tables"] = t
         return t
 
+    def _tiled_turns(self, periods: int):
+        """:meth:`_tiled` in cycles (each table / 2 pi), for the static fast path (synth_grid)."""
+        key = ("tiled_turns", periods)
+        t = self._cache.get(key)
+        if t is None:
+            t = tuple(c * (1.0 / (2.0 * np.pi)) for c in self._tiled(periods))
+            self._cache[key] = t
+        return t
+
     def _tiled(self, periods: int):
         key = ("tiled", periods)
         t = self._cache.get(key)
@@ -380,22 +389,30 @@ def _delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng):
     return out
 
 
-def _cos_sin(phase: np.ndarray, want_sin: bool, fast: bool):
+def _cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = False):
     """cos (and sin) of a float64 phase array, which may be consumed.
 
     ``fast``: reduce to [-pi, pi] in float64, then evaluate in float32 (SIMD, ~20x faster than the
     float64 libm path here) and answer float32: absolute error ~1e-7, far below one LSB of a 16-bit
     ADC (1.5e-5 of full scale), so it is used only when the output is quantized.
+    ``in_turns`` (fast only): ``phase`` is in cycles, |phase| < 2**24 (the static fast path's phase
+    is a difference of chirp phases, a few thousand cycles at most), so the whole number of cycles
+    fits a float32 buffer exactly, which then takes the reduced phase (no float64 temporary).
     """
     if not fast:
         s = np.sin(phase) if want_sin else None
         return np.cos(phase, out=phase), s
-    phase *= 1.0 / (2.0 * np.pi)
-    turns = np.rint(phase)
-    phase -= turns
-    del turns
-    phase *= 2.0 * np.pi
-    r32 = phase.astype(np.float32)
+    if in_turns:
+        r32 = np.rint(phase, out=np.empty(phase.shape, np.float32), casting="same_kind")
+        phase -= r32
+        np.multiply(phase, 2.0 * np.pi, out=r32, casting="same_kind")   # float64 product, stored float32
+    else:
+        phase *= 1.0 / (2.0 * np.pi)
+        turns = np.rint(phase)
+        phase -= turns
+        del turns
+        phase *= 2.0 * np.pi
+        r32 = phase.astype(np.float32)
     # the record stays float32 from here (amplitude, filter gains, noise): 7 digits against the
     # 16-bit converter's 4.6, and half the memory traffic of float64 (issue 18)
     c = np.cos(r32, out=r32) if not want_sin else np.cos(r32)
@@ -529,10 +546,14 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             const = mean_w * tau[hs] + ph[hs]
             slope = -(mean_w / traj.nu0_hz + 2.0 * np.pi) * dop[hs] / fs
             moving = bool(np.any(slope != 0.0))
+            # in turns (cycles) where nothing in radians is added: the float32 trig's range
+            # reduction then starts from turns (one pass fewer); the phase is linear in the tables
+            in_turns = fast and phi is None and grid is not None and single_start and not moving
             if grid is not None and single_start and not moving:
                 # static returns on a rational grid: no per-sample gathers (synth_grid)
-                dphi = static_beat_phase(traj._tiled(periods), float(u_start[0]) + off, ratio, grid, n,
-                                         tau[hs] * traj.fs_hz, const)
+                tables, c = (traj._tiled_turns(periods), const / (2.0 * np.pi)) if in_turns \
+                    else (traj._tiled(periods), const)
+                dphi = static_beat_phase(tables, float(u_start[0]) + off, ratio, grid, n, tau[hs] * traj.fs_hz, c)
             else:
                 # delayed position x = x_start + k ratio - tau(t) fs_awg with the Doppler-varying delay
                 # tau(t) = tau0 - (f_D / nu0) t, t = k / fs: linear in k per hit
@@ -551,13 +572,13 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             aa = None
             if beat_filter is not None:   # before phase noise: the filter sees the chirp's beat
                 bound = tau[hs] * aa_rate + np.abs(dop[hs])
-                aa = antialias.sample_gains(dphi, fs, beat_filter, bound)
+                aa = antialias.sample_gains(dphi, fs, beat_filter, bound, turns=in_turns)
             if phi is not None:
                 dphi += phi[lseg, n_pre:]
                 dphi -= _delayed_noise(phi, lseg, n_pre, n, m_hit[hs], w_hit[hs], var_step, rng)
             a = amp[hs, None]
             parts = {}
-            cos_part, sin_part = _cos_sin(dphi, adc.iq, fast)
+            cos_part, sin_part = _cos_sin(dphi, adc.iq, fast, in_turns=in_turns)
             del dphi
             if adc.iq and iq_imbalance[1]:   # sin(dPhi + eps) from the same cos and sin: no second evaluation
                 sin_part *= math.cos(iq_imbalance[1])
