@@ -22,8 +22,9 @@ import numpy as np
 _TWO_PI_F32 = np.float32(2.0 * np.pi)
 
 
-def standard_normal_f32(rng: np.random.Generator, shape) -> np.ndarray:
-    """Independent standard normal samples of ``shape``, float32 (module docstring)."""
+def standard_normal_f32(rng: np.random.Generator, shape, scale: float = 1.0) -> np.ndarray:
+    """Independent normal samples of ``shape``, float32, of standard deviation ``scale`` (module
+    docstring; the scale multiplies the float64 radius, so it costs no pass over the samples)."""
     out = np.empty(shape, dtype=np.float32)
     flat = out.reshape(-1)
     n = flat.size
@@ -31,7 +32,7 @@ def standard_normal_f32(rng: np.random.Generator, shape) -> np.ndarray:
     radius = rng.random(half)                    # [0, 1): 1 - U is in (0, 1]
     np.subtract(1.0, radius, out=radius)
     np.log(radius, out=radius)
-    radius *= -2.0
+    radius *= -2.0 * float(scale) ** 2
     np.sqrt(radius, out=radius)
     r32 = radius.astype(np.float32)
     del radius

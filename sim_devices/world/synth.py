@@ -631,8 +631,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             v = acc[c]
             if c in ("mzi", "mzi_q"):
                 if mzi_noise_asd_v_per_rthz > 0:
-                    noise = standard_normal_f32(rng, (nc, n))
-                    noise *= np.float32(mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
+                    noise = standard_normal_f32(rng, (nc, n), mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
                     v += noise
                     del noise
             else:
@@ -641,8 +640,11 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                 std = noise_std[s0:s1]
                 if std.max(initial=0.0) > 0:
                     # float32 Box-Muller draws (gauss.py): 7 digits are plenty for a noise sample
-                    noise = standard_normal_f32(rng, (nc, n))
-                    noise *= std[:, None].astype(np.float32)
+                    if std.min() == std.max():          # one noise level for the chunk: no pass
+                        noise = standard_normal_f32(rng, (nc, n), float(std[0]))
+                    else:
+                        noise = standard_normal_f32(rng, (nc, n))
+                        noise *= std[:, None].astype(np.float32)
                     v += noise
                     del noise
             if volts is not None:

@@ -44,3 +44,10 @@ def test_shape_dtype_and_reproducibility(shape):
     z2 = standard_normal_f32(np.random.default_rng(1), shape)
     assert z1.shape == shape and z1.dtype == np.float32
     assert np.array_equal(z1, z2) and np.all(np.isfinite(z1))
+
+
+def test_scale_is_the_standard_deviation():
+    z = standard_normal_f32(np.random.default_rng(4), (100, 1000), 3e-4).astype(np.float64)
+    assert abs(z.std() / 3e-4 - 1.0) < 5 * math.sqrt(0.5 / z.size)
+    unit = standard_normal_f32(np.random.default_rng(4), (100, 1000))
+    assert np.allclose(z, unit * 3e-4, rtol=1e-6, atol=0)     # the same draws, scaled
