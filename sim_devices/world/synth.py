@@ -44,8 +44,11 @@ skipped without drawing random numbers. Everything is vectorized over segments a
 are processed in chunks (~1 M samples) to bound the temporaries, and hits of one segment are
 accumulated by rank (the r-th hit of every segment at once). The deterministic chirp and MZI phases
 are computed once per distinct start offset within the drive period (usually one: triggers are
-period-aligned). With quantization on, cos/sin run in float32 after an exact float64 range reduction
-(error ~1e-7 of the amplitude, << 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
+period-aligned). Static returns on a rational AWG/ADC grid (r = p/q, q <= 16) take their delayed
+phase from per-residue vectors instead of per-sample gathers (:mod:`sim_devices.world.synth_grid`), and
+the white noise is a float32 Box-Muller draw (:mod:`sim_devices.world.gauss`). With quantization
+on, cos/sin run in float32 after an exact float64 range reduction (error ~1e-7 of the amplitude,
+<< 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
 so results are reproducible for the same inputs and seed (not across different chunk sizes).
 benchmarks/synthesis.py measures ~40 M samples/s per core without phase noise, ~20 M with it.
 """
