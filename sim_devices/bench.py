@@ -88,7 +88,7 @@ from .faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from .fpga import FpgaConfig, FpgaSim
 from .hv_drive import HvDrive
 from .usb_backend import SimUsbBackend, UsbBridgeServer
-from .world.fidelity import FidelityLedger, faint_returns, phase_noise_negligible
+from .world.fidelity import FidelityLedger, phase_noise_negligible
 from .world.laser import DfbLaser
 from .world.tec import from_tolerances as tec_model
 from .world.mems import SwitchDynamics
@@ -572,11 +572,6 @@ class Bench:
         noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
         if eff.quantization:
             noise_asd = float(np.hypot(noise_asd, self._core_asd(cfg)))
-        if hits is not None:
-            faint = faint_returns(hits.amplitude_v, noise_asd, cfg.sample_rate_hz, cfg.record_length)
-            self.fidelity.note("faint_returns", not faint.any())
-            if faint.any():
-                hits = _select_hits(hits, ~faint)
         mzi_asd = self._monitor_asd(cfg) if light else 0.0
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
@@ -629,13 +624,6 @@ class Bench:
 #: circulator set-up, i.e. half the amplitude per channel; each channel keeps the single photodiode's
 #: noise (its own TIA and converter) -- docs/physics.md, "The coherent (I/Q) receiver"
 HYBRID_CHANNEL_AMPLITUDE = 0.5
-
-
-def _select_hits(hits: HitBatch, keep: np.ndarray) -> HitBatch:
-    """The hits where ``keep``."""
-    return HitBatch(seg=np.asarray(hits.seg)[keep], tau_s=np.asarray(hits.tau_s)[keep],
-                    amplitude_v=np.asarray(hits.amplitude_v)[keep], doppler_hz=np.asarray(hits.doppler_hz)[keep],
-                    phase_rad=None if hits.phase_rad is None else np.asarray(hits.phase_rad)[keep])
 
 
 def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:

@@ -30,17 +30,7 @@ independent with variance 2 pi dnu tau, an in-band PSD 2 pi dnu tau / fs: 1 / (t
 physical one (~30x for the CAL letters at 5 MS/s). A real digitizer removes the pedestal beyond its
 band; skipping there is the more faithful choice, and the test measures both regimes.
 
-**Faint returns** (§2.4: detection against the receiver's white noise). A return of beat amplitude
-A in a record of N samples with white noise of per-sample std sigma changes any DFT bin of the
-record by at most A N / 2 (its coherent sum; a window only lowers it), where the noise in a bin has
-std sigma sqrt(N). It is not synthesized when (A / sigma) sqrt(N) / 2 <= ``FAINT_BIN_FRACTION``
-(0.01): every bin moves by at most 1 % of its own noise std, its power by -40 dB of the noise, below
-anything a CFAR at any false-alarm rate or an estimator can see. These are the leak beams of the
-FPSA's switches (a neighbouring beam at a transmission ~1e-5 while a switch settles: 2.5e-5 sigma
-on the CAL letters, 1e-3 of the bound's amplitude); with no receiver noise (sigma = 0) nothing is
-skipped. tests/sim_devices/world/test_fidelity_faint.py measures a return at the bound.
-
-Phase noise is skipped only when no monitor-MZI channel is captured (its 200 ns delay always needs the phase noise),
+Skipped only when no monitor-MZI channel is captured (its 200 ns delay always needs the phase noise),
 the receiver noise is on, and both bounds hold for every hit of the batch. With the default DFB
 (tau_c = 0.64 us) that is the CAL letters at 0.8-0.9 m; far walls, bright close targets and the
 broad-linewidth preset (0.1 us) keep it. tests/sim_devices/world/test_fidelity_phase_noise.py
@@ -62,19 +52,7 @@ RANGE_STD_M = 30e-6
 FIT_FRACTION = 0.8
 HANN_VARIANCE_FACTOR = 2.34   # sum w^2 t^2 / (sum w t^2)^2, Hann weights, over the uniform case
 
-FAINT_BIN_FRACTION = 0.01
-
-EFFECTS = ("phase_noise", "doppler", "speckle", "mixed_pixels", "faint_returns")
-
-
-def faint_returns(amplitude_v, noise_asd_v_per_rthz: float, fs_hz: float, n_samples: int) -> np.ndarray:
-    """Mask of the returns too faint to model: (A / sigma) sqrt(N) / 2 <= FAINT_BIN_FRACTION with
-    sigma = ASD sqrt(fs / 2) the noise's per-sample std (module docstring); none without noise."""
-    amp = np.abs(np.asarray(amplitude_v, dtype=np.float64))
-    sigma = float(noise_asd_v_per_rthz) * math.sqrt(float(fs_hz) / 2.0)
-    if not sigma > 0:
-        return np.zeros(amp.shape, dtype=bool)
-    return amp * (math.sqrt(int(n_samples)) / 2.0) <= FAINT_BIN_FRACTION * sigma
+EFFECTS = ("phase_noise", "doppler", "speckle", "mixed_pixels")
 
 
 def phase_noise_peak_loss_db(tau_s: float, linewidth_hz: float) -> float:
@@ -134,9 +112,6 @@ class FidelityLedger:
                                          "(sim_devices/world/fidelity.py)",
                           "doppler": "modelled only for hits on moving targets",
                           "speckle": "modelled only for targets with speckle = true",
-                          "faint_returns": f"a return is not synthesized when it moves every DFT bin of its record "
-                                           f"by <= {FAINT_BIN_FRACTION:g} of the bin's noise std "
-                                           "(sim_devices/world/fidelity.py)",
                           "mixed_pixels": "modelled for a batch with a beam whose footprint crosses a target outline "
                                           "(sub-rays only there, on every scene unless it sets mixed_pixels = "
                                           "false; sim_devices/world/footprint.py)"}}
