@@ -592,13 +592,16 @@ class Bench:
                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
                          mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,
                          iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad))
-        codes = np.zeros((n, len(cfg.channels), cfg.record_length), dtype=np.int16)
-        over = np.zeros((n, len(cfg.channels)), dtype=bool)
         by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi, "mzi_q": syn.mzi_q}
+        # a scan's one beat channel: the synthesized records are the batch's codes, no copy
+        single = tuple(cfg.channels) in (("beat",), ("beat_i",))
+        codes = syn.beat[:, None, :] if single else np.zeros((n, len(cfg.channels), cfg.record_length), np.int16)
+        over = np.zeros((n, len(cfg.channels)), dtype=bool)
         for j, name in enumerate(cfg.channels):
             data = by_name.get(name)
             if data is not None:
-                codes[:, j] = data
+                if not single:
+                    codes[:, j] = data
                 if name in syn.channels:
                     over[:, j] = syn.overrange[:, syn.channels.index(name)]
                 if name in ("beat", "beat_i", "beat_q") and hits is not None:

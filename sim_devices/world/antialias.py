@@ -35,11 +35,13 @@ def max_chirp_rate_hz_per_s(nu_hz: np.ndarray, fs_awg_hz: float) -> float:
     return float(np.max(np.abs(np.diff(nu, append=nu[:1])))) * float(fs_awg_hz)
 
 
-def sample_gains(dphi: np.ndarray, fs_hz: float, filt: BeatFilter, bound_hz: np.ndarray):
+def sample_gains(dphi: np.ndarray, fs_hz: float, filt: BeatFilter, bound_hz: np.ndarray, *,
+                 turns: bool = False):
     """(rows, gains) for the returns of ``dphi`` (n_hits, n) whose beat may leave the pass band
-    (``bound_hz`` per hit), gains (len(rows), n) = |G(f_inst)|; None when no return can."""
+    (``bound_hz`` per hit), gains (len(rows), n) = |G(f_inst)|; None when no return can.
+    ``turns``: ``dphi`` is in cycles (rad / 2 pi), as the synthesis' static fast path gives it."""
     rows = np.flatnonzero(np.asarray(bound_hz) > filt.passband_hz)
     if rows.size == 0:
         return None
-    f_inst = np.gradient(dphi[rows], axis=1) * (fs_hz / (2.0 * np.pi))
+    f_inst = np.gradient(dphi[rows], axis=1) * (fs_hz if turns else fs_hz / (2.0 * np.pi))
     return rows, filt.response(f_inst)

@@ -44,8 +44,11 @@ skipped without drawing random numbers. Everything is vectorized over segments a
 are processed in chunks (~1 M samples) to bound the temporaries, and hits of one segment are
 accumulated by rank (the r-th hit of every segment at once). The deterministic chirp and MZI phases
 are computed once per distinct start offset within the drive period (usually one: triggers are
-period-aligned). With quantization on, cos/sin run in float32 after an exact float64 range reduction
-(error ~1e-7 of the amplitude, << 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
+period-aligned). Static returns on a rational AWG/ADC grid (r = p/q, q <= 16) take their delayed
+phase from per-residue vectors instead of per-sample gathers (:mod:`sim_devices.world.synth_grid`), and
+the white noise is a float32 Box-Muller draw (:mod:`sim_devices.world.gauss`). With quantization
+on, cos/sin run in float32 after an exact float64 range reduction (error ~1e-7 of the amplitude,
+<< 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
 so results are reproducible for the same inputs and seed (not across different chunk sizes).
 benchmarks/synthesis.py measures ~40 M samples/s per core without phase noise, ~20 M with it.
 """
@@ -60,6 +63,8 @@ import numpy as np
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import antialias
 from sim_devices.world.laser import DfbLaser, wiener_phase
+from sim_devices.world.gauss import standard_normal_f32
+from sim_devices.world.synth_grid import rational_ratio, static_beat_phase
 
 _CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
 _INTEGER_DELAY_TOL = 1e-6      # in ADC samples: a delay this close to m / fs is treated as exact
@@ -115,6 +120,15 @@ class ChirpTrajectory:
             np.cumsum((c1 + c2)[:-1].astype(acc_dtype), out=c0[1:], dtype=acc_dtype)
             t = (c0, c1.astype(acc_dtype), c2.astype(acc_dtype), mean)
             self._cache["tables"] = t
+        return t
+
+    def _tiled_turns(self, periods: int):
+        """:meth:`_tiled` in cycles (each table / 2 pi), for the static fast path (synth_grid)."""
+        key = ("tiled_turns", periods)
+        t = self._cache.get(key)
+        if t is None:
+            t = tuple(c * (1.0 / (2.0 * np.pi)) for c in self._tiled(periods))
+            self._cache[key] = t
         return t
 
     def _tiled(self, periods: int):
@@ -378,22 +392,30 @@ def _delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng):
     return out
 
 
-def _cos_sin(phase: np.ndarray, want_sin: bool, fast: bool):
+def _cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = False):
     """cos (and sin) of a float64 phase array, which may be consumed.
 
     ``fast``: reduce to [-pi, pi] in float64, then evaluate in float32 (SIMD, ~20x faster than the
     float64 libm path here) and answer float32: absolute error ~1e-7, far below one LSB of a 16-bit
     ADC (1.5e-5 of full scale), so it is used only when the output is quantized.
+    ``in_turns`` (fast only): ``phase`` is in cycles, |phase| < 2**24 (the static fast path's phase
+    is a difference of chirp phases, a few thousand cycles at most), so the whole number of cycles
+    fits a float32 buffer exactly, which then takes the reduced phase (no float64 temporary).
     """
     if not fast:
         s = np.sin(phase) if want_sin else None
         return np.cos(phase, out=phase), s
-    phase *= 1.0 / (2.0 * np.pi)
-    turns = np.rint(phase)
-    phase -= turns
-    del turns
-    phase *= 2.0 * np.pi
-    r32 = phase.astype(np.float32)
+    if in_turns:
+        r32 = np.rint(phase, out=np.empty(phase.shape, np.float32), casting="same_kind")
+        phase -= r32
+        np.multiply(phase, 2.0 * np.pi, out=r32, casting="same_kind")   # float64 product, stored float32
+    else:
+        phase *= 1.0 / (2.0 * np.pi)
+        turns = np.rint(phase)
+        phase -= turns
+        del turns
+        phase *= 2.0 * np.pi
+        r32 = phase.astype(np.float32)
     # the record stays float32 from here (amplitude, filter gains, noise): 7 digits against the
     # 16-bit converter's 4.6, and half the memory traffic of float64 (issue 18)
     c = np.cos(r32, out=r32) if not want_sin else np.cos(r32)
@@ -477,6 +499,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     need_base = seg.size > 0 or want_mzi
     base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
     single_start = u_start.size == 1
+    # the fast path needs float64 tables (the float32 trajectory exists for the precision test only)
+    grid = rational_ratio(ratio) if traj.phase_rad.dtype == np.float64 else None
     if want_mzi:
         # the MZI's deterministic phase depends only on the start offset: once per distinct offset
         tau_m = float(mzi_delay_s)
@@ -521,36 +545,43 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             nh = h1 - h0
             lseg = seg[hs] - s0
             useg = u_inv[seg[hs]]
-            # delayed position x = x_start + k ratio - tau(t) fs_awg with the Doppler-varying delay
-            # tau(t) = tau0 - (f_D / nu0) t, t = k / fs: linear in k per hit
-            x = np.multiply.outer(ratio + dop[hs] * (traj.fs_hz / (traj.nu0_hz * fs)), k)
-            x += (u_start[useg] + off - tau[hs] * traj.fs_hz)[:, None]
-            dphi = traj._phase_nonneg(x, periods)
-            del x
-            if single_start:
-                np.subtract(base[0], dphi, out=dphi)
-            else:
-                np.subtract(base[useg], dphi, out=dphi)
             # + 2 pi nu_mean tau(t) + phase0 - 2 pi f_D t  (constant + linear in k per hit)
             const = mean_w * tau[hs] + ph[hs]
             slope = -(mean_w / traj.nu0_hz + 2.0 * np.pi) * dop[hs] / fs
-            if np.any(slope != 0.0):
-                lin = np.multiply.outer(slope, k)
-                lin += const[:, None]
-                dphi += lin
-                del lin
+            moving = bool(np.any(slope != 0.0))
+            # in turns (cycles) where nothing in radians is added: the float32 trig's range
+            # reduction then starts from turns (one pass fewer); the phase is linear in the tables
+            in_turns = fast and phi is None and grid is not None and single_start and not moving
+            if grid is not None and single_start and not moving:
+                # static returns on a rational grid: no per-sample gathers (synth_grid)
+                tables, c = (traj._tiled_turns(periods), const / (2.0 * np.pi)) if in_turns \
+                    else (traj._tiled(periods), const)
+                dphi = static_beat_phase(tables, float(u_start[0]) + off, ratio, grid, n, tau[hs] * traj.fs_hz, c)
             else:
-                dphi += const[:, None]
+                # delayed position x = x_start + k ratio - tau(t) fs_awg with the Doppler-varying delay
+                # tau(t) = tau0 - (f_D / nu0) t, t = k / fs: linear in k per hit
+                x = np.multiply.outer(ratio + dop[hs] * (traj.fs_hz / (traj.nu0_hz * fs)), k)
+                x += (u_start[useg] + off - tau[hs] * traj.fs_hz)[:, None]
+                dphi = traj._phase_nonneg(x, periods)
+                del x
+                np.subtract(base[0] if single_start else base[useg], dphi, out=dphi)
+                if moving:
+                    lin = np.multiply.outer(slope, k)
+                    lin += const[:, None]
+                    dphi += lin
+                    del lin
+                else:
+                    dphi += const[:, None]
             aa = None
             if beat_filter is not None:   # before phase noise: the filter sees the chirp's beat
                 bound = tau[hs] * aa_rate + np.abs(dop[hs])
-                aa = antialias.sample_gains(dphi, fs, beat_filter, bound)
+                aa = antialias.sample_gains(dphi, fs, beat_filter, bound, turns=in_turns)
             if phi is not None:
                 dphi += phi[lseg, n_pre:]
                 dphi -= _delayed_noise(phi, lseg, n_pre, n, m_hit[hs], w_hit[hs], var_step, rng)
             a = amp[hs, None]
             parts = {}
-            cos_part, sin_part = _cos_sin(dphi, adc.iq, fast)
+            cos_part, sin_part = _cos_sin(dphi, adc.iq, fast, in_turns=in_turns)
             del dphi
             if adc.iq and iq_imbalance[1]:   # sin(dPhi + eps) from the same cos and sin: no second evaluation
                 sin_part *= math.cos(iq_imbalance[1])
@@ -603,8 +634,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             v = acc[c]
             if c in ("mzi", "mzi_q"):
                 if mzi_noise_asd_v_per_rthz > 0:
-                    noise = rng.standard_normal((nc, n), dtype=np.float32)
-                    noise *= np.float32(mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
+                    noise = standard_normal_f32(rng, (nc, n), mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
                     v += noise
                     del noise
             else:
@@ -612,9 +642,12 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
                     v += dc_v
                 std = noise_std[s0:s1]
                 if std.max(initial=0.0) > 0:
-                    # float32 draws: twice as fast, and 7 digits are plenty for a noise sample
-                    noise = rng.standard_normal((nc, n), dtype=np.float32)
-                    noise *= std[:, None].astype(np.float32)
+                    # float32 Box-Muller draws (gauss.py): 7 digits are plenty for a noise sample
+                    if std.min() == std.max():          # one noise level for the chunk: no pass
+                        noise = standard_normal_f32(rng, (nc, n), float(std[0]))
+                    else:
+                        noise = standard_normal_f32(rng, (nc, n))
+                        noise *= std[:, None].astype(np.float32)
                     v += noise
                     del noise
             if volts is not None:

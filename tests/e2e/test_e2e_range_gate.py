@@ -64,12 +64,18 @@ def test_in_gate_wall_is_valid_and_unflagged(default):
     assert np.all(pts["valid"] == 1) and np.all(pts["flags"] == 0)
 
 
-def test_weak_in_gate_returns_are_not_given_up(default):
+def test_weak_in_gate_returns_are_not_given_up():
     # a dark wall (albedo 0.05) at 4 m: ~16 dB SNR, the weakest detections ~80 uV; the default 100 dB
-    # stop band puts the alias ceiling at 5 uV (10 uV with the margin): nothing is flagged aliased
-    inst, bench, cal = default
-    inst.set_scene({"target": [dict(wall(4.0)["target"][0], reflectivity=0.05)]})
-    res = inst.run_scan(ScanRequest(max_range_m=5.2, **ROI), lambda p: None, threading.Event(), cal)
+    # stop band puts the alias ceiling at 5 uV (10 uV with the margin): nothing is flagged aliased.
+    # Its own instrument: the noise draw is the run's index on the bench, and with the module's shared
+    # one it depended on which tests pytest-xdist had run before on the same worker (at ~16 dB about
+    # one scan in 40 has one point flagged UNRESOLVED by the single-tone test, whatever the generator)
+    inst, bench, cal = _instrument()
+    try:
+        inst.set_scene({"target": [dict(wall(4.0)["target"][0], reflectivity=0.05)]})
+        res = inst.run_scan(ScanRequest(max_range_m=5.2, **ROI), lambda p: None, threading.Event(), cal)
+    finally:
+        inst.close()
     pts = res.points
     on_wall = np.abs(pts["range"] - bench.ground_truth(pts["row"], pts["col"])) < 5e-3
     assert on_wall.sum() >= 20 and np.median(pts["snr_db"][on_wall]) < 20      # weak, near the threshold

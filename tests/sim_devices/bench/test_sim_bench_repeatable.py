@@ -58,7 +58,15 @@ def test_repeated_runs_still_get_fresh_noise():
         a, b = (inst.run_scan(req, lambda p: None, threading.Event(), cal).points for _ in range(2))
     finally:
         inst.close()
-    assert len(a) > 0 and len(a) == len(b)
-    assert np.array_equal(a["row"], b["row"]) and np.array_equal(a["col"], b["col"])
-    assert not np.array_equal(a["range"], b["range"])
-    assert np.max(np.abs(a["range"] - b["range"])) < 2e-3      # noise, not a different scene
+    # the same pixels answer; a weak edge return (a mixed pixel's ~18 dB near return) may be resolved
+    # in one draw and not in the other (it was with the ziggurat stream's third run too), so each
+    # pixel's strongest return is matched to the nearest range of the same pixel in the other draw
+    assert len(a) > 0 and len(b) > 0
+    assert set(zip(a["row"], a["col"])) == set(zip(b["row"], b["col"]))
+    diffs = []
+    for r, c in set(zip(a["row"], a["col"])):
+        pa = a[(a["row"] == r) & (a["col"] == c)]
+        strongest = pa["range"][np.argmax(pa["snr_db"])]
+        diffs.append(np.min(np.abs(b["range"][(b["row"] == r) & (b["col"] == c)] - strongest)))
+    assert np.max(diffs) > 0                                   # another noise draw
+    assert np.max(diffs) < 2e-3                                # noise, not a different scene

@@ -1,0 +1,45 @@
+"""The world's per-beam static hits (issue 18): a batch's beams repeat pixels (a pixel's averages,
+the two beams of a switch transition), and the hits of each distinct pixel are gathered once. Checked
+against the per-beam concatenation of the cached entries, on a scene with mixed (edge) pixels."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidard.config import CONFIG_DIR, load_config
+from sim_devices.world.scene import Scene
+from sim_devices.world.world import World
+
+CFG = load_config(CONFIG_DIR / "sim.toml")
+WALL = {"kind": "plane", "point": [0, 0, 2.0], "normal": [0, 0, -1], "reflectivity": 0.2}
+BOX = {"kind": "box", "center": [0.1, 0.0, 1.1], "size": [0.2, 0.2, 0.2], "reflectivity": 0.2}
+
+
+def _world() -> World:
+    scene = Scene.from_dict({"mixed_pixels": True, "target": [BOX, WALL]})
+    return World(CFG, CFG.load_profile(), CFG.load_laser(), scene)
+
+
+def test_each_beam_gets_its_own_pixels_hits_in_order():
+    w = _world()
+    rng = np.random.default_rng(2)
+    # pixels across the box edge (mixed), on the box, on the wall; each repeated, in a shuffled order
+    px = np.array([(62, c) for c in range(58, 72)] + [(10, 10), (64, 64)])
+    pick = rng.integers(0, len(px), 300)
+    rows, cols = px[pick, 0], px[pick, 1]
+    cat, beam = w._hits(rows, cols, None)
+    entries = w._cast_pixels(rows, cols)
+    expect = [np.concatenate([e[j] for e in entries]) for j in range(7)]
+    counts = [len(e[0]) for e in entries]
+    assert np.array_equal(beam, np.repeat(np.arange(rows.size), counts))
+    for got, want in zip(cat, expect):
+        assert np.array_equal(got, want)
+    assert len(set(counts)) > 1                      # mixed pixels (two returns) and single ones
+    mixed = w.is_mixed(rows, cols)
+    assert np.array_equal(mixed, [(int(r) * 4096 + int(c)) in w._mixed for r, c in zip(rows, cols)])
+    assert mixed.any() and not mixed.all()
+
+
+def test_no_beams_no_hits():
+    cat, beam = _world()._hits(np.zeros(0, np.int64), np.zeros(0, np.int64), None)
+    assert beam.size == 0 and all(c.size == 0 for c in cat)
