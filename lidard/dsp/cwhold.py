@@ -149,6 +149,8 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
 #: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB, as the
 #: regime search's CW_BAND_SNR)
 PEAK_SNR = 20.0
+#: a lower ramp beat this many ramp bins from DC or more is estimated without bias: the ramps range it
+RAMP_CLEAR_BINS = 4.0
 
 
 @dataclass
@@ -161,10 +163,11 @@ class Candidates:
     hi: np.ndarray
     sign: np.ndarray
     lo_max: np.ndarray
+    lo: np.ndarray                      # the lower ramp beat (Hz); 0 for a lone peak
 
 
-def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates, cw_start: int, n_cw: int
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates, cw_start: int, n_cw: int,
+                     ramp_df_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Range (m), velocity (m/s, positive receding) and acceptance per candidate, from the dechirped
     CW segment: R = c (hi - f_cw) / (2 kappa), v = sign lambda f_cw / 2 (docs/physics.md)."""
     t_s = (cw_start + np.arange(n_cw)) / dsp.fs_hz
@@ -197,8 +200,14 @@ def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates,
             ok_screen[again] = True
         ok[sl] = (ok_screen & np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise)
                   & (np.abs(2 * f_cw[sl] - hi) <= lo_max))
-    rng = C_M_PER_S * (cand.hi - f_cw) / (2 * kappa)
-    vel = cand.sign * dsp.wavelength_m * f_cw / 2
+    # f_cw says which regime holds; where the lower ramp beat stands clear of DC (its real-signal
+    # image biases it within a few bins) both ramps then give the range, as elsewhere (two linearized
+    # ramps against one ramp and the shorter CW window); nearer DC, R = c (hi - f_cw) / (2 kappa)
+    folded = np.abs(f_cw - 0.5 * (cand.hi + cand.lo)) < np.abs(f_cw - 0.5 * (cand.hi - cand.lo))
+    f_r = np.where(folded, 0.5 * (cand.hi - cand.lo), 0.5 * (cand.hi + cand.lo))
+    f_r = np.where(cand.lo >= RAMP_CLEAR_BINS * ramp_df_hz, f_r, cand.hi - f_cw)
+    rng = C_M_PER_S * f_r / (2 * kappa)
+    vel = cand.sign * dsp.wavelength_m * (cand.hi - f_r) / 2
     return rng, vel, ok
 
 
@@ -234,7 +243,8 @@ def boundary_candidates(flat_f, flat_valid, pairs, cw_df_hz: float, ramp_df_hz: 
                       hi=np.concatenate([hi_a, np.asarray(lone_hi, dtype=np.float64)]),
                       sign=np.concatenate([sign_a, np.asarray(lone_sign, dtype=np.float64)]),
                       lo_max=np.concatenate([lo_a + 2 * ramp_df_hz + 2 * cw_df_hz,
-                                             np.full(len(lone_r), lo_lone + 2 * cw_df_hz)]))
+                                             np.full(len(lone_r), lo_lone + 2 * cw_df_hz)]),
+                      lo=np.concatenate([lo_a, np.zeros(len(lone_r))]))
 
 
 def resolve_boundary(dsp, x: np.ndarray, profile: HoldProfile, flat_f, flat_valid, pairs, *,
@@ -248,7 +258,7 @@ def resolve_boundary(dsp, x: np.ndarray, profile: HoldProfile, flat_f, flat_vali
     if cand.row.size == 0:
         return
     rng, vel, ok, seen, iu, idn = pairs
-    r_m, v_mps, good = measure_boundary(dsp, x, profile, cand, a, n_cw)
+    r_m, v_mps, good = measure_boundary(dsp, x, profile, cand, a, n_cw, ramp_df_hz)
     r, s = cand.row, cand.slot
     was_seen = seen[r, s].copy()
     rng[r[good], s[good]], vel[r[good], s[good]] = r_m[good], v_mps[good]

@@ -53,6 +53,9 @@ RHO_MAX = 0.12
 CW_BAND_SNR = 20.0
 #: the CW segment starts this far in: the fastest part of the relaxation is skipped
 CW_SKIP_FRACTION = 0.25
+#: with the drift measured and taken out (lidard.dsp.cwhold) only the hold's first 1.6 us are
+#: skipped (the AWG's settling into the hold): a longer window, a finer |f_D| (~T^-1.5)
+DECHIRP_SKIP_FRACTION = 0.02
 
 
 def _range_max_table(p: np.ndarray, top_level: int | None = None) -> list[np.ndarray]:
@@ -228,10 +231,10 @@ def _smooth_at_most(n: int) -> int:
     return 2
 
 
-def cw_window(dsp) -> tuple[int, int]:
+def cw_window(dsp, skip_fraction: float = CW_SKIP_FRACTION) -> tuple[int, int]:
     """(first sample, samples used) of the CW segment in a record (after the two ramps): at least the
-    first ``CW_SKIP_FRACTION`` skipped, an FFT-friendly length ending with the record."""
-    n = _smooth_at_most(dsp.cw_samples - int(dsp.cw_samples * CW_SKIP_FRACTION))
+    first ``skip_fraction`` skipped, an FFT-friendly length ending with the record."""
+    n = _smooth_at_most(dsp.cw_samples - int(dsp.cw_samples * skip_fraction))
     return 2 * dsp.ramp_samples + dsp.cw_samples - n, n
 
 
@@ -271,7 +274,7 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw) -> dict:
     if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
         resolve_boundary(dsp, x, profile, flat, vflat,
                          (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,
-                         cw_window=cw_window(dsp))
+                         cw_window=cw_window(dsp, DECHIRP_SKIP_FRACTION))
 
     def pick(field_up, field_dn):
         a = np.take_along_axis(field_up.reshape(-1, k), np.maximum(iu, 0), axis=1)
