@@ -261,6 +261,13 @@ def resolve_boundary(dsp, x: np.ndarray, profile: HoldProfile, flat_f, flat_vali
     r_m, v_mps, good = measure_boundary(dsp, x, profile, cand, a, n_cw, ramp_df_hz)
     r, s = cand.row, cand.slot
     was_seen = seen[r, s].copy()
+    # a lone peak whose CW tone is another point's of the same pixel (|f_D| within 3 CW bins) is not
+    # confirmed by it: the tone is that return's (a spurious ramp peak near twice its |f_D|)
+    f_cw = 2 * np.abs(v_mps) / dsp.wavelength_m
+    others = ok[r] & seen[r] & (np.arange(ok.shape[1]) != s[:, None])
+    f_other = 2 * np.abs(vel[r]) / dsp.wavelength_m
+    taken = (others & (np.abs(f_other - f_cw[:, None]) < 3 * dsp.fs_hz / n_cw)).any(axis=1)
+    good &= was_seen | ~taken
     rng[r[good], s[good]], vel[r[good], s[good]] = r_m[good], v_mps[good]
     ok[r, s] = good
     seen[r, s] = was_seen | good

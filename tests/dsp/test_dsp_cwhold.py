@@ -208,3 +208,20 @@ def test_a_noise_peak_is_not_paired_on_the_true_returns_spread_cw_beat():
     k = int(np.argmax(res.valid[0]))
     assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
     assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
+
+
+def test_a_spurious_peak_at_twice_a_returns_doppler_is_not_a_boundary_target():
+    # a target at 0.63 m receding at 0.19 m/s, off the boundary, and a spurious up-ramp peak at 2 |f_D|:
+    # read as a lone peak whose partner sits at DC it predicts a CW tone at |f_D|, which the true
+    # return's CW beat supplies. That tone is the true point's: one point, at 0.63 m (a hold-out pixel)
+    rng = np.random.default_rng(6)
+    dsp = _frame_dsp()
+    range_m, v = 0.63, 0.19
+    x = _records(dsp, range_m, v, rng)
+    r = dsp.ramp_samples
+    x[..., :r] += 0.5 * np.cos(2 * np.pi * (2 * 2 * v / WL - 3e3) * np.arange(r) / FS + 0.9)
+    res = dataclasses.replace(dsp, hold_profile=_profile(t0_s=2 * r / FS).as_dict()).process(x)
+    assert res.valid[0].sum() == 1
+    k = int(np.argmax(res.valid[0]))
+    assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
+    assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
