@@ -37,6 +37,11 @@ import numpy as np
 from .dtft import _window_dtft_bins
 
 HALF_BINS = 3           # the fit uses the peak's bin and 3 on each side (the Hann main lobe is +-2)
+# another detection of the same ramp this far away (in bins) has its main lobe in the fit's cells: it
+# joins the fit as a second known tone (from NEIGHBOUR_MIN_BINS on: nearer, its leakage also biases
+# the first tone's frequency, and the single-tone verdict stands)
+NEIGHBOUR_MIN_BINS = 4.0
+NEIGHBOUR_MAX_BINS = HALF_BINS + 3.0
 NOISE_FACTOR = 5.0      # residual / expected noise residual above which a peak is not one tone
 MODEL_FLOOR = 3e-3      # residual / peak energy the one-tone model may leave on a strong return (-25 dB)
 DC_BINS = 4
@@ -68,9 +73,12 @@ def _by_ramp(spec: np.ndarray, average_axis: int | None) -> np.ndarray:
 
 
 def _residual_at(s3: np.ndarray, b: np.ndarray, index: np.ndarray, frac: np.ndarray, *, window: str,
-                 n_samples: int, zero_pad: int, iq: bool) -> tuple[np.ndarray, np.ndarray]:
+                 n_samples: int, zero_pad: int, iq: bool, frac2: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """The single-tone fit of detections (pixel ``b``, spectrum index, refined bin), one each: only
-    the 2 h + 1 cells around each peak are read (issue 18: not the detection slots that are empty)."""
+    the 2 h + 1 cells around each peak are read (issue 18: not the detection slots that are empty).
+    ``frac2``: a neighbouring detection's refined bin per detection (NaN: none), fitted jointly as a
+    second known tone, so that its lobe in these cells is not counted as the peak's misfit."""
     n_avg, n_bins = s3.shape[-2:]
     n_fft = n_bins if iq else 2 * (n_bins - 1)
     offs = np.arange(-HALF_BINS, HALF_BINS + 1)
@@ -82,8 +90,35 @@ def _residual_at(s3: np.ndarray, b: np.ndarray, index: np.ndarray, frac: np.ndar
     ww = np.sum(np.abs(w) ** 2, axis=-1)                             # (m,)
     proj = np.sum(x * np.conj(w)[None, :, :], axis=-1)               # (averages, m)
     energy = np.abs(proj) ** 2 / np.where(ww > 0, ww, 1.0)[None, :]
-    resid = np.sum(np.abs(x) ** 2, axis=-1) - energy
+    fitted = energy
+    if frac2 is not None and np.isfinite(frac2).any():
+        two = np.isfinite(frac2)
+        w2 = _window_dtft_bins(window, n_samples, (kbin[two] - frac2[two, None]) / zero_pad)
+        fitted = energy.copy()
+        fitted[:, two] = _two_tone_energy(x[:, two], w[two], w2)
+    resid = np.sum(np.abs(x) ** 2, axis=-1) - fitted
     return np.maximum(resid, 0.0).sum(axis=0), energy.sum(axis=0)
+
+
+def _two_tone_energy(x: np.ndarray, w1: np.ndarray, w2: np.ndarray) -> np.ndarray:
+    """Energy of ``x`` (averages, m, cells) in the span of the two tone shapes w1, w2 (m, cells):
+    the least-squares projection b^H G^-1 b with the 2 x 2 Gram matrix G and b = (x.w1*, x.w2*)."""
+    g11, g22 = np.sum(np.abs(w1) ** 2, axis=-1), np.sum(np.abs(w2) ** 2, axis=-1)
+    g12 = np.sum(w2 * np.conj(w1), axis=-1)                           # <w2, w1>
+    det = np.maximum(g11 * g22 - np.abs(g12) ** 2, 1e-300)
+    b1, b2 = np.sum(x * np.conj(w1), axis=-1), np.sum(x * np.conj(w2), axis=-1)
+    quad = g22 * np.abs(b1) ** 2 + g11 * np.abs(b2) ** 2 - 2 * np.real(np.conj(b1) * g12 * b2)
+    return quad / det
+
+
+def _neighbours(frac: np.ndarray, valid: np.ndarray, b: np.ndarray, slot: np.ndarray, zero_pad: int) -> np.ndarray:
+    """Per tested detection, the refined bin of the nearest other detection of its ramp within
+    [NEIGHBOUR_MIN_BINS, NEIGHBOUR_MAX_BINS] bins, or NaN."""
+    f = frac[b]                                                       # (m, K)
+    d = np.abs(f - frac[b, slot][:, None]) / zero_pad
+    near = valid[b] & (np.arange(frac.shape[1]) != slot[:, None]) & (d >= NEIGHBOUR_MIN_BINS) & (d <= NEIGHBOUR_MAX_BINS)
+    j = np.argmin(np.where(near, d, np.inf), axis=1)
+    return np.where(near.any(axis=1), f[np.arange(len(b)), j], np.nan)
 
 
 def floor_noise(spec: np.ndarray, average_axis: int | None, power: np.ndarray | None = None) -> np.ndarray:
@@ -124,7 +159,9 @@ def unresolved(spec: np.ndarray, index: np.ndarray, frac_bins: np.ndarray, valid
     if b.size == 0:
         return out
     resid, energy = _residual_at(s3, b, idx.reshape(-1, k)[b, slot], frac.reshape(-1, k)[b, slot],
-                                 window=window, n_samples=n_samples, zero_pad=zero_pad, iq=iq)
+                                 window=window, n_samples=n_samples, zero_pad=zero_pad, iq=iq,
+                                 frac2=_neighbours(frac.reshape(-1, k), np.asarray(valid).reshape(-1, k), b, slot,
+                                                   zero_pad))
     # the floor of the pixels tested (all of them, or fewer: then only theirs is computed)
     pix, at = np.unique(b, return_inverse=True)
     p3 = None if power is None else _by_ramp(power, average_axis)
