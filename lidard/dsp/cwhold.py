@@ -1,7 +1,7 @@
 """The held segment's frequency drift, measured once and taken out of the CW beat (issue 14; §2.2).
 
 The three-segment chirp's constant-frequency (CW) segment is held, not linearized: a DFB's thermal
-terms keep relaxing after the drive stops, so the optical frequency drifts by some 300 MHz over the
+terms keep relaxing after the drive stops, so the optical frequency drifts by some 650 MHz over the
 hold (the sim's default laser). A return of round trip tau then beats at |tau nu'(t) - f_D| there,
 spread over many bins (lidard.dsp.threeseg), which is enough to choose between the two regimes of a
 real receiver except where they meet (|f_D| ~ f_R), where their predictions of |f_D| differ by less
