@@ -13,10 +13,11 @@ Three-segment chirp (issue 14): the ILC learns the two ramps as before, but each
 whole period, the ramps followed by the held constant segment (:func:`drive_for_chirp`), so the ramps
 are learned under the thermal history they will see in a scan; the record stops after the down ramp.
 The constant segment is held, not learned: the laser's thermal terms keep drifting there (some
-650 MHz over the hold on the sim's default DFB). Once the ramps are learned, one more acquisition of ``HOLD_AVERAGES``
-whole periods measures that drift from the MZI fringe over the hold (:func:`lidard.dsp.cwhold.hold_profile`);
-it is stored with the linearization (``meta["hold_profile"]``) and the DSP takes it out of the CW beat
-where the real receiver's two regimes meet (|f_D| ~ f_R, lidard.dsp.threeseg).
+650 MHz over the hold on the sim's default DFB). Once the ramps are learned, one more acquisition of
+``HOLD_AVERAGES`` whole periods measures that drift from the MZI fringe over the hold
+(:func:`lidard.dsp.cwhold.hold_profile`); it is stored with the linearization (``meta["hold_profile"]``)
+and the DSP takes it out of the CW beat where the real receiver's two regimes meet (|f_D| ~ f_R,
+lidard.dsp.threeseg).
 """
 
 from __future__ import annotations
