@@ -11,21 +11,15 @@ CPU time (time.process_time), best of N; the ratio is printed, nothing asserted.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 from sim_devices.world.gauss import standard_normal_f32
 
-
-def _best(fn, repeats: int) -> float:
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t = time.process_time()
-        fn()
-        ts.append(time.process_time() - t)
-    return min(ts)
+try:
+    from benchmarks.chain_throughput import best_cpu_s
+except ImportError:            # run as a script: benchmarks/ itself is on sys.path
+    from chain_throughput import best_cpu_s
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -36,8 +30,8 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     shape = (a.rows, a.samples)
     rng = np.random.default_rng(0)
-    zig = _best(lambda: rng.standard_normal(shape, dtype=np.float32), a.repeats)
-    bm = _best(lambda: standard_normal_f32(rng, shape), a.repeats)
+    zig = best_cpu_s(lambda: rng.standard_normal(shape, dtype=np.float32), a.repeats)
+    bm = best_cpu_s(lambda: standard_normal_f32(rng, shape), a.repeats)
     n = a.rows * a.samples
     print(f"{a.rows} x {a.samples} float32 normals: ziggurat {zig * 1e3:.2f} ms ({zig / n * 1e9:.2f} ns/sample), "
           f"Box-Muller {bm * 1e3:.2f} ms ({bm / n * 1e9:.2f} ns/sample), ratio {bm / zig:.2f}")
