@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -76,10 +77,14 @@ class HoldProfile:
     def as_dict(self) -> dict:
         return {"t0_s": self.t0_s, "dt_s": self.dt_s, "nu_hz": list(self.nu_hz)}
 
+    @cached_property
+    def _table(self) -> tuple[np.ndarray, np.ndarray]:
+        # the sample times and values as arrays, once (at() runs on every dechirp pass)
+        return self.t0_s + self.dt_s * np.arange(len(self.nu_hz)), np.asarray(self.nu_hz)
+
     def at(self, t_s: np.ndarray) -> np.ndarray:
         """nu at the record times ``t_s`` (linear interpolation, held at the ends)."""
-        grid = self.t0_s + self.dt_s * np.arange(len(self.nu_hz))
-        return np.interp(t_s, grid, np.asarray(self.nu_hz))
+        return np.interp(t_s, *self._table)
 
 
 def hold_profile(records, fs_hz: float, start: int, mzi_delay_s: float) -> HoldProfile:

@@ -32,7 +32,8 @@ from .gate import aliased, gate_top_hz, point_flags
 from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
-from .threeseg import cw_front_end, pair_frame_three
+from .cwhold import HoldProfile
+from .threeseg import cw_front_end, drift_rho, pair_frame_three
 from .resolve import unresolved
 from .velocity import pair_up_down
 
@@ -99,6 +100,16 @@ class FrameDsp:
     @cached_property
     def rfft(self) -> RangeFFT:
         return RangeFFT(self.n_used, self.fs_hz, self.chirp_rate_hz_per_s, window=self.window, iq=self.iq)
+
+    @cached_property
+    def hold(self) -> HoldProfile | None:
+        """``hold_profile`` parsed and checked once (not on every batch)."""
+        return HoldProfile.from_dict(self.hold_profile)
+
+    @cached_property
+    def drift_rho(self) -> tuple[float, float] | None:
+        """The measured drift rate's range over the CW window (:func:`lidard.dsp.threeseg.drift_rho`)."""
+        return None if self.hold is None else drift_rho(self, self.hold)
 
     @cached_property
     def bin_range(self) -> tuple[int, int]:
@@ -177,7 +188,7 @@ class FrameDsp:
         else:
             out_f, out_det = self._plain_front_end(x, lsb_v)
         if self.cw_samples:
-            return FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v)))
+            return FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
         return self._pair(out_f, out_det)
 
     def _plain_front_end(self, x: np.ndarray, lsb_v: float) -> tuple[list, list]:

@@ -254,22 +254,23 @@ def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     a, n = cw_window(dsp)
     rf = RangeFFT(n, dsp.fs_hz, dsp.chirp_rate_hz_per_s, window=dsp.window)
     spec = rf(x[..., a:a + n].astype(np.float64) * lsb_v)
-    return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f, x
+    return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
 
 
-def pair_frame_three(dsp, out_f: list, out_det: list, cw) -> dict:
-    """The FrameResult fields (as a dict) of a three-segment frame."""
+def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict:
+    """The FrameResult fields (as a dict) of a three-segment frame; ``x`` the batch's records (the
+    CW segments the boundary's dechirp reads)."""
     (fu, fd), (du, dd) = out_f, out_det
-    p_cw, df, x = cw
+    p_cw, df = cw
     lead = fu.shape[:-1]
     k = fu.shape[-1]
     flat = [np.abs(a).reshape(-1, a.shape[-1]) for a in (fu, fd)]
     vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
-    profile = HoldProfile.from_dict(dsp.hold_profile)
+    profile = dsp.hold
     rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
                                              chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
                                              wavelength_m=dsp.wavelength_m, guard_bins=2, max_targets=k,
-                                             rho=None if profile is None else drift_rho(dsp, profile),
+                                             rho=dsp.drift_rho,
                                              power=(du.power.reshape(-1, k), dd.power.reshape(-1, k)))
     if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
         resolve_boundary(dsp, x, profile, flat, vflat,
