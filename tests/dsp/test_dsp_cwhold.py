@@ -143,6 +143,19 @@ def _frame_dsp():
                     max_range_m=2.0, max_speed_mps=10.0, cw_samples=int(FS * T_HOLD), max_returns=2)
 
 
+def _with_drift(dsp):
+    """``dsp`` with the synthetic drift as its hold profile (the hold starts after the two ramps)."""
+    return dataclasses.replace(dsp, hold_profile=_profile(t0_s=2 * dsp.ramp_samples / FS).as_dict())
+
+
+def _assert_one_point(res, range_m, v):
+    """One valid point in the pixel, at the range to 1 mm and the velocity to 0.01 m/s."""
+    assert res.valid[0].sum() == 1
+    k = int(np.argmax(res.valid[0]))
+    assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
+    assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
+
+
 @pytest.mark.parametrize("range_m, factor", [(1.2, 1.0), (1.2, -1.0), (0.5, 0.98), (1.8, -1.02), (0.9, 1.04)])
 def test_frame_where_the_regimes_meet_is_ranged_with_the_hold_profile(range_m, factor):
     # |f_D| = factor x f_R: one ramp beat at (or near) DC; the sign of v is the sign of factor's f_D
@@ -150,15 +163,11 @@ def test_frame_where_the_regimes_meet_is_ranged_with_the_hold_profile(range_m, f
     v = -factor * f_r * WL / 2
     rng = np.random.default_rng(11)
     dsp = _frame_dsp()
-    prof = _profile(t0_s=2 * dsp.ramp_samples / FS)          # the hold starts after the two ramps
     x = _records(dsp, range_m, v, rng)
     without = dsp.process(x)
     assert not without.valid.any()                             # ambiguous: drawn or absent, never valid
-    res = dataclasses.replace(dsp, hold_profile=prof.as_dict()).process(x)
-    assert res.valid[0].sum() == 1
-    k = int(np.argmax(res.valid[0]))
-    assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
-    assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
+    res = _with_drift(dsp).process(x)
+    _assert_one_point(res, range_m, v)
 
 
 def test_hold_profile_does_not_add_points_to_a_static_target():
@@ -166,8 +175,7 @@ def test_hold_profile_does_not_add_points_to_a_static_target():
     rng = np.random.default_rng(5)
     dsp = _frame_dsp()
     x = _records(dsp, 0.3, 0.0, rng)
-    prof = _profile(t0_s=2 * dsp.ramp_samples / FS)
-    a, b = dsp.process(x), dataclasses.replace(dsp, hold_profile=prof.as_dict()).process(x)
+    a, b = dsp.process(x), _with_drift(dsp).process(x)
     assert a.valid.sum() == b.valid.sum() == 1
     assert np.array_equal(a.range_m[a.valid], b.range_m[b.valid])
 
@@ -177,7 +185,7 @@ def test_candidates_in_several_passes_give_the_same_points(monkeypatch):
     import lidard.dsp.cwhold as cwhold
     rng = np.random.default_rng(2)
     dsp = _frame_dsp()
-    dsp = dataclasses.replace(dsp, hold_profile=_profile(t0_s=2 * dsp.ramp_samples / FS).as_dict())
+    dsp = _with_drift(dsp)
     cases = [(0.5, 1.0), (1.2, -0.99), (1.7, 1.02)]
     x = np.concatenate([_records(dsp, r, -f * 2 * KAPPA * r / C_M_PER_S * WL / 2, rng) for r, f in cases])
     whole = dsp.process(x)
@@ -203,11 +211,8 @@ def test_a_noise_peak_is_not_paired_on_the_true_returns_spread_cw_beat():
     f_dn = abs(f_r - 2 * v / WL)                     # |f_R + f_D|, f_D = -2 v / lambda
     r = dsp.ramp_samples
     x[..., :r] += 0.5 * np.cos(2 * np.pi * 2.5 * f_dn * np.arange(r) / FS + 0.4)
-    res = dataclasses.replace(dsp, hold_profile=_profile(t0_s=2 * r / FS).as_dict()).process(x)
-    assert res.valid[0].sum() == 1
-    k = int(np.argmax(res.valid[0]))
-    assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
-    assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
+    res = _with_drift(dsp).process(x)
+    _assert_one_point(res, range_m, v)
 
 
 def test_a_spurious_peak_at_twice_a_returns_doppler_is_not_a_boundary_target():
@@ -220,8 +225,5 @@ def test_a_spurious_peak_at_twice_a_returns_doppler_is_not_a_boundary_target():
     x = _records(dsp, range_m, v, rng)
     r = dsp.ramp_samples
     x[..., :r] += 0.5 * np.cos(2 * np.pi * (2 * 2 * v / WL - 3e3) * np.arange(r) / FS + 0.9)
-    res = dataclasses.replace(dsp, hold_profile=_profile(t0_s=2 * r / FS).as_dict()).process(x)
-    assert res.valid[0].sum() == 1
-    k = int(np.argmax(res.valid[0]))
-    assert res.range_m[0, k] == pytest.approx(range_m, abs=1e-3)
-    assert res.velocity_mps[0, k] == pytest.approx(v, abs=0.01)
+    res = _with_drift(dsp).process(x)
+    _assert_one_point(res, range_m, v)
