@@ -21,6 +21,7 @@ from .cfar import Detections, cfar_detect
 from .jit import power
 from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .rangefft import RangeFFT, check_samples
+from .scratch import scratch
 from .window import DspInputError
 
 # (indices of the detections (..., K) with invalid slots at a harmless bin) -> (signals, signed peak
@@ -111,7 +112,8 @@ def measure_peaks(rf: RangeFFT, x: object, *, method: EstimatorName = DEFAULT_ME
     zero_pad and iq are taken from ``rf``; the range gate of ``rf`` limits the search) and sub-bin
     refinement of every detection with ``method``: the chain on one batch, no averaging."""
     a = check_samples(x, rf.n_samples)
-    spec = rf(a)
+    # the spectrum never leaves this call (the results are gathered from it): a scratch buffer
+    spec = rf.spectrum_of(a, out=scratch("measure_peaks.spec", rf.spectrum_shape(a.shape[:-1]), np.complex128))
     gate = np.flatnonzero(rf.gate_mask)
     if gate.size == 0:
         raise DspInputError(f"range_gate_m={rf.range_gate_m} selects no bins")

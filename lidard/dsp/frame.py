@@ -35,6 +35,7 @@ from .rangefft import C_M_PER_S, RangeFFT
 from .cwhold import HoldProfile
 from .threeseg import cw_front_end, drift_rho, pair_frame_three
 from .resolve import unresolved
+from .scratch import scratch
 from .velocity import pair_up_down
 
 
@@ -198,7 +199,8 @@ class FrameDsp:
         out_f, out_det = [], []
         for r0 in (0, r):
             ramp = ramp_volts(x[..., r0 + a:r0 + a + n], lsb_v, iq=self.iq, down=bool(r0))
-            spec = rf(ramp)                                    # (n_pix, n_avg, n_bins)
+            # (n_pix, n_avg, n_bins); it dies with this ramp's pass: one scratch buffer for both ramps
+            spec = rf(ramp, out=scratch("frame.spec", rf.spectrum_shape(ramp.shape[:-1]), np.complex128))
             res = detect_and_refine(
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa, iq=self.iq,

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lidard.dsp.scratch import scratch
 from lidard.dsp.window import DspInputError, WindowInfo, WindowName, check_window_name, get_window, window_info
 
 C_M_PER_S = 299_792_458.0
@@ -55,20 +56,25 @@ def check_samples(x: object, n_samples: int | None = None, name: str = "x") -> n
     return a
 
 
-def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str) -> np.ndarray:
+def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str,
+                 out: np.ndarray | None = None) -> np.ndarray:
     """The one windowed FFT of the DSP (RangeFFT, the estimators, the compensated spectrum wrap it).
 
     ``layout``: "real" (rfft of a real ramp, bins 0..n_fft/2), "shifted" (two-sided fft of I/Q samples,
     fft-shifted so that frequency increases with the index), "analytic" (an analytic signal's fft,
-    positive bins 0..n_fft/2 only: the rfft grid). Unscaled: the callers own the amplitude convention.
+    positive bins 0..n_fft/2 only: the rfft grid). Unscaled: the callers own the amplitude convention
+    (a window may carry the scale). ``out``: an array for the "real" spectrum (a caller's scratch
+    buffer); the windowed ramps are a per-thread scratch buffer (:mod:`lidard.dsp.scratch`).
     """
+    if layout not in ("real", "shifted", "analytic"):
+        raise DspInputError(f"layout={layout!r}: expected 'real', 'shifted' or 'analytic'")
+    xw = np.multiply(x, window, out=scratch("windowed_fft.xw", np.broadcast_shapes(x.shape, window.shape),
+                                            np.result_type(x, window)))
     if layout == "real":
-        return np.fft.rfft(x * window, n=n_fft, axis=-1)
+        return np.fft.rfft(xw, n=n_fft, axis=-1, out=out)
     if layout == "shifted":
-        return np.fft.fftshift(np.fft.fft(x * window, n=n_fft, axis=-1), axes=-1)
-    if layout == "analytic":
-        return np.fft.fft(x * window, n=n_fft, axis=-1)[..., :n_fft // 2 + 1]
-    raise DspInputError(f"layout={layout!r}: expected 'real', 'shifted' or 'analytic'")
+        return np.fft.fftshift(np.fft.fft(xw, n=n_fft, axis=-1), axes=-1)
+    return np.fft.fft(xw, n=n_fft, axis=-1)[..., :n_fft // 2 + 1]
 
 
 def gather_bins(spec: np.ndarray, bins: np.ndarray, n_fft: int, iq: bool,
@@ -110,6 +116,7 @@ class RangeFFT:
     iq: bool = False
     range_gate_m: tuple[float, float] | None = None
     _w: np.ndarray = field(init=False, repr=False, compare=False)
+    _w_scaled: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if int(self.n_samples) != self.n_samples or self.n_samples < 8:
@@ -128,6 +135,7 @@ class RangeFFT:
             if not (0 <= lo < hi):
                 raise DspInputError(f"range_gate_m={self.range_gate_m!r} must satisfy 0 <= min_m < max_m")
         object.__setattr__(self, "_w", get_window(self.window, self.n_samples))
+        object.__setattr__(self, "_w_scaled", self._w / np.sum(self._w))
 
     # ---- axes -------------------------------------------------------------------------------
     @property
@@ -192,14 +200,24 @@ class RangeFFT:
         return C_M_PER_S * np.asarray(bins, dtype=np.float64) * self.delta_f / (2.0 * self.chirp_rate_hz_per_s)
 
     # ---- transforms -------------------------------------------------------------------------
-    def __call__(self, x: object) -> np.ndarray:
-        """Complex spectrum of a batch of ramps ``x[..., n_samples]`` (layout: module docstring)."""
-        a = check_samples(x, self.n_samples)
+    def __call__(self, x: object, out: np.ndarray | None = None) -> np.ndarray:
+        """Complex spectrum of a batch of ramps ``x[..., n_samples]`` (layout: module docstring).
+
+        ``out``: an array of the spectrum's shape to write a real-input spectrum into (a caller's
+        scratch buffer, :mod:`lidard.dsp.scratch`; the I/Q layout ignores it)."""
+        return self.spectrum_of(check_samples(x, self.n_samples), out)
+
+    def spectrum_of(self, a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`__call__` on ramps that went through :func:`check_samples` already (no second pass)."""
         if a.dtype.kind == "c" and not self.iq:
             raise DspInputError("complex (I/Q) samples given to a RangeFFT built with iq=False; build it with iq=True")
-        spec = windowed_fft(a, self._w, self.n_fft, "shifted" if self.iq else "real")
-        spec *= 1.0 / np.sum(self._w)   # in place: no second spectrum-sized array (issue 18: reuse buffers)
-        return spec
+        # the 1 / sum(w) scale rides on the window: no pass over the spectrum (issue 18)
+        return windowed_fft(a, self._w_scaled, self.n_fft, "shifted" if self.iq else "real",
+                            out=None if self.iq else out)
+
+    def spectrum_shape(self, lead: tuple[int, ...]) -> tuple[int, ...]:
+        """The shape of the spectrum of ramps with leading shape ``lead``."""
+        return tuple(lead) + ((self.n_fft,) if self.iq else (self.n_fft // 2 + 1,))
 
     def power(self, x: object, average_axis: int | None = None) -> np.ndarray:
         """|X|^2; with ``average_axis`` the powers of several chirps are averaged (incoherently)."""

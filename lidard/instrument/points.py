@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.frame import FrameDsp
+from ..dsp.scratch import release as release_scratch
 from ..raw.points import frame_points
 from .types import POINT_DTYPE
 
@@ -95,6 +96,8 @@ class PointBuffer:
             self.flush()
         except Exception as exc:
             log.warning("processing the last batch failed: %s", exc)
+        finally:
+            release_scratch()     # the DSP's per-thread buffers (lidard.dsp.scratch): an idle daemon holds none
         return np.concatenate(self._chunks) if self._chunks else np.zeros(0, POINT_DTYPE)
 
 
