@@ -81,3 +81,26 @@ def test_fewer_columns_than_the_power_basis():
     basis, coef_map = _moment_basis(512, _terms_for(1.01))
     assert basis.shape[1] < _terms_for(1.01) - 4
     assert coef_map.shape == (2 * _terms_for(1.01), 2 * basis.shape[1])
+
+
+@pytest.mark.parametrize("k", [0.3, 1.2, 57.4, 127.8])
+def test_real_tone_energy_is_the_least_squares_fit_at_each_offset(k):
+    """_real_tone_fit (the likelihood the default estimator climbs, with its sines turned by the offsets)
+    against the energy of the best a cos(wn) + b sin(wn) from a plain least-squares solve."""
+    from lidard.dsp.estimators import _real_tone_fit
+
+    n = 256
+    rng = np.random.default_rng(7)
+    t = np.arange(n)
+    x = 0.8 * np.cos(2 * np.pi * k * t / n + 1.1) + 0.3 * rng.standard_normal(n)
+    f0 = np.array([np.rint(k)])
+    ev = _DtftNearBin(x[None, :], None, f0, _terms_for(1.01))
+    d = np.array([k - f0[0] + 0.07])
+    offsets = np.array([-0.4, -1e-3, 0.0, 1e-3, 0.3])
+    got = _real_tone_fit(ev, d, offsets)[:, 0]
+    for o, j in zip(offsets, got):
+        w = 2 * np.pi * (f0[0] + d[0] + o) / n
+        a = np.stack([np.cos(w * t), np.sin(w * t)], axis=1)
+        coef, *_ = np.linalg.lstsq(a, x, rcond=None)
+        energy = float(np.dot(a @ coef, x))            # projection energy x' A (A'A)^-1 A' x
+        assert j == pytest.approx(energy, rel=1e-10, abs=1e-9)
