@@ -174,6 +174,18 @@ def _small_gemm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def _small_gemm_by_columns(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b.T for a small ``a`` (r, k) and many rows of ``b`` (m, k), as products of a few hundred
+    columns each: one large product would wake every OpenBLAS thread (see :func:`_small_gemm`)."""
+    r, k = a.shape
+    m = b.shape[0]
+    out = np.empty((r, m))
+    step = max(1, _GEMM_BLOCK_MNK // max(1, r * k))
+    for i in range(0, m, step):
+        np.matmul(a, b[i:i + step].T, out=out[:, i:i + step])
+    return out
+
+
 class _DtftNearBin:
     """X(f0 + delta) and its first two delta-derivatives for many (ramp, f0) pairs at once.
 
@@ -192,7 +204,7 @@ class _DtftNearBin:
             nu = _moments_off_grid(x, rows, f0, basis)
         # G(delta) = sum_p g[p] delta^p with g = (nu @ R) * coef: one real product from the moments'
         # parts (m, 2Q) to the coefficients' parts, term-major as eval reads them (2P, m)
-        gt = coef_map @ nu.reshape(f0.size, -1).T
+        gt = _small_gemm_by_columns(coef_map, nu.reshape(f0.size, -1))
         self._gt = (gt[:n_terms], gt[n_terms:])
 
     def eval(self, delta: np.ndarray, derivs: int = 0):
