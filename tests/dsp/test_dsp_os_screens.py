@@ -44,6 +44,7 @@ def _spectra(case, rows=120, n=70, seed=0):
         p = rng.integers(0, 4, (rows, n)).astype(float)
         p[:, rng.integers(0, n, 40)] = 100.0
         p[::2, 20:24] = 100.0
+        p[1::2, -2:] = 100.0                        # the last cell is a local maximum (>= its neighbour)
     elif case == "zero and constant rows":
         p[::3] = 0.0
         p[1::3] = 2.5
@@ -64,6 +65,14 @@ CASES = ["noise", "targets at every offset", "edges", "next to clutter", "equal 
          "full of peaks", "tiny and huge", "signed zeros"]
 
 
+@pytest.fixture(params=[False, pytest.param(True, marks=_needs_numba)], ids=["numpy", "compiled"])
+def kern(request, monkeypatch):
+    """The compiled kernels, or None with them turned off (the numpy screens, cfar_os._os_screened)."""
+    if not request.param:
+        monkeypatch.setenv("LIDARD_DSP_JIT", "0")
+    return jit.kernels()
+
+
 def _assert_cells(got, want):
     assert len(got) == 3
     for a, b in zip(got, want):
@@ -71,13 +80,36 @@ def _assert_cells(got, want):
 
 
 @pytest.mark.parametrize("case", CASES)
-@pytest.mark.parametrize("use_kernels", [False, pytest.param(True, marks=_needs_numba)])
-def test_the_screened_detector_finds_the_brute_force_cells(case, use_kernels):
+def test_the_screened_detector_finds_the_brute_force_cells(case, kern):
     p = _spectra(case)
-    kern = jit.kernels() if use_kernels else None
     for n_side, guard, rank, pfa in ((8, 2, None, 1e-6), (4, 1, 6, 1e-3), (3, 0, 1, 1e-2)):
         got = cfar._os_detected(p, n_side, guard, pfa, rank, 1e-20, kern)
         _assert_cells(got, _brute_force(p, n_side, guard, pfa, rank))
+
+
+def test_the_screens_keep_cells_just_over_the_threshold_and_the_floor(kern):
+    # a screen that is slightly too strict loses exactly these: a cell a hair above alpha x its
+    # k-th smallest reference (a flat floor), or a hair above 1e-20 of the row's strongest cell
+    n = 70
+    for n_side, guard, rank, pfa in ((8, 2, None, 1e-6), (4, 1, 6, 1e-3)):
+        k, mean_kth, scaled_alpha, _ = cfar_os._os_constants(n_side, pfa, rank)
+        rows = []
+        for f in (1 - 1e-7, 1 - 1e-15, 1 + 1e-15, 1 + 1e-7):
+            flat = np.full((n, n), f * mean_kth / scaled_alpha)     # alpha x floor = f x the target
+            flat[np.arange(n), np.arange(n)] = 1.0                  # the target at every bin in turn
+            rows.append(flat)
+        for g in (1 - 1e-9, 1 + 1e-9):
+            low = np.full((n, n), 1e-24)
+            low[np.arange(n), np.arange(n)] = g * 1e-20             # at the dynamic-range floor
+            low[np.arange(n), (np.arange(n) + n // 2) % n] = 1.0    # of the strong cell half a row away
+            rows.append(low)
+        p = np.vstack(rows)
+        want = _brute_force(p, n_side, guard, pfa, rank)
+        found = set(zip(want[0].tolist(), want[1].tolist()))
+        target = lambda block: {(block * n + i, i) for i in range(n)}      # noqa: E731
+        assert target(0) <= found and not target(3) & found                 # f < 1: every one found; f > 1: none
+        assert target(5) <= found and not target(4) & found                 # over the floor: found; under: not
+        _assert_cells(cfar._os_detected(p, n_side, guard, pfa, rank, 1e-20, kern), want)
 
 
 @_needs_numba
