@@ -5,8 +5,9 @@ alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential no
 at a chosen false-alarm rate). The detector computes the statistic exactly only at the local maxima
 that could pass the threshold (issue 18, :func:`_os_screened`: screens that are necessary conditions of
 the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
-every bin (exactly, or a lower bound where nothing can pass). Pure numpy (scipy.optimize on first use),
-or the same screen compiled (:mod:`lidard.dsp.jit`, when numba is installed).
+every bin (exactly, or a lower bound where nothing can pass). Pure numpy (scipy.optimize on first use);
+:func:`_os_detected`, the detector's entry, takes the compiled pass instead when numba is installed
+(:mod:`lidard.dsp.jit`: the same cells, bit for bit, with the value check and the threshold test in it).
 """
 
 from __future__ import annotations

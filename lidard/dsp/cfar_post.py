@@ -15,6 +15,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from lidard.dsp import jit
 from lidard.dsp.window import get_window
 
 
@@ -39,7 +40,11 @@ def _widths_flat(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, m
     """:func:`_width_6db` of the peaks at ``flat[start + col]`` (rows of ``n`` cells from ``start``).
 
     Step by step outwards, only for the peaks whose side has not crossed yet (most cross within two
-    or three bins): the same values as reading all ``max_half`` offsets of every peak at once."""
+    or three bins): the same values as reading all ``max_half`` offsets of every peak at once. With
+    the compiled kernels (:mod:`lidard.dsp.jit`) peak by peak, the same operations in the same order."""
+    kern = jit.kernels()
+    if kern is not None:
+        return jit.widths_6db(flat, start, col, n, max_half, kern)
     peak = flat[start + col]
     level = peak / 4.0
     widths = np.zeros(col.shape)

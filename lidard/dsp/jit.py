@@ -5,7 +5,9 @@ Each kernel gives the same values, bit for bit, as the numpy code it stands in f
 tests/dsp/test_dsp_jit.py): the same IEEE operations in the same order, no fast-math, and order
 statistics are selections (the k-th smallest of a set is one of its elements whatever the method).
 They exist because numpy makes one pass over the whole array per operation: the OS-CFAR screen of
-:mod:`lidard.dsp.cfar_os` took about a dozen passes over every spectrum cell, here it is one.
+:mod:`lidard.dsp.cfar_os` took about a dozen passes over every spectrum cell, here it is one, which
+also checks the values and finds each ramp's strongest cell (the detector's floor). The kernels
+themselves are in :mod:`lidard.dsp.jit_kernels` (which imports numba); this module holds their callers.
 
 numba is imported on first use, never at import time (``lidarctl --help`` and a scan's imports stay
 fast, issue 18), and only if it is installed (``pip install lidard[fast]``); :func:`kernels` returns
@@ -28,7 +30,7 @@ def _compiled() -> SimpleNamespace | None:
         from lidard.dsp import jit_kernels     # needs numba
     except ImportError:
         return None
-    return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power)
+    return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db)
 
 
 def kernels() -> SimpleNamespace | None:
@@ -46,6 +48,15 @@ def power(spec: np.ndarray) -> np.ndarray:
         return s.real ** 2 + s.imag ** 2
     out = np.empty(s.shape)
     k.power(np.ascontiguousarray(s).reshape(-1), out.reshape(-1))
+    return out
+
+
+def widths_6db(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, max_half: int,
+               kern: SimpleNamespace) -> np.ndarray:
+    """lidard.dsp.cfar_post._widths_flat's -6 dB widths, one peak after another (no pass per offset)."""
+    out = np.empty(col.shape)
+    kern.widths_6db(np.ascontiguousarray(flat, dtype=np.float64), np.ascontiguousarray(start, dtype=np.int64),
+                    np.ascontiguousarray(col, dtype=np.int64), n, max_half, out)
     return out
 
 

@@ -199,3 +199,27 @@ def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor
             if m < 0:
                 return -1
     return m
+
+
+@_jit
+def widths_6db(flat, start, col, n, max_half, out):  # pragma: no cover
+    """-6 dB full widths of the peaks at flat[start + col] (rows of ``n`` cells from ``start``), as
+    lidard.dsp.cfar_post._widths_flat computes them: per side the first of ``max_half`` cells out
+    (the edge cell repeating) below a quarter of the peak, interpolated with the cell before it."""
+    for i in range(col.size):
+        peak = flat[start[i] + col[i]]
+        level = peak / 4.0
+        width = 0.0
+        for direction in (-1, 1):
+            half = float(max_half)
+            prev = peak
+            for s in range(max_half):
+                j = min(max(col[i] + direction * (s + 1), 0), n - 1)
+                v = flat[start[i] + j]
+                if v < level:
+                    frac = (prev - level) / (prev - v) if prev > v else 0.0
+                    half = s + frac
+                    break
+                prev = v
+            width += half
+        out[i] = width

@@ -101,3 +101,19 @@ def test_the_detector_is_the_same_with_and_without_the_kernels(monkeypatch, kw):
     for name in _FIELDS:
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
     assert want.valid.sum() > rows and want.harmonic.any() and want.unresolved.any()
+
+
+@pytest.mark.parametrize("max_half", [0, 1, 9])
+def test_widths_are_the_same_with_and_without_the_kernels(monkeypatch, max_half):
+    # lobes, plateaus (a crossing after equal cells: no interpolation), zero peaks, peaks at the edges
+    rng = np.random.default_rng(max_half)
+    p = rng.exponential(size=(200, 40))
+    p[::4, 10:14] = [[20.0, 80.0, 80.0, 10.0]]
+    p[1::4] = 0.0
+    cols = rng.integers(0, 40, 400)
+    cols[:20] = 0
+    cols[20:40] = 39
+    rows = np.repeat(np.arange(200), 2)
+    got, want = _both(monkeypatch, lambda: cfar._width_6db(p, None, max_half, rows=rows, cols=cols))
+    np.testing.assert_array_equal(got, want)
+    assert np.unique(want).size > 50 if max_half else not want.any()     # max_half 0: no bin looked at
