@@ -33,14 +33,18 @@ def power(z, out):  # pragma: no cover (compiled; checked against numpy in the t
 
 
 @_jit
-def _block_tops(row, bits, top):  # pragma: no cover
-    """Largest cell of each block of ``row`` into ``top``; returns (row max, plain): plain when every
-    cell is a non-negative finite number and not -0.0, read from the int64 bit patterns ``bits``
-    (whose order is then the cells' order; the max and min of integers vectorise)."""
+def _block_tops(row, bits, top, buf, reach):  # pragma: no cover
+    """Largest cell of each block of ``row`` into ``top``, and the row into buf[reach:] (the same
+    pass over memory); returns (row max, plain): plain when every cell is a non-negative finite
+    number and not -0.0, read from the int64 bit patterns ``bits`` (whose order is then the cells'
+    order; the max and min of integers vectorise)."""
     n = row.size
     low = bits[0]
     high = bits[0]
-    for x in bits:
+    inner = buf[reach:reach + n]
+    for j in range(n):
+        x = bits[j]
+        inner[j] = row[j]
         low = min(low, x)
         high = max(high, x)
     full = n // OS_BLOCK
@@ -74,11 +78,8 @@ def _has_bad(row):  # pragma: no cover
 
 @_jit
 def _fill_mirrored(row, reach, buf):  # pragma: no cover
-    """buf[reach + j] = row[j], with ``reach`` mirrored cells on each side (the edge cell not repeated)."""
+    """The ``reach`` mirrored cells on each side of buf[reach + j] = row[j] (the edge cell not repeated)."""
     n = row.size
-    inner = buf[reach:reach + n]
-    for j in range(n):
-        inner[j] = row[j]
     for i in range(reach):
         buf[i] = row[reach - i]
         buf[reach + n + i] = row[n - 2 - i]
@@ -182,7 +183,7 @@ def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor
     m = 0
     for r in range(rows):
         row = p[r]
-        row_max, plain = _block_tops(row, bits[r], top)
+        row_max, plain = _block_tops(row, bits[r], top, buf, reach)
         if exact and not plain and _has_bad(row):
             return -2
         _fill_mirrored(row, reach, buf)
