@@ -43,7 +43,7 @@ from lidard.dsp.cfar_os import (  # noqa: F401  (re-exported: the detector's pub
     _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, brentq, os_cfar_alpha, os_cfar_pfa,
 )
 from lidard.dsp.cfar_post import (  # noqa: F401  (re-exported: tests' reach)
-    _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db, _widths_flat,
+    _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db,
 )
 from lidard.dsp.window import DspInputError, WindowName, check_window_name, window_info
 
