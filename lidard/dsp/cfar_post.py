@@ -94,8 +94,8 @@ def _strongest(p2, noise, cand, max_detections):
 
 
 def _strongest_cells(p2, rows, cols, noise, max_detections):
-    """The ``k`` strongest candidates (cells with their noise, rows ascending) per ramp, strongest
-    first: (k, index, valid, power, noise, snr_db), (n_rows, k) each."""
+    """The ``k`` strongest candidates (cells with their noise; the detector lists them row-major) per
+    ramp, strongest first: (k, index, valid, power, noise, snr_db), (n_rows, k) each."""
     n_rows, n_bins = p2.shape
     k = min(max_detections, n_bins)
     # Candidates are few (about one per ramp): rank them per ramp instead of partitioning every
@@ -104,8 +104,11 @@ def _strongest_cells(p2, rows, cols, noise, max_detections):
     pw = p2[rows, cols]
     count = np.bincount(rows, minlength=n_rows)
     order = np.arange(rows.size)
-    several = np.flatnonzero(count[rows] > 1)
-    if several.size:    # rows ascending: each ramp's candidates are one run, sorted within it
+    if rows.size > 1 and np.any(rows[1:] < rows[:-1]):
+        several = order.copy()          # not in row order: sort them all (ties keep the given order)
+    else:                               # rows ascending: each ramp's candidates are one run, sorted within it
+        several = np.flatnonzero(count[rows] > 1)
+    if several.size:
         order[several] = several[np.lexsort((-pw[several], rows[several]))]
     rows, cols, pw, noise = rows[order], cols[order], pw[order], noise[order]
     rank = np.arange(rows.size) - (np.cumsum(count) - count)[rows]

@@ -81,3 +81,16 @@ def test_strongest_cells_rank_ramps_with_one_and_with_several_candidates():
         np.testing.assert_array_equal(nz[r, :want.size], noise[r, want])
         np.testing.assert_array_equal(snr[r, :want.size], 10 * np.log10(p2[r, want] / noise[r, want]))
         assert valid[r].sum() == want.size
+
+
+def test_strongest_cells_given_out_of_row_order_rank_as_in_row_order():
+    rng = np.random.default_rng(6)
+    p2 = rng.exponential(size=(50, 30))                 # distinct powers: no ties to order
+    rows, cols = np.nonzero(rng.random((50, 30)) < 0.1)
+    noise = rng.uniform(0.5, 2.0, rows.size)
+    shuffle = rng.permutation(rows.size)
+    got = cfar._strongest_cells(p2, rows[shuffle], cols[shuffle], noise[shuffle], 2)
+    want = cfar._strongest_cells(p2, rows, cols, noise, 2)
+    for a, b in zip(got[1:], want[1:]):
+        np.testing.assert_array_equal(a, b)
+    assert want[2].sum() > 50
