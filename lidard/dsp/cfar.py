@@ -34,15 +34,18 @@ Up to ``max_detections`` per ramp, STRONGEST FIRST, in fixed-shape (batch, K) ar
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Literal, get_args
 
 import numpy as np
 
+from lidard.dsp import jit
 from lidard.dsp.cfar_os import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
-    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_screened, brentq, os_cfar_alpha, os_cfar_pfa,
+    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, brentq, os_cfar_alpha, os_cfar_pfa,
 )
-from lidard.dsp.window import DspInputError, WindowName, check_window_name, get_window, window_info
+from lidard.dsp.cfar_post import (  # noqa: F401  (re-exported: tests' reach)
+    _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db,
+)
+from lidard.dsp.window import DspInputError, WindowName, check_window_name, window_info
 
 
 CfarMethod = Literal["ca", "os"]
@@ -94,42 +97,10 @@ def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float):
     return noise, alpha
 
 
-def _width_6db(p: np.ndarray, idx: np.ndarray, max_half: int, rows: np.ndarray | None = None,
-               cols: np.ndarray | None = None) -> np.ndarray:
-    """-6 dB (power 1/4) full width around each peak, linear interpolation of the crossings.
-
-    Each side: the first of the ``max_half`` bins out from the peak below a quarter of its power,
-    interpolated with the bin before it (``max_half`` if none is); every offset is read in one gather.
-    ``rows``/``cols``: the peaks are the cells (rows, cols) of ``p`` (n_rows, n) instead (result (m,))."""
-    if rows is not None:    # one peak per listed row, read in place (no copy of the rows)
-        n = p.shape[-1]
-        flat = p.reshape(1, -1)
-        return _width_6db_at(flat, (rows * n)[None, :], cols[None, :], n, max_half)[0]
-    return _width_6db_at(p, np.zeros(idx.shape[:-1] + (1,), dtype=np.int64), idx, p.shape[-1], max_half)
-
-
-def _width_6db_at(p, base, idx, n, max_half):
-    """:func:`_width_6db` of the peaks at ``base + idx`` of ``p``'s last axis (rows of ``n`` bins from ``base``)."""
-    peak = np.take_along_axis(p, base + idx, axis=-1)
-    level = peak / 4.0
-    widths = np.zeros(idx.shape)
-    steps = np.arange(1, max_half + 1)
-    for direction in (-1, 1):
-        j = base[..., None] + np.clip(idx[..., None] + direction * steps, 0, n - 1)    # (..., K, max_half)
-        if p.shape[0] == 1:     # one row (the flattened spectra): a plain take
-            v = np.take(p, j)
-        else:
-            v = np.take_along_axis(p, j.reshape(j.shape[:-2] + (-1,)), axis=-1).reshape(j.shape)
-        cross = v < level[..., None]
-        found = cross.any(axis=-1)
-        s = np.argmax(cross, axis=-1)                       # first crossing (0 where none)
-        cur = np.take_along_axis(v, s[..., None], axis=-1)[..., 0]
-        prev = np.where(s > 0, np.take_along_axis(v, np.maximum(s - 1, 0)[..., None], axis=-1)[..., 0], peak)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            frac = np.where(prev > cur, (prev - level) / (prev - cur), 0.0)
-        widths += np.where(found, s + frac, float(max_half))
-    return widths
-
+# A noiseless (all-zero) spectrum has noise 0, and FFT round-off (~1e-32 of the strongest bin) must
+# never pass as a target: detections need positive noise and power above this fraction of the ramp's
+# strongest cell (a 200 dB dynamic-range floor).
+_FLOOR = 1e-20
 
 # Candidate pairs per spectrum cell up to which the side-lobe test runs on candidate pairs only;
 # past it (a spectrum full of local maxima above threshold) the dense loop over distances is cheaper.
@@ -183,26 +154,6 @@ def _not_sidelobes(p2: np.ndarray, rows: np.ndarray, idx: np.ndarray, env: np.nd
     return pc > leak * margin
 
 
-@lru_cache(maxsize=32)
-def _single_tone_width(window: str, zero_pad: int) -> float:
-    """Largest -6 dB width (as measured by _width_6db on the bin grid) of one noise-free tone.
-
-    The measured width of a sampled lobe depends on where the tone falls between bins (a tone
-    half-way between two bins of a rectangular window looks 2.7 bins wide, on-bin 1.5), so the
-    reference is the worst case over sub-bin offsets, not the continuous -6 dB width.
-    """
-    n = 256
-    w = get_window(window, n)
-    t = np.arange(n)
-    widest = 0.0
-    for delta in np.linspace(0.0, 0.5, 11):
-        spec = np.fft.fft(w * np.exp(2j * np.pi * (64 + delta) * t / n), n * zero_pad)
-        p = np.abs(spec) ** 2
-        pk = np.array([[int(np.argmax(p))]])
-        widest = max(widest, float(_width_6db(p[None, :], pk, 8 * zero_pad + 8)[0, 0]))
-    return widest
-
-
 def cfar_detect(
     power: np.ndarray,
     *,
@@ -235,12 +186,16 @@ def cfar_detect(
     lead = p.shape[:-1]
     p2 = p.reshape(-1, p.shape[-1])
     n_bins = p2.shape[-1]
+    # the compiled OS-CFAR checks the values in its own pass over the spectra (issue 18); else they are checked here
+    kern = jit.kernels() if method == "os" and n_bins > max(2, n_guard + n_ref // 2) else None
+    if kern is None:
+        _check_power_values(p2)
     if n_bins < 3:
         raise DspInputError(f"power has {n_bins} bins; at least 3 are needed")
 
     rows, cols, nz = _candidates(p2, method=method, n_ref_side=n_ref // 2, n_guard=n_guard, pfa=pfa,
                                  os_rank=os_rank, window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
-                                 dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db)
+                                 dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db, kern=kern)
     k, idx, valid, pk, nz, snr_db = _strongest_cells(p2, rows, cols, nz, max_detections)
 
     # Resolution: the merged lobe of two close targets is wider than one tone's main lobe.
@@ -266,20 +221,12 @@ def cfar_detect(
 
 
 def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa) -> np.ndarray:
-    """``power`` as float64 after checking it and the detector's knobs (a DspInputError names the bad one)."""
+    """``power`` as float64 after checking its type and the detector's knobs (a DspInputError names the
+    bad one); its values are checked next (:func:`_check_power_values`, or in the compiled pass)."""
     p = np.asarray(power)
     if p.dtype.kind not in "fiu" or p.ndim < 1:
         raise DspInputError(f"power must be a real array (..., n_bins), got dtype {p.dtype} ndim {p.ndim}")
     p = p.astype(np.float64, copy=False)
-    # two reductions instead of two full boolean maps: min is NaN if any cell is, negative if any is;
-    # then a finite sum of non-negative cells has no infinite one (a sum that overflows is re-checked)
-    low = p.min() if p.size else 0.0
-    with np.errstate(over="ignore"):
-        total = p.sum()
-    if not np.isfinite(low) or (low >= 0 and not np.isfinite(total) and not np.all(np.isfinite(p))):
-        raise DspInputError("power contains NaN or infinite values")
-    if low < 0:
-        raise DspInputError("power contains negative values; pass |X|^2")
     if method not in CFAR_METHODS:
         raise DspInputError(f"method={method!r} is not a CFAR method; choose one of {CFAR_METHODS}")
     check_window_name(window)
@@ -293,15 +240,27 @@ def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa
     return p
 
 
+def _check_power_values(p: np.ndarray) -> None:
+    """A DspInputError if ``p`` holds a NaN, an infinite or a negative value."""
+    # two reductions instead of two full boolean maps: min is NaN if any cell is, negative if any is;
+    # then a finite sum of non-negative cells has no infinite one (a sum that overflows is re-checked)
+    low = p.min() if p.size else 0.0
+    with np.errstate(over="ignore"):
+        total = p.sum()
+    if not np.isfinite(low) or (low >= 0 and not np.isfinite(total) and not np.all(np.isfinite(p))):
+        raise DspInputError("power contains NaN or infinite values")
+    if low < 0:
+        raise DspInputError("power contains negative values; pass |X|^2")
+
+
 def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_pad, iq, bin_range, dc_guard_bins,
-                sidelobe_margin_db) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                sidelobe_margin_db, kern) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate:
-    (rows, bins, noise) of each, row-major (a few per ramp: the detector never builds a dense map)."""
+    (rows, bins, noise) of each, row-major (a few per ramp: the detector never builds a dense map).
+    ``kern``: the compiled kernels for OS-CFAR (:mod:`lidard.dsp.jit`), or None (numpy)."""
     n_bins = p2.shape[-1]
-    # A noiseless (all-zero) spectrum has noise 0, and FFT round-off (~1e-32 of the strongest
-    # bin) must never pass as a target: require positive noise and a 200 dB dynamic-range floor.
-    floor = 1e-20 * p2.max(axis=-1)
     if method == "ca":
+        floor = _FLOOR * p2.max(axis=-1)
         noise, alpha = _noise_ca(p2, n_ref_side, n_guard, pfa)
         cand = p2 > alpha * noise
         cand &= noise > 0
@@ -312,10 +271,10 @@ def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_p
         r, c = np.nonzero(cand)
         nz = noise[r, c]
     else:   # OS: only the local maxima that may pass were given the exact statistic (cfar_os)
-        r, c, nz, scaled_alpha = _os_screened(p2, n_ref_side, n_guard, pfa, os_rank)
-        pr = p2[r, c]
-        ok = (pr > scaled_alpha * nz) & (nz > 0) & (pr > floor[r])
-        r, c, nz = r[ok], c[ok], nz[ok]
+        found = _os_detected(p2, n_ref_side, n_guard, pfa, os_rank, _FLOOR, kern)
+        if found is None:   # the compiled pass met a NaN, infinite or negative value: name it
+            _check_power_values(p2)
+        r, c, nz = found
 
     info = window_info(window, 64)
     env = info.leakage_envelope
@@ -337,57 +296,3 @@ def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_p
         keep &= in_range
     ok &= keep[c]
     return r[ok], c[ok], nz[ok]
-
-
-def _strongest(p2, noise, cand, max_detections):
-    """:func:`_strongest_cells` of a dense candidate map (and a dense noise array)."""
-    rows, cols = np.nonzero(cand)
-    return _strongest_cells(p2, rows, cols, noise[rows, cols], max_detections)
-
-
-def _strongest_cells(p2, rows, cols, noise, max_detections):
-    """The ``k`` strongest candidates (row-major cells with their noise) per ramp, strongest first:
-    (k, index, valid, power, noise, snr_db), (n_rows, k) each."""
-    n_rows, n_bins = p2.shape
-    k = min(max_detections, n_bins)
-    # Candidates are few (about one per ramp): rank them per ramp instead of partitioning every
-    # bin of every ramp (issue 18). Equal powers keep the lower bin first; empty slots are invalid.
-    pw = p2[rows, cols]
-    order = np.lexsort((-pw, rows))                     # by ramp, then strongest first
-    rows, cols, pw, noise = rows[order], cols[order], pw[order], noise[order]
-    count = np.bincount(rows, minlength=n_rows)
-    rank = np.arange(rows.size) - (np.cumsum(count) - count)[rows]
-    top = rank < k
-    rows, rank = rows[top], rank[top]
-    idx = np.zeros((n_rows, k), dtype=np.int64)
-    valid = np.zeros((n_rows, k), dtype=bool)
-    pk = np.zeros((n_rows, k))
-    nz = np.zeros((n_rows, k))
-    idx[rows, rank] = cols[top]
-    valid[rows, rank] = True
-    pk[rows, rank] = pw[top]
-    nz[rows, rank] = noise[top]
-    snr_db = np.full((n_rows, k), -np.inf)
-    snr_db[rows, rank] = 10.0 * np.log10(pw[top] / noise[top])
-    return k, idx, valid, pk, nz, snr_db
-
-
-def _harmonic_ghosts(idx, pk, valid, *, n_bins, iq, zero_pad, harmonic_ratio_db) -> np.ndarray:
-    """Detections at the 2nd/3rd harmonic (aliased) of a much stronger one in the same ramp."""
-    n_fft = (n_bins if iq else 2 * (n_bins - 1))
-    fbin = (idx - n_fft // 2) if iq else idx
-    harm = np.zeros(idx.shape, dtype=bool)
-    ratio = 10 ** (harmonic_ratio_db / 10.0)
-    tol = 1.5 * zero_pad
-    for h in (2, 3):
-        hf = h * fbin[:, :, None].astype(np.float64)  # stronger peak j -> its harmonic
-        if iq:
-            alias = (hf + n_fft / 2) % n_fft - n_fft / 2
-        else:
-            m = np.mod(hf, n_fft)
-            alias = np.minimum(m, n_fft - m)
-        close = np.abs(fbin[:, None, :] - alias) <= tol * h  # [ramp, strong j, weak i]
-        strong = pk[:, :, None] >= ratio * pk[:, None, :]
-        pair = close & strong & valid[:, :, None] & valid[:, None, :]
-        harm |= pair.any(axis=1)
-    return harm

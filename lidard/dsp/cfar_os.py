@@ -5,8 +5,9 @@ alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential no
 at a chosen false-alarm rate). The detector computes the statistic exactly only at the local maxima
 that could pass the threshold (issue 18, :func:`_os_screened`: screens that are necessary conditions of
 the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
-every bin (exactly, or a lower bound where nothing can pass). Pure numpy (scipy.optimize on first use),
-or the same screen compiled (:mod:`lidard.dsp.jit`, when numba is installed).
+every bin (exactly, or a lower bound where nothing can pass). Pure numpy (scipy.optimize on first use);
+:func:`_os_detected`, the detector's entry, takes the compiled pass instead when numba is installed
+(:mod:`lidard.dsp.jit`: the same cells, bit for bit, with the value check and the threshold test in it).
 """
 
 from __future__ import annotations
@@ -106,17 +107,11 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
     2. in the blocks left, the k-th smallest of the neighbourhood bounds every window from below
        (:func:`_noise_os`'s bound), per cell;
     3. a local maximum (the detector keeps no other cell)."""
-    n_ref = 2 * n_ref_side
-    k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
     reach = n_guard + n_ref_side
     rows, n = p.shape
     if n <= reach:
         raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
-    alpha = os_cfar_alpha(n_ref, k, float(pfa))
-    mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
-    scaled_alpha = alpha * mean_kth
-    # the margin covers the rounding of the detector's scaled_alpha * (kth / mean_kth) (a few ulps)
-    thr_factor = (1.0 + 1e-9) / alpha
+    k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank)
     kern = jit.kernels()
     if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.jit)
         return jit.os_screen(p, n_ref_side, n_guard, k, thr_factor, mean_kth, kern) + (scaled_alpha,)
@@ -141,6 +136,37 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
     ref = np.concatenate([w[:, :n_ref_side], w[:, -n_ref_side:]], axis=1)
     noise = np.partition(ref, k - 1, axis=-1)[:, k - 1] / mean_kth
     return r, c, noise, scaled_alpha
+
+
+def _os_constants(n_ref_side: int, pfa: float, rank: int | None) -> tuple[int, float, float, float]:
+    """(k, mean_kth, scaled_alpha, thr_factor) of OS-CFAR with ``2 n_ref_side`` reference cells: the rank,
+    E[k-th of N exponentials], the factor on the noise (k-th / mean_kth) and the screens' factor on a
+    cell's power (a cell c may pass only if its k-th smallest is below p[c] * thr_factor)."""
+    n_ref = 2 * n_ref_side
+    k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
+    alpha = os_cfar_alpha(n_ref, k, float(pfa))
+    mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
+    # the margin covers the rounding of the detector's scaled_alpha * (kth / mean_kth) (a few ulps)
+    return k, mean_kth, alpha * mean_kth, (1.0 + 1e-9) / alpha
+
+
+def _os_detected(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, floor_factor: float,
+                 kern) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(r, c, noise) of the cells of ``p`` (rows, n) OS-CFAR detects, row-major: the local maxima with
+    p > scaled_alpha * noise, noise > 0 and p > ``floor_factor`` times the row's largest cell.
+
+    ``kern`` (:func:`lidard.dsp.jit.kernels`): in one compiled pass that also checks the values (None
+    if one is NaN, infinite or negative); None: :func:`_os_screened` and the test in numpy."""
+    if kern is not None:
+        if p.shape[-1] <= n_guard + n_ref_side:
+            raise DspInputError(f"spectrum of {p.shape[-1]} bins is too short for OS-CFAR reach {n_guard + n_ref_side}")
+        k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank)
+        return jit.os_detect(p, n_ref_side, n_guard, k, thr_factor, mean_kth, scaled_alpha, floor_factor, kern)
+    r, c, nz, scaled_alpha = _os_screened(p, n_ref_side, n_guard, pfa, rank)
+    floor = floor_factor * p.max(axis=-1)
+    pr = p[r, c]
+    ok = (pr > scaled_alpha * nz) & (nz > 0) & (pr > floor[r])
+    return r[ok], c[ok], nz[ok]
 
 
 def _mirror_padded(p: np.ndarray, reach: int, tail: int) -> np.ndarray:

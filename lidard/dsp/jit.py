@@ -5,7 +5,9 @@ Each kernel gives the same values, bit for bit, as the numpy code it stands in f
 tests/dsp/test_dsp_jit.py): the same IEEE operations in the same order, no fast-math, and order
 statistics are selections (the k-th smallest of a set is one of its elements whatever the method).
 They exist because numpy makes one pass over the whole array per operation: the OS-CFAR screen of
-:mod:`lidard.dsp.cfar_os` took about a dozen passes over every spectrum cell, here it is one.
+:mod:`lidard.dsp.cfar_os` took about a dozen passes over every spectrum cell, here it is one, which
+also checks the values and finds each ramp's strongest cell (the detector's floor). The kernels
+themselves are in :mod:`lidard.dsp.jit_kernels` (which imports numba); this module holds their callers.
 
 numba is imported on first use, never at import time (``lidarctl --help`` and a scan's imports stay
 fast, issue 18), and only if it is installed (``pip install lidard[fast]``); :func:`kernels` returns
@@ -25,11 +27,10 @@ import numpy as np
 @lru_cache(maxsize=1)
 def _compiled() -> SimpleNamespace | None:
     try:
-        import numba
+        from lidard.dsp import jit_kernels     # needs numba
     except ImportError:
         return None
-    jit = numba.njit(cache=True, nogil=True)
-    return SimpleNamespace(os_screen=jit(_os_screen), power=jit(_power))
+    return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db)
 
 
 def kernels() -> SimpleNamespace | None:
@@ -50,6 +51,15 @@ def power(spec: np.ndarray) -> np.ndarray:
     return out
 
 
+def widths_6db(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, max_half: int,
+               kern: SimpleNamespace) -> np.ndarray:
+    """lidard.dsp.cfar_post._widths_flat's -6 dB widths, one peak after another (no pass per offset)."""
+    out = np.empty(col.shape)
+    kern.widths_6db(np.ascontiguousarray(flat, dtype=np.float64), np.ascontiguousarray(start, dtype=np.int64),
+                    np.ascontiguousarray(col, dtype=np.int64), n, max_half, out)
+    return out
+
+
 def os_screen(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_factor: float, mean_kth: float,
               kern: SimpleNamespace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rows, bins, noise) of the local maxima of ``p`` (rows, n) that may pass OS-CFAR, with the
@@ -57,71 +67,31 @@ def os_screen(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_fac
 
     A local maximum c is kept when at least ``k_rank`` of its reference cells lie below
     p[c] * ``thr_factor`` (a necessary condition of the detector's test, see cfar_os._os_screened)."""
+    return _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, 0.0, 0.0, False)
+
+
+def os_detect(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_factor: float, mean_kth: float,
+              scaled_alpha: float, floor_factor: float,
+              kern: SimpleNamespace) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(rows, bins, noise) of the cells of ``p`` (rows, n) that OS-CFAR detects, row-major: the local
+    maxima with p > ``scaled_alpha`` * noise, noise > 0 and p > ``floor_factor`` times the row's
+    largest cell, noise as in :func:`os_screen`; None if ``p`` holds a NaN, an infinite or a negative
+    value (the caller names it). cfar_os._os_screened's decisions and the detector's test in one pass
+    over the spectra, with a screen per block of cells first (lidard.dsp.jit_kernels)."""
+    return _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, scaled_alpha, floor_factor, True)
+
+
+def _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, scaled_alpha, floor_factor, exact):
     p = np.ascontiguousarray(p, dtype=np.float64)
     cap = max(1024, 4 * p.shape[0])
     while True:
         r = np.empty(cap, np.int64)
         c = np.empty(cap, np.int64)
         noise = np.empty(cap)
-        m = kern.os_screen(p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, r, c, noise)
+        m = kern.os_scan(p, p.view(np.int64), n_ref_side, n_guard, k_rank, thr_factor, mean_kth, scaled_alpha,
+                         floor_factor, exact, r, c, noise)
+        if m == -2:
+            return None
         if m >= 0:
             return r[:m], c[:m], noise[:m]
         cap *= 4    # more cells than room: again with more (rare: a spectrum full of strong peaks)
-
-
-def _power(z, out):   # pragma: no cover (compiled; its twin is checked against numpy in the tests)
-    for i in range(z.size):
-        out[i] = z[i].real * z[i].real + z[i].imag * z[i].imag
-
-
-def _os_screen(p, n_side, guard, k, thr_factor, mean_kth, out_r, out_c, out_noise):  # pragma: no cover
-    rows, n = p.shape
-    n_ref = 2 * n_side
-    reach = guard + n_side
-    lim = n_ref - k             # more reference cells than this at or above the threshold: no detection
-    ref = np.empty(n_ref)
-    idx = np.empty(n_ref, np.int64)
-    maxima = np.empty(n, np.int64)
-    m = 0
-    for r in range(rows):
-        row = p[r]
-        # the local maxima of the row (beyond either edge is -inf), listed without a branch per cell
-        q = 0
-        if row[0] > row[1]:
-            maxima[q] = 0
-            q += 1
-        for c in range(1, n - 1):
-            maxima[q] = c
-            q += (row[c] >= row[c - 1]) & (row[c] > row[c + 1])
-        if row[n - 1] >= row[n - 2]:
-            maxima[q] = n - 1
-            q += 1
-        for e in range(q):
-            c = maxima[e]
-            t = row[c] * thr_factor
-            above = 0
-            if reach <= c < n - reach:  # inside: two contiguous runs of reference cells
-                for j in range(c - reach, c - guard):
-                    above += row[j] >= t
-                for j in range(c + guard + 1, c + reach + 1):
-                    above += row[j] >= t
-                if above > lim:
-                    continue
-            for i in range(n_ref):      # reference cells: offsets -reach..-guard-1, guard+1..reach
-                j = c - reach + i if i < n_side else c + guard + 1 + (i - n_side)
-                idx[i] = -j if j < 0 else (2 * (n - 1) - j if j >= n else j)     # mirrored at the edges
-            if not reach <= c < n - reach:
-                for i in range(n_ref):
-                    above += row[idx[i]] >= t
-                if above > lim:
-                    continue
-            if m >= out_r.size:
-                return -1
-            for i in range(n_ref):
-                ref[i] = row[idx[i]]
-            ref.sort()
-            out_r[m] = r
-            out_c[m] = c
-            out_noise[m] = ref[k - 1] / mean_kth
-            m += 1
-    return m

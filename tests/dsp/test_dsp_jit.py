@@ -69,3 +69,51 @@ def test_a_full_output_buffer_is_grown(monkeypatch):
     assert 2 * (len(range(1, 4000, 3)) - 2) <= r.size <= 2 * len(range(1, 4000, 3))
     assert np.all(c % 3 == 1) and set(range(13, 3985, 3)) <= set(c[r == 1].tolist())
     np.testing.assert_array_equal(noise, 1.0)            # the 6th smallest of 8 reference cells (two peaks)
+
+
+_FIELDS = ("index", "power", "noise", "snr_db", "valid", "harmonic", "unresolved", "width_bins")
+
+
+@pytest.mark.parametrize("kw", [
+    dict(pfa=1e-6, max_detections=2, bin_range=(0, 128)),             # the frame's settings (rfft layout)
+    dict(pfa=1e-3, max_detections=5, n_ref=8, n_guard=1, os_rank=5, window="rectangular"),
+    dict(pfa=1e-4, max_detections=3, iq=True, bin_range=(140, 255)),
+    dict(pfa=1e-4, max_detections=4, zero_pad=2, dc_guard_bins=0, harmonic_ratio_db=0.0),
+])
+def test_the_detector_is_the_same_with_and_without_the_kernels(monkeypatch, kw):
+    # two tones (one clipped: harmonic ghosts), close pairs (unresolved), a ramp of zeros, a ramp
+    # full of peaks: every output of cfar_detect bit for bit
+    rng = np.random.default_rng(len(kw))
+    n, rows = 256, 300
+    t = np.arange(n)
+    f = rng.uniform(3, 60, (rows, 1))
+    x = 2 * np.cos(2 * np.pi * f * t / n) + np.cos(2 * np.pi * (f + rng.uniform(0.8, 40, (rows, 1))) * t / n)
+    x = np.clip(x, -1.5, 2.5) + 0.05 * rng.standard_normal((rows, n))
+    if kw.get("iq"):
+        x = x * np.exp(2j * np.pi * rng.uniform(-0.3, 0.3, (rows, 1)) * t)
+    w = np.hanning(n) if kw.get("window", "hann") == "hann" else np.ones(n)
+    spec = np.fft.fft(x * w, n * kw.get("zero_pad", 1), axis=-1)
+    spec = np.fft.fftshift(spec, axes=-1) if kw.get("iq") else spec[:, :spec.shape[-1] // 2 + 1]
+    p = np.abs(spec) ** 2
+    p[0] = 0.0
+    p[1, ::2] = 1e3
+    got, want = _both(monkeypatch, lambda: cfar.cfar_detect(p, **kw))
+    for name in _FIELDS:
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    assert want.valid.sum() > rows and want.harmonic.any() and want.unresolved.any()
+
+
+@pytest.mark.parametrize("max_half", [0, 1, 9])
+def test_widths_are_the_same_with_and_without_the_kernels(monkeypatch, max_half):
+    # lobes, plateaus (a crossing after equal cells: no interpolation), zero peaks, peaks at the edges
+    rng = np.random.default_rng(max_half)
+    p = rng.exponential(size=(200, 40))
+    p[::4, 10:14] = [[20.0, 80.0, 80.0, 10.0]]
+    p[1::4] = 0.0
+    cols = rng.integers(0, 40, 400)
+    cols[:20] = 0
+    cols[20:40] = 39
+    rows = np.repeat(np.arange(200), 2)
+    got, want = _both(monkeypatch, lambda: cfar._width_6db(p, None, max_half, rows=rows, cols=cols))
+    np.testing.assert_array_equal(got, want)
+    assert np.unique(want).size > 50 if max_half else not want.any()     # max_half 0: no bin looked at
