@@ -51,306 +51,27 @@ on, cos/sin run in float32 after an exact float64 range reduction (error ~1e-7 o
 << 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
 so results are reproducible for the same inputs and seed (not across different chunk sizes).
 benchmarks/synthesis.py measures ~40 M samples/s per core without phase noise, ~20 M with it.
+
+Parts: the chirp trajectory is ``sim_devices.world.synth_chirp``, the input/output types and
+:class:`SynthError` ``sim_devices.world.synth_types``; this module is the synthesis itself.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import antialias
-from sim_devices.world.laser import DfbLaser, wiener_phase
 from sim_devices.world.gauss import standard_normal_f32
+from sim_devices.world.laser import wiener_phase
+from sim_devices.world.synth_chirp import ChirpTrajectory, trajectory, trajectory_from_frequency
 from sim_devices.world.synth_grid import rational_ratio, static_beat_phase
+from sim_devices.world.synth_types import AdcSpec, HitBatch, SynthError, Synthesized
 
 _CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
 _INTEGER_DELAY_TOL = 1e-6      # in ADC samples: a delay this close to m / fs is treated as exact
-
-
-class SynthError(ValueError):
-    """Invalid synthesis input; the message names the argument and the bad value."""
-
-
-# --------------------------------------------------------------------------------------------------
-# Deterministic chirp
-# --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ChirpTrajectory:
-    """The laser's deterministic optical frequency for one AWG period, and its phase.
-
-    ``nu_hz[k]`` = nu(k / fs_hz) - nu0 (Hz), k = 0..N-1, periodic with ``period_s`` = N / fs_hz and
-    linearly interpolated between samples (consistent with the laser model's first-order hold).
-    ``phase_rad[k]`` = 2 pi int_0^{k/fs} (nu - nu0) dt for k = 0..N (float64, exact for the
-    interpolated nu). ``nu0_hz`` = c / lambda enters through the Doppler term only.
-    """
-
-    fs_hz: float
-    nu_hz: np.ndarray
-    phase_rad: np.ndarray
-    period_s: float
-    nu0_hz: float
-    _cache: dict = field(default_factory=dict, compare=False, repr=False)
-
-    @property
-    def n(self) -> int:
-        return int(self.nu_hz.size)
-
-    @property
-    def mean_hz(self) -> float:
-        """Period average of nu - nu0 (the trapezoid mean of the interpolated nu)."""
-        return float(self._tables()[3])
-
-    def _tables(self):
-        """Coefficients of the periodic phase (mean frequency removed), one quadratic per interval."""
-        t = self._cache.get("tables")
-        if t is None:
-            nu = np.asarray(self.nu_hz, dtype=np.float64)
-            mean = float(np.mean(nu))            # trapezoid mean of a periodic, linearly interpolated nu
-            nup = nu - mean
-            nxt = np.roll(nup, -1)
-            dt = 1.0 / self.fs_hz
-            c1 = 2.0 * np.pi * dt * nup
-            c2 = np.pi * dt * (nxt - nup)
-            # accumulate in the trajectory's dtype (float32 only in the precision test)
-            acc_dtype = self.phase_rad.dtype
-            c0 = np.zeros(nu.size, dtype=acc_dtype)
-            np.cumsum((c1 + c2)[:-1].astype(acc_dtype), out=c0[1:], dtype=acc_dtype)
-            t = (c0, c1.astype(acc_dtype), c2.astype(acc_dtype), mean)
-            self._cache["tables"] = t
-        return t
-
-    def _tiled_turns(self, periods: int):
-        """:meth:`_tiled` in cycles (each table / 2 pi), for the static fast path (synth_grid)."""
-        key = ("tiled_turns", periods)
-        t = self._cache.get(key)
-        if t is None:
-            t = tuple(c * (1.0 / (2.0 * np.pi)) for c in self._tiled(periods))
-            self._cache[key] = t
-        return t
-
-    def _tiled(self, periods: int):
-        key = ("tiled", periods)
-        t = self._cache.get(key)
-        if t is None:
-            c0, c1, c2, _ = self._tables()
-            t = tuple(np.tile(c, periods) for c in (c0, c1, c2))
-            self._cache[key] = t
-        return t
-
-    def periodic_phase_samples(self, x, periods: int | None = None) -> np.ndarray:
-        """Periodic phase (mean frequency removed) at AWG-sample positions ``x`` (float64 out).
-
-        The arithmetic runs in the trajectory's dtype: float64, or float32 for the precision test,
-        where both the sample position and the phase tables then carry float32 rounding.
-        """
-        dtype = self.phase_rad.dtype
-        x = np.asarray(x, dtype=np.float64)
-        n = self.n
-        if periods is None:
-            x = np.mod(x, n)
-            periods = 1
-        if dtype != np.float64:
-            x = x.astype(dtype)
-        c0, c1, c2 = self._tiled(periods)
-        i = np.floor(x)
-        f = x - i
-        i = i.astype(np.intp)
-        return (c0[i] + f * (c1[i] + f * c2[i])).astype(np.float64, copy=False)
-
-    def _phase_nonneg(self, x: np.ndarray, periods: int) -> np.ndarray:
-        """Hot path of ``periodic_phase_samples`` for float64 positions 0 <= x < periods * N.
-
-        Consumes ``x`` (overwritten with the fractional part) and returns a new array.
-        """
-        if self.phase_rad.dtype != np.float64:
-            return self.periodic_phase_samples(x, periods)
-        c0, c1, c2 = self._tiled(periods)
-        i = x.astype(np.intp)                  # truncation == floor for x >= 0
-        x -= i
-        # np.take: the same gather as c2[i], a third faster (no fancy-indexing set-up per call)
-        out = np.take(c2, i)
-        out *= x
-        out += np.take(c1, i)
-        out *= x
-        out += np.take(c0, i)
-        return out
-
-    def phase_at(self, t_s) -> np.ndarray:
-        """2 pi int_0^t (nu - nu0) dt' at arbitrary times (periodic extension of the period)."""
-        t = np.asarray(t_s, dtype=np.float64)
-        return self.periodic_phase_samples(t * self.fs_hz) + 2.0 * np.pi * self.mean_hz * t
-
-    def frequency_at(self, t_s) -> np.ndarray:
-        """nu(t) - nu0 at arbitrary times (linear interpolation, periodic)."""
-        x = np.mod(np.asarray(t_s, dtype=np.float64) * self.fs_hz, self.n)
-        i = np.floor(x).astype(np.intp)
-        f = x - i
-        nu = self.nu_hz
-        return nu[i] + f * (nu[(i + 1) % self.n] - nu[i])
-
-
-def trajectory(laser: DfbLaser, drive_v, fs_drive_hz: float, *, dtype=np.float64) -> ChirpTrajectory:
-    """Compute the chirp of ``laser`` under one period of the periodic AWG waveform ``drive_v``.
-
-    ``dtype`` exists for the precision test only (float32 shows why phases must be float64).
-    """
-    nu = laser.frequency_hz(drive_v, fs_drive_hz)
-    return trajectory_from_frequency(nu, fs_drive_hz, nu0_hz=laser.nu0_hz, dtype=dtype)
-
-
-def trajectory_from_frequency(nu_hz, fs_hz: float, *, nu0_hz: float = C_M_PER_S / 1.55e-6,
-                              dtype=np.float64) -> ChirpTrajectory:
-    """A :class:`ChirpTrajectory` from a given periodic nu(t) - nu0 (e.g. an ideal linear chirp)."""
-    nu = np.asarray(nu_hz, dtype=np.float64)
-    if nu.ndim != 1 or nu.size < 2 or not np.all(np.isfinite(nu)):
-        raise SynthError(f"trajectory: nu_hz must be a finite 1-D array of >= 2 samples, got shape {nu.shape}")
-    if not (math.isfinite(fs_hz) and fs_hz > 0):
-        raise SynthError(f"trajectory: fs_hz must be positive and finite, got {fs_hz!r}")
-    dtype = np.dtype(dtype)
-    if dtype not in (np.dtype(np.float64), np.dtype(np.float32)):
-        raise SynthError(f"trajectory: dtype must be float64 (or float32 for the precision test), got {dtype}")
-    seg = (np.pi / fs_hz) * (nu + np.roll(nu, -1))       # trapezoid: exact for linear interpolation
-    phase = np.zeros(nu.size + 1, dtype=dtype)
-    np.cumsum(seg.astype(dtype), out=phase[1:], dtype=dtype)
-    return ChirpTrajectory(fs_hz=float(fs_hz), nu_hz=nu, phase_rad=phase, period_s=nu.size / fs_hz,
-                           nu0_hz=float(nu0_hz))
-
-
-# --------------------------------------------------------------------------------------------------
-# Inputs and outputs
-# --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class AdcSpec:
-    """What the digitizer records per trigger: ``n_samples`` at ``sample_rate_hz``.
-
-    Full scale is +-input_range_v / 2 with 2**bits codes (see the module docstring). ``iq``: two
-    channels I and Q for the LiDAR beat. ``quantize=False`` returns clipped float volts.
-    """
-
-    sample_rate_hz: float
-    n_samples: int
-    bits: int = 8
-    input_range_v: float = 1.0
-    iq: bool = False
-    quantize: bool = True
-
-    def __post_init__(self):
-        if not (math.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
-            raise SynthError(f"AdcSpec: sample_rate_hz must be positive and finite, got {self.sample_rate_hz!r}")
-        if int(self.n_samples) != self.n_samples or self.n_samples < 1:
-            raise SynthError(f"AdcSpec: n_samples must be a positive integer, got {self.n_samples!r}")
-        if int(self.bits) != self.bits or not 1 <= self.bits <= 16:
-            raise SynthError(f"AdcSpec: bits must be an integer in 1..16, got {self.bits!r}")
-        if not (math.isfinite(self.input_range_v) and self.input_range_v > 0):
-            raise SynthError(f"AdcSpec: input_range_v must be positive and finite, got {self.input_range_v!r}")
-
-    @property
-    def lsb_v(self) -> float:
-        return self.input_range_v / 2.0 ** self.bits
-
-    @property
-    def code_min(self) -> int:
-        return -(1 << (self.bits - 1))
-
-    @property
-    def code_max(self) -> int:
-        return (1 << (self.bits - 1)) - 1
-
-    @classmethod
-    def from_config(cls, adc, sample_rate_hz: float, n_samples: int, *, quantize: bool = True) -> "AdcSpec":
-        """From a :class:`lidard.config.Adc` section."""
-        return cls(sample_rate_hz=float(sample_rate_hz), n_samples=int(n_samples), bits=int(adc.bits),
-                   input_range_v=float(adc.input_range_v), iq=bool(adc.iq), quantize=quantize)
-
-
-@dataclass(frozen=True)
-class HitBatch:
-    """Returns to synthesize: one entry per (segment, target) pair.
-
-    ``seg``: index of the segment (0..n_seg-1); ``tau_s``: round-trip delay 2 d / c at the segment's
-    start time; ``amplitude_v``: beat amplitude at the ADC input, G_TIA I_AC (eq. 2-11);
-    ``doppler_hz``: optical Doppler shift of the return, f_D = -2 v_radial / lambda with v_radial > 0
-    RECEDING (so f_D < 0 for a receding target, f_D = +2 V / lambda for an approaching speed V);
-    ``phase_rad``: optional constant beat phase (e.g. speckle); default 2 pi nu0 tau (mod 2 pi).
-    """
-
-    seg: np.ndarray
-    tau_s: np.ndarray
-    amplitude_v: np.ndarray
-    doppler_hz: np.ndarray | None = None
-    phase_rad: np.ndarray | None = None
-
-    @classmethod
-    def empty(cls) -> "HitBatch":
-        return cls(seg=np.zeros(0, np.intp), tau_s=np.zeros(0), amplitude_v=np.zeros(0))
-
-    @classmethod
-    def from_targets(cls, seg, distance_m, amplitude_v, *, radial_velocity_m_s=None,
-                     wavelength_m: float = 1.55e-6, phase_rad=None) -> "HitBatch":
-        """Convenience: distance (m) and radial velocity (m/s, positive receding) to tau and f_D."""
-        d = np.asarray(distance_m, dtype=np.float64)
-        dop = None
-        if radial_velocity_m_s is not None:
-            dop = -2.0 * np.asarray(radial_velocity_m_s, dtype=np.float64) / wavelength_m * np.ones_like(d)
-        return cls(seg=np.asarray(seg), tau_s=2.0 * d / C_M_PER_S,
-                   amplitude_v=np.asarray(amplitude_v, dtype=np.float64) * np.ones_like(d),
-                   doppler_hz=dop, phase_rad=phase_rad)
-
-    def validated(self, n_seg: int):
-        seg = np.asarray(self.seg)
-        if seg.ndim != 1:
-            raise SynthError(f"HitBatch.seg must be 1-D, got shape {seg.shape}")
-        n = seg.size
-        if n and not np.issubdtype(seg.dtype, np.integer):
-            raise SynthError(f"HitBatch.seg must hold integer segment indices, got dtype {seg.dtype}")
-        seg = seg.astype(np.intp)
-        if n and (seg.min() < 0 or seg.max() >= n_seg):
-            raise SynthError(f"HitBatch.seg: indices must be in 0..{n_seg - 1}, got {seg.min()}..{seg.max()}")
-
-        def arr(name, v, default):
-            a = np.full(n, default, dtype=np.float64) if v is None else np.asarray(v, dtype=np.float64)
-            if a.shape == ():
-                a = np.full(n, float(a))
-            if a.shape != (n,):
-                raise SynthError(f"HitBatch.{name}: expected shape ({n},) like seg, got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise SynthError(f"HitBatch.{name}: contains NaN or inf")
-            return a
-
-        tau = arr("tau_s", self.tau_s, 0.0)
-        if n and tau.min() < 0:
-            raise SynthError(f"HitBatch.tau_s: delays must be >= 0, got min {tau.min()!r}")
-        amp = arr("amplitude_v", self.amplitude_v, 0.0)
-        dop = arr("doppler_hz", self.doppler_hz, 0.0)
-        ph = None if self.phase_rad is None else arr("phase_rad", self.phase_rad, 0.0)
-        return seg, tau, amp, dop, ph
-
-
-@dataclass
-class Synthesized:
-    """Digitizer records for ``n_seg`` segments.
-
-    ``beat``: (n_seg, n) int16 codes (float64 volts if not quantized) -- the real beat, or I for I/Q;
-    ``beat_q``: Q channel or None; ``mzi``: monitor-MZI channel or None; ``overrange``: (n_seg,
-    len(channels)) bool, a channel clipped somewhere in that segment; ``channels`` names the columns.
-    ``volts`` (if ``return_volts``): the analog channels before clipping/quantization.
-    ``phase_noise_rad`` (if ``return_phase_noise``): the Wiener realization (n_seg, n_pre + n) on the
-    ADC grid, sample k of the record being column ``n_pre + k``; None when the linewidth is 0.
-    """
-
-    beat: np.ndarray
-    beat_q: np.ndarray | None
-    mzi: np.ndarray | None
-    overrange: np.ndarray
-    channels: tuple[str, ...]
-    lsb_v: float
-    volts: dict | None = None
-    phase_noise_rad: np.ndarray | None = None
-    phase_noise_pre: int = 0
-    mzi_q: np.ndarray | None = None     # quadrature monitor output (``mzi_quadrature``): sin where mzi is cos
 
 
 # --------------------------------------------------------------------------------------------------
@@ -676,3 +397,7 @@ def sample_rate_for_range_hz(max_range_m: float, rate_hz_per_s: float, *, oversa
         raise SynthError("sample_rate_for_range_hz: max_range_m, rate_hz_per_s > 0 and oversample >= 1 required")
     f_max = 2.0 * abs(rate_hz_per_s) * max_range_m / C_M_PER_S + abs(max_doppler_hz)
     return oversample * 2.0 * f_max
+
+
+__all__ = ["AdcSpec", "ChirpTrajectory", "HitBatch", "SynthError", "Synthesized", "sample_rate_for_range_hz",
+           "synthesize", "trajectory", "trajectory_from_frequency"]
