@@ -15,9 +15,8 @@ Hardware modelled:
 * Wiring (§4.3.3): converter A output r drives row switch r, but only bonded rows are wired
   (default: one row in every four skipped, ``r % 4 == 3``); converter B output c drives column c.
   A pattern pixel on an unbonded row is NAKed with BAD_ROW_UNBONDED.
-* MEMS switches (``sim_devices.world.mems``): pull-in 32 V / release 29 V, first-order optical
-  response (rows 1 us, columns 2.7 us on / 2.0 us off, command -> 90 %). The HV supply
-  (``hv_supply_v``) must exceed pull-in for anything to switch.
+* MEMS switches (``sim_devices.world.mems``: pull-in/release hysteresis, first-order optical
+  response); the HV supply (``hv_supply_v``) must exceed pull-in for anything to switch.
 * The firmware steps an uploaded pattern on the virtual clock (``sim_devices.triggers``). During a
   transition the old row/column is still partly on, so the capture windows see ghost beams
   exactly as the dynamics predict; :meth:`FpgaSim.triggers` reports them.
@@ -30,9 +29,9 @@ transports take a :class:`~sim_devices.faults.SerialLineNoise` (byte drops, bit 
 directions), and :meth:`PtyServer.close` makes the device vanish from the host's point of view.
 
 Parts: this module is the board (configuration, HV583 line bookkeeping, the byte interface with its
-retry cache, switch banks, triggers); the command handlers are ``sim_devices.fpga_firmware``, the
-drive-event log and stuck switches ``sim_devices.fpga_drive_log``, the beam search
-``sim_devices.fpga_beams``, the transports ``sim_devices.fpga_serial``.
+retry cache, inspection, stuck-switch faults); the command handlers are ``sim_devices.fpga_firmware``,
+the drive-event log and stuck-switch intervals ``sim_devices.fpga_drive_log``, the switch banks, lit
+beams and triggers ``sim_devices.fpga_beams``, the transports ``sim_devices.fpga_serial``.
 """
 
 from __future__ import annotations
@@ -50,14 +49,14 @@ from drivers.fpsa.errors import ProtocolError
 
 from .clock import VirtualClock
 from .faults import SerialLineNoise
-from .fpga_beams import beams_in_windows
-from .fpga_drive_log import COL, ROW, DriveEvents, StuckSwitches, lines_high_before, with_holds
+from .fpga_beams import ChipOptics
+from .fpga_drive_log import COL, ROW, DriveEvents, StuckSwitches, line_kind, lines_high_before
 from .fpga_firmware import FirmwareCommands, _Run, _Upload
 from .fpga_serial import PtyServer, SimSerial
 from .hv583 import HV583, default_bonded_rows
 from .hv_drive import HOLD_BOOST_S, HvDrive
-from .triggers import PixelSchedule, TriggerBatch
-from .world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchBank, SwitchDynamics, switch_thresholds
+from .triggers import PixelSchedule
+from .world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchBank, SwitchDynamics
 
 
 @dataclass(frozen=True)
@@ -91,10 +90,11 @@ class FpgaConfig:
         return tuple(sorted(set(b)))
 
 
-class FpgaSim(FirmwareCommands):
+class FpgaSim(FirmwareCommands, ChipOptics):
     """The FPGA firmware + HV583 board + MEMS array, driven by bytes, timed by a virtual clock.
 
-    The command handlers live in :class:`~sim_devices.fpga_firmware.FirmwareCommands`."""
+    The command handlers live in :class:`~sim_devices.fpga_firmware.FirmwareCommands`, the light
+    that leaves the chip (switch banks, beams, triggers) in :class:`~sim_devices.fpga_beams.ChipOptics`."""
 
     def __init__(self, clock: VirtualClock, config: FpgaConfig | None = None) -> None:
         self.clock = clock
@@ -293,44 +293,9 @@ class FpgaSim(FirmwareCommands):
     def _lines_high_before(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         return lines_high_before(self._events, self.config.rows, self.config.cols, t_s)
 
-    def _switch_banks(self) -> tuple[SwitchBank, SwitchBank]:
-        if self._banks is None:
-            kinds, lines, ts, vs = self._events.arrays()
-            banks = []
-            for k, n, dyn in ((ROW, self.config.rows, self.config.row_dynamics),
-                              (COL, self.config.cols, self.config.col_dynamics)):
-                ln, t, v = self._with_holds(k, kinds, lines, ts, vs)
-                ln, t, v = self._with_stuck(k, ln, t, v)
-                thresholds = switch_thresholds(n, dyn, self.config.threshold_spread_v,
-                                               [self.config.seed, 0x4B5, k])
-                banks.append(SwitchBank(n, dyn, ln, t, v, thresholds=thresholds))
-            self._banks = (banks[0], banks[1])
-        return self._banks
-
-    def _with_holds(self, kind: int, kinds, lines, ts, vs):
-        """Drive events of one line kind, with the hold-level events that still apply."""
-        return with_holds(kind, kinds, lines, ts, vs, self._holds)
-
-    def pulls_in_every_switch(self) -> bool:
-        """Whether the present drive pulls in every row and column switch (the bench can then
-        take the commanded pixel for the lit one when it skips the switch dynamics)."""
-        with self._lock:
-            rows_bank, cols_bank = self._switch_banks()
-            hv = self.supply().hv_v
-            return bool(hv >= rows_bank.pull_in_v.max() and hv >= cols_bank.pull_in_v.max())
-
     # --- stuck switches (fault injection) -------------------------------------------------------
-    def _with_stuck(self, kind: int, lines: np.ndarray, ts: np.ndarray, vs: np.ndarray):
-        """The drive events the switches of one line kind actually follow (stuck ones ignore theirs)."""
-        return self._stuck.apply(kind, lines, ts, vs)
-
     def _line_kind(self, line: str, index: int) -> int:
-        if line not in ("row", "col"):
-            raise ValueError(f"fpga: switch line must be 'row' or 'col', got {line!r}")
-        n = self.config.rows if line == "row" else self.config.cols
-        if not (isinstance(index, (int, np.integer)) and 0 <= index < n):
-            raise ValueError(f"fpga: {line} index must be 0..{n - 1}, got {index!r}")
-        return ROW if line == "row" else COL
+        return line_kind(line, index, self.config.rows, self.config.cols)
 
     def stick_switch(self, line: str, index: int, on: bool, t_s: float | None = None) -> None:
         """From ``t_s`` (default now) the MEMS switch of ``line`` ``index`` stays on/off."""
@@ -354,56 +319,10 @@ class FpgaSim(FirmwareCommands):
         with self._lock:
             return self._stuck.stuck_now()
 
-    def _candidate_rows(self) -> np.ndarray:
-        # unbonded rows have no drive, but a row switch stuck on still passes light
-        extra = self._stuck.rows_ever_on()
-        return np.asarray(sorted(set(self._bonded) | set(extra)), np.int64)
-
     def reset_link(self) -> None:
         """The serial link went away: a frame half-received is lost."""
         with self._lock:
             self._parser = p.FrameParser()
-
-    def _beams(self, t0: np.ndarray, t1: np.ndarray, dwell: np.ndarray | None = None):
-        """(window, row, col, transmission) of every beam above the floor in each window
-        (:func:`sim_devices.fpga_beams.beams_in_windows`)."""
-        rows_bank, cols_bank = self._switch_banks()
-        return beams_in_windows(rows_bank, cols_bank, self._candidate_rows(), self.config.cols,
-                                self.config.beam_floor, t0, t1, dwell)
-
-    def lit_beams(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(rows, cols, mean path transmission) of beams leaving the chip during [t0, t1]."""
-        with self._lock:
-            _, r, c, tr = self._beams(np.array([t0_s], float), np.array([t1_s], float))
-            return r, c, tr
-
-    def triggers(self, first: int, count: int, capture_s: float) -> TriggerBatch:
-        """Triggers ``first .. first+count-1`` of the current run and their lit beams.
-
-        Pure computation from the schedule and the drive log: does not advance the clock.
-        """
-        with self._lock:
-            if self._run is None:
-                raise ValueError("fpga: no run has been started (no triggers)")
-            total = self._run.schedule.total_triggers
-            if first < 0 or count < 0 or first + count > total:
-                raise ValueError(
-                    f"fpga: triggers {first}..{first + count - 1} outside the run's 0..{total - 1}")
-            if not capture_s >= 0 or not math.isfinite(capture_s):
-                raise ValueError(f"fpga: capture_s must be finite and >= 0, got {capture_s!r}")
-            if count == 0:
-                return TriggerBatch.empty(capture_s)
-            sched = self._run.schedule
-            index = np.arange(first, first + count, dtype=np.int64)
-            t = sched.trigger_s(index)
-            pixel = (index // sched.triggers_per_pixel).astype(np.int32)
-            px = self._run.pattern[pixel]
-            bk, br, bc, bt = self._beams(t, t + capture_s, dwell=pixel)
-            return TriggerBatch(
-                index=index, t_s=t, pixel_index=pixel, row=px[:, 0].astype(np.int16),
-                col=px[:, 1].astype(np.int16), beam_trigger=bk.astype(np.int32),
-                beam_row=br.astype(np.int16), beam_col=bc.astype(np.int16),
-                beam_transmission=bt.astype(np.float64), capture_s=float(capture_s))
 
     # --- transports ---------------------------------------------------------------------------
     def open_pipe(self, line: SerialLineNoise | None = None) -> SimSerial:

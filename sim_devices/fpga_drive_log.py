@@ -10,7 +10,7 @@ the log and the views on it the simulator needs:
 * :func:`with_holds`: one line kind's drive events plus the hold-level events of the pull-in/hold
   drive (``sim_devices.hv_drive``) that a later line change did not cut short;
 * :class:`StuckSwitches`: fault injection, switches that ignore their drive during intervals, and
-  the drive events such a switch actually follows.
+  the drive events such a switch actually follows (:func:`line_kind` checks a switch's name).
 """
 
 from __future__ import annotations
@@ -75,6 +75,17 @@ def with_holds(kind: int, kinds, lines, ts, vs, holds: DriveEvents):
         return ln, t, v
     return (np.concatenate([ln, hl[hm][keep]]), np.concatenate([t, ht[hm][keep]]),
             np.concatenate([v, hv[hm][keep]]))
+
+
+def line_kind(line: str, index: int, rows: int, cols: int) -> int:
+    """ROW or COL for a switch named ``line`` ('row' | 'col') and ``index``, or a ValueError naming
+    the bad one."""
+    if line not in ("row", "col"):
+        raise ValueError(f"fpga: switch line must be 'row' or 'col', got {line!r}")
+    n = rows if line == "row" else cols
+    if not (isinstance(index, (int, np.integer)) and 0 <= index < n):
+        raise ValueError(f"fpga: {line} index must be 0..{n - 1}, got {index!r}")
+    return ROW if line == "row" else COL
 
 
 class StuckSwitches:
