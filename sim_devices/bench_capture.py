@@ -164,30 +164,60 @@ class BenchCapture:
         iq = "beat_i" in cfg.channels
         adc = AdcSpec(sample_rate_hz=cfg.sample_rate_hz, n_samples=cfg.record_length, bits=cfg.bits,
                       input_range_v=cfg.input_range_v, iq=iq, quantize=True)
-        hits = None
+        rows, cols, trans, beam_seg = self._emitted_beams(trig, n, eff.mems_dynamics)
+        emitting = lit[beam_seg] & switches
+        hits = bh = None
+        if light and switches and n and emitting.any():
+            hits, bh = self._beat_hits(trig, (rows, cols, trans, beam_seg), emitting, gain, iq)
+        syn = self._synthesize(cfg, adc, n, hits, bh, light, gain, first)
+        codes, over = self._records(syn, cfg, n, hits, lit)
+        if "tap" in cfg.channels and n:
+            j = cfg.channels.index("tap")
+            power = np.zeros(n)
+            if switches:
+                np.add.at(power, beam_seg, np.where(lit[beam_seg], trans, 0.0))
+            codes[:, j], over[:, j] = self._tap_codes(power, adc, first)
+        self.segments_synthesized += n
+        return CapturedSegments(trigger_time_s=np.asarray(trig.t_s, dtype=np.float64), codes=codes,
+                                overrange=over)
+
+    def _emitted_beams(self, trig, n: int, mems_dynamics: bool):
+        """(rows, cols, path transmission, segment) of the beams of a batch: from the switch dynamics
+        (ghost beams, stuck switches, switches the HV does not pull in), or the commanded pixel at
+        full transmission when none of that can change the answer."""
         # a stuck switch only shows through the switch dynamics (which beams actually emit)
-        beams_from_dynamics = (eff.mems_dynamics or bool(self.fpga.stuck_switches)
+        beams_from_dynamics = (mems_dynamics or bool(self.fpga.stuck_switches)
                                or not self.fpga.pulls_in_every_switch())
         if beams_from_dynamics:
-            rows, cols, trans, beam_seg = (trig.beam_row, trig.beam_col, trig.beam_transmission,
-                                           np.asarray(trig.beam_trigger, np.intp))
-        else:
-            rows, cols, trans, beam_seg = trig.row, trig.col, np.ones(n), np.arange(n)
-        emitting = lit[beam_seg] & switches
-        if light and switches and n and emitting.any():
-            chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
-            # scene time: since the run's first trigger (a point's t counts from the same trigger)
-            t_scene = np.asarray(trig.t_s)[np.asarray(beam_seg)[emitting]] - self._run_first_trigger_s()
-            bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp, t_s=t_scene)
-            if bh.beam.size:
-                phase = None
-                if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
-                    plain = 2.0 * np.pi * np.mod(self._trajectory().nu0_hz * bh.tau_s, 1.0)
-                    phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
-                hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
-                                tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain * (HYBRID_CHANNEL_AMPLITUDE if iq else 1.0),
-                                doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
-                                phase_rad=phase)
+            return (trig.beam_row, trig.beam_col, trig.beam_transmission,
+                    np.asarray(trig.beam_trigger, np.intp))
+        return trig.row, trig.col, np.ones(n), np.arange(n)
+
+    def _beat_hits(self, trig, beams, emitting: np.ndarray, gain: float, iq: bool):
+        """The world's returns of the emitting beams as a HitBatch (None when nothing returns), and
+        the world's answer (for the fidelity ledger)."""
+        rows, cols, trans, beam_seg = beams
+        chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
+        # scene time: since the run's first trigger (a point's t counts from the same trigger)
+        t_scene = np.asarray(trig.t_s)[np.asarray(beam_seg)[emitting]] - self._run_first_trigger_s()
+        bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp, t_s=t_scene)
+        if not bh.beam.size:
+            return None, bh
+        phase = None
+        if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
+            plain = 2.0 * np.pi * np.mod(self._trajectory().nu0_hz * bh.tau_s, 1.0)
+            phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
+        hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
+                        tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain * (HYBRID_CHANNEL_AMPLITUDE if iq else 1.0),
+                        doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
+                        phase_rad=phase)
+        return hits, bh
+
+    def _synthesize(self, cfg: CaptureConfig, adc: AdcSpec, n: int, hits, bh, light: bool, gain: float,
+                    first: int):
+        """The batch's records from the synthesis: noise levels, phase noise and the monitor MZI
+        (its TRUE delay) as the effects and the light allow; notes the effects in the ledger."""
+        eff = self.cfg.sim.effects
         noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
         if eff.quantization:
             noise_asd = float(np.hypot(noise_asd, self._core_asd(cfg)))
@@ -205,12 +235,16 @@ class BenchCapture:
         rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
-        syn = synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd, beat_filter=aa,
-                         linewidth_hz=linewidth, rng=rng,
-                         mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
-                         mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
-                         mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,
-                         iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad))
+        return synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd, beat_filter=aa,
+                          linewidth_hz=linewidth, rng=rng,
+                          mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
+                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
+                          mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,
+                          iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad))
+
+    @staticmethod
+    def _records(syn, cfg: CaptureConfig, n: int, hits, lit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(codes (n, channels, samples) int16, overrange (n, channels)) in the host's channel order."""
         by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi, "mzi_q": syn.mzi_q}
         # a scan's one beat channel: the synthesized records are the batch's codes, no copy
         single = tuple(cfg.channels) in (("beat",), ("beat_i",))
@@ -227,12 +261,4 @@ class BenchCapture:
                     over[:, j] |= core_overrange(hits, n, cfg.input_range_v)
                 if name in ("mzi", "mzi_q") and not lit.all():
                     codes[~lit, j] = 0  # no light, no MZI fringes
-        if "tap" in cfg.channels and n:
-            j = cfg.channels.index("tap")
-            power = np.zeros(n)
-            if switches:
-                np.add.at(power, beam_seg, np.where(lit[beam_seg], trans, 0.0))
-            codes[:, j], over[:, j] = self._tap_codes(power, adc, first)
-        self.segments_synthesized += n
-        return CapturedSegments(trigger_time_s=np.asarray(trig.t_s, dtype=np.float64), codes=codes,
-                                overrange=over)
+        return codes, over
