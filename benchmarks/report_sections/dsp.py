@@ -47,20 +47,9 @@ def sec_estimators(quick: bool, img: Path, log) -> Section:
 ILC_PAPER = {"up": 140.0, "down": 600.0, "iterations": 14}
 
 
-def sec_ilc(quick: bool, img: Path, log) -> Section:
-    s = Section("ilc", "2. Chirp linearization (ILC) per laser preset")
-    convergence = need("ilc", "convergence")
-    from lidard.config import load_lasers
-
-    presets = ["dfb_default"] if quick else list(load_lasers())
-    runs = []
-    # issue 15: every preset with the dissertation's real monitor and with the quadrature one
-    for p, quad in [(p, q) for q in ((False,) if quick else (False, True)) for p in presets]:
-        t = time.perf_counter()
-        r = convergence(p, seed=1, quadrature=quad)
-        runs.append(r)
-        log(f"  {p}{' (quadrature)' if quad else ''}: reduction {r['reduction_up']:.0f}x / {r['reduction_down']:.0f}x, "
-            f"{r.get('updates', len(r['iterations']) - 1)} updates ({time.perf_counter() - t:.1f} s)")
+def _ilc_figure_and_rows(runs: list[dict], img: Path) -> tuple[str, list[list]]:
+    """The convergence plot of every run (RMS nonlinearity / excursion per iteration, the dissertation's
+    reductions marked) and one table row per run; returns the PNG's path in the report and the rows."""
     rows = []
     plt = _plt()
     fig, ax = plt.subplots(1, 1, figsize=(8, 5))
@@ -88,6 +77,24 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
     ax.axhline(5e-5, color="k", lw=0.8, ls=":", label="5e-5 (true-residual target)")
     ax.legend(fontsize=7, ncol=2)
     png = save(fig, img, "ilc_convergence.png")
+    return png, rows
+
+
+def sec_ilc(quick: bool, img: Path, log) -> Section:
+    s = Section("ilc", "2. Chirp linearization (ILC) per laser preset")
+    convergence = need("ilc", "convergence")
+    from lidard.config import load_lasers
+
+    presets = ["dfb_default"] if quick else list(load_lasers())
+    runs = []
+    # issue 15: every preset with the dissertation's real monitor and with the quadrature one
+    for p, quad in [(p, q) for q in ((False,) if quick else (False, True)) for p in presets]:
+        t = time.perf_counter()
+        r = convergence(p, seed=1, quadrature=quad)
+        runs.append(r)
+        log(f"  {p}{' (quadrature)' if quad else ''}: reduction {r['reduction_up']:.0f}x / {r['reduction_down']:.0f}x, "
+            f"{r.get('updates', len(r['iterations']) - 1)} updates ({time.perf_counter() - t:.1f} s)")
+    png, rows = _ilc_figure_and_rows(runs, img)
     d = next((r for r in runs if r["preset"] == "dfb_default"), runs[0])
     s.data = {"runs": runs, "rows": rows}
     s.headline = [

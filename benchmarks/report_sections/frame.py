@@ -21,6 +21,60 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
 
     s = Section("scaling", "4. End-to-end frame: wall time against hardware time, and how it scales")
     r = run_scaling(quick, repeats=1 if quick else 2, log=log)
+    png = _scaling_figure(r, img)
+
+    hdr = ["pixels", "averages", "max range (m)", "ADC MS/s", "record", "hardware (s)", "wall (s)", "CPU (s)",
+           "real-time factor", "points", "peak RSS (MB)"]
+    aff = r["range"]["cpu_affine_record"]
+    rr = r["range"]["rows"]
+    law = _growth_laws(r)
+    s.data = r
+
+    def both(key, fit_key, cpu_key):
+        f, c = r[key][fit_key], r[key][cpu_key]
+        return (f"wall ~ x^{f['slope']:.2f} +- {f['slope_stderr']:.2f}; CPU ~ x^{c['slope']:.2f} +- "
+                f"{c['slope_stderr']:.2f}")
+
+    s.headline = [("frame time growth with pixels x (1 average, 2 m)", both("pixels", "fit", "cpu_fit"),
+                   "issue 7: state the law"),
+                  ("frame time growth with averages x (2 m)", both("averages", "fit", "cpu_fit"),
+                   "issue 7: state the law"),
+                  (f"time per pixel growth with record length x ({r['range']['rows'][0]['max_range_m']:g} -> "
+                   f"{r['range']['rows'][-1]['max_range_m']:g} m max range)",
+                   both("range", "fit_record", "cpu_fit_record")
+                   + f"; CPU {1e3 * aff['intercept']:.2g} ms + {1e9 * aff['slope']:.3g} ns x samples",
+                   "issue 7: state the law"),
+                  ("peak RSS of the largest scans (during the scan, whole process)",
+                   f"{r['pixels']['rows'][-1]['peak_rss_mb']:.0f} MB at {r['pixels']['rows'][-1]['pixels']:,} pixels "
+                   f"x 1 average; {rr[-1]['peak_rss_mb']:.0f} MB at {rr[-1]['pixels']} pixels, {rr[-1]['max_range_m']:g} m",
+                   "< 2 GB (the frame target)")]
+    s.markdown = (
+        "One embedded simulated bench (world, synthesis, the four wire protocols, frame DSP all inside the timed "
+        "region), one linearization, explicit pixel lists (fpsa128 has 12,288 bonded pixels; larger frames revisit "
+        "pixels). Hardware time = the digitizer's trigger clock on the FPGA model's virtual clock (settle + "
+        "triggers x 160 us triangle period): the time the real instrument would take. Real-time factor = hardware / "
+        f"wall (>= 1: the simulation keeps up). Best of {r['repeats']} runs; CPU = process CPU time (all threads), "
+        f"robust to other jobs on the machine; peak RSS = the process's resident high-water mark during the scan "
+        f"(reset before each scan, so it includes the bench and the interpreter). Bench start + linearization: {r['setup_s']:.2f} s. "
+        "`benchmarks/scaling.py`.\n\n" + law
+        + "\n**Pixels** (1 average, max range 2 m)\n\n" + table(hdr, _scaling_rows(r, "pixels"))
+        + "\n**Averages**\n\n" + table(hdr, _scaling_rows(r, "averages"))
+        + "\n**Maximum range** (a wall at 0.7 x the maximum range; the ADC rate and record length follow the range; "
+          "fewer pixels at long range; first-scan overhead = one-off DSP tables at a new record length; beyond a "
+          "few tens of metres the wall is below the detection threshold of the §4.4 link (1 mW out), so 'points' "
+          "drops to zero: the cost does not depend on it). Phase-noise compensation is off in every row, so the "
+          "law is of one workload; where `auto` turns it on (a second digitizer channel and its DSP) its cost is "
+          "measured beside, below.\n\n"
+        + table(hdr + ["ms/pixel wall", "first-scan overhead (s)"],
+                [row + [q["wall_per_pixel_s"] * 1e3, q["first_scan_overhead_s"]]
+                 for row, q in zip(_scaling_rows(r, "range"), r["range"]["rows"])])
+        + _pn_rows(r["range"]) + f"\n![scaling]({png})\n")
+    return s
+
+
+def _scaling_figure(r: dict, img: Path) -> str:
+    """Frame time against pixels and averages, and time per pixel against range (log-log, with the
+    fitted laws); returns the PNG's path in the report."""
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(16, 5))
     for ax, key, xkey, xl in ((axes[0], "pixels", "pixels", "pixels (1 average, 2 m)"),
@@ -44,15 +98,19 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
                    label=f"fit wall ~ range^{f['slope']:.2f}+-{f['slope_stderr']:.2f}")
     axes[2].set(xlabel="maximum range (m)", ylabel="ms per pixel")
     axes[2].legend(fontsize=7)
-    png = save(fig, img, "scaling.png")
+    return save(fig, img, "scaling.png")
 
-    def rowsof(key, extra=()):
-        return [[q["pixels"], q["averages"], q["max_range_m"], f"{q['adc_rate_hz'] / 1e6:.2f}", q["record_length"],
-                 q["hardware_s"], q["wall_s"], q["cpu_s"], q["realtime_factor"], q["points"], f"{q['peak_rss_mb']:.0f}"]
-                + [q[e] for e in extra] for q in r[key]["rows"]]
 
-    hdr = ["pixels", "averages", "max range (m)", "ADC MS/s", "record", "hardware (s)", "wall (s)", "CPU (s)",
-           "real-time factor", "points", "peak RSS (MB)"]
+def _scaling_rows(r: dict, key: str, extra=()) -> list[list]:
+    """One table row per scan of the sweep ``key`` (pixels, averages or range)."""
+    return [[q["pixels"], q["averages"], q["max_range_m"], f"{q['adc_rate_hz'] / 1e6:.2f}", q["record_length"],
+             q["hardware_s"], q["wall_s"], q["cpu_s"], q["realtime_factor"], q["points"], f"{q['peak_rss_mb']:.0f}"]
+            + [q[e] for e in extra] for q in r[key]["rows"]]
+
+
+def _growth_laws(r: dict) -> str:
+    """The paragraph stating the measured growth laws (log-log slopes) and the affine CPU-time laws,
+    with the record length below which the fixed per-pixel cost dominates."""
     fp, fa, frr, frg = r["pixels"]["fit"], r["averages"]["fit"], r["range"]["fit_record"], r["range"]["fit_range"]
     hl = r["averages"]["hw_linear"]
     aff = r["range"]["cpu_affine_record"]
@@ -82,47 +140,7 @@ def sec_scaling(quick: bool, img: Path, log) -> Section:
            f"{100 * r['range']['cpu_affine_record']['max_rel_residual']:.0f} %): the fixed per-pixel part dominates "
            f"records shorter than {n_x:,.0f} samples ({where}); beyond that the cost grows linearly with the record "
            "length, i.e. with the range.\n")
-    s.data = r
-    def both(key, fit_key, cpu_key):
-        f, c = r[key][fit_key], r[key][cpu_key]
-        return (f"wall ~ x^{f['slope']:.2f} +- {f['slope_stderr']:.2f}; CPU ~ x^{c['slope']:.2f} +- "
-                f"{c['slope_stderr']:.2f}")
-
-    s.headline = [("frame time growth with pixels x (1 average, 2 m)", both("pixels", "fit", "cpu_fit"),
-                   "issue 7: state the law"),
-                  ("frame time growth with averages x (2 m)", both("averages", "fit", "cpu_fit"),
-                   "issue 7: state the law"),
-                  (f"time per pixel growth with record length x ({r['range']['rows'][0]['max_range_m']:g} -> "
-                   f"{r['range']['rows'][-1]['max_range_m']:g} m max range)",
-                   both("range", "fit_record", "cpu_fit_record")
-                   + f"; CPU {1e3 * aff['intercept']:.2g} ms + {1e9 * aff['slope']:.3g} ns x samples",
-                   "issue 7: state the law"),
-                  ("peak RSS of the largest scans (during the scan, whole process)",
-                   f"{r['pixels']['rows'][-1]['peak_rss_mb']:.0f} MB at {r['pixels']['rows'][-1]['pixels']:,} pixels "
-                   f"x 1 average; {rr[-1]['peak_rss_mb']:.0f} MB at {rr[-1]['pixels']} pixels, {rr[-1]['max_range_m']:g} m",
-                   "< 2 GB (the frame target)")]
-    s.markdown = (
-        "One embedded simulated bench (world, synthesis, the four wire protocols, frame DSP all inside the timed "
-        "region), one linearization, explicit pixel lists (fpsa128 has 12,288 bonded pixels; larger frames revisit "
-        "pixels). Hardware time = the digitizer's trigger clock on the FPGA model's virtual clock (settle + "
-        "triggers x 160 us triangle period): the time the real instrument would take. Real-time factor = hardware / "
-        f"wall (>= 1: the simulation keeps up). Best of {r['repeats']} runs; CPU = process CPU time (all threads), "
-        f"robust to other jobs on the machine; peak RSS = the process's resident high-water mark during the scan "
-        f"(reset before each scan, so it includes the bench and the interpreter). Bench start + linearization: {r['setup_s']:.2f} s. "
-        "`benchmarks/scaling.py`.\n\n" + law
-        + "\n**Pixels** (1 average, max range 2 m)\n\n" + table(hdr, rowsof("pixels"))
-        + "\n**Averages**\n\n" + table(hdr, rowsof("averages"))
-        + "\n**Maximum range** (a wall at 0.7 x the maximum range; the ADC rate and record length follow the range; "
-          "fewer pixels at long range; first-scan overhead = one-off DSP tables at a new record length; beyond a "
-          "few tens of metres the wall is below the detection threshold of the §4.4 link (1 mW out), so 'points' "
-          "drops to zero: the cost does not depend on it). Phase-noise compensation is off in every row, so the "
-          "law is of one workload; where `auto` turns it on (a second digitizer channel and its DSP) its cost is "
-          "measured beside, below.\n\n"
-        + table(hdr + ["ms/pixel wall", "first-scan overhead (s)"],
-                [row + [q["wall_per_pixel_s"] * 1e3, q["first_scan_overhead_s"]]
-                 for row, q in zip(rowsof("range"), r["range"]["rows"])])
-        + _pn_rows(r["range"]) + f"\n![scaling]({png})\n")
-    return s
+    return law
 
 
 def sec_frame(quick: bool, img: Path, log) -> Section:

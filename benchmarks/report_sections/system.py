@@ -13,29 +13,31 @@ import numpy as np
 from benchmarks.report_tables import Section, _plt, need, save, table
 
 
-def sec_accuracy(quick: bool, img: Path, log) -> Section:
-    """The end-to-end accuracy figures of tests/e2e, measured (not asserted) on embedded benches."""
+#: the bench without its hidden tolerances (benchmarks/tolerances.py measures those)
+_NOMINAL = {"LIDARD__SIM__TOLERANCES__ENABLED": "false"}
+
+
+def _scan(inst, req, cal):
     import threading
 
+    return inst.run_scan(req, lambda p: None, threading.Event(), cal)
+
+
+def _letters_and_empty() -> tuple[dict, dict, list[list]]:
+    """The CAL letters (12 x 32 ROI) against the world's ray-cast truth, then the same bench with an
+    empty scene: (letters, empty, their table rows)."""
     from lidard.config import CONFIG_DIR, load_config
     from lidard.instrument import open_instrument
     from lidard.instrument import ScanRequest
     from sim_devices.world.scene import Scene
 
-    s = Section("accuracy", "4c. Accuracy on the simulated bench (the scenes of tests/e2e)")
-    scenes = CONFIG_DIR / "scenes"
-
-    def scan(inst, req, cal):
-        return inst.run_scan(req, lambda p: None, threading.Event(), cal)
-
     rows = []
-    nominal = {"LIDARD__SIM__TOLERANCES__ENABLED": "false"}   # the hidden tolerances: benchmarks/tolerances.py
-    inst = open_instrument(load_config(CONFIG_DIR / "sim.toml", environ=nominal), scene_path=str(scenes / "cal_letters.toml"),
-                           bench="embedded")
+    inst = open_instrument(load_config(CONFIG_DIR / "sim.toml", environ=_NOMINAL),
+                           scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"), bench="embedded")
     try:
         bench = inst._on_close.__self__        # the embedded Bench: ground truth comes from its world
         cal = inst.linearize()
-        res = scan(inst, ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0), cal)
+        res = _scan(inst, ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0), cal)
         pts = res.points[res.points["valid"] == 1]
         # a mixed pixel (issue 15) is scored against its footprint's surface nearest the point
         err = pts["range"] - bench.ground_truth(pts["row"], pts["col"], measured_m=pts["range"])
@@ -47,15 +49,24 @@ def sec_accuracy(quick: bool, img: Path, log) -> Section:
                      f"{letters['ranged']}/{letters['pixels']} pixels; beat SNR {letters['snr_db_range'][0]:.0f}-"
                      f"{letters['snr_db_range'][1]:.0f} dB", "<= 1 mm RMS (SNR: Fig. 4-32 ~28 dB)"])
         bench.set_scene(Scene.from_dict({"target": []}))
-        res = scan(inst, ScanRequest(pattern="roi", rows=(0, 32), cols=(0, 32), max_range_m=2.0), cal)
+        res = _scan(inst, ScanRequest(pattern="roi", rows=(0, 32), cols=(0, 32), max_range_m=2.0), cal)
         empty = {"pixels": res.pixels_planned, "valid_points": int(res.points["valid"].sum())}
         rows.append([f"empty scene, {empty['pixels']} pixels", f"{empty['valid_points']} valid points",
                      "none beyond the false-alarm rate (pfa 1e-6)"])
     finally:
         inst.close()
+    return letters, empty, rows
+
+
+def _moving_box() -> tuple[dict, list]:
+    """The radial-velocity error on the moving box of the mixed scene: (figures, table row)."""
+    from lidard.config import CONFIG_DIR, load_config
+    from lidard.instrument import open_instrument
+    from lidard.instrument import ScanRequest
+
     # a moving box: 1.5 m/s at 4.5 m needs a 2 m/s Doppler allowance (see tests/e2e)
-    cfg = load_config(CONFIG_DIR / "sim.toml", environ={**nominal, "LIDARD__SCAN__MAX_SPEED_MPS": "2.0"})
-    inst = open_instrument(cfg, scene_path=str(scenes / "mixed.toml"), bench="embedded")
+    cfg = load_config(CONFIG_DIR / "sim.toml", environ={**_NOMINAL, "LIDARD__SCAN__MAX_SPEED_MPS": "2.0"})
+    inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "mixed.toml"), bench="embedded")
     try:
         bench = inst._on_close.__self__
         cal = inst.linearize()
@@ -63,18 +74,27 @@ def sec_accuracy(quick: bool, img: Path, log) -> Section:
         box = next(i for i, t in enumerate(scene.targets) if np.linalg.norm(t.velocity) > 0)
         px = inst.optics.bonded_pixels()
         on_box = px[scene.cast(inst.optics.directions(px[:, 0], px[:, 1]), max_hits=1).target_index[:, 0] == box]
-        res = scan(inst, ScanRequest(pattern="pixels", pixels=tuple(map(tuple, on_box.tolist())), max_range_m=6.0), cal)
+        res = _scan(inst, ScanRequest(pattern="pixels", pixels=tuple(map(tuple, on_box.tolist())), max_range_m=6.0), cal)
         pts = res.points[res.points["valid"] == 1]
         v_true = inst.optics.directions(pts["row"], pts["col"]) @ np.asarray(scene.targets[box].velocity)
         dv = pts["velocity"] - v_true
         moving = {"pixels": int(len(on_box)), "valid_points": int(len(pts)), "max_abs_dv_mps": float(np.max(np.abs(dv))),
                   "rms_dv_mps": float(np.sqrt(np.mean(dv ** 2))), "speed_mps": float(np.linalg.norm(scene.targets[box].velocity))}
-        rows.append([f"moving box, {moving['speed_mps']:.1f} m/s, {moving['pixels']} pixels on it",
-                     f"radial velocity error RMS {moving['rms_dv_mps'] * 1e3:.1f} mm/s, max "
-                     f"{moving['max_abs_dv_mps'] * 1e3:.1f} mm/s ({moving['valid_points']} valid points)",
-                     "every point within 0.05 m/s"])
+        row = [f"moving box, {moving['speed_mps']:.1f} m/s, {moving['pixels']} pixels on it",
+               f"radial velocity error RMS {moving['rms_dv_mps'] * 1e3:.1f} mm/s, max "
+               f"{moving['max_abs_dv_mps'] * 1e3:.1f} mm/s ({moving['valid_points']} valid points)",
+               "every point within 0.05 m/s"]
     finally:
         inst.close()
+    return moving, row
+
+
+def sec_accuracy(quick: bool, img: Path, log) -> Section:
+    """The end-to-end accuracy figures of tests/e2e, measured (not asserted) on embedded benches."""
+    s = Section("accuracy", "4c. Accuracy on the simulated bench (the scenes of tests/e2e)")
+    letters, empty, rows = _letters_and_empty()
+    moving, row = _moving_box()
+    rows.append(row)
     s.data = {"letters": letters, "empty": empty, "moving_box": moving}
     s.headline = [("CAL letters end to end (384-pixel ROI): RMS range error vs ray-cast truth",
                    f"{1e3 * letters['rms_m']:.3f} mm", "<= 1 mm"),
