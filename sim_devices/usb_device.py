@@ -1,11 +1,11 @@
-"""Base of a simulated USB device, and the pyusb errors it raises (§4.4.1).
+"""Base of a simulated USB device on the bench's USB bus (§4.4.1: the AWG and the ADC).
 
 Simulated devices (``sim_devices.awg``, ``sim_devices.digitizer``) subclass :class:`SimUsbDevice`:
 they set a :class:`~sim_devices.usb_descriptors.DeviceSpec` and handle control, bulk-OUT and bulk-IN
 transfers; the base answers the standard string-descriptor requests, holds a per-device lock and
 applies injected faults before every transfer. USB failures are raised as pyusb's own exceptions
-(``USBTimeoutError``, ``USBError`` with errno EPIPE for a stall, ENODEV for a disconnected device)
-so the drivers exercise the same error paths as on hardware; tests inject them with
+(``USBTimeoutError``, ``USBError`` with errno EPIPE for a stall, ENODEV for a disconnected device;
+``sim_devices.usb_errors``) so the drivers exercise the same error paths as on hardware; tests inject them with
 :meth:`SimUsbDevice.inject_fault`.
 """
 
