@@ -5,8 +5,8 @@ they set a :class:`~sim_devices.usb_descriptors.DeviceSpec` and handle control, 
 transfers; the base answers the standard string-descriptor requests, holds a per-device lock and
 applies injected faults before every transfer. USB failures are raised as pyusb's own exceptions
 (``USBTimeoutError``, ``USBError`` with errno EPIPE for a stall, ENODEV for a disconnected device;
-``sim_devices.usb_errors``) so the drivers exercise the same error paths as on hardware; tests inject them with
-:meth:`SimUsbDevice.inject_fault`.
+``sim_devices.usb_errors``) so the drivers exercise the same error paths as on hardware; tests
+inject them with :meth:`SimUsbDevice.inject_fault`.
 """
 
 from __future__ import annotations
