@@ -62,9 +62,10 @@ def peak_rss_mb() -> float:
 def stage_timers():
     """Wrap the scan's stage functions; yield {stage: [wall_s, thread_cpu_s]} filled while inside."""
     import sim_devices.bench as bench
+    import sim_devices.bench_capture as bench_capture   # where the bench's capture calls synthesize
     from lidard.instrument import acquisition, points
     acc: dict[str, list[float]] = {k: [0.0, 0.0] for k in ("capture", "beat_synthesis", "read", "dsp")}
-    targets = [(bench.Bench, "capture", "capture"), (bench, "synthesize", "beat_synthesis"),
+    targets = [(bench.Bench, "capture", "capture"), (bench_capture, "synthesize", "beat_synthesis"),
                (acquisition.AcquisitionLifecycle, "read", "read"), (points.PointBuffer, "flush", "dsp")]
 
     def timed(fn, key):

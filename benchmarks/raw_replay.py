@@ -44,9 +44,9 @@ def _scan(worker, body: dict):
 
 def _machine() -> str:
     try:
-        from benchmarks.report import machine_facts
+        from benchmarks.machine import machine_facts
     except ImportError:       # run as a script: benchmarks/ itself is on sys.path
-        from report import machine_facts
+        from machine import machine_facts
     f = machine_facts()
     model = f["cpu_model"] or "unknown CPU"
     return f"{model}, {f['cpus']} cores, Python {f['python']}, numpy {np.__version__}"

@@ -176,9 +176,9 @@ def report_section(quick: bool, log=print) -> tuple[str, dict, list[tuple[str, s
 
 def _machine() -> str:
     try:
-        from benchmarks.report import machine_facts
+        from benchmarks.machine import machine_facts
     except ImportError:       # run as a script: benchmarks/ itself is on sys.path
-        from report import machine_facts
+        from machine import machine_facts
     f = machine_facts()
     return (f"{f['cpu_model'] or 'unknown CPU'}, {f['cpus']} cores, Python {f['python']}, numpy {f['numpy']}, "
             f"commit {f['commit'] or 'unknown'}")

@@ -26,7 +26,8 @@ Guarantees:
   module never decides what time is.
 
 Sync ``ModbusTcpClient`` was chosen because the one scan worker that owns the hardware is a plain
-thread; an asyncio client would force a loop onto every caller.
+thread; an asyncio client would force a loop onto every caller. The power sequences and their
+``SettleCheck`` are ``drivers/controller/sequences.py`` (re-exported here).
 """
 
 from __future__ import annotations
@@ -35,7 +36,6 @@ import logging
 import math
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 from pymodbus.client import ModbusTcpClient
@@ -46,16 +46,15 @@ from drivers.controller import protocol as p
 from drivers.controller.errors import (
     DEVICE,
     ConfigError,
-    ControllerError,
     DeviceFailure,
     DeviceFaulted,
     DeviceTimeout,
     DeviceUnreachable,
     InterlockOpen,
     ProtocolError,
-    SettleError,
     modbus_exception,
 )
+from drivers.controller.sequences import PowerSequences, SettleCheck
 
 log = logging.getLogger(__name__)
 
@@ -63,32 +62,9 @@ log = logging.getLogger(__name__)
 _TRANSIENT_CODES = frozenset({5, 6})
 
 
-@dataclass(frozen=True)
-class SettleCheck:
-    """How ``bring_up``/``bring_down`` wait for readbacks.
-
-    ``sleep(dt_s)`` is called between polls; the total wait is the sum of the poll intervals, so
-    with ``VirtualClock.advance`` the whole sequence runs in virtual time.
-    """
-
-    sleep: Callable[[float], object]
-    timeout_s: float = 10.0
-    poll_s: float = 0.01
-    laser_tol_ma: float = 0.5
-    hv_tol_v: float = 0.25
-    tec_tol_c: float = 0.1
-
-    def __post_init__(self) -> None:
-        for name in ("timeout_s", "poll_s", "laser_tol_ma", "hv_tol_v", "tec_tol_c"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"{DEVICE}: SettleCheck.{name} must be a finite number > 0, got {v!r}")
-        if not callable(self.sleep):
-            raise ConfigError(f"{DEVICE}: SettleCheck.sleep must be callable, got {self.sleep!r}")
-
-
-class LaserHvController:
-    """Laser / TEC / HV controller on Modbus TCP."""
+class LaserHvController(PowerSequences):
+    """Laser / TEC / HV controller on Modbus TCP (``bring_up``/``bring_down``:
+    :class:`~drivers.controller.sequences.PowerSequences`)."""
 
     def __init__(
         self,
@@ -357,68 +333,5 @@ class LaserHvController:
                 raise DeviceFaulted(operation, latched) from exc
             raise
 
-    # -- sequences --------------------------------------------------------------------------
-    def _settle_check(self, settle_check: SettleCheck | None, operation: str) -> SettleCheck:
-        sc = settle_check if settle_check is not None else self.settle_check
-        if sc is None:
-            raise ConfigError(f"{DEVICE}: {operation} needs a SettleCheck (argument or constructor)")
-        return sc
 
-    @staticmethod
-    def _settle(quantity: str, setpoint: float, read: Callable[[], float], tolerance: float,
-                unit: str, sc: SettleCheck) -> float:
-        waited_s = 0.0
-        while True:
-            value = read()
-            if abs(value - setpoint) <= tolerance:
-                return value
-            if waited_s >= sc.timeout_s:
-                raise SettleError(quantity, setpoint, value, tolerance, unit, waited_s)
-            sc.sleep(sc.poll_s)
-            waited_s += sc.poll_s
-
-    def bring_up(self, current_ma: float, hv_v: float, *, settle_check: SettleCheck | None = None) -> p.Status:
-        """TEC settled -> HV on at ``hv_v`` -> laser on at ``current_ma``, each read back.
-
-        Both setpoints are limit-checked before anything is sent. On any failure after outputs
-        were touched, laser and HV are switched off (best effort) before the error propagates.
-        """
-        sc = self._settle_check(settle_check, "bring_up")
-        current = self.limits.check(p.LASER_CURRENT_SETPOINT, current_ma)
-        hv = self.limits.check(p.HV_SETPOINT, hv_v)
-        if not self.interlock_closed():
-            raise InterlockOpen("bring_up")
-        latched = self.faults()
-        if latched:
-            raise DeviceFaulted("bring_up", latched)
-        # The DFB's wavelength follows its temperature: no light before the TEC has settled.
-        self._settle("TEC temperature", self.tec_setpoint_c(), self.tec_c, sc.tec_tol_c, "degC", sc)
-        try:
-            self.set_hv_v(hv)
-            self.hv_enable(True)
-            self._settle("HV voltage", hv, self.hv_v, sc.hv_tol_v, "V", sc)
-            self.set_laser_current_ma(current)
-            self.laser_enable(True)
-            self._settle("laser current", current, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
-        except ControllerError:
-            self._safe_off()
-            raise
-        return self.status()
-
-    def bring_down(self, *, settle_check: SettleCheck | None = None) -> p.Status:
-        """Laser off (current to 0) first, then HV off (voltage to 0); both read back to 0."""
-        sc = self._settle_check(settle_check, "bring_down")
-        self.laser_enable(False)
-        self.set_laser_current_ma(0.0)
-        self._settle("laser current", 0.0, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
-        self.hv_enable(False)
-        self.set_hv_v(0.0)
-        self._settle("HV voltage", 0.0, self.hv_v, sc.hv_tol_v, "V", sc)
-        return self.status()
-
-    def _safe_off(self) -> None:
-        for fn in (self.laser_enable, self.hv_enable):
-            try:
-                fn(False)
-            except ControllerError:
-                pass  # the original error is what the caller needs to see
+__all__ = ["LaserHvController", "SettleCheck"]

@@ -29,132 +29,43 @@ Channel ``mzi_q`` (bit 5, added for phase-noise compensation at any range, issue
 MZI's quadrature output (a 90-degree hybrid or 3x3 coupler): only together with ``mzi``.
 
 All integers little endian. This module is PURE; parsers raise only ``DigitizerProtocolError``.
-Golden bytes: docs/protocols/digitizer.md.
+Golden bytes: docs/protocols/digitizer.md. Parts: the ids, request codes, channel bits and sample
+formats are ``protocol_format.py`` (re-exported here); this module holds the control payloads and
+the segment stream.
 """
 
 from __future__ import annotations
 
-import enum
 import struct
 import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.usbtmc import ProtocolError
-
-DIGITIZER_VID = 0x1209
-DIGITIZER_PID = 0xA902
-EP_DATA_IN = 0x81
-
-REQTYPE_OUT = 0x40  # vendor | device | host-to-device
-REQTYPE_IN = 0xC0   # vendor | device | device-to-host
-
-
-class Req(enum.IntEnum):
-    IDENTIFY = 0x01        # IN, 64 bytes ASCII "maker,model,serial,fw"
-    SET_CHANNELS = 0x10    # OUT, wValue = channel mask
-    SET_SAMPLE_RATE = 0x11  # OUT, data u64 Hz
-    SET_RECORD_LENGTH = 0x12  # OUT, data u32 samples per channel
-    SET_SEGMENTS = 0x13    # OUT, data u32 segments per acquisition
-    SET_FORMAT = 0x14      # OUT, wValue = bits (8 | 16)
-    SET_RANGE = 0x15       # OUT, data u32 full-scale input range in millivolts (peak)
-    SET_RESOLUTION = 0x16  # OUT, wValue = resolution bits (8..format bits): quantization of the samples
-    SET_BANDWIDTH = 0x17   # OUT, data u64 Hz: anti-alias low-pass corner (0 = full bandwidth)
-    ARM = 0x20             # OUT, no data
-    ABORT = 0x21           # OUT, no data
-    GET_STATUS = 0x30      # IN, 16 bytes (see Status)
-    GET_CONFIG = 0x31      # IN, 32 bytes (see Config)
-    READ_SEGMENTS = 0x40   # OUT, data u32 first, u32 count -> stream on EP 0x81
-
-
-CHANNEL_BITS = {"beat": 0x01, "beat_i": 0x02, "beat_q": 0x04, "mzi": 0x08, "tap": 0x10, "mzi_q": 0x20}
-ALL_CHANNELS_MASK = 0x3F
-MAGIC = b"DGSG"
-VERSION = 1
-HEADER = struct.Struct("<4sBBBBIIQII")
-HEADER_LEN = HEADER.size  # 32
-assert HEADER_LEN == 32
-
-
-class DigitizerProtocolError(ProtocolError):
-    """Digitizer bytes that cannot be decoded (bad magic, CRC, field values, lengths)."""
-
-    DEVICE = "digitizer"
-
-
-class State(enum.IntEnum):
-    IDLE = 0
-    ARMED = 1
-    CAPTURING = 2
-    DONE = 3
-
-
-# --------------------------------------------------------------------------- channel masks
-
-
-def channel_mask(channels: tuple[str, ...] | list[str]) -> int:
-    mask = 0
-    for ch in channels:
-        try:
-            bit = CHANNEL_BITS[ch]
-        except KeyError:
-            raise DigitizerProtocolError(f"unknown digitizer channel {ch!r}; known {sorted(CHANNEL_BITS)}") from None
-        if mask & bit:
-            raise DigitizerProtocolError(f"digitizer channel {ch!r} listed twice")
-        mask |= bit
-    validate_mask(mask)
-    return mask
-
-
-def validate_mask(mask: int) -> None:
-    if mask <= 0 or mask & ~ALL_CHANNELS_MASK:
-        raise DigitizerProtocolError(f"digitizer channel mask 0x{mask:02x} invalid")
-    iq = mask & 0x06
-    if iq and iq != 0x06:
-        raise DigitizerProtocolError("I/Q option needs both beat_i and beat_q")
-    if iq and mask & 0x01:
-        raise DigitizerProtocolError("beat and beat_i/beat_q are exclusive (one ADC pair)")
-    if mask & CHANNEL_BITS["mzi_q"] and not mask & CHANNEL_BITS["mzi"]:
-        raise DigitizerProtocolError("mzi_q (the monitor's quadrature output) needs mzi (its in-phase output)")
-
-
-def channels_of(mask: int) -> tuple[str, ...]:
-    """Channel names in payload order (ascending mask bit)."""
-    validate_mask(mask)
-    return tuple(name for name, bit in sorted(CHANNEL_BITS.items(), key=lambda kv: kv[1]) if mask & bit)
-
-
-def bytes_per_sample(bits: int) -> int:
-    if bits not in (8, 16):
-        raise DigitizerProtocolError(f"sample format must be 8 or 16 bits, got {bits}")
-    return bits // 8
-
-
-def sample_dtype(bits: int) -> np.dtype:
-    return np.dtype("<i1") if bytes_per_sample(bits) == 1 else np.dtype("<i2")
-
-
-def segment_bytes(n_channels: int, record_length: int, bits: int) -> int:
-    return HEADER_LEN + n_channels * record_length * bytes_per_sample(bits)
-
-
-def segment_dtype(n_channels: int, record_length: int, bits: int) -> np.dtype:
-    """numpy record layout of one header+payload segment: lets both sides build and parse a
-    whole batch of segments with vectorized field access instead of per-sample loops."""
-    return np.dtype([
-        ("magic", "S4"), ("version", "u1"), ("bits", "u1"), ("mask", "u1"), ("overrange", "u1"),
-        ("index", "<u4"), ("n_samples", "<u4"), ("trigger_time_ns", "<u8"),
-        ("payload_crc32", "<u4"), ("header_crc32", "<u4"),
-        ("data", sample_dtype(bits), (n_channels, record_length)),
-    ])
-
-
-def overrange_flags(overrange: np.ndarray) -> np.ndarray:
-    """bool (count, n_channels) -> u8 flags per segment, bit i = channel i."""
-    ov = np.asarray(overrange, dtype=bool)
-    weights = (1 << np.arange(ov.shape[1], dtype=np.uint16))
-    return (ov.astype(np.uint16) @ weights).astype(np.uint8)
+from drivers.digitizer.protocol_format import (
+    ALL_CHANNELS_MASK,
+    CHANNEL_BITS,
+    DIGITIZER_PID,
+    DIGITIZER_VID,
+    EP_DATA_IN,
+    HEADER,
+    HEADER_LEN,
+    MAGIC,
+    REQTYPE_IN,
+    REQTYPE_OUT,
+    VERSION,
+    DigitizerProtocolError,
+    Req,
+    State,
+    bytes_per_sample,
+    channel_mask,
+    channels_of,
+    overrange_flags,
+    sample_dtype,
+    segment_bytes,
+    segment_dtype,
+    validate_mask,
+)
 
 
 # ---------------------------------------------------------------------- control payloads
@@ -412,3 +323,13 @@ class SegmentStreamParser:
             pos = end
         del buf[:pos]
         return out
+
+
+__all__ = ["ALL_CHANNELS_MASK", "CHANNEL_BITS", "CONFIG_LEN", "Config", "DIGITIZER_PID", "DIGITIZER_VID",
+           "DigitizerProtocolError", "EP_DATA_IN", "HEADER", "HEADER_LEN", "MAGIC", "MAX_BANDWIDTH_HZ",
+           "MIN_RESOLUTION_BITS", "REQTYPE_IN", "REQTYPE_OUT", "Req", "SegmentHeader", "SegmentStreamParser",
+           "State", "Status", "VERSION", "bytes_per_sample", "channel_mask", "channels_of",
+           "check_resolution", "dec_read_segments", "dec_u32", "dec_u64", "decode_config", "decode_segment",
+           "decode_segment_header", "decode_status", "enc_read_segments", "enc_u32", "enc_u64",
+           "encode_config", "encode_segment", "encode_segment_header", "encode_status", "overrange_flags",
+           "sample_dtype", "segment_bytes", "segment_dtype", "validate_mask"]

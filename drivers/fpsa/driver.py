@@ -28,7 +28,7 @@ budget is shared with timeouts, so a port that stays away ends in :class:`Device
 Patterns are validated before anything is sent: shape, range, and that every row is wire-bonded
 (§4.3.3: one row in four is not). The protocol can only ever address one row per pixel
 (SET_PIXEL and pattern entries are single (row, col) pairs), so the host never commands two
-rows at once.
+rows at once. The check itself is ``drivers/fpsa/patterns.py`` (pure).
 """
 
 from __future__ import annotations
@@ -47,7 +47,8 @@ from drivers.errors import DeviceGone, InvalidValue
 from drivers.transport import ByteChannel, DeviceTimeout, TracedChannel, TransportError, open_channel
 
 from . import protocol as p
-from .errors import LinkError, NakError, PatternError, ProtocolError
+from .errors import LinkError, NakError, ProtocolError
+from .patterns import validate_pixels
 
 log = logging.getLogger(__name__)
 
@@ -304,36 +305,7 @@ class FpsaController:
 
     def _validate(self, pixels: Any, what: str) -> np.ndarray:
         rows, cols, bonded = self._geometry()
-        ctx = {"device": self.device, "command": "SET_PIXEL" if what == "SET_PIXEL" else "UPLOAD_PATTERN"}
-        arr = np.asarray(pixels)
-        if arr.ndim != 2 or arr.shape[1] != 2:
-            raise PatternError(f"{self.device}: {what} must have shape (n, 2), got {arr.shape}", **ctx)
-        if arr.shape[0] == 0:
-            raise PatternError(f"{self.device}: {what} is empty", **ctx)
-        if not np.issubdtype(arr.dtype, np.integer):
-            raise PatternError(f"{self.device}: {what} must be integers, got dtype {arr.dtype}", **ctx)
-        limit = min(rows * cols, 0xFFFF)
-        if arr.shape[0] > limit:
-            raise PatternError(f"{self.device}: {what} has {arr.shape[0]} pixels, more than "
-                               f"{limit} ({rows}x{cols})", **ctx)
-        r = arr[:, 0].astype(np.int64)
-        c = arr[:, 1].astype(np.int64)
-        bad_r = (r < 0) | (r >= rows)
-        bad_c = (c < 0) | (c >= cols)
-        bad_b = ~bad_r & ~bonded[np.clip(r, 0, rows - 1)]
-        bad = bad_r | bad_c | bad_b
-        if bad.any():
-            i = int(np.argmax(bad))
-            ri, ci = int(r[i]), int(c[i])
-            if bad_r[i]:
-                why = f"row {ri} outside 0..{rows - 1}"
-            elif bad_c[i]:
-                why = f"column {ci} outside 0..{cols - 1}"
-            else:
-                why = f"row {ri} is not wire-bonded"
-            raise PatternError(f"{self.device}: {what} pixel {i} (row {ri}, col {ci}): {why}",
-                               index=i, row=ri, col=ci, **ctx)
-        return np.stack([r, c], axis=1).astype(np.uint8)
+        return validate_pixels(pixels, what, rows, cols, bonded, self.device)
 
     def set_pixel(self, row: int, col: int) -> None:
         """Statically steer to one pixel: exactly one row line and one column line high."""

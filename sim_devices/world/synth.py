@@ -51,306 +51,35 @@ on, cos/sin run in float32 after an exact float64 range reduction (error ~1e-7 o
 << 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
 so results are reproducible for the same inputs and seed (not across different chunk sizes).
 benchmarks/synthesis.py measures ~40 M samples/s per core without phase noise, ~20 M with it.
+
+Parts: the chirp trajectory is ``sim_devices.world.synth_chirp``, the input/output types and
+:class:`SynthError` ``sim_devices.world.synth_types``, the work on one chunk of segments (beat, MZI,
+noise and ADC) ``sim_devices.world.synth_chunk``; this module checks the inputs, computes what is
+computed once per call and walks the chunks.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import antialias
-from sim_devices.world.laser import DfbLaser, wiener_phase
-from sim_devices.world.gauss import standard_normal_f32
-from sim_devices.world.synth_grid import rational_ratio, static_beat_phase
+from sim_devices.world.laser import wiener_phase
+from sim_devices.world.synth_chirp import ChirpTrajectory, trajectory, trajectory_from_frequency
+from sim_devices.world.synth_chunk import (
+    SortedHits,
+    Tables,
+    beat_chunk,
+    delay_split,
+    digitize_chunk,
+    mzi_chunk,
+)
+from sim_devices.world.synth_grid import rational_ratio
+from sim_devices.world.synth_types import AdcSpec, HitBatch, SynthError, Synthesized
 
 _CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
-_INTEGER_DELAY_TOL = 1e-6      # in ADC samples: a delay this close to m / fs is treated as exact
-
-
-class SynthError(ValueError):
-    """Invalid synthesis input; the message names the argument and the bad value."""
-
-
-# --------------------------------------------------------------------------------------------------
-# Deterministic chirp
-# --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ChirpTrajectory:
-    """The laser's deterministic optical frequency for one AWG period, and its phase.
-
-    ``nu_hz[k]`` = nu(k / fs_hz) - nu0 (Hz), k = 0..N-1, periodic with ``period_s`` = N / fs_hz and
-    linearly interpolated between samples (consistent with the laser model's first-order hold).
-    ``phase_rad[k]`` = 2 pi int_0^{k/fs} (nu - nu0) dt for k = 0..N (float64, exact for the
-    interpolated nu). ``nu0_hz`` = c / lambda enters through the Doppler term only.
-    """
-
-    fs_hz: float
-    nu_hz: np.ndarray
-    phase_rad: np.ndarray
-    period_s: float
-    nu0_hz: float
-    _cache: dict = field(default_factory=dict, compare=False, repr=False)
-
-    @property
-    def n(self) -> int:
-        return int(self.nu_hz.size)
-
-    @property
-    def mean_hz(self) -> float:
-        """Period average of nu - nu0 (the trapezoid mean of the interpolated nu)."""
-        return float(self._tables()[3])
-
-    def _tables(self):
-        """Coefficients of the periodic phase (mean frequency removed), one quadratic per interval."""
-        t = self._cache.get("tables")
-        if t is None:
-            nu = np.asarray(self.nu_hz, dtype=np.float64)
-            mean = float(np.mean(nu))            # trapezoid mean of a periodic, linearly interpolated nu
-            nup = nu - mean
-            nxt = np.roll(nup, -1)
-            dt = 1.0 / self.fs_hz
-            c1 = 2.0 * np.pi * dt * nup
-            c2 = np.pi * dt * (nxt - nup)
-            # accumulate in the trajectory's dtype (float32 only in the precision test)
-            acc_dtype = self.phase_rad.dtype
-            c0 = np.zeros(nu.size, dtype=acc_dtype)
-            np.cumsum((c1 + c2)[:-1].astype(acc_dtype), out=c0[1:], dtype=acc_dtype)
-            t = (c0, c1.astype(acc_dtype), c2.astype(acc_dtype), mean)
-            self._cache["tables"] = t
-        return t
-
-    def _tiled_turns(self, periods: int):
-        """:meth:`_tiled` in cycles (each table / 2 pi), for the static fast path (synth_grid)."""
-        key = ("tiled_turns", periods)
-        t = self._cache.get(key)
-        if t is None:
-            t = tuple(c * (1.0 / (2.0 * np.pi)) for c in self._tiled(periods))
-            self._cache[key] = t
-        return t
-
-    def _tiled(self, periods: int):
-        key = ("tiled", periods)
-        t = self._cache.get(key)
-        if t is None:
-            c0, c1, c2, _ = self._tables()
-            t = tuple(np.tile(c, periods) for c in (c0, c1, c2))
-            self._cache[key] = t
-        return t
-
-    def periodic_phase_samples(self, x, periods: int | None = None) -> np.ndarray:
-        """Periodic phase (mean frequency removed) at AWG-sample positions ``x`` (float64 out).
-
-        The arithmetic runs in the trajectory's dtype: float64, or float32 for the precision test,
-        where both the sample position and the phase tables then carry float32 rounding.
-        """
-        dtype = self.phase_rad.dtype
-        x = np.asarray(x, dtype=np.float64)
-        n = self.n
-        if periods is None:
-            x = np.mod(x, n)
-            periods = 1
-        if dtype != np.float64:
-            x = x.astype(dtype)
-        c0, c1, c2 = self._tiled(periods)
-        i = np.floor(x)
-        f = x - i
-        i = i.astype(np.intp)
-        return (c0[i] + f * (c1[i] + f * c2[i])).astype(np.float64, copy=False)
-
-    def _phase_nonneg(self, x: np.ndarray, periods: int) -> np.ndarray:
-        """Hot path of ``periodic_phase_samples`` for float64 positions 0 <= x < periods * N.
-
-        Consumes ``x`` (overwritten with the fractional part) and returns a new array.
-        """
-        if self.phase_rad.dtype != np.float64:
-            return self.periodic_phase_samples(x, periods)
-        c0, c1, c2 = self._tiled(periods)
-        i = x.astype(np.intp)                  # truncation == floor for x >= 0
-        x -= i
-        # np.take: the same gather as c2[i], a third faster (no fancy-indexing set-up per call)
-        out = np.take(c2, i)
-        out *= x
-        out += np.take(c1, i)
-        out *= x
-        out += np.take(c0, i)
-        return out
-
-    def phase_at(self, t_s) -> np.ndarray:
-        """2 pi int_0^t (nu - nu0) dt' at arbitrary times (periodic extension of the period)."""
-        t = np.asarray(t_s, dtype=np.float64)
-        return self.periodic_phase_samples(t * self.fs_hz) + 2.0 * np.pi * self.mean_hz * t
-
-    def frequency_at(self, t_s) -> np.ndarray:
-        """nu(t) - nu0 at arbitrary times (linear interpolation, periodic)."""
-        x = np.mod(np.asarray(t_s, dtype=np.float64) * self.fs_hz, self.n)
-        i = np.floor(x).astype(np.intp)
-        f = x - i
-        nu = self.nu_hz
-        return nu[i] + f * (nu[(i + 1) % self.n] - nu[i])
-
-
-def trajectory(laser: DfbLaser, drive_v, fs_drive_hz: float, *, dtype=np.float64) -> ChirpTrajectory:
-    """Compute the chirp of ``laser`` under one period of the periodic AWG waveform ``drive_v``.
-
-    ``dtype`` exists for the precision test only (float32 shows why phases must be float64).
-    """
-    nu = laser.frequency_hz(drive_v, fs_drive_hz)
-    return trajectory_from_frequency(nu, fs_drive_hz, nu0_hz=laser.nu0_hz, dtype=dtype)
-
-
-def trajectory_from_frequency(nu_hz, fs_hz: float, *, nu0_hz: float = C_M_PER_S / 1.55e-6,
-                              dtype=np.float64) -> ChirpTrajectory:
-    """A :class:`ChirpTrajectory` from a given periodic nu(t) - nu0 (e.g. an ideal linear chirp)."""
-    nu = np.asarray(nu_hz, dtype=np.float64)
-    if nu.ndim != 1 or nu.size < 2 or not np.all(np.isfinite(nu)):
-        raise SynthError(f"trajectory: nu_hz must be a finite 1-D array of >= 2 samples, got shape {nu.shape}")
-    if not (math.isfinite(fs_hz) and fs_hz > 0):
-        raise SynthError(f"trajectory: fs_hz must be positive and finite, got {fs_hz!r}")
-    dtype = np.dtype(dtype)
-    if dtype not in (np.dtype(np.float64), np.dtype(np.float32)):
-        raise SynthError(f"trajectory: dtype must be float64 (or float32 for the precision test), got {dtype}")
-    seg = (np.pi / fs_hz) * (nu + np.roll(nu, -1))       # trapezoid: exact for linear interpolation
-    phase = np.zeros(nu.size + 1, dtype=dtype)
-    np.cumsum(seg.astype(dtype), out=phase[1:], dtype=dtype)
-    return ChirpTrajectory(fs_hz=float(fs_hz), nu_hz=nu, phase_rad=phase, period_s=nu.size / fs_hz,
-                           nu0_hz=float(nu0_hz))
-
-
-# --------------------------------------------------------------------------------------------------
-# Inputs and outputs
-# --------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class AdcSpec:
-    """What the digitizer records per trigger: ``n_samples`` at ``sample_rate_hz``.
-
-    Full scale is +-input_range_v / 2 with 2**bits codes (see the module docstring). ``iq``: two
-    channels I and Q for the LiDAR beat. ``quantize=False`` returns clipped float volts.
-    """
-
-    sample_rate_hz: float
-    n_samples: int
-    bits: int = 8
-    input_range_v: float = 1.0
-    iq: bool = False
-    quantize: bool = True
-
-    def __post_init__(self):
-        if not (math.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
-            raise SynthError(f"AdcSpec: sample_rate_hz must be positive and finite, got {self.sample_rate_hz!r}")
-        if int(self.n_samples) != self.n_samples or self.n_samples < 1:
-            raise SynthError(f"AdcSpec: n_samples must be a positive integer, got {self.n_samples!r}")
-        if int(self.bits) != self.bits or not 1 <= self.bits <= 16:
-            raise SynthError(f"AdcSpec: bits must be an integer in 1..16, got {self.bits!r}")
-        if not (math.isfinite(self.input_range_v) and self.input_range_v > 0):
-            raise SynthError(f"AdcSpec: input_range_v must be positive and finite, got {self.input_range_v!r}")
-
-    @property
-    def lsb_v(self) -> float:
-        return self.input_range_v / 2.0 ** self.bits
-
-    @property
-    def code_min(self) -> int:
-        return -(1 << (self.bits - 1))
-
-    @property
-    def code_max(self) -> int:
-        return (1 << (self.bits - 1)) - 1
-
-    @classmethod
-    def from_config(cls, adc, sample_rate_hz: float, n_samples: int, *, quantize: bool = True) -> "AdcSpec":
-        """From a :class:`lidard.config.Adc` section."""
-        return cls(sample_rate_hz=float(sample_rate_hz), n_samples=int(n_samples), bits=int(adc.bits),
-                   input_range_v=float(adc.input_range_v), iq=bool(adc.iq), quantize=quantize)
-
-
-@dataclass(frozen=True)
-class HitBatch:
-    """Returns to synthesize: one entry per (segment, target) pair.
-
-    ``seg``: index of the segment (0..n_seg-1); ``tau_s``: round-trip delay 2 d / c at the segment's
-    start time; ``amplitude_v``: beat amplitude at the ADC input, G_TIA I_AC (eq. 2-11);
-    ``doppler_hz``: optical Doppler shift of the return, f_D = -2 v_radial / lambda with v_radial > 0
-    RECEDING (so f_D < 0 for a receding target, f_D = +2 V / lambda for an approaching speed V);
-    ``phase_rad``: optional constant beat phase (e.g. speckle); default 2 pi nu0 tau (mod 2 pi).
-    """
-
-    seg: np.ndarray
-    tau_s: np.ndarray
-    amplitude_v: np.ndarray
-    doppler_hz: np.ndarray | None = None
-    phase_rad: np.ndarray | None = None
-
-    @classmethod
-    def empty(cls) -> "HitBatch":
-        return cls(seg=np.zeros(0, np.intp), tau_s=np.zeros(0), amplitude_v=np.zeros(0))
-
-    @classmethod
-    def from_targets(cls, seg, distance_m, amplitude_v, *, radial_velocity_m_s=None,
-                     wavelength_m: float = 1.55e-6, phase_rad=None) -> "HitBatch":
-        """Convenience: distance (m) and radial velocity (m/s, positive receding) to tau and f_D."""
-        d = np.asarray(distance_m, dtype=np.float64)
-        dop = None
-        if radial_velocity_m_s is not None:
-            dop = -2.0 * np.asarray(radial_velocity_m_s, dtype=np.float64) / wavelength_m * np.ones_like(d)
-        return cls(seg=np.asarray(seg), tau_s=2.0 * d / C_M_PER_S,
-                   amplitude_v=np.asarray(amplitude_v, dtype=np.float64) * np.ones_like(d),
-                   doppler_hz=dop, phase_rad=phase_rad)
-
-    def validated(self, n_seg: int):
-        seg = np.asarray(self.seg)
-        if seg.ndim != 1:
-            raise SynthError(f"HitBatch.seg must be 1-D, got shape {seg.shape}")
-        n = seg.size
-        if n and not np.issubdtype(seg.dtype, np.integer):
-            raise SynthError(f"HitBatch.seg must hold integer segment indices, got dtype {seg.dtype}")
-        seg = seg.astype(np.intp)
-        if n and (seg.min() < 0 or seg.max() >= n_seg):
-            raise SynthError(f"HitBatch.seg: indices must be in 0..{n_seg - 1}, got {seg.min()}..{seg.max()}")
-
-        def arr(name, v, default):
-            a = np.full(n, default, dtype=np.float64) if v is None else np.asarray(v, dtype=np.float64)
-            if a.shape == ():
-                a = np.full(n, float(a))
-            if a.shape != (n,):
-                raise SynthError(f"HitBatch.{name}: expected shape ({n},) like seg, got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise SynthError(f"HitBatch.{name}: contains NaN or inf")
-            return a
-
-        tau = arr("tau_s", self.tau_s, 0.0)
-        if n and tau.min() < 0:
-            raise SynthError(f"HitBatch.tau_s: delays must be >= 0, got min {tau.min()!r}")
-        amp = arr("amplitude_v", self.amplitude_v, 0.0)
-        dop = arr("doppler_hz", self.doppler_hz, 0.0)
-        ph = None if self.phase_rad is None else arr("phase_rad", self.phase_rad, 0.0)
-        return seg, tau, amp, dop, ph
-
-
-@dataclass
-class Synthesized:
-    """Digitizer records for ``n_seg`` segments.
-
-    ``beat``: (n_seg, n) int16 codes (float64 volts if not quantized) -- the real beat, or I for I/Q;
-    ``beat_q``: Q channel or None; ``mzi``: monitor-MZI channel or None; ``overrange``: (n_seg,
-    len(channels)) bool, a channel clipped somewhere in that segment; ``channels`` names the columns.
-    ``volts`` (if ``return_volts``): the analog channels before clipping/quantization.
-    ``phase_noise_rad`` (if ``return_phase_noise``): the Wiener realization (n_seg, n_pre + n) on the
-    ADC grid, sample k of the record being column ``n_pre + k``; None when the linewidth is 0.
-    """
-
-    beat: np.ndarray
-    beat_q: np.ndarray | None
-    mzi: np.ndarray | None
-    overrange: np.ndarray
-    channels: tuple[str, ...]
-    lsb_v: float
-    volts: dict | None = None
-    phase_noise_rad: np.ndarray | None = None
-    phase_noise_pre: int = 0
-    mzi_q: np.ndarray | None = None     # quadrature monitor output (``mzi_quadrature``): sin where mzi is cos
 
 
 # --------------------------------------------------------------------------------------------------
@@ -367,60 +96,82 @@ def _per_segment(name: str, v, n_seg: int) -> np.ndarray:
     return a
 
 
-def _delay_split(tau_s: np.ndarray, fs: float):
-    """Delay in ADC samples -> (m = ceil, w = m - tau fs in [0, 1)); w < tol counts as integer."""
-    x = tau_s * fs
-    m = np.ceil(x - _INTEGER_DELAY_TOL)
-    w = m - x
-    w[w < _INTEGER_DELAY_TOL] = 0.0
-    return m.astype(np.intp), w
+def _validated(t_start_s, hits: HitBatch | None, noise_asd_v_per_rthz, linewidth_hz: float, rng,
+               mzi_delay_s: float | None, mzi_amplitude_v: float | None, mzi_noise_asd_v_per_rthz: float,
+               dc_v: float):
+    """The arguments of :func:`synthesize` checked (a SynthError names the first bad one):
+    (t_start_s, (seg, tau, amp, dop, phase) of the hits, per-segment noise ASD)."""
+    t0 = np.asarray(t_start_s, dtype=np.float64)
+    if t0.ndim != 1 or not np.all(np.isfinite(t0)):
+        raise SynthError(f"synthesize: t_start_s must be a finite 1-D array, got shape {t0.shape}")
+    n_seg = t0.size
+    hits = hits if hits is not None else HitBatch.empty()
+    seg, tau, amp, dop, ph = hits.validated(n_seg)
+    asd = _per_segment("noise_asd_v_per_rthz", noise_asd_v_per_rthz, n_seg)
+    if not (math.isfinite(linewidth_hz) and linewidth_hz >= 0):
+        raise SynthError(f"synthesize: linewidth_hz must be >= 0 and finite, got {linewidth_hz!r}")
+    want_mzi = mzi_delay_s is not None
+    if want_mzi:
+        if not (math.isfinite(mzi_delay_s) and mzi_delay_s > 0):
+            raise SynthError(f"synthesize: mzi_delay_s must be positive and finite, got {mzi_delay_s!r}")
+        if mzi_amplitude_v is None or not (math.isfinite(mzi_amplitude_v) and mzi_amplitude_v >= 0):
+            raise SynthError(f"synthesize: mzi_amplitude_v must be given (>= 0) with mzi_delay_s, got {mzi_amplitude_v!r}")
+    if not (math.isfinite(mzi_noise_asd_v_per_rthz) and mzi_noise_asd_v_per_rthz >= 0):
+        raise SynthError(f"synthesize: mzi_noise_asd_v_per_rthz must be >= 0, got {mzi_noise_asd_v_per_rthz!r}")
+    if not math.isfinite(dc_v):
+        raise SynthError(f"synthesize: dc_v must be finite, got {dc_v!r}")
+    need_rng = (linewidth_hz > 0 and (seg.size or want_mzi)) or asd.max(initial=0) > 0 \
+        or (want_mzi and mzi_noise_asd_v_per_rthz > 0)
+    if need_rng and rng is None:
+        raise SynthError("synthesize: rng (numpy Generator) is required when noise or phase noise is on")
+    return t0, (seg, tau, amp, dop, ph), asd
 
 
-def _delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng):
-    """phi(t_k - tau) for records `rows` of phi (n_rows, n_pre+n), tau fs = m - w: exact for w == 0,
-    else linear interpolation between samples k - m and k - m + 1 plus a Brownian-bridge term."""
-    win = np.lib.stride_tricks.sliding_window_view(phi, n, axis=1)    # win[r, j] = phi[r, j:j+n]
-    out = win[rows, n_pre - m]                                        # contiguous row copies
-    frac = np.nonzero(w > 0)[0]
-    if frac.size:
-        ww = w[frac][:, None]
-        step = win[rows[frac], n_pre - m[frac] + 1]
-        step -= out[frac]
-        step *= ww
-        step += rng.standard_normal((frac.size, n)) * np.sqrt(var_step * ww * (1.0 - ww))
-        out[frac] += step
-    return out
-
-
-def _cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = False):
-    """cos (and sin) of a float64 phase array, which may be consumed.
-
-    ``fast``: reduce to [-pi, pi] in float64, then evaluate in float32 (SIMD, ~20x faster than the
-    float64 libm path here) and answer float32: absolute error ~1e-7, far below one LSB of a 16-bit
-    ADC (1.5e-5 of full scale), so it is used only when the output is quantized.
-    ``in_turns`` (fast only): ``phase`` is in cycles, |phase| < 2**24 (the static fast path's phase
-    is a difference of chirp phases, a few thousand cycles at most), so the whole number of cycles
-    fits a float32 buffer exactly, which then takes the reduced phase (no float64 temporary).
-    """
-    if not fast:
-        s = np.sin(phase) if want_sin else None
-        return np.cos(phase, out=phase), s
-    if in_turns:
-        r32 = np.rint(phase, out=np.empty(phase.shape, np.float32), casting="same_kind")
-        phase -= r32
-        np.multiply(phase, 2.0 * np.pi, out=r32, casting="same_kind")   # float64 product, stored float32
+def _sorted_hits(traj: ChirpTrajectory, seg, tau, amp, dop, ph, fs: float) -> SortedHits:
+    """Hits sorted by segment, ranked within their segment; a missing phase is 2 pi nu0 tau."""
+    order = np.argsort(seg, kind="stable")
+    seg, tau, amp, dop = seg[order], tau[order], amp[order], dop[order]
+    if ph is None:
+        ph = 2.0 * np.pi * np.mod(traj.nu0_hz * tau, 1.0)
     else:
-        phase *= 1.0 / (2.0 * np.pi)
-        turns = np.rint(phase)
-        phase -= turns
-        del turns
-        phase *= 2.0 * np.pi
-        r32 = phase.astype(np.float32)
-    # the record stays float32 from here (amplitude, filter gains, noise): 7 digits against the
-    # 16-bit converter's 4.6, and half the memory traffic of float64 (issue 18)
-    c = np.cos(r32, out=r32) if not want_sin else np.cos(r32)
-    s = np.sin(r32, out=r32) if want_sin else None
-    return c, s
+        ph = ph[order]
+    first = np.searchsorted(seg, seg, side="left")
+    rank = np.arange(seg.size) - first
+    m_hit, w_hit = delay_split(tau, fs)
+    return SortedHits(seg, tau, amp, dop, ph, rank, m_hit, w_hit, int(rank.max(initial=-1)))
+
+
+def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s: float,
+            mzi_delay_s: float | None, mzi_amplitude_v: float | None, mzi_quadrature: bool,
+            need_base: bool, beat_filter) -> Tables:
+    """The deterministic chirp phase on the record grid, once per distinct start offset, and the
+    monitor MZI's deterministic phase and clean fringes."""
+    n_awg = traj.n
+    ratio = traj.fs_hz / fs
+    x_start = np.mod(t0 * traj.fs_hz, n_awg)
+    x_start[x_start >= n_awg] = 0.0
+    u_start, u_inv = np.unique(x_start, return_inverse=True)
+    k = np.arange(n, dtype=np.float64)
+    max_tau_samples_awg = max(max_tau_s, mzi_delay_s or 0.0) * traj.fs_hz
+    # hits' x - tau fs may go back one period, and a record may span several: tile the tables
+    back = int(math.ceil(max_tau_samples_awg / n_awg)) + 1
+    periods = back + int(math.ceil((n * ratio + 1) / n_awg)) + 1
+    off = back * n_awg
+    aa_rate = antialias.max_chirp_rate_hz_per_s(traj.nu_hz, traj.fs_hz) if beat_filter is not None else 0.0
+    base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
+    # the fast path needs float64 tables (the float32 trajectory exists for the precision test only)
+    grid = rational_ratio(ratio) if traj.phase_rad.dtype == np.float64 else None
+    tb = Tables(traj, n, fs, ratio, k, off, periods, u_start, u_inv, u_start.size == 1, grid,
+                2.0 * np.pi * traj.mean_hz, aa_rate, base)
+    if mzi_delay_s is not None:
+        # the MZI's deterministic phase depends only on the start offset: once per distinct offset
+        tau_m = float(mzi_delay_s)
+        xm = u_start[:, None] + off + k[None, :] * ratio - tau_m * traj.fs_hz
+        tb.mzi_det = base - traj._phase_nonneg(xm, periods)
+        tb.mzi_det += tb.mean_w * tau_m + 2.0 * np.pi * math.fmod(traj.nu0_hz * tau_m, 1.0)
+        tb.mzi_clean = np.cos(tb.mzi_det) * mzi_amplitude_v
+        tb.mzi_clean_q = np.sin(tb.mzi_det) * mzi_amplitude_v if mzi_quadrature else None
+    return tb
 
 
 def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | None, *,
@@ -448,76 +199,19 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     draws its own white noise (two photodiodes, two digitizer channels).
     """
     fast = adc.quantize if fast_trig is None else bool(fast_trig)
-    t0 = np.asarray(t_start_s, dtype=np.float64)
-    if t0.ndim != 1 or not np.all(np.isfinite(t0)):
-        raise SynthError(f"synthesize: t_start_s must be a finite 1-D array, got shape {t0.shape}")
+    t0, raw_hits, asd = _validated(t_start_s, hits, noise_asd_v_per_rthz, linewidth_hz, rng, mzi_delay_s,
+                                   mzi_amplitude_v, mzi_noise_asd_v_per_rthz, dc_v)
     n_seg, n, fs = t0.size, int(adc.n_samples), float(adc.sample_rate_hz)
-    hits = hits if hits is not None else HitBatch.empty()
-    seg, tau, amp, dop, ph = hits.validated(n_seg)
-    asd = _per_segment("noise_asd_v_per_rthz", noise_asd_v_per_rthz, n_seg)
-    if not (math.isfinite(linewidth_hz) and linewidth_hz >= 0):
-        raise SynthError(f"synthesize: linewidth_hz must be >= 0 and finite, got {linewidth_hz!r}")
     want_mzi = mzi_delay_s is not None
-    if want_mzi:
-        if not (math.isfinite(mzi_delay_s) and mzi_delay_s > 0):
-            raise SynthError(f"synthesize: mzi_delay_s must be positive and finite, got {mzi_delay_s!r}")
-        if mzi_amplitude_v is None or not (math.isfinite(mzi_amplitude_v) and mzi_amplitude_v >= 0):
-            raise SynthError(f"synthesize: mzi_amplitude_v must be given (>= 0) with mzi_delay_s, got {mzi_amplitude_v!r}")
-    if not (math.isfinite(mzi_noise_asd_v_per_rthz) and mzi_noise_asd_v_per_rthz >= 0):
-        raise SynthError(f"synthesize: mzi_noise_asd_v_per_rthz must be >= 0, got {mzi_noise_asd_v_per_rthz!r}")
-    if not math.isfinite(dc_v):
-        raise SynthError(f"synthesize: dc_v must be finite, got {dc_v!r}")
-    need_rng = (linewidth_hz > 0 and (seg.size or want_mzi)) or asd.max(initial=0) > 0 \
-        or (want_mzi and mzi_noise_asd_v_per_rthz > 0)
-    if need_rng and rng is None:
-        raise SynthError("synthesize: rng (numpy Generator) is required when noise or phase noise is on")
-
-    # -- sort hits by segment, rank them within their segment --------------------------------------
-    order = np.argsort(seg, kind="stable")
-    seg, tau, amp, dop = seg[order], tau[order], amp[order], dop[order]
-    if ph is None:
-        ph = 2.0 * np.pi * np.mod(traj.nu0_hz * tau, 1.0)
-    else:
-        ph = ph[order]
-    first = np.searchsorted(seg, seg, side="left")
-    rank = np.arange(seg.size) - first
-
-    # -- deterministic chirp phase on the record grid, once per distinct start offset --------------
-    n_awg = traj.n
-    ratio = traj.fs_hz / fs
-    x_start = np.mod(t0 * traj.fs_hz, n_awg)
-    x_start[x_start >= n_awg] = 0.0
-    u_start, u_inv = np.unique(x_start, return_inverse=True)
-    k = np.arange(n, dtype=np.float64)
-    max_tau_samples_awg = max(float(tau.max(initial=0.0)), mzi_delay_s or 0.0) * traj.fs_hz
-    # hits' x - tau fs may go back one period, and a record may span several: tile the tables
-    back = int(math.ceil(max_tau_samples_awg / n_awg)) + 1
-    periods = back + int(math.ceil((n * ratio + 1) / n_awg)) + 1
-    off = back * n_awg
-    mean_w = 2.0 * np.pi * traj.mean_hz
-    aa_rate = antialias.max_chirp_rate_hz_per_s(traj.nu_hz, traj.fs_hz) if beat_filter is not None else 0.0
-    need_base = seg.size > 0 or want_mzi
-    base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
-    single_start = u_start.size == 1
-    # the fast path needs float64 tables (the float32 trajectory exists for the precision test only)
-    grid = rational_ratio(ratio) if traj.phase_rad.dtype == np.float64 else None
-    if want_mzi:
-        # the MZI's deterministic phase depends only on the start offset: once per distinct offset
-        tau_m = float(mzi_delay_s)
-        xm = u_start[:, None] + off + k[None, :] * ratio - tau_m * traj.fs_hz
-        mzi_det = base - traj._phase_nonneg(xm, periods)
-        mzi_det += mean_w * tau_m + 2.0 * np.pi * math.fmod(traj.nu0_hz * tau_m, 1.0)
-        mzi_clean = np.cos(mzi_det) * mzi_amplitude_v
-        mzi_clean_q = np.sin(mzi_det) * mzi_amplitude_v if mzi_quadrature else None
+    h = _sorted_hits(traj, *raw_hits, fs)
+    tb = _tables(traj, t0, n, fs, float(h.tau.max(initial=0.0)), mzi_delay_s, mzi_amplitude_v,
+                 mzi_quadrature, h.seg.size > 0 or want_mzi, beat_filter)
 
     # -- phase-noise geometry ----------------------------------------------------------------------
-    pn_on = linewidth_hz > 0 and (seg.size > 0 or want_mzi)
+    pn_on = linewidth_hz > 0 and (h.seg.size > 0 or want_mzi)
     var_step = 2.0 * np.pi * linewidth_hz / fs
-    m_hit, w_hit = _delay_split(tau, fs)
-    if want_mzi:
-        m_mzi, w_mzi = _delay_split(np.array([mzi_delay_s]), fs)
-    max_m = max(int(m_hit.max(initial=0)), int(m_mzi[0]) if want_mzi else 0)
-    n_pre = max_m + 1
+    m_mzi, w_mzi = delay_split(np.array([mzi_delay_s]), fs) if want_mzi else (None, None)
+    n_pre = max(int(h.m.max(initial=0)), int(m_mzi[0]) if want_mzi else 0) + 1
 
     channels = ["beat"] + (["beat_q"] if adc.iq else []) + (["mzi"] if want_mzi else []) \
         + (["mzi_q"] if want_mzi and mzi_quadrature else [])
@@ -528,8 +222,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     pn_all = np.empty((n_seg, n_pre + n)) if (return_phase_noise and pn_on) else None
 
     chunk = max(1, _CHUNK_ELEMENTS // max(n, 1))
-    seg_bounds = np.searchsorted(seg, np.arange(0, n_seg + chunk, chunk))
-    max_rank = int(rank.max(initial=-1))
+    seg_bounds = np.searchsorted(h.seg, np.arange(0, n_seg + chunk, chunk))
     noise_std = asd * math.sqrt(fs / 2.0)
     for ci, s0 in enumerate(range(0, n_seg, chunk)):
         s1 = min(n_seg, s0 + chunk)
@@ -538,130 +231,18 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
         phi = wiener_phase(linewidth_hz, n_pre + n, 1.0 / fs, rng, shape=(nc,)) if pn_on else None
         if pn_all is not None:
             pn_all[s0:s1] = phi
-
         acc = {}
         if h1 > h0:
-            hs = slice(h0, h1)
-            nh = h1 - h0
-            lseg = seg[hs] - s0
-            useg = u_inv[seg[hs]]
-            # + 2 pi nu_mean tau(t) + phase0 - 2 pi f_D t  (constant + linear in k per hit)
-            const = mean_w * tau[hs] + ph[hs]
-            slope = -(mean_w / traj.nu0_hz + 2.0 * np.pi) * dop[hs] / fs
-            moving = bool(np.any(slope != 0.0))
-            # in turns (cycles) where nothing in radians is added: the float32 trig's range
-            # reduction then starts from turns (one pass fewer); the phase is linear in the tables
-            in_turns = fast and phi is None and grid is not None and single_start and not moving
-            if grid is not None and single_start and not moving:
-                # static returns on a rational grid: no per-sample gathers (synth_grid)
-                tables, c = (traj._tiled_turns(periods), const / (2.0 * np.pi)) if in_turns \
-                    else (traj._tiled(periods), const)
-                dphi = static_beat_phase(tables, float(u_start[0]) + off, ratio, grid, n, tau[hs] * traj.fs_hz, c)
-            else:
-                # delayed position x = x_start + k ratio - tau(t) fs_awg with the Doppler-varying delay
-                # tau(t) = tau0 - (f_D / nu0) t, t = k / fs: linear in k per hit
-                x = np.multiply.outer(ratio + dop[hs] * (traj.fs_hz / (traj.nu0_hz * fs)), k)
-                x += (u_start[useg] + off - tau[hs] * traj.fs_hz)[:, None]
-                dphi = traj._phase_nonneg(x, periods)
-                del x
-                np.subtract(base[0] if single_start else base[useg], dphi, out=dphi)
-                if moving:
-                    lin = np.multiply.outer(slope, k)
-                    lin += const[:, None]
-                    dphi += lin
-                    del lin
-                else:
-                    dphi += const[:, None]
-            aa = None
-            if beat_filter is not None:   # before phase noise: the filter sees the chirp's beat
-                bound = tau[hs] * aa_rate + np.abs(dop[hs])
-                aa = antialias.sample_gains(dphi, fs, beat_filter, bound, turns=in_turns)
-            if phi is not None:
-                dphi += phi[lseg, n_pre:]
-                dphi -= _delayed_noise(phi, lseg, n_pre, n, m_hit[hs], w_hit[hs], var_step, rng)
-            a = amp[hs, None]
-            parts = {}
-            cos_part, sin_part = _cos_sin(dphi, adc.iq, fast, in_turns=in_turns)
-            del dphi
-            if adc.iq and iq_imbalance[1]:   # sin(dPhi + eps) from the same cos and sin: no second evaluation
-                sin_part *= math.cos(iq_imbalance[1])
-                sin_part += math.sin(iq_imbalance[1]) * cos_part
-            cos_part *= a
-            if aa is not None:
-                cos_part[aa[0]] *= aa[1]
-            parts["beat"] = cos_part
-            if adc.iq:
-                sin_part *= a * iq_imbalance[0]
-                if aa is not None:
-                    sin_part[aa[0]] *= aa[1]
-                parts["beat_q"] = sin_part
-            rk = rank[hs]
-            dense = max_rank == 0 and nh == nc          # one hit in every segment (sorted): no scatter
-            for c, part in parts.items():
-                if dense:
-                    acc[c] = part
-                    continue
-                acc[c] = np.zeros((nc, n), dtype=part.dtype)
-                for r in range(max_rank + 1):
-                    sel = np.nonzero(rk == r)[0]
-                    if sel.size == 0:
-                        continue
-                    if r == 0:
-                        acc[c][lseg[sel]] = part[sel]
-                    else:
-                        acc[c][lseg[sel]] += part[sel]
-            del parts, cos_part, sin_part
+            acc = beat_chunk(tb, h, slice(h0, h1), s0, nc, phi, n_pre, var_step, rng, fast, adc,
+                             iq_imbalance, beat_filter)
         for c in channels:
             if c not in ("mzi", "mzi_q") and c not in acc:
                 acc[c] = np.zeros((nc, n), dtype=np.float32 if fast else np.float64)
         if want_mzi:
-            ub = u_inv[s0:s1]
-            if phi is not None:
-                mphi = mzi_det[0] + phi[:, n_pre:] if single_start else mzi_det[ub] + phi[:, n_pre:]
-                mphi -= _delayed_noise(phi, np.arange(nc), n_pre, n, np.full(nc, m_mzi[0]),
-                                       np.full(nc, w_mzi[0]), var_step, rng)
-                mzi_v, mzi_s = _cos_sin(mphi, mzi_quadrature, fast)
-                mzi_v *= mzi_amplitude_v
-                acc["mzi"] = mzi_v
-                if mzi_quadrature:       # the same MZI's 90-degree output: same phase noise, sin
-                    acc["mzi_q"] = mzi_s * mzi_amplitude_v
-            else:
-                acc["mzi"] = np.repeat(mzi_clean, nc, axis=0) if single_start else mzi_clean[ub]
-                if mzi_quadrature:
-                    acc["mzi_q"] = np.repeat(mzi_clean_q, nc, axis=0) if single_start else mzi_clean_q[ub]
-
-        for c in channels:
-            v = acc[c]
-            if c in ("mzi", "mzi_q"):
-                if mzi_noise_asd_v_per_rthz > 0:
-                    noise = standard_normal_f32(rng, (nc, n), mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
-                    v += noise
-                    del noise
-            else:
-                if dc_v:
-                    v += dc_v
-                std = noise_std[s0:s1]
-                if std.max(initial=0.0) > 0:
-                    # float32 Box-Muller draws (gauss.py): 7 digits are plenty for a noise sample
-                    if std.min() == std.max():          # one noise level for the chunk: no pass
-                        noise = standard_normal_f32(rng, (nc, n), float(std[0]))
-                    else:
-                        noise = standard_normal_f32(rng, (nc, n))
-                        noise *= std[:, None].astype(np.float32)
-                    v += noise
-                    del noise
-            if volts is not None:
-                volts[c][s0:s1] = v
-            j = channels.index(c)
-            if adc.quantize:
-                v *= 1.0 / adc.lsb_v
-                np.rint(v, out=v)
-                lo, hi = adc.code_min, adc.code_max
-            else:
-                lo, hi = -adc.input_range_v / 2.0, adc.input_range_v / 2.0
-            overrange[s0:s1, j] = (v.min(axis=1) < lo) | (v.max(axis=1) > hi)
-            np.clip(v, lo, hi, out=v)
-            outs[c][s0:s1] = v
+            acc.update(mzi_chunk(tb, s0, s1, phi, n_pre, m_mzi, w_mzi, var_step, rng, fast,
+                                 mzi_quadrature, mzi_amplitude_v))
+        digitize_chunk(acc, channels, adc, s0, s1, dc_v, noise_std, mzi_noise_asd_v_per_rthz, rng,
+                       outs, overrange, volts)
 
     return Synthesized(beat=outs["beat"], beat_q=outs.get("beat_q"), mzi=outs.get("mzi"),
                        overrange=overrange, channels=tuple(channels), lsb_v=adc.lsb_v, volts=volts,
@@ -676,3 +257,7 @@ def sample_rate_for_range_hz(max_range_m: float, rate_hz_per_s: float, *, oversa
         raise SynthError("sample_rate_for_range_hz: max_range_m, rate_hz_per_s > 0 and oversample >= 1 required")
     f_max = 2.0 * abs(rate_hz_per_s) * max_range_m / C_M_PER_S + abs(max_doppler_hz)
     return oversample * 2.0 * f_max
+
+
+__all__ = ["AdcSpec", "ChirpTrajectory", "HitBatch", "SynthError", "Synthesized", "sample_rate_for_range_hz",
+           "synthesize", "trajectory", "trajectory_from_frequency"]

@@ -1,0 +1,120 @@
+"""Power sequences of the laser / TEC / HV controller: bring the outputs up and down in a safe
+order, each step commanded AND read back (§4.4.1: the DFB laser's wavelength follows its TEC
+temperature; §4.3 and §4.2.6: the MEMS HV).
+
+``bring_up``: TEC settled -> HV on -> laser on; ``bring_down``: laser off -> HV off; on a failure
+after the outputs were touched, both are switched off (best effort) before the error propagates.
+Waiting uses the injected :attr:`SettleCheck.sleep` (``time.sleep`` in the lab,
+``VirtualClock.advance`` on the bench), so this module never decides what time is.
+:class:`PowerSequences` is a mixin of :class:`drivers.controller.driver.LaserHvController`; it
+uses the driver's typed register methods, ``limits`` and ``settle_check``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from drivers.controller import protocol as p
+from drivers.controller.errors import (
+    DEVICE,
+    ConfigError,
+    ControllerError,
+    DeviceFaulted,
+    InterlockOpen,
+    SettleError,
+)
+
+
+@dataclass(frozen=True)
+class SettleCheck:
+    """How ``bring_up``/``bring_down`` wait for readbacks.
+
+    ``sleep(dt_s)`` is called between polls; the total wait is the sum of the poll intervals, so
+    with ``VirtualClock.advance`` the whole sequence runs in virtual time.
+    """
+
+    sleep: Callable[[float], object]
+    timeout_s: float = 10.0
+    poll_s: float = 0.01
+    laser_tol_ma: float = 0.5
+    hv_tol_v: float = 0.25
+    tec_tol_c: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("timeout_s", "poll_s", "laser_tol_ma", "hv_tol_v", "tec_tol_c"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{DEVICE}: SettleCheck.{name} must be a finite number > 0, got {v!r}")
+        if not callable(self.sleep):
+            raise ConfigError(f"{DEVICE}: SettleCheck.sleep must be callable, got {self.sleep!r}")
+
+
+class PowerSequences:
+    """``bring_up`` / ``bring_down`` over the driver's register methods (a mixin of the driver)."""
+
+    def _settle_check(self, settle_check: SettleCheck | None, operation: str) -> SettleCheck:
+        sc = settle_check if settle_check is not None else self.settle_check
+        if sc is None:
+            raise ConfigError(f"{DEVICE}: {operation} needs a SettleCheck (argument or constructor)")
+        return sc
+
+    @staticmethod
+    def _settle(quantity: str, setpoint: float, read: Callable[[], float], tolerance: float,
+                unit: str, sc: SettleCheck) -> float:
+        waited_s = 0.0
+        while True:
+            value = read()
+            if abs(value - setpoint) <= tolerance:
+                return value
+            if waited_s >= sc.timeout_s:
+                raise SettleError(quantity, setpoint, value, tolerance, unit, waited_s)
+            sc.sleep(sc.poll_s)
+            waited_s += sc.poll_s
+
+    def bring_up(self, current_ma: float, hv_v: float, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """TEC settled -> HV on at ``hv_v`` -> laser on at ``current_ma``, each read back.
+
+        Both setpoints are limit-checked before anything is sent. On any failure after outputs
+        were touched, laser and HV are switched off (best effort) before the error propagates.
+        """
+        sc = self._settle_check(settle_check, "bring_up")
+        current = self.limits.check(p.LASER_CURRENT_SETPOINT, current_ma)
+        hv = self.limits.check(p.HV_SETPOINT, hv_v)
+        if not self.interlock_closed():
+            raise InterlockOpen("bring_up")
+        latched = self.faults()
+        if latched:
+            raise DeviceFaulted("bring_up", latched)
+        # The DFB's wavelength follows its temperature: no light before the TEC has settled.
+        self._settle("TEC temperature", self.tec_setpoint_c(), self.tec_c, sc.tec_tol_c, "degC", sc)
+        try:
+            self.set_hv_v(hv)
+            self.hv_enable(True)
+            self._settle("HV voltage", hv, self.hv_v, sc.hv_tol_v, "V", sc)
+            self.set_laser_current_ma(current)
+            self.laser_enable(True)
+            self._settle("laser current", current, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
+        except ControllerError:
+            self._safe_off()
+            raise
+        return self.status()
+
+    def bring_down(self, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """Laser off (current to 0) first, then HV off (voltage to 0); both read back to 0."""
+        sc = self._settle_check(settle_check, "bring_down")
+        self.laser_enable(False)
+        self.set_laser_current_ma(0.0)
+        self._settle("laser current", 0.0, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
+        self.hv_enable(False)
+        self.set_hv_v(0.0)
+        self._settle("HV voltage", 0.0, self.hv_v, sc.hv_tol_v, "V", sc)
+        return self.status()
+
+    def _safe_off(self) -> None:
+        for fn in (self.laser_enable, self.hv_enable):
+            try:
+                fn(False)
+            except ControllerError:
+                pass  # the original error is what the caller needs to see

@@ -1,0 +1,264 @@
+"""The bench as the digitizer's ``SegmentSource``: triggers from the FPGA, beams -> hits -> beat
+tones from the world, synthesized at the sample rate the host configured (§2.1 eq. 2-1; §2.4.1;
+§4.3.6; §4.4).
+
+:class:`BenchCapture` is the capture half of :class:`sim_devices.bench.Bench`. Per batch of triggers
+it decides which segments see light (laser on, interlock closed, an interlock fault cutting the
+batch), which beams emit (the switch dynamics, or the commanded pixel when every switch pulls in),
+the hits the world returns, the noise (detector, the converter core's quantization when the record
+is decimated on board, Wiener phase noise unless negligible: ``sim_devices.world.fidelity``), and
+synthesizes every requested channel: beat (or I/Q through the 90-degree hybrid), the monitor MZI
+(its TRUE delay, hidden from the daemon), and the tap photodiode on the emitted light. Segment
+noise is seeded from (bench seed, run, first segment index), so a re-read of the same batch gives
+the same bytes. The laser's frequency trajectory is computed once per AWG waveform and laser
+temperature (1 mK grid) and cached. Tap channel: V = G_tap R eta_tap P_tx sum_beams T_beam plus
+white detector noise.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidard.physics.budget import monitor_noise_asd, quantization_asd
+
+from .digitizer import CaptureConfig, CapturedSegments, decimation_filter
+from .world.fidelity import phase_noise_negligible
+from .world.synth import AdcSpec, HitBatch, synthesize, trajectory
+
+
+@dataclass(frozen=True)
+class TapSpec:
+    """Monitor photodiode on the FPSA's emission (the digitizer's ``tap`` channel)."""
+
+    fraction: float = 0.01          # 1 % tap coupler on the emitted light
+    gain_v_per_a: float = 1.0e4     # monitor TIA
+    noise_v_rms: float = 1.0e-3     # white detector + TIA noise per sample
+
+
+#: a 90-degree hybrid splits the LO and the return four ways: each balanced pair (I or Q) carries
+#: R sqrt(P_LO P_rx) of AC current against 2 R sqrt(P_LO P_rx) for the single photodiode of the §4.4
+#: circulator set-up, i.e. half the amplitude per channel; each channel keeps the single photodiode's
+#: noise (its own TIA and converter) -- docs/physics.md, "The coherent (I/Q) receiver"
+HYBRID_CHANNEL_AMPLITUDE = 0.5
+
+
+def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:
+    """Segments whose returns, BEFORE the decimation filter, exceed the core's full scale (+-range/2):
+    a strong return beyond the gate clips the converter even though the filter hides it from the
+    record, and the digitizer flags the segment (what bounds a leak: lidard.physics.decimation)."""
+    peak = np.bincount(np.asarray(hits.seg, np.intp), weights=np.abs(hits.amplitude_v), minlength=n_seg)
+    return peak > 0.5 * input_range_v
+
+
+class BenchCapture:
+    """The bench's ``SegmentSource`` (a mixin of :class:`~sim_devices.bench.Bench`)."""
+
+    def _trajectory(self):
+        drive, fs = self.awg.drive_volts()
+        if not self.awg.output_on:
+            drive = np.zeros_like(drive)
+        laser, temp_c = self.laser, None
+        if self.tec_tuning is not None:   # keyed on the 1 mK grid: not recomputed every batch
+            temp_c = self.tec_tuning.quantise(self.controller.model.laser_temperature_c())
+            laser = self.tec_tuning.laser_at(self.laser, temp_c)
+        key = hashlib.sha1(np.ascontiguousarray(drive).tobytes() + repr((float(fs), temp_c)).encode()).digest()
+        if key != self._traj_key:
+            self._traj = trajectory(laser, drive, fs)
+            self._traj_key = key
+        return self._traj
+
+    def _tap_codes(self, path_sum: np.ndarray, adc: AdcSpec, first: int):
+        """Monitor photodiode codes: a DC level per segment (sum of emitting path transmissions)
+        plus white noise, quantized like every channel; clipped segments are flagged."""
+        volts_per_path = self.tap_volts_per_beam()
+        rng = np.random.default_rng([self.seed, 0x7A9, int(first)])
+        v = (volts_per_path * path_sum)[:, None] + self.tap.noise_v_rms * rng.standard_normal(
+            (path_sum.size, adc.n_samples))
+        lo_code, hi_code = -(2 ** (adc.bits - 1)), 2 ** (adc.bits - 1) - 1
+        raw = np.rint(v / adc.lsb_v)
+        over = (raw < lo_code).any(axis=1) | (raw > hi_code).any(axis=1)
+        return np.clip(raw, lo_code, hi_code).astype(np.int16), over
+
+    def _core_asd(self, capture: CaptureConfig) -> float:
+        """White-noise ASD of the converter core's quantization in a decimated record.
+
+        The simulated converter is the one the configuration describes (``adc.bits`` at
+        ``adc.max_sample_rate_hz``). A record the host configured wider than the core
+        (``CaptureConfig.resolution_bits`` > core bits: config.Adc.record_bits, core bits + the
+        decimation gain + guard bits) was decimated on board, so the core's quantization noise,
+        LSB^2/12 over its full Nyquist band, is in it as white noise; the digitizer then rounds the
+        record to the configured resolution. A record at the core's own resolution gets only that
+        rounding."""
+        a = self.cfg.adc
+        if int(capture.resolution_bits) <= a.bits:
+            return 0.0
+        return quantization_asd(a.input_range_v, a.bits, a.max_sample_rate_hz)
+
+    def _monitor_asd(self, capture: CaptureConfig) -> float:
+        """White-noise ASD of the monitor-MZI channel: its photodiode's shot noise and the laser's
+        RIN (``sim.effects.noise``), plus the decimated core's quantization noise (:meth:`_core_asd`,
+        ``sim.effects.quantization``)."""
+        eff, mon = self.cfg.sim.effects, self.cfg.monitor
+        asd = 0.0
+        if eff.noise:
+            asd = monitor_noise_asd(mon.amplitude_v, mon.power_w, self.cfg.detector.responsivity_a_per_w,
+                                    self.laser_preset.rin_db_per_hz)["total"]
+        if eff.quantization:
+            asd = float(np.hypot(asd, self._core_asd(capture)))
+        return asd
+
+    def tap_volts_per_beam(self) -> float:
+        """Tap level of one fully open beam (what a healthy pixel reads), V."""
+        link = self.world.link
+        return (self.tap.gain_v_per_a * self.cfg.detector.responsivity_a_per_w * self.tap.fraction
+                * link.source_power_w * link.tx_fraction)
+
+    def _run_index(self) -> int:
+        """Which captured run this is (0 before any run), for the noise seed.
+
+        Not the run's virtual start time: the host's retry backoffs advance the virtual clock, and
+        those depend on wall-clock timeouts (a loaded machine), so a seed from the start time gave
+        different noise, a different ILC drive and different ranges from one run of the same
+        programme to the next. The count of runs captured is the same however long they waited.
+        """
+        start = self.fpga.run_start_s
+        if start is None:
+            return 0
+        return self._run_ids.setdefault(float(start), len(self._run_ids) + 1)
+
+    def _phase_noise_linewidth(self, linewidth_hz: float, hits, want_mzi: bool, noise_asd: float) -> float:
+        """The linewidth this batch is synthesized with: 0 when, for every hit, the beat's phase noise
+        is below the bounds of :mod:`sim_devices.world.fidelity` and no monitor channel needs it."""
+        if linewidth_hz <= 0:
+            return 0.0
+        c = self.cfg.chirp
+        skip = not want_mzi and (hits is None or phase_noise_negligible(
+            hits.tau_s, hits.amplitude_v, linewidth_hz, noise_asd, c.ramp_s, c.rate_hz_per_s))
+        self.fidelity.note("phase_noise", not skip)
+        return 0.0 if skip else linewidth_hz
+
+    def capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
+        with self._lock:
+            return self._capture(first, count, cfg)
+
+    def _capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
+        eff = self.cfg.sim.effects
+        capture_s = cfg.record_length / cfg.sample_rate_hz
+        trig = self.fpga.triggers(first, count, capture_s)
+        n = len(trig)
+        st = self.controller.state
+        light = bool(st.laser_on and st.interlock_closed)
+        # the HV583 outputs carry the controller's HV: which switches pull in is the FPGA's
+        # (per-switch hysteresis); an HV output switched off during a run still darkens it
+        switches = bool(st.hv_on)
+        # Light per segment: an interlock that opens inside this batch (at a virtual time or after
+        # a number of segments) darkens the segments from that trigger on.
+        lit = np.full(n, light)
+        cut_s = self._interlock_cut_s(trig.t_s)
+        if cut_s is not None:
+            lit &= np.asarray(trig.t_s) < cut_s
+        gain = self._overrange_gain
+        iq = "beat_i" in cfg.channels
+        adc = AdcSpec(sample_rate_hz=cfg.sample_rate_hz, n_samples=cfg.record_length, bits=cfg.bits,
+                      input_range_v=cfg.input_range_v, iq=iq, quantize=True)
+        rows, cols, trans, beam_seg = self._emitted_beams(trig, n, eff.mems_dynamics)
+        emitting = lit[beam_seg] & switches
+        hits = bh = None
+        if light and switches and n and emitting.any():
+            hits, bh = self._beat_hits(trig, (rows, cols, trans, beam_seg), emitting, gain, iq)
+        syn = self._synthesize(cfg, adc, n, hits, bh, light, gain, first)
+        codes, over = self._records(syn, cfg, n, hits, lit)
+        if "tap" in cfg.channels and n:
+            j = cfg.channels.index("tap")
+            power = np.zeros(n)
+            if switches:
+                np.add.at(power, beam_seg, np.where(lit[beam_seg], trans, 0.0))
+            codes[:, j], over[:, j] = self._tap_codes(power, adc, first)
+        self.segments_synthesized += n
+        return CapturedSegments(trigger_time_s=np.asarray(trig.t_s, dtype=np.float64), codes=codes,
+                                overrange=over)
+
+    def _emitted_beams(self, trig, n: int, mems_dynamics: bool):
+        """(rows, cols, path transmission, segment) of the beams of a batch: from the switch dynamics
+        (ghost beams, stuck switches, switches the HV does not pull in), or the commanded pixel at
+        full transmission when none of that can change the answer."""
+        # a stuck switch only shows through the switch dynamics (which beams actually emit)
+        beams_from_dynamics = (mems_dynamics or bool(self.fpga.stuck_switches)
+                               or not self.fpga.pulls_in_every_switch())
+        if beams_from_dynamics:
+            return (trig.beam_row, trig.beam_col, trig.beam_transmission,
+                    np.asarray(trig.beam_trigger, np.intp))
+        return trig.row, trig.col, np.ones(n), np.arange(n)
+
+    def _beat_hits(self, trig, beams, emitting: np.ndarray, gain: float, iq: bool):
+        """The world's returns of the emitting beams as a HitBatch (None when nothing returns), and
+        the world's answer (for the fidelity ledger)."""
+        rows, cols, trans, beam_seg = beams
+        chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
+        # scene time: since the run's first trigger (a point's t counts from the same trigger)
+        t_scene = np.asarray(trig.t_s)[np.asarray(beam_seg)[emitting]] - self._run_first_trigger_s()
+        bh = self.world.beam_hits(rows[emitting], cols[emitting], trans[emitting], chirp=chirp, t_s=t_scene)
+        if not bh.beam.size:
+            return None, bh
+        phase = None
+        if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
+            plain = 2.0 * np.pi * np.mod(self._trajectory().nu0_hz * bh.tau_s, 1.0)
+            phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
+        hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
+                        tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain * (HYBRID_CHANNEL_AMPLITUDE if iq else 1.0),
+                        doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
+                        phase_rad=phase)
+        return hits, bh
+
+    def _synthesize(self, cfg: CaptureConfig, adc: AdcSpec, n: int, hits, bh, light: bool, gain: float,
+                    first: int):
+        """The batch's records from the synthesis: noise levels, phase noise and the monitor MZI
+        (its TRUE delay) as the effects and the light allow; notes the effects in the ledger."""
+        eff = self.cfg.sim.effects
+        noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
+        if eff.quantization:
+            noise_asd = float(np.hypot(noise_asd, self._core_asd(cfg)))
+        mzi_asd = self._monitor_asd(cfg) if light else 0.0
+        linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
+        want_mzi = "mzi" in cfg.channels and light
+        # the quadrature output exists only with the hybrid fitted ([monitor] quadrature); without
+        # it the mzi_q input is unconnected and reads 0
+        want_q = want_mzi and "mzi_q" in cfg.channels and self.cfg.monitor.quadrature
+        linewidth = self._phase_noise_linewidth(linewidth, hits, want_mzi, noise_asd)
+        if hits is not None:
+            self.fidelity.note("doppler", bool(np.any(hits.doppler_hz != 0)))
+            self.fidelity.note("speckle", hits.phase_rad is not None)
+            self.fidelity.note("mixed_pixels", bh.mixed_beams > 0)   # hits come from bh
+        rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
+        a = self.cfg.adc
+        aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
+        return synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd, beat_filter=aa,
+                          linewidth_hz=linewidth, rng=rng,
+                          mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
+                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
+                          mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,
+                          iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad))
+
+    @staticmethod
+    def _records(syn, cfg: CaptureConfig, n: int, hits, lit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(codes (n, channels, samples) int16, overrange (n, channels)) in the host's channel order."""
+        by_name = {"beat": syn.beat, "beat_i": syn.beat, "beat_q": syn.beat_q, "mzi": syn.mzi, "mzi_q": syn.mzi_q}
+        # a scan's one beat channel: the synthesized records are the batch's codes, no copy
+        single = tuple(cfg.channels) in (("beat",), ("beat_i",))
+        codes = syn.beat[:, None, :] if single else np.zeros((n, len(cfg.channels), cfg.record_length), np.int16)
+        over = np.zeros((n, len(cfg.channels)), dtype=bool)
+        for j, name in enumerate(cfg.channels):
+            data = by_name.get(name)
+            if data is not None:
+                if not single:
+                    codes[:, j] = data
+                if name in syn.channels:
+                    over[:, j] = syn.overrange[:, syn.channels.index(name)]
+                if name in ("beat", "beat_i", "beat_q") and hits is not None:
+                    over[:, j] |= core_overrange(hits, n, cfg.input_range_v)
+                if name in ("mzi", "mzi_q") and not lit.all():
+                    codes[~lit, j] = 0  # no light, no MZI fringes
+        return codes, over

@@ -1,0 +1,283 @@
+"""The FPSA board's firmware commands: what each wire command of docs/protocols/fpsa.md does to the
+board's state (§4.3.3 and Fig. 4-22; the run's line changes follow the pixel schedule of
+``sim_devices.triggers``).
+
+:class:`FirmwareCommands` is the command half of :class:`sim_devices.fpga.FpgaSim`: it maps a
+decoded frame to its handler, enforces the state machine (FAULT until RESET; configuration only in
+IDLE/DONE/ARMED; START only when ARMED), validates payloads (NAK codes of the protocol), uploads and
+verifies patterns chunk by chunk, and at START logs every HV line change of the whole run in closed
+form (cut short later by STOP/RESET). The board half (HV583 registers, drive log, switch banks,
+beams, transports) stays in ``sim_devices.fpga``; the handlers reach it through ``self``:
+``config``, ``state``, ``faults``, ``timing``, ``hv_rows``/``hv_cols``, the drive logs
+``_events``/``_holds``, ``_row_high``/``_col_high``, ``supply()``, and the line bookkeeping
+``_apply_outputs``, ``_load_lines``, ``_cut_run``, ``_sync``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.fpsa import protocol as p
+from drivers.fpsa.errors import LengthError, PayloadError
+
+from .fpga_drive_log import COL, ROW
+from .hv583 import HV583
+from .hv_drive import HOLD_BOOST_S
+from .triggers import PixelSchedule
+
+
+class _Nak(Exception):
+    def __init__(self, code: p.NakCode, detail: int | None = None) -> None:
+        self.code = code
+        self.detail = detail
+
+
+@dataclass
+class _Run:
+    pattern: np.ndarray  # (n, 2) uint8
+    schedule: PixelSchedule
+
+
+@dataclass
+class _Upload:
+    total: int
+    crc: int
+    data: np.ndarray  # (total, 2) uint8
+    received: np.ndarray  # (total,) bool
+
+
+class FirmwareCommands:
+    """Command handlers of the FPGA firmware (a mixin of :class:`~sim_devices.fpga.FpgaSim`)."""
+
+    def _execute(self, frame: p.Frame) -> bytes:
+        now = self.clock.now()
+        self._sync(now)
+        try:
+            cmd = p.Cmd(frame.cmd)
+        except ValueError:
+            return p.encode_nak(frame.seq, frame.cmd, p.NakCode.UNKNOWN_CMD)
+        handler = self._HANDLERS.get(cmd)
+        if handler is None:
+            return p.encode_nak(frame.seq, frame.cmd, p.NakCode.UNKNOWN_CMD)
+        if self.state == p.State.FAULT and cmd not in (p.Cmd.IDENTIFY, p.Cmd.STATUS, p.Cmd.RESET):
+            return p.encode_nak(frame.seq, frame.cmd, p.NakCode.BAD_STATE)
+        try:
+            data = handler(self, frame.payload, now)
+        except _Nak as nak:
+            return p.encode_nak(frame.seq, frame.cmd, nak.code, nak.detail)
+        except LengthError:
+            return p.encode_nak(frame.seq, frame.cmd, p.NakCode.BAD_LENGTH)
+        except PayloadError:
+            return p.encode_nak(frame.seq, frame.cmd, p.NakCode.OUT_OF_RANGE)
+        return p.encode_ack(frame.seq, frame.cmd, data or b"")
+
+    # --- command handlers ---------------------------------------------------------------------
+    def _require_config_state(self) -> None:
+        if self.state not in (p.State.IDLE, p.State.DONE, p.State.ARMED):
+            raise _Nak(p.NakCode.BAD_STATE)
+
+    @staticmethod
+    def _no_payload(payload: bytes) -> None:
+        if payload:
+            raise _Nak(p.NakCode.BAD_LENGTH)
+
+    def _cmd_identify(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        c = self.config
+        return p.Identity(c.vendor, c.model, c.firmware, c.rows, c.cols, self._bonded).pack()
+
+    def _cmd_reset(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        self._cut_run(now)
+        # Firmware reset: blank, clock zeros through every register, latch, set polarity,
+        # un-blank. Blanking first means the garbage disappears at once, not after 0.8 us.
+        for hv in (self.hv_rows, self.hv_cols):
+            hv.blank = True
+        self._apply_outputs(now)
+        for hv in (self.hv_rows, self.hv_cols):
+            hv.shift_in(np.zeros(HV583.N_OUTPUTS, bool))
+            hv.latch_enable()
+            hv.polarity_inverted = False
+            hv.blank = False
+        self._apply_outputs(now + HV583.refresh_s())
+        self.state = p.State.IDLE
+        self.faults = p.FaultFlag.NONE
+        self.timing = p.DEFAULT_TIMING
+        self._upload = None
+        self._pattern = None
+        self._run = None
+        return b""
+
+    def _check_pixel(self, row: int, col: int, index: int | None) -> None:
+        if not (0 <= row < self.config.rows and 0 <= col < self.config.cols):
+            raise _Nak(p.NakCode.OUT_OF_RANGE, index)
+        if not self._bonded_mask[row]:
+            raise _Nak(p.NakCode.BAD_ROW_UNBONDED, index)
+
+    def _cmd_set_pixel(self, payload: bytes, now: float) -> bytes:
+        row, col = p.decode_set_pixel(payload)
+        self._require_config_state()
+        self._check_pixel(row, col, None)
+        self._load_lines(now, row, col)
+        self.state = p.State.IDLE
+        return b""
+
+    def _cmd_clear(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        self._require_config_state()
+        self._load_lines(now, None, None)
+        self.state = p.State.IDLE
+        return b""
+
+    def _cmd_pattern_begin(self, payload: bytes, now: float) -> bytes:
+        total, crc = p.decode_pattern_begin(payload)
+        self._require_config_state()
+        if not 1 <= total <= self.config.rows * self.config.cols:
+            raise _Nak(p.NakCode.OUT_OF_RANGE)
+        self._upload = _Upload(total, crc, np.zeros((total, 2), np.uint8), np.zeros(total, bool))
+        self._pattern = None
+        self.state = p.State.IDLE
+        return b""
+
+    def _cmd_pattern_chunk(self, payload: bytes, now: float) -> bytes:
+        chunk = p.decode_pattern_chunk(payload)
+        up = self._upload
+        if up is None or self.state not in (p.State.IDLE, p.State.DONE):
+            raise _Nak(p.NakCode.BAD_STATE)
+        if chunk.offset + chunk.count > up.total or chunk.count == 0:
+            raise _Nak(p.NakCode.OUT_OF_RANGE, chunk.offset)
+        if p.crc32(chunk.pixel_bytes) != chunk.crc32:
+            raise _Nak(p.NakCode.CHUNK_CRC, chunk.offset)
+        px = p.unpack_pixels(chunk.pixel_bytes).astype(np.int64)
+        r, c = px[:, 0], px[:, 1]
+        bad_range = (r >= self.config.rows) | (c >= self.config.cols)
+        bad_bond = ~bad_range & ~self._bonded_mask[np.minimum(r, self.config.rows - 1)]
+        bad = bad_range | bad_bond
+        if bad.any():
+            i = int(np.argmax(bad))
+            code = p.NakCode.OUT_OF_RANGE if bad_range[i] else p.NakCode.BAD_ROW_UNBONDED
+            raise _Nak(code, chunk.offset + i)
+        up.data[chunk.offset: chunk.offset + chunk.count] = px
+        up.received[chunk.offset: chunk.offset + chunk.count] = True
+        return b""
+
+    def _cmd_pattern_end(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        up = self._upload
+        if up is None or self.state not in (p.State.IDLE, p.State.DONE):
+            raise _Nak(p.NakCode.BAD_STATE)
+        if not up.received.all():
+            self.faults |= p.FaultFlag.PATTERN_INVALID
+            raise _Nak(p.NakCode.PATTERN_INCOMPLETE, int(np.argmin(up.received)))
+        if p.crc32(up.data.tobytes()) != up.crc:
+            self.faults |= p.FaultFlag.PATTERN_INVALID
+            self._upload = None
+            raise _Nak(p.NakCode.PATTERN_CRC)
+        self._pattern = up.data.copy()
+        self._upload = None
+        self.faults &= ~p.FaultFlag.PATTERN_INVALID
+        return b""
+
+    def _cmd_set_timing(self, payload: bytes, now: float) -> bytes:
+        timing = p.Timing.unpack(payload)
+        self._require_config_state()
+        if timing.triggers_per_pixel < 1 or timing.trigger_period_ns < self.config.min_trigger_period_ns:
+            raise _Nak(p.NakCode.BAD_TIMING)
+        self.timing = timing
+        self.state = p.State.IDLE
+        return b""
+
+    def _cmd_arm(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        self._require_config_state()
+        if self._pattern is None:
+            raise _Nak(p.NakCode.BAD_STATE)
+        self.state = p.State.ARMED
+        return b""
+
+    def _cmd_start(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        if self.state != p.State.ARMED or self._pattern is None:
+            raise _Nak(p.NakCode.BAD_STATE)
+        tm = self.timing
+        sched = PixelSchedule(
+            run_start_s=now, n_pixels=int(self._pattern.shape[0]), refresh_s=HV583.refresh_s(),
+            settle_s=tm.settle_ns * 1e-9, trigger_period_s=tm.trigger_period_ns * 1e-9,
+            triggers_per_pixel=tm.triggers_per_pixel, dwell_s=tm.dwell_ns * 1e-9)
+        self._run = _Run(self._pattern.copy(), sched)
+        self._log_run_events(self._run)
+        self.state = p.State.RUNNING
+        return b""
+
+    def _log_run_events(self, run: _Run) -> None:
+        """Every line change of the whole run, in closed form (one event list, cut on STOP)."""
+        sched = run.schedule
+        rows = run.pattern[:, 0].astype(np.int64)
+        cols = run.pattern[:, 1].astype(np.int64)
+        n = rows.size
+        latch = sched.latch_s(np.arange(n))
+        drive = self.supply()
+        v = drive.hv_v
+        kinds, lines, ts, vs = [], [], [], []
+
+        def add(k, line, t, volts):
+            kinds.append(np.full(line.size, k, np.int8))
+            lines.append(line)
+            ts.append(np.asarray(t, np.float64))
+            vs.append(np.full(line.size, volts))
+
+        for k, seq, high in ((ROW, rows, self._row_high), (COL, cols, self._col_high)):
+            # first latch: whatever was on before the run goes off, pixel 0 goes on
+            pre = np.flatnonzero(high)
+            pre = pre[pre != seq[0]]
+            add(k, pre, np.full(pre.size, latch[0]), 0.0)
+            if not high[seq[0]]:
+                add(k, seq[:1], latch[:1], v)
+            ch = np.flatnonzero(seq[1:] != seq[:-1]) + 1
+            # off-then-on at the same latch time; the stable order keeps "off" first
+            add(k, seq[ch - 1], latch[ch], 0.0)
+            add(k, seq[ch], latch[ch], v)
+            add(k, seq[-1:], np.array([sched.natural_end_s]), 0.0)
+        self._run_slot = len(self._events.kind)
+        all_k, all_l, all_t, all_v = (np.concatenate(kinds), np.concatenate(lines),
+                                      np.concatenate(ts), np.concatenate(vs))
+        self._events.add(all_k, all_l, all_t, all_v)
+        rising = all_v > 0
+        if drive.holds and rising.any():  # holds cut short by a line change are dropped later
+            self._holds.add(all_k[rising], all_l[rising], all_t[rising] + HOLD_BOOST_S, drive.hold_v)
+        self._row_high[:] = False
+        self._col_high[:] = False
+        self._banks = None
+
+    def _cmd_stop(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        if self.state == p.State.RUNNING:
+            self._cut_run(now)
+        else:
+            for hv in (self.hv_rows, self.hv_cols):
+                hv.shift_in(np.zeros(HV583.N_OUTPUTS, bool))
+                hv.latch_enable()
+            self._apply_outputs(now + HV583.refresh_s())
+        self.state = p.State.IDLE
+        return b""
+
+    def _cmd_status(self, payload: bytes, now: float) -> bytes:
+        self._no_payload(payload)
+        return self.status(now).pack()
+
+    _HANDLERS = {
+        p.Cmd.IDENTIFY: _cmd_identify,
+        p.Cmd.RESET: _cmd_reset,
+        p.Cmd.SET_PIXEL: _cmd_set_pixel,
+        p.Cmd.CLEAR: _cmd_clear,
+        p.Cmd.PATTERN_BEGIN: _cmd_pattern_begin,
+        p.Cmd.PATTERN_CHUNK: _cmd_pattern_chunk,
+        p.Cmd.PATTERN_END: _cmd_pattern_end,
+        p.Cmd.SET_TIMING: _cmd_set_timing,
+        p.Cmd.ARM: _cmd_arm,
+        p.Cmd.START: _cmd_start,
+        p.Cmd.STOP: _cmd_stop,
+        p.Cmd.STATUS: _cmd_status,
+    }
