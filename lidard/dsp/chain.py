@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from .cfar import Detections, cfar_detect
-from .jit import power
+from .jit import power as power_of
 from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .rangefft import RangeFFT, check_samples
 from .scratch import scratch
@@ -41,16 +41,18 @@ class ChainResult:
 
 def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, estimator: str,
                       average_axis: int | None = None, zero_pad: int = 1, iq: bool = False,
-                      keep: np.ndarray | None = None, idle_index: int = 1, **cfar_kwargs) -> ChainResult:
+                      keep: np.ndarray | None = None, idle_index: int = 1, power: np.ndarray | None = None,
+                      **cfar_kwargs) -> ChainResult:
     """``spec`` (batch..., [averages,] n_bins) complex in RangeFFT layout -> refined detections.
 
     ``average_axis``: the axis of ``spec`` holding the averages of one pixel (powers are averaged over
     it, incoherently, and the refined frequencies too); ``keep``: optional (n_bins,) mask of bins a
     detection may sit on (a |range| gate on a two-sided spectrum); ``idle_index``: the spectrum index
-    given to the estimator for empty detection slots (their result is ignored);
+    given to the estimator for empty detection slots (their result is ignored); ``power``: |spec|^2 when
+    the caller has it already (computed with the spectrum, :meth:`RangeFFT.spectrum_of`);
     ``cfar_kwargs``: pfa, max_detections, bin_range, ... of :func:`lidard.dsp.cfar.cfar_detect`.
     """
-    p_ramps = p = power(spec)
+    p_ramps = p = power_of(spec) if power is None else power
     if average_axis is not None:
         p = p.mean(axis=average_axis)
     det = cfar_detect(p, window=window, zero_pad=zero_pad, iq=iq, **cfar_kwargs)
@@ -112,8 +114,10 @@ def measure_peaks(rf: RangeFFT, x: object, *, method: EstimatorName = DEFAULT_ME
     zero_pad and iq are taken from ``rf``; the range gate of ``rf`` limits the search) and sub-bin
     refinement of every detection with ``method``: the chain on one batch, no averaging."""
     a = check_samples(x, rf.n_samples)
-    # the spectrum never leaves this call (the results are gathered from it): a scratch buffer
-    spec = rf.spectrum_of(a, out=scratch("measure_peaks.spec", rf.spectrum_shape(a.shape[:-1]), np.complex128))
+    # the spectrum and its power never leave this call (the results are gathered from them): scratch
+    shape = rf.spectrum_shape(a.shape[:-1])
+    p = scratch("measure_peaks.power", shape, np.float64)
+    spec = rf.spectrum_of(a, out=scratch("measure_peaks.spec", shape, np.complex128), power_out=p)
     gate = np.flatnonzero(rf.gate_mask)
     if gate.size == 0:
         raise DspInputError(f"range_gate_m={rf.range_gate_m} selects no bins")
@@ -122,7 +126,7 @@ def measure_peaks(rf: RangeFFT, x: object, *, method: EstimatorName = DEFAULT_ME
     keep = rf.gate_mask if (rf.iq and rf.range_gate_m is not None) else None
     res = detect_and_refine(spec, lambda idx: (a, rf.index_to_bin(idx), spec), window=rf.window,
                             estimator=method, zero_pad=rf.zero_pad, iq=rf.iq, keep=keep,
-                            idle_index=int(rf.bin_to_index(1)), **cfar_kwargs)
+                            idle_index=int(rf.bin_to_index(1)), power=p, **cfar_kwargs)
     det, frac = res.detections, res.frac_bins
     freq_hz = np.where(det.valid, frac * rf.delta_f, 0.0)
     return PeakMeasurements(freq_hz=freq_hz, range_m=np.where(det.valid, rf.bin_to_range_m(frac), 0.0), detections=det)

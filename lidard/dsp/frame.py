@@ -199,12 +199,16 @@ class FrameDsp:
         out_f, out_det = [], []
         for r0 in (0, r):
             ramp = ramp_volts(x[..., r0 + a:r0 + a + n], lsb_v, iq=self.iq, down=bool(r0))
-            # (n_pix, n_avg, n_bins); it dies with this ramp's pass: one scratch buffer for both ramps
-            spec = rf(ramp, out=scratch("frame.spec", rf.spectrum_shape(ramp.shape[:-1]), np.complex128))
+            # (n_pix, n_avg, n_bins) and its power; they die with this ramp's pass: one scratch
+            # buffer each for both ramps
+            shape = rf.spectrum_shape(ramp.shape[:-1])
+            p = scratch("frame.power", shape, np.float64)
+            spec = rf(ramp, out=scratch("frame.spec", shape, np.complex128), power_out=p)
             res = detect_and_refine(
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa, iq=self.iq,
-                max_detections=self.max_returns, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)))
+                max_detections=self.max_returns, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
+                power=p)
             det = res.detections
             if self.iq:     # the hybrid's image of a stronger return is not a return
                 img = mirror_images(det.index, det.power, det.valid, rf.n_fft)

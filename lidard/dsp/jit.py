@@ -40,13 +40,19 @@ def kernels() -> SimpleNamespace | None:
     return _compiled()
 
 
-def power(spec: np.ndarray) -> np.ndarray:
-    """|X|^2 = re^2 + im^2 of a complex spectrum (float64), one pass (numpy: three)."""
+def power(spec: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """|X|^2 = re^2 + im^2 of a complex spectrum (float64), one pass (numpy: three); ``out``: a
+    C-contiguous float64 array of the spectrum's shape to write it into (the same values)."""
     k = kernels()
     s = np.asarray(spec)
     if k is None or s.dtype != np.complex128 or s.size == 0:
-        return s.real ** 2 + s.imag ** 2
-    out = np.empty(s.shape)
+        if out is None:
+            return s.real ** 2 + s.imag ** 2
+        np.multiply(s.real, s.real, out=out)
+        out += s.imag ** 2
+        return out
+    if out is None:
+        out = np.empty(s.shape)
     k.power(np.ascontiguousarray(s).reshape(-1), out.reshape(-1))
     return out
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lidard.dsp.jit import power
 from lidard.dsp.scratch import scratch
 from lidard.dsp.window import DspInputError, WindowInfo, WindowName, check_window_name, get_window, window_info
 
@@ -57,24 +58,59 @@ def check_samples(x: object, n_samples: int | None = None, name: str = "x") -> n
 
 
 def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str,
-                 out: np.ndarray | None = None) -> np.ndarray:
+                 out: np.ndarray | None = None, power_out: np.ndarray | None = None) -> np.ndarray:
     """The one windowed FFT of the DSP (RangeFFT, the estimators, the compensated spectrum wrap it).
 
     ``layout``: "real" (rfft of a real ramp, bins 0..n_fft/2), "shifted" (two-sided fft of I/Q samples,
     fft-shifted so that frequency increases with the index), "analytic" (an analytic signal's fft,
     positive bins 0..n_fft/2 only: the rfft grid). Unscaled: the callers own the amplitude convention
-    (a window may carry the scale). ``out``: an array for the "real" spectrum (a caller's scratch
-    buffer); the windowed ramps are a per-thread scratch buffer (:mod:`lidard.dsp.scratch`).
+    (a window may carry the scale). ``out``: a C-contiguous complex128 array of the spectrum's shape to
+    write it into (a caller's scratch buffer); ``power_out``: the same for |X|^2 (float64), computed
+    with the spectrum (:func:`lidard.dsp.jit.power`'s values).
+
+    The ramps go through in chunks of about :data:`_CHUNK_BYTES` (issue 18): a chunk's windowed
+    product is still in cache when its FFT reads it, and its spectrum when its power is taken, where
+    whole-batch passes went through memory three more times (~10 ms of ~45 per 20,000 ramps of 512).
+    Every ramp is transformed alone either way: the values are those of one whole-batch call.
     """
     if layout not in ("real", "shifted", "analytic"):
         raise DspInputError(f"layout={layout!r}: expected 'real', 'shifted' or 'analytic'")
-    xw = np.multiply(x, window, out=scratch("windowed_fft.xw", np.broadcast_shapes(x.shape, window.shape),
-                                            np.result_type(x, window)))
-    if layout == "real":
-        return np.fft.rfft(xw, n=n_fft, axis=-1, out=out)
-    if layout == "shifted":
-        return np.fft.fftshift(np.fft.fft(xw, n=n_fft, axis=-1), axes=-1)
-    return np.fft.fft(xw, n=n_fft, axis=-1)[..., :n_fft // 2 + 1]
+    n = x.shape[-1]
+    if window.shape != (n,):
+        raise DspInputError(f"window of shape {window.shape} for ramps of {n} samples")
+    n_out = n_fft if layout == "shifted" else n_fft // 2 + 1
+    shape = x.shape[:-1] + (n_out,)
+    spec = _output(out, shape, np.complex128, "out")
+    pw = None if power_out is None else _output(power_out, shape, np.float64, "power_out")
+    x2 = x.reshape(-1, n)
+    s2 = spec.reshape(-1, n_out)
+    p2 = None if pw is None else pw.reshape(-1, n_out)
+    rows = max(1, _CHUNK_BYTES // (16 * max(n, n_fft)))
+    buf = scratch("windowed_fft.xw", (min(rows, x2.shape[0]), n), np.result_type(x, window))
+    for i in range(0, x2.shape[0], rows):
+        j = min(i + rows, x2.shape[0])
+        xw = np.multiply(x2[i:j], window, out=buf[:j - i])
+        if layout == "real":
+            np.fft.rfft(xw, n=n_fft, axis=-1, out=s2[i:j])
+        elif layout == "shifted":
+            s2[i:j] = np.fft.fftshift(np.fft.fft(xw, n=n_fft, axis=-1), axes=-1)
+        else:
+            s2[i:j] = np.fft.fft(xw, n=n_fft, axis=-1)[:, :n_out]
+        if p2 is not None:
+            power(s2[i:j], out=p2[i:j])
+    return spec
+
+
+_CHUNK_BYTES = 1 << 19   # ramps per chunk of windowed_fft: ~0.5 MB of spectrum (L2-sized), >= 1 ramp
+
+
+def _output(out: np.ndarray | None, shape: tuple[int, ...], dtype: type, name: str) -> np.ndarray:
+    if out is None:
+        return np.empty(shape, dtype)
+    if out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise DspInputError(f"{name} must be a C-contiguous {np.dtype(dtype)} array of shape {shape}, "
+                            f"got {out.dtype} {out.shape}")
+    return out
 
 
 def gather_bins(spec: np.ndarray, bins: np.ndarray, n_fft: int, iq: bool,
@@ -200,20 +236,22 @@ class RangeFFT:
         return C_M_PER_S * np.asarray(bins, dtype=np.float64) * self.delta_f / (2.0 * self.chirp_rate_hz_per_s)
 
     # ---- transforms -------------------------------------------------------------------------
-    def __call__(self, x: object, out: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, x: object, out: np.ndarray | None = None, power_out: np.ndarray | None = None) -> np.ndarray:
         """Complex spectrum of a batch of ramps ``x[..., n_samples]`` (layout: module docstring).
 
-        ``out``: an array of the spectrum's shape to write a real-input spectrum into (a caller's
-        scratch buffer, :mod:`lidard.dsp.scratch`; the I/Q layout ignores it)."""
-        return self.spectrum_of(check_samples(x, self.n_samples), out)
+        ``out``: a C-contiguous complex128 array of the spectrum's shape to write it into (a caller's
+        scratch buffer, :mod:`lidard.dsp.scratch`)."""
+        return self.spectrum_of(check_samples(x, self.n_samples), out, power_out)
 
-    def spectrum_of(self, a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`__call__` on ramps that went through :func:`check_samples` already (no second pass)."""
+    def spectrum_of(self, a: np.ndarray, out: np.ndarray | None = None,
+                    power_out: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`__call__` on ramps that went through :func:`check_samples` already (no second pass);
+        ``power_out``: an array of the spectrum's shape (float64) that receives |X|^2 as well."""
         if a.dtype.kind == "c" and not self.iq:
             raise DspInputError("complex (I/Q) samples given to a RangeFFT built with iq=False; build it with iq=True")
         # the 1 / sum(w) scale rides on the window: no pass over the spectrum (issue 18)
-        return windowed_fft(a, self._w_scaled, self.n_fft, "shifted" if self.iq else "real",
-                            out=None if self.iq else out)
+        return windowed_fft(a, self._w_scaled, self.n_fft, "shifted" if self.iq else "real", out=out,
+                            power_out=power_out)
 
     def spectrum_shape(self, lead: tuple[int, ...]) -> tuple[int, ...]:
         """The shape of the spectrum of ramps with leading shape ``lead``."""

@@ -2,8 +2,8 @@
 
 A large numpy array is a fresh anonymous mapping every time it is created, and its pages fault in on
 first touch: about 3 ms per 80 MB on the 2-core benchmark machine, paid again by every batch for every
-temporary. The windowed ramps and the range spectrum of the detection chain are the same shape batch
-after batch, so they are kept per thread and written over.
+temporary. The range spectrum of the detection chain and its power are the same shape batch after
+batch (and a chunk of windowed ramps chunk after chunk), so they are kept per thread and written over.
 
 Only a value that never leaves the function asking for it may live in a scratch buffer: the next
 request for the same ``tag`` on the same thread overwrites it. One buffer per tag per thread (no lock,

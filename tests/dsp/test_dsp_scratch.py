@@ -5,11 +5,14 @@ from __future__ import annotations
 import threading
 
 import numpy as np
+import pytest
 
+from lidard.dsp import rangefft
 from lidard.dsp import scratch as scratch_mod
 from lidard.dsp.chain import measure_peaks
 from lidard.dsp.rangefft import RangeFFT
 from lidard.dsp.scratch import scratch
+from lidard.dsp.window import DspInputError
 
 
 def test_same_tag_reuses_memory_other_tags_and_threads_do_not():
@@ -76,3 +79,39 @@ def test_a_scans_point_buffer_releases_the_threads_buffers():
     pb = PointBuffer(None, None, lsb_v=1.0, mzi_delay_s=0.0, flush_bytes=1)   # nothing pending: no DSP runs
     assert pb.points().size == 0
     assert not np.shares_memory(scratch("t.scan", (1000,), np.float64), a)
+
+
+@pytest.mark.parametrize("layout,iq", [("real", False), ("shifted", True), ("analytic", True)])
+@pytest.mark.parametrize("zero_pad", [1, 2])
+def test_chunked_windowed_fft_is_the_whole_batch_transform(layout, iq, zero_pad):
+    """300 ramps of 1024 go through in several chunks and a remainder; each ramp's spectrum (and its
+    power) must be exactly the one-call numpy transform of the windowed ramp."""
+    n, m = 1024, 300
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((3, m // 3, n))
+    if iq:
+        x = x + 1j * rng.standard_normal(x.shape)
+    w = np.hanning(n + 1)[:-1]
+    n_fft = n * zero_pad
+    assert m > rangefft._CHUNK_BYTES // (16 * n_fft)          # more than one chunk
+    pw = np.empty(x.shape[:-1] + ((n_fft if layout == "shifted" else n_fft // 2 + 1),))
+    got = rangefft.windowed_fft(x, w, n_fft, layout, power_out=pw)
+    if layout == "real":
+        want = np.fft.rfft(x * w, n=n_fft, axis=-1)
+    elif layout == "shifted":
+        want = np.fft.fftshift(np.fft.fft(x * w, n=n_fft, axis=-1), axes=-1)
+    else:
+        want = np.fft.fft(x * w, n=n_fft, axis=-1)[..., :n_fft // 2 + 1]
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(pw, want.real ** 2 + want.imag ** 2)
+
+
+def test_windowed_fft_names_a_wrong_output_buffer():
+    x = np.zeros((4, 64))
+    w = np.ones(64)
+    with pytest.raises(DspInputError, match="power_out must be a C-contiguous float64 array of shape"):
+        rangefft.windowed_fft(x, w, 64, "real", power_out=np.empty((4, 33), np.float32))
+    with pytest.raises(DspInputError, match="out must be a C-contiguous complex128"):
+        rangefft.windowed_fft(x, w, 64, "real", out=np.empty((4, 40), complex)[:, :33])
+    with pytest.raises(DspInputError, match="window of shape"):
+        rangefft.windowed_fft(x, np.ones(32), 64, "real")
