@@ -10,8 +10,8 @@ also checks the values and finds each ramp's strongest cell (the detector's floo
 themselves are in :mod:`lidard.dsp.jit_kernels` (which imports numba); this module holds their callers.
 
 numba is imported on first use, never at import time (``lidarctl --help`` and a scan's imports stay
-fast, issue 18), and only if it is installed (``pip install lidard[fast]``); :func:`kernels` returns
-None otherwise and the callers take their numpy path. ``LIDARD_DSP_JIT=0`` in the environment turns
+fast, issue 18), and only if it is installed (a dependency wherever numba publishes wheels: the
+marker in pyproject.toml); :func:`kernels` returns None otherwise and the callers take their numpy path. ``LIDARD_DSP_JIT=0`` in the environment turns
 the kernels off (for comparing the two paths; the results do not depend on it).
 """
 
