@@ -14,7 +14,7 @@ and d2X/ddelta2 at any offset are polynomial evaluations, so Newton steps cost O
 The product does not read the ramps against s^p itself but against the Chebyshev polynomials T_q(s)
 (issue 18): by Jacobi-Anger, exp(-j a delta s) = sum_q eps_q (-j)^q J_q(a delta) T_q(s), and J_q falls
 off like (a delta / 2)^q / q!, so Q Chebyshev moments nu_q = sum_n z[n] T_q(s) carry what ~1.4 Q power
-moments do (19 against 26 for |delta| <= 1 bin at 1e-13). mu_p follows from them exactly for p < Q
+moments do (20 against 26 for |delta| <= 1 bin at 1e-13). mu_p follows from them exactly for p < Q
 (s^p = 2^(1-p) sum' C(p, m) T_(p-2m)(s)) and with the part of s^p beyond T_(Q-1) dropped for p >= Q,
 which changes X by less than the Bessel tail. The ramps are read once, by the smaller product.
 """
@@ -244,11 +244,6 @@ class _DtftNearBin:
     def _terms(self) -> tuple[np.ndarray, np.ndarray]:
         """The coefficients term-major (P, m), real and imaginary parts, contiguous per term."""
         return self._gt
-
-    @property
-    def g(self) -> np.ndarray:
-        """The Taylor coefficients (m, P) complex: G(delta) = sum_p g[:, p] delta^p."""
-        return (self._gt[0] + 1j * self._gt[1]).T
 
     def dtft(self, delta: np.ndarray) -> np.ndarray:
         G, _, _ = self.eval(delta)

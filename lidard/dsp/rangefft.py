@@ -101,7 +101,7 @@ def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str,
     return spec
 
 
-_CHUNK_BYTES = 1 << 19   # ramps per chunk of windowed_fft: ~0.5 MB of spectrum (L2-sized), >= 1 ramp
+_CHUNK_BYTES = 1 << 19   # one chunk of windowed_fft: its ramps at 16 B a sample stay within ~0.5 MB (L2)
 
 
 def _output(out: np.ndarray | None, shape: tuple[int, ...], dtype: type, name: str) -> np.ndarray:
