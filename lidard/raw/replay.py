@@ -25,6 +25,7 @@ import numpy as np
 
 from ..dsp.estimators import EstimatorName
 from ..dsp.frame import FrameDsp
+from ..dsp.scratch import release as release_scratch
 from ..dsp.window import WINDOW_NAMES
 from ..instrument.types import POINT_DTYPE
 from .capture import RawCapture, RawCaptureError, RawChunk
@@ -153,7 +154,10 @@ def reprocess(raw_path: str | Path, settings: ReprocessSettings | None = None, *
     cap = RawCapture(raw_path)
     replay = replay_dsp(cap.attrs, settings)       # validate before any task runs
     n = cap.n_chunks
-    parts = list(map_fn(reprocess_chunk, [str(cap.path)] * n, range(n), [settings] * n))
+    try:
+        parts = list(map_fn(reprocess_chunk, [str(cap.path)] * n, range(n), [settings] * n))
+    finally:
+        release_scratch()   # the DSP's per-thread buffers (lidard.dsp.scratch) of a local map: none held idle
     points = np.concatenate(parts) if parts else np.zeros(0, POINT_DTYPE)
     meta = {"dsp": replay.meta(), "overrides": (settings or ReprocessSettings()).overrides(),
             "chunks": n, "pixels": cap.n_pixels, "raw_complete": cap.complete,

@@ -135,3 +135,15 @@ def test_frame_points_move_each_range_back_to_its_t():
                        delay_s=delay)
     assert pts["range"].tolist() == pytest.approx([1.0 - 4.0 * delay, 2.0 + 2.0 * delay])
     assert pts["z"].tolist() == pytest.approx(pts["range"].tolist())
+
+
+def test_reprocessing_leaves_no_dsp_buffers_held_by_the_thread(capture):
+    """The frame DSP writes its spectra into per-thread scratch buffers (lidard.dsp.scratch); a
+    reprocessing run in this thread hands them back when it ends, as a scan does."""
+    from lidard.dsp import scratch as scratch_mod
+
+    reprocess(capture.path)
+    assert getattr(scratch_mod._LOCAL, "bufs", None) is None
+    scratch_mod.scratch("t.held", (8,), np.float64)
+    assert scratch_mod._LOCAL.bufs        # the check above can fail: buffers do stay between uses
+    scratch_mod.release()
