@@ -187,13 +187,15 @@ class FrameDsp:
             out_f, out_det = compensated_front_end(self, x, mzi, lsb_v, mzi_delay_s=mzi_delay_s,
                                                    mzi_lsb_v=mzi_lsb_v, mzi_q=mzi_q)
         else:
-            out_f, out_det = self._plain_front_end(x, lsb_v)
+            out_f, out_det = self._plain_front_end(x, lsb_v, codes=np.asarray(beat).dtype.kind in "iu")
         if self.cw_samples:
             return FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
         return self._pair(out_f, out_det)
 
-    def _plain_front_end(self, x: np.ndarray, lsb_v: float) -> tuple[list, list]:
-        """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT."""
+    def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list, list]:
+        """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT.
+        ``codes``: the beat came as integer ADC codes, so its volts are finite and the range FFT's
+        NaN/inf pass over every sample is skipped (volts given as floats are checked)."""
         a, n, r = self.offset, self.n_used, self.ramp_samples
         rf = self.rfft
         out_f, out_det = [], []
@@ -203,7 +205,7 @@ class FrameDsp:
             # buffer each for both ramps
             shape = rf.spectrum_shape(ramp.shape[:-1])
             p = scratch("frame.power", shape, np.float64)
-            spec = rf(ramp, out=scratch("frame.spec", shape, np.complex128), power_out=p)
+            spec = (rf.spectrum_of if codes else rf)(ramp, scratch("frame.spec", shape, np.complex128), p)
             res = detect_and_refine(
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa, iq=self.iq,

@@ -115,3 +115,26 @@ def test_windowed_fft_names_a_wrong_output_buffer():
         rangefft.windowed_fft(x, w, 64, "real", out=np.empty((4, 40), complex)[:, :33])
     with pytest.raises(DspInputError, match="window of shape"):
         rangefft.windowed_fft(x, np.ones(32), 64, "real")
+
+
+def test_frame_codes_skip_the_finite_check_and_float_volts_keep_it():
+    """Integer ADC codes cannot hold NaN: the frame transforms them without the check pass, and gets the
+    same frame as from the same values given as floats; a NaN in float volts is still named."""
+    from lidard.dsp.frame import FrameDsp
+
+    n, fs, gamma = 400, 5e6, 1e14
+    dsp = FrameDsp(ramp_samples=n, fs_hz=fs, chirp_rate_hz_per_s=gamma, wavelength_m=1.55e-6, max_range_m=3.0,
+                   min_range_m=1.0, max_speed_mps=0.4, use_fraction=0.9)
+    t = np.arange(2 * n) / fs
+    f_b = 2 * gamma * 2.0 / 299_792_458.0          # a target at 2 m, 1.33 MHz
+    rng = np.random.default_rng(4)
+    codes = np.rint(3000 * np.cos(2 * np.pi * f_b * t) + 30 * rng.standard_normal((6, 2, 2 * n))).astype(np.int16)
+    a = dsp.process(codes, 1e-4)
+    b = dsp.process(codes.astype(np.float64), 1e-4)
+    for field in ("valid", "range_m", "velocity_mps", "snr_db", "flags"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert a.valid[:, 0].all() and np.allclose(a.range_m[:, 0], 2.0, atol=0.01)
+    bad = codes.astype(np.float64)
+    bad[2, 1, n // 2] = np.nan                    # inside the up ramp's used samples
+    with pytest.raises(DspInputError, match="x contains 1 NaN and 0 infinite sample"):   # the sample, named
+        dsp.process(bad, 1e-4)
