@@ -13,8 +13,9 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 from ..config import ScanDefaults
 from ..instrument.types import PatternKind, ScanRequest
 
-# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs
-FileFormat = Literal["ply", "las", "npz", "pcd", "mcap"]
+# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs;
+# "ros2" is the rosbag2 MCAP flavour (sensor_msgs/msg/PointCloud2, CDR), file suffix .ros2.mcap
+FileFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]
 
 
 def describe_errors(errors: list[dict[str, Any]]) -> str:
@@ -68,7 +69,7 @@ class ScanCreate(_In):
     pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
     averages: StrictInt | None = Field(default=None, ge=1, le=100)
     max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
-    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=5)
+    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=6)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
     # keep the digitizer's raw segments (Zarr under the data directory) for reprocessing
@@ -254,7 +255,7 @@ class ReprocessCreate(_In):
     pfa: float | None = Field(default=None, gt=0, lt=0.1, allow_inf_nan=False, strict=True)
     window: WindowName | None = None
     phase_noise: Literal["on", "off"] | None = None
-    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=5,
+    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=6,
                                                description="files of the new scan (default: the original's)")
 
     @field_validator("formats")

@@ -1,5 +1,7 @@
-"""MCAP output: a scan as the Foxglove topics of lidard.live.channels, in one file that Foxglove,
-Lichtblick and ROS 2 tooling (``ros2 bag``'s MCAP storage) open.
+"""MCAP output, Foxglove flavour: a scan as the Foxglove topics of lidard.live.channels, in one file
+that Foxglove and Lichtblick open (profile none, ``foxglove.PointCloud`` in protobuf, JSON status under
+named JSON schemas). ROS 2 tools (``ros2 bag``, rosbags) need the ``ros2`` format instead
+(lidard.outputs.ros2: ``sensor_msgs/msg/PointCloud2`` in CDR).
 
 ``write_mcap`` logs the whole cloud as one ``/lidar/points`` PointCloud (every point; ``t`` keeps
 the per-pixel hardware time of §4.4's scan), one ``/lidar/scan_status`` JSON summary and, when the
