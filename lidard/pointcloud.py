@@ -42,6 +42,9 @@ from .point_schema import FIELD_BY_NAME, LAS_EXTRA_FIELDS, POINT_DTYPE, las_desc
 # RViz via a bag player); both are MCAP files, told apart by the suffix ``.ros2.mcap``.
 FORMATS = ("ply", "las", "npz", "pcd", "mcap", "ros2")  # pcd, mcap, ros2: lidard.outputs
 SUFFIX = {"ros2": ".ros2.mcap"}
+# Download media types (x-: no IANA registration exists for these formats; LAS has vnd.las)
+MEDIA_TYPE = {"ply": "model/x-ply", "las": "application/vnd.las", "npz": "application/x-npz",
+              "pcd": "application/x-pcd", "mcap": "application/x-mcap", "ros2": "application/x-mcap"}
 PLY_DTYPE = POINT_DTYPE  # every field in its schema dtype (all little-endian)
 LAS_SCALE_M = 1e-4
 # LAS classification codes (ASPRS LAS 1.4 table 17)
