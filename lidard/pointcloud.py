@@ -250,11 +250,16 @@ def scene_identity(path: str | os.PathLike) -> dict[str, str]:
     sha256 of its bytes, so a point cloud names exactly the world it was measured in."""
     import hashlib
 
+    from .errors import ConfigError
+
     p = Path(path).resolve()
     try:
         digest = hashlib.sha256(p.read_bytes()).hexdigest()
+    except FileNotFoundError:
+        # the bench could not load it either: name the scene, not the sidecar that asked first
+        raise ConfigError(f"scene file {p} not found (--scene, or sim.scene of the configuration)") from None
     except OSError as exc:
-        raise PointCloudError(f"scene {p}: cannot be read for the sidecar ({exc.strerror or exc})") from None
+        raise ConfigError(f"scene file {p} cannot be read ({exc.strerror or exc})") from None
     return {"path": str(p), "sha256": digest}
 
 

@@ -255,6 +255,7 @@ def cmd_reprocess(args) -> int:
     from ..pointcloud import format_of
     _check_flags(args)
     fmt = format_of(args.out) if args.out else None
+    base.check_out(args.out)
     body = _body(args)
     flats = _reprocess_offline(args, fmt) if args.data_dir is not None else _reprocess_daemon(args, body, fmt)
     summaries = [{"id": f["id"], "reprocessed_from": f["reprocessed_from"], "state": f["state"],

@@ -180,6 +180,7 @@ def cmd_scan(args) -> int:
     from ..pointcloud import format_of
     refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache")
     fmt = format_of(args.out) if args.out else "ply"
+    base.check_out(args.out)
     body = request_body(args, fmt)
     bar = Progress(args.progress)
     interrupted = [False]
