@@ -188,8 +188,26 @@ class Health(_Out):
     linearization: dict[str, Any] | None = None
 
 
+class DeviceStatus(_Out):
+    """One instrument as GET /devices checks it: the link, and the device's own status reply both as
+    data (``status``, ``identity_fields``: JSON objects, never Python reprs) and as a line for people
+    (``state``, ``identity``)."""
+
+    name: Literal["fpsa", "awg", "digitizer", "controller"]
+    connected: bool
+    reconnected: bool = Field(False, description="the link was reopened to answer this check")
+    busy: bool = Field(False, description="in use by the running job: the entry is the last check")
+    identity: str | None = Field(None, description="identification, one readable line")
+    identity_fields: dict[str, Any] | None = Field(None, description="identification as data")
+    state: str = Field(description="status reply as one readable line; 'unreachable' when the link is down")
+    status: dict[str, Any] | None = Field(None, description="status reply as data (field -> value; enums "
+                                                            "by name, flags and sets as lists of names)")
+    faults: list[str] = Field(default_factory=list, description="fault names in the status reply, or "
+                                                                "why the device is unreachable")
+
+
 class DeviceList(_Out):
-    devices: list[dict[str, Any]]
+    devices: list[DeviceStatus]
 
 
 class CalibrationOut(_Out):
