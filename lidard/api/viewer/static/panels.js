@@ -76,7 +76,7 @@ export function rowsNote(scanner, unbonded) {
     "no beam leaves them, so they have no points (§4.3.3).";
 }
 
-export function renderFaults(ul, faults, simulated) {export function renderFaults(ul, faults, simulated) {
+export function renderFaults(ul, faults, simulated) {
   ul.replaceChildren();
   if (!simulated) { ul.append(el("li", {}, "real hardware: no injected faults")); return; }
   if (!faults.length) { ul.append(el("li", { class: "ok" }, "none active")); return; }
