@@ -146,3 +146,60 @@ def test_error_answers_are_problem_details_that_validate(api, method, url, body,
     assert doc["status"] == status and isinstance(doc["detail"], str) and doc["detail"]
     if status == 422:
         assert "averages" in doc["detail"] and doc["errors"][0]["loc"][-1] == "averages"
+
+
+@pytest.mark.slow   # ~7 s: generating the package (offline) and a live uvicorn server
+def test_openapi_python_client_generated_from_the_schema_runs_a_scan(tmp_path, make_client):
+    """openapi-python-client (test extra) generates a package from /openapi.json, offline; its own
+    functions run acquire -> scan -> poll -> download on a live daemon with a token and a held lease.
+    The lease travels as the generated ``x_lidard_lease`` argument, the token through the generated
+    ``AuthenticatedClient``: nothing is added by hand."""
+    import importlib
+    import json
+    import subprocess
+    import sys
+
+    from lidard.api.app import create_app
+    from lidard.config import load_config
+    from tests.helpers.api import live_server
+
+    app = create_app(load_config(), instrument=FakeInstrument(), data_dir=tmp_path / "data", token=TOKEN,
+                     progress_interval_s=0.0)
+    with live_server(app) as url:
+        import httpx
+        spec = tmp_path / "openapi.json"
+        spec.write_text(json.dumps(httpx.get(url + "/openapi.json", timeout=10).json()))
+        out = tmp_path / "lidard_client"
+        gen = subprocess.run([sys.executable, "-m", "openapi_python_client", "generate", "--path", str(spec),
+                              "--output-path", str(out), "--meta", "none"], capture_output=True, text=True,
+                             timeout=300)
+        assert gen.returncode == 0 and (out / "client.py").is_file(), gen.stdout + gen.stderr
+        sys.path.insert(0, str(tmp_path))
+        try:
+            lc = importlib.import_module("lidard_client")
+            acquire = importlib.import_module("lidard_client.api.control.control_acquire_control_post")
+            create = importlib.import_module("lidard_client.api.scans.create_scan_scans_post")
+            get_scan = importlib.import_module("lidard_client.api.scans.get_scan_scans_scan_id_get")
+            points = importlib.import_module("lidard_client.api.scans.get_points_scans_scan_id_points_get")
+            models = importlib.import_module("lidard_client.models")
+            client = lc.AuthenticatedClient(base_url=url, token=TOKEN)
+
+            lease = acquire.sync(client=client, body=models.ControlAcquire(client="generated"))
+            assert isinstance(lease, models.ControlLease) and lease.holder == "generated"
+            refused = create.sync(client=client, body=models.ScanCreate.from_dict(SMALL))
+            assert isinstance(refused, models.Problem) and refused.status == 423   # the lease is needed
+            scan = create.sync(client=client, body=models.ScanCreate.from_dict(SMALL), x_lidard_lease=lease.lease)
+            assert isinstance(scan, models.ScanOut), scan
+            app.state.worker.wait(scan.id, 20.0)
+            done = get_scan.sync(client=client, scan_id=scan.id)
+            assert done.state == "done" and done.counts.points == 60
+            r = points.sync_detailed(client=client, scan_id=scan.id, format_=models.GetPointsScansScanIdPointsGetFormat("npz"))
+            assert r.status_code == 200 and r.headers["content-type"] == "application/x-npz"
+            with np.load(io.BytesIO(r.content)) as z:
+                assert len(z["points"]) == 60
+            missing = get_scan.sync(client=client, scan_id="NOPE")
+            assert isinstance(missing, models.Problem) and missing.status == 404 and "NOPE" in missing.detail
+        finally:
+            sys.path.remove(str(tmp_path))
+            for name in [m for m in sys.modules if m == "lidard_client" or m.startswith("lidard_client.")]:
+                del sys.modules[name]
