@@ -76,7 +76,8 @@ def add_parsers(sub) -> None:
     _dsp_opts(sp)
     _dask_opts(sp)
     sp.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the new point cloud here (.ply, .las, .npz, .pcd or .mcap) with its FILE.json sidecar")
+                    help="also write the new point cloud here (.ply, .las, .npz, .pcd, .mcap or .ros2.mcap) with its "
+                         "FILE.json sidecar; the directory must exist")
     sp.set_defaults(fn=cmd_reprocess)
     sp = sub.add_parser("spectrum", help="one pixel's spectra, CFAR threshold and detections",
                         description="Show one pixel's up/down range spectra from a scan's raw capture.",
