@@ -9,7 +9,8 @@ metadata carries them, ``/lidar/devices``. It goes through foxglove-sdk's MCAP w
 context (nothing leaks to a live server) into lidard.pointcloud's atomic temp-file-then-rename.
 
 ``read_mcap`` reads it back with the ``mcap`` package's reader and decodes the PointCloud's
-protobuf by hand (six fields; no protobuf runtime needed), honouring the field table in the file.
+protobuf by hand (no protobuf runtime needed), honouring the field table in the file; tests decode
+the same message with protobuf from the descriptor set the file carries.
 """
 
 from __future__ import annotations
