@@ -311,11 +311,11 @@ def read_points(path: str | os.PathLike) -> np.ndarray:
         return read_las(path)
     if fmt == "pcd":
         from .outputs.pcd import read_pcd
-        return _as_points(read_pcd(path))
+        return _as_points(read_pcd(path)).copy()   # a writable array, not a view of the file's bytes
     if fmt == "mcap":
         from .outputs.mcap import read_mcap
-        return _as_points(read_mcap(path)[0])
+        return _as_points(read_mcap(path)[0]).copy()
     if fmt == "ros2":
         from .outputs.ros2 import read_ros2_mcap
-        return _as_points(read_ros2_mcap(path))
+        return _as_points(read_ros2_mcap(path)).copy()
     return read_npz(path)[0]
