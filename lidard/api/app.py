@@ -20,7 +20,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 from fastapi import Depends, FastAPI, Request
-from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -30,7 +29,7 @@ from ..instrument.protocol import Instrument
 from ..jobs import ScanWorker, software_version
 from ..pointcloud import scene_identity
 from ..store import Store
-from . import control
+from . import control, problems
 from .control import BodySizeLimit, ControlLock, LockHeld
 from ..live.points import LivePoints
 from .routers import calibration, controller, devices, geometry, health, raw, scans, selftest, sim, viewer
@@ -102,7 +101,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
     app.add_middleware(BodySizeLimit, max_body_bytes=int(
         max_body_bytes if max_body_bytes is not None else cfg.daemon.max_body_bytes))
     app.include_router(control.router)
-    control.document_gates(app)
+    control.document_gates(app, token_set=token is not None)
     for r in (health.router, devices.router, scans.router, raw.router, calibration.router, geometry.router,
               sim.router, selftest.router, viewer.router, controller.router):
         app.include_router(r)
@@ -124,18 +123,15 @@ def _scan_meta(cfg: Config, inst: Instrument) -> dict:
 
 
 def _add_error_handlers(app: FastAPI) -> None:
+    # every error answer is an RFC 9457 problem (lidard.api.problems)
+    problems.install(app)
+
     @app.exception_handler(LidardError)
     async def lidard_error(request: Request, exc: LidardError) -> JSONResponse:
         # Domain errors (config, device faults reported by the instrument) are the server's state,
         # not a crash: name them instead of answering a bare 500.
-        return JSONResponse({"detail": f"{type(exc).__name__}: {exc}"}, status_code=503)
+        return problems.problem(503, f"{type(exc).__name__}: {exc}")
 
     @app.exception_handler(LockHeld)
     async def lock_held(request: Request, exc: LockHeld) -> JSONResponse:
         return control.locked_response(exc)
-
-    @app.exception_handler(RequestValidationError)
-    async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
-        errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
-                  for e in exc.errors()]
-        return JSONResponse({"detail": errors}, status_code=422)

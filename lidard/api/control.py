@@ -37,6 +37,7 @@ from urllib.parse import urlsplit
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import JSONResponse
 
+from .problems import PROBLEM_MEDIA_TYPE, document, problem, problem_bytes
 from .schemas import ControlAcquire, ControlLease, ControlStatus
 
 LEASE_HEADER = "X-Lidard-Lease"
@@ -161,9 +162,9 @@ class BodySizeLimit:
         self.max_body_bytes = max_body_bytes
 
     async def _reject(self, send) -> None:
-        body = (b'{"detail":"request body larger than %d bytes"}' % self.max_body_bytes)
+        body = problem_bytes(413, f"request body larger than {self.max_body_bytes} bytes")
         await send({"type": "http.response.start", "status": 413,
-                    "headers": [(b"content-type", b"application/json"),
+                    "headers": [(b"content-type", PROBLEM_MEDIA_TYPE.encode()),
                                 (b"content-length", str(len(body)).encode()),
                                 (b"connection", b"close")]})
         await send({"type": "http.response.body", "body": body})
@@ -217,9 +218,9 @@ class BodySizeLimit:
 
 
 async def _bad_request(send, detail: bytes) -> None:
-    body = b'{"detail":"' + detail + b'"}'
+    body = problem_bytes(400, detail.decode())
     await send({"type": "http.response.start", "status": 400,
-                "headers": [(b"content-type", b"application/json"),
+                "headers": [(b"content-type", PROBLEM_MEDIA_TYPE.encode()),
                             (b"content-length", str(len(body)).encode())]})
     await send({"type": "http.response.body", "body": body})
 
@@ -318,7 +319,7 @@ def guard(token: str | None) -> Callable[[Request], None]:
 
 
 def locked_response(exc: LockHeld) -> JSONResponse:
-    return JSONResponse({"detail": str(exc), "holder": exc.holder}, status_code=423)
+    return problem(423, str(exc), holder=exc.holder)
 
 
 _GATE_RESPONSES = {
@@ -330,11 +331,12 @@ _GATE_RESPONSES = {
 }
 
 
-def document_gates(app) -> None:
-    """Add the answers of the gates above (400/401/403/413/423) to every mutating operation's OpenAPI entry.
+def document_gates(app, token_set: bool = False) -> None:
+    """Add the answers of the gates above (400/401/403/413/423) to every mutating operation's OpenAPI entry,
+    with the bearer scheme, the lease header and the problem-details body (lidard.api.problems.document).
 
     The gates are app-wide dependencies and middleware, which FastAPI cannot see per route; a
-    client generated from the schema should still know these answers exist.
+    client generated from the schema should still know these answers exist and what to send.
     """
     base = app.openapi
     done = False
@@ -353,6 +355,7 @@ def document_gates(app) -> None:
                         op.setdefault("responses", {}).setdefault(code, {"description": text})
                     if "requestBody" in op:  # a body that decodes but does not validate
                         op["responses"].setdefault("422", {"description": "invalid request body"})
+            document(schema, mutating=MUTATING_METHODS, lease_header=LEASE_HEADER, token_set=token_set)
             done = True
         return schema
 

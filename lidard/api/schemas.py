@@ -13,8 +13,9 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 from ..config import ScanDefaults
 from ..instrument.types import PatternKind, ScanRequest
 
-# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs
-FileFormat = Literal["ply", "las", "npz", "pcd", "mcap"]
+# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs;
+# "ros2" is the rosbag2 MCAP flavour (sensor_msgs/msg/PointCloud2, CDR), file suffix .ros2.mcap
+FileFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]
 
 
 def describe_errors(errors: list[dict[str, Any]]) -> str:
@@ -68,7 +69,7 @@ class ScanCreate(_In):
     pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
     averages: StrictInt | None = Field(default=None, ge=1, le=100)
     max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
-    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=5)
+    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=6)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
     # keep the digitizer's raw segments (Zarr under the data directory) for reprocessing
@@ -187,8 +188,26 @@ class Health(_Out):
     linearization: dict[str, Any] | None = None
 
 
+class DeviceStatus(_Out):
+    """One instrument as GET /devices checks it: the link, and the device's own status reply both as
+    data (``status``, ``identity_fields``: JSON objects, never Python reprs) and as a line for people
+    (``state``, ``identity``)."""
+
+    name: Literal["fpsa", "awg", "digitizer", "controller"]
+    connected: bool
+    reconnected: bool = Field(False, description="the link was reopened to answer this check")
+    busy: bool = Field(False, description="in use by the running job: the entry is the last check")
+    identity: str | None = Field(None, description="identification, one readable line")
+    identity_fields: dict[str, Any] | None = Field(None, description="identification as data")
+    state: str = Field(description="status reply as one readable line; 'unreachable' when the link is down")
+    status: dict[str, Any] | None = Field(None, description="status reply as data (field -> value; enums "
+                                                            "by name, flags and sets as lists of names)")
+    faults: list[str] = Field(default_factory=list, description="fault names in the status reply, or "
+                                                                "why the device is unreachable")
+
+
 class DeviceList(_Out):
-    devices: list[dict[str, Any]]
+    devices: list[DeviceStatus]
 
 
 class CalibrationOut(_Out):
@@ -254,7 +273,7 @@ class ReprocessCreate(_In):
     pfa: float | None = Field(default=None, gt=0, lt=0.1, allow_inf_nan=False, strict=True)
     window: WindowName | None = None
     phase_noise: Literal["on", "off"] | None = None
-    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=5,
+    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=6,
                                                description="files of the new scan (default: the original's)")
 
     @field_validator("formats")

@@ -70,6 +70,17 @@ def load_config(path: str | None, profile: str | None = None):
     return cfg
 
 
+def check_out(path: str | Path | None, flag: str = "--out") -> None:
+    """Refuse an output path whose directory does not exist, before any work: a typo in a directory
+    is named instead of silently created (the file itself is written atomically later)."""
+    if path is None:
+        return
+    parent = Path(path).expanduser().absolute().parent
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise CliError(f"{flag} {path}: directory {parent} {what}; create it first")
+
+
 def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     from ..pointcloud import atomic_write
     with atomic_write(path) as f:

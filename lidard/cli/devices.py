@@ -44,15 +44,43 @@ def linearization_line(lin: dict) -> str:
     return text + (f"; re-linearized: {lin['reason']}" if lin.get("relinearized") else "")
 
 
+def fields_line(data) -> str:
+    """A device's ``status``/``identity_fields`` (GET /devices: data, not text) for a table cell:
+    ``key=value`` pairs, long lists summarised, the state word first, faults left to their column."""
+    if data is None:
+        return "-"
+    if not isinstance(data, dict):
+        return output.compact(data)
+    if "idn" in data and len(data) == 1:
+        return str(data["idn"])
+    if "error_queue" in data:
+        q = data["error_queue"]
+        return "ready" if not q else "; ".join(f"error {e['code']}: {e['text']}" for e in q)
+    parts = []
+    for k, v in data.items():
+        if k == "faults":
+            continue  # said by the FAULTS column
+        if k == "firmware" and isinstance(v, list):
+            v = ".".join(str(x) for x in v)
+        if k == "state" and isinstance(v, str):
+            parts.insert(0, v.lower())
+            continue
+        parts.append(f"{k}={output.compact(v)}")
+    return ", ".join(parts) if parts else "-"
+
+
 def device_rows(devs: list[dict]) -> list[list[str]]:
     rows = []
     for d in devs:
         link = "connected" if d.get("connected") else "DISCONNECTED"
         if d.get("reconnected"):
             link += " (reconnected)"
-        faults = output.compact([output.readable(f) for f in d.get("faults") or []]) if d.get("faults") else "-"
-        rows.append([str(d.get("name", "?")), link, output.readable(d.get("identity")),
-                     output.readable(d.get("state")), faults])
+        if d.get("busy"):
+            link += " (busy: last check)"
+        faults = output.compact(list(d.get("faults") or [])) if d.get("faults") else "-"
+        ident = fields_line(d["identity_fields"]) if d.get("identity_fields") is not None else (d.get("identity") or "-")
+        state = fields_line(d["status"]) if d.get("status") is not None else (d.get("state") or "-")
+        rows.append([str(d.get("name", "?")), link, ident, state, faults])
     return rows
 
 

@@ -1,17 +1,13 @@
 """How ``lidarctl`` prints: one JSON object with ``--json``, otherwise aligned tables a person reads.
 
-The daemon's device entries carry the drivers' identity and status as text (e.g.
-``Identity(vendor='lidard-sim', ..., bonded_rows=(0, 1, 2, ...))``); :func:`readable` turns such a
-record into ``key value`` pairs and summarises long sequences ("96 values, 0..126") so that no
-Python repr or 96-number tuple reaches the terminal.
+The daemon answers data (GET /devices carries each device's status as a JSON object); :func:`compact`
+summarises long sequences ("96 values, 0..126") so that no 96-number list reaches the terminal.
 """
 
 from __future__ import annotations
 
-import ast
 import datetime as _dt
 import json
-import re
 import sys
 from typing import Any, Iterable, Sequence
 
@@ -63,59 +59,6 @@ def compact(v: Any) -> str:
     if isinstance(v, dict):
         return ", ".join(f"{k}={compact(x)}" for k, x in v.items())
     return str(v)
-
-
-_ENUM = re.compile(r"<([A-Za-z_][\w]*)\.([A-Za-z_][\w]*): [^>]*>")
-
-
-def _literal(node: ast.AST) -> Any:
-    # frozenset()/set()/tuple() appear in driver reprs; everything else must be a plain literal
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("frozenset", "set", "tuple"):
-        return [] if not node.args else list(_literal(node.args[0]))
-    return ast.literal_eval(node)
-
-
-def parse_record(text: str) -> tuple[str, dict[str, Any]] | None:
-    """``Name(a=1, b=(1, 2), c=<E.X: 0>)`` -> ``("Name", {"a": 1, "b": [1, 2], "c": "X"})``; None if not one."""
-    try:
-        node = ast.parse(_ENUM.sub(lambda m: repr(m.group(2)), text.strip()), mode="eval").body
-    except SyntaxError:
-        return None
-    if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.args):
-        return None
-    try:
-        return node.func.id, {kw.arg: _literal(kw.value) for kw in node.keywords if kw.arg}
-    except (ValueError, TypeError, SyntaxError):
-        return None
-
-
-def readable(value: Any) -> str:
-    """A driver's identity or status for a table: ``key=value`` pairs, long tuples summarised."""
-    if value is None:
-        return "-"
-    if not isinstance(value, str):
-        return compact(value)
-    text = value.strip()
-    if text.startswith("[") or text.startswith("("):
-        try:
-            return compact(ast.literal_eval(text))
-        except (ValueError, SyntaxError):
-            return text
-    rec = parse_record(text)
-    if rec is None:
-        return text
-    _, fields = rec
-    parts = []
-    for k, v in fields.items():
-        if k in ("faults",) and (v in ("NONE", []) or not v):
-            continue  # "no faults" is said by the FAULTS column
-        if k == "firmware" and isinstance(v, (list, tuple)):
-            v = ".".join(str(x) for x in v)
-        if k == "state" and isinstance(v, str):
-            parts.insert(0, v.lower())
-            continue
-        parts.append(f"{k}={compact(v)}")
-    return ", ".join(parts) if parts else "-"
 
 
 def when(ts: float | None) -> str:

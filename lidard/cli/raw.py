@@ -76,7 +76,8 @@ def add_parsers(sub) -> None:
     _dsp_opts(sp)
     _dask_opts(sp)
     sp.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the new point cloud here (.ply, .las, .npz, .pcd or .mcap) with its FILE.json sidecar")
+                    help="also write the new point cloud here (.ply, .las, .npz, .pcd, .mcap or .ros2.mcap) with its "
+                         "FILE.json sidecar; the directory must exist")
     sp.set_defaults(fn=cmd_reprocess)
     sp = sub.add_parser("spectrum", help="one pixel's spectra, CFAR threshold and detections",
                         description="Show one pixel's up/down range spectra from a scan's raw capture.",
@@ -255,6 +256,7 @@ def cmd_reprocess(args) -> int:
     from ..pointcloud import format_of
     _check_flags(args)
     fmt = format_of(args.out) if args.out else None
+    base.check_out(args.out)
     body = _body(args)
     flats = _reprocess_offline(args, fmt) if args.data_dir is not None else _reprocess_daemon(args, body, fmt)
     summaries = [{"id": f["id"], "reprocessed_from": f["reprocessed_from"], "state": f["state"],

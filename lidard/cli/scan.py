@@ -67,7 +67,8 @@ def add_parser(sub) -> None:
                     help="also keep the digitizer's raw segments (Zarr, scans/<id>/raw.zarr in the data "
                          "directory) for `lidarctl reprocess` and `lidarctl spectrum`")
     sp.add_argument("--out", default=None, metavar="FILE",
-                    help="write the point cloud here (.ply, .las, .npz, .pcd or .mcap) and its FILE.json sidecar")
+                    help="write the point cloud here (.ply, .las, .npz, .pcd, .mcap for Foxglove/Lichtblick or "
+                         ".ros2.mcap for ROS 2) and its FILE.json sidecar; the directory must exist")
     sp.add_argument("--progress", choices=MODES, default="auto",
                     help="stderr progress: bar with ETA on a terminal, one line per 10 %% otherwise (auto), "
                          "JSON lines, or none")
@@ -180,6 +181,7 @@ def cmd_scan(args) -> int:
     from ..pointcloud import format_of
     refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache")
     fmt = format_of(args.out) if args.out else "ply"
+    base.check_out(args.out)
     body = request_body(args, fmt)
     bar = Progress(args.progress)
     interrupted = [False]

@@ -101,6 +101,7 @@ def _fetch(c, args) -> None:
     if not args.id or not args.out:
         raise CliError("scans fetch: give a scan ID and --out FILE")
     fmt = args.format or format_of(args.out)
+    base.check_out(args.out)
     r = c.request("GET", f"/scans/{args.id}/points", params={"format": fmt})
     base.write_bytes_atomic(args.out, r.content)
     if args.json:

@@ -20,10 +20,16 @@ log = logging.getLogger(__name__)
 #: The devices in the order every listing uses (GET /devices, identification, closing).
 DEVICE_NAMES = ("fpsa", "awg", "digitizer", "controller")
 
-# The cheapest request that proves a device answers; its reply is the "state" GET /devices shows.
+class ErrorQueue(tuple):
+    """The AWG's drained SCPI error queue, ``((code, text), ...)``: the AWG has no status word, so an
+    empty queue is its "ready"."""
+
+
+# The cheapest request that proves a device answers; its reply is the "state" GET /devices shows
+# (as a line, :func:`describe`) and its "status" (as data, :func:`as_data`).
 _PROBES: dict[str, Callable[[Any], Any]] = {
     "fpsa": lambda d: d.status(),
-    "awg": lambda d: d.errors(),          # SCPI error queue: the AWG has no status word
+    "awg": lambda d: ErrorQueue(tuple(d.errors())),
     "digitizer": lambda d: d.status(),
     "controller": lambda d: d.status(),
 }
@@ -38,6 +44,7 @@ class DeviceRegistry:
         self._drivers: dict[str, Any] = {"fpsa": fpsa, "awg": awg, "digitizer": digitizer,
                                          "controller": controller}
         self.identity: dict[str, Any] = {}
+        self.identity_data: dict[str, Any] = {}
 
     def __getitem__(self, name: str) -> Any:
         return self._drivers[name]
@@ -54,8 +61,11 @@ class DeviceRegistry:
         try:
             ident = self._drivers[name].identify()
             self.identity[name] = ident if isinstance(ident, str) else describe(ident)
+            # a plain identification string (the digitizer's *IDN? answer) is kept whole
+            self.identity_data[name] = {"idn": ident} if isinstance(ident, str) else as_data(ident)
         except Exception as exc:  # reported by devices(); a scan will fail with the cause
             self.identity[name] = f"unreachable: {exc}"
+            self.identity_data[name] = None
 
     def _unidentified(self, name: str) -> bool:
         return name not in self.identity or str(self.identity[name]).startswith("unreachable")
@@ -67,7 +77,7 @@ class DeviceRegistry:
 
     def check(self, name: str) -> dict[str, Any]:
         dev, probe = self._drivers[name], _PROBES[name]
-        entry: dict[str, Any] = {"name": name, "reconnected": False}
+        entry: dict[str, Any] = {"name": name, "reconnected": False, "busy": False}
         n_before = getattr(dev, "reconnect_count", 0)
         try:
             state = probe(dev)
@@ -83,19 +93,21 @@ class DeviceRegistry:
                 if self._unidentified(name):
                     self.identify(name)
             except Exception as exc2:
-                entry.update(connected=False, identity=self.identity.get(name), state="unreachable",
+                entry.update(connected=False, identity=self.identity.get(name), state="unreachable", status=None,
+                             identity_fields=self.identity_data.get(name),
                              faults=[first] + ([f"reconnect: {type(exc2).__name__}: {exc2}"]
                                                if str(exc2) != str(exc) else []))
                 return entry
         entry.update(connected=True, identity=self.identity.get(name), state=describe(state),
-                     faults=faults_of(state))
+                     status=as_data(state), identity_fields=self.identity_data.get(name), faults=faults_of(state))
         return entry
 
     def busy_listing(self) -> list[dict[str, Any]]:
         """What GET /devices shows while a job holds the devices and nothing was checked yet."""
         return [{"name": n, "connected": not str(self.identity.get(n, "")).startswith("unreachable"),
-                 "reconnected": False, "identity": self.identity.get(n),
-                 "state": "busy: in use by the running job", "faults": []} for n in DEVICE_NAMES]
+                 "reconnected": False, "identity": self.identity.get(n), "identity_fields": self.identity_data.get(n),
+                 "state": "not checked yet (in use by the running job)", "status": None, "busy": True,
+                 "faults": []} for n in DEVICE_NAMES]
 
     def close(self) -> None:
         for name in _CLOSED_ON_EXIT:
@@ -109,6 +121,8 @@ def describe(reply: Any) -> str:
     """A device's status or identity reply as one readable line for people (GET /devices, the
     viewer, ``lidarctl devices``): ``key=value`` pairs of a dataclass or named tuple, enum members by
     name, sets as sorted names, floats to 4 significant digits; never a Python repr."""
+    if isinstance(reply, ErrorQueue):
+        return "; ".join(f"error {c}: {t}" for c, t in reply) if reply else "ready (error queue empty)"
     if dataclasses.is_dataclass(reply) and not isinstance(reply, type):
         pairs = [(f.name, getattr(reply, f.name)) for f in dataclasses.fields(reply)]
     elif isinstance(reply, tuple) and hasattr(reply, "_fields"):
@@ -135,14 +149,41 @@ def _plain(v: Any) -> str:
     return str(v)
 
 
+def as_data(reply: Any) -> Any:
+    """A device's status or identity reply as JSON data (GET /devices ``status``/``identity_fields``):
+    a dataclass or named tuple as an object of its fields, enum members by name, flags and sets as
+    sorted lists of names, tuples as lists; the AWG's error queue as ``{"error_queue": [...]}``."""
+    if isinstance(reply, ErrorQueue):
+        return {"error_queue": [{"code": int(c), "text": str(t)} for c, t in reply]}
+    if dataclasses.is_dataclass(reply) and not isinstance(reply, type):
+        return {f.name: as_data(getattr(reply, f.name)) for f in dataclasses.fields(reply)}
+    if isinstance(reply, tuple) and hasattr(reply, "_fields"):
+        return {k: as_data(v) for k, v in zip(reply._fields, reply)}
+    if isinstance(reply, enum.Flag) and not isinstance(reply, enum.IntEnum):
+        return [m.name for m in type(reply) if m.value and m in reply and m.name]
+    if isinstance(reply, enum.Enum):
+        return reply.name
+    if isinstance(reply, (set, frozenset)):
+        return sorted(as_data(x) for x in reply)
+    if isinstance(reply, (list, tuple)):
+        return [as_data(x) for x in reply]
+    if isinstance(reply, dict):
+        return {str(k): as_data(v) for k, v in reply.items()}
+    if isinstance(reply, (bool, int, float, str)) or reply is None:
+        return reply
+    if hasattr(reply, "item"):       # numpy scalars
+        return reply.item()
+    return str(reply)
+
+
 def faults_of(state: Any) -> list[str]:
-    """The fault names a device's status reply carries (a set, a list or a flag enum), sorted."""
+    """The fault names a device's status reply carries (a set, a list or a flag enum): names, never
+    the flag's integer (``str()`` of an IntFlag member is its value)."""
     faults = getattr(state, "faults", None)
     if faults is None:
         return []
+    if isinstance(faults, enum.Flag):
+        return [m.name for m in type(faults) if m.value and m in faults and m.name]
     if isinstance(faults, (set, frozenset, list, tuple)):
-        return sorted(str(f) for f in faults)
-    try:
-        return [str(f) for f in type(faults) if f in faults and int(f)]
-    except TypeError:
-        return [str(faults)] if faults else []
+        return sorted(f.name if isinstance(f, enum.Enum) else str(f) for f in faults)
+    return [str(faults)] if faults else []

@@ -123,7 +123,8 @@ class LidarInstrument:
         # The drivers are not thread-safe, so the checks need the instrument; while a scan holds it,
         # answer from the last check instead of blocking the caller for the whole scan.
         if not self._lock.acquire(timeout=DEVICES_WAIT_S):
-            return [{**e, "state": "busy: in use by the running job (last check shown)", "reconnected": False}
+            # ``busy``: the entry is the last check, the device is in use by the running job
+            return [{**e, "busy": True, "reconnected": False}
                     for e in self._last_devices] or self.registry.busy_listing()
         try:
             self._last_devices = self.registry.check_all()

@@ -13,23 +13,13 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
-PatternKind = Literal["raster", "serpentine", "roi", "pixels", "adaptive"]
-OutputFormat = Literal["ply", "las", "npz"]
+# One record per detected return: the schema of lidard.point_schema (name, dtype, unit, meaning of each
+# field), the same in memory and in every file format.
+from ..point_schema import POINT_DTYPE  # noqa: F401  (re-exported: the seam's point record)
 
-# One record per detected return. x, y, z in the scene's sensor frame (float32 at the file edge).
-POINT_DTYPE = np.dtype([
-    ("x", "f4"), ("y", "f4"), ("z", "f4"),
-    ("range", "f4"),          # m, along the beam
-    ("velocity", "f4"),       # m/s, radial, positive when the target recedes
-    ("intensity", "f4"),      # peak amplitude, ADC volts-equivalent
-    ("snr_db", "f4"),         # peak over local noise, dB (20 log10 of amplitudes)
-    ("row", "u2"), ("col", "u2"),
-    ("return_index", "u1"),   # 0 = first (nearest) return of that beam
-    ("t", "f8"),              # s since scan start (hardware time of the pixel's first trigger)
-    ("valid", "u1"),          # 0 where the DSP flagged the point (folding, harmonic, unresolved)
-    ("flags", "u1"),          # why not valid: bits of lidard.dsp.gate.PointFlag (1 unresolved, 2 aliased,
-                              # 4 harmonic, 8 ambiguous pairing, 16 clipped); 0 on a clean point
-])
+PatternKind = Literal["raster", "serpentine", "roi", "pixels", "adaptive"]
+OutputFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]  # lidard.pointcloud.FORMATS
+
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 from ..instrument.calibration.applied import AppliedCalibrations
 from ..instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
-from ..pointcloud import write_points
+from ..pointcloud import suffix_of, write_points
 from ..scan import adaptive_plans, planned_pixel_count
 from .kinds import _ScanJob, describe_error, request_to_dict, software_version
 
@@ -171,7 +171,7 @@ class ScanJobRun:
         out_dir = self.store.scan_dir(job.id)
         files = {}
         for fmt in job.request.formats:
-            path = out_dir / f"scan.{fmt}"
+            path = out_dir / f"scan{suffix_of(fmt)}"
             write_points(path, result.points, meta, fmt)
             files[fmt] = str(path.relative_to(self.store.data_dir))
         return files

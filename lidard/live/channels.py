@@ -3,11 +3,12 @@
 Three topics, one per thing a robotics user looks at (issue 16 item 2):
 
 * ``/lidar/points``: ``foxglove.PointCloud`` (protobuf) in frame ``lidar`` (the sensor frame of
-  §4.1.1: +z the optical axis). Fields, packed little-endian per point (:data:`PACKED_DTYPE`):
-  x, y, z, range, velocity, intensity, snr_db (float32), row, col (int32), t (float64, s from the
-  scan's start, the pixel's hardware trigger time).
-* ``/lidar/scan_status``: JSON, the worker's progress/end events (``lidard.jobs``).
-* ``/lidar/devices``: JSON ``{"devices": [...]}`` as ``GET /devices``.
+  §4.1.1: +z the optical axis). Every field of :data:`lidard.point_schema.POINT_FIELDS` (``valid``,
+  ``flags`` and ``return_index`` included, so a viewer can filter what the DSP rejected), packed
+  little-endian per point in its schema dtype (:data:`PACKED_DTYPE` is POINT_DTYPE).
+* ``/lidar/scan_status``: JSON, the worker's progress/end events (``lidard.jobs``), under the JSON
+  schema ``lidard.ScanStatus`` (:data:`SCAN_STATUS_SCHEMA`).
+* ``/lidar/devices``: JSON ``{"devices": [...]}`` as ``GET /devices``, schema ``lidard.DeviceList``.
 
 A :class:`LidarChannels` lives on a ``foxglove.Context``; whatever sinks that context has (a
 WebSocket server, an MCAP writer) receive the same messages.
@@ -15,6 +16,7 @@ WebSocket server, an MCAP writer) receive the same messages.
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
@@ -24,28 +26,56 @@ from foxglove.channels import PointCloudChannel
 from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud, Pose, Quaternion, \
     Timestamp, Vector3
 
+from ..point_schema import FOXGLOVE_TYPE, POINT_DTYPE, POINT_FIELDS
+
 FRAME_ID = "lidar"
 POINTS_TOPIC, STATUS_TOPIC, DEVICES_TOPIC = "/lidar/points", "/lidar/scan_status", "/lidar/devices"
 
-_F32, _I32, _F64 = "<f4", "<i4", "<f8"
-PACKED_DTYPE = np.dtype([("x", _F32), ("y", _F32), ("z", _F32), ("range", _F32), ("velocity", _F32),
-                         ("intensity", _F32), ("snr_db", _F32), ("row", _I32), ("col", _I32), ("t", _F64)])
-_NUMERIC = {_F32: PackedElementFieldNumericType.Float32, _I32: PackedElementFieldNumericType.Int32,
-            _F64: PackedElementFieldNumericType.Float64}
+PACKED_DTYPE = POINT_DTYPE
+_NUMERIC = {getattr(PackedElementFieldNumericType, n).value: getattr(PackedElementFieldNumericType, n)
+            for n in ("Uint8", "Int8", "Uint16", "Int16", "Uint32", "Int32", "Float32", "Float64")}
+
+_STATUS_KEYS = {
+    "event": {"type": "string", "enum": ["progress", "end"], "description": "progress while a scan runs; end once"},
+    "id": {"type": "string", "description": "scan id (live server)"},
+    "scan_id": {"type": "string", "description": "scan id (MCAP file)"},
+    "stage": {"type": "string", "description": "scan stage (linearizing, scanning, ...)"},
+    "state": {"type": "string", "description": "final job state (end)"},
+    "pixels_done": {"type": "integer", "minimum": 0},
+    "pixels_scanned": {"type": ["integer", "null"], "minimum": 0},
+    "pixels_planned": {"type": ["integer", "null"], "minimum": 0},
+    "points": {"type": "integer", "minimum": 0, "description": "points measured so far"},
+    "fraction": {"type": "number", "minimum": 0, "maximum": 1},
+    "hardware_time_s": {"type": ["number", "null"], "description": "s of hardware time so far"},
+    "partial": {"type": ["boolean", "null"], "description": "the scan stopped before its last pixel"},
+    "stop_reason": {"type": ["string", "null"]},
+    "error": {"type": ["string", "null"]},
+    "calibration_id": {"type": ["string", "null"]},
+}
+SCAN_STATUS_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "lidard.ScanStatus",
+    "description": "Progress and end events of a lidard scan", "type": "object",
+    "properties": _STATUS_KEYS, "required": ["event"]}
+DEVICES_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "lidard.DeviceList",
+    "description": "State of each instrument (as GET /devices)", "type": "object",
+    "properties": {"devices": {"type": "array", "items": {"type": "object"}}}, "required": ["devices"]}
+
+
+def json_schema(schema: dict[str, Any]) -> foxglove.Schema:
+    """A named ``jsonschema`` channel schema (Foxglove shows the name; tools can validate against it)."""
+    return foxglove.Schema(name=schema["title"], encoding="jsonschema",
+                           data=json.dumps(schema, sort_keys=True).encode())
 
 
 def packed_fields() -> list[PackedElementField]:
-    return [PackedElementField(name=name, offset=PACKED_DTYPE.fields[name][1],
-                               type=_NUMERIC[PACKED_DTYPE.fields[name][0].str])
-            for name in PACKED_DTYPE.names]
+    return [PackedElementField(name=f.name, offset=PACKED_DTYPE.fields[f.name][1], type=_NUMERIC[FOXGLOVE_TYPE[f.dtype]])
+            for f in POINT_FIELDS]
 
 
 def pack_points(points: np.ndarray) -> bytes:
     """POINT_DTYPE records -> the PointCloud's ``data`` (PACKED_DTYPE rows)."""
-    out = np.zeros(len(points), PACKED_DTYPE)
-    for name in PACKED_DTYPE.names:
-        out[name] = points[name]
-    return out.tobytes()
+    return np.ascontiguousarray(np.asarray(points).astype(PACKED_DTYPE, copy=False)).tobytes()
 
 
 def stamp(time_ns: int) -> Timestamp:
@@ -63,8 +93,10 @@ class LidarChannels:
 
     def __init__(self, context: foxglove.Context | None = None):
         self.points = PointCloudChannel(POINTS_TOPIC, context=context)
-        self.status = foxglove.Channel(STATUS_TOPIC, message_encoding="json", context=context)
-        self.devices = foxglove.Channel(DEVICES_TOPIC, message_encoding="json", context=context)
+        self.status = foxglove.Channel(STATUS_TOPIC, message_encoding="json", context=context,
+                                       schema=json_schema(SCAN_STATUS_SCHEMA))
+        self.devices = foxglove.Channel(DEVICES_TOPIC, message_encoding="json", context=context,
+                                        schema=json_schema(DEVICES_SCHEMA))
 
     def log_points(self, points: np.ndarray, time_ns: int) -> None:
         self.points.log(point_cloud(points, time_ns), log_time=int(time_ns))

@@ -1,5 +1,7 @@
-"""MCAP output: a scan as the Foxglove topics of lidard.live.channels, in one file that Foxglove,
-Lichtblick and ROS 2 tooling (``ros2 bag``'s MCAP storage) open.
+"""MCAP output, Foxglove flavour: a scan as the Foxglove topics of lidard.live.channels, in one file
+that Foxglove and Lichtblick open (profile none, ``foxglove.PointCloud`` in protobuf, JSON status under
+named JSON schemas). ROS 2 tools (``ros2 bag``, rosbags) need the ``ros2`` format instead
+(lidard.outputs.ros2: ``sensor_msgs/msg/PointCloud2`` in CDR).
 
 ``write_mcap`` logs the whole cloud as one ``/lidar/points`` PointCloud (every point; ``t`` keeps
 the per-pixel hardware time of §4.4's scan), one ``/lidar/scan_status`` JSON summary and, when the
@@ -7,7 +9,8 @@ metadata carries them, ``/lidar/devices``. It goes through foxglove-sdk's MCAP w
 context (nothing leaks to a live server) into lidard.pointcloud's atomic temp-file-then-rename.
 
 ``read_mcap`` reads it back with the ``mcap`` package's reader and decodes the PointCloud's
-protobuf by hand (six fields; no protobuf runtime needed), honouring the field table in the file.
+protobuf by hand (no protobuf runtime needed), honouring the field table in the file; tests decode
+the same message with protobuf from the descriptor set the file carries.
 """
 
 from __future__ import annotations

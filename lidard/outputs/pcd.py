@@ -2,8 +2,8 @@
 
 Header then the points as packed little-endian records, one per detected return (unorganized:
 ``WIDTH`` = number of points, ``HEIGHT`` = 1, since a pixel may have several returns or none, §4.4).
-Every POINT_DTYPE field is kept: x y z range velocity intensity snr_db as F4, row col as U4
-(wide enough for any FPSA), return_index valid flags as U1, t as F8 (s from the scan's start).
+Every field of :data:`lidard.point_schema.POINT_FIELDS` is kept in its schema dtype (``TYPE``/``SIZE``
+from :data:`lidard.point_schema.PCD_TYPE`): the records are POINT_DTYPE's bytes as they are.
 """
 
 from __future__ import annotations
@@ -13,16 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..point_schema import PCD_TYPE, POINT_DTYPE, POINT_FIELDS
 from ..pointcloud import PointCloudError, atomic_write
 
 # (field, PCD type, size) in file order
-_LAYOUT = (("x", "F", 4), ("y", "F", 4), ("z", "F", 4), ("range", "F", 4), ("velocity", "F", 4),
-           ("intensity", "F", 4), ("snr_db", "F", 4), ("row", "U", 4), ("col", "U", 4),
-           ("return_index", "U", 1), ("t", "F", 8), ("valid", "U", 1),
-           ("flags", "U", 1))
+_LAYOUT = tuple((f.name, *PCD_TYPE[f.dtype]) for f in POINT_FIELDS)
 _NP = {("F", 4): "<f4", ("F", 8): "<f8", ("U", 4): "<u4", ("U", 1): "u1", ("U", 2): "<u2",
        ("I", 4): "<i4", ("I", 2): "<i2", ("I", 1): "i1"}
-PCD_DTYPE = np.dtype([(name, _NP[(t, s)]) for name, t, s in _LAYOUT])
+PCD_DTYPE = POINT_DTYPE
 
 
 def pcd_header(n: int) -> bytes:

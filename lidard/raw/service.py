@@ -16,7 +16,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from ..errors import UnknownScan
-from ..pointcloud import read_sidecar, write_points
+from ..pointcloud import read_sidecar, suffix_of, write_points
 from ..store import ScanRecord, Store
 from .capture import RAW_NAME, RawCapture, RawCaptureError, capture_size_bytes
 from .replay import ReprocessSettings, replay_dsp, reprocess
@@ -74,7 +74,7 @@ def reprocess_scan(store: Store, scan_id: str, settings: ReprocessSettings | Non
                 "pixels_scanned": rep.meta["pixels"], "partial": partial}
         files = {}
         for fmt in fmts:
-            out = store.scan_dir(new.id) / f"scan.{fmt}"
+            out = store.scan_dir(new.id) / f"scan{suffix_of(fmt)}"
             write_points(out, rep.points, meta, fmt)
             files[fmt] = str(out.relative_to(store.data_dir))
     except Exception as exc:

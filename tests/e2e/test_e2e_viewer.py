@@ -57,6 +57,42 @@ def run_scan_in_page(page, url: str, rows: tuple[int, int], cols: tuple[int, int
     return page.evaluate("window.viewer.scanId")
 
 
+def check_panels(page, api):
+    """What the page says beside the cloud: a colour bar with the mode's unit and the limits the points
+    are coloured with, the unbonded rows named, rows/cols inputs that follow the pattern, device and
+    calibration panels with content."""
+    page.wait_for_function("window.viewer.calibrationsShown && window.viewer.scanner", timeout=30_000)
+    legend = page.evaluate("window.viewer.legend")
+    assert legend["mode"] == "range" and legend["unit"] == "range, m"
+    assert page.inner_text("#legend-unit") == "range, m"
+    assert [float(page.inner_text("#legend-lo")), float(page.inner_text("#legend-hi"))] == pytest.approx(
+        page.evaluate("window.viewer.cloud.colorLimits"), rel=1e-2)
+    bar = page.evaluate("""(() => { const c = document.getElementById('colorbar').getContext('2d');
+        return [Array.from(c.getImageData(1, 5, 1, 1).data), Array.from(c.getImageData(158, 5, 1, 1).data)]; })()""")
+    assert bar[0] != bar[1] and bar[0][3] == 255       # a drawn gradient, not an empty canvas
+    page.select_option("#color-mode", "velocity")
+    assert page.evaluate("window.viewer.legend.unit").startswith("radial velocity, m/s")
+    # unbonded rows: the sim FPSA leaves every 4th row unbonded (rows 3, 7, ...)
+    assert page.evaluate("window.viewer.unbondedRows.slice(0, 3)") == [3, 7, 11]
+    note = page.inner_text("#rows-note")
+    assert "32 of 128 FPSA rows are not bonded" in note and "rows 3, 7, 11, 15" in note
+    # controls follow the pattern
+    page.select_option("select[name=pattern]", "raster")
+    assert page.evaluate("document.getElementById('roi-fields').disabled") is True
+    assert "whole array" in page.inner_text("#pattern-note")
+    page.select_option("select[name=pattern]", "roi")
+    assert page.evaluate("document.getElementById('roi-fields').disabled") is False
+    # devices: one line per device with its state, no bare "none", no repr
+    devices = page.inner_text("#devices").splitlines()
+    assert [d.split(":")[0] for d in devices] == ["fpsa", "awg", "digitizer", "controller"]
+    assert "awg: ready (error queue empty)" in devices and not any(d.endswith(": none") for d in devices)
+    assert not any("Status(" in d or "<" in d for d in devices)
+    # calibrations: the linearization the scan made, and the chirp check line
+    cals = page.inner_text("#calibrations")
+    assert "it.," in cals and "loading" not in cals
+    assert page.inner_text("#linearization").startswith(("chirp error", "chirp re-linearized"))
+
+
 def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
     sync_playwright = _browser_or_skip()
     from PIL import Image
@@ -96,6 +132,7 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
                 assert 0.7 < picked["range"] < 1.0  # the letters at 0.8 m or the board at 0.9 m
                 assert f"row       {picked['row']}" in page.inner_text("#picked")
                 assert page.evaluate("window.viewer.cloud.pick({clientX: -1e6, clientY: -1e6})") is None
+                check_panels(page, api)
             finally:
                 browser.close()
     finally:

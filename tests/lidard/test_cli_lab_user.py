@@ -77,7 +77,8 @@ def test_bad_pixels_refused_before_the_bench_starts(capsys, fake_bench, argv, ne
 def test_bad_numbers_refused_with_the_daemons_message(capsys, fake_bench, make_client, argv, body):
     r = make_client(FakeInstrument()).post("/scans", json=body)
     assert r.status_code == 422
-    daemon_says = describe_errors(r.json()["detail"])
+    daemon_says = r.json()["detail"]      # the problem's one line, worded from its field errors
+    assert daemon_says == describe_errors(r.json()["errors"])
     code, out, err = run(capsys, "scan", "--sim", *argv)
     assert code == 1 and fake_bench == []
     assert err.strip() == f"lidarctl: error: {daemon_says}"
@@ -109,16 +110,19 @@ def test_sim_only_flags_without_sim_are_refused(capsys, argv, flag):
 
 # -- against a live daemon
 SIM_TOML = CONFIG_DIR / "sim.toml"
-# the identity and status texts the real drivers give (GET /devices on the simulated bench)
+# GET /devices entries as the real registry gives them (lidard.instrument.devices: status as data)
 REAL_DEVICES = [
-    {"name": "fpsa", "connected": True, "reconnected": False, "faults": [],
-     "identity": "Identity(vendor='lidard-sim', model='FPSA128-HV583', firmware=(1, 0, 0), rows=128, cols=128, "
-                 "bonded_rows=(" + ", ".join(str(r) for r in range(128) if r % 4 != 3) + "))",
-     "state": "Status(state=<State.IDLE: 0>, faults=<FaultFlag.NONE: 0>, pattern_index=0, pixel_counter=0, "
-              "trigger_counter=0)"},
-    {"name": "controller", "connected": False, "reconnected": False, "faults": ["INTERLOCK_OPEN"],
-     "identity": "Identity(model='LHV-1550', firmware='1.0', map_version=1)",
-     "state": "Status(laser_current_ma=0.0, tec_c=25.0, hv_v=0.0, faults=frozenset(), uptime_ms=0, heartbeat=2)"},
+    {"name": "fpsa", "connected": True, "reconnected": False, "busy": False, "faults": [],
+     "identity": "vendor=lidard-sim, model=FPSA128-HV583, firmware=[1, 0, 0], rows=128, cols=128, bonded_rows=96 values",
+     "identity_fields": {"vendor": "lidard-sim", "model": "FPSA128-HV583", "firmware": [1, 0, 0], "rows": 128,
+                         "cols": 128, "bonded_rows": [r for r in range(128) if r % 4 != 3]},
+     "state": "state=IDLE, faults=none, pattern_index=0, pixel_counter=0, trigger_counter=0",
+     "status": {"state": "IDLE", "faults": [], "pattern_index": 0, "pixel_counter": 0, "trigger_counter": 0}},
+    {"name": "controller", "connected": False, "reconnected": False, "busy": False, "faults": ["INTERLOCK_OPEN"],
+     "identity": "model=LHV-1550, firmware=1.0, map_version=1",
+     "identity_fields": {"model": "LHV-1550", "firmware": "1.0", "map_version": 1},
+     "state": "laser_current_ma=0, tec_c=25, hv_v=0, faults=none, uptime_ms=0, heartbeat=2",
+     "status": {"laser_current_ma": 0.0, "tec_c": 25.0, "hv_v": 0.0, "faults": [], "uptime_ms": 0, "heartbeat": 2}},
 ]
 
 

@@ -33,7 +33,9 @@ REFUSED = {422: {"description": "the calibration was refused (too few or inconsi
 
 class PlateIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    known_m: float = Field(gt=0, le=1000, description="distance of the plate plane z = known_m from the lens, m")
+    # strict: lax coercion would take ``true`` for 1.0 (as ScanCreate's numbers)
+    known_m: float = Field(gt=0, le=1000, strict=True,
+                           description="distance of the plate plane z = known_m from the lens, m")
 
 
 class PointingIn(BaseModel):
@@ -44,7 +46,7 @@ class PointingIn(BaseModel):
 
 class IqIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    max_range_m: float = Field(default=2.0, gt=0, le=1000,
+    max_range_m: float = Field(default=2.0, gt=0, le=1000, strict=True,
                                description="range gate of the calibration scan: the targets whose beats are used lie inside it")
 
 

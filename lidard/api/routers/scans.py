@@ -11,7 +11,7 @@ from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 
 from ...jobs import QueueFull, UnknownScan, WorkerStopped
-from ...pointcloud import read_sidecar
+from ...pointcloud import MEDIA_TYPE, read_sidecar, suffix_of
 from ...scan import ScanPlanError, plan
 from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
 from ..schemas import FileFormat, ScanCreate, ScanList, ScanOut
@@ -19,8 +19,10 @@ from .controller import latched_refusal
 
 router = APIRouter(prefix="/scans", tags=["scans"])
 
-_MEDIA = {"ply": "application/octet-stream", "las": "application/vnd.las", "npz": "application/octet-stream",
-          "pcd": "application/octet-stream", "mcap": "application/octet-stream"}
+# the download's media type per format, declared in the OpenAPI schema as binary bodies
+_POINTS_CONTENT = {media: {"schema": {"type": "string", "format": "binary"}} for media in dict.fromkeys(MEDIA_TYPE.values())}
+_POINTS_DOC = ("the point file: " + ", ".join(f"{fmt} {media}" for fmt, media in MEDIA_TYPE.items())
+               + "; `X-Lidard-Partial: true|false`")
 
 
 _404 = {404: {"description": "no scan with this id"}}
@@ -71,7 +73,8 @@ def get_scan(scan_id: str, store: StoreDep) -> ScanOut:
 
 
 @router.get("/{scan_id}/points", response_class=FileResponse,
-            responses={404: {"description": "unknown scan or format not written"},
+            responses={200: {"content": _POINTS_CONTENT, "description": _POINTS_DOC},
+                        404: {"description": "unknown scan or format not written"},
                        409: {"description": "scan not finished"}})
 def get_points(scan_id: str, store: StoreDep, format: FileFormat = "ply") -> FileResponse:
     rec = store.get_scan(scan_id)
@@ -90,13 +93,13 @@ def get_points(scan_id: str, store: StoreDep, format: FileFormat = "ply") -> Fil
     if not path.is_file():
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id}: {format} file is missing from "
                                                        f"the data directory ({rec.files[format]})")
-    return FileResponse(path, media_type=_MEDIA[format], filename=f"{scan_id}.{format}",
+    return FileResponse(path, media_type=MEDIA_TYPE[format], filename=f"{scan_id}{suffix_of(format)}",
                         headers={"X-Lidard-Partial": "true" if rec.partial else "false"})
 
 
 @router.get("/{scan_id}/sidecar", response_model=dict[str, Any],
             responses={404: {"description": "unknown scan or format not written"}})
-def get_sidecar(scan_id: str, store: StoreDep, format: Literal["ply", "las", "npz"] = "ply") -> JSONResponse:
+def get_sidecar(scan_id: str, store: StoreDep, format: FileFormat = "ply") -> JSONResponse:
     """The JSON sidecar of a written point file: settings, calibration, timing, scene on a bench."""
     rec = store.get_scan(scan_id)
     if rec is None:

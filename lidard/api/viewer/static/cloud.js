@@ -18,6 +18,9 @@ function ramp(stops, t) {
   return stops[stops.length - 1].slice(1);
 }
 
+// The colour of a value ``t`` in 0..1 in the map of ``mode`` (the colour bar draws the same map).
+export function colorOf(mode, t) { return ramp(mode === "velocity" ? DIVERGING : RAMP, t); }
+
 export class Cloud {
   constructor(canvas, fields) {
     this.canvas = canvas;

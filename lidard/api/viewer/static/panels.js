@@ -42,13 +42,38 @@ export function renderQueue(ul, scans, { canAct, onCancel, onShow, shownId }) {
   }
 }
 
+// One line per device: its link, its status (GET /devices answers it as data and as a line) and,
+// on hover, its identity. ``busy``: a job holds the instrument, the line is the last check.
 export function renderDevices(ul, devices) {
   ul.replaceChildren();
   for (const d of devices) {
     const cls = d.connected === false ? "bad" : (d.faults && d.faults.length ? "warn" : "ok");
-    ul.append(el("li", { class: cls }, `${d.name}: ${d.state ?? (d.connected ? "connected" : "offline")}`,
-      d.faults && d.faults.length ? ` (${d.faults.join("; ")})` : ""));
+    const state = d.connected === false ? "offline" : (d.state || "connected");
+    ul.append(el("li", { class: cls, title: d.identity || "" }, `${d.name}: ${state}`,
+      d.faults && d.faults.length ? ` (faults: ${d.faults.join("; ")})` : "",
+      d.busy ? el("span", { class: "note" }, " busy: last check") : ""));
   }
+}
+
+// Why some FPSA rows have no points: they are not bonded to the HV driver (§4.3.3), so no beam
+// leaves them and the image has a dark stripe there. The fpsa's identity lists its bonded rows.
+export function unbondedRows(scanner, devices) {
+  const [rows] = scanner.pixels || [0];
+  const ident = (devices.find((d) => d.name === "fpsa") || {}).identity_fields || {};
+  if (Array.isArray(ident.bonded_rows)) {
+    const bonded = new Set(ident.bonded_rows), out = [];
+    for (let r = 0; r < rows; r++) if (!bonded.has(r)) out.push(r);
+    return out;
+  }
+  return null;
+}
+
+export function rowsNote(scanner, unbonded) {
+  const [rows] = scanner.pixels || [0], bonded = scanner.bonded_rows ?? rows;
+  if (bonded >= rows) return "";
+  const list = unbonded && unbonded.length ? ` (rows ${unbonded.slice(0, 4).join(", ")}${unbonded.length > 4 ? ", …" : ""})` : "";
+  return `Dark stripes: ${rows - bonded} of ${rows} FPSA rows are not bonded to the switch driver${list}; ` +
+    "no beam leaves them, so they have no points (§4.3.3).";
 }
 
 export function renderFaults(ul, faults, simulated) {
@@ -61,9 +86,17 @@ export function renderFaults(ul, faults, simulated) {
   }
 }
 
+// The last scan's linearization check (GET /health ``linearization``) in one line.
+export function linearizationLine(lin) {
+  if (!lin) return "chirp check: none yet (made before each scan)";
+  if (lin.residual_hz == null) return `chirp re-linearized (${lin.reason}), not checked`;
+  return `chirp error ${(lin.residual_hz / 1e3).toFixed(0)} kHz rms (threshold ${(lin.threshold_hz / 1e3).toFixed(0)} kHz)` +
+    (lin.relinearized ? `; re-linearized: ${lin.reason}` : "");
+}
+
 export function renderCalibrations(ul, cals) {
   ul.replaceChildren();
-  if (!cals.length) { ul.append(el("li", {}, "none yet (the first scan linearizes)")); return; }
+  if (!cals.length) { ul.append(el("li", {}, "no linearization yet: the first scan or `lidarctl linearize` makes one")); return; }
   for (const c of cals) {
     const when = c.created ? new Date(c.created * 1000).toLocaleTimeString() : "?";
     ul.append(el("li", { class: c.converged ? "ok" : "warn" },

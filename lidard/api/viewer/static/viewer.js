@@ -1,7 +1,7 @@
 // lidard web viewer: watches the daemon over its own REST API (same rules as any client: reads are
 // open, starting or cancelling needs the control lease, sent as X-Lidard-Lease).
 // window.viewer exposes the page's state (scanId, pointCount, complete, ...) for tests and the console.
-import { Cloud } from "/viewer/cloud.js";
+import { Cloud, colorOf } from "/viewer/cloud.js";
 import * as panels from "/viewer/panels.js";
 
 const FIELDS = ["x", "y", "z", "range", "velocity", "intensity", "snr_db", "row", "col", "t", "valid"];
@@ -123,6 +123,7 @@ async function refresh() {
     const [health, control, list] = await Promise.all([getJSON("/health"), getJSON("/control"), getJSON("/scans?limit=12")]);
     viewer.simulated = health.simulated;
     $("health").textContent = `${health.version} · ${health.simulated ? "simulated bench" : "hardware"} · ${health.status}`;
+    $("linearization").textContent = panels.linearizationLine(health.linearization);
     const mine = showControl(control);
     panels.renderQueue($("queue"), list.scans, { canAct: mine, onCancel: cancelScan, onShow: showScan, shownId: viewer.scanId });
     if (!viewer.scanId && list.scans.length) showScan(list.running || list.scans[0].id);
@@ -137,10 +138,15 @@ async function refreshSlow(simulated, withCalibrations) {
   if (slowBusy) return;
   slowBusy = true;
   try {
-    panels.renderDevices($("devices"), (await getJSON("/devices")).devices);
+    const devices = (await getJSON("/devices")).devices;
+    panels.renderDevices($("devices"), devices);
+    if (!viewer.scanner) viewer.scanner = await getJSON("/scanner");
+    viewer.unbondedRows = panels.unbondedRows(viewer.scanner, devices);
+    $("rows-note").textContent = panels.rowsNote(viewer.scanner, viewer.unbondedRows);
     panels.renderFaults($("faults"), simulated ? (await getJSON("/sim/faults")).faults : [], simulated);
-    if (withCalibrations) {
+    if (withCalibrations || !viewer.calibrationsShown) {
       const cals = await getJSON("/calibration/history?limit=5");
+      viewer.calibrationsShown = true;
       panels.renderCalibrations($("calibrations"), cals);
       panels.plotConvergence($("convergence"), cals);
     }
@@ -151,10 +157,26 @@ async function refreshSlow(simulated, withCalibrations) {
   }
 }
 
+// The colour bar: the map of the current mode from its low to its high limit, with the unit.
+const UNITS = { range: "range, m", velocity: "radial velocity, m/s (+ receding)", snr_db: "SNR, dB",
+  intensity: "amplitude, V" };
 function drawLegend() {
-  const [lo, hi] = viewer.cloud.colorLimits || [0, 0];
-  const unit = { range: "m", velocity: "m/s", snr_db: "dB", intensity: "V" }[viewer.cloud.mode];
-  $("legend").textContent = `${lo.toPrecision(3)} … ${hi.toPrecision(3)} ${unit}`;
+  const [lo, hi] = viewer.cloud.colorLimits || [0, 0], mode = viewer.cloud.mode;
+  const c = $("colorbar"), g = c.getContext("2d");
+  for (let x = 0; x < c.width; x++) {
+    const [r, gr, b] = colorOf(mode, x / (c.width - 1));
+    g.fillStyle = `rgb(${255 * r},${255 * gr},${255 * b})`; g.fillRect(x, 0, 1, c.height);
+  }
+  $("legend-lo").textContent = lo.toPrecision(3); $("legend-hi").textContent = hi.toPrecision(3);
+  $("legend-unit").textContent = UNITS[mode];
+  viewer.legend = { mode, lo, hi, unit: UNITS[mode] };
+}
+
+// Rows/cols apply to an ROI only: raster and serpentine scan every bonded pixel of the array.
+function followPattern() {
+  const pattern = $("scan-form").elements.pattern.value, roi = pattern === "roi";
+  $("roi-fields").disabled = !roi;
+  $("pattern-note").textContent = roi ? "" : `${pattern}: the whole array (rows/cols apply to roi only)`;
 }
 
 viewer.cloud.onPick = (p) => {
@@ -166,6 +188,8 @@ $("color-mode").addEventListener("change", (e) => { viewer.cloud.setMode(e.targe
 $("control-take").addEventListener("click", takeControl);
 $("control-release").addEventListener("click", releaseControl);
 $("scan-form").addEventListener("submit", startScan);
+$("scan-form").elements.pattern.addEventListener("change", followPattern);
+followPattern();
 viewer.showScan = showScan;
 viewer.ready = true;
 refresh();

@@ -1,0 +1,123 @@
+"""One error model for every error answer: RFC 9457 problem details (``application/problem+json``).
+
+Every 4xx/5xx the daemon sends, whoever raises it (a route's ``HTTPException``, request validation,
+a domain error, the control lock, the body-size middleware, an unknown path), is one JSON object:
+
+``type`` (``about:blank``: the status code says it all), ``title`` (the status phrase), ``status``,
+``detail`` (one line naming what is wrong, always a string) and, as RFC 9457 extension members,
+``errors`` (422: the field-level list ``[{loc, msg, type}]``) and ``holder`` (423: who holds the lock).
+
+:func:`document` rewrites the OpenAPI schema so that every error response of every operation
+carries this body model (:class:`Problem`), declares the bearer security scheme and the
+``X-Lidard-Lease`` header on the operations that need them (the app-wide gates of
+lidard.api.control, which FastAPI cannot see per route).
+"""
+
+from __future__ import annotations
+
+import json
+from http import HTTPStatus
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from .schemas import describe_errors
+
+PROBLEM_MEDIA_TYPE = "application/problem+json"
+
+
+class FieldError(BaseModel):
+    loc: list[str | int]
+    msg: str
+    type: str
+
+
+class Problem(BaseModel):
+    """RFC 9457 problem details; ``errors`` and ``holder`` are this API's extension members."""
+
+    model_config = ConfigDict(extra="allow")
+    type: str = Field("about:blank", description="a URI naming the problem type; about:blank = see status")
+    title: str = Field(description="the HTTP status phrase")
+    status: int = Field(ge=400, le=599)
+    detail: str = Field(description="what is wrong, in one line naming the field, device or value")
+    errors: list[FieldError] | None = Field(None, description="422: one entry per invalid field")
+    holder: str | None = Field(None, description="423: the client that holds the control lock")
+
+
+def problem_body(status: int, detail: Any, **extra: Any) -> dict[str, Any]:
+    if isinstance(detail, list):       # field-level errors (a route's own 422): one line + the list
+        extra.setdefault("errors", [{"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")),
+                                     "type": str(e.get("type", ""))} for e in detail if isinstance(e, dict)])
+        detail = describe_errors(detail)
+    try:
+        title = HTTPStatus(status).phrase
+    except ValueError:
+        title = "Error"
+    return {"type": "about:blank", "title": title, "status": status, "detail": str(detail),
+            **{k: v for k, v in extra.items() if v is not None}}
+
+
+def problem(status: int, detail: Any, headers: dict[str, str] | None = None, **extra: Any) -> JSONResponse:
+    return JSONResponse(problem_body(status, detail, **extra), status_code=status, headers=headers,
+                        media_type=PROBLEM_MEDIA_TYPE)
+
+
+def problem_bytes(status: int, detail: str) -> bytes:
+    """The body of a problem answered by raw ASGI code (the body-size middleware)."""
+    return json.dumps(problem_body(status, detail)).encode()
+
+
+def install(app: FastAPI) -> None:
+    """Answer route errors, validation errors and routing errors (404/405) as problem details."""
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        return problem(exc.status_code, exc.detail, headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
+                  for e in exc.errors()]
+        return problem(422, errors)
+
+
+# ------------------------------------------------------------------------------------------ OpenAPI
+_PROBLEM_REF = {"$ref": "#/components/schemas/Problem"}
+BEARER = "bearerAuth"
+
+
+def document(schema: dict[str, Any], *, mutating: frozenset[str], lease_header: str, token_set: bool) -> None:
+    """Rewrite ``schema`` in place: Problem on every error response, bearer security and the lease
+    header on mutating operations."""
+    comps = schema.setdefault("components", {})
+    schemas = comps.setdefault("schemas", {})
+    defs = Problem.model_json_schema(ref_template="#/components/schemas/{model}")
+    for name, sub in defs.pop("$defs", {}).items():
+        schemas[name] = sub
+    schemas["Problem"] = defs
+    comps.setdefault("securitySchemes", {})[BEARER] = {
+        "type": "http", "scheme": "bearer",
+        "description": "the daemon's API token ([daemon] token); needed by POST/PUT/PATCH/DELETE when set"}
+    comps.setdefault("parameters", {})["Lease"] = {
+        "name": lease_header, "in": "header", "required": False, "schema": {"type": "string"},
+        "description": "the control lease from POST /control: needed by mutating requests while a lease is "
+                       "held (423 otherwise); any request carrying it renews it"}
+    for ops in schema.get("paths", {}).values():
+        for method, op in ops.items():
+            if not isinstance(op, dict) or "responses" not in op:
+                continue
+            for code, resp in op["responses"].items():
+                if code == "default" or (code[:1] in "45"):
+                    resp["content"] = {PROBLEM_MEDIA_TYPE: {"schema": _PROBLEM_REF}}
+            if method.upper() in mutating:
+                # with a token every mutating call needs it; without one the scheme is optional
+                op["security"] = [{BEARER: []}] if token_set else [{BEARER: []}, {}]
+                params = op.setdefault("parameters", [])
+                if not any(p.get("name") == lease_header for p in params):
+                    params.append({"$ref": "#/components/parameters/Lease"})
+    for unused in ("HTTPValidationError", "ValidationError"):
+        schemas.pop(unused, None)
