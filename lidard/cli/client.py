@@ -15,6 +15,10 @@ from typing import Any, Callable
 from .base import DEFAULT_URL, CliError
 
 
+class Unreachable(CliError):
+    """The daemon did not answer at all (not running, or gone mid-command)."""
+
+
 class Client:
     def __init__(self, url: str, token: str | None, timeout_s: float = 30.0, lease: str | None = None,
                  transport=None):
@@ -41,7 +45,7 @@ class Client:
         try:
             return self._http.request(method, path, **kw)
         except httpx.TransportError as exc:
-            raise CliError(f"cannot reach lidard at {self.url} ({type(exc).__name__}: {exc}); "
+            raise Unreachable(f"cannot reach lidard at {self.url} ({type(exc).__name__}: {exc}); "
                            "is the daemon running?") from None
 
     def request(self, method: str, path: str, **kw):
@@ -53,8 +57,9 @@ class Client:
     def get_json(self, path: str, **kw) -> Any:
         return self.request("GET", path, **kw).json()
 
-    def follow(self, scan_id: str, on_event: Callable[[dict], None]) -> None:
-        """Read the scan's server-sent events until ``end``."""
+    def follow(self, scan_id: str, on_event: Callable[[dict], None]) -> dict:
+        """Read the scan's server-sent events until ``end``; answers that event (with the scan's final
+        record under ``scan``: lidard sends it even while it shuts down)."""
         import httpx
         try:
             with self._http.stream("GET", f"/scans/{scan_id}/events", timeout=None) as r:
@@ -69,9 +74,10 @@ class Client:
                         ev = json.loads(line[6:])
                         on_event(ev)
                         if ev.get("event") == "end":
-                            return
+                            return ev
         except httpx.TransportError as exc:
             raise CliError(f"lost the connection to lidard at {self.url} ({exc})") from None
+        raise CliError(f"lidard at {self.url} closed the event stream of scan {scan_id} before its end")
 
 
 def error_detail(r) -> str:
