@@ -93,13 +93,24 @@ def error_detail(r) -> str:
 
 
 def check(r) -> None:
+    if r.status_code == 423:
+        from . import leases
+        raise CliError(f"lidard answered 423: {error_detail(r)}. lidarctl sends the lease given with --lease, "
+                       f"else $LIDARD_LEASE, else the one `lidarctl control acquire` stored in {leases.path()} "
+                       "for this --url")
     if r.status_code >= 400:
         raise CliError(f"lidard answered {r.status_code}: {error_detail(r)}")
 
 
+def lease_for(args) -> str | None:
+    """The lease a command sends: ``--lease``, else ``$LIDARD_LEASE``, else the user's lease file."""
+    from . import leases
+    return (getattr(args, "lease", None) or os.environ.get("LIDARD_LEASE")
+            or leases.load(args.url) or None)
+
+
 def client(args, transport=None) -> Client:
-    return Client(args.url, args.token or os.environ.get("LIDARD_API_TOKEN"),
-                  lease=getattr(args, "lease", None) or os.environ.get("LIDARD_LEASE") or None,
+    return Client(args.url, args.token or os.environ.get("LIDARD_API_TOKEN"), lease=lease_for(args),
                   transport=transport)
 
 
@@ -108,8 +119,8 @@ def daemon_opts(sp, sim: bool = False) -> None:
     sp.add_argument("--url", default=os.environ.get("LIDARD_URL", DEFAULT_URL),
                     help=f"daemon URL (default {DEFAULT_URL}, or $LIDARD_URL)")
     sp.add_argument("--token", default=None, help="API token for mutating requests (default $LIDARD_API_TOKEN)")
-    sp.add_argument("--lease", default=None, help="control lease sent as X-Lidard-Lease "
-                                                  "(default $LIDARD_LEASE; see `lidarctl control acquire`)")
+    sp.add_argument("--lease", default=None, help="control lease sent as X-Lidard-Lease (default $LIDARD_LEASE, "
+                                                  "else the one `lidarctl control acquire` stored for --url)")
     sp.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     if sim:
         sp.add_argument("--sim", action="store_true",

@@ -37,7 +37,7 @@ examples:
   # simulated bench, no daemon: the letters scene, written as PLY plus FILE.ply.json sidecar
   lidarctl scan --sim --scene config/scenes/cal_letters.toml --out /tmp/cal.ply
   # on a running daemon (take the control lock first): four pixels, 4 averages, 5 m range gate
-  lidarctl control acquire          # then run the `export LIDARD_LEASE=...` line it prints
+  lidarctl control acquire          # stores the lease for the next lidarctl calls to this daemon
   lidarctl scan --pixels 0,0 0,1 4,10 8,20 --averages 4 --max-range 5 --out px.las
 """
 
