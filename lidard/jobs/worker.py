@@ -23,6 +23,7 @@ from ..instrument.types import CalibrationResult, ScanRequest
 from ..physics.optics import FpsaOptics
 from ..scan import planned_pixel_count
 from ..store import ScanRecord, Store
+from . import heap
 from .events import EventHub, PointListener, Subscriber
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
                     request_to_dict)
@@ -225,6 +226,7 @@ class ScanWorker:
             finally:
                 with self._cv:
                     self._current = None
+                heap.trim()     # a daemon's RSS must not creep up job after job (lidard.jobs.heap)
 
     def _run_calibration(self, job: _CalibrationJob) -> None:
         if not job.future.set_running_or_notify_cancel():
