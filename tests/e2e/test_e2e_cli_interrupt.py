@@ -17,6 +17,8 @@ import pytest
 
 from lidard.pointcloud import read_points, read_sidecar
 
+pytestmark = pytest.mark.slow  # real lidarctl processes, each starting and linearizing a bench
+
 REPO = Path(__file__).resolve().parents[2]
 
 # exec the command with SIGINT, SIGTERM and SIGHUP at their default actions (an ignored signal stays

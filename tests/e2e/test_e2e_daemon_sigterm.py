@@ -10,13 +10,14 @@ import json
 import os
 import signal
 import subprocess
-import sys
 
 import pytest
 
 from lidard.pointcloud import read_points, read_sidecar
 from tests.e2e.test_e2e_cli_interrupt import _lidarctl
 from tests.helpers.daemon import kill_group, start_daemon
+
+pytestmark = pytest.mark.slow  # a real daemon and a real client
 
 
 @pytest.mark.slow  # a real daemon (child bench) and a real client

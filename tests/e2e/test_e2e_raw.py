@@ -21,6 +21,8 @@ from lidard.instrument import ScanRequest
 from lidard.raw import RawCapture, RawCaptureError, ReprocessSettings, frame_points, reprocess
 from lidard.raw import record as raw_record
 
+pytestmark = pytest.mark.slow  # embedded benches and real daemons recording raw captures
+
 
 @pytest.fixture(scope="module")
 def bench():

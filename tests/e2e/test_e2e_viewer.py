@@ -23,6 +23,8 @@ import pytest
 
 from tests.helpers.daemon import start_daemon, stop_daemon
 
+pytestmark = pytest.mark.slow  # a real daemon and a browser
+
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = os.environ.get("LIDARD_CHROMIUM", "/usr/bin/chromium")
 # Software WebGL (SwiftShader) in a headless, sandbox-less container (CI runs as root).
