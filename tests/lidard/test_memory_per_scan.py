@@ -4,11 +4,11 @@ live-point buffers and a progress subscriber per scan, as the API wires them) on
 bench, so the daemon side and the bench side share one interpreter. Bench faults that do not latch
 are cycled before the scans as in benchmarks/soak.py (retries, reconnects, re-reads).
 
-tracemalloc snapshots after a warm-up (calibration, caches, first compilations), after N more scans
-and after N more: the second N scans may leave at most a small, fixed budget per scan (the bounded
-caches settle within the first window), and no single allocation site may keep growing in both
-windows. A drive log that kept every run's line changes, or a cache keyed by every record length the
-bench ever synthesized, fails it."""
+tracemalloc snapshots after a warm-up (calibration, caches, first compilations) and after each of
+three windows of N more scans: after the first window (caches still settling), the windows may not
+both leave more than the budget per scan that the soak's memory target allows (a leak leaves its
+bytes in every window; a bounded cache that grows once, a longer phase tiling or a new calibration,
+in one), and no allocation site may grow in both."""
 
 from __future__ import annotations
 
@@ -28,16 +28,21 @@ SCAN = {"pattern": "roi", "rows": (40, 44), "cols": (48, 56), "max_range_m": 2.0
 FAULTS = [None, ("serial_drop", {"rate": 1e-3}), None, ("usb_timeout", {"device": "digitizer", "n": 2}),
           None, ("modbus_exception", {"code": 6, "n": 2}), ("serial_disconnect", {"reconnect_after_s": 0.05}),
           None, ("usb_disconnect", {"device": "digitizer", "n": 1})]
-WARM, N = 12, 16
-BUDGET_PER_SCAN = 8 << 10       # bytes a scan may leave behind once warm (bounded caches still settling)
-SITE_GROWTH = 32 << 10          # bytes one allocation site may gain in each window before it counts as a leak
+WARM, N, WINDOWS = 12, 12, 3    # warm-up scans, scans per window, windows (the first still warming)
+# The soak's target (each process within 10 MB an hour, at about 40 scans a minute) is about 4 kB a
+# scan. Measured once warm: 0.8-1.8 kB a scan (bounded caches still filling: sqlite's statements and
+# pages, re); the drive log that kept every run added 3.9 kB a scan in process (its own bound is tested
+# in tests/sim_devices/fpga/test_drive_log_compaction.py).
+BUDGET_PER_SCAN = 4 << 10       # bytes a scan may leave behind once warm
+SITE_GROWTH = 16 << 10          # bytes one allocation site may gain in every window before it counts as a leak
 
 
 def _sites(before, after) -> dict[str, int]:
+    """Allocation sites (file:line) that hold more after than before, by how much."""
     return {str(s.traceback[0]): s.size_diff for s in after.compare_to(before, "lineno") if s.size_diff > 0}
 
 
-@pytest.mark.slow  # 44 scans on an embedded bench under tracemalloc (~1 min)
+@pytest.mark.slow  # 48 scans on an embedded bench under tracemalloc (~1-2 min)
 def test_per_scan_allocations_do_not_grow(tmp_path):
     from lidard.instrument import ScanRequest
     cfg = load_config(CONFIG_DIR / "sim.toml")
@@ -72,27 +77,28 @@ def test_per_scan_allocations_do_not_grow(tmp_path):
             one_scan()
         tracemalloc.start(1)
         try:
-            gc.collect()
-            a = tracemalloc.take_snapshot()
-            for _ in range(N):
-                one_scan()
-            gc.collect()
-            b = tracemalloc.take_snapshot()
-            for _ in range(N):
-                one_scan()
-            gc.collect()
-            c = tracemalloc.take_snapshot()
+            snaps = []
+            for w in range(WINDOWS + 1):
+                if w:
+                    for _ in range(N):
+                        one_scan()
+                gc.collect()
+                snaps.append(tracemalloc.take_snapshot())
         finally:
             tracemalloc.stop()
     finally:
         worker.stop()
         store.close()
         inst.close()
-    assert len(ends) == WARM + 2 * N and set(ends) == {"done"}
-    first, second = _sites(a, b), _sites(b, c)
-    total_second = sum(s.size_diff for s in c.compare_to(b, "lineno"))
-    report = sorted(second.items(), key=lambda kv: -kv[1])[:8]
-    assert total_second <= N * BUDGET_PER_SCAN, (total_second, report)
-    leaking = {site: (first.get(site, 0), grew) for site, grew in second.items()
-               if grew > SITE_GROWTH and first.get(site, 0) > SITE_GROWTH}
+    assert len(ends) == WARM + WINDOWS * N and set(ends) == {"done"}
+    net = [sum(d.size_diff for d in b.compare_to(a, "lineno")) for a, b in zip(snaps, snaps[1:])]
+    sites = [_sites(a, b) for a, b in zip(snaps, snaps[1:])]
+    print(f"net bytes left allocated per window of {N} scans: {net}; top sites of the last: "
+          f"{sorted(sites[-1].items(), key=lambda kv: -kv[1])[:4]}")
+    # a leak leaves its bytes in every window; a bounded cache that grows (a longer tiling, a new
+    # entry) does it once: the warm windows must not both exceed the budget
+    assert min(net[1:]) <= N * BUDGET_PER_SCAN, net
+    # and no allocation site may keep growing window after window
+    leaking = {site: [s.get(site, 0) for s in sites[1:]] for site in sites[-1]
+               if all(s.get(site, 0) > SITE_GROWTH for s in sites[1:])}
     assert not leaking, leaking
