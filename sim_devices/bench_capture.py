@@ -43,6 +43,9 @@ class TapSpec:
 #: circulator set-up, i.e. half the amplitude per channel; each channel keeps the single photodiode's
 #: noise (its own TIA and converter) -- docs/physics.md, "The coherent (I/Q) receiver"
 HYBRID_CHANNEL_AMPLITUDE = 0.5
+# runs whose capture number (:meth:`BenchCapture._run_index`, the noise seed) is remembered: a capture
+# only ever reads the run in progress or the one just before it
+RUN_IDS_KEPT = 8
 
 
 def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:
@@ -123,11 +126,19 @@ class BenchCapture:
         those depend on wall-clock timeouts (a loaded machine), so a seed from the start time gave
         different noise, a different ILC drive and different ranges from one run of the same
         programme to the next. The count of runs captured is the same however long they waited.
+        Only the newest runs' numbers are kept (captures read the run in progress, or one just cut
+        short): a bench that runs for weeks does not keep one entry per run it ever captured.
         """
         start = self.fpga.run_start_s
         if start is None:
             return 0
-        return self._run_ids.setdefault(float(start), len(self._run_ids) + 1)
+        idx = self._run_ids.get(float(start))
+        if idx is None:
+            self._runs_captured += 1
+            idx = self._run_ids[float(start)] = self._runs_captured
+            while len(self._run_ids) > RUN_IDS_KEPT:
+                del self._run_ids[next(iter(self._run_ids))]      # the oldest (insertion order)
+        return idx
 
     def _phase_noise_linewidth(self, linewidth_hz: float, hits, want_mzi: bool, noise_asd: float) -> float:
         """The linewidth this batch is synthesized with: 0 when, for every hit, the beat's phase noise

@@ -2,8 +2,11 @@
 
 The request is checked with the daemon's own schema (lidard.api.schemas.ScanCreate) and the scan
 planner (lidard.scan.plan: bonded rows, array bounds) before any bench starts or any request is sent,
-so ``--averages 0`` is refused here with the words the daemon would use. Ctrl-C cancels the scan,
-keeps the points measured so far (written to ``--out`` with a partial sidecar) and exits 130.
+so ``--averages 0`` is refused here with the words the daemon would use. Ctrl-C, SIGTERM and SIGHUP
+cancel the scan, keep the points measured so far (written to ``--out`` with a partial sidecar whose
+``stop_reason`` names the signal) and exit 128 + the signal's number (130, 143, 129; lidard.cli.base).
+When the daemon itself shuts down mid-scan, the scan's final record (state ``interrupted``) is printed
+from its last event even if the daemon is gone before the record could be fetched again.
 """
 
 from __future__ import annotations
@@ -14,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from . import base, output
-from .base import CliError, Interrupted
-from .client import client, daemon_opts, refuse_sim_only
+from .base import CliError, Interrupted, describe_signal, signal_of
+from .client import Unreachable, client, daemon_opts, refuse_sim_only
 from .progress import MODES, Progress
 
 PATTERNS = ("raster", "serpentine", "roi", "pixels", "adaptive")
@@ -34,7 +37,7 @@ examples:
   # simulated bench, no daemon: the letters scene, written as PLY plus FILE.ply.json sidecar
   lidarctl scan --sim --scene config/scenes/cal_letters.toml --out /tmp/cal.ply
   # on a running daemon (take the control lock first): four pixels, 4 averages, 5 m range gate
-  lidarctl control acquire          # then run the `export LIDARD_LEASE=...` line it prints
+  lidarctl control acquire          # stores the lease for the next lidarctl calls to this daemon
   lidarctl scan --pixels 0,0 0,1 4,10 8,20 --averages 4 --max-range 5 --out px.las
 """
 
@@ -164,7 +167,7 @@ def check_plan(req, optics) -> None:
         raise CliError(str(exc)) from None
 
 
-def summary(rec: dict[str, Any], out: str | None, simulated: bool) -> dict[str, Any]:
+def summary(rec: dict[str, Any], out: str | None, simulated: bool | None) -> dict[str, Any]:
     hw, wall = rec.get("hardware_time_s"), rec.get("wall_time_s")
     planned = rec.get("pixels_planned") or 0
     return {
@@ -184,21 +187,21 @@ def cmd_scan(args) -> int:
     base.check_out(args.out)
     body = request_body(args, fmt)
     bar = Progress(args.progress)
-    interrupted = [False]
+    interrupted: list = [None]         # the signal number that stopped the scan
     try:
         s = _scan_sim(args, body, bar, interrupted) if args.sim else _scan_daemon(args, body, bar, interrupted)
     finally:
         bar.close()
     warn_uncalibrated(s.get("calibrated"))
     if args.json:
-        output.emit_json({**s, "interrupted": interrupted[0]})
+        output.emit_json({**s, "interrupted": interrupted[0] is not None})
     else:
         print(f"scan {s['id']}: {s['state']}{' (partial)' if s['partial'] else ''}, "
               f"{s['points']} points, coverage {s['coverage'] * 100:.1f} %"
               + (f", written to {s['out']}" if s["out"] else ""))
-    if interrupted[0]:
+    if interrupted[0] is not None:
         raise Interrupted(f"scan {s['id']} {s['state']}, {s['points']} points kept"
-                          + (f" in {s['out']}" if s["out"] else ""))
+                          + (f" in {s['out']}" if s["out"] else ""), signum=interrupted[0])
     if s["state"] not in ("done", "cancelled"):
         raise CliError(f"scan {s['id']} {s['state']}: {s.get('error') or 'no detail'}")
     return 0
@@ -215,28 +218,42 @@ def warn_uncalibrated(calibrated: dict[str, bool] | None) -> None:
               "suppressed to its own imbalance (see `lidarctl calibration iq`)", file=sys.stderr)
 
 
-def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[str, Any]:
+def _flat(rec: dict[str, Any]) -> dict[str, Any]:
+    """A record as GET /scans/{id} answers it, in the keys of :func:`summary`."""
+    return {"id": rec["id"], "state": rec["state"], "partial": rec["partial"], **rec["counts"],
+            "hardware_time_s": rec["timing"]["hardware_time_s"], "wall_time_s": rec["timing"]["wall_time_s"]}
+
+
+def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list) -> dict[str, Any]:
     from ..pointcloud import sidecar_path
     with client(args) as c:
         sid = c.request("POST", "/scans", json=body).json()["id"]
         try:
-            c.follow(sid, bar)
-        except KeyboardInterrupt:
-            interrupted[0] = True
+            end = c.follow(sid, bar)
+        except KeyboardInterrupt as exc:
+            interrupted[0] = signal_of(exc)
             c.request("DELETE", f"/scans/{sid}")
-            c.follow(sid, bar)
-        rec = c.get_json(f"/scans/{sid}")
-        flat = {"id": rec["id"], "state": rec["state"], "partial": rec["partial"], **rec["counts"],
-                "hardware_time_s": rec["timing"]["hardware_time_s"], "wall_time_s": rec["timing"]["wall_time_s"]}
+            end = c.follow(sid, bar)
         out = None
-        fmt = body["formats"][0]
-        if args.out and fmt in rec["formats"]:
-            points = c.request("GET", f"/scans/{sid}/points", params={"format": fmt}).content
-            side = c.request("GET", f"/scans/{sid}/sidecar", params={"format": fmt}).content
-            base.write_bytes_atomic(args.out, points)
-            base.write_bytes_atomic(sidecar_path(args.out), side)
-            out = str(args.out)
-        s = summary(flat, out, bool(c.get_json("/health").get("simulated")))
+        try:
+            rec = c.get_json(f"/scans/{sid}")
+            fmt = body["formats"][0]
+            if args.out and fmt in rec["formats"]:
+                points = c.request("GET", f"/scans/{sid}/points", params={"format": fmt}).content
+                side = c.request("GET", f"/scans/{sid}/sidecar", params={"format": fmt}).content
+                base.write_bytes_atomic(args.out, points)
+                base.write_bytes_atomic(sidecar_path(args.out), side)
+                out = str(args.out)
+            simulated = bool(c.get_json("/health").get("simulated"))
+        except Unreachable:
+            if not end.get("scan"):
+                raise
+            # the daemon shut down right after the scan's end: its final record came with that event
+            rec, simulated = end["scan"], None
+            print(f"lidarctl: lidard stopped after scan {sid} ended; its points stay in the daemon's data "
+                  "directory" + (f", {args.out} was not written" if args.out and out is None else ""),
+                  file=sys.stderr)
+        s = summary(_flat(rec), out, simulated)
         s["error"] = rec.get("error")
         s["calibrated"] = rec.get("calibrated")
         return s
@@ -253,9 +270,9 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
         worker.subscribe(rec.id, bar)
         try:
             final = worker.wait(rec.id)
-        except KeyboardInterrupt:
-            interrupted[0] = True
-            worker.cancel(rec.id)
+        except KeyboardInterrupt as exc:
+            interrupted[0] = signal_of(exc)
+            worker.cancel(rec.id, reason=f"interrupted by {describe_signal(interrupted[0])}")
             final = worker.wait(rec.id)
         out = None
         fmt = body["formats"][0]

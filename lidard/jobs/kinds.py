@@ -71,6 +71,9 @@ class _ScanJob:
     request: ScanRequest
     cancel: threading.Event = dataclasses.field(default_factory=threading.Event)
     done: threading.Event = dataclasses.field(default_factory=threading.Event)
+    # why ``cancel`` was set (a client's DELETE, Ctrl-C or SIGTERM of a one-shot scan, the daemon's
+    # shutdown): the sidecar's ``stop_reason`` of a cancelled or interrupted scan
+    cancel_reason: str | None = None
     # the linearization health check before the scan (lidard.instrument.healthcheck.health_record)
     linearization: dict | None = None
 

@@ -136,11 +136,13 @@ class ScanJobRun:
             log.warning("scan %s stopped: %s", job.id, stop_reason)
         elif job.cancel.is_set():
             state = "interrupted" if self.w._stopping else "cancelled"
+            log.info("scan %s %s: %s", job.id, state, job.cancel_reason)
         else:
             state = "done"
         self.store.update_scan(
             job.id, state=state, stage=state, partial=partial, files=files, finished=time.time(),
-            error=(f"SafetyStop: {stop_reason}" if stop_reason else None),
+            error=(f"SafetyStop: {stop_reason}" if stop_reason
+                   else job.cancel_reason if state == "interrupted" else None),
             points=int(len(result.points)), pixels_scanned=int(result.pixels_scanned),
             pixels_planned=int(result.pixels_planned), hardware_time_s=float(result.hardware_time_s),
             wall_time_s=wall, progress=(result.pixels_scanned / result.pixels_planned
@@ -166,7 +168,7 @@ class ScanJobRun:
             "software_version": software_version(),
             "simulated": bool(self.instrument.simulated),
             "partial": bool(result.partial or job.cancel.is_set()),
-            "stop_reason": result.stop_reason,
+            "stop_reason": result.stop_reason or (job.cancel_reason if job.cancel.is_set() else None),
         }
         out_dir = self.store.scan_dir(job.id)
         files = {}

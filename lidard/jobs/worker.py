@@ -23,6 +23,7 @@ from ..instrument.types import CalibrationResult, ScanRequest
 from ..physics.optics import FpsaOptics
 from ..scan import planned_pixel_count
 from ..store import ScanRecord, Store
+from . import heap
 from .events import EventHub, PointListener, Subscriber
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
                     request_to_dict)
@@ -67,14 +68,16 @@ class ScanWorker:
         self._thread = threading.Thread(target=self._run, name="lidard-scan-worker", daemon=True)
         self._thread.start()
 
-    def stop(self, timeout_s: float | None = 30.0) -> None:
-        """Cancel the running scan (its points are kept), mark queued ones interrupted, join."""
+    def stop(self, timeout_s: float | None = 30.0, reason: str = "the daemon stopped") -> None:
+        """Cancel the running scan (its points are kept; ``reason`` becomes its stop reason), mark
+        queued ones interrupted, join."""
         with self._cv:
             self._stopping = True
             pending = list(self._queue)
             self._queue.clear()
             cur = self._current
-            if isinstance(cur, _ScanJob):
+            if isinstance(cur, _ScanJob) and not cur.cancel.is_set():
+                cur.cancel_reason = reason
                 cur.cancel.set()
             self._cv.notify_all()
         for job in pending:
@@ -145,8 +148,9 @@ class ScanWorker:
             self._enqueue(job)
         return job.future
 
-    def cancel(self, scan_id: str) -> ScanRecord:
-        """Cancel a queued or running scan; a finished one is returned unchanged."""
+    def cancel(self, scan_id: str, reason: str = "cancelled") -> ScanRecord:
+        """Cancel a queued or running scan (``reason``: the sidecar's stop reason of its partial
+        points); a finished one is returned unchanged."""
         with self._cv:
             job = self._jobs.get(scan_id)
             if job is not None and job in self._queue:
@@ -154,7 +158,8 @@ class ScanWorker:
                 self.store.transition(scan_id, ("queued",), state="cancelled", stage="cancelled",
                                       finished=time.time())
                 self._finish(job)
-            elif job is not None:
+            elif job is not None and not job.cancel.is_set():
+                job.cancel_reason = reason
                 job.cancel.set()
         rec = self.store.get_scan(scan_id)
         if rec is None:
@@ -221,6 +226,7 @@ class ScanWorker:
             finally:
                 with self._cv:
                     self._current = None
+                heap.trim()     # a daemon's RSS must not creep up job after job (lidard.jobs.heap)
 
     def _run_calibration(self, job: _CalibrationJob) -> None:
         if not job.future.set_running_or_notify_cancel():

@@ -17,6 +17,8 @@ from lidard.instrument import ScanRequest, open_instrument
 from sim_devices.world.scene import Scene
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # moving-target benches, linearized
+
 WL = 1.55e-6
 KAPPA = 8.6e9 / 80e-6
 C = 299_792_458.0

@@ -18,6 +18,8 @@ from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # hold-out scenes on linearized benches
+
 SCENE = "config/scenes/holdout/boxes_planes.toml"
 C_M_PER_S = 299_792_458.0
 

@@ -12,6 +12,8 @@ from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # moving-scene benches, linearized
+
 V_MPS = (1.0, 0.0, 1.1)          # |v| = 1.49 m/s: across the beams and along them
 FRAME = dict(pattern="roi", rows=(48, 80), cols=(48, 80))
 
