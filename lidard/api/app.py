@@ -27,6 +27,7 @@ from fastapi.staticfiles import StaticFiles
 from ..config import Config
 from ..errors import LidardError
 from ..instrument.protocol import Instrument
+from ..instrument.calibration.setup import instrument_setup
 from ..jobs import ScanWorker, software_version
 from ..pointcloud import scene_identity
 from ..store import Store
@@ -69,7 +70,8 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         optics = cfg.optics()
         worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=_scan_meta(cfg, inst),
-                            optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
+                            optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c,
+                            setup=instrument_setup(cfg, inst))
         app.state.config, app.state.instrument, app.state.store = cfg, inst, st
         app.state.worker, app.state.optics = worker, optics
         app.state.live = LivePoints()

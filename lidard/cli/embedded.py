@@ -40,6 +40,7 @@ def run_meta(cfg, scene_path: str | None) -> dict:
 @contextlib.contextmanager
 def embedded(args, cfg=None, scene_path: str | None = None):
     """Yield ``(worker, store, instrument)``; on exit stop the worker, close the store and the bench."""
+    from ..instrument.calibration.setup import instrument_setup
     from ..jobs import ScanWorker
     from ..store import Store
     cfg = cfg if cfg is not None else sim_config(args)
@@ -69,7 +70,7 @@ def embedded(args, cfg=None, scene_path: str | None = None):
     try:
         seeded = _seed_from_cache(cfg, store) if use_cache else None
         worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1, optics=cfg.optics(),
-                            recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
+                            recalibrate_delta_c=cfg.scan.recalibrate_delta_c, setup=instrument_setup(cfg, inst))
         worker.start()
         try:
             yield worker, store, inst

@@ -187,7 +187,7 @@ def cmd_scan(args) -> int:
         s = _scan_sim(args, body, bar, interrupted) if args.sim else _scan_daemon(args, body, bar, interrupted)
     finally:
         bar.close()
-    warn_uncalibrated(s.get("calibrated"))
+    warn_uncalibrated(s.get("calibrated"), s.get("uncalibrated_reason"))
     if args.json:
         output.emit_json({**s, "interrupted": interrupted[0]})
     else:
@@ -202,12 +202,14 @@ def cmd_scan(args) -> int:
     return 0
 
 
-def warn_uncalibrated(calibrated: dict[str, bool] | None) -> None:
-    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4)."""
+def warn_uncalibrated(calibrated: dict[str, bool] | None, reason: str | None = None) -> None:
+    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4), with the
+    reason stored calibrations were left out (made on another set-up) when there was one."""
     missing = [k for k in ("range", "pointing") if calibrated is not None and not calibrated.get(k)]
     if missing:
         print(f"lidarctl: warning: uncalibrated {' and '.join(missing)}: ranges and x, y, z carry the scanner's "
-              "unmeasured range scale/zero and pointing errors (see `lidarctl calibration --help`)", file=sys.stderr)
+              "unmeasured range scale/zero and pointing errors (see `lidarctl calibrate --help`)"
+              + (f"; {reason}" if reason else ""), file=sys.stderr)
     if calibrated is not None and calibrated.get("iq") is False:
         print("lidarctl: warning: uncalibrated I/Q receiver: the hybrid's image of every return is only "
               "suppressed to its own imbalance (see `lidarctl calibration iq`)", file=sys.stderr)
@@ -237,6 +239,7 @@ def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[bool]) -> di
         s = summary(flat, out, bool(c.get_json("/health").get("simulated")))
         s["error"] = rec.get("error")
         s["calibrated"] = rec.get("calibrated")
+        s["uncalibrated_reason"] = rec.get("uncalibrated_reason")
         return s
 
 
@@ -265,4 +268,5 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
         s = summary(final.to_dict(), out, bool(inst.simulated))
         s["error"] = final.error
         s["calibrated"] = final.calibrated
+        s["uncalibrated_reason"] = final.uncalibrated_reason
         return s

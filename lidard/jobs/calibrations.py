@@ -36,7 +36,8 @@ def add_plate(worker, known_m: float) -> concurrent.futures.Future:
     def task() -> dict[str, Any]:
         lin = worker.current_linearization()
         m = measure_plate(worker.instrument, worker.optics, known_m, lin, worker.applied)
-        return worker.store.add_range_measurement(m.as_dict())
+        setup = worker.setup_of("range")
+        return worker.store.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
     return worker.submit_task(task)
 
 
@@ -48,14 +49,22 @@ def remove_plates(store, ids: list[str] | None = None) -> int:
     return store.remove_range_measurements(ids)
 
 
-def fit_range(store, nominal_delay_s: float) -> CalibrationRecord:
-    """Fit the pending plates; store and answer the record (the plates are consumed)."""
+def fit_range(store, nominal_delay_s: float, setup: dict[str, Any] | None = None) -> CalibrationRecord:
+    """Fit the pending plates; store and answer the record (the plates are consumed). ``setup``: the
+    instrument's range set-up (``Setup.as_dict()``); plates measured on another one are refused by id."""
     pending = store.range_measurements()
+    if setup is not None:
+        alien = [m["id"] for m in pending if (m.get("setup") or {}).get("hash") != setup["hash"]]
+        if alien:
+            raise CalibrationRefused(f"range calibration: pending plate(s) {', '.join(alien)} were measured on another "
+                                     "set-up (laser, chirp, receiver or instruments); drop them "
+                                     "(`lidarctl calibration range drop ID`) and measure again")
     fit = _fit([PlateMeasurement.from_dict(m) for m in pending], nominal_delay_s)
     temps = [m["temperature_c"] for m in pending if m.get("temperature_c") is not None]
     rec = store.save_geometry_calibration(
         "range", temperature_c=sum(temps) / len(temps) if temps else None,
-        inputs={"measurements": pending}, fitted=fit.fitted(), residuals=fit.residuals())
+        inputs={"measurements": pending, **({"setup": setup} if setup else {})},
+        fitted=fit.fitted(), residuals=fit.residuals())
     store.remove_range_measurements([m["id"] for m in pending])
     return rec
 
@@ -80,7 +89,8 @@ def pointing(worker, geometry: dict[str, Any]) -> concurrent.futures.Future:
         return worker.store.save_geometry_calibration(
             "pointing", temperature_c=worker.instrument.laser_temperature_c(),
             inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
-                    "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan},
+                    "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan,
+                    **_setup(worker, "pointing")},
             fitted=fit.fitted(), residuals=fit.residuals())
     return worker.submit_task(task)
 
@@ -100,9 +110,14 @@ def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
         fit, scan = measure_iq(worker.instrument, worker.optics, lin, max_range_m=max_range_m)
         return worker.store.save_geometry_calibration(
             "iq", temperature_c=worker.instrument.laser_temperature_c(),
-            inputs={"linearization_id": lin.meta.get("id"), **scan},
+            inputs={"linearization_id": lin.meta.get("id"), **scan, **_setup(worker, "iq")},
             fitted=fit.fitted(), residuals=fit.residuals())
     return worker.submit_task(task)
+
+
+def _setup(worker, kind: str) -> dict[str, Any]:
+    setup = worker.setup_of(kind)
+    return {"setup": setup} if setup else {}
 
 
 def records(store, cfg, kind: str | None = None, limit: int = 20) -> list[dict[str, Any]]:

@@ -37,7 +37,7 @@ class ScanWorker:
     def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
                  progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
                  pixels_planned: Callable[[ScanRequest], int] | None = None,
-                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5):
+                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5, setup=None):
         self.instrument = instrument
         self.store = store
         self.laser = laser
@@ -58,6 +58,9 @@ class ScanWorker:
         self._stopping = False
         self._thread: threading.Thread | None = None
         self.applied = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
+        # the instrument's set-up (lidard.instrument.calibration.setup.CalibrationSetup): records are
+        # made on it and only records made on it are applied; None (a test double): the newest record
+        self.setup = setup
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -309,14 +312,27 @@ class ScanWorker:
         return cal
 
     def apply_geometry(self):
-        """Hand the newest stored range, pointing and I/Q calibrations to the instrument (issues 13, 14); answers
-        the :class:`AppliedCalibrations`. Runs on the worker thread before every scan and linearization."""
+        """Hand the newest stored range, pointing and I/Q calibrations made on this instrument's set-up
+        to the instrument (issues 13, 14); answers the :class:`AppliedCalibrations`, whose ``notes`` say
+        why records of another set-up were left unused. Runs on the worker thread before every scan and
+        linearization."""
         from ..instrument.calibration.applied import AppliedCalibrations
-        self.applied = AppliedCalibrations.from_records(self.store.latest_geometry_calibration("range"),
-                                                        self.store.latest_geometry_calibration("pointing"),
-                                                        self.store.latest_geometry_calibration("iq"))
+        from ..instrument.calibration.setup import select
+        chosen, notes = {}, []
+        for kind in ("range", "pointing", "iq"):
+            rec, why = select(self.store.list_geometry_calibrations(kind, limit=200),
+                              None if self.setup is None else self.setup[kind])
+            chosen[kind] = rec
+            if why is not None:
+                notes.append(why)
+        self.applied = AppliedCalibrations.from_records(chosen["range"], chosen["pointing"], chosen["iq"],
+                                                        notes=tuple(notes))
         self.instrument.use_calibrations(self.applied)
         return self.applied
+
+    def setup_of(self, kind: str) -> dict[str, Any] | None:
+        """What a new record of ``kind`` names as its set-up (None when the set-up is not known)."""
+        return None if self.setup is None else self.setup[kind].as_dict()
 
     def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:
         # Cache under the configured laser name, whatever the instrument calls it, so that the next

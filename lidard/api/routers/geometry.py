@@ -124,10 +124,10 @@ def drop_plate(plate_id: str, store: StoreDep) -> Removed:
 
 
 @router.post("/range/fit", response_model=RecordOut, status_code=status.HTTP_201_CREATED, responses=REFUSED)
-def fit_range(store: StoreDep, cfg: ConfigDep) -> RecordOut:
+def fit_range(store: StoreDep, cfg: ConfigDep, worker: WorkerDep) -> RecordOut:
     """Fit the pending plates: the effective monitor delay and the zero offset; later scans use them."""
     try:
-        return RecordOut.model_validate(cal.fit_range(store, cfg.monitor.delay_s).to_dict())
+        return RecordOut.model_validate(cal.fit_range(store, cfg.monitor.delay_s, worker.setup_of("range")).to_dict())
     except CalibrationRefused as exc:
         raise HTTPException(422, str(exc)) from None
 
