@@ -30,12 +30,12 @@ EPILOG = __doc__.split("\n\n", 2)[1]
 def add_parser(sub) -> None:
     sp = sub.add_parser("sim", help="a daemon's simulated bench: place a scene, inject/list/clear faults",
                         epilog="examples:\n" + EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ssub = sp.add_subparsers(dest="sim_command", required=True, metavar="WHAT")
+    ssub = sp.add_subparsers(dest="sim_command", required=True, metavar="WHAT", help="scene or faults")
     sc = ssub.add_parser("scene", help="replace the bench's scene by a scene file (config/scenes format)")
     sc.add_argument("file", metavar="FILE.toml", help="scene TOML ([[target]] tables)")
     sc.set_defaults(fn=cmd_scene)
     fl = ssub.add_parser("faults", help="bench faults (docs/reliability.md)")
-    fsub = fl.add_subparsers(dest="faults_command", required=True, metavar="ACTION")
+    fsub = fl.add_subparsers(dest="faults_command", required=True, metavar="ACTION", help="inject, list or clear")
     inj = fsub.add_parser("inject", help="inject one fault: KIND [KEY=VALUE ...]")
     inj.add_argument("kind", help="fault kind, e.g. usb_timeout, tec_offset, interlock_open")
     inj.add_argument("params", nargs="*", metavar="KEY=VALUE", help="the fault's parameters")
