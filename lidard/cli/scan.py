@@ -48,6 +48,9 @@ def add_parser(sub) -> None:
                                                     "instead of the configuration's")
     sp.add_argument("--scene", default=None, metavar="FILE.toml",
                     help="only with --sim: scene TOML (default: the configuration's sim.scene)")
+    sp.add_argument("--uncalibrated", action="store_true", default=None,
+                    help="only with --sim: skip the simulated bench's factory range/pointing calibration that "
+                         "a bench with none of its set-up (cache or --data-dir) runs before its first scan")
     sp.add_argument("--pattern", choices=PATTERNS, default=None,
                     help="scan pattern, see below (default: the daemon's/config's scan.pattern)")
     sp.add_argument("--rows", default=None, metavar="A:B", help="FPSA rows A <= row < B (pixel indices)")
@@ -178,7 +181,7 @@ def summary(rec: dict[str, Any], out: str | None, simulated: bool) -> dict[str, 
 
 def cmd_scan(args) -> int:
     from ..pointcloud import format_of
-    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache")
+    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache", "--uncalibrated")
     fmt = format_of(args.out) if args.out else "ply"
     body = request_body(args, fmt)
     bar = Progress(args.progress)
@@ -249,7 +252,7 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
     cfg = sim_config(args)
     req = sim_request(body, cfg)
     check_plan(req, cfg.optics())  # before the bench starts
-    with embedded(args, cfg, scene_path=resolve(args.scene)) as (worker, store, inst):
+    with embedded(args, cfg, scene_path=resolve(args.scene), factory=not args.uncalibrated) as (worker, store, inst):
         rec = worker.submit_scan(req)
         worker.subscribe(rec.id, bar)
         try:

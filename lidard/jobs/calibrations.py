@@ -73,26 +73,29 @@ def pointing(worker, geometry: dict[str, Any]) -> concurrent.futures.Future:
     """Queue a pointing calibration against ``geometry`` (the geometry file's structure); the future
     resolves to the stored record. Needs a range calibration first (the fit places points with ranges)."""
     from ..instrument.calibration.pointing import parse_geometry
-    from ..instrument.calibration.procedures import measure_pointing
     surfaces = parse_geometry(geometry, source="<request>")
+    return worker.submit_task(lambda: pointing_now(worker, surfaces))
 
-    def task() -> CalibrationRecord:
-        applied = worker.apply_geometry()
-        rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
-        if rng is None:   # refused before any linearization or scan
-            raise CalibrationRefused("pointing calibration: no range calibration yet; the fit places points with "
-                                     "range-calibrated ranges: run `lidarctl calibration range add/fit` first")
-        lin = worker.current_linearization()
-        # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
-        noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
-        fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)
-        return worker.store.save_geometry_calibration(
-            "pointing", temperature_c=worker.instrument.laser_temperature_c(),
-            inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
-                    "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan,
-                    **_setup(worker, "pointing")},
-            fitted=fit.fitted(), residuals=fit.residuals())
-    return worker.submit_task(task)
+
+def pointing_now(worker, surfaces) -> CalibrationRecord:
+    """On the worker thread: scan the known targets ``surfaces`` (parsed geometry), fit, store the record."""
+    from ..instrument.calibration.procedures import measure_pointing
+    applied = worker.apply_geometry()
+    rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
+    if rng is None:   # refused before any linearization or scan
+        raise CalibrationRefused("pointing calibration: no range calibration yet (of this set-up); the fit places points "
+                                 "with range-calibrated ranges: run `lidarctl calibrate` (or `lidarctl calibration "
+                                 "range add/fit`) first")
+    lin = worker.current_linearization()
+    # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
+    noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
+    fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)
+    return worker.store.save_geometry_calibration(
+        "pointing", temperature_c=worker.instrument.laser_temperature_c(),
+        inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
+                "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan,
+                **_setup(worker, "pointing")},
+        fitted=fit.fitted(), residuals=fit.residuals())
 
 
 def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:

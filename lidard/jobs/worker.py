@@ -61,6 +61,9 @@ class ScanWorker:
         # the instrument's set-up (lidard.instrument.calibration.setup.CalibrationSetup): records are
         # made on it and only records made on it are applied; None (a test double): the newest record
         self.setup = setup
+        # a simulated bench's factory calibration (lidard.jobs.guided.FactoryCalibration): run before the
+        # first scan when no range/pointing record of this set-up is stored; None: never
+        self.factory = None
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -286,9 +289,22 @@ class ScanWorker:
             self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
                                    "pixels_done": 0, "pixels_planned": 0, "points": 0,
                                    "fraction": 0.0, "hardware_time_s": 0.0})
+        if self.factory is not None and not self.factory.tried:
+            self._factory_calibration(job)
         cal = self.current_linearization(announce)
         job.linearization = self.last_linearization
         return cal
+
+    def _factory_calibration(self, job: _ScanJob) -> None:
+        """The bench's factory calibration before this scan, announced as its ``calibrating`` stage."""
+        def stage(ev: dict[str, Any]) -> None:
+            done, steps = ev.get("done"), ev.get("steps")
+            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "calibrating",
+                                         "pixels_done": 0, "pixels_planned": 0, "points": 0,
+                                         "fraction": (done / steps) if done is not None and steps else 0.0,
+                                         "hardware_time_s": 0.0, "calibration": ev})
+        self.store.update_scan(job.id, stage="calibrating")
+        self.factory.run_if_needed(self, stage)
 
     def current_linearization(self, announce: Callable[[], None] | None = None) -> CalibrationResult:
         """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
@@ -325,6 +341,8 @@ class ScanWorker:
             chosen[kind] = rec
             if why is not None:
                 notes.append(why)
+        if self.factory is not None and self.factory.refused:
+            notes.append(f"the factory calibration was refused: {self.factory.refused}")
         self.applied = AppliedCalibrations.from_records(chosen["range"], chosen["pointing"], chosen["iq"],
                                                         notes=tuple(notes))
         self.instrument.use_calibrations(self.applied)
