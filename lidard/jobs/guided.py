@@ -49,6 +49,16 @@ class GuidedPlan:
     geometry: dict[str, Any] = field(default_factory=lambda: dict(FACTORY_GEOMETRY))
 
 
+def bench_scene(cfg, worker) -> dict[str, Any]:
+    """The scene a daemon's simulated bench shows: the last one placed over REST (``worker.sim_scene``),
+    else the configuration's ``sim.scene`` file."""
+    import tomllib
+    if getattr(worker, "sim_scene", None) is not None:
+        return worker.sim_scene
+    with open(cfg.resolve_path(cfg.sim.scene), "rb") as f:
+        return tomllib.load(f)
+
+
 def pending_refusal(pending: list[dict[str, Any]]) -> str:
     listing = ", ".join(f"{m['id']} ({m['known_m']:g} m)" for m in pending)
     return (f"{len(pending)} plate(s) of an earlier calibration run are pending: {listing}; keep them in this fit "

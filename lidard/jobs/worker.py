@@ -64,6 +64,7 @@ class ScanWorker:
         # a simulated bench's factory calibration (lidard.jobs.guided.FactoryCalibration): run before the
         # first scan when no range/pointing record of this set-up is stored; None: never
         self.factory = None
+        self.sim_scene: dict[str, Any] | None = None   # the scene last placed over REST (PUT /sim/scene)
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
