@@ -47,8 +47,8 @@ def add_parser(sub) -> None:
 
 
 def _say(args, text: str) -> None:
-    if not args.json:
-        print(text, file=sys.stderr, flush=True)
+    """Progress on stderr (also with --json, whose one object goes to stdout)."""
+    print(text, file=sys.stderr, flush=True)
 
 
 def _geometry(args, simulated: bool) -> dict[str, Any]:
