@@ -49,8 +49,9 @@ def add_parser(sub) -> None:
     sp.add_argument("--scene", default=None, metavar="FILE.toml",
                     help="only with --sim: scene TOML (default: the configuration's sim.scene)")
     sp.add_argument("--uncalibrated", action="store_true", default=None,
-                    help="only with --sim: skip the simulated bench's factory range/pointing calibration that "
-                         "a bench with none of its set-up (cache or --data-dir) runs before its first scan")
+                    help="only with --sim: neither run the simulated bench's factory range/pointing calibration "
+                         "(before the first scan of a bench with none of its set-up) nor take it from the user's "
+                         "cache; records kept in --data-dir still apply")
     sp.add_argument("--pattern", choices=PATTERNS, default=None,
                     help="scan pattern, see below (default: the daemon's/config's scan.pattern)")
     sp.add_argument("--rows", default=None, metavar="A:B", help="FPSA rows A <= row < B (pixel indices)")
