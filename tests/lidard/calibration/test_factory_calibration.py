@@ -87,3 +87,31 @@ def test_one_shot_sim_scan_runs_the_factory_calibration_once_then_uses_the_cache
 
     code, out, err = run(capsys, *scan, "--uncalibrated")        # the cached chirp, no records
     assert code == 0 and "factory calibration" not in err and "warning: uncalibrated range and pointing" in err
+
+
+def test_rest_run_places_the_fixtures_refuses_pending_plates_and_real_hardware(tmp_path):
+    from fastapi.testclient import TestClient
+    cfg = load_config(CONFIG_DIR / "sim.toml")
+    inst = RailFake()
+    with TestClient(make_app(tmp_path / "data", inst, cfg, progress_interval_s=0.0)) as c:
+        assert c.get("/sim/scene").json()["name"] == "cal_letters"
+        inst.plate_m = 1.3
+        early = c.post("/calibration/range/plates", json={"known_m": 1.3}).json()
+        r = c.post("/calibration/run")
+        assert r.status_code == 422 and early["id"] in r.json()["detail"] and "keep" in r.json()["detail"]
+        assert len(inst.scenes) == 1               # refused before any fixture moved (only the put-back)
+        r = c.post("/calibration/run", json={"pending": "keep", "plates_m": [0.9, 1.6]})
+        # the fake's "spheres" are a flat plate: the pointing fit is refused (422), after the range fit
+        assert r.status_code == 422 and "pointing" in r.json()["detail"]
+        rng = c.get("/calibration/records", params={"kind": "range"}).json()[0]
+        assert sorted(m["known_m"] for m in rng["inputs"]["measurements"]) == [0.9, 1.3, 1.6]
+        assert rng["fitted"]["scale"] == pytest.approx(S_TRUE, rel=2e-5)
+        assert [s["name"] for s in inst.scenes[1:]] == ["plate_0.9m", "plate_1.6m", "pointing_targets", "cal_letters"]
+        assert c.post("/calibration/run", json={"pending": "later"}).status_code == 422
+        assert c.post("/calibration/run", json={"plates_m": [1.0]}).status_code == 422
+    lab = RailFake()
+    lab.simulated = False
+    with TestClient(make_app(tmp_path / "lab", lab, cfg, progress_interval_s=0.0)) as c:
+        r = c.post("/calibration/run")
+        assert r.status_code == 409 and "lidarctl calibrate" in r.json()["detail"]
+        assert c.get("/sim/scene").status_code == 409
