@@ -10,7 +10,10 @@ distance, after one linearization. Variants switch one suspect off at a time, to
 * ``no laser phase noise``: ``sim.effects.phase_noise = false`` (the laser's phase noise and hence the
   phase-noise compensation's work);
 * ``ideal laser``: ``laser = "ideal"`` (no chirp nonlinearity to linearize, no phase noise);
-* ``no receiver noise``: ``sim.effects.noise = false`` (estimator bias with SNR).
+* ``no receiver noise``: ``sim.effects.noise = false`` (estimator bias with SNR);
+* ``no phase noise, monitor delay 100 / 300 ns``: the monitor MZI the ILC linearizes through at another
+  delay (the bench's delay is the configuration's: a nominal bench), to see whether the error follows it;
+* ``dfb_default`` (with and without phase noise): the other laser.
 
 Run: python benchmarks/range_linearity.py [--config config/sim_far.toml] [--plates 0.8 1.4 5 20 45]
      [--variants "as configured" "ideal laser"] [--out docs/measured/26_range_linearity.md]
@@ -33,6 +36,12 @@ VARIANTS = {
     "no laser phase noise": {"LIDARD__SIM__EFFECTS__PHASE_NOISE": "false"},
     "ideal laser": {"LIDARD__LASER": "ideal"},
     "no receiver noise": {"LIDARD__SIM__EFFECTS__NOISE": "false"},
+    "no phase noise, monitor delay 100 ns": {"LIDARD__SIM__EFFECTS__PHASE_NOISE": "false",
+                                             "LIDARD__MONITOR__DELAY_S": "100e-9"},
+    "no phase noise, monitor delay 300 ns": {"LIDARD__SIM__EFFECTS__PHASE_NOISE": "false",
+                                             "LIDARD__MONITOR__DELAY_S": "300e-9"},
+    "dfb_default": {"LIDARD__LASER": "dfb_default"},
+    "dfb_default, no phase noise": {"LIDARD__LASER": "dfb_default", "LIDARD__SIM__EFFECTS__PHASE_NOISE": "false"},
 }
 
 
