@@ -13,6 +13,9 @@ distance, after one linearization. Variants switch one suspect off at a time, to
 * ``no receiver noise``: ``sim.effects.noise = false`` (estimator bias with SNR);
 * ``no phase noise, monitor delay 100 / 300 ns``: the monitor MZI the ILC linearizes through at another
   delay (the bench's delay is the configuration's: a nominal bench), to see whether the error follows it;
+* ``no phase noise, compensation off``: the scans without the monitor-based phase-noise compensation
+  (``scan.phase_noise_compensation = "off"``), which also takes the chirp's deterministic error out of
+  the targets it compensates;
 * ``dfb_default`` (with and without phase noise): the other laser.
 
 Run: python benchmarks/range_linearity.py [--config config/sim_far.toml] [--plates 0.8 1.4 5 20 45]
@@ -40,6 +43,11 @@ VARIANTS = {
                                              "LIDARD__MONITOR__DELAY_S": "100e-9"},
     "no phase noise, monitor delay 300 ns": {"LIDARD__SIM__EFFECTS__PHASE_NOISE": "false",
                                              "LIDARD__MONITOR__DELAY_S": "300e-9"},
+    "no phase noise, compensation off": {"LIDARD__SIM__EFFECTS__PHASE_NOISE": "false",
+                                         "LIDARD__SCAN__PHASE_NOISE_COMPENSATION": "off"},
+    "no phase noise, compensation on": {"LIDARD__SIM__EFFECTS__PHASE_NOISE": "false",
+                                        "LIDARD__SCAN__PHASE_NOISE_COMPENSATION": "on"},
+    "compensation on": {"LIDARD__SCAN__PHASE_NOISE_COMPENSATION": "on"},
     "dfb_default": {"LIDARD__LASER": "dfb_default"},
     "dfb_default, no phase noise": {"LIDARD__LASER": "dfb_default", "LIDARD__SIM__EFFECTS__PHASE_NOISE": "false"},
 }
