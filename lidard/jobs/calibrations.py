@@ -28,17 +28,21 @@ from ..store_calibrations import CalibrationRecord
 
 def add_plate(worker, known_m: float) -> concurrent.futures.Future:
     """Queue a plate measurement at ``known_m``; the future resolves to the stored pending measurement."""
-    from ..instrument.calibration.procedures import measure_plate
     known_m = float(known_m)
     if not (math.isfinite(known_m) and known_m > 0):
         raise CalibrationRefused(f"range calibration: known_m must be a positive distance in metres, got {known_m!r}")
 
-    def task() -> dict[str, Any]:
-        lin = worker.current_linearization()
-        m = measure_plate(worker.instrument, worker.optics, known_m, lin, worker.applied)
-        setup = worker.setup_of("range")
-        return worker.store.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
-    return worker.submit_task(task)
+    return worker.submit_task(lambda: plate_now(worker, known_m))
+
+
+def plate_now(worker, known_m: float) -> dict[str, Any]:
+    """On the worker thread: measure the plate now at ``known_m`` and keep it pending, tagged with the
+    instrument's range set-up (a fit refuses plates of another one)."""
+    from ..instrument.calibration.procedures import measure_plate
+    lin = worker.current_linearization()
+    m = measure_plate(worker.instrument, worker.optics, float(known_m), lin, worker.applied)
+    setup = worker.setup_of("range")
+    return worker.store.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
 
 
 def plates(store) -> list[dict[str, Any]]:

@@ -80,22 +80,17 @@ def resolve_pending(store, pending: Pending) -> list[dict[str, Any]]:
 
 
 def run_guided(worker, plan: GuidedPlan, nominal_delay_s: float, *, pending: Pending = "refuse",
-               progress: Progress | None = None,
-               place_plate: Callable[[float], None] | None = None,
-               place_targets: Callable[[list], None] | None = None) -> dict[str, Any]:
-    """The whole procedure on the worker thread; answers ``{"range": record, "pointing": record,
-    "plates": [...], "wall_s"}``. ``place_*`` default to placing the fixtures on a simulated bench
-    through the instrument (:class:`NotSimulated` on real hardware)."""
+               progress: Progress | None = None) -> dict[str, Any]:
+    """The whole procedure on the worker thread, placing the fixtures on the simulated bench through the
+    instrument (:class:`NotSimulated` on real hardware); answers ``{"range": record, "pointing": record,
+    "plates": [...], "kept_pending": [...], "wall_s"}``."""
     from ..instrument.calibration.pointing import parse_geometry, spheres_scene
-    from ..instrument.calibration.procedures import measure_plate
     from ..instrument.calibration.range import plate_scene
     from . import calibrations as cal
 
     say = progress or (lambda _e: None)
     inst, store = worker.instrument, worker.store
     surfaces = parse_geometry(plan.geometry, source="<calibration plan>")
-    place_plate = place_plate or (lambda d: inst.set_scene(plate_scene(d)))
-    place_targets = place_targets or (lambda s: inst.set_scene(spheres_scene(s)))
     t0 = time.perf_counter()
     kept = resolve_pending(store, pending)
     n = len(plan.plates_m)
@@ -104,17 +99,15 @@ def run_guided(worker, plan: GuidedPlan, nominal_delay_s: float, *, pending: Pen
     plates = []
     for i, d in enumerate(plan.plates_m):
         say({"step": "plate", "index": i + 1, "of": n, "known_m": float(d), "done": i, "steps": steps})
-        place_plate(float(d))
-        lin = worker.current_linearization()
-        m = measure_plate(inst, worker.optics, float(d), lin, worker.applied)
-        setup = worker.setup_of("range")
-        plates.append(store.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})}))
-        say({"step": "plate_done", "index": i + 1, "of": n, "known_m": float(d), "raw_range_m": m.raw_range_m,
-             "sem_m": m.sem_m, "n": m.n, "done": i + 1, "steps": steps})
+        inst.set_scene(plate_scene(float(d)))
+        m = cal.plate_now(worker, float(d))
+        plates.append(m)
+        say({"step": "plate_done", "index": i + 1, "of": n, "known_m": float(d), "raw_range_m": m["raw_range_m"],
+             "sem_m": m["sem_m"], "n": m["n"], "done": i + 1, "steps": steps})
     rng = cal.fit_range(store, nominal_delay_s, worker.setup_of("range"))
     say({"step": "range_fit", "id": rng.id, "delay_s": rng.fitted["delay_s"],
          "zero_offset_m": rng.fitted["zero_offset_m"], "done": n + 1, "steps": steps})
-    place_targets(surfaces)
+    inst.set_scene(spheres_scene(surfaces))
     pnt = cal.pointing_now(worker, surfaces)
     say({"step": "pointing", "id": pnt.id, "rms_mm": pnt.residuals.get("rms_mm"), "done": steps, "steps": steps})
     return {"range": rng.to_dict(), "pointing": pnt.to_dict(), "plates": plates, "kept_pending": kept,
