@@ -151,6 +151,8 @@ class ScanOut(_Out):
     calibrated: dict[str, bool] = Field(default_factory=dict, description=(
         "which calibrations the scan used: {range, pointing, linearization} and, with the I/Q receiver, iq; "
         "false is said, not hidden"))
+    uncalibrated_reason: str | None = Field(None, description="why stored range/pointing/iq calibrations were "
+                                                              "not used (made on another set-up); null when none was left out")
 
     @classmethod
     def from_record(cls, rec) -> "ScanOut":
@@ -163,7 +165,8 @@ class ScanOut(_Out):
                    formats=sorted(rec.files), calibration_id=rec.calibration_id,
                    raw_bytes=getattr(rec, "raw_bytes", None), reprocessed_from=getattr(rec, "reprocessed_from", None),
                    range_calibration_id=rec.range_calibration_id, pointing_calibration_id=rec.pointing_calibration_id,
-                   iq_calibration_id=rec.iq_calibration_id, calibrated=rec.calibrated)
+                   iq_calibration_id=rec.iq_calibration_id, calibrated=rec.calibrated,
+                   uncalibrated_reason=getattr(rec, "uncalibrated_reason", None))
 
 
 class ScanList(_Out):

@@ -79,7 +79,10 @@ def serve(args) -> int:
         sock.close()
         store.close()
         raise
-    app = create_app(cfg, instrument=instrument, store=store, token=token)
+    # the daemon opened its bench from the configuration: it calibrates itself at its first scan when
+    # sim.factory_calibration is on (create_app checks that it is a simulated bench)
+    app = create_app(cfg, instrument=instrument, store=store, token=token,
+                     factory_calibration=cfg.sim.factory_calibration)
     # an open event stream must not hold shutdown (and the laser/HV power-down) hostage
     server = _server_class()(uvicorn.Config(app, log_level=args.log_level, timeout_graceful_shutdown=5), app)
     sys.stderr.write(f"lidard: serving on http://{host}:{sock.getsockname()[1]} (OpenAPI at /docs)\n")

@@ -51,6 +51,10 @@ def add_parser(sub) -> None:
                                                     "instead of the configuration's")
     sp.add_argument("--scene", default=None, metavar="FILE.toml",
                     help="only with --sim: scene TOML (default: the configuration's sim.scene)")
+    sp.add_argument("--uncalibrated", action="store_true", default=None,
+                    help="only with --sim: neither run the simulated bench's factory range/pointing calibration "
+                         "(before the first scan of a bench with none of its set-up) nor take it from the user's "
+                         "cache; records kept in --data-dir still apply")
     sp.add_argument("--pattern", choices=PATTERNS, default=None,
                     help="scan pattern, see below (default: the daemon's/config's scan.pattern)")
     sp.add_argument("--rows", default=None, metavar="A:B", help="FPSA rows A <= row < B (pixel indices)")
@@ -182,7 +186,7 @@ def summary(rec: dict[str, Any], out: str | None, simulated: bool | None) -> dic
 
 def cmd_scan(args) -> int:
     from ..pointcloud import format_of
-    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache")
+    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache", "--uncalibrated")
     fmt = format_of(args.out) if args.out else "ply"
     base.check_out(args.out)
     body = request_body(args, fmt)
@@ -192,7 +196,7 @@ def cmd_scan(args) -> int:
         s = _scan_sim(args, body, bar, interrupted) if args.sim else _scan_daemon(args, body, bar, interrupted)
     finally:
         bar.close()
-    warn_uncalibrated(s.get("calibrated"))
+    warn_uncalibrated(s.get("calibrated"), s.get("uncalibrated_reason"))
     if args.json:
         output.emit_json({**s, "interrupted": interrupted[0] is not None})
     else:
@@ -207,12 +211,14 @@ def cmd_scan(args) -> int:
     return 0
 
 
-def warn_uncalibrated(calibrated: dict[str, bool] | None) -> None:
-    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4)."""
+def warn_uncalibrated(calibrated: dict[str, bool] | None, reason: str | None = None) -> None:
+    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4), with the
+    reason stored calibrations were left out (made on another set-up) when there was one."""
     missing = [k for k in ("range", "pointing") if calibrated is not None and not calibrated.get(k)]
     if missing:
         print(f"lidarctl: warning: uncalibrated {' and '.join(missing)}: ranges and x, y, z carry the scanner's "
-              "unmeasured range scale/zero and pointing errors (see `lidarctl calibration --help`)", file=sys.stderr)
+              "unmeasured range scale/zero and pointing errors (see `lidarctl calibrate --help`)"
+              + (f"; {reason}" if reason else ""), file=sys.stderr)
     if calibrated is not None and calibrated.get("iq") is False:
         print("lidarctl: warning: uncalibrated I/Q receiver: the hybrid's image of every return is only "
               "suppressed to its own imbalance (see `lidarctl calibration iq`)", file=sys.stderr)
@@ -256,6 +262,7 @@ def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list) -> dict[str
         s = summary(_flat(rec), out, simulated)
         s["error"] = rec.get("error")
         s["calibrated"] = rec.get("calibrated")
+        s["uncalibrated_reason"] = rec.get("uncalibrated_reason")
         return s
 
 
@@ -265,7 +272,7 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
     cfg = sim_config(args)
     req = sim_request(body, cfg)
     check_plan(req, cfg.optics())  # before the bench starts
-    with embedded(args, cfg, scene_path=resolve(args.scene)) as (worker, store, inst):
+    with embedded(args, cfg, scene_path=resolve(args.scene), factory=not args.uncalibrated) as (worker, store, inst):
         rec = worker.submit_scan(req)
         worker.subscribe(rec.id, bar)
         try:
@@ -284,4 +291,5 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
         s = summary(final.to_dict(), out, bool(inst.simulated))
         s["error"] = final.error
         s["calibrated"] = final.calibrated
+        s["uncalibrated_reason"] = final.uncalibrated_reason
         return s

@@ -71,6 +71,7 @@ def show_text(s: dict[str, Any]) -> str:
         ("files", ", ".join(s.get("formats") or []) or None),
         ("calibration", s.get("calibration_id")),
         ("calibrated", _calibrated_text(s)),
+        ("uncalibrated because", s.get("uncalibrated_reason")),
         ("raw capture", f"{s['raw_bytes'] / 1e6:.1f} MB" if s.get("raw_bytes") else None),
         ("reprocessed from", s.get("reprocessed_from")),
     ])

@@ -244,6 +244,11 @@ class Sim(_Model):
     bench: Literal["child", "embedded"] = "child"
     effects: Effects = Effects()
     tolerances: Tolerances = Tolerances()
+    # a scan on this bench with no range/pointing calibration of its set-up first runs the bench's factory
+    # calibration (plates, then spheres, placed through the bench and measured through the instruments;
+    # lidard.jobs.guided): the one-shot `lidarctl scan --sim` (kept in the user's cache) and the daemon's
+    # first scan. `lidarctl scan --sim --uncalibrated` skips it for one run.
+    factory_calibration: bool = True
     # [[sim.faults]] tables, injected by the bench at start. Only their shape is checked here: the
     # catalogue (kinds, parameters) belongs to the simulator, which checks each entry when the bench
     # is built and raises a ConfigError naming it (the daemon side never imports the simulator).

@@ -86,7 +86,8 @@ class ScanJobRun:
         iq = bool(getattr(self.instrument, "iq_receiver", False))
         self.store.update_scan(job.id, stage="scanning", calibration_id=self.cal_id,
                                range_calibration_id=applied.range_id, pointing_calibration_id=applied.pointing_id,
-                               receiver="iq" if iq else "real", iq_calibration_id=applied.iq_id if iq else None)
+                               receiver="iq" if iq else "real", iq_calibration_id=applied.iq_id if iq else None,
+                               uncalibrated_reason=applied.uncalibrated_reason)
         if job.request.pattern == "adaptive" and self.w.optics is not None:
             return run_adaptive(self.instrument, job, self.progress, cal, self.w.optics)
         # the raw capture goes next to the point clouds; only asked of the instrument when wanted
@@ -183,7 +184,8 @@ class ScanJobRun:
         applied = self.w.applied or AppliedCalibrations()
         return {"range_calibration_id": applied.range_id, "pointing_calibration_id": applied.pointing_id,
                 "calibrated": applied.calibrated(self.cal_id is not None,
-                                                 iq=bool(getattr(self.instrument, "iq_receiver", False)))}
+                                                 iq=bool(getattr(self.instrument, "iq_receiver", False))),
+                "uncalibrated_reason": applied.uncalibrated_reason}
 
 
 def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], None],

@@ -38,7 +38,7 @@ class ScanWorker:
     def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
                  progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
                  pixels_planned: Callable[[ScanRequest], int] | None = None,
-                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5):
+                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5, setup=None):
         self.instrument = instrument
         self.store = store
         self.laser = laser
@@ -59,6 +59,13 @@ class ScanWorker:
         self._stopping = False
         self._thread: threading.Thread | None = None
         self.applied = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
+        # the instrument's set-up (lidard.instrument.calibration.setup.CalibrationSetup): records are
+        # made on it and only records made on it are applied; None (a test double): the newest record
+        self.setup = setup
+        # a simulated bench's factory calibration (lidard.jobs.guided.FactoryCalibration): run before the
+        # first scan when no range/pointing record of this set-up is stored; None: never
+        self.factory = None
+        self.sim_scene: dict[str, Any] | None = None   # the scene last placed over REST (PUT /sim/scene)
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -289,9 +296,22 @@ class ScanWorker:
             self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
                                    "pixels_done": 0, "pixels_planned": 0, "points": 0,
                                    "fraction": 0.0, "hardware_time_s": 0.0})
+        if self.factory is not None and not self.factory.tried:
+            self._factory_calibration(job)
         cal = self.current_linearization(announce)
         job.linearization = self.last_linearization
         return cal
+
+    def _factory_calibration(self, job: _ScanJob) -> None:
+        """The bench's factory calibration before this scan, announced as its ``calibrating`` stage."""
+        def stage(ev: dict[str, Any]) -> None:
+            done, steps = ev.get("done"), ev.get("steps")
+            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "calibrating",
+                                         "pixels_done": 0, "pixels_planned": 0, "points": 0,
+                                         "fraction": (done / steps) if done is not None and steps else 0.0,
+                                         "hardware_time_s": 0.0, "calibration": ev})
+        self.store.update_scan(job.id, stage="calibrating")
+        self.factory.run_if_needed(self, stage)
 
     def current_linearization(self, announce: Callable[[], None] | None = None) -> CalibrationResult:
         """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
@@ -315,14 +335,29 @@ class ScanWorker:
         return cal
 
     def apply_geometry(self):
-        """Hand the newest stored range, pointing and I/Q calibrations to the instrument (issues 13, 14); answers
-        the :class:`AppliedCalibrations`. Runs on the worker thread before every scan and linearization."""
+        """Hand the newest stored range, pointing and I/Q calibrations made on this instrument's set-up
+        to the instrument (issues 13, 14); answers the :class:`AppliedCalibrations`, whose ``notes`` say
+        why records of another set-up were left unused. Runs on the worker thread before every scan and
+        linearization."""
         from ..instrument.calibration.applied import AppliedCalibrations
-        self.applied = AppliedCalibrations.from_records(self.store.latest_geometry_calibration("range"),
-                                                        self.store.latest_geometry_calibration("pointing"),
-                                                        self.store.latest_geometry_calibration("iq"))
+        from ..instrument.calibration.setup import select
+        chosen, notes = {}, []
+        for kind in ("range", "pointing", "iq"):
+            rec, why = select(self.store.list_geometry_calibrations(kind, limit=200),
+                              None if self.setup is None else self.setup[kind])
+            chosen[kind] = rec
+            if why is not None:
+                notes.append(why)
+        if self.factory is not None and self.factory.refused:
+            notes.append(f"the factory calibration was refused: {self.factory.refused}")
+        self.applied = AppliedCalibrations.from_records(chosen["range"], chosen["pointing"], chosen["iq"],
+                                                        notes=tuple(notes))
         self.instrument.use_calibrations(self.applied)
         return self.applied
+
+    def setup_of(self, kind: str) -> dict[str, Any] | None:
+        """What a new record of ``kind`` names as its set-up (None when the set-up is not known)."""
+        return None if self.setup is None else self.setup[kind].as_dict()
 
     def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:
         # Cache under the configured laser name, whatever the instrument calls it, so that the next
