@@ -77,14 +77,15 @@ class ScanPlan:
 
 
 def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = False,
-             mzi_delay_s: float | None = None) -> AdcPlan:
-    """Sample rate and record length for beats up to ``max_range_m`` (plus the Doppler allowance).
+             mzi_delay_s: float | None = None, max_speed_mps: float | None = None) -> AdcPlan:
+    """Sample rate and record length for beats up to ``max_range_m`` plus the Doppler shift of
+    ``max_speed_mps`` (default: the configuration's scan.max_speed_mps).
 
     ``whole_monitor_delay``: the quadrature reconstruction steps the laser phase by the monitor delay,
     so the rate is raised to a whole number of samples per delay (lidard.dsp.pnrecon.whole_delay_samples).
     """
     c, a = cfg.chirp, cfg.adc
-    doppler = 2 * speed_span_mps(cfg) / c.wavelength_m
+    doppler = 2 * speed_span_mps(cfg, max_speed_mps) / c.wavelength_m
     fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
                      max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
     if whole_monitor_delay:
@@ -99,12 +100,14 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
     return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r + int(fs * c.cw_s + 1e-9), bits=16)
 
 
-def speed_span_mps(cfg: Config) -> float:
-    """The Doppler the ADC band and the ramps' search cover: the triangle's speed prior
-    (scan.max_speed_mps), or the three-segment chirp's band (chirp.doppler_band_mps, not a prior)."""
-    if cfg.chirp.shape == "three_segment" or cfg.adc.iq:   # the sign is measured: a band, not a prior
-        return cfg.chirp.doppler_band_mps
-    return cfg.scan.max_speed_mps
+def speed_span_mps(cfg: Config, max_speed_mps: float | None = None) -> float:
+    """The Doppler the ADC band and the ramps' search cover: the scan's requested maximum speed, else
+    the configuration's scan.max_speed_mps. On the three-segment chirp and the I/Q receiver the sign is
+    measured: a band, not a prior; on a real triangle also the prior that makes a pair unambiguous."""
+    v = cfg.scan.max_speed_mps if max_speed_mps is None else float(max_speed_mps)
+    if not (math.isfinite(v) and v > 0):
+        raise InstrumentError(f"scan: max_speed_mps must be a positive speed in m/s, got {max_speed_mps!r}")
+    return v
 
 
 def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None = None) -> bool:
@@ -129,13 +132,14 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
     pn_on = phase_noise_on(cfg, request, tau_m)
     quad = pn_on and cfg.monitor.quadrature
     # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
+    speed = speed_span_mps(cfg, request.max_speed_mps)
     adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m,
-                   whole_monitor_delay=quad, mzi_delay_s=tau_m)
+                   whole_monitor_delay=quad, mzi_delay_s=tau_m, max_speed_mps=speed)
     beat = ("beat_i", "beat_q") if cfg.adc.iq else ("beat",)
     channels = beat + (("mzi", "mzi_q") if quad else ("mzi",) if pn_on else ())
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
-                   max_speed_mps=speed_span_mps(cfg), window=cfg.scan.window, pfa=cfg.scan.pfa,
+                   max_speed_mps=speed, window=cfg.scan.window, pfa=cfg.scan.pfa,
                    max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples,
                    iq=cfg.adc.iq, iq_gain=iq_imbalance[0], iq_phase_rad=iq_imbalance[1],
                    hold_profile=hold_profile if cfg.chirp.shape == "three_segment" else None,
@@ -227,7 +231,8 @@ class ScanLoop:
             adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
                  "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
             chirp=self.cfg.chirp.model_dump(), calibration_id=run.calibration_id,
-            scan={"pattern": request.pattern, "averages": p.averages, "max_range_m": float(request.max_range_m)},
+            scan={"pattern": request.pattern, "averages": p.averages, "max_range_m": float(request.max_range_m),
+                  "max_speed_mps": float(p.dsp.max_speed_mps)},
             drive_v=drive_v)
 
     # -- acquire ----------------------------------------------------------------------------------
@@ -336,7 +341,11 @@ class ScanLoop:
                     # the resolution asked of the digitizer (core bits + decimation gain + guard bits)
                     "resolution_bits": self.cfg.adc.record_bits(adc.fs_hz, adc.bits),
                     "bandwidth_hz": self.cfg.adc.bandwidth_hz,
-                    "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
+                    "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v,
+                    # the Doppler band the rate was sized for (the request's max_speed_mps): a faster
+                    # target's beat lies outside it and is flagged, never ranged
+                    "max_speed_mps": dsp.max_speed_mps,
+                    "doppler_band_hz": 2 * dsp.max_speed_mps / dsp.wavelength_m},
             "dsp": dsp.sidecar(p.phase_noise),
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
