@@ -40,7 +40,7 @@ import numpy as np
 
 from lidard.dsp import jit
 from lidard.dsp.cfar_os import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
-    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, brentq, os_cfar_alpha, os_cfar_pfa,
+    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, os_cfar_alpha, os_cfar_pfa,
 )
 from lidard.dsp.cfar_post import (  # noqa: F401  (re-exported: tests' reach)
     _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db,
