@@ -187,7 +187,7 @@ def cfar_detect(
     p2 = p.reshape(-1, p.shape[-1])
     n_bins = p2.shape[-1]
     # the compiled OS-CFAR checks the values in its own pass over the spectra (issue 18); else they are checked here
-    kern = jit.kernels() if method == "os" and n_bins > max(2, n_guard + n_ref // 2) else None
+    kern = jit.kernels(p2.size) if method == "os" and n_bins > max(2, n_guard + n_ref // 2) else None
     if kern is None:
         _check_power_values(p2)
     if n_bins < 3:

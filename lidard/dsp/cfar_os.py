@@ -111,7 +111,7 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
     if n <= reach:
         raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
     k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank)
-    kern = jit.kernels()
+    kern = jit.kernels(p.size)
     if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.jit)
         return jit.os_screen(p, n_ref_side, n_guard, k, thr_factor, mean_kth, kern) + (scaled_alpha,)
     n_blocks = -(-n // _OS_BLOCK)
