@@ -8,7 +8,9 @@
   (:mod:`.safety`) after each read (the safety watch also checks on its own thread, on wall time); a lost acquisition is resumed from the first pixel not yet read
   (at most ``RESUMES`` times); a device that stays down fails the scan with :class:`ScanFailed`
   carrying the points so far;
-* DSP -> points (:mod:`.points`): batches collected up to ``BATCH_BYTES``, processed, kept as points.
+* DSP -> points (:mod:`.points`): batches collected up to :func:`dsp_batch_bytes`, handed to DSP worker
+  threads through a bounded queue (:mod:`.pipeline`; the next read goes on meanwhile), kept as points
+  in pixel order.
 
 The run's state lives in one :class:`ScanRun` context passed between the stages.
 """
@@ -33,11 +35,15 @@ from ..scan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
 from .calibration.applied import AppliedCalibrations
 from .errors import InstrumentError, ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
+from .pipeline import dsp_workers
 from .points import PointBuffer, RawBatch
 from .safety import SafetyMonitor, describe_safe
 from .types import CalibrationResult, ProgressFn, ScanProgress, ScanRequest, ScanResult
 
 BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
+# The smallest DSP batch a scan hands to a worker: the frame DSP's fixed cost per call shows below it
+# (its sample rate falls by a third from 2 MiB to 0.5 MiB batches, benchmarks/band_and_cores.py)
+DSP_MIN_BYTES = 2 << 20
 # Hardware time per read: the interlock/fault flags are read between reads, so this bounds the
 # host's reaction time (the controller's own hardware interlock drops the outputs at once anyway).
 # Each read has a fixed cost (in the simulator mostly the FPGA model's per-call beam bookkeeping):
@@ -155,6 +161,13 @@ def batch_pixels(cfg: Config, p: ScanPlan) -> int:
     return max(1, min(p.n_pixels, BATCH_BYTES // max(1, bytes_per_pix), int(SAFETY_CHECK_S / pixel_s)))
 
 
+def dsp_batch_bytes(p: ScanPlan, workers: int) -> int:
+    """Raw bytes per DSP batch: a few batches per worker over the scan, so that reads and DSP overlap
+    from the start, within [DSP_MIN_BYTES, BATCH_BYTES]."""
+    bytes_per_pix = p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
+    return int(min(BATCH_BYTES, max(DSP_MIN_BYTES, p.n_pixels * bytes_per_pix // (2 * workers + 2))))
+
+
 @dataclass
 class ScanRun:
     """The state of one scan between its stages (what used to live in closures and cells)."""
@@ -189,9 +202,10 @@ class ScanLoop:
         p = plan_scan(self.cfg, self.optics, request, self.applied.delay_or(self.cfg.monitor.delay_s),
                       self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
+        workers = dsp_workers()
         run = ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
-                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=BATCH_BYTES,
-                                     zero_offset_m=self.applied.zero_offset_m),
+                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=dsp_batch_bytes(p, workers),
+                                     zero_offset_m=self.applied.zero_offset_m, workers=workers),
                       calibration_id=(calibration.meta or {}).get("id") if calibration else None)
         self.safety.bring_up()
         try:
