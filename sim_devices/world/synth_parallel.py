@@ -23,9 +23,9 @@ import numpy as np
 from sim_devices.world.synth import synthesize
 from sim_devices.world.synth_types import HitBatch, Synthesized
 
-#: samples per part at least: below ~0.5 M samples (1 MB of int16) a part's fixed cost (tables,
+#: samples per part at least: below ~64 k samples (128 kB of int16) a part's fixed cost (tables,
 #: chunk set-up, the pool's hand-off) is a noticeable share of its work
-MIN_PART_SAMPLES = 1 << 19
+MIN_PART_SAMPLES = 1 << 16
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
