@@ -126,11 +126,21 @@ class PointBuffer:
         except Exception as exc:
             log.warning("processing the last batch failed: %s", exc)
         finally:
-            if self._pipe is not None:
-                self._pipe.close()       # the workers drop their scratch buffers as they end
-                self._pipe = None
+            self.close()
             release_scratch()     # the DSP's per-thread buffers (lidard.dsp.scratch): an idle daemon holds none
         return np.concatenate(self._chunks) if self._chunks else np.zeros(0, POINT_DTYPE)
+
+    def close(self) -> None:
+        """End the DSP workers once their queued batches are done (they drop their scratch buffers);
+        later batches are processed on the caller's thread. Safe to call again."""
+        if self._pipe is not None:
+            pipe, self._pipe = self._pipe, None
+            pipe.close()
+            while pipe.in_flight:
+                try:
+                    self._chunks.extend(pipe.ready(wait=True))
+                except Exception as exc:    # the scan is ending on another error: report, do not mask it
+                    log.warning("processing a batch failed: %s", exc)
 
 
 def points_from(res, optics, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None,

@@ -207,32 +207,35 @@ class ScanLoop:
                                      mzi_delay_s=p.mzi_delay_s, flush_bytes=dsp_batch_bytes(p, workers),
                                      zero_offset_m=self.applied.zero_offset_m, workers=workers),
                       calibration_id=(calibration.meta or {}).get("id") if calibration else None)
-        self.safety.bring_up()
         try:
-            acq = self.lifecycle.ready(p.acquisition, drive_v=drive_v, faults=run.faults)
-            if raw_path is not None:   # the digitizer has told its channel order: the records' layout
-                run.raw = self._recorder(raw_path, run, acq, request, drive_v)
-            self.lifecycle.start(acq)
-            step = batch_pixels(self.cfg, p)
-            while run.done < p.n_pixels and run.stop_reason is None:
-                if cancel.is_set():
-                    run.cancelled = True
-                    break
-                acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
-                if accepted:
-                    progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
-                                          new_points=run.points.take_new()))
-            if run.stop_reason is None and self.safety.tripped is not None:
-                self._safety_stop(run)      # the wall-clock watch tripped after the last read's check
-        except ScanFailed:
-            raise
-        except Exception as exc:
-            raise ScanFailed(describe_failure(exc), self.result(run)) from driver_error(exc)
+            self.safety.bring_up()
+            try:
+                acq = self.lifecycle.ready(p.acquisition, drive_v=drive_v, faults=run.faults)
+                if raw_path is not None:   # the digitizer has told its channel order: the records' layout
+                    run.raw = self._recorder(raw_path, run, acq, request, drive_v)
+                self.lifecycle.start(acq)
+                step = batch_pixels(self.cfg, p)
+                while run.done < p.n_pixels and run.stop_reason is None:
+                    if cancel.is_set():
+                        run.cancelled = True
+                        break
+                    acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
+                    if accepted:
+                        progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
+                                              new_points=run.points.take_new()))
+                if run.stop_reason is None and self.safety.tripped is not None:
+                    self._safety_stop(run)      # the wall-clock watch tripped after the last read's check
+            except ScanFailed:
+                raise
+            except Exception as exc:
+                raise ScanFailed(describe_failure(exc), self.result(run)) from driver_error(exc)
+            finally:
+                self._finish(run)
+                if run.raw is not None:
+                    run.raw.close(pixels_scanned=run.done, stop_reason=run.stop_reason)
+            return self.result(run)
         finally:
-            self._finish(run)
-            if run.raw is not None:
-                run.raw.close(pixels_scanned=run.done, stop_reason=run.stop_reason)
-        return self.result(run)
+            run.points.close()      # the DSP workers end on every path (after result(): nothing left)
 
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
         from ..raw.record import ScanRecorder   # zarr is loaded only by scans that record

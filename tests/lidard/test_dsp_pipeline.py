@@ -115,3 +115,22 @@ def test_the_points_with_dsp_workers_are_the_serial_dsps_in_pixel_order():
     first = piped["return_index"] == 0
     r_true = 299_792_458.0 * f / (2 * cfg.chirp.rate_hz_per_s)
     assert np.max(np.abs(piped["range"][first] - r_true[first])) < p.dsp.range_resolution_m
+
+
+def test_a_scan_that_fails_before_its_result_still_ends_its_dsp_workers(monkeypatch):
+    # the outputs cannot come up: no result is computed, the DSP threads must not be left waiting
+    from lidard.config import load_config as _load
+    from lidard.instrument import open_instrument
+    cfg = _load("config/sim.toml", environ=NOMINAL_ENV)
+    inst = open_instrument(cfg, scene_path="config/scenes/cal_letters.toml", bench="embedded")
+    try:
+        def refuse():
+            raise RuntimeError("laser refused")
+        monkeypatch.setattr(inst.safety, "bring_up", refuse)
+        before = {t.name for t in threading.enumerate() if t.name.startswith("lidard-dsp")}
+        with pytest.raises(RuntimeError, match="laser refused"):
+            inst.run_scan(ScanRequest(pattern="roi", rows=(40, 42), cols=(40, 44)), lambda p: None, threading.Event())
+        after = {t.name for t in threading.enumerate() if t.name.startswith("lidard-dsp")}
+        assert not before and not after
+    finally:
+        inst.close()
