@@ -26,7 +26,8 @@ from lidard.physics.budget import monitor_noise_asd, quantization_asd
 
 from .digitizer import CaptureConfig, CapturedSegments, decimation_filter
 from .world.fidelity import phase_noise_negligible
-from .world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from .world.synth import AdcSpec, HitBatch, trajectory
+from .world.synth_parallel import synthesize_read
 
 
 @dataclass(frozen=True)
@@ -243,11 +244,13 @@ class BenchCapture:
             self.fidelity.note("doppler", bool(np.any(hits.doppler_hz != 0)))
             self.fidelity.note("speckle", hits.phase_rad is not None)
             self.fidelity.note("mixed_pixels", bh.mixed_beams > 0)   # hits come from bh
-        rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
+        run = self._run_index()
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
-        return synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd, beat_filter=aa,
-                          linewidth_hz=linewidth, rng=rng,
+        # a large read in parts on the bench's threads, each part seeded as a read from its first segment
+        return synthesize_read(self._trajectory(), adc, np.zeros(n), hits,
+                               lambda s: np.random.default_rng([self.seed, run, int(first) + s]),
+                               noise_asd_v_per_rthz=noise_asd, beat_filter=aa, linewidth_hz=linewidth,
                           mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
                           mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
                           mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,

@@ -69,6 +69,8 @@ class ScanCreate(_In):
     pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
     averages: StrictInt | None = Field(default=None, ge=1, le=100)
     max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
+    # the fastest radial speed to measure, m/s: sizes the digitizer's Doppler band; null: scan.max_speed_mps
+    max_speed_mps: float | None = Field(default=None, gt=0, le=100, allow_inf_nan=False, strict=True)
     formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=6)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
@@ -108,6 +110,7 @@ class ScanCreate(_In):
                            pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
                            averages=d.averages if self.averages is None else self.averages,
                            max_range_m=d.max_range_m if self.max_range_m is None else self.max_range_m,
+                           max_speed_mps=d.max_speed_mps if self.max_speed_mps is None else self.max_speed_mps,
                            formats=tuple(self.formats),
                            phase_noise_compensation=self.phase_noise_compensation,
                            record_raw=self.record_raw)

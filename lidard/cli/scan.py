@@ -68,6 +68,9 @@ def add_parser(sub) -> None:
                     help="chirps averaged per pixel, 1..100 (count; default: scan.averages)")
     sp.add_argument("--max-range", type=float, default=None, metavar="M",
                     help="range gate in metres, > 0 (default: scan.max_range_m)")
+    sp.add_argument("--max-speed", type=float, default=None, metavar="M",
+                    help="fastest radial speed to measure, m/s, > 0: sizes the digitizer's Doppler band "
+                         "(default: scan.max_speed_mps)")
     sp.add_argument("--phase-noise", choices=["auto", "on", "off"], default=None,
                     help="laser phase-noise compensation from the monitor MZI (default: scan.* of the config)")
     sp.add_argument("--record-raw", action="store_true",
@@ -144,6 +147,8 @@ def request_body(args, fmt: str) -> dict[str, Any]:
         body["averages"] = args.averages
     if args.max_range is not None:
         body["max_range_m"] = args.max_range
+    if args.max_speed is not None:
+        body["max_speed_mps"] = args.max_speed
     if args.phase_noise is not None:
         body["phase_noise_compensation"] = args.phase_noise
     if args.record_raw:

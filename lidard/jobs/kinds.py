@@ -60,6 +60,7 @@ def request_from_dict(d: dict[str, Any]) -> ScanRequest:
         cols=None if d.get("cols") is None else tuple(d["cols"]),
         pixels=None if d.get("pixels") is None else tuple(tuple(p) for p in d["pixels"]),
         averages=int(d.get("averages", 1)), max_range_m=float(d.get("max_range_m", 2.0)),
+        max_speed_mps=None if d.get("max_speed_mps") is None else float(d["max_speed_mps"]),
         formats=tuple(d.get("formats", ("ply",))),
         phase_noise_compensation=d.get("phase_noise_compensation"),
         record_raw=bool(d.get("record_raw", False)))

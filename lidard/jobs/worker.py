@@ -291,11 +291,13 @@ class ScanWorker:
         the laser's temperature moved, when the range calibration changed the monitor delay it targets,
         or when the linearization health check finds its chirp off (announced as the scan's
         ``linearizing`` stage). ``job.linearization`` records the check."""
-        def announce() -> None:
-            self.store.update_scan(job.id, stage="linearizing")
+        def announce(step: dict | None = None) -> None:
+            # first the stage, then each of the linearization's measurements (its progress)
+            if step is None:
+                self.store.update_scan(job.id, stage="linearizing")
             self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
                                    "pixels_done": 0, "pixels_planned": 0, "points": 0,
-                                   "fraction": 0.0, "hardware_time_s": 0.0})
+                                   "fraction": 0.0, "hardware_time_s": 0.0, **(step or {})})
         if self.factory is not None and not self.factory.tried:
             self._factory_calibration(job)
         cal = self.current_linearization(announce)
@@ -313,7 +315,7 @@ class ScanWorker:
         self.store.update_scan(job.id, stage="calibrating")
         self.factory.run_if_needed(self, stage)
 
-    def current_linearization(self, announce: Callable[[], None] | None = None) -> CalibrationResult:
+    def current_linearization(self, announce: Callable[..., None] | None = None) -> CalibrationResult:
         """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
         linearization if it is fresh (temperature rule, monitor delay) and passes the health check,
         else a new one (``announce()`` first). ``self.last_linearization`` records the check."""
@@ -328,7 +330,7 @@ class ScanWorker:
             log.info("linearizing: %s", reason)
             if announce is not None:
                 announce()
-            cal = self._own_laser(self.instrument.linearize())
+            cal = self._own_laser(self.instrument.linearize(announce))
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             used = self.instrument.check_linearization(cal)
         self.last_linearization = health_record(checked, used, reason)

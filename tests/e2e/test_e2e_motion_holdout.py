@@ -45,7 +45,7 @@ def _boundary_ratio(cfg, v_mps, r_m):
 def test_holdout_targets_ranged_within_the_done_when_bounds(instrument, target, rows, cols, ratio):
     cfg, inst, cal = instrument
     surfaces = ht.load(SCENE)
-    res = inst.run_scan(ScanRequest(rows=rows, cols=cols, max_range_m=2.0), lambda p: None,
+    res = inst.run_scan(ScanRequest(rows=rows, cols=cols, max_range_m=2.0, max_speed_mps=10.0), lambda p: None,
                         threading.Event(), cal)
     pts = res.points
     d = cfg.optics().directions(pts["row"], pts["col"])
