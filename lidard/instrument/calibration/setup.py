@@ -11,7 +11,7 @@ the reason (which part differs).
 A set-up is a few named parts, each a short hash of what it consists of:
 
 * range / I/Q: the laser preset's values, the ``[chirp]``, ``[monitor]``, ``[adc]``, ``[detector]`` and
-  ``[link]`` sections (the Doppler band only sets the ADC rate of a scan, not the chirp: left out);
+  ``[link]`` sections (the scan's max speed only sets the ADC rate of a scan: it is in ``[scan]``, left out);
 * pointing: the scanner profile and lens (their optics summary);
 * both: the instruments. On real hardware these are the identities the devices report (model, serial,
   firmware); on a simulated bench the bench is the instrument: its seed and ``[sim.tolerances]`` (the
@@ -29,7 +29,6 @@ from typing import Any
 
 KINDS = ("range", "pointing", "iq")
 _RANGE_SECTIONS = ("chirp", "monitor", "adc", "detector", "link")
-_NOT_CHIRP = ("doppler_band_mps",)
 
 
 def _digest(value: Any) -> str:
@@ -86,8 +85,7 @@ def calibration_setup(cfg, identities: dict[str, Any] | None = None) -> Calibrat
         bench = {k: str(v) for k, v in sorted((identities or {}).items())}
     profile = cfg.load_profile()
     lens = cfg.lens or profile.default_lens
-    chirp = {k: v for k, v in data["chirp"].items() if k not in _NOT_CHIRP}
-    receiver = {"laser_preset": cfg.load_laser().model_dump(mode="json"), "chirp": chirp,
+    receiver = {"laser_preset": cfg.load_laser().model_dump(mode="json"), "chirp": data["chirp"],
                 **{s: data[s] for s in _RANGE_SECTIONS if s != "chirp"}}
     instruments = _digest(bench)
     rng = Setup({"laser": cfg.laser, "receiver": _digest(receiver), "instruments": instruments})

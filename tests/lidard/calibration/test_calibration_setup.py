@@ -28,8 +28,8 @@ def test_each_part_moves_only_its_kinds_hash():
     bench = _setup(sim__seed="2")                 # another simulated bench: both kinds, named "instruments"
     assert bench["range"].hash != base["range"].hash and bench["pointing"].hash != base["pointing"].hash
     assert "instruments" in base["pointing"].differs(bench["pointing"].as_dict())
-    # what a scan sets, not the instrument: the Doppler band (ADC rate), the scan defaults, the scene
-    same = _setup(chirp__doppler_band_mps="3.0", scan__averages="4", sim__scene="scenes/empty.toml")
+    # what a scan sets, not the instrument: the max speed (ADC rate), the scan defaults, the scene
+    same = _setup(scan__max_speed_mps="3.0", scan__averages="4", sim__scene="scenes/empty.toml")
     assert same["range"].hash == base["range"].hash and same["pointing"].hash == base["pointing"].hash
 
 
