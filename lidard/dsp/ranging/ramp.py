@@ -1,0 +1,111 @@
+"""One ramp's detections through the model: joint refinement, model-order test, a hidden return.
+
+The frame DSP (:mod:`lidard.dsp.frame`) hands over a ramp's records, their windowed spectra and the
+detector's cells with their one-tone estimates. Here
+
+1. the frequencies of a ramp with several detections are refined jointly (:mod:`.tones`: no
+   estimate carries the others' leakage);
+2. every detection's cells are tested against the fitted tones (:mod:`.order`, at ``level``);
+3. where the fitted tones do not explain a peak and the ramp has a free slot, the model grows by one
+   tone: the records less the fitted tones are searched around that peak, the new tone is refined
+   jointly with the others and the test is run again. When the grown model explains the cells and
+   its tones are at least the ramp's resolution apart (one bin: c / (2 gamma T), eq. 2-3) the new
+   tone is a detection (a weak return beside a strong one that the detector's threshold missed);
+   closer than that the two cannot be told apart and the peak stays flagged unresolved.
+
+A false extra return needs the test to fail on noise (probability ``level`` per detection) and the
+grown model to pass: the rate is below ``level``. Pure numpy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..cfar import Detections
+from ..rangefft import RangeFFT, windowed_fft
+from .order import HALF_BINS, cell_noise, unresolved
+from .tones import ITERATIONS, refine_joint, subtract_tones
+
+#: how far (bins) from a peak the fitted tones do not explain a hidden return is looked for: the
+#: cells the test read, and one more
+SEARCH_BINS = HALF_BINS + 1
+#: two tones closer than this (bins of the ramp's own grid) are one unresolved peak: the ramp's
+#: range resolution (Rayleigh: the first null of its unwindowed DTFT)
+RESOLUTION_BINS = 1.0
+#: the grown model's refinement may move each tone this far (bins): a peak of two tones under a bin
+#: or two apart was estimated between them, up to a bin from either
+GROW_REACH_BINS = 1.25
+
+
+def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Detections, frac: np.ndarray, *,
+                rf: RangeFFT, window: str, level: float) -> tuple[np.ndarray, Detections]:
+    """(refined frac (P, K), the detections with ``unresolved`` set and hidden returns added).
+
+    ``ramp`` (P, L, N) the records, ``spec``/``power`` (P, L, n_bins) their windowed spectra and
+    |spec|^2, ``det`` (P, K) the detector's, ``frac`` (P, K) their signed fractional bins of the
+    spectrum grid (averaged over the records)."""
+    zp, n = rf.zero_pad, ramp.shape[-1]
+    out = np.array(frac, dtype=np.float64)
+    valid = det.valid
+    several = np.flatnonzero(np.count_nonzero(valid, axis=-1) >= 2)
+    if several.size:
+        out[several] = refine_joint(ramp[several], out[several] / zp, valid[several]) * zp
+    flags = np.zeros(valid.shape, dtype=bool)
+    judged = np.flatnonzero(valid.any(axis=-1))
+    if judged.size == 0:
+        return out, replace(det, unresolved=flags)
+    noise = cell_noise(power[judged])
+    test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
+    flags[judged] = unresolved(spec[judged], det.index[judged], out[judged], valid[judged], noise, **test)
+    det = replace(det, unresolved=flags)
+    grow = flags[judged].any(axis=-1) & ~valid[judged].all(axis=-1)
+    if grow.any():
+        out, det = _grow(ramp, spec, power, det, out, judged[grow], noise[grow], rf=rf, window=window, test=test)
+    return out, det
+
+
+def _grow(ramp, spec, power, det: Detections, frac, pix, noise, *, rf: RangeFFT, window: str, test: dict):
+    """Step 3 of the module doc on the pixels ``pix`` (each has a flagged detection and a free slot)."""
+    zp, n = rf.zero_pad, ramp.shape[-1]
+    valid = det.valid[pix]
+    f = frac[pix] / zp
+    resid = subtract_tones(ramp[pix], f, valid)
+    rs = windowed_fft(resid, rf.window_samples, rf.n_fft, "shifted" if rf.iq else "real")
+    rp = (rs.real ** 2 + rs.imag ** 2).mean(axis=1)                             # (q, n_bins)
+    slot = np.argmax(det.unresolved[pix], axis=-1)                             # the flagged peak
+    free = np.argmin(valid, axis=-1)                                           # the first empty slot
+    rows = np.arange(pix.size)
+    centre = det.index[pix, slot]
+    cells = np.clip(centre[:, None] + np.arange(-SEARCH_BINS * zp, SEARCH_BINS * zp + 1), 0, rp.shape[-1] - 1)
+    c2 = cells[rows, np.argmax(rp[rows[:, None], cells], axis=-1)]
+    f_new = f.copy()
+    f_new[rows, free] = rf.index_to_bin(c2) / zp
+    act = valid.copy()
+    act[rows, free] = True
+    f_new = refine_joint(ramp[pix], f_new, act, reach=GROW_REACH_BINS, iterations=2 * ITERATIONS)
+    apart = np.abs(f_new[rows, free][:, None] - f_new) >= RESOLUTION_BINS
+    apart = np.where(valid, apart, True).all(axis=-1)
+    index = det.index[pix].copy()
+    index[rows, free] = c2
+    still = unresolved(spec[pix], index, f_new * zp, act, noise, **test)
+    ok = apart & ~still.any(axis=-1)
+    if not ok.any():
+        return frac, det
+    p, s, c = pix[ok], free[ok], c2[ok]
+    fields = {k: getattr(det, k).copy() for k in ("index", "power", "noise", "snr_db", "valid", "harmonic",
+                                                   "unresolved", "width_bins")}
+    pw = power[p, :, c].mean(axis=-1)
+    nz = fields["noise"][p, slot[ok]]
+    fields["index"][p, s] = c
+    fields["power"][p, s] = pw
+    fields["noise"][p, s] = nz
+    fields["snr_db"][p, s] = 10 * np.log10(np.maximum(pw, 1e-300) / np.maximum(nz, 1e-300))
+    fields["valid"][p, s] = True
+    fields["harmonic"][p, s] = False
+    fields["width_bins"][p, s] = 0.0
+    fields["unresolved"][p] = False
+    frac = frac.copy()
+    frac[p] = f_new[ok] * zp
+    return frac, Detections(**fields)
