@@ -14,7 +14,7 @@ R_mn = sum_t w_t^2 exp(-j 2 pi (m - n) t / N) / sum_t w_t^2 (a property of the w
 the residual is whitened by R's Cholesky factor. With sigma^2 the noise power per cell (the median
 of the ramp's whole spectrum / ln 2: a few peaks do not move it), twice the whitened residual power
 over sigma^2 is chi-square with 2 (M - K_loc) L degrees of freedom under "these tones and white
-noise" (M = 2h + 1 cells, K_loc tones fitted there). A detection is UNRESOLVED when the statistic
+noise" (M = 2h + 1 cells, K_loc tones fitted there), less K_loc for their fitted frequencies. A detection is UNRESOLVED when the statistic
 exceeds that distribution's upper ``level`` quantile: ``level`` is the probability that a clean
 return is flagged, a stated rate, not a tuned factor.
 
@@ -107,7 +107,7 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     r = np.maximum(total - fit, 0.0)
     k_loc = near.sum(axis=1)
     stat[b, slot] = 2.0 * r / noise[b]
-    dof[b, slot] = 2.0 * (m - k_loc) * l_n
+    dof[b, slot] = 2.0 * (m - k_loc) * l_n - k_loc      # the tones' frequencies were fitted too
     resid[b, slot] = r
     energy[b, slot] = fit
     return stat, dof, resid, energy
