@@ -222,8 +222,8 @@ class FrameDsp:
                 det = replace(det, valid=det.valid & ~img)
             # the ramp's detections refined jointly (no mutual leakage bias), and the model-order test:
             # a peak the fitted tones do not explain hides a second surface (lidard.dsp.ranging)
-            frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_bins, rf=rf, window=self.window,
-                                    level=self.order_level)
+            frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_records, rf=rf, window=self.window,
+                                    level=self.order_level, pfa=self.pfa)
             out_f.append(frac * rf.delta_f)
             out_det.append(det)
         return out_f, out_det

@@ -67,16 +67,20 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     """Per detection (P, K): (2 x whitened residual / sigma^2, its degrees of freedom, the residual
     and the fitted energy, both in power units of ``spec``). ``spec`` (P, L, n_bins) complex in
     RangeFFT layout, ``index`` its detections' cells, ``frac`` their refined signed frequencies in bins
-    of the spectrum grid, ``noise`` (P,) the noise power per cell. Detections not judged: NaN."""
+    of the spectrum grid, (P, K) or per record (P, L, K) (a moving return's beat moves between the
+    records), ``noise`` (P,) the noise power per cell. Detections not judged: NaN."""
     p_n, l_n, n_bins = spec.shape
     k = index.shape[-1]
+    fr = np.broadcast_to(np.asarray(frac, dtype=np.float64)[..., None, :] if np.ndim(frac) == 2 else frac,
+                         (p_n, l_n, k))
+    f_mean = fr.mean(axis=1)
     n_fft = n_bins if iq else 2 * (n_bins - 1)
     m = 2 * HALF_BINS + 1
     stat = np.full((p_n, k), np.nan)
     dof = np.zeros((p_n, k))
     resid = np.full((p_n, k), np.nan)
     energy = np.full((p_n, k), np.nan)
-    edge = np.abs(frac) / zero_pad
+    edge = np.abs(f_mean) / zero_pad
     judged = valid & (edge >= DC_BINS) & (index - HALF_BINS >= 0) & (index + HALF_BINS <= n_bins - 1)
     if not iq:
         judged &= edge <= n_samples / 2 - DC_BINS
@@ -89,25 +93,26 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     x = spec[b[:, None, None], np.arange(l_n)[None, :, None], cells[:, None, :]]   # (q, L, m)
     # the tones in the model at these cells: every valid detection of the ramp whose main lobe
     # (+-2 bins for Hann; +-(HALF_BINS + 3) is generous for every window here) reaches them
-    f_all = np.where(valid[b], frac[b], np.nan)                               # (q, K)
-    near = np.abs(f_all - frac[b, slot][:, None]) / zero_pad <= HALF_BINS + 3
-    cols = _window_dtft_bins(window, n_samples, (kbin[:, None, :] - np.nan_to_num(f_all)[:, :, None]) / zero_pad)
-    cols = np.where(near[:, :, None], cols, 0.0)                              # (q, K, m)
+    near = valid[b] & (np.abs(f_mean[b] - f_mean[b, slot][:, None]) / zero_pad <= HALF_BINS + 3)   # (q, K)
+    f_all = np.where(near[:, None, :], fr[b], 0.0)                            # (q, L, K)
+    cols = _window_dtft_bins(window, n_samples, (kbin[:, None, None, :] - f_all[..., None]) / zero_pad)
+    cols = np.where(near[:, None, :, None], cols, 0.0)                        # (q, L, K, m)
     white = _whitener(window, n_samples, m)
     xw = np.einsum("ij,qlj->qli", white, x)
-    cw = np.einsum("ij,qkj->qki", white, cols)
-    # least squares in the whitened cells: amplitudes per record, the absent tones' columns zero
-    g = np.einsum("qki,qpi->qkp", np.conj(cw), cw)
-    eye = np.eye(k)[None]
-    g = np.where(near[:, :, None] & near[:, None, :], g, eye)
-    rhs = np.einsum("qki,qli->qkl", np.conj(cw), xw)
-    amp = np.linalg.solve(g, rhs)                                             # (q, K, L)
-    fit = np.real(np.einsum("qkl,qkl->q", np.conj(rhs), amp))
+    cw = np.einsum("ij,qlkj->qlki", white, cols)
+    # least squares in the whitened cells, record by record: the absent tones' columns zero
+    g = np.einsum("qlki,qlpi->qlkp", np.conj(cw), cw)
+    on = near[:, None, :, None] & near[:, None, None, :]
+    g = np.where(on, g, np.eye(k)[None, None])
+    rhs = np.einsum("qlki,qli->qlk", np.conj(cw), xw)
+    amp = np.linalg.solve(g, rhs[..., None])[..., 0]                          # (q, L, K)
+    fit = np.real(np.einsum("qlk,qlk->q", np.conj(rhs), amp))
     total = np.sum(np.abs(xw) ** 2, axis=(1, 2))
     r = np.maximum(total - fit, 0.0)
     k_loc = near.sum(axis=1)
     stat[b, slot] = 2.0 * r / noise[b]
-    dof[b, slot] = 2.0 * (m - k_loc) * l_n - k_loc      # the tones' frequencies were fitted too
+    # each record's amplitudes and (when given per record) frequencies were fitted
+    dof[b, slot] = (2.0 * (m - k_loc) - k_loc) * l_n if np.ndim(frac) == 3 else 2.0 * (m - k_loc) * l_n - k_loc
     resid[b, slot] = r
     energy[b, slot] = fit
     return stat, dof, resid, energy

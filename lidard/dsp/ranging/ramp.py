@@ -11,7 +11,9 @@ detector's cells with their one-tone estimates. Here
    jointly with the others and the test is run again. When the grown model explains the cells and
    its tones are at least the ramp's resolution apart (one bin: c / (2 gamma T), eq. 2-3) the new
    tone is a detection (a weak return beside a strong one that the detector's threshold missed);
-   closer than that the two cannot be told apart and the peak stays flagged unresolved.
+   closer than that the two cannot be told apart and the peak stays flagged unresolved. The new
+   tone must also pass the detector's false-alarm rate ``pfa`` on its own: its cell's power, the
+   fitted tones taken out, against the noise-only chi-square law of L averaged records.
 
 A false extra return needs the test to fail on noise (probability ``level`` per detection) and the
 grown model to pass: the rate is below ``level``. Pure numpy.
@@ -22,6 +24,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.stats import chi2
 
 from ..cfar import Detections
 from ..rangefft import RangeFFT, windowed_fft
@@ -43,31 +46,43 @@ GROW_REACH_BINS = 1.25
 
 
 def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Detections, frac: np.ndarray, *,
-                rf: RangeFFT, window: str, level: float) -> tuple[np.ndarray, Detections]:
-    """(refined frac (P, K), the detections with ``unresolved`` set and hidden returns added).
+                rf: RangeFFT, window: str, level: float, pfa: float) -> tuple[np.ndarray, Detections]:
+    """(refined frac (P, K), mean over the records; the detections with ``unresolved`` set and hidden
+    returns added).
 
     ``ramp`` (P, L, N) the records, ``spec``/``power`` (P, L, n_bins) their windowed spectra and
-    |spec|^2, ``det`` (P, K) the detector's, ``frac`` (P, K) their signed fractional bins of the
-    spectrum grid (averaged over the records)."""
-    zp, n = rf.zero_pad, ramp.shape[-1]
+    |spec|^2, ``det`` (P, K) the detector's, ``frac`` (P, L, K) each record's one-tone estimates
+    (signed fractional bins of the spectrum grid). Frequencies are fitted record by record: a moving
+    return's beat moves between them (5 m/s: a tenth of a bin per record at the bench's 80 us ramps)."""
+    zp, (p_n, l_n, n) = rf.zero_pad, ramp.shape
+    k = det.valid.shape[-1]
     out = np.array(frac, dtype=np.float64)
     valid = det.valid
     several = np.flatnonzero(np.count_nonzero(valid, axis=-1) >= 2)
     if several.size:
-        out[several] = refine_joint(ramp[several], out[several] / zp, valid[several]) * zp
+        out[several] = _joint(ramp[several], out[several] / zp, valid[several]) * zp
     flags = np.zeros(valid.shape, dtype=bool)
     judged = np.flatnonzero(valid.any(axis=-1))
     if judged.size == 0:
-        return out, replace(det, unresolved=flags)
+        return out.mean(axis=1), replace(det, unresolved=flags)
     noise = cell_noise(power[judged])
     test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
     flags[judged] = unresolved(spec[judged], det.index[judged], out[judged], valid[judged], noise, **test)
-    flags |= _too_close(out / zp, valid)
+    flags |= _too_close(out.mean(axis=1) / zp, valid)
     det = replace(det, unresolved=flags)
     grow = flags[judged].any(axis=-1) & ~valid[judged].all(axis=-1)
     if grow.any():
-        out, det = _grow(ramp, spec, power, det, out, judged[grow], noise[grow], rf=rf, window=window, test=test)
-    return out, det
+        out, det = _grow(ramp, spec, power, det, out, judged[grow], noise[grow], rf=rf, window=window, test=test,
+                         pfa=pfa)
+    return out.mean(axis=1), det
+
+
+def _joint(x: np.ndarray, f: np.ndarray, active: np.ndarray, **kw) -> np.ndarray:
+    """:func:`refine_joint` record by record: ``x`` (P, L, N), ``f`` (P, L, K) in bins, ``active`` (P, K)."""
+    p_n, l_n, n = x.shape
+    k = f.shape[-1]
+    got = refine_joint(x.reshape(-1, 1, n), f.reshape(-1, k), np.repeat(active, l_n, axis=0), **kw)
+    return got.reshape(p_n, l_n, k)
 
 
 def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -77,13 +92,17 @@ def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (both & (d < RESOLUTION_BINS)).any(axis=-1)
 
 
-def _grow(ramp, spec, power, det: Detections, frac, pix, noise, *, rf: RangeFFT, window: str, test: dict):
-    """Step 3 of the module doc on the pixels ``pix`` (each has a flagged detection and a free slot)."""
-    zp, n = rf.zero_pad, ramp.shape[-1]
+def _grow(ramp, spec, power, det: Detections, frac, pix, noise, *, rf: RangeFFT, window: str, test: dict,
+          pfa: float):
+    """Step 3 of the module doc on the pixels ``pix`` (each has a flagged detection and a free slot);
+    ``frac`` (P, L, K) per record."""
+    zp, (_, l_n, n) = rf.zero_pad, ramp.shape
     valid = det.valid[pix]
-    f = frac[pix] / zp
-    resid = subtract_tones(ramp[pix], f, valid)
-    rs = windowed_fft(resid, rf.window_samples, rf.n_fft, "shifted" if rf.iq else "real")
+    k = valid.shape[-1]
+    f = frac[pix] / zp                                                         # (q, L, K)
+    resid = subtract_tones(ramp[pix].reshape(-1, 1, n), f.reshape(-1, k), np.repeat(valid, l_n, axis=0))
+    w = rf.window_samples
+    rs = windowed_fft(resid.reshape(pix.size, l_n, n), w / w.sum(), rf.n_fft, "shifted" if rf.iq else "real")
     rp = (rs.real ** 2 + rs.imag ** 2).mean(axis=1)                             # (q, n_bins)
     slot = np.argmax(det.unresolved[pix], axis=-1)                             # the flagged peak
     free = np.argmin(valid, axis=-1)                                           # the first empty slot
@@ -91,22 +110,26 @@ def _grow(ramp, spec, power, det: Detections, frac, pix, noise, *, rf: RangeFFT,
     centre = det.index[pix, slot]
     cells = np.clip(centre[:, None] + np.arange(-SEARCH_BINS * zp, SEARCH_BINS * zp + 1), 0, rp.shape[-1] - 1)
     c2 = cells[rows, np.argmax(rp[rows[:, None], cells], axis=-1)]
+    # the new tone is a detection by the detector's own rule: its cell's power (the others taken out),
+    # averaged over the L records, passes the noise-only chi-square(2L) level pfa
+    strong = rp[rows, c2] > noise * chi2.isf(pfa, 2 * l_n) / (2 * l_n)
     f_new = f.copy()
-    f_new[rows, free] = rf.index_to_bin(c2) / zp
+    f_new[rows, :, free] = (rf.index_to_bin(c2) / zp)[:, None]
     act = valid.copy()
     act[rows, free] = True
-    f_new = refine_joint(ramp[pix], f_new, act, reach=GROW_REACH_BINS, iterations=2 * ITERATIONS)
-    apart = np.abs(f_new[rows, free][:, None] - f_new) >= RESOLUTION_BINS
+    f_new = _joint(ramp[pix], f_new, act, reach=GROW_REACH_BINS, iterations=2 * ITERATIONS)
+    fm = f_new.mean(axis=1)
+    apart = np.abs(fm[rows, free][:, None] - fm) >= RESOLUTION_BINS
     apart = np.where(valid, apart, True).all(axis=-1)
     index = det.index[pix].copy()
     index[rows, free] = c2
     still = unresolved(spec[pix], index, f_new * zp, act, noise, **test)
-    ok = apart & ~still.any(axis=-1)
+    ok = strong & apart & ~still.any(axis=-1)
     if not ok.any():
         return frac, det
     p, s, c = pix[ok], free[ok], c2[ok]
-    fields = {k: getattr(det, k).copy() for k in ("index", "power", "noise", "snr_db", "valid", "harmonic",
-                                                   "unresolved", "width_bins")}
+    fields = {name: getattr(det, name).copy() for name in ("index", "power", "noise", "snr_db", "valid", "harmonic",
+                                                           "unresolved", "width_bins")}
     pw = power[p, :, c].mean(axis=-1)
     nz = fields["noise"][p, slot[ok]]
     fields["index"][p, s] = c
