@@ -145,3 +145,27 @@ def cell_noise(power: np.ndarray) -> np.ndarray:
     """Mean noise power per cell of each pixel (P, L, n_bins) -> (P,): the median of each record's
     whole spectrum (exponential cells: median = ln 2 x mean), averaged over the records."""
     return (median_last(power) / np.log(2.0)).mean(axis=-1)
+
+
+def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid: np.ndarray, *, half: int,
+                  window: str, n_samples: int, zero_pad: int = 1, iq: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(cells (P, 2 half + 1), their power less the fitted tones', averaged over the records): the
+    windowed spectrum around ``centre`` (P,) cells with every valid tone of ``frac`` (P, L, K) fitted
+    by least squares (amplitude per record) and taken out. Where a strong return's skirt hides a weak
+    one from the detector, the weak one stands out here."""
+    p_n, l_n, n_bins = spec.shape
+    n_fft = n_bins if iq else 2 * (n_bins - 1)
+    cells = np.clip(centre[:, None] + np.arange(-half, half + 1), 0, n_bins - 1)       # (P, m)
+    kbin = (cells - n_fft // 2) if iq else cells
+    x = spec[np.arange(p_n)[:, None, None], np.arange(l_n)[None, :, None], cells[:, None, :]]   # (P, L, m)
+    f = np.where(valid[:, None, :], frac, 0.0)
+    cols = _window_dtft_bins(window, n_samples, (kbin[:, None, None, :] - f[..., None]) / zero_pad)
+    cols = np.where(valid[:, None, :, None], cols, 0.0)                                 # (P, L, K, m)
+    g = np.einsum("plki,plqi->plkq", np.conj(cols), cols)
+    k = valid.shape[-1]
+    on = valid[:, None, :, None] & valid[:, None, None, :]
+    g = np.where(on, g, np.eye(k)[None, None]) + 1e-12 * np.eye(k)[None, None] * np.abs(g).max()
+    rhs = np.einsum("plki,pli->plk", np.conj(cols), x)
+    amp = np.linalg.solve(g, rhs[..., None])[..., 0]
+    r = x - np.einsum("plk,plki->pli", amp, cols)
+    return cells, (r.real ** 2 + r.imag ** 2).mean(axis=1)

@@ -28,7 +28,7 @@ from scipy.stats import chi2
 
 from ..cfar import Detections
 from ..rangefft import RangeFFT, windowed_fft
-from .order import HALF_BINS, cell_noise, unresolved
+from .order import HALF_BINS, MODEL_ERROR, cell_noise, residual_near, unresolved
 from .tones import ITERATIONS, refine_joint, subtract_tones
 
 #: how far (bins) from a peak the fitted tones do not explain a hidden return is looked for: the
@@ -43,6 +43,10 @@ RESOLUTION_BINS = 1.25
 #: the grown model's refinement may move each tone this far (bins): a peak of two tones under a bin
 #: or two apart was estimated between them, up to a bin from either
 GROW_REACH_BINS = 1.25
+#: a return this close (bins) to a much stronger one sits on its skirt and in the detector's reference
+#: cells (OS-CFAR's loss beside a strong peak): the cells around each detection, the fitted tones taken
+#: out, are searched again at the detector's pfa
+SKIRT_BINS = 8
 
 
 def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Detections, frac: np.ndarray, *,
@@ -70,10 +74,26 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     flags[judged] = unresolved(spec[judged], det.index[judged], out[judged], valid[judged], noise, **test)
     flags |= _too_close(out.mean(axis=1) / zp, valid)
     det = replace(det, unresolved=flags)
-    grow = flags[judged].any(axis=-1) & ~valid[judged].all(axis=-1)
+    free = ~valid[judged].all(axis=-1)
+    grow = flags[judged].any(axis=-1) & free
     if grow.any():
-        out, det = _grow(ramp, spec, power, det, out, judged[grow], noise[grow], rf=rf, window=window, test=test,
-                         pfa=pfa)
+        pix = judged[grow]
+        slot = np.argmax(det.unresolved[pix], axis=-1)
+        out, det = _grow(ramp, spec, power, det, out, pix, noise[grow], det.index[pix, slot], SEARCH_BINS * zp, slot,
+                         rf=rf, window=window, test=test, pfa=pfa)
+    # a return on a stronger one's skirt that the detector missed: the cells around the strongest
+    # detection, its fitted tones taken out, at the detector's pfa per cell
+    skirt = free & ~grow
+    if skirt.any():
+        pix, nz = judged[skirt], noise[skirt]
+        cells, rp = residual_near(spec[pix], det.index[pix, 0], out[pix], valid[pix], half=SKIRT_BINS * zp,
+                                  window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
+        best = np.argmax(rp, axis=-1)
+        hit = rp[np.arange(pix.size), best] > _floor(nz, det.power[pix, 0], pfa, l_n)
+        if hit.any():
+            c2 = cells[np.arange(pix.size), best][hit]
+            out, det = _grow(ramp, spec, power, det, out, pix[hit], nz[hit], c2, zp, np.zeros(hit.sum(), np.int64),
+                             rf=rf, window=window, test=test, pfa=pfa)
     return out.mean(axis=1), det
 
 
@@ -85,6 +105,13 @@ def _joint(x: np.ndarray, f: np.ndarray, active: np.ndarray, **kw) -> np.ndarray
     return got.reshape(p_n, l_n, k)
 
 
+def _floor(noise: np.ndarray, peak: np.ndarray, pfa: float, l_n: int) -> np.ndarray:
+    """The power a tone found in the residual must pass: the noise-only chi-square(2L) level ``pfa`` of
+    a cell averaged over L records, and the misfit the model leaves on the ramp's strongest peak
+    (MODEL_ERROR of its power: phase noise and linearization residue are not returns)."""
+    return np.maximum(noise * chi2.isf(pfa, 2 * l_n) / (2 * l_n), MODEL_ERROR * peak)
+
+
 def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Detections (P, K) with another of their ramp nearer than RESOLUTION_BINS (``f`` in bins)."""
     d = np.abs(f[:, :, None] - f[:, None, :])
@@ -92,10 +119,11 @@ def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (both & (d < RESOLUTION_BINS)).any(axis=-1)
 
 
-def _grow(ramp, spec, power, det: Detections, frac, pix, noise, *, rf: RangeFFT, window: str, test: dict,
-          pfa: float):
-    """Step 3 of the module doc on the pixels ``pix`` (each has a flagged detection and a free slot);
-    ``frac`` (P, L, K) per record."""
+def _grow(ramp, spec, power, det: Detections, frac, pix, noise, centre, half, slot, *, rf: RangeFFT, window: str,
+          test: dict, pfa: float):
+    """Step 3 of the module doc on the pixels ``pix`` (each has a free slot): a tone searched within
+    ``half`` cells of ``centre`` in the records less the fitted tones; ``slot`` the detection whose
+    noise estimate it takes; ``frac`` (P, L, K) per record."""
     zp, (_, l_n, n) = rf.zero_pad, ramp.shape
     valid = det.valid[pix]
     k = valid.shape[-1]
@@ -104,15 +132,13 @@ def _grow(ramp, spec, power, det: Detections, frac, pix, noise, *, rf: RangeFFT,
     w = rf.window_samples
     rs = windowed_fft(resid.reshape(pix.size, l_n, n), w / w.sum(), rf.n_fft, "shifted" if rf.iq else "real")
     rp = (rs.real ** 2 + rs.imag ** 2).mean(axis=1)                             # (q, n_bins)
-    slot = np.argmax(det.unresolved[pix], axis=-1)                             # the flagged peak
     free = np.argmin(valid, axis=-1)                                           # the first empty slot
     rows = np.arange(pix.size)
-    centre = det.index[pix, slot]
-    cells = np.clip(centre[:, None] + np.arange(-SEARCH_BINS * zp, SEARCH_BINS * zp + 1), 0, rp.shape[-1] - 1)
+    cells = np.clip(centre[:, None] + np.arange(-half, half + 1), 0, rp.shape[-1] - 1)
     c2 = cells[rows, np.argmax(rp[rows[:, None], cells], axis=-1)]
-    # the new tone is a detection by the detector's own rule: its cell's power (the others taken out),
-    # averaged over the L records, passes the noise-only chi-square(2L) level pfa
-    strong = rp[rows, c2] > noise * chi2.isf(pfa, 2 * l_n) / (2 * l_n)
+    # the new tone is a detection by the detector's own rule (its cell's power, the others taken out)
+    # and more than the strongest tone's model error (_floor)
+    strong = rp[rows, c2] > _floor(noise, det.power[pix].max(axis=-1), pfa, l_n)
     f_new = f.copy()
     f_new[rows, :, free] = (rf.index_to_bin(c2) / zp)[:, None]
     act = valid.copy()
@@ -139,7 +165,7 @@ def _grow(ramp, spec, power, det: Detections, frac, pix, noise, *, rf: RangeFFT,
     fields["valid"][p, s] = True
     fields["harmonic"][p, s] = False
     fields["width_bins"][p, s] = 0.0
-    fields["unresolved"][p] = False
+    fields["unresolved"][p] = False     # the grown model explains every peak's cells
     frac = frac.copy()
     frac[p] = f_new[ok] * zp
     return frac, Detections(**fields)
