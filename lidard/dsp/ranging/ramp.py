@@ -69,9 +69,15 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     judged = np.flatnonzero(valid.any(axis=-1))
     if judged.size == 0:
         return out.mean(axis=1), replace(det, unresolved=flags)
-    noise = cell_noise(power[judged])
+    noise = cell_noise(power if judged.size == p_n else power[judged])
     test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
-    flags[judged] = unresolved(spec[judged], det.index[judged], out[judged], valid[judged], noise, **test)
+    # most ramps hold one detection in slot 0: those are tested with that slot alone (half the work)
+    lone = valid[judged, 0] & (np.count_nonzero(valid[judged], axis=-1) == 1)
+    for sel, ks in ((lone, slice(0, 1)), (~lone, slice(None))):
+        if sel.any():
+            pix = judged[sel]
+            flags[pix, ks] = unresolved(spec, det.index[pix, ks], out[pix][..., ks], valid[pix, ks], noise[sel],
+                                        rows=pix, **test)
     flags |= _too_close(out.mean(axis=1) / zp, valid)
     det = replace(det, unresolved=flags)
     free = ~valid[judged].all(axis=-1)
@@ -86,8 +92,10 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     skirt = free & ~grow
     if skirt.any():
         pix, nz = judged[skirt], noise[skirt]
-        cells, rp = residual_near(spec[pix], det.index[pix, 0], out[pix], valid[pix], half=SKIRT_BINS * zp,
-                                  window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
+        ks = slice(0, max(1, int(np.count_nonzero(valid[pix], axis=-1).max()) if k > 1 else 1))
+        ks = slice(None) if not np.all(valid[pix, ks].sum(axis=-1) == valid[pix].sum(axis=-1)) else ks
+        cells, rp = residual_near(spec, det.index[pix, 0], out[pix][..., ks], valid[pix, ks], half=SKIRT_BINS * zp,
+                                  window=window, n_samples=n, zero_pad=zp, iq=rf.iq, rows=pix)
         best = np.argmax(rp, axis=-1)
         hit = rp[np.arange(pix.size), best] > _floor(nz, det.power[pix, 0], pfa, l_n)
         if hit.any():
@@ -149,7 +157,7 @@ def _grow(ramp, spec, power, det: Detections, frac, pix, noise, centre, half, sl
     apart = np.where(valid, apart, True).all(axis=-1)
     index = det.index[pix].copy()
     index[rows, free] = c2
-    still = unresolved(spec[pix], index, f_new * zp, act, noise, **test)
+    still = unresolved(spec, index, f_new * zp, act, noise, rows=pix, **test)
     ok = strong & apart & ~still.any(axis=-1)
     if not ok.any():
         return frac, det
