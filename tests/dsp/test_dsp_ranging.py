@@ -157,3 +157,23 @@ def test_a_weak_return_beside_a_strong_one_is_found_by_the_grown_model():
     assert np.mean(ok.sum(axis=1) == 2) >= 0.95
     near = np.where(ok & (np.abs(res.range_m - 5.0) < 0.5 * cell), res.range_m, np.nan)
     assert np.nanmax(np.abs(near - 5.0)) < 3e-3
+
+
+def test_joint_refinement_of_complex_tones_reaches_the_two_tone_bound():
+    # an I/Q receiver's ramps: complex tones, signed frequencies (one of them negative)
+    rng = np.random.default_rng(6)
+    n, n_pix, sigma = 256, 400, 1.0
+    f1 = -20.3 + rng.uniform(0, 1, n_pix)
+    f2 = f1 + 2.5
+    t = np.arange(n)
+    ph = rng.uniform(0, 2 * np.pi, (n_pix, 1, 2))
+    x = (np.exp(1j * (2 * np.pi * f1[:, None, None] * t / n + ph[..., :1]))
+         + np.exp(1j * (2 * np.pi * f2[:, None, None] * t / n + ph[..., 1:])))
+    x = x + sigma * (rng.standard_normal(x.shape) + 1j * rng.standard_normal(x.shape))
+    start = np.stack([f1, f2], -1) + rng.uniform(-0.2, 0.2, (n_pix, 2))
+    got = refine_joint(x, start, np.ones((n_pix, 2), bool))
+    err = got - np.stack([f1, f2], -1)
+    bound = np.mean([crlb_tones_freq_var([f1[i], f2[i]], np.ones((1, 2)), ph[i], n, sigma, real=False)
+                     for i in range(40)], axis=0)
+    assert np.all(np.sqrt(np.mean(err ** 2, axis=0)) < 1.15 * np.sqrt(bound))
+    assert np.all(np.abs(err.mean(axis=0)) < 3 * np.sqrt(bound / n_pix))
