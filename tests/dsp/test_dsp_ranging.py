@@ -177,3 +177,21 @@ def test_joint_refinement_of_complex_tones_reaches_the_two_tone_bound():
                      for i in range(40)], axis=0)
     assert np.all(np.sqrt(np.mean(err ** 2, axis=0)) < 1.15 * np.sqrt(bound))
     assert np.all(np.abs(err.mean(axis=0)) < 3 * np.sqrt(bound / n_pix))
+
+
+def test_order_level_is_the_rate_at_which_clean_returns_are_flagged():
+    # one return per pixel at 20 dB (the model-error floor out of play): each ramp is flagged with
+    # probability order_level, a point when either ramp is: 1 - (1 - level)^2
+    import dataclasses
+
+    with pytest.raises(ValueError, match="order_level"):
+        dataclasses.replace(DSP, order_level=1.0)
+    rng = np.random.default_rng(12)
+    d = rng.uniform(0.8, 1.8, 600)
+    for level in (0.05, 0.3):
+        dsp = dataclasses.replace(DSP, order_level=level)
+        res = _pixels(d[:, None], np.ones((600, 1)), 20.0, seed=13, dsp=dsp)
+        first = res.present & (np.cumsum(res.present, axis=1) == 1)
+        rate = np.mean((res.flags[first] & PointFlag.UNRESOLVED) != 0)
+        want = 1 - (1 - level) ** 2
+        assert abs(rate - want) < 4 * np.sqrt(want * (1 - want) / first.sum()) + 0.02, (level, rate)
