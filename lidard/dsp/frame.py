@@ -10,7 +10,10 @@ A segment is one triangle period captured after one trigger: the up ramp then th
 3. detects up to ``max_returns`` peaks per ramp with OS-CFAR at the configured false-alarm
    probability, inside the range gate widened by the Doppler allowance,
 4. refines each detection to a fractional bin on every segment with the selected sub-bin estimator
-   and averages those frequencies (the dissertation averages 10 distance measurements per pixel),
+   and averages those frequencies (the dissertation averages 10 distance measurements per pixel);
+   a ramp's several detections are refined jointly and every detection is tested against the fitted
+   tones (:mod:`lidard.dsp.ranging`: no mutual leakage bias; ``unresolved`` by a model-order test at
+   ``order_level``; a return hidden beside a stronger one is added),
 5. pairs up- and down-ramp peaks (eqs. 2-6, 2-7): range, radial velocity (positive receding),
    validity (folding, harmonic ghosts, unresolved peaks are flagged, not reported as clean points).
    With a three-segment chirp (``cw_samples`` > 0: the record holds a constant-frequency segment after
