@@ -39,7 +39,7 @@ SEPS = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
 SNRS = (20.0, 30.0, 40.0)
 
 
-HEADER = """# Two returns a few range cells apart: the joint model (lidard/dsp/ranging)
+HEADER = """## Two returns a few range cells apart: the joint model (lidard/dsp/ranging)
 
 Produced by `python benchmarks/resolution_table.py --out docs/measured/25_joint_model.md` (2-core Xeon,
 shared; load average {load:.1f} at the end; {cpu:.0f} s of CPU). Pixels drawn from the tone model
@@ -51,7 +51,7 @@ return recedes at 1 m/s. Both valid = each return has a valid point within half 
 RMSE and bias over those points; the two-tone CRLB from lidard.dsp.crlb.crlb_tones_freq_var (both
 ramps); RMSE / CRLB the larger of the two returns'. 200 pixels per row."""
 
-FP_TEXT = """## Noise-only pixels
+FP_TEXT = """### Noise-only pixels
 
 White noise through the same FrameDsp at two pfa settings; a gate cell is a bin of the searched band
 (FrameDsp.bin_range). `scan.pfa` is the per-ramp, per-cell false-alarm probability of the detector
@@ -62,7 +62,7 @@ report of issue 25). The detector itself: its alarms per ramp and gate cell agai
 correlates neighbouring cells: about 2x at 1e-4, lidard/dsp/cfar.py; at 1e-3 the two slots per ramp
 cap it)."""
 
-SCENES_TEXT = """## The issue's scenes on the simulated bench
+SCENES_TEXT = """### The issue's scenes on the simulated bench
 
 Nominal bench (tolerances off), linearized, 16 x 16 ROI at 1 m (192 pixels), 2 m gate: a glass pane
 (albedo 0.5, transmission 0.5; 0.125 for the faint one, 12 dB under) in front of a retro-reflective
