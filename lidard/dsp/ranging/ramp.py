@@ -24,11 +24,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.stats import chi2
 
 from ..cfar import Detections
 from ..rangefft import RangeFFT, windowed_fft
-from .order import HALF_BINS, MODEL_ERROR, cell_noise, residual_near, unresolved
+from .order import HALF_BINS, MODEL_ERROR, cell_noise, chi2_isf, residual_near, unresolved
 from .tones import ITERATIONS, refine_joint, subtract_tones
 
 #: how far (bins) from a peak the fitted tones do not explain a hidden return is looked for: the
@@ -117,7 +116,7 @@ def _floor(noise: np.ndarray, peak: np.ndarray, pfa: float, l_n: int) -> np.ndar
     """The power a tone found in the residual must pass: the noise-only chi-square(2L) level ``pfa`` of
     a cell averaged over L records, and the misfit the model leaves on the ramp's strongest peak
     (MODEL_ERROR of its power: phase noise and linearization residue are not returns)."""
-    return np.maximum(noise * chi2.isf(pfa, 2 * l_n) / (2 * l_n), MODEL_ERROR * peak)
+    return np.maximum(noise * chi2_isf(pfa, 2 * l_n) / (2 * l_n), MODEL_ERROR * peak)
 
 
 def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
