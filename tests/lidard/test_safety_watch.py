@@ -87,12 +87,18 @@ class _Flags:
 class _ScriptedController:
     """Flags from a list (one per read); records the commands in order."""
 
-    def __init__(self, flags):
+    def __init__(self, flags, hold_from: int | None = None):
         self._flags = list(flags)
         self.calls: list = []
         self.read = threading.Event()
+        # reads from number ``hold_from`` (0-based) on wait for ``go``: the test decides when the watch
+        # may see them (a watch thread spinning on a fake clock would otherwise race the caller)
+        self.hold_from, self.go, self._reads = hold_from, threading.Event(), 0
 
     def flags(self):
+        if self.hold_from is not None and self._reads >= self.hold_from:
+            assert self.go.wait(WAIT_S), "the test never released the held flag read"
+        self._reads += 1
         f = self._flags.pop(0) if len(self._flags) > 1 else self._flags[0]
         self.calls.append("flags")
         self.read.set()
@@ -132,9 +138,10 @@ def _monitor(ctrl, period_s=0.005):
 
 
 def test_the_watch_trips_once_outputs_off_first_then_check_answers_its_reason():
-    ctrl = _ScriptedController([_Flags(), _Flags(), _Flags(interlock_closed=False)])
+    ctrl = _ScriptedController([_Flags(), _Flags(), _Flags(interlock_closed=False)], hold_from=2)
     mon = _monitor(ctrl)
-    mon.bring_up()
+    mon.bring_up()                     # the watch's third read (the open interlock) waits for this
+    ctrl.go.set()
     assert mon.trip_event.wait(WAIT_S)
     assert mon.tripped["by"] == "watch"
     first_off = ctrl.calls.index(("laser", False))
