@@ -9,13 +9,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import calibrate, calibration, control, devices, faults, optics, raw, scan, scans, selftest, sweep
+from . import calibrate, calibration, control, devices, faults, optics, raw, scan, scans, selftest, stream, sweep
 from .base import Parser, run
 
 # (module, registering function) in the order ``lidarctl --help`` lists them
 GROUPS = ((scan, "add_parser"), (devices, "add_parsers"), (scans, "add_parser"), (control, "add_parser"),
           (faults, "add_parser"), (calibration, "add_parser"), (calibrate, "add_parser"), (selftest, "add_parser"),
-          (optics, "add_parsers"), (raw, "add_parsers"), (sweep, "add_parser"))
+          (optics, "add_parsers"), (raw, "add_parsers"), (sweep, "add_parser"), (stream, "add_parser"))
 
 DESCRIPTION = """\
 Control and inspect an FPSA FMCW LiDAR through its daemon (lidard), or run it on an embedded

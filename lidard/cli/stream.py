@@ -1,0 +1,112 @@
+"""``lidarctl stream --sim``: frames back to back on an embedded simulated bench (lidard.jobs.stream_job).
+
+``--frames N`` or until stopped: Ctrl-C or SIGTERM ends the frame in progress, keeps it (partial)
+and every finished frame, and exits 130. ``--out DIR/`` writes one file per frame (``--format``) with
+its JSON sidecar; ``--out FILE.mcap`` one message per frame. ``--pattern track --frame-rate HZ``
+plans each frame from the last ones (lidard.tracking).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+
+from . import base, output
+from .base import CliError, Interrupted
+from .client import daemon_opts, refuse_sim_only
+from .scan import _range
+
+PATTERNS = ("raster", "serpentine", "roi", "track")
+
+
+def add_parser(sub) -> None:
+    sp = sub.add_parser("stream", help="run frames back to back (--sim: in process)",
+                        description="Run a stream of frames: one bring-up, frames back to back, a pattern "
+                                    "per frame (track: planned from the last frames).",
+                        formatter_class=base.HelpFormatter)
+    daemon_opts(sp, sim=True)
+    sp.add_argument("--scene", default=None, metavar="FILE.toml", help="only with --sim: scene TOML")
+    sp.add_argument("--pattern", choices=PATTERNS, default="raster", help="frame pattern (default raster)")
+    sp.add_argument("--rows", default=None, metavar="A:B", help="FPSA rows A <= row < B")
+    sp.add_argument("--cols", default=None, metavar="A:B", help="FPSA columns A <= col < B")
+    sp.add_argument("--frames", type=int, default=None, metavar="N", help="stop after N frames (default: until stopped)")
+    sp.add_argument("--frame-rate", type=float, default=None, metavar="HZ",
+                    help="track: the frame rate the pixel budget of every frame is planned for (default 10)")
+    sp.add_argument("--max-range", type=float, default=None, metavar="M", help="range gate in metres")
+    sp.add_argument("--averages", type=int, default=None, metavar="N", help="chirps averaged per pixel")
+    sp.add_argument("--format", default="ply", choices=("ply", "las", "npz", "pcd"),
+                    help="per-frame file format of --out DIR/ (default ply)")
+    sp.add_argument("--out", default=None, metavar="DIR/|FILE.mcap",
+                    help="a directory: one file per frame with its .json sidecar; FILE.mcap: one message per frame")
+    sp.set_defaults(fn=cmd_stream)
+
+
+def _spec(args, cfg):
+    from ..instrument.types import ScanRequest
+    from ..jobs.stream_job import StreamSpec
+    req = ScanRequest(pattern=args.pattern, rows=tuple(_range(args.rows, "rows")) if args.rows else None,
+                      cols=tuple(_range(args.cols, "cols")) if args.cols else None,
+                      averages=args.averages or cfg.scan.averages,
+                      max_range_m=args.max_range or cfg.scan.max_range_m, formats=(args.format,))
+    if args.pattern == "roi" and not (args.rows or args.cols):
+        raise CliError("--pattern roi: give --rows and/or --cols")
+    if args.frame_rate is not None and args.pattern != "track":
+        raise CliError("--frame-rate: only --pattern track plans its frames to a frame rate")
+    spec = StreamSpec(req, frames=args.frames, out=args.out,
+                      frame_rate_hz=args.frame_rate if args.pattern == "track" else None)
+    if args.pattern == "track" and spec.frame_rate_hz is None:
+        spec.frame_rate_hz = 10.0
+    try:
+        spec.check()
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    return spec
+
+
+def cmd_stream(args) -> int:
+    from ..jobs.stream_job import StreamJob
+    from .embedded import embedded, resolve, sim_config
+    if not args.sim:
+        raise CliError("lidarctl stream runs on an embedded simulated bench: add --sim")
+    refuse_sim_only(args, "--scene", "--config", "--data-dir", "--no-cal-cache")
+    cfg = sim_config(args)
+    spec = _spec(args, cfg)
+    job = StreamJob(spec)
+    interrupted = [False]
+    prev = None
+    if threading.current_thread() is threading.main_thread():
+        def on_term(signum, frame):
+            interrupted[0] = True
+            job.cancel.set()
+        prev = signal.signal(signal.SIGTERM, on_term)
+    job.on_frame = lambda f: print(f"frame {f.index}: {f.pixels_scanned}/{len(f.pixels)} pixels, "
+                                   f"{int((f.points['valid'] == 1).sum())} valid points, start {f.start_s:.3f} s, "
+                                   f"{f.hardware_time_s * 1e3:.1f} ms", file=sys.stderr)
+    try:
+        with embedded(args, cfg, scene_path=resolve(args.scene)) as (worker, store, inst):
+            fut = worker.submit_task(lambda: job.run(worker))
+            while True:
+                try:
+                    result = fut.result()
+                    break
+                except KeyboardInterrupt:
+                    interrupted[0] = True
+                    job.cancel.set()
+                except Exception:
+                    result = None
+                    break
+    finally:
+        if prev is not None:
+            signal.signal(signal.SIGTERM, prev)
+    st = job.status()
+    if args.json:
+        output.emit_json({**st, "frames": job.frames, "result": result, "interrupted": interrupted[0]})
+    else:
+        print(f"stream {job.id}: {st['state']}, {st['frames_done']} frames"
+              + (f", written to {spec.out}" if spec.out else "") + (f" ({st['stop_reason']})" if st["stop_reason"] else ""))
+    if interrupted[0]:
+        raise Interrupted(f"stream {job.id} stopped, {st['frames_done']} frames kept")
+    if st["state"] == "failed":
+        raise CliError(f"stream {job.id} failed: {st['error']}")
+    return 0
