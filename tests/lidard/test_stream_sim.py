@@ -1,0 +1,97 @@
+"""Streams on the embedded simulated bench: one bring-up for all frames, frames to MCAP, a stop keeps
+the frames (and the partial one), the interlock stops a stream as it stops a scan."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from lidard.config import load_config
+from lidard.instrument import ScanRequest, open_instrument
+from lidard.instrument.stream import FramePlan
+from lidard.jobs.stream_job import FrameSink
+from lidard.outputs.mcap import read_mcap
+from lidard.scan import plan
+
+pytestmark = pytest.mark.slow
+
+REQ = ScanRequest(pattern="roi", rows=(48, 68), cols=(48, 68), max_range_m=2.0)   # 300 bonded pixels, 2 batches
+
+
+@pytest.fixture(scope="module")
+def inst():
+    cfg = load_config("config/sim.toml")
+    i = open_instrument(cfg, scene_path="config/scenes/cal_letters.toml", bench="embedded")
+    yield i
+    i.close()
+
+
+def _fixed(inst):
+    px = plan(REQ, inst.optics)
+    return px, (lambda k, h: FramePlan(px, {"pattern": "roi"}))
+
+
+def test_frames_to_mcap_with_one_bring_up(inst, tmp_path, monkeypatch):
+    px, planner = _fixed(inst)
+    ups = []
+    real = inst.safety.bring_up
+    monkeypatch.setattr(inst.safety, "bring_up", lambda **kw: (ups.append(1), real(**kw))[1])
+    sink = FrameSink(str(tmp_path / "s.mcap"), "ply", {})
+    frames = []
+    res = inst.run_stream(REQ, planner, lambda f: (frames.append(f), sink.add(f)), threading.Event(), frames=3)
+    sink.close()
+    assert res.frames == 3 and res.stop_reason is None and len(ups) == 1
+    pts, statuses = read_mcap(tmp_path / "s.mcap")
+    assert [s["frame"] for s in statuses] == [0, 1, 2]
+    assert sorted(set(pts["frame"].tolist())) == [0, 1, 2]
+    for f, s in zip(frames, statuses):
+        assert s["pixels_scanned"] == len(px) and s["points"] == len(f.points)
+        # t counts from the stream's first trigger: a frame's points lie inside its own trigger span
+        assert f.points["t"].min() >= f.start_s - 1e-9
+        assert f.points["t"].max() <= f.start_s + f.hardware_time_s
+    starts = [f.start_s for f in frames]
+    # back to back: the next frame starts after this one's triggers (plus its set-up gap)
+    for a, b in zip(frames, frames[1:]):
+        assert b.start_s == pytest.approx(a.start_s + a.hardware_time_s + b.setup_s, abs=1e-6)
+    assert starts[0] == 0.0
+
+
+def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
+    px, planner = _fixed(inst)
+    cancel = threading.Event()
+    frames = []
+    reads = []
+    real = inst.acquisition.read
+
+    def read(acq, first, count):   # stop inside frame 1, after its first batch (frame 0 takes two)
+        reads.append(count)
+        if len(reads) == 3:
+            cancel.set()
+        return real(acq, first, count)
+
+    monkeypatch.setattr(inst.acquisition, "read", read)
+    res = inst.run_stream(REQ, planner, frames.append, cancel, frames=5)
+    assert res.cancelled and res.frames == 2
+    assert not frames[0].partial and frames[0].pixels_scanned == len(px)
+    assert frames[1].partial and 0 < frames[1].pixels_scanned < len(px)
+    assert set(frames[1].points["frame"].tolist()) == {1}
+
+
+def test_interlock_stops_the_stream_and_keeps_frames(inst):
+    px, planner = _fixed(inst)
+    frames = []
+    inst.inject_fault("interlock_open", after_segments=len(px) + 100)   # inside frame 1
+    try:
+        res = inst.run_stream(REQ, planner, frames.append, threading.Event(), frames=4)
+    finally:
+        inst.clear_faults()
+        try:
+            inst.acknowledge_faults("test")
+        except Exception:
+            pass
+    assert res.frames == 2 and "interlock" in (res.stop_reason or "")
+    assert "safe_state" in res.meta
+    assert not frames[0].partial and frames[1].partial
+    assert frames[1].pixels_scanned < len(px)
