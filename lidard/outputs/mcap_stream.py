@@ -18,7 +18,7 @@ import numpy as np
 import foxglove
 
 from ..live.channels import LidarChannels
-from ..pointcloud import atomic_write
+from .mcap import atomic_write   # (lidard.pointcloud's, through the one ignored import of the format package)
 
 
 class McapFrameWriter:
