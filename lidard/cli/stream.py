@@ -1,4 +1,5 @@
-"""``lidarctl stream --sim``: frames back to back on an embedded simulated bench (lidard.jobs.stream_job).
+"""``lidarctl stream``: frames back to back, on the daemon (POST /streams) or with ``--sim`` on an embedded
+simulated bench (lidard.jobs.stream_job).
 
 ``--frames N`` or until stopped: Ctrl-C or SIGTERM ends the frame in progress, keeps it (partial)
 and every finished frame, and exits 130. ``--out DIR/`` writes one file per frame (``--format``) with
@@ -67,9 +68,9 @@ def _spec(args, cfg):
 def cmd_stream(args) -> int:
     from ..jobs.stream_job import StreamJob
     from .embedded import embedded, resolve, sim_config
-    if not args.sim:
-        raise CliError("lidarctl stream runs on an embedded simulated bench: add --sim")
     refuse_sim_only(args, "--scene", "--config", "--data-dir", "--no-cal-cache")
+    if not args.sim:
+        return _stream_daemon(args)
     cfg = sim_config(args)
     spec = _spec(args, cfg)
     job = StreamJob(spec)
@@ -109,4 +110,75 @@ def cmd_stream(args) -> int:
         raise Interrupted(f"stream {job.id} stopped, {st['frames_done']} frames kept")
     if st["state"] == "failed":
         raise CliError(f"stream {job.id} failed: {st['error']}")
+    return 0
+
+
+def _body(args) -> dict:
+    body = {"pattern": args.pattern, "frames": args.frames, "frame_rate_hz": args.frame_rate,
+            "max_range_m": args.max_range, "averages": args.averages,
+            "format": "mcap" if (args.out or "").endswith(".mcap") else args.format}
+    if args.pattern == "roi" and not (args.rows or args.cols):
+        raise CliError("--pattern roi: give --rows and/or --cols")
+    if args.frame_rate is not None and args.pattern != "track":
+        raise CliError("--frame-rate: only --pattern track plans its frames to a frame rate")
+    for name in ("rows", "cols"):
+        if getattr(args, name):
+            body[name] = _range(getattr(args, name), name)
+    return {k: v for k, v in body.items() if v is not None}
+
+
+def _stream_daemon(args) -> int:
+    """POST /streams, report frames as they come, DELETE on Ctrl-C / SIGTERM, then fetch the files."""
+    import json
+    import time
+    from pathlib import Path
+    from .client import client
+    body = _body(args)
+    interrupted = [False]
+    stop = threading.Event()
+    prev = None
+    if threading.current_thread() is threading.main_thread():
+        prev = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
+    try:
+        with client(args) as c:
+            sid = c.request("POST", "/streams", json=body).json()["id"]
+            seen, deleted = 0, False
+            while True:
+                try:
+                    if stop.is_set() and not deleted:
+                        interrupted[0], deleted = True, True
+                        c.request("DELETE", f"/streams/{sid}")
+                    st = c.get_json(f"/streams/{sid}")
+                    for f in st["frames"][seen:]:
+                        print(f"frame {f['frame']}: {f['pixels_scanned']}/{f['pixels_planned']} pixels, "
+                              f"{f['valid_points']} valid points, start {f['start_s']:.3f} s", file=sys.stderr)
+                    seen = len(st["frames"])
+                    if st["state"] not in ("queued", "running"):
+                        break
+                    time.sleep(0.2)     # polling interval of the frame report
+                except KeyboardInterrupt:
+                    stop.set()
+            if args.out:
+                if body["format"] == "mcap":
+                    base.write_bytes_atomic(args.out, c.request("GET", f"/streams/{sid}/mcap").content)
+                else:
+                    out = Path(args.out)
+                    out.mkdir(parents=True, exist_ok=True)
+                    from ..pointcloud import sidecar_path, suffix_of
+                    for f in st["frames"]:
+                        path = out / f"frame_{f['frame']:05d}{suffix_of(body['format'])}"
+                        base.write_bytes_atomic(path, c.request("GET", f"/streams/{sid}/frames/{f['frame']}").content)
+                        base.write_bytes_atomic(sidecar_path(path), json.dumps(f, indent=1).encode())
+    finally:
+        if prev is not None:
+            signal.signal(signal.SIGTERM, prev)
+    if args.json:
+        output.emit_json({**st, "interrupted": interrupted[0]})
+    else:
+        print(f"stream {sid}: {st['state']}, {st['frames_done']} frames" + (f", written to {args.out}" if args.out else "")
+              + (f" ({st['stop_reason']})" if st.get("stop_reason") else ""))
+    if interrupted[0]:
+        raise Interrupted(f"stream {sid} stopped, {st['frames_done']} frames kept")
+    if st["state"] == "failed":
+        raise CliError(f"stream {sid} failed: {st.get('error')}")
     return 0

@@ -72,3 +72,36 @@ def test_frames_reach_the_client_and_delete_keeps_them(daemon):
     assert httpx.get(f"{daemon}/streams/nope", timeout=10).status_code == 404
     bad = httpx.post(daemon + "/streams", json={**BODY, "pattern": "raster", "frame_rate_hz": 10}, timeout=10)
     assert bad.status_code == 422 and "frame_rate_hz" in bad.text
+
+
+def _lidarctl(*args: str, **kw):
+    import os
+    import subprocess
+    import sys
+    return subprocess.Popen([sys.executable, "-c", "import sys; from lidard.cli.lidarctl import main; sys.exit(main())", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"}, **kw)
+
+
+def test_lidarctl_stream_writes_frames_and_sigterm_keeps_them(daemon, tmp_path):
+    import json
+    import signal
+    p = _lidarctl("stream", "--url", daemon, "--pattern", "roi", "--rows", "48:64", "--cols", "48:64",
+                  "--frames", "2", "--out", str(tmp_path / "frames") + "/")
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err.decode()
+    files = sorted(x.name for x in (tmp_path / "frames").iterdir())
+    assert files == ["frame_00000.ply", "frame_00000.ply.json", "frame_00001.ply", "frame_00001.ply.json"]
+    assert json.loads((tmp_path / "frames" / "frame_00001.ply.json").read_text())["frame"] == 1
+    # until stopped: SIGTERM after the second frame is reported stops the stream and keeps its frames
+    p = _lidarctl("stream", "--url", daemon, "--pattern", "roi", "--rows", "48:64", "--cols", "48:64",
+                  "--out", str(tmp_path / "more") + "/")
+    lines = []
+    for raw in p.stderr:
+        lines.append(raw.decode())
+        if raw.startswith(b"frame 1:"):
+            p.send_signal(signal.SIGTERM)
+            break
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 130, "".join(lines) + err.decode()
+    kept = sorted(x.name for x in (tmp_path / "more").iterdir() if x.suffix == ".ply")
+    assert len(kept) >= 2 and kept[:2] == ["frame_00000.ply", "frame_00001.ply"]
