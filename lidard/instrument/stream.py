@@ -115,13 +115,14 @@ class StreamLoop:
 
     def __init__(self, loop: ScanLoop, *, health: Callable[[], Any] | None = None,
                  tec: Callable[[], float] | None = None, scene_clock: Callable[[bool], None] | None = None,
-                 history_frames: int = 4):
+                 history_frames: int = 4, tec_poll_s: float = TEC_POLL_S):
         self.loop = loop
         self.cfg, self.lifecycle, self.safety = loop.cfg, loop.lifecycle, loop.safety
         self._health = health           # -> HealthCheck | None (laser and HV cycled by the check)
         self._tec = tec
         self._scene_clock = scene_clock  # simulated bench: hold the scene's clock across frames
         self.history_frames = history_frames
+        self.tec_poll_s = tec_poll_s      # hardware time between TEC readings
 
     def base_plan(self, request: ScanRequest, calibration: CalibrationResult | None) -> ScanPlan:
         """The ADC, DSP and channels of every frame (the pixels are the planner's, frame by frame)."""
@@ -273,7 +274,7 @@ class StreamLoop:
         now = self._now_s(st)
         if now - st.checked_s >= st.interval_s:
             return f"{st.interval_s:g} s of hardware time since the last check"
-        if now - st.tec_read_s >= TEC_POLL_S:
+        if now - st.tec_read_s >= self.tec_poll_s:
             st.tec_read_s = now
             tec = self._read_tec()
             if math.isfinite(tec) and math.isfinite(st.tec_c) and abs(tec - st.tec_c) > self.cfg.scan.recalibrate_delta_c:

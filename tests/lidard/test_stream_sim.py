@@ -95,3 +95,49 @@ def test_interlock_stops_the_stream_and_keeps_frames(inst):
     assert "safe_state" in res.meta
     assert not frames[0].partial and frames[1].partial
     assert frames[1].pixels_scanned < len(px)
+
+
+SMALL = ScanRequest(pattern="roi", rows=(48, 56), cols=(48, 56), max_range_m=2.0)   # 48 bonded pixels
+
+
+def _small(inst):
+    px = plan(SMALL, inst.optics)
+    return lambda k, h: FramePlan(px)
+
+
+def test_health_check_repeats_after_its_hardware_time_budget(inst):
+    """A 1 ms budget with 12 ms frames: the check runs before every frame after the first, on the real
+    monitor MZI, and the stream goes on (outputs brought up again, drive reloaded)."""
+    frames = []
+    cal = inst.linearize()          # the plain drive fails the check (as it should): linearized first
+    res = inst.run_stream(SMALL, _small(inst), frames.append, threading.Event(), cal, frames=3,
+                          health_interval_s=0.001)
+    assert res.frames == 3 and res.stop_reason is None
+    assert len(res.health) == 2 and all("hardware time" in h["why"] for h in res.health)
+    assert all(not h["exceeded"] and h["residual_hz"] < h["threshold_hz"] for h in res.health)
+    assert all(len(f.points) > 0 for f in frames)
+
+
+def test_tec_step_triggers_the_check_and_a_failed_check_stops_the_stream(inst):
+    from lidard.instrument.stream import StreamLoop
+    tec = iter([25.0, 25.0, 25.0 + 2 * inst.cfg.scan.recalibrate_delta_c] + [30.0] * 10)
+    calls = []
+
+    class Off:                      # what LinearizationHealth answers for a drifted chirp
+        residual_hz, threshold_hz, exceeded = 9e5, 2e5, True
+
+        def reason(self):
+            return "chirp error 900 kHz above 200 kHz"
+
+    def health():
+        calls.append(1)
+        return Off()
+
+    loop = StreamLoop(inst.scan_loop, health=health, tec=lambda: next(tec), tec_poll_s=0.0)
+    from lidard.instrument.acquisition import plain_drive
+    frames = []
+    res = loop.run(SMALL, _small(inst), frames.append, threading.Event(),
+                   plain_drive(inst.cfg, inst.laser.static_tuning_hz_per_v), frames=5)
+    # TEC read at the start (25.0), before frame 1 (25.0: no check), before frame 2 (stepped: check)
+    assert calls == [1] and res.frames == 2
+    assert "TEC moved" in res.health[0]["why"] and "900 kHz" in res.stop_reason
