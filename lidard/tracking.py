@@ -51,7 +51,9 @@ class TrackParams:
     step: int = ADAPTIVE_STEP        # survey grid spacing (bonded rows and columns)
     speed_mps: float = 0.2           # |radial velocity| that marks a moving return
     change_m: float = 0.15           # nearer than its neighbourhood's farthest return by this: foreground
-    neighbourhood: int = 2 * ADAPTIVE_STEP + 1   # pixels (square) of that neighbourhood
+    # pixels (square) of that neighbourhood: wide enough that the sparse survey finds background around
+    # a small object (two survey cells each side), not only at its edges
+    neighbourhood: int = 4 * ADAPTIVE_STEP + 1
     pad_px: int = 2                  # box margin around a track (pixels), besides its motion
     gate_px: float = 12.0            # largest centroid jump matched between frames (pixels)
 

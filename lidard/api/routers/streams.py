@@ -91,13 +91,16 @@ def create_stream(body: StreamCreate, request: Request, response: Response, work
     return job.status()
 
 
-@router.get("/{stream_id}")
+_404 = {404: {"description": "no stream with this id"}}
+
+
+@router.get("/{stream_id}", responses=_404)
 def show_stream(stream_id: str, request: Request) -> dict[str, Any]:
     job = _job(request, stream_id)
     return {**job.status(), "frames": list(job.frames)}
 
 
-@router.delete("/{stream_id}")
+@router.delete("/{stream_id}", responses=_404)
 def stop_stream(stream_id: str, request: Request) -> dict[str, Any]:
     """Stop after the frame in progress (kept, partial); a finished stream answers as it is."""
     job = _job(request, stream_id)
