@@ -74,6 +74,11 @@ def planner_for(spec: StreamSpec, optics, cfg) -> Callable:
     return lambda k, history: FramePlan(px, trade)
 
 
+def frame_id(stream_id: str, index: int) -> str:
+    """The id a stream's frame goes by for the live point listeners (one complete cloud each)."""
+    return f"{stream_id}-f{index:05d}"
+
+
 class FrameSink:
     """Writes each frame where ``out`` says (nothing without ``out``)."""
 
@@ -148,7 +153,14 @@ class StreamJob:
 
             def frame_done(frame) -> None:
                 sink.add(frame)
-                self.frames.append(frame.sidecar())
+                side = frame.sidecar()
+                self.frames.append(side)
+                # live: each frame as one complete cloud (web viewer, Foxglove) and a "frame" event
+                # (Foxglove's status topic, subscribers of the stream's id)
+                events = getattr(worker, "events", None)
+                if events is not None:
+                    events.points_out(frame_id(self.id, frame.index), frame.points, True)
+                    events.publish(self.id, {"event": "frame", "id": self.id, **side})
                 if self.on_frame is not None:
                     self.on_frame(frame)
 

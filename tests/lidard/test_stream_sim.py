@@ -141,3 +141,29 @@ def test_tec_step_triggers_the_check_and_a_failed_check_stops_the_stream(inst):
     # TEC read at the start (25.0), before frame 1 (25.0: no check), before frame 2 (stepped: check)
     assert calls == [1] and res.frames == 2
     assert "TEC moved" in res.health[0]["why"] and "900 kHz" in res.stop_reason
+
+
+def test_stream_job_hands_each_frame_to_the_live_listeners(inst, tmp_path):
+    """Each finished frame reaches the point listeners (web viewer, Foxglove) as one complete cloud under
+    its own id and the event listeners as a "frame" event carrying its sidecar; the files are written."""
+    from lidard.jobs.events import EventHub
+    from lidard.jobs.stream_job import StreamJob, StreamSpec, frame_id
+
+    class Worker:                   # what StreamJob.run needs of the scan worker
+        instrument, last_linearization, events = inst, None, EventHub()
+
+        def current_linearization(self):
+            return None
+
+    w = Worker()
+    clouds, events = [], []
+    w.events.add_point_listener(lambda sid, pts, final: clouds.append((sid, len(pts), final, set(pts["frame"]))))
+    w.events.add_event_listener(events.append)
+    job = StreamJob(StreamSpec(SMALL, frames=2, out=str(tmp_path / "frames")))
+    job.run(w)
+    assert job.state == "done" and len(job.frames) == 2
+    assert [c[0] for c in clouds] == [frame_id(job.id, 0), frame_id(job.id, 1)]
+    assert all(c[2] and c[1] > 0 and c[3] == {k} for k, c in enumerate(clouds))
+    assert [(e["event"], e["frame"], e["points"]) for e in events] == [("frame", k, clouds[k][1]) for k in range(2)]
+    assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == [
+        "frame_00000.ply", "frame_00000.ply.json", "frame_00001.ply", "frame_00001.ply.json"]
