@@ -10,14 +10,14 @@ import pytest
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
-from lidard.instrument.stream import FramePlan
+from lidard.instrument.stream import FRAME_READS, FramePlan
 from lidard.jobs.stream_job import FrameSink
 from lidard.outputs.mcap import read_mcap
 from lidard.scan import plan
 
 pytestmark = pytest.mark.slow
 
-REQ = ScanRequest(pattern="roi", rows=(48, 68), cols=(48, 68), max_range_m=2.0)   # 300 bonded pixels, 2 batches
+REQ = ScanRequest(pattern="roi", rows=(48, 68), cols=(48, 68), max_range_m=2.0)   # 300 bonded pixels
 
 
 @pytest.fixture(scope="module")
@@ -65,9 +65,9 @@ def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
     reads = []
     real = inst.acquisition.read
 
-    def read(acq, first, count):   # stop inside frame 1, after its first batch (frame 0 takes two)
+    def read(acq, first, count):   # stop inside frame 1, after its first batch (frame 0 takes FRAME_READS)
         reads.append(count)
-        if len(reads) == 3:
+        if len(reads) == FRAME_READS + 1:
             cancel.set()
         return real(acq, first, count)
 
