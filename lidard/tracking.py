@@ -26,8 +26,9 @@ revisit time, dense pixels and area, the tracks with their predicted motion.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
@@ -136,7 +137,7 @@ def _tracks(history: Sequence, p: TrackParams, shape: tuple[int, int]) -> list[d
         tracks.append({"rows": (int(g["row"].min()), int(g["row"].max())),
                        "cols": (int(g["col"].min()), int(g["col"].max())), "centroid": c.tolist(), "t_s": t,
                        "velocity_px_s": vel.tolist(), "range_m": float(g["range"].mean()),
-                       "radial_mps": float(g["velocity"].mean()), "points": int(len(g))})
+                       "radial_mps": float(g["velocity"].mean()), "points": len(g)})
     return tracks
 
 
@@ -189,10 +190,10 @@ def plan_track(request: ScanRequest, optics: FpsaOptics, frame_index: int, histo
     pixels = np.concatenate([dense_px, survey]).astype(np.int64)
     revisit = len(order) / max(1, n_survey)
     trade = {"pattern": "track", "frame_rate_hz": p.frame_rate_hz, "budget_pixels": budget,
-             "seconds_per_pixel": seconds_per_pixel(history, p), "pixels": int(len(pixels)),
-             "survey_pixels": int(len(survey)), "survey_grid": int(len(order)),
+             "seconds_per_pixel": seconds_per_pixel(history, p), "pixels": len(pixels),
+             "survey_pixels": len(survey), "survey_grid": len(order),
              "survey_revisit_frames": revisit, "survey_revisit_s": revisit / p.frame_rate_hz,
-             "dense_pixels": int(len(dense_px)), "dense_area_pixels": int(mask.sum()), "dense_stride": stride,
+             "dense_pixels": len(dense_px), "dense_area_pixels": int(mask.sum()), "dense_stride": stride,
              "survey_next": int((cursor + n_survey) % len(order)), "tracks": tracks}
     return FramePlan(pixels, trade)
 

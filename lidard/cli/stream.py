@@ -132,6 +132,7 @@ def _stream_daemon(args) -> int:
     import json
     import time
     from pathlib import Path
+
     from .client import client
     body = _body(args)
     interrupted = [False]

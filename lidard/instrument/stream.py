@@ -31,8 +31,9 @@ import dataclasses
 import logging
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -86,9 +87,9 @@ class Frame:
 
     def sidecar(self) -> dict[str, Any]:
         return {"frame": self.index, "start_s": self.start_s, "hardware_time_s": self.hardware_time_s,
-                "setup_s": self.setup_s, "pixels_planned": int(len(self.pixels)),
+                "setup_s": self.setup_s, "pixels_planned": len(self.pixels),
                 "pixels_scanned": int(self.pixels_scanned), "coverage": self.coverage,
-                "points": int(len(self.points)), "valid_points": int(np.sum(self.points["valid"] == 1)),
+                "points": len(self.points), "valid_points": int(np.sum(self.points["valid"] == 1)),
                 "partial": self.partial, "stop_reason": self.stop_reason, "plan": self.trade,
                 "faults": dict(self.faults)}
 
@@ -230,10 +231,7 @@ class StreamLoop:
             except Exception as exc:     # a device that stays down: this frame is the last (partial)
                 run.stop_reason = describe_failure(exc)
                 log.warning("stream frame %d failed: %s", index, run.stop_reason, exc_info=driver_error(exc))
-                try:
-                    self.lifecycle.abort()
-                except Exception:
-                    pass
+                self.lifecycle.abort()   # logs its own failure: the stop reason is the first error
         pts = run.points.points()
         frame_t0 = run.hw_t0_ns
         if frame_t0 is not None:

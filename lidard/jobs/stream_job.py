@@ -22,8 +22,9 @@ import logging
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..instrument.types import ScanRequest
 
@@ -70,7 +71,7 @@ def planner_for(spec: StreamSpec, optics, cfg) -> Callable:
         pixel_s = req.averages * cfg.chirp.period_s + cfg.scan.settle_s
         return track_planner(req, optics, TrackParams(frame_rate_hz=spec.frame_rate_hz or 10.0, pixel_s=pixel_s))
     px = plan(req, optics)
-    trade = {"pattern": req.pattern, "pixels": int(len(px))}
+    trade = {"pattern": req.pattern, "pixels": len(px)}
     return lambda k, history: FramePlan(px, trade)
 
 

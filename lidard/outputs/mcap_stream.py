@@ -13,12 +13,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import foxglove
 import numpy as np
 
-import foxglove
-
 from ..live.channels import LidarChannels
-from .mcap import atomic_write   # (lidard.pointcloud's, through the one ignored import of the format package)
+from .mcap import (
+    atomic_write,  # (lidard.pointcloud's, through the one ignored import of the format package)
+)
 
 
 class McapFrameWriter:

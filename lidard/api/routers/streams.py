@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
 from ...instrument.types import ScanRequest
 from ...jobs import QueueFull, WorkerStopped
-from ...jobs.stream_job import STREAM_PATTERNS, StreamJob, StreamRequestError, StreamSpec
+from ...jobs.stream_job import StreamJob, StreamRequestError, StreamSpec
 from ...pointcloud import MEDIA_TYPE, suffix_of
 from ...scan import ScanPlanError, plan
 from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
