@@ -62,11 +62,11 @@ def peak_rss_mb() -> float:
 def stage_timers():
     """Wrap the scan's stage functions; yield {stage: [wall_s, thread_cpu_s]} filled while inside."""
     import sim_devices.bench as bench
-    import sim_devices.bench_capture as bench_capture   # where the bench's capture calls synthesize
+    import sim_devices.world.synth_parallel as bench_capture   # where the bench's capture calls synthesize
     from lidard.instrument import acquisition, points
     acc: dict[str, list[float]] = {k: [0.0, 0.0] for k in ("capture", "beat_synthesis", "read", "dsp")}
     targets = [(bench.Bench, "capture", "capture"), (bench_capture, "synthesize", "beat_synthesis"),
-               (acquisition.AcquisitionLifecycle, "read", "read"), (points.PointBuffer, "flush", "dsp")]
+               (acquisition.AcquisitionLifecycle, "read", "read"), (points.PointBuffer, "_process", "dsp")]
 
     def timed(fn, key):
         def wrapper(*a, **kw):

@@ -75,7 +75,7 @@ def aim_point(s: ht.Surface) -> np.ndarray:
 def requests(cfg, surfaces, mode: str, roi: int) -> list[ScanRequest]:
     if mode == "frame":
         prof = cfg.load_profile()
-        return [ScanRequest(rows=(0, prof.rows), cols=(0, prof.cols), max_range_m=2.0)]
+        return [ScanRequest(rows=(0, prof.rows), cols=(0, prof.cols), max_range_m=2.0, max_speed_mps=10.0)]
     optics, out = cfg.optics(), []
     for s in surfaces:
         if not np.any(s.velocity):
@@ -83,7 +83,7 @@ def requests(cfg, surfaces, mode: str, roi: int) -> list[ScanRequest]:
         r, c = (int(v) for v in optics.pixel_from_direction(aim_point(s)))
         r0 = min(max(r - roi // 2, 0), optics.rows - roi)
         c0 = min(max(c - roi // 2, 0), optics.cols - roi)
-        out.append(ScanRequest(rows=(r0, r0 + roi), cols=(c0, c0 + roi), max_range_m=2.0))
+        out.append(ScanRequest(rows=(r0, r0 + roi), cols=(c0, c0 + roi), max_range_m=2.0, max_speed_mps=10.0))
     return out
 
 

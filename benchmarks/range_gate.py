@@ -8,7 +8,7 @@ the default 100 dB decimation filter, a poor 20 dB one (tx 10 mW: its leak is br
 (a 1e-6 dB stop band: what the bench did before issue 14; the DSP's alias ceiling is then the full
 scale, so its leaks are flagged, not valid). Then a pane-and-sheet pair 10 and 20 mm apart at 1 m:
 pixels, pixels flagged ``unresolved``, valid points, pixels with two valid points. Last, the cost of the
-unresolved shape test: the frame DSP on 4096 pixels with and without it (best of 3, one core).
+unresolved model-order test (lidard.dsp.ranging): the frame DSP on 4096 pixels with and without it (best of 3, one core).
 
 Run: python benchmarks/range_gate.py [--roi 8]
 """
@@ -24,6 +24,7 @@ import numpy as np
 
 from lidard.config import load_config
 from lidard.dsp import frame
+from lidard.dsp.ranging import ramp as ramp_model
 from lidard.dsp.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
 
@@ -106,7 +107,7 @@ def dsp_cost(n_pix: int = 4096) -> tuple[float, float]:
         return min(runs)
 
     with_test = best()
-    with mock.patch.object(frame, "unresolved", lambda spec, index, frac, valid, noise, **kw: np.zeros_like(valid)):
+    with mock.patch.object(ramp_model, "unresolved", lambda spec, index, frac, valid, noise, **kw: np.zeros_like(valid)):
         without = best()
     return with_test, without
 

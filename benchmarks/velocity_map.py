@@ -59,15 +59,15 @@ HYBRID_ONLY = {"LIDARD__SIM__TOLERANCES__ENABLED": "true",
                   ("MZI_DELAY_REL", "ZERO_OFFSET_M", "FOCAL_REL", "DECENTRE_PX", "ROTATION_DEG", "K1", "TEC_DRIFT_C")}}
 
 
-def open_mode(mode: str, prior_mps: float):
+def open_mode(mode: str, prior_mps: float, band_mps: float = 10.0):
     """``three_segment`` / ``triangle`` (+ prior) on config/sim.toml; ``iq``: config/sim_iq.toml (the
     coherent receiver on the triangle, no prior), whose hybrid imbalance is calibrated before the map."""
     if mode == "iq":
         cfg = load_config(CONFIG_DIR / "sim_iq.toml", environ=HYBRID_ONLY)
     else:
         env = {**NOMINAL, "LIDARD__CHIRP__SHAPE": mode}
-        if mode == "triangle":
-            env["LIDARD__SCAN__MAX_SPEED_MPS"] = str(prior_mps)
+        # the triangle's prior; the three-segment chirp's Doppler band (scan.max_speed_mps, --band)
+        env["LIDARD__SCAN__MAX_SPEED_MPS"] = str(prior_mps if mode == "triangle" else band_mps)
         cfg = load_config(CONFIG_DIR / "sim.toml", environ=env)
     inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"), bench="embedded")
     return cfg, inst, inst._on_close.__self__
@@ -96,7 +96,7 @@ def cell(inst, bench, cal, pixels, z_m, v_mps, gate_m, moving, v_res_mps, range_
 
 
 def run_mode(mode: str, args) -> dict:
-    cfg, inst, bench = open_mode(mode, args.prior)
+    cfg, inst, bench = open_mode(mode, args.prior, args.band)
     try:
         cal = inst.linearize()
         if mode == "iq":    # the lab's procedure: any target in view (here the letters), once
@@ -148,6 +148,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="a coarser grid (4 ranges x 7 speeds)")
     ap.add_argument("--pixels", type=int, default=6, help="pixels scanned per cell")
     ap.add_argument("--prior", type=float, default=0.4, help="the triangle's scan.max_speed_mps")
+    ap.add_argument("--band", type=float, default=10.0,
+                    help="the three-segment chirp's Doppler band, m/s (scan.max_speed_mps; the map's speeds need 10)")
     ap.add_argument("--range-tol", type=float, default=0.01, help="a point counts as ranged within this (m)")
     ap.add_argument("--moving", action="store_true", help="truth moved to each point's t (moving world)")
     ap.add_argument("--boundary", action="store_true", help="speeds around the regime boundary |f_D| = f_R "

@@ -92,3 +92,44 @@ def save(cfg, cal: CalibrationResult, root: Path | None = None) -> Path | None:
         log.warning("calibration cache %s not written (%s)", path, exc)
         tmp.unlink(missing_ok=True)
         return None
+
+
+# -- range / pointing calibration records (the simulated bench's factory calibration) -----------------
+# Kept apart from the linearizations above: their key is the set-up the records are tied to
+# (lidard.instrument.calibration.setup.CalibrationSetup.hash), not the linearization's configuration key.
+RECORDS_FORMAT_VERSION = 1
+
+
+def _records_path(setup_hash: str, root: Path | None) -> Path:
+    return (root or cache_dir()) / "geometry" / f"{setup_hash}.v{RECORDS_FORMAT_VERSION}.json"
+
+
+def load_records(setup_hash: str, root: Path | None = None) -> list[dict] | None:
+    """The cached calibration records (``CalibrationRecord.to_dict()``) of a set-up, or None."""
+    path = _records_path(setup_hash, root)
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+        recs = data["records"]
+        if not isinstance(recs, list) or not all(isinstance(r, dict) and "kind" in r for r in recs):
+            raise ValueError("not a list of records")
+        return recs
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        log.warning("calibration cache %s unreadable (%s); calibrating again", path, exc)
+        return None
+
+
+def save_records(setup_hash: str, records: list[dict], root: Path | None = None) -> Path | None:
+    """Keep ``records`` as the entry of ``setup_hash`` (atomic rename); None if it could not be written."""
+    path = _records_path(setup_hash, root)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps({"setup": setup_hash, "records": records}, default=str))
+        os.replace(tmp, path)
+        return path
+    except OSError as exc:
+        log.warning("calibration cache %s not written (%s)", path, exc)
+        tmp.unlink(missing_ok=True)
+        return None

@@ -160,6 +160,7 @@ class ScanRecord:
     pointing_calibration_id: str | None = None   # the pointing calibration the scan used
     receiver: str | None = None                  # "real" (one photodiode) or "iq" (adc.iq, issue 14)
     iq_calibration_id: str | None = None         # the I/Q imbalance calibration the scan used
+    uncalibrated_reason: str | None = None       # why stored calibrations were not used (another set-up)
 
     @property
     def calibrated(self) -> dict[str, bool]:
@@ -184,7 +185,8 @@ _SCAN_COLUMNS = tuple(ScanRecord.__dataclass_fields__)
 _JSON_COLUMNS = {"request", "files"}
 # columns added after the first release: a data directory made before gets them on open
 _ADDED_COLUMNS = {"raw_bytes": "INTEGER", "reprocessed_from": "TEXT", "range_calibration_id": "TEXT",
-                  "pointing_calibration_id": "TEXT", "receiver": "TEXT", "iq_calibration_id": "TEXT"}
+                  "pointing_calibration_id": "TEXT", "receiver": "TEXT", "iq_calibration_id": "TEXT",
+                  "uncalibrated_reason": "TEXT"}
 
 
 class Store(GeometryCalibrationStore):

@@ -89,6 +89,19 @@ class GeometryCalibrationStore:
                 (rec.id, kind, rec.created, t, json.dumps(rec.inputs), json.dumps(rec.fitted), json.dumps(rec.residuals)))
         return rec
 
+    def import_geometry_calibration(self, rec: dict[str, Any]) -> CalibrationRecord:
+        """Put a record made elsewhere (``CalibrationRecord.to_dict()``: a cached factory calibration) into
+        this store under its own id and time; a record already there is left as it is."""
+        r = CalibrationRecord(**{k: rec[k] for k in CalibrationRecord.__dataclass_fields__})
+        if r.kind not in GEOMETRY_KINDS:
+            raise ValueError(f"calibration kind {r.kind!r} is not one of {GEOMETRY_KINDS}")
+        with self._lock:
+            self._conn.execute(
+                "INSERT OR IGNORE INTO geometry_calibrations (id, kind, created, temperature_c, inputs, fitted, residuals) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)", (r.id, r.kind, float(r.created), r.temperature_c, _json(r.inputs),
+                                                 _json(r.fitted), _json(r.residuals)))
+        return r
+
     @staticmethod
     def _geometry_from_row(row) -> CalibrationRecord:
         return CalibrationRecord(id=row["id"], kind=row["kind"], created=row["created"],

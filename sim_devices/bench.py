@@ -143,6 +143,7 @@ class Bench(BenchFaults, BenchCapture):
         # FPGA run start (virtual s) -> 1, 2, ... in the order runs are first captured: the noise seed
         # (see _run_index)
         self._run_ids: dict[float, int] = {}
+        self._runs_captured = 0
         self.fidelity = FidelityLedger()  # which effects each captured batch modelled or skipped
         self.tap = TapSpec()
         # Serial line noise seeded from the bench seed: a run with faults repeats byte for byte.

@@ -26,7 +26,8 @@ from lidard.physics.budget import monitor_noise_asd, quantization_asd
 
 from .digitizer import CaptureConfig, CapturedSegments, decimation_filter
 from .world.fidelity import phase_noise_negligible
-from .world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from .world.synth import AdcSpec, HitBatch, trajectory
+from .world.synth_parallel import synthesize_read
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,9 @@ class TapSpec:
 #: circulator set-up, i.e. half the amplitude per channel; each channel keeps the single photodiode's
 #: noise (its own TIA and converter) -- docs/physics.md, "The coherent (I/Q) receiver"
 HYBRID_CHANNEL_AMPLITUDE = 0.5
+# runs whose capture number (:meth:`BenchCapture._run_index`, the noise seed) is remembered: a capture
+# only ever reads the run in progress or the one just before it
+RUN_IDS_KEPT = 8
 
 
 def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:
@@ -123,11 +127,19 @@ class BenchCapture:
         those depend on wall-clock timeouts (a loaded machine), so a seed from the start time gave
         different noise, a different ILC drive and different ranges from one run of the same
         programme to the next. The count of runs captured is the same however long they waited.
+        Only the newest runs' numbers are kept (captures read the run in progress, or one just cut
+        short): a bench that runs for weeks does not keep one entry per run it ever captured.
         """
         start = self.fpga.run_start_s
         if start is None:
             return 0
-        return self._run_ids.setdefault(float(start), len(self._run_ids) + 1)
+        idx = self._run_ids.get(float(start))
+        if idx is None:
+            self._runs_captured += 1
+            idx = self._run_ids[float(start)] = self._runs_captured
+            while len(self._run_ids) > RUN_IDS_KEPT:
+                del self._run_ids[next(iter(self._run_ids))]      # the oldest (insertion order)
+        return idx
 
     def _phase_noise_linewidth(self, linewidth_hz: float, hits, want_mzi: bool, noise_asd: float) -> float:
         """The linewidth this batch is synthesized with: 0 when, for every hit, the beat's phase noise
@@ -232,11 +244,13 @@ class BenchCapture:
             self.fidelity.note("doppler", bool(np.any(hits.doppler_hz != 0)))
             self.fidelity.note("speckle", hits.phase_rad is not None)
             self.fidelity.note("mixed_pixels", bh.mixed_beams > 0)   # hits come from bh
-        rng = np.random.default_rng([self.seed, self._run_index(), int(first)])
+        run = self._run_index()
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
-        return synthesize(self._trajectory(), adc, np.zeros(n), hits, noise_asd_v_per_rthz=noise_asd, beat_filter=aa,
-                          linewidth_hz=linewidth, rng=rng,
+        # a large read in parts on the bench's threads, each part seeded as a read from its first segment
+        return synthesize_read(self._trajectory(), adc, np.zeros(n), hits,
+                               lambda s: np.random.default_rng([self.seed, run, int(first) + s]),
+                               noise_asd_v_per_rthz=noise_asd, beat_filter=aa, linewidth_hz=linewidth,
                           mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
                           mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
                           mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,

@@ -50,7 +50,7 @@ from drivers.fpsa.errors import ProtocolError
 from .clock import VirtualClock
 from .faults import SerialLineNoise
 from .fpga_beams import ChipOptics
-from .fpga_drive_log import COL, ROW, DriveEvents, StuckSwitches, line_kind, lines_high_before
+from .fpga_drive_log import COL, ROW, DriveEvents, StuckSwitches, line_kind, lines_high_before, settle_horizon_s
 from .fpga_firmware import FirmwareCommands, _Run, _Upload
 from .fpga_serial import PtyServer, SimSerial
 from .hv583 import HV583, default_bonded_rows
@@ -116,6 +116,8 @@ class FpgaSim(FirmwareCommands, ChipOptics):
         self._banks: tuple[SwitchBank, SwitchBank] | None = None
         # intervals in which a switch ignores its drive (fault injection)
         self._stuck = StuckSwitches()
+        # a line's drive history older than this (before its last switch-off) is dropped at each START
+        self._settle_horizon_s = settle_horizon_s(self.config.row_dynamics, self.config.col_dynamics)
         self._power_up()
 
     # --- power-up and line bookkeeping ----------------------------------------------------------

@@ -10,7 +10,13 @@ the log and the views on it the simulator needs:
 * :func:`with_holds`: one line kind's drive events plus the hold-level events of the pull-in/hold
   drive (``sim_devices.hv_drive``) that a later line change did not cut short;
 * :class:`StuckSwitches`: fault injection, switches that ignore their drive during intervals, and
-  the drive events such a switch actually follows (:func:`line_kind` checks a switch's name).
+  the drive events such a switch actually follows (:func:`line_kind` checks a switch's name);
+* :func:`compact`: the log of a bench that runs for weeks stays bounded. A line's history before its
+  last switch-off that lies a settling horizon (:func:`settle_horizon_s`) in the past no longer
+  shapes anything later: the off event is decisive (hysteresis target "off" whatever came before),
+  and any difference in the level or in the release delay that the dropped events made has decayed
+  below the last bit of a float64 by the horizon (it shrinks as exp(-t/tau) through every later
+  event). Switches for whom the drive is decisive only by history (a stuck switch) are left whole.
 """
 
 from __future__ import annotations
@@ -23,6 +29,11 @@ import numpy as np
 from .hv_drive import valid_holds
 
 ROW, COL = 0, 1  # line kinds in the drive-event log
+
+#: The settling horizon in units of the slowest time constant of a switch (response or discharge):
+#: exp(-37) is below a float64 level's last bit, exp(-745) underflows; 1e4 leaves room for the
+#: release delay of a discharge (a few RC) as well.
+SETTLED_TIME_CONSTANTS = 1.0e4
 
 
 @dataclass
@@ -48,6 +59,50 @@ class DriveEvents:
             return z.astype(np.int8), z.astype(np.int64), z, z
         return (np.concatenate(self.kind), np.concatenate(self.line), np.concatenate(self.t),
                 np.concatenate(self.v))
+
+
+def settle_horizon_s(*dynamics) -> float:
+    """How long before a moment a switch-off must lie for the history before it to be forgotten."""
+    return SETTLED_TIME_CONSTANTS * max(max(d.tau_on_s, d.tau_off_s, d.discharge_rc_s) for d in dynamics)
+
+
+def compact(events: DriveEvents, holds: DriveEvents, t_cut_s: float, exempt=frozenset()) -> int:
+    """Drop, per line, the drive events (and hold events) before its last switch-off at or before
+    ``t_cut_s`` (see the module notes); ``exempt`` (kind, line) pairs keep their whole history. The
+    log becomes one slot, in the order the events were logged. Returns the number of events dropped."""
+    kinds, lines, ts, vs = events.arrays()
+    if kinds.size == 0:
+        return 0
+    key = kinds.astype(np.int64) * (1 << 32) + lines
+    order = np.lexsort((np.arange(key.size), ts, key))        # per line, in time, then logged order
+    k_o, t_o, v_o = key[order], ts[order], vs[order]
+    off = np.flatnonzero((v_o == 0.0) & (t_o <= t_cut_s))
+    if off.size == 0:
+        return 0
+    # the last such switch-off of each line, and where that line's run of events starts
+    last_off = off[np.r_[k_o[off][1:] != k_o[off][:-1], True]]
+    start = np.searchsorted(k_o, k_o[last_off], side="left")
+    drop_o = np.zeros(key.size, bool)
+    cut_at: dict[int, float] = {}
+    for s, e in zip(start.tolist(), last_off.tolist()):
+        k = int(k_o[e])
+        if (k >> 32, k & 0xFFFFFFFF) in exempt or e == s:
+            continue
+        drop_o[s:e] = True
+        cut_at[k] = float(t_o[e])
+    n_drop = int(drop_o.sum())
+    if n_drop == 0:
+        return 0
+    keep = np.ones(key.size, bool)
+    keep[order[drop_o]] = False
+    events.kind, events.line, events.t, events.v = [kinds[keep]], [lines[keep]], [ts[keep]], [vs[keep]]
+    hk, hl, ht, hv = holds.arrays()
+    if hk.size:
+        hkey = hk.astype(np.int64) * (1 << 32) + hl
+        cut = np.array([cut_at.get(int(k), -math.inf) for k in hkey.tolist()])
+        hkeep = ht >= cut                    # a hold before the line's switch-off applied before it
+        holds.kind, holds.line, holds.t, holds.v = [hk[hkeep]], [hl[hkeep]], [ht[hkeep]], [hv[hkeep]]
+    return n_drop
 
 
 def lines_high_before(events: DriveEvents, rows: int, cols: int,
@@ -109,6 +164,10 @@ class StuckSwitches:
         for iv in self._intervals.get((kind, index), []):
             if math.isinf(iv[1]):
                 iv[1] = max(t_s, iv[0])
+
+    def lines(self) -> frozenset[tuple[int, int]]:
+        """(kind, line) of every switch that is or was stuck (its history matters: never compacted)."""
+        return frozenset(self._intervals)
 
     def stuck_now(self) -> list[tuple[str, int, bool]]:
         """(line, index, on) of the switches stuck right now (an interval without end)."""

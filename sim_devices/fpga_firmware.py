@@ -22,7 +22,7 @@ import numpy as np
 from drivers.fpsa import protocol as p
 from drivers.fpsa.errors import LengthError, PayloadError
 
-from .fpga_drive_log import COL, ROW
+from .fpga_drive_log import COL, ROW, compact
 from .hv583 import HV583
 from .hv_drive import HOLD_BOOST_S
 from .triggers import PixelSchedule
@@ -214,6 +214,8 @@ class FirmwareCommands:
     def _log_run_events(self, run: _Run) -> None:
         """Every line change of the whole run, in closed form (one event list, cut on STOP)."""
         sched = run.schedule
+        # what happened long before this run shapes nothing in it: keep the log bounded
+        compact(self._events, self._holds, sched.run_start_s - self._settle_horizon_s, self._stuck.lines())
         rows = run.pattern[:, 0].astype(np.int64)
         cols = run.pattern[:, 1].astype(np.int64)
         n = rows.size

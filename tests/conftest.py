@@ -19,6 +19,13 @@ it and every child bench or daemon a test starts inherits it. A test that passes
 ``tests.helpers.tolerances.NOMINAL_ENV``. Opt in with the marker ``@pytest.mark.tolerances``: the
 configuration's tolerances (on unless it says otherwise); such a test may set further
 ``LIDARD__SIM__TOLERANCES__*`` variables with monkeypatch.
+
+No factory calibration: a one-shot ``lidarctl scan --sim`` (and a daemon's first scan) on a bench
+with no range/pointing calibration of its set-up runs the bench's factory calibration first
+(``sim.factory_calibration``, lidard.jobs.guided: two linearizations, plates and spheres). With a
+private cache per test every such scan would pay it, so ``pytest_configure`` sets
+``LIDARD__SIM__FACTORY_CALIBRATION=false`` for the session (daemons and children inherit it); a test of
+the factory calibration sets it back to true with monkeypatch (or passes its own ``environ=``).
 """
 
 from __future__ import annotations
@@ -60,6 +67,7 @@ def pytest_configure(config: pytest.Config) -> None:
     from tests.helpers.tolerances import NOMINAL_ENV
 
     os.environ.update(NOMINAL_ENV)
+    os.environ["LIDARD__SIM__FACTORY_CALIBRATION"] = "false"
     problems = toolchain_mismatches(pinned_test_requirements())
     if problems:
         raise pytest.UsageError(
@@ -73,6 +81,8 @@ def _private_cache_dir(tmp_path_factory, monkeypatch):
     """Every test gets its own $XDG_CACHE_HOME: --sim commands cache calibrations there
     (lidard.calcache), and a test must neither see another's nor write to the user's."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
+    # and its own $XDG_STATE_HOME: `lidarctl control acquire` stores leases there (lidard.cli.leases)
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("xdg-state")))
 
 
 @pytest.fixture(autouse=True)

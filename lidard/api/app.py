@@ -26,6 +26,7 @@ from fastapi.staticfiles import StaticFiles
 from ..config import Config
 from ..errors import LidardError
 from ..instrument.protocol import Instrument
+from ..instrument.calibration.setup import instrument_setup
 from ..jobs import ScanWorker, software_version
 from ..pointcloud import scene_identity
 from ..store import Store
@@ -37,17 +38,27 @@ from .routers import calibration, controller, devices, geometry, health, raw, sc
 log = logging.getLogger(__name__)
 
 
+def _factory(cfg: Config, worker: ScanWorker):
+    """The factory calibration of the daemon's bench; it puts back the scene the bench showed: the last
+    one placed (PUT /sim/scene keeps it as ``worker.sim_scene``), else the configuration's."""
+    from ..jobs.guided import FactoryCalibration, bench_scene
+    return FactoryCalibration(nominal_delay_s=cfg.monitor.delay_s, scene=lambda: bench_scene(cfg, worker))
+
+
 def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str | Path | None = None,
                *, token: str | None = None, max_queue: int = 16, progress_interval_s: float = 0.25,
                close_instrument: bool = True, lease_ttl_s: float | None = None,
                clock: Callable[[], float] = time.monotonic, max_body_bytes: int | None = None,
-               store: Store | None = None) -> FastAPI:
+               store: Store | None = None, factory_calibration: bool | None = None) -> FastAPI:
     """Build the daemon's app.
 
     ``token``: when set, mutating requests (POST/PUT/PATCH/DELETE) need ``Authorization: Bearer``;
     reads stay open. ``lease_ttl_s`` (default ``cfg.daemon.lease_ttl_s``)/``clock``: the control lock
     (lidard.api.control).
     ``max_body_bytes``: request body limit (413 above it), default ``cfg.daemon.max_body_bytes``.
+    ``factory_calibration``: run a simulated bench's factory calibration before the first scan when no
+    range/pointing record of its set-up is stored (lidard.jobs.guided); default: when the app opens a
+    simulated bench itself and ``sim.factory_calibration`` is on.
     """
 
     @contextlib.asynccontextmanager
@@ -68,7 +79,12 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         optics = cfg.optics()
         worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=_scan_meta(cfg, inst),
-                            optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
+                            optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c,
+                            setup=instrument_setup(cfg, inst))
+        factory = (instrument is None and cfg.sim.factory_calibration) if factory_calibration is None \
+            else factory_calibration
+        if factory and cfg.sim.enabled and inst.simulated:
+            worker.factory = _factory(cfg, worker)
         app.state.config, app.state.instrument, app.state.store = cfg, inst, st
         app.state.worker, app.state.optics = worker, optics
         app.state.live = LivePoints()

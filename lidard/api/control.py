@@ -15,6 +15,11 @@ one client steers the instrument. Three independent gates, applied in this order
    (Locked) naming the holder. With no lease held mutating requests pass (single-user lab default).
    A lease expires ``ttl_s`` after its last use; every request that carries it renews it. The lock
    reads time from an injected clock (``time.monotonic`` by default) so tests advance it by hand.
+   Every 423 says what to send (the holder's lease as ``X-Lidard-Lease``) and that the holder may
+   release it or hand it over. ``POST /control/handover`` (with the current lease) gives the lock to a
+   named client under a fresh lease and voids the old one: the owner moves control between its own
+   clients (the web viewer re-taking its lease after a reload, whose old page may still be sending
+   its release) without a window in which another client could take it.
    Lease tokens are hex (``new_lease_token``): never a leading "-" (``token_urlsafe`` gives one in
    1/32 of leases, and ``lidarctl ... --lease <token>`` then reads it as an option), nothing a
    shell or an HTTP header would mangle.
@@ -68,7 +73,12 @@ class LockHeld(Exception):
         self.holder = holder
         self.expires_in_s = expires_in_s
         super().__init__(f"control lock held by {holder!r} (expires in {expires_in_s:.0f} s unless renewed); "
-                         f"{action}")
+                         f"{action}; the holder can release it (DELETE /control) or hand it over "
+                         "(POST /control/handover)")
+
+
+class NotHeld(Exception):
+    """A handover while nobody holds the lock (HTTP 409): take it with POST /control instead."""
 
 
 class ControlLock:
@@ -101,10 +111,24 @@ class ControlLock:
             cur = self._current(now)
             if cur is not None:
                 if not self._matches(cur, presented):
-                    raise LockHeld(cur.holder, cur.expires_at - now, "release it or wait for it to expire")
+                    raise LockHeld(cur.holder, cur.expires_at - now,
+                                   f"send its lease as {LEASE_HEADER} to renew it, or wait for it to expire")
                 self._lease = Lease(cur.token, client, cur.acquired_at, now + self.ttl_s)
             else:
                 self._lease = Lease(new_lease_token(), client, now, now + self.ttl_s)
+            return self._lease
+
+    def handover(self, client: str, presented: str | None) -> Lease:
+        """Give the lock to ``client`` under a fresh lease; ``presented`` must be the current one,
+        which is void from now on."""
+        with self._mutex:
+            now = self._clock()
+            cur = self._current(now)
+            if cur is None:
+                raise NotHeld("no control lease is held, so there is none to hand over; take it with POST /control")
+            if not self._matches(cur, presented):
+                raise LockHeld(cur.holder, cur.expires_at - now, f"a handover needs its {LEASE_HEADER} header")
+            self._lease = Lease(new_lease_token(), client, now, now + self.ttl_s)
             return self._lease
 
     def release(self, presented: str | None) -> Lease | None:
@@ -128,7 +152,7 @@ class ControlLock:
                 return
             if not self._matches(cur, presented):
                 raise LockHeld(cur.holder, cur.expires_at - now,
-                               f"mutating requests need its {LEASE_HEADER} header")
+                               f"mutating requests need its lease in the {LEASE_HEADER} header")
             self._lease = Lease(cur.token, cur.holder, cur.acquired_at, now + self.ttl_s)
 
     def renew(self, presented: str | None) -> None:
@@ -266,6 +290,19 @@ def control_release(request: Request) -> ControlStatus:
     return ControlStatus(held=False, ttl_s=lock.ttl_s)
 
 
+@router.post("/handover", response_model=ControlLease, status_code=201,
+             responses={423: {"description": "the request does not carry the current lease"},
+                        409: {"description": "nobody holds the lock (take it with POST /control)"}})
+def control_handover(body: ControlAcquire, request: Request) -> ControlLease:
+    """Hand the lock to ``client`` under a fresh lease (answered here); the lease sent is void after."""
+    lock = _lock(request)
+    try:
+        lease = lock.handover(body.client, request.headers.get(LEASE_HEADER))
+    except NotHeld as exc:
+        raise HTTPException(409, str(exc)) from None
+    return ControlLease(lease=lease.token, holder=lease.holder, expires_at=_wall(lock, lease), ttl_s=lock.ttl_s)
+
+
 def _host_is_loopback(host_header: str) -> bool:
     host = host_header.rsplit("]", 1)[0].lstrip("[") if host_header.startswith("[") else host_header.split(":")[0]
     if host.lower() == "localhost":
@@ -311,8 +348,8 @@ def guard(token: str | None) -> Callable[[Request], None]:
             raise HTTPException(401, "mutating requests need 'Authorization: Bearer <token>' "
                                      "(missing or wrong token)", headers={"WWW-Authenticate": "Bearer"})
         route = request.scope.get("route")
-        if getattr(route, "path", None) == router.prefix:
-            return  # /control itself decides (acquire, renew, release)
+        if getattr(route, "path", None) in (router.prefix, router.prefix + "/handover"):
+            return  # /control itself decides (acquire, renew, release, hand over)
         _lock(request).check(presented)
 
     return check
@@ -350,7 +387,7 @@ def document_gates(app, token_set: bool = False) -> None:
                     if method.upper() not in MUTATING_METHODS:
                         continue
                     for code, text in _GATE_RESPONSES.items():
-                        if code == "423" and path == router.prefix:
+                        if code == "423" and path.startswith(router.prefix):
                             text = "the request does not carry the current lease (another client holds it)"
                         op.setdefault("responses", {}).setdefault(code, {"description": text})
                     if "requestBody" in op:  # a body that decodes but does not validate

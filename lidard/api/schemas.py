@@ -69,6 +69,8 @@ class ScanCreate(_In):
     pixels: list[tuple[StrictInt, StrictInt]] | None = Field(default=None, min_length=1, max_length=1 << 20)
     averages: StrictInt | None = Field(default=None, ge=1, le=100)
     max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
+    # the fastest radial speed to measure, m/s: sizes the digitizer's Doppler band; null: scan.max_speed_mps
+    max_speed_mps: float | None = Field(default=None, gt=0, le=100, allow_inf_nan=False, strict=True)
     formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=6)
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
@@ -108,6 +110,7 @@ class ScanCreate(_In):
                            pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
                            averages=d.averages if self.averages is None else self.averages,
                            max_range_m=d.max_range_m if self.max_range_m is None else self.max_range_m,
+                           max_speed_mps=d.max_speed_mps if self.max_speed_mps is None else self.max_speed_mps,
                            formats=tuple(self.formats),
                            phase_noise_compensation=self.phase_noise_compensation,
                            record_raw=self.record_raw)
@@ -151,6 +154,8 @@ class ScanOut(_Out):
     calibrated: dict[str, bool] = Field(default_factory=dict, description=(
         "which calibrations the scan used: {range, pointing, linearization} and, with the I/Q receiver, iq; "
         "false is said, not hidden"))
+    uncalibrated_reason: str | None = Field(None, description="why stored range/pointing/iq calibrations were "
+                                                              "not used (made on another set-up); null when none was left out")
 
     @classmethod
     def from_record(cls, rec) -> "ScanOut":
@@ -163,7 +168,8 @@ class ScanOut(_Out):
                    formats=sorted(rec.files), calibration_id=rec.calibration_id,
                    raw_bytes=getattr(rec, "raw_bytes", None), reprocessed_from=getattr(rec, "reprocessed_from", None),
                    range_calibration_id=rec.range_calibration_id, pointing_calibration_id=rec.pointing_calibration_id,
-                   iq_calibration_id=rec.iq_calibration_id, calibrated=rec.calibrated)
+                   iq_calibration_id=rec.iq_calibration_id, calibrated=rec.calibrated,
+                   uncalibrated_reason=getattr(rec, "uncalibrated_reason", None))
 
 
 class ScanList(_Out):

@@ -4,14 +4,19 @@ output and the runner that turns exceptions into exit codes.
 
 Every failure (bad option, unreachable daemon, bad configuration, device fault) is printed as ONE
 line on stderr with a non-zero exit status; ``LIDARD_DEBUG=1`` re-raises for the traceback.
-Ctrl-C exits 130 (128 + SIGINT, the shell convention).
+Ctrl-C exits 130 (128 + SIGINT, the shell convention). SIGTERM (what ``timeout``, systemd and CI
+runners send) and SIGHUP (a closed terminal) stop a command the same way (:func:`stop_signals`): the
+command cleans up as after Ctrl-C (a scan keeps its points, a temporary store is removed) and exits
+128 + the signal's number, 143 and 129.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
+import signal
 import sys
 from pathlib import Path
 from typing import Any, Callable, NoReturn
@@ -30,7 +35,58 @@ class CliError(LidardError):
 
 
 class Interrupted(Exception):
-    """Ctrl-C arrived and the command finished cleanly (partial results kept); exit 130."""
+    """A stop signal arrived and the command finished cleanly (partial results kept); exit 128 + its
+    number (130 for Ctrl-C)."""
+
+    def __init__(self, message: str = "", signum: int = signal.SIGINT):
+        super().__init__(message)
+        self.signum = int(signum)
+
+
+class StopSignal(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised in the main thread where Ctrl-C raises KeyboardInterrupt, so every
+    ``except KeyboardInterrupt`` cleanup path serves them too."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = int(signum)
+
+
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+
+def signal_of(exc: BaseException) -> int:
+    """The signal number behind an interruption (SIGINT for a plain KeyboardInterrupt)."""
+    return int(getattr(exc, "signum", signal.SIGINT))
+
+
+def describe_signal(signum: int) -> str:
+    """``SIGINT (Ctrl-C)``, ``SIGTERM``, ``SIGHUP``: the words of a stop reason."""
+    name = signal.Signals(signum).name
+    return f"{name} (Ctrl-C)" if signum == signal.SIGINT else name
+
+
+@contextlib.contextmanager
+def stop_signals():
+    """While the block runs, SIGTERM and SIGHUP raise :class:`StopSignal` in the main thread. A signal
+    ignored on entry (SIGHUP under ``nohup``) stays ignored; the previous handlers come back after."""
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def raise_stop(signum, frame):
+        raise StopSignal(signum)
+
+    previous = {}
+    for sig in STOP_SIGNALS:
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            previous[sig] = signal.signal(sig, raise_stop)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 class Parser(argparse.ArgumentParser):
@@ -98,9 +154,11 @@ def run(fn: Callable[[Any], int], args, prog: str) -> int:
     try:
         return fn(args)
     except (KeyboardInterrupt, Interrupted) as exc:
+        signum = signal_of(exc)
         detail = str(exc) if isinstance(exc, Interrupted) and str(exc) else ""
-        sys.stderr.write(f"{prog}: interrupted{': ' + detail if detail else ''}\n")
-        return EXIT_INTERRUPTED
+        by = "" if signum == signal.SIGINT else f" by {describe_signal(signum)}"
+        sys.stderr.write(f"{prog}: interrupted{by}{': ' + detail if detail else ''}\n")
+        return 128 + signum
     except Exception as exc:
         if os.environ.get("LIDARD_DEBUG"):
             raise

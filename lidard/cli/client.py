@@ -15,6 +15,10 @@ from typing import Any, Callable
 from .base import DEFAULT_URL, CliError
 
 
+class Unreachable(CliError):
+    """The daemon did not answer at all (not running, or gone mid-command)."""
+
+
 class Client:
     def __init__(self, url: str, token: str | None, timeout_s: float = 30.0, lease: str | None = None,
                  transport=None):
@@ -41,7 +45,7 @@ class Client:
         try:
             return self._http.request(method, path, **kw)
         except httpx.TransportError as exc:
-            raise CliError(f"cannot reach lidard at {self.url} ({type(exc).__name__}: {exc}); "
+            raise Unreachable(f"cannot reach lidard at {self.url} ({type(exc).__name__}: {exc}); "
                            "is the daemon running?") from None
 
     def request(self, method: str, path: str, **kw):
@@ -53,8 +57,9 @@ class Client:
     def get_json(self, path: str, **kw) -> Any:
         return self.request("GET", path, **kw).json()
 
-    def follow(self, scan_id: str, on_event: Callable[[dict], None]) -> None:
-        """Read the scan's server-sent events until ``end``."""
+    def follow(self, scan_id: str, on_event: Callable[[dict], None]) -> dict:
+        """Read the scan's server-sent events until ``end``; answers that event (with the scan's final
+        record under ``scan``: lidard sends it even while it shuts down)."""
         import httpx
         try:
             with self._http.stream("GET", f"/scans/{scan_id}/events", timeout=None) as r:
@@ -69,9 +74,10 @@ class Client:
                         ev = json.loads(line[6:])
                         on_event(ev)
                         if ev.get("event") == "end":
-                            return
+                            return ev
         except httpx.TransportError as exc:
             raise CliError(f"lost the connection to lidard at {self.url} ({exc})") from None
+        raise CliError(f"lidard at {self.url} closed the event stream of scan {scan_id} before its end")
 
 
 def error_detail(r) -> str:
@@ -87,13 +93,24 @@ def error_detail(r) -> str:
 
 
 def check(r) -> None:
+    if r.status_code == 423:
+        from . import leases
+        raise CliError(f"lidard answered 423: {error_detail(r)}. lidarctl sends the lease given with --lease, "
+                       f"else $LIDARD_LEASE, else the one `lidarctl control acquire` stored in {leases.path()} "
+                       "for this --url")
     if r.status_code >= 400:
         raise CliError(f"lidard answered {r.status_code}: {error_detail(r)}")
 
 
+def lease_for(args) -> str | None:
+    """The lease a command sends: ``--lease``, else ``$LIDARD_LEASE``, else the user's lease file."""
+    from . import leases
+    return (getattr(args, "lease", None) or os.environ.get("LIDARD_LEASE")
+            or leases.load(args.url) or None)
+
+
 def client(args, transport=None) -> Client:
-    return Client(args.url, args.token or os.environ.get("LIDARD_API_TOKEN"),
-                  lease=getattr(args, "lease", None) or os.environ.get("LIDARD_LEASE") or None,
+    return Client(args.url, args.token or os.environ.get("LIDARD_API_TOKEN"), lease=lease_for(args),
                   transport=transport)
 
 
@@ -102,8 +119,8 @@ def daemon_opts(sp, sim: bool = False) -> None:
     sp.add_argument("--url", default=os.environ.get("LIDARD_URL", DEFAULT_URL),
                     help=f"daemon URL (default {DEFAULT_URL}, or $LIDARD_URL)")
     sp.add_argument("--token", default=None, help="API token for mutating requests (default $LIDARD_API_TOKEN)")
-    sp.add_argument("--lease", default=None, help="control lease sent as X-Lidard-Lease "
-                                                  "(default $LIDARD_LEASE; see `lidarctl control acquire`)")
+    sp.add_argument("--lease", default=None, help="control lease sent as X-Lidard-Lease (default $LIDARD_LEASE, "
+                                                  "else the one `lidarctl control acquire` stored for --url)")
     sp.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     if sim:
         sp.add_argument("--sim", action="store_true",

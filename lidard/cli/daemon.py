@@ -1,7 +1,13 @@
 """``lidard``: the daemon's entry point. Loads the configuration, binds the port before any hardware
 is touched (a busy port is one clear line), builds the instrument through the composition root and
 serves the FastAPI app (lidard.api.app.create_app) with uvicorn. Refuses a non-loopback address
-without an API token."""
+without an API token.
+
+Shutdown (SIGTERM or Ctrl-C): the running scan is stopped first (its points kept, state
+``interrupted``, the signal named as its stop reason) while connections are still open, so every
+client following it gets its ``end`` event with the final record; then uvicorn closes connections
+and the lifespan powers the bench down. A shutdown that completed exits 0: the signal asked for it
+(uvicorn would re-raise it after a graceful exit, and the process would end "killed by SIGTERM")."""
 
 from __future__ import annotations
 
@@ -73,9 +79,12 @@ def serve(args) -> int:
         sock.close()
         store.close()
         raise
-    app = create_app(cfg, instrument=instrument, store=store, token=token)
+    # the daemon opened its bench from the configuration: it calibrates itself at its first scan when
+    # sim.factory_calibration is on (create_app checks that it is a simulated bench)
+    app = create_app(cfg, instrument=instrument, store=store, token=token,
+                     factory_calibration=cfg.sim.factory_calibration)
     # an open event stream must not hold shutdown (and the laser/HV power-down) hostage
-    server = uvicorn.Server(uvicorn.Config(app, log_level=args.log_level, timeout_graceful_shutdown=5))
+    server = _server_class()(uvicorn.Config(app, log_level=args.log_level, timeout_graceful_shutdown=5), app)
     sys.stderr.write(f"lidard: serving on http://{host}:{sock.getsockname()[1]} (OpenAPI at /docs)\n")
     if not is_loopback(host):
         # the daemon speaks plain HTTP: the bearer token crosses the network in clear text
@@ -83,6 +92,39 @@ def serve(args) -> int:
                          "clear text, so put a TLS proxy or an SSH tunnel in front for untrusted networks\n")
     server.run(sockets=[sock])
     return 0
+
+
+def _server_class():
+    import asyncio
+    import contextlib
+    import signal
+
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        """uvicorn's server, with the scan stopped before connections close and no re-raised signal."""
+
+        def __init__(self, config, app):
+            super().__init__(config)
+            self.app = app
+
+        async def shutdown(self, sockets=None) -> None:
+            worker = getattr(self.app.state, "worker", None)
+            if worker is not None:
+                sigs = [signal.Signals(s).name for s in self._captured_signals]
+                reason = f"lidard shut down ({', '.join(sigs) or 'stopped'})"
+                # on a thread: the event loop keeps serving the scan's event streams meanwhile
+                await asyncio.to_thread(worker.stop, reason=reason)
+            await super().shutdown(sockets)
+
+        @contextlib.contextmanager
+        def capture_signals(self):
+            with super().capture_signals():
+                yield
+                # reached only when serving ended without an exception: a clean shutdown
+                self._captured_signals.clear()
+
+    return Server
 
 
 def bind(host: str, port: int):

@@ -6,6 +6,13 @@ so a one-shot ``lidarctl scan --sim`` and a scan through ``lidard`` write the sa
 configuration from the user's cache (lidard.calcache), or without one, and then linearizes the chirp
 first (ILC, dissertation §2.2) and leaves the result in the cache. ``--no-cal-cache`` skips the cache;
 ``--data-dir DIR`` keeps calibrations in DIR instead.
+
+Range and pointing calibrations (a scan, ``factory=True``): the temporary store also starts with the
+cached records of the bench's set-up (lidard.calcache.load_records, keyed by the set-up hash the records
+are tied to). With none there (nor in ``--data-dir``), the first scan runs the simulated bench's factory
+calibration (lidard.jobs.guided: plates, fit, spheres; through the instruments), says so once on stderr
+and keeps the records in the cache (or in ``--data-dir``). ``sim.factory_calibration = false`` or
+``--uncalibrated`` skips it.
 """
 
 from __future__ import annotations
@@ -38,8 +45,10 @@ def run_meta(cfg, scene_path: str | None) -> dict:
 
 
 @contextlib.contextmanager
-def embedded(args, cfg=None, scene_path: str | None = None):
-    """Yield ``(worker, store, instrument)``; on exit stop the worker, close the store and the bench."""
+def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = False):
+    """Yield ``(worker, store, instrument)``; on exit stop the worker, close the store and the bench.
+    ``factory``: calibrate range and pointing before the first scan when nothing of this set-up is stored."""
+    from ..instrument.calibration.setup import instrument_setup
     from ..jobs import ScanWorker
     from ..store import Store
     cfg = cfg if cfg is not None else sim_config(args)
@@ -68,8 +77,14 @@ def embedded(args, cfg=None, scene_path: str | None = None):
     use_cache = tmp is not None and not getattr(args, "no_cal_cache", False)
     try:
         seeded = _seed_from_cache(cfg, store) if use_cache else None
+        setup = instrument_setup(cfg, inst)
+        if use_cache and factory:
+            _seed_records(setup, store)
         worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1, optics=cfg.optics(),
-                            recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
+                            recalibrate_delta_c=cfg.scan.recalibrate_delta_c, setup=setup)
+        if factory and cfg.sim.factory_calibration and inst.simulated:
+            worker.factory = _factory(cfg, scene_path, "the user's cache" if use_cache else
+                                      "the data directory" if args.data_dir else "this run only (--no-cal-cache)")
         worker.start()
         try:
             yield worker, store, inst
@@ -77,6 +92,8 @@ def embedded(args, cfg=None, scene_path: str | None = None):
             worker.stop()
             if use_cache:
                 _update_cache(cfg, store, seeded)
+                if worker.factory is not None and worker.factory.result is not None:
+                    _keep_records(setup, worker.factory.result)
     finally:
         try:
             store.close()
@@ -102,6 +119,36 @@ def _update_cache(cfg, store, seeded: str | None) -> None:
     cal = store.latest_calibration(cfg.laser)
     if cal is not None and cal.meta.get("id") != seeded:
         calcache.save(cfg, cal)
+
+
+def _factory(cfg, scene_path: str | None, where: str):
+    """The factory calibration of ``cfg``'s bench, which puts the scan's scene back when it is done."""
+    import sys
+    import tomllib
+    from ..jobs.guided import FactoryCalibration
+    scene_file = scene_path or str(cfg.resolve_path(cfg.sim.scene))
+
+    def scene() -> dict:
+        with open(scene_file, "rb") as f:
+            return tomllib.load(f)
+
+    return FactoryCalibration(nominal_delay_s=cfg.monitor.delay_s, scene=scene,
+                              announce=lambda msg: print(f"lidarctl: {msg}; kept in {where} for the next runs "
+                                                         "(--uncalibrated skips it)", file=sys.stderr))
+
+
+def _seed_records(setup, store) -> int:
+    """Put the cached range/pointing records of this set-up into the (temporary) store."""
+    from .. import calcache
+    recs = calcache.load_records(setup.hash) or []
+    for rec in recs:
+        store.import_geometry_calibration(rec)
+    return len(recs)
+
+
+def _keep_records(setup, result: dict) -> None:
+    from .. import calcache
+    calcache.save_records(setup.hash, [result["range"], result["pointing"]])
 
 
 def resolve(path: str | None) -> str | None:

@@ -13,7 +13,7 @@ from typing import Any
 
 from . import output
 from .base import CliError
-from .client import client, daemon_opts, error_detail
+from .client import check, client, daemon_opts, error_detail
 
 
 def add_parser(sub) -> None:
@@ -27,13 +27,12 @@ def add_parser(sub) -> None:
 def cmd_faults(args, transport: Any = None) -> int:
     with client(args, transport=transport) as c:
         if not c.lease:
-            raise CliError("faults ack: needs the control lock; run `lidarctl control acquire` and pass "
-                           "the lease with --lease or LIDARD_LEASE")
+            raise CliError("faults ack: needs the control lock; run `lidarctl control acquire` (it stores the "
+                           "lease for later lidarctl calls) or pass the lease with --lease or LIDARD_LEASE")
         r = c.send("POST", "/controller/acknowledge")
         if r.status_code == 409:
             raise CliError(f"faults not acknowledged, still open: {error_detail(r)}")
-        if r.status_code >= 400:
-            raise CliError(f"lidard answered {r.status_code}: {error_detail(r)}")
+        check(r)
         out = r.json()
     if args.json:
         output.emit_json(out)

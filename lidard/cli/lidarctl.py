@@ -9,13 +9,16 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import calibrate, calibration, control, devices, faults, optics, raw, scan, scans, selftest, stream, sweep
-from .base import Parser, run
+from . import (calibrate, calibration, control, devices, faults, guided, optics, raw, scan, scans, selftest, sim,
+               stream, sweep)
+from .base import Parser, run, stop_signals
 
 # (module, registering function) in the order ``lidarctl --help`` lists them
 GROUPS = ((scan, "add_parser"), (devices, "add_parsers"), (scans, "add_parser"), (control, "add_parser"),
-          (faults, "add_parser"), (calibration, "add_parser"), (calibrate, "add_parser"), (selftest, "add_parser"),
-          (optics, "add_parsers"), (raw, "add_parsers"), (sweep, "add_parser"), (stream, "add_parser"))
+          (faults, "add_parser"), (calibration, "add_parser"), (calibrate, "add_parser"), (guided, "add_parser"),
+          (selftest, "add_parser"),
+          (optics, "add_parsers"), (raw, "add_parsers"), (sweep, "add_parser"),
+          (sim, "add_parser"), (stream, "add_parser"))
 
 DESCRIPTION = """\
 Control and inspect an FPSA FMCW LiDAR through its daemon (lidard), or run it on an embedded
@@ -51,4 +54,7 @@ def glue_secret_values(argv: list[str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     argv = glue_secret_values(list(sys.argv[1:] if argv is None else argv))
     args = build_parser().parse_args(argv)
-    return run(args.fn, args, "lidarctl")
+    # SIGTERM and SIGHUP stop a command as Ctrl-C does (lidard.cli.base): a one-shot scan keeps its
+    # points and removes its temporary store instead of dying where it stands
+    with stop_signals():
+        return run(args.fn, args, "lidarctl")

@@ -10,9 +10,13 @@ Three renderings, chosen by ``--progress``:
 * ``json``: one JSON object per event, for a program that drives ``lidarctl``;
 * ``none``: nothing.
 
-tqdm replaces the hand-written bar of earlier versions: it computes the rate and ETA and knows how
-to redraw on narrow terminals; the lines and JSON renderings are ours because tqdm has no "one line
-per decile" mode.
+tqdm replaces the hand-written bar of earlier versions: it knows how to redraw on narrow terminals;
+the lines and JSON renderings are ours because tqdm has no "one line per decile" mode.
+
+The ETA counts scanning only: its rate is measured from the first report of the scanning stage that
+has pixels done (the linearization, the health check and the first batch's set-up are not in it), as
+pixels per second since then. A stage without a pixel count (linearizing) says its steps instead
+(``linearizing: measurement N``), so a long linearization is not a silent ``linearizing...``.
 """
 
 from __future__ import annotations
@@ -40,8 +44,23 @@ class Progress:
         self._bar = None
         self._stage: str | None = None
         self._decile = -1
-        self._t0: float | None = None
+        self._rate_from: tuple[float, int] | None = None    # (clock, pixels done) of the stage's first report
+        self._steps = 0
         self.lines_written = 0
+
+    def eta_s(self, ev: dict[str, Any]) -> float | None:
+        """Seconds left in this stage at ``ev``: the pixels to go at the rate measured since the stage's
+        first report with pixels done (None until a second report has moved on from it)."""
+        done, total = int(ev.get("pixels_done") or 0), int(ev.get("pixels_planned") or 0)
+        now = self.clock()
+        if self._rate_from is None:
+            if done > 0:
+                self._rate_from = (now, done)
+            return None
+        t1, n1 = self._rate_from
+        if done <= n1 or now <= t1:
+            return None
+        return (total - done) * (now - t1) / (done - n1)
 
     def __call__(self, ev: dict[str, Any]) -> None:
         if self.mode == "none":
@@ -63,18 +82,21 @@ class Progress:
         if not total:  # a stage with no pixel count (linearizing, preparing): a bar would say "0/?"
             if stage != self._stage:
                 self._close_bar()
-                self._stage = stage
+                self._stage, self._steps = stage, 0
                 self._write(f"{stage}...\n")
+            self._step_line(stage, ev)
             return
         if self._bar is None or stage != self._stage or (total and self._bar.total != total):
             self._close_bar()
-            self._stage = stage
+            self._stage, self._rate_from = stage, None
             self._bar = tqdm(total=total, file=self.file, desc=f"{stage:>11}", unit="px",
                              postfix=f"{int(ev.get('points') or 0)} pts",
                              ascii=".#", dynamic_ncols=False, leave=True, mininterval=0.1,
                              bar_format="{desc} [{bar:WIDTH}] {percentage:5.1f}% {n_fmt}/{total_fmt} px"
-                                        "{postfix}  ETA {remaining}, {rate_fmt}".replace("WIDTH", str(self.width)))
-        self._bar.set_postfix_str(f"{int(ev.get('points') or 0)} pts", refresh=False)
+                                        "{postfix}".replace("WIDTH", str(self.width)))
+        eta = self.eta_s(ev)
+        self._bar.set_postfix_str(f"{int(ev.get('points') or 0)} pts  ETA "
+                                  f"{'?' if eta is None else _duration(eta)}", refresh=False)
         done = int(ev.get("pixels_done") or 0)
         if done > self._bar.n:
             self._bar.update(done - self._bar.n)
@@ -90,21 +112,29 @@ class Progress:
     def _draw_line(self, ev: dict[str, Any]) -> None:
         stage = str(ev.get("stage", ""))
         if stage != self._stage:
-            self._stage, self._decile, self._t0 = stage, -1, self.clock()
+            self._stage, self._decile, self._rate_from, self._steps = stage, -1, None, 0
             if stage != "scanning":
                 self._write(f"{stage}...\n")
         planned = int(ev.get("pixels_planned") or 0)
         if not planned:
+            self._step_line(stage, ev)
             return
+        eta_s = self.eta_s(ev)
         frac = min(max(float(ev.get("fraction") or 0.0), 0.0), 1.0)
         decile = int(frac * 100 + 1e-9) // _STEP
         if decile <= self._decile or decile == 0:
             return
         self._decile = decile
-        elapsed = self.clock() - (self._t0 or self.clock())
-        eta = f", ETA {elapsed * (1 - frac) / frac:.0f} s" if 0 < frac < 1 else ""
+        eta = f", ETA {eta_s:.{1 if eta_s < 10 else 0}f} s" if eta_s is not None and frac < 1 else ""
         self._write(f"{stage} {decile * _STEP:3d} %  {ev.get('pixels_done', 0)}/{planned} px  "
                     f"{ev.get('points', 0)} pts{eta}\n")
+
+    def _step_line(self, stage: str, ev: dict[str, Any]) -> None:
+        """``linearizing: measurement N`` for each new step a stage without pixels reports."""
+        n = ev.get("measurements")
+        if n is not None and int(n) > self._steps:
+            self._steps = int(n)
+            self._write(f"{stage}: measurement {self._steps}\n")
 
     def _write(self, text: str) -> None:
         self.file.write(text)
@@ -113,6 +143,10 @@ class Progress:
 
     def close(self) -> None:
         self._close_bar()
+
+
+def _duration(s: float) -> str:
+    return f"{s:.0f} s" if s < 60 else f"{int(s // 60)} min {round(s % 60):02d} s"
 
 
 def _isatty(f: TextIO) -> bool:

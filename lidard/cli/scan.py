@@ -2,8 +2,11 @@
 
 The request is checked with the daemon's own schema (lidard.api.schemas.ScanCreate) and the scan
 planner (lidard.scan.plan: bonded rows, array bounds) before any bench starts or any request is sent,
-so ``--averages 0`` is refused here with the words the daemon would use. Ctrl-C cancels the scan,
-keeps the points measured so far (written to ``--out`` with a partial sidecar) and exits 130.
+so ``--averages 0`` is refused here with the words the daemon would use. Ctrl-C, SIGTERM and SIGHUP
+cancel the scan, keep the points measured so far (written to ``--out`` with a partial sidecar whose
+``stop_reason`` names the signal) and exit 128 + the signal's number (130, 143, 129; lidard.cli.base).
+When the daemon itself shuts down mid-scan, the scan's final record (state ``interrupted``) is printed
+from its last event even if the daemon is gone before the record could be fetched again.
 """
 
 from __future__ import annotations
@@ -14,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from . import base, output
-from .base import CliError, Interrupted
-from .client import client, daemon_opts, refuse_sim_only
+from .base import CliError, Interrupted, describe_signal, signal_of
+from .client import Unreachable, client, daemon_opts, refuse_sim_only
 from .progress import MODES, Progress
 
 PATTERNS = ("raster", "serpentine", "roi", "pixels", "adaptive")
@@ -34,7 +37,7 @@ examples:
   # simulated bench, no daemon: the letters scene, written as PLY plus FILE.ply.json sidecar
   lidarctl scan --sim --scene config/scenes/cal_letters.toml --out /tmp/cal.ply
   # on a running daemon (take the control lock first): four pixels, 4 averages, 5 m range gate
-  lidarctl control acquire          # then run the `export LIDARD_LEASE=...` line it prints
+  lidarctl control acquire          # stores the lease for the next lidarctl calls to this daemon
   lidarctl scan --pixels 0,0 0,1 4,10 8,20 --averages 4 --max-range 5 --out px.las
 """
 
@@ -48,6 +51,10 @@ def add_parser(sub) -> None:
                                                     "instead of the configuration's")
     sp.add_argument("--scene", default=None, metavar="FILE.toml",
                     help="only with --sim: scene TOML (default: the configuration's sim.scene)")
+    sp.add_argument("--uncalibrated", action="store_true", default=None,
+                    help="only with --sim: neither run the simulated bench's factory range/pointing calibration "
+                         "(before the first scan of a bench with none of its set-up) nor take it from the user's "
+                         "cache; records kept in --data-dir still apply")
     sp.add_argument("--pattern", choices=PATTERNS, default=None,
                     help="scan pattern, see below (default: the daemon's/config's scan.pattern)")
     sp.add_argument("--rows", default=None, metavar="A:B", help="FPSA rows A <= row < B (pixel indices)")
@@ -61,6 +68,9 @@ def add_parser(sub) -> None:
                     help="chirps averaged per pixel, 1..100 (count; default: scan.averages)")
     sp.add_argument("--max-range", type=float, default=None, metavar="M",
                     help="range gate in metres, > 0 (default: scan.max_range_m)")
+    sp.add_argument("--max-speed", type=float, default=None, metavar="M",
+                    help="fastest radial speed to measure, m/s, > 0: sizes the digitizer's Doppler band "
+                         "(default: scan.max_speed_mps)")
     sp.add_argument("--phase-noise", choices=["auto", "on", "off"], default=None,
                     help="laser phase-noise compensation from the monitor MZI (default: scan.* of the config)")
     sp.add_argument("--record-raw", action="store_true",
@@ -137,6 +147,8 @@ def request_body(args, fmt: str) -> dict[str, Any]:
         body["averages"] = args.averages
     if args.max_range is not None:
         body["max_range_m"] = args.max_range
+    if args.max_speed is not None:
+        body["max_speed_mps"] = args.max_speed
     if args.phase_noise is not None:
         body["phase_noise_compensation"] = args.phase_noise
     if args.record_raw:
@@ -164,7 +176,7 @@ def check_plan(req, optics) -> None:
         raise CliError(str(exc)) from None
 
 
-def summary(rec: dict[str, Any], out: str | None, simulated: bool) -> dict[str, Any]:
+def summary(rec: dict[str, Any], out: str | None, simulated: bool | None) -> dict[str, Any]:
     hw, wall = rec.get("hardware_time_s"), rec.get("wall_time_s")
     planned = rec.get("pixels_planned") or 0
     return {
@@ -179,66 +191,83 @@ def summary(rec: dict[str, Any], out: str | None, simulated: bool) -> dict[str, 
 
 def cmd_scan(args) -> int:
     from ..pointcloud import format_of
-    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache")
+    refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache", "--uncalibrated")
     fmt = format_of(args.out) if args.out else "ply"
     base.check_out(args.out)
     body = request_body(args, fmt)
     bar = Progress(args.progress)
-    interrupted = [False]
+    interrupted: list = [None]         # the signal number that stopped the scan
     try:
         s = _scan_sim(args, body, bar, interrupted) if args.sim else _scan_daemon(args, body, bar, interrupted)
     finally:
         bar.close()
-    warn_uncalibrated(s.get("calibrated"))
+    warn_uncalibrated(s.get("calibrated"), s.get("uncalibrated_reason"))
     if args.json:
-        output.emit_json({**s, "interrupted": interrupted[0]})
+        output.emit_json({**s, "interrupted": interrupted[0] is not None})
     else:
         print(f"scan {s['id']}: {s['state']}{' (partial)' if s['partial'] else ''}, "
               f"{s['points']} points, coverage {s['coverage'] * 100:.1f} %"
               + (f", written to {s['out']}" if s["out"] else ""))
-    if interrupted[0]:
+    if interrupted[0] is not None:
         raise Interrupted(f"scan {s['id']} {s['state']}, {s['points']} points kept"
-                          + (f" in {s['out']}" if s["out"] else ""))
+                          + (f" in {s['out']}" if s["out"] else ""), signum=interrupted[0])
     if s["state"] not in ("done", "cancelled"):
         raise CliError(f"scan {s['id']} {s['state']}: {s.get('error') or 'no detail'}")
     return 0
 
 
-def warn_uncalibrated(calibrated: dict[str, bool] | None) -> None:
-    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4)."""
+def warn_uncalibrated(calibrated: dict[str, bool] | None, reason: str | None = None) -> None:
+    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4), with the
+    reason stored calibrations were left out (made on another set-up) when there was one."""
     missing = [k for k in ("range", "pointing") if calibrated is not None and not calibrated.get(k)]
     if missing:
         print(f"lidarctl: warning: uncalibrated {' and '.join(missing)}: ranges and x, y, z carry the scanner's "
-              "unmeasured range scale/zero and pointing errors (see `lidarctl calibration --help`)", file=sys.stderr)
+              "unmeasured range scale/zero and pointing errors (see `lidarctl calibrate --help`)"
+              + (f"; {reason}" if reason else ""), file=sys.stderr)
     if calibrated is not None and calibrated.get("iq") is False:
         print("lidarctl: warning: uncalibrated I/Q receiver: the hybrid's image of every return is only "
               "suppressed to its own imbalance (see `lidarctl calibration iq`)", file=sys.stderr)
 
 
-def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[str, Any]:
+def _flat(rec: dict[str, Any]) -> dict[str, Any]:
+    """A record as GET /scans/{id} answers it, in the keys of :func:`summary`."""
+    return {"id": rec["id"], "state": rec["state"], "partial": rec["partial"], **rec["counts"],
+            "hardware_time_s": rec["timing"]["hardware_time_s"], "wall_time_s": rec["timing"]["wall_time_s"]}
+
+
+def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list) -> dict[str, Any]:
     from ..pointcloud import sidecar_path
     with client(args) as c:
         sid = c.request("POST", "/scans", json=body).json()["id"]
         try:
-            c.follow(sid, bar)
-        except KeyboardInterrupt:
-            interrupted[0] = True
+            end = c.follow(sid, bar)
+        except KeyboardInterrupt as exc:
+            interrupted[0] = signal_of(exc)
             c.request("DELETE", f"/scans/{sid}")
-            c.follow(sid, bar)
-        rec = c.get_json(f"/scans/{sid}")
-        flat = {"id": rec["id"], "state": rec["state"], "partial": rec["partial"], **rec["counts"],
-                "hardware_time_s": rec["timing"]["hardware_time_s"], "wall_time_s": rec["timing"]["wall_time_s"]}
+            end = c.follow(sid, bar)
         out = None
-        fmt = body["formats"][0]
-        if args.out and fmt in rec["formats"]:
-            points = c.request("GET", f"/scans/{sid}/points", params={"format": fmt}).content
-            side = c.request("GET", f"/scans/{sid}/sidecar", params={"format": fmt}).content
-            base.write_bytes_atomic(args.out, points)
-            base.write_bytes_atomic(sidecar_path(args.out), side)
-            out = str(args.out)
-        s = summary(flat, out, bool(c.get_json("/health").get("simulated")))
+        try:
+            rec = c.get_json(f"/scans/{sid}")
+            fmt = body["formats"][0]
+            if args.out and fmt in rec["formats"]:
+                points = c.request("GET", f"/scans/{sid}/points", params={"format": fmt}).content
+                side = c.request("GET", f"/scans/{sid}/sidecar", params={"format": fmt}).content
+                base.write_bytes_atomic(args.out, points)
+                base.write_bytes_atomic(sidecar_path(args.out), side)
+                out = str(args.out)
+            simulated = bool(c.get_json("/health").get("simulated"))
+        except Unreachable:
+            if not end.get("scan"):
+                raise
+            # the daemon shut down right after the scan's end: its final record came with that event
+            rec, simulated = end["scan"], None
+            print(f"lidarctl: lidard stopped after scan {sid} ended; its points stay in the daemon's data "
+                  "directory" + (f", {args.out} was not written" if args.out and out is None else ""),
+                  file=sys.stderr)
+        s = summary(_flat(rec), out, simulated)
         s["error"] = rec.get("error")
         s["calibrated"] = rec.get("calibrated")
+        s["uncalibrated_reason"] = rec.get("uncalibrated_reason")
         return s
 
 
@@ -248,14 +277,14 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
     cfg = sim_config(args)
     req = sim_request(body, cfg)
     check_plan(req, cfg.optics())  # before the bench starts
-    with embedded(args, cfg, scene_path=resolve(args.scene)) as (worker, store, inst):
+    with embedded(args, cfg, scene_path=resolve(args.scene), factory=not args.uncalibrated) as (worker, store, inst):
         rec = worker.submit_scan(req)
         worker.subscribe(rec.id, bar)
         try:
             final = worker.wait(rec.id)
-        except KeyboardInterrupt:
-            interrupted[0] = True
-            worker.cancel(rec.id)
+        except KeyboardInterrupt as exc:
+            interrupted[0] = signal_of(exc)
+            worker.cancel(rec.id, reason=f"interrupted by {describe_signal(interrupted[0])}")
             final = worker.wait(rec.id)
         out = None
         fmt = body["formats"][0]
@@ -267,4 +296,5 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
         s = summary(final.to_dict(), out, bool(inst.simulated))
         s["error"] = final.error
         s["calibrated"] = final.calibrated
+        s["uncalibrated_reason"] = final.uncalibrated_reason
         return s

@@ -33,6 +33,8 @@ def _request_text(req: dict[str, Any]) -> str:
         parts.append(f"{req['averages']} averages")
     if req.get("max_range_m") is not None:
         parts.append(f"max range {req['max_range_m']:g} m")
+    if req.get("max_speed_mps") is not None:
+        parts.append(f"max speed {req['max_speed_mps']:g} m/s")
     if req.get("phase_noise_compensation") is not None:
         parts.append(f"phase-noise compensation {req['phase_noise_compensation']}")
     return ", ".join(parts)
@@ -71,6 +73,7 @@ def show_text(s: dict[str, Any]) -> str:
         ("files", ", ".join(s.get("formats") or []) or None),
         ("calibration", s.get("calibration_id")),
         ("calibrated", _calibrated_text(s)),
+        ("uncalibrated because", s.get("uncalibrated_reason")),
         ("raw capture", f"{s['raw_bytes'] / 1e6:.1f} MB" if s.get("raw_bytes") else None),
         ("reprocessed from", s.get("reprocessed_from")),
     ])

@@ -9,12 +9,11 @@ plans each frame from the last ones (lidard.tracking).
 
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 
 from . import base, output
-from .base import CliError, Interrupted
+from .base import CliError, Interrupted, signal_of
 from .client import daemon_opts, refuse_sim_only
 from .scan import _range
 
@@ -74,32 +73,22 @@ def cmd_stream(args) -> int:
     cfg = sim_config(args)
     spec = _spec(args, cfg)
     job = StreamJob(spec)
-    interrupted = [False]
-    prev = None
-    if threading.current_thread() is threading.main_thread():
-        def on_term(signum, frame):
-            interrupted[0] = True
-            job.cancel.set()
-        prev = signal.signal(signal.SIGTERM, on_term)
+    interrupted = [0]      # the signal that stopped the stream (SIGTERM/SIGHUP arrive as KeyboardInterrupt)
     job.on_frame = lambda f: print(f"frame {f.index}: {f.pixels_scanned}/{len(f.pixels)} pixels, "
                                    f"{int((f.points['valid'] == 1).sum())} valid points, start {f.start_s:.3f} s, "
                                    f"{f.hardware_time_s * 1e3:.1f} ms", file=sys.stderr)
-    try:
-        with embedded(args, cfg, scene_path=resolve(args.scene)) as (worker, store, inst):
-            fut = worker.submit_task(lambda: job.run(worker))
-            while True:
-                try:
-                    result = fut.result()
-                    break
-                except KeyboardInterrupt:
-                    interrupted[0] = True
-                    job.cancel.set()
-                except Exception:
-                    result = None
-                    break
-    finally:
-        if prev is not None:
-            signal.signal(signal.SIGTERM, prev)
+    with embedded(args, cfg, scene_path=resolve(args.scene)) as (worker, _store, _inst):
+        fut = worker.submit_task(lambda: job.run(worker))
+        while True:
+            try:
+                result = fut.result()
+                break
+            except KeyboardInterrupt as exc:
+                interrupted[0] = signal_of(exc)
+                job.cancel.set()
+            except Exception:      # the job records its failure (state "failed", error)
+                result = None
+                break
     st = job.status()
     if args.json:
         output.emit_json({**st, "frames": job.frames, "result": result, "interrupted": interrupted[0]})
@@ -107,7 +96,7 @@ def cmd_stream(args) -> int:
         print(f"stream {job.id}: {st['state']}, {st['frames_done']} frames"
               + (f", written to {spec.out}" if spec.out else "") + (f" ({st['stop_reason']})" if st["stop_reason"] else ""))
     if interrupted[0]:
-        raise Interrupted(f"stream {job.id} stopped, {st['frames_done']} frames kept")
+        raise Interrupted(f"stream {job.id} stopped, {st['frames_done']} frames kept", signum=interrupted[0])
     if st["state"] == "failed":
         raise CliError(f"stream {job.id} failed: {st['error']}")
     return 0
@@ -135,51 +124,45 @@ def _stream_daemon(args) -> int:
 
     from .client import client
     body = _body(args)
-    interrupted = [False]
+    interrupted = [0]
     stop = threading.Event()
-    prev = None
-    if threading.current_thread() is threading.main_thread():
-        prev = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
-    try:
-        with client(args) as c:
-            sid = c.request("POST", "/streams", json=body).json()["id"]
-            seen, deleted = 0, False
-            while True:
-                try:
-                    if stop.is_set() and not deleted:
-                        interrupted[0], deleted = True, True
-                        c.request("DELETE", f"/streams/{sid}")
-                    st = c.get_json(f"/streams/{sid}")
-                    for f in st["frames"][seen:]:
-                        print(f"frame {f['frame']}: {f['pixels_scanned']}/{f['pixels_planned']} pixels, "
-                              f"{f['valid_points']} valid points, start {f['start_s']:.3f} s", file=sys.stderr)
-                    seen = len(st["frames"])
-                    if st["state"] not in ("queued", "running"):
-                        break
-                    time.sleep(0.2)     # polling interval of the frame report
-                except KeyboardInterrupt:
-                    stop.set()
-            if args.out:
-                if body["format"] == "mcap":
-                    base.write_bytes_atomic(args.out, c.request("GET", f"/streams/{sid}/mcap").content)
-                else:
-                    out = Path(args.out)
-                    out.mkdir(parents=True, exist_ok=True)
-                    from ..pointcloud import sidecar_path, suffix_of
-                    for f in st["frames"]:
-                        path = out / f"frame_{f['frame']:05d}{suffix_of(body['format'])}"
-                        base.write_bytes_atomic(path, c.request("GET", f"/streams/{sid}/frames/{f['frame']}").content)
-                        base.write_bytes_atomic(sidecar_path(path), json.dumps(f, indent=1).encode())
-    finally:
-        if prev is not None:
-            signal.signal(signal.SIGTERM, prev)
+    with client(args) as c:
+        sid = c.request("POST", "/streams", json=body).json()["id"]
+        seen, deleted = 0, False
+        while True:
+            try:
+                if stop.is_set() and not deleted:
+                    deleted = True
+                    c.request("DELETE", f"/streams/{sid}")
+                st = c.get_json(f"/streams/{sid}")
+                for f in st["frames"][seen:]:
+                    print(f"frame {f['frame']}: {f['pixels_scanned']}/{f['pixels_planned']} pixels, "
+                          f"{f['valid_points']} valid points, start {f['start_s']:.3f} s", file=sys.stderr)
+                seen = len(st["frames"])
+                if st["state"] not in ("queued", "running"):
+                    break
+                time.sleep(0.2)     # polling interval of the frame report
+            except KeyboardInterrupt as exc:    # Ctrl-C, SIGTERM, SIGHUP: DELETE, keep polling
+                interrupted[0] = signal_of(exc)
+                stop.set()
+        if args.out:
+            if body["format"] == "mcap":
+                base.write_bytes_atomic(args.out, c.request("GET", f"/streams/{sid}/mcap").content)
+            else:
+                out = Path(args.out)
+                out.mkdir(parents=True, exist_ok=True)
+                from ..pointcloud import sidecar_path, suffix_of
+                for f in st["frames"]:
+                    path = out / f"frame_{f['frame']:05d}{suffix_of(body['format'])}"
+                    base.write_bytes_atomic(path, c.request("GET", f"/streams/{sid}/frames/{f['frame']}").content)
+                    base.write_bytes_atomic(sidecar_path(path), json.dumps(f, indent=1).encode())
     if args.json:
         output.emit_json({**st, "interrupted": interrupted[0]})
     else:
         print(f"stream {sid}: {st['state']}, {st['frames_done']} frames" + (f", written to {args.out}" if args.out else "")
               + (f" ({st['stop_reason']})" if st.get("stop_reason") else ""))
     if interrupted[0]:
-        raise Interrupted(f"stream {sid} stopped, {st['frames_done']} frames kept")
+        raise Interrupted(f"stream {sid} stopped, {st['frames_done']} frames kept", signum=interrupted[0])
     if st["state"] == "failed":
         raise CliError(f"stream {sid} failed: {st.get('error')}")
     return 0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from .base import Fraction, NonNegFloat, PosFloat, _Model
 
@@ -25,9 +25,16 @@ class Chirp(_Model):
     shape: Literal["triangle", "three_segment"] = "three_segment"
     # three_segment: the constant segment lasts lambda / (2 velocity_resolution_mps) (its Doppler bin)
     velocity_resolution_mps: float = Field(default=0.01, gt=0, le=10)
-    # three_segment: the digitizer band covers Doppler shifts up to this speed (a band, not a validity
-    # prior: nothing is invalidated by its speed; a faster target's beat lies beyond the band)
-    doppler_band_mps: float = Field(default=10.0, gt=0, le=100)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _band_moved(cls, data):
+        # The Doppler band sizes the digitizer for one scan, not the drive waveform: it is a scan
+        # request (scan.max_speed_mps, like scan.max_range_m) and stays out of the linearization's key.
+        if isinstance(data, dict) and "doppler_band_mps" in data:
+            raise ValueError("chirp.doppler_band_mps is now scan.max_speed_mps (a scan request: "
+                             "`lidarctl scan --max-speed`, max_speed_mps in POST /scans)")
+        return data
 
     @property
     def rate_hz_per_s(self) -> float:
@@ -144,9 +151,12 @@ class ScanDefaults(_Model):
     pfa: float = Field(default=1e-6, gt=0, lt=0.1)
     max_returns: int = Field(default=2, ge=1, le=8)
     window: Literal["rectangular", "hann", "blackmanharris"] = "hann"
-    # chirp.shape = "triangle" only: a real (single-photodiode) beat cannot tell a Doppler shift from a
-    # range beat when the Doppler allowance exceeds the range beat (§2.1.2): the a-priori speed limit
-    # sets what is unambiguous. The three-segment chirp needs no prior (chirp.doppler_band_mps).
+    # The fastest radial speed a scan is asked to measure (a request, like max_range_m; per scan:
+    # `lidarctl scan --max-speed`, max_speed_mps in POST /scans). It sizes the digitizer: the ADC band
+    # must hold the range beat plus this Doppler shift (§2.1.2), so a static scene pays for no Doppler
+    # allowance (0.4 m/s: 5 MHz x 1,190 samples a three-segment record at 2 m; 10 m/s: 40 MHz x 9,520).
+    # Three-segment chirp and I/Q receiver: a band, not a prior (a target beyond it is flagged, never
+    # ranged). Triangle on a real receiver: also the a-priori limit that makes a pair unambiguous.
     max_speed_mps: float = Field(default=0.4, gt=0, le=100)
     # Laser phase-noise compensation from the monitor MZI recorded with the beat (§2.3,
     # lidard.dsp.pnframe). "auto": on when the round trip of the scan's max_range_m is at least twice the
@@ -244,6 +254,11 @@ class Sim(_Model):
     bench: Literal["child", "embedded"] = "child"
     effects: Effects = Effects()
     tolerances: Tolerances = Tolerances()
+    # a scan on this bench with no range/pointing calibration of its set-up first runs the bench's factory
+    # calibration (plates, then spheres, placed through the bench and measured through the instruments;
+    # lidard.jobs.guided): the one-shot `lidarctl scan --sim` (kept in the user's cache) and the daemon's
+    # first scan. `lidarctl scan --sim --uncalibrated` skips it for one run.
+    factory_calibration: bool = True
     # [[sim.faults]] tables, injected by the bench at start. Only their shape is checked here: the
     # catalogue (kinds, parameters) belongs to the simulator, which checks each entry when the bench
     # is built and raises a ConfigError naming it (the daemon side never imports the simulator).

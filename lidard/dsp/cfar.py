@@ -40,7 +40,7 @@ import numpy as np
 
 from lidard.dsp import jit
 from lidard.dsp.cfar_os import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
-    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, brentq, os_cfar_alpha, os_cfar_pfa,
+    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, os_cfar_alpha, os_cfar_pfa,
 )
 from lidard.dsp.cfar_post import (  # noqa: F401  (re-exported: tests' reach)
     _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db,
@@ -187,7 +187,7 @@ def cfar_detect(
     p2 = p.reshape(-1, p.shape[-1])
     n_bins = p2.shape[-1]
     # the compiled OS-CFAR checks the values in its own pass over the spectra (issue 18); else they are checked here
-    kern = jit.kernels() if method == "os" and n_bins > max(2, n_guard + n_ref // 2) else None
+    kern = jit.kernels(p2.size) if method == "os" and n_bins > max(2, n_guard + n_ref // 2) else None
     if kern is None:
         _check_power_values(p2)
     if n_bins < 3:

@@ -5,7 +5,7 @@ alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential no
 at a chosen false-alarm rate). The detector computes the statistic exactly only at the local maxima
 that could pass the threshold (issue 18, :func:`_os_screened`: screens that are necessary conditions of
 the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
-every bin (exactly, or a lower bound where nothing can pass). Pure numpy (scipy.optimize on first use);
+every bin (exactly, or a lower bound where nothing can pass). Pure numpy;
 :func:`_os_detected`, the detector's entry, takes the compiled pass instead when numba is installed
 (:mod:`lidard.dsp.jit`: the same cells, bit for bit, with the value check and the threshold test in it).
 """
@@ -20,12 +20,6 @@ from lidard.dsp import jit
 from lidard.dsp.window import DspInputError
 
 
-def brentq(*args, **kwargs):
-    # imported on first use: scipy.optimize costs about a second of every command's start-up (issue 18)
-    from scipy.optimize import brentq as fn
-    return fn(*args, **kwargs)
-
-
 def os_cfar_pfa(alpha: float, n_ref: int, k: int) -> float:
     """Exact Pfa of OS-CFAR (k-th of N cells, exponential noise) for threshold factor alpha."""
     i = np.arange(k)
@@ -38,10 +32,15 @@ def os_cfar_alpha(n_ref: int, k: int, pfa: float) -> float:
     _check_pfa(pfa)
     if not 1 <= k <= n_ref:
         raise DspInputError(f"OS-CFAR rank k={k} must lie in 1..n_ref={n_ref}")
-    hi = 1.0
+    lo, hi = 0.0, 1.0
     while os_cfar_pfa(hi, n_ref, k) > pfa:
-        hi *= 2.0
-    return float(brentq(lambda a: np.log(os_cfar_pfa(a, n_ref, k)) - np.log(pfa), 0.0, hi, xtol=1e-12, rtol=1e-12))
+        lo, hi = hi, hi * 2.0
+    # Pfa falls monotonically with alpha: bisect to a relative 1e-13 (not scipy.optimize: importing it
+    # costs ~0.4 s of every scan's start-up)
+    while hi - lo > 1e-13 * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if os_cfar_pfa(mid, n_ref, k) > pfa else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
 def _check_pfa(pfa: float) -> None:
@@ -112,7 +111,7 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
     if n <= reach:
         raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
     k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank)
-    kern = jit.kernels()
+    kern = jit.kernels(p.size)
     if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.jit)
         return jit.os_screen(p, n_ref_side, n_guard, k, thr_factor, mean_kth, kern) + (scaled_alpha,)
     n_blocks = -(-n // _OS_BLOCK)

@@ -42,7 +42,7 @@ def _widths_flat(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, m
     Step by step outwards, only for the peaks whose side has not crossed yet (most cross within two
     or three bins): the same values as reading all ``max_half`` offsets of every peak at once. With
     the compiled kernels (:mod:`lidard.dsp.jit`) peak by peak, the same operations in the same order."""
-    kern = jit.kernels()
+    kern = jit.kernels(col.size)
     if kern is not None:
         return jit.widths_6db(flat, start, col, n, max_half, kern)
     peak = flat[start + col]

@@ -37,6 +37,8 @@ class ChainResult:
     frac_bins: np.ndarray
     detections: Detections
     power: np.ndarray | None = None
+    # the refined bins of every record (batch..., averages, K) before their mean (average_axis given)
+    frac_records: np.ndarray | None = None
 
 
 def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, estimator: str,
@@ -68,9 +70,11 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, e
         valid = np.broadcast_to(np.expand_dims(valid, ax), index.shape)
     x, bins, spectrum = refine(index)
     frac = _refine_valid(x, bins, valid, spectrum, method=estimator, window=window, zero_pad=zero_pad)
+    per_record = frac
     if average_axis is not None:
         frac = frac.mean(axis=average_axis % spec.ndim)
-    return ChainResult(frac_bins=frac, detections=det, power=p_ramps)
+    return ChainResult(frac_bins=frac, detections=det, power=p_ramps,
+                       frac_records=per_record if average_axis is not None else None)
 
 
 def _refine_valid(x: np.ndarray, bins: np.ndarray, valid: np.ndarray, spectrum: np.ndarray | None,

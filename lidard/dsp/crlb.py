@@ -55,3 +55,37 @@ def post_fft_snr(snr_linear: object, n: int, *, real: bool = False) -> np.ndarra
     """Per-sample SNR -> post-FFT SNR (rectangular window, on-bin tone): N snr, or N snr / 2 real."""
     s = _check(snr_linear, n, "snr_linear")
     return s * n / (2.0 if real else 1.0)
+
+
+def crlb_tones_freq_var(freq_bins: object, amplitudes: object, phases: object, n: int, sigma: float, *,
+                        real: bool = True) -> np.ndarray:
+    """Cramer-Rao bound on the frequencies of K tones observed together (bins^2 of the n-point grid),
+    by the Fisher information of the full model: ``freq_bins`` (K,) common to the L records,
+    ``amplitudes`` and ``phases`` (L, K) each record's own (nuisance parameters), white noise of
+    standard deviation ``sigma`` per sample (per real and imaginary part for complex tones). Two tones
+    a few bins apart hardly couple (each near its one-tone bound); under a bin apart they do."""
+    f = np.asarray(freq_bins, dtype=np.float64)
+    a = np.atleast_2d(np.asarray(amplitudes, dtype=np.float64))
+    ph = np.atleast_2d(np.asarray(phases, dtype=np.float64))
+    if not (sigma > 0 and np.all(np.isfinite(f)) and a.shape == ph.shape and a.shape[-1] == f.size):
+        raise DspInputError(f"need K frequencies and (L, K) amplitudes and phases, sigma > 0; got {f.shape}, "
+                            f"{a.shape}, {ph.shape}, sigma={sigma!r}")
+    n_rec, k = a.shape
+    t = np.arange(n, dtype=np.float64)
+    w = 2 * np.pi * f / n
+    cols = []     # per record: d/dA_k, d/dphi_k (only that record's rows), then d/dw_k (every record)
+    arg = w[None, :, None] * t + ph[:, :, None]                              # (L, K, n)
+    e = np.cos(arg) if real else np.exp(1j * arg)
+    de = -np.sin(arg) if real else 1j * np.exp(1j * arg)
+    for r in range(n_rec):
+        for j in range(k):
+            for v in (e[r, j], a[r, j] * de[r, j]):
+                c = np.zeros((n_rec, n), dtype=e.dtype)
+                c[r] = v
+                cols.append(c.ravel())
+    for j in range(k):
+        cols.append((a[:, j, None] * t * de[:, j]).ravel() * 2 * np.pi / n)
+    d = np.stack(cols, axis=-1)
+    fim = np.real(d.conj().T @ d) / sigma ** 2
+    cov = np.linalg.inv(fim)
+    return np.diag(cov)[-k:].copy()

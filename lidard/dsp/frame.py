@@ -10,7 +10,10 @@ A segment is one triangle period captured after one trigger: the up ramp then th
 3. detects up to ``max_returns`` peaks per ramp with OS-CFAR at the configured false-alarm
    probability, inside the range gate widened by the Doppler allowance,
 4. refines each detection to a fractional bin on every segment with the selected sub-bin estimator
-   and averages those frequencies (the dissertation averages 10 distance measurements per pixel),
+   and averages those frequencies (the dissertation averages 10 distance measurements per pixel);
+   a ramp's several detections are refined jointly and every detection is tested against the fitted
+   tones (:mod:`lidard.dsp.ranging`: no mutual leakage bias; ``unresolved`` by a model-order test at
+   ``order_level``; a return hidden beside a stronger one is added),
 5. pairs up- and down-ramp peaks (eqs. 2-6, 2-7): range, radial velocity (positive receding),
    validity (folding, harmonic ghosts, unresolved peaks are flagged, not reported as clean points).
    With a three-segment chirp (``cw_samples`` > 0: the record holds a constant-frequency segment after
@@ -34,7 +37,7 @@ from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .cwhold import HoldProfile
 from .threeseg import cw_front_end, drift_rho, pair_frame_three
-from .resolve import unresolved
+from .ranging.ramp import refine_ramp
 from .scratch import scratch
 from .velocity import pair_up_down
 
@@ -77,6 +80,9 @@ class FrameDsp:
     # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
     alias_free_hz: float | None = None
     alias_ceiling_v: float = 0.0
+    # the model-order test's level (lidard.dsp.ranging.order): the probability that one clean return
+    # is flagged unresolved (its cells not explained by the fitted tones) by noise alone
+    order_level: float = 1e-3
 
     def __post_init__(self) -> None:
         if not 0.2 <= self.use_fraction <= 1.0:
@@ -86,6 +92,8 @@ class FrameDsp:
         if self.iq and self.cw_samples:
             raise ValueError("an I/Q receiver measures the beat's sign on the triangle: no constant-frequency segment")
         check_imbalance(self.iq_gain, self.iq_phase_rad)
+        if not 0.0 < self.order_level < 1.0:
+            raise ValueError(f"order_level must be in (0, 1), got {self.order_level!r}")
 
     @property
     def n_used(self) -> int:
@@ -215,11 +223,12 @@ class FrameDsp:
             if self.iq:     # the hybrid's image of a stronger return is not a return
                 img = mirror_images(det.index, det.power, det.valid, rf.n_fft)
                 det = replace(det, valid=det.valid & ~img)
-            # two surfaces closer than a bin: the peak's shape is not one tone's (lidard.dsp.resolve)
-            shape = unresolved(spec, det.index, res.frac_bins, det.valid, det.noise, window=self.window,
-                               n_samples=n, zero_pad=rf.zero_pad, iq=self.iq, average_axis=1, power=res.power)
-            out_f.append(res.frac_bins * rf.delta_f)
-            out_det.append(replace(det, unresolved=det.unresolved | shape))
+            # the ramp's detections refined jointly (no mutual leakage bias), and the model-order test:
+            # a peak the fitted tones do not explain hides a second surface (lidard.dsp.ranging)
+            frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_records, rf=rf, window=self.window,
+                                    level=self.order_level, pfa=self.pfa)
+            out_f.append(frac * rf.delta_f)
+            out_det.append(det)
         return out_f, out_det
 
     def _pair(self, out_f: list, out_det: list) -> FrameResult:

@@ -64,12 +64,6 @@ from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_res
 from .instfreq import check_finite_array, check_positive
 
 
-def hilbert(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
-    from scipy.signal import hilbert as fn
-    return fn(*args, **kwargs)
-
-
 MeasureFn = Callable[[np.ndarray, int], np.ndarray]
 
 

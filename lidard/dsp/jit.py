@@ -13,6 +13,13 @@ numba is imported on first use, never at import time (``lidarctl --help`` and a 
 fast, issue 18), and only if it is installed (a dependency wherever numba publishes wheels: the
 marker in pyproject.toml); :func:`kernels` returns None otherwise and the callers take their numpy path. ``LIDARD_DSP_JIT=0`` in the environment turns
 the kernels off (for comparing the two paths; the results do not depend on it).
+
+Loading numba and the cached kernels costs about 0.9 s of CPU once per process, and the kernels save
+a few ns per spectrum cell (1-10 ns measured on this 2-core Xeon, benchmarks/band_and_cores.py): a
+small scan pays more to load them than they save. So the DSP's own calls say how many cells they are
+about to process (``kernels(cells)``) and numba is loaded only once the process has asked for
+``LOAD_AFTER_CELLS`` of them; until then those calls take the numpy path (the same values).
+A call without a count (tests, tools) loads it at once.
 """
 
 from __future__ import annotations
@@ -24,6 +31,12 @@ from types import SimpleNamespace
 import numpy as np
 
 
+#: Spectrum cells the DSP processes before numba is loaded: its ~0.9 s load over a saving of ~10 ns a
+#: cell at best (the model of the module docstring), so a scan that processes fewer never loads it.
+LOAD_AFTER_CELLS = 1 << 26
+_asked = [0]        # cells asked for so far in this process (a count; races only delay the load)
+
+
 @lru_cache(maxsize=1)
 def _compiled() -> SimpleNamespace | None:
     try:
@@ -33,18 +46,23 @@ def _compiled() -> SimpleNamespace | None:
     return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db)
 
 
-def kernels() -> SimpleNamespace | None:
-    """The compiled kernels, or None (numba missing, or LIDARD_DSP_JIT=0)."""
+def kernels(cells: int | None = None) -> SimpleNamespace | None:
+    """The compiled kernels, or None (numba missing, or LIDARD_DSP_JIT=0, or not loaded yet while this
+    process has asked for fewer than LOAD_AFTER_CELLS cells, counting ``cells``)."""
     if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
         return None
+    if cells is not None and _compiled.cache_info().currsize == 0:
+        _asked[0] += int(cells)
+        if _asked[0] < LOAD_AFTER_CELLS:
+            return None
     return _compiled()
 
 
 def power(spec: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """|X|^2 = re^2 + im^2 of a complex spectrum (float64), one pass (numpy: three); ``out``: a
     C-contiguous float64 array of the spectrum's shape to write it into (the same values)."""
-    k = kernels()
     s = np.asarray(spec)
+    k = kernels(s.size)
     if k is None or s.dtype != np.complex128 or s.size == 0:
         if out is None:
             return s.real ** 2 + s.imag ** 2

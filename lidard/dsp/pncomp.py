@@ -28,20 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .instfreq import check_finite_array, check_positive
+from .instfreq import check_finite_array, check_positive, hilbert
 from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
+from .window import get_window
 
-
-def get_window(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
-    from scipy.signal import get_window as fn
-    return fn(*args, **kwargs)
-
-
-def hilbert(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
-    from scipy.signal import hilbert as fn
-    return fn(*args, **kwargs)
 
 
 @dataclass(frozen=True)
@@ -229,7 +219,7 @@ def _analytic_spectrum(b, window, start, stop, nfft, fs_hz):
     """The beat's analytic signal over [start, stop), its window, and its uncompensated magnitude
     spectrum on the positive frequencies (both compensations start from it)."""
     z = hilbert(b - b.mean())[start:stop]
-    w = get_window(window, stop - start, fftbins=False)
+    w = get_window(window, stop - start, symmetric=True)
     nfft = int(nfft or (stop - start))
     freq = np.fft.fftfreq(nfft, d=1.0 / fs_hz)
     pos = (freq >= 0) & (freq < fs_hz / 2)

@@ -38,17 +38,11 @@ import numpy as np
 
 from .chain import detect_and_refine
 from .iqbalance import mirror_images, ramp_volts
-from .instfreq import check_positive
+from .instfreq import check_positive, hilbert
 from .pncomp import demodulated_phase
 from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
 from .rangefft import C_M_PER_S, RangeFFT, windowed_fft
 from .window import DspInputError, get_window
-
-
-def hilbert(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
-    from scipy.signal import hilbert as fn
-    return fn(*args, **kwargs)
 
 
 def mzi_phase_noise_batch(mzi: np.ndarray, *, fs_hz: float, edge_s: float, beat_hz: float,

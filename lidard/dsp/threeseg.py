@@ -41,7 +41,7 @@ import numpy as np
 from .cwhold import HoldProfile, resolve_boundary
 from .gate import aliased, point_flags
 from .rangefft import C_M_PER_S, RangeFFT
-from .resolve import _median_last
+from .ranging.order import median_last as _median_last
 
 
 #: the held segment's frequency still relaxes (the DFB's thermal terms, ~20 us): over the CW window its
@@ -195,7 +195,12 @@ def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float
     kd = fd.shape[1]
     ev, folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
                                             guard_hz=guard_bins * df_hz, rho=rho, power=power)
-    score = np.where(ev >= 1, ev, -np.inf).reshape(n, -1)
+    # pairs whose CW evidence ties (two static returns a few cells apart: the crossed pairs' |f_D| is in
+    # the CW's DC guard too) go smallest |f_D| first: the crossed pairs' Doppler is only the returns'
+    # separation, and both the straight and the crossed reading explain the ramps; the straight one
+    # needs no motion (a tie-break under one tier: |f_D| / (f_R + |f_D|) / 2 < 1/2)
+    prefer = 0.5 * np.abs(f_d) / np.maximum(np.abs(f_r) + np.abs(f_d), 1e-300)
+    score = np.where(ev >= 1, ev - prefer, -np.inf).reshape(n, -1)
     out = {k: np.zeros((n, max_targets)) for k in ("range_m", "velocity_mps")}
     valid = np.zeros((n, max_targets), dtype=bool)
     present = np.zeros((n, max_targets), dtype=bool)
@@ -283,7 +288,9 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict
         return np.where(iu >= 0, a, b)
 
     harmonic = pick(du.harmonic, dd.harmonic).astype(bool)
-    unres = pick(du.unresolved, dd.unresolved).astype(bool)
+    # either ramp's peak not explained by the fitted tones flags the point
+    unres = ((np.take_along_axis(du.unresolved.reshape(-1, k), np.maximum(iu, 0), axis=1) & (iu >= 0))
+             | (np.take_along_axis(dd.unresolved.reshape(-1, k), np.maximum(idn, 0), axis=1) & (idn >= 0)))
     intensity = 2.0 * np.sqrt(pick(du.power, dd.power))
     # no stronger than what the decimation filter lets through from beyond the gate (lidard.dsp.gate)
     leak = seen & aliased(intensity, dsp.alias_ceiling_v)

@@ -3,8 +3,9 @@
 The range FFT of a beat signal (eq. 2-1: d = c f_b / (2 gamma)) is taken over one chirp of
 duration T, so its resolution is one FFT bin = 1/T (eq. 2-3).  The window trades main-lobe width
 (resolution of two close targets) against side-lobe leakage (a weak target next to a strong one).
-This module names the supported windows, builds them with scipy.signal.get_window and derives the
-figures the rest of the DSP chain needs from the window samples themselves (no tabulated numbers):
+This module names the supported windows, builds them from their cosine-sum definitions (numpy: scipy.signal
+costs about a second of every command's start-up; the samples are scipy.signal.get_window's) and derives
+the figures the rest of the DSP chain needs from the window samples themselves (no tabulated numbers):
 
 * ``enbw_bins``      equivalent noise bandwidth in bins, N sum(w^2) / sum(w)^2
 * ``mainlobe_6db_bins``  full width of the main lobe at -6 dB (amplitude 1/2), in bins
@@ -24,20 +25,16 @@ from typing import Literal, get_args
 import numpy as np
 
 
-def _scipy_get_window(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
-    from scipy.signal import get_window as fn
-    return fn(*args, **kwargs)
-
-
 WindowName = Literal["rectangular", "hann", "blackmanharris"]
 WINDOW_NAMES: tuple[str, ...] = get_args(WindowName)
 
-# scipy's names for our windows; one explicit table, no aliases.
-_SCIPY_NAME: dict[str, str] = {
-    "rectangular": "boxcar",
-    "hann": "hann",
-    "blackmanharris": "blackmanharris",
+#: Each window as a generalized cosine sum w[n] = sum_k (-1)^k a_k cos(2 pi k n / M): its coefficients
+#: a_k. Hann: a raised cosine; Blackman-Harris: the minimum 4-term window of Harris (1978, Proc. IEEE
+#: 66(1), table 1: -92 dB side lobes). One explicit table, no aliases.
+COSINE_COEFFS: dict[str, tuple[float, ...]] = {
+    "rectangular": (1.0,),
+    "hann": (0.5, 0.5),
+    "blackmanharris": (0.35875, 0.48829, 0.14128, 0.01168),
 }
 
 
@@ -46,24 +43,29 @@ class DspInputError(ValueError):
 
 
 def check_window_name(window: str) -> str:
-    if window not in _SCIPY_NAME:
+    if window not in COSINE_COEFFS:
         raise DspInputError(f"window={window!r} is not supported; choose one of {WINDOW_NAMES}")
     return window
 
 
 @lru_cache(maxsize=64)
-def _window_cached(window: str, n: int) -> np.ndarray:
-    w = np.asarray(_scipy_get_window(_SCIPY_NAME[window], n, fftbins=True), dtype=np.float64)
+def _window_cached(window: str, n: int, symmetric: bool) -> np.ndarray:
+    # periodic ("DFT-even"): the first n samples of the symmetric window of n + 1 (M = n); symmetric: M = n - 1
+    phase = 2.0 * np.pi * np.arange(n) / (n - 1 if symmetric else n)
+    w = np.zeros(n)
+    for k, a in enumerate(COSINE_COEFFS[window]):
+        w += (-1) ** k * a * np.cos(k * phase)
     w.setflags(write=False)
     return w
 
 
-def get_window(window: WindowName, n: int) -> np.ndarray:
-    """Periodic window of length ``n`` (read-only float64 array)."""
+def get_window(window: WindowName, n: int, *, symmetric: bool = False) -> np.ndarray:
+    """Periodic window of length ``n`` (read-only float64 array); ``symmetric``: the filter-design form
+    (both ends equal), for windowing a segment that is not one period of a DFT."""
     check_window_name(window)
     if int(n) != n or n < 2:
         raise DspInputError(f"window length n={n!r} must be an integer >= 2")
-    return _window_cached(window, int(n))
+    return _window_cached(window, int(n), bool(symmetric))
 
 
 def window_dtft(w: np.ndarray, u_bins: np.ndarray) -> np.ndarray:

@@ -223,13 +223,15 @@ class LidarInstrument:
 
     def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:
         """The linearization health check of the drive a scan with ``calibration`` would use (the
-        plain drive without one): :mod:`.calibration.health`. None when ``scan.linearity_check`` is off."""
+        plain drive without one), against the monitor delay the scan uses (``monitor_delay_s``):
+        :mod:`.calibration.health`. None when ``scan.linearity_check`` is off."""
         if not self.cfg.scan.linearity_check:
             return None
         with self._lock:
             drive = (drive_for_chirp(self.cfg, calibration.drive_v)
                      if (calibration is not None and calibration.drive_v.size) else self._plain_drive())
-            return LinearizationHealth(self.cfg, self.optics, self.acquisition, self.safety).check(drive)
+            return LinearizationHealth(self.cfg, self.optics, self.acquisition, self.safety,
+                                       mzi_delay_s=self.monitor_delay_s()).check(drive)
 
     def selftest(self, progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
         with self._lock:

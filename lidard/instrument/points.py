@@ -7,6 +7,8 @@ each pixel's beam direction (the FPSA optics of §4.3.4 map row/column to a dire
 The digitizer is read in short batches (the safety check wants short reads), but the DSP wants long
 ones (its per-call set-up costs as much as many pixels), so :class:`PointBuffer` holds raw batches
 until ``flush_bytes`` are together: memory stays bounded by one buffer, never a frame of raw samples.
+With ``workers`` the batches go to DSP worker threads (:class:`.pipeline.DspPipeline`: bounded, in
+order) and the reads go on meanwhile; the points keep the pixel order.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 from ..dsp.frame import FrameDsp
 from ..dsp.scratch import release as release_scratch
 from ..raw.points import frame_points
+from .pipeline import DspPipeline
 from .types import POINT_DTYPE
 
 log = logging.getLogger(__name__)
@@ -46,7 +49,8 @@ class PointBuffer:
     """Collects raw batches, runs the DSP once ``flush_bytes`` are together, keeps the points."""
 
     def __init__(self, dsp: FrameDsp, optics, *, lsb_v: float, mzi_delay_s: float, flush_bytes: int,
-                 zero_offset_m: float = 0.0):
+                 zero_offset_m: float = 0.0, workers: int = 0):
+        """``workers``: DSP threads (0: the DSP runs in :meth:`flush`, on the caller's thread)."""
         self.dsp = dsp
         self.zero_offset_m = zero_offset_m
         self.optics = optics
@@ -57,48 +61,86 @@ class PointBuffer:
         self._pending_bytes = 0
         self._chunks: list[np.ndarray] = []
         self._handed_over = 0
+        self._pipe = DspPipeline(self._process, workers) if workers > 0 else None
+
+    def _collect(self, wait: bool = False) -> None:
+        """Move the DSP workers' finished batches (in order) to the points; a worker's error is raised."""
+        if self._pipe is not None:
+            self._chunks.extend(self._pipe.ready(wait))
 
     def take_new(self) -> np.ndarray | None:
         """The points processed since the last call (for live viewers), or None when there are none."""
+        self._collect()
         new = self._chunks[self._handed_over:]
         self._handed_over = len(self._chunks)
         return np.concatenate(new) if new else None
 
     @property
     def count(self) -> int:
+        self._collect()
         return int(sum(len(c) for c in self._chunks))
 
     def add(self, batch: RawBatch, *, last: bool = False) -> None:
+        self._collect()       # a DSP worker's error stops the scan here, as a synchronous DSP would
         self._pending.append(batch)
         self._pending_bytes += batch.nbytes
         if self._pending_bytes >= self.flush_bytes or last:
             self.flush()
 
     def flush(self) -> None:
+        """The pending batches to the DSP: processed here, or queued for a worker (blocks while the
+        workers' queue is full)."""
         if not self._pending:
             return
         pend, self._pending, self._pending_bytes = self._pending, [], 0
-        beat = np.concatenate([p.beat for p in pend])
-        mzi = np.concatenate([p.mzi for p in pend]) if pend[0].mzi is not None else None
-        mzi_q = np.concatenate([p.mzi_q for p in pend]) if pend[0].mzi_q is not None else None
-        beat_q = np.concatenate([p.beat_q for p in pend]) if pend[0].beat_q is not None else None
-        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v,
-                               mzi_q=mzi_q, beat_q=beat_q)
-        self._chunks.append(points_from(res, self.optics, np.concatenate([p.pixels for p in pend]),
-                                        np.concatenate([p.t_pix_s for p in pend]),
-                                        np.concatenate([p.clipped for p in pend]), self.zero_offset_m,
-                                        delay_s=self.dsp.measurement_delay_s(beat.shape[1])))
+        job = RawBatch(*(None if getattr(pend[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in pend])
+                         for f in dataclasses.fields(RawBatch)))
+        del pend
+        if self._pipe is None:
+            self._chunks.append(self._process(job))
+        else:
+            self._pipe.submit(job)
+
+    def _process(self, b: RawBatch) -> np.ndarray:
+        """One batch through the frame DSP into point records (on whichever thread runs it)."""
+        res = self.dsp.process(b.beat, self.lsb_v, mzi=b.mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v,
+                               mzi_q=b.mzi_q, beat_q=b.beat_q)
+        return points_from(res, self.optics, b.pixels, b.t_pix_s, b.clipped, self.zero_offset_m,
+                           delay_s=self.dsp.measurement_delay_s(b.beat.shape[1]))
+
+    def drain(self) -> None:
+        """Wait for the batches in the DSP workers (their points join; an error is raised)."""
+        self._collect(wait=True)
 
     def points(self) -> np.ndarray:
         """Every point so far; a batch still waiting is processed first (a failure there is logged:
         the points before it are reported, the cause of the stop is already on its way)."""
         try:
             self.flush()
+            if self._pipe is not None:
+                while self._pipe.in_flight:
+                    try:
+                        self._collect(wait=True)
+                    except Exception as exc:      # that batch's points are lost; the later ones are kept
+                        log.warning("processing a batch failed: %s", exc)
         except Exception as exc:
             log.warning("processing the last batch failed: %s", exc)
         finally:
+            self.close()
             release_scratch()     # the DSP's per-thread buffers (lidard.dsp.scratch): an idle daemon holds none
         return np.concatenate(self._chunks) if self._chunks else np.zeros(0, POINT_DTYPE)
+
+    def close(self) -> None:
+        """End the DSP workers once their queued batches are done (they drop their scratch buffers);
+        later batches are processed on the caller's thread. Safe to call again."""
+        if self._pipe is not None:
+            pipe, self._pipe = self._pipe, None
+            pipe.close()
+            while pipe.in_flight:
+                try:
+                    self._chunks.extend(pipe.ready(wait=True))
+                except Exception as exc:    # the scan is ending on another error: report, do not mask it
+                    log.warning("processing a batch failed: %s", exc)
 
 
 def points_from(res, optics, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndarray | None = None,

@@ -8,7 +8,9 @@
   (:mod:`.safety`) after each read (the safety watch also checks on its own thread, on wall time); a lost acquisition is resumed from the first pixel not yet read
   (at most ``RESUMES`` times); a device that stays down fails the scan with :class:`ScanFailed`
   carrying the points so far;
-* DSP -> points (:mod:`.points`): batches collected up to ``BATCH_BYTES``, processed, kept as points.
+* DSP -> points (:mod:`.points`): batches collected up to :func:`dsp_batch_bytes`, handed to DSP worker
+  threads through a bounded queue (:mod:`.pipeline`; the next read goes on meanwhile), kept as points
+  in pixel order.
 
 The run's state lives in one :class:`ScanRun` context passed between the stages.
 """
@@ -33,11 +35,15 @@ from ..scan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
 from .calibration.applied import AppliedCalibrations
 from .errors import InstrumentError, ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
+from .pipeline import dsp_workers
 from .points import PointBuffer, RawBatch
 from .safety import SafetyMonitor, describe_safe
 from .types import CalibrationResult, ProgressFn, ScanProgress, ScanRequest, ScanResult
 
 BATCH_BYTES = 8 << 20        # raw samples per DSP batch (bounded memory)
+# The smallest DSP batch a scan hands to a worker: the frame DSP's fixed cost per call shows below it
+# (its sample rate falls by a third from 2 MiB to 0.5 MiB batches, benchmarks/band_and_cores.py)
+DSP_MIN_BYTES = 2 << 20
 # Hardware time per read: the interlock/fault flags are read between reads, so this bounds the
 # host's reaction time (the controller's own hardware interlock drops the outputs at once anyway).
 # Each read has a fixed cost (in the simulator mostly the FPGA model's per-call beam bookkeeping):
@@ -77,14 +83,15 @@ class ScanPlan:
 
 
 def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = False,
-             mzi_delay_s: float | None = None) -> AdcPlan:
-    """Sample rate and record length for beats up to ``max_range_m`` (plus the Doppler allowance).
+             mzi_delay_s: float | None = None, max_speed_mps: float | None = None) -> AdcPlan:
+    """Sample rate and record length for beats up to ``max_range_m`` plus the Doppler shift of
+    ``max_speed_mps`` (default: the configuration's scan.max_speed_mps).
 
     ``whole_monitor_delay``: the quadrature reconstruction steps the laser phase by the monitor delay,
     so the rate is raised to a whole number of samples per delay (lidard.dsp.pnrecon.whole_delay_samples).
     """
     c, a = cfg.chirp, cfg.adc
-    doppler = 2 * speed_span_mps(cfg) / c.wavelength_m
+    doppler = 2 * speed_span_mps(cfg, max_speed_mps) / c.wavelength_m
     fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
                      max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
     if whole_monitor_delay:
@@ -99,12 +106,14 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
     return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r + int(fs * c.cw_s + 1e-9), bits=16)
 
 
-def speed_span_mps(cfg: Config) -> float:
-    """The Doppler the ADC band and the ramps' search cover: the triangle's speed prior
-    (scan.max_speed_mps), or the three-segment chirp's band (chirp.doppler_band_mps, not a prior)."""
-    if cfg.chirp.shape == "three_segment" or cfg.adc.iq:   # the sign is measured: a band, not a prior
-        return cfg.chirp.doppler_band_mps
-    return cfg.scan.max_speed_mps
+def speed_span_mps(cfg: Config, max_speed_mps: float | None = None) -> float:
+    """The Doppler the ADC band and the ramps' search cover: the scan's requested maximum speed, else
+    the configuration's scan.max_speed_mps. On the three-segment chirp and the I/Q receiver the sign is
+    measured: a band, not a prior; on a real triangle also the prior that makes a pair unambiguous."""
+    v = cfg.scan.max_speed_mps if max_speed_mps is None else float(max_speed_mps)
+    if not (math.isfinite(v) and v > 0):
+        raise InstrumentError(f"scan: max_speed_mps must be a positive speed in m/s, got {max_speed_mps!r}")
+    return v
 
 
 def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None = None) -> bool:
@@ -129,13 +138,14 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
     pn_on = phase_noise_on(cfg, request, tau_m)
     quad = pn_on and cfg.monitor.quadrature
     # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
+    speed = speed_span_mps(cfg, request.max_speed_mps)
     adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m,
-                   whole_monitor_delay=quad, mzi_delay_s=tau_m)
+                   whole_monitor_delay=quad, mzi_delay_s=tau_m, max_speed_mps=speed)
     beat = ("beat_i", "beat_q") if cfg.adc.iq else ("beat",)
     channels = beat + (("mzi", "mzi_q") if quad else ("mzi",) if pn_on else ())
     dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
                    wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
-                   max_speed_mps=speed_span_mps(cfg), window=cfg.scan.window, pfa=cfg.scan.pfa,
+                   max_speed_mps=speed, window=cfg.scan.window, pfa=cfg.scan.pfa,
                    max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples,
                    iq=cfg.adc.iq, iq_gain=iq_imbalance[0], iq_phase_rad=iq_imbalance[1],
                    hold_profile=hold_profile if cfg.chirp.shape == "three_segment" else None,
@@ -149,6 +159,13 @@ def batch_pixels(cfg: Config, p: ScanPlan) -> int:
     bytes_per_pix = p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
     pixel_s = p.averages * cfg.chirp.period_s + cfg.scan.settle_s
     return max(1, min(p.n_pixels, BATCH_BYTES // max(1, bytes_per_pix), int(SAFETY_CHECK_S / pixel_s)))
+
+
+def dsp_batch_bytes(p: ScanPlan, workers: int) -> int:
+    """Raw bytes per DSP batch: a few batches per worker over the scan, so that reads and DSP overlap
+    from the start, within [DSP_MIN_BYTES, BATCH_BYTES]."""
+    bytes_per_pix = p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
+    return int(min(BATCH_BYTES, max(DSP_MIN_BYTES, p.n_pixels * bytes_per_pix // (2 * workers + 2))))
 
 
 @dataclass
@@ -185,36 +202,40 @@ class ScanLoop:
         p = plan_scan(self.cfg, self.optics, request, self.applied.delay_or(self.cfg.monitor.delay_s),
                       self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
+        workers = dsp_workers()
         run = ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
-                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=BATCH_BYTES,
-                                     zero_offset_m=self.applied.zero_offset_m),
+                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=dsp_batch_bytes(p, workers),
+                                     zero_offset_m=self.applied.zero_offset_m, workers=workers),
                       calibration_id=(calibration.meta or {}).get("id") if calibration else None)
-        self.safety.bring_up()
         try:
-            acq = self.lifecycle.ready(p.acquisition, drive_v=drive_v, faults=run.faults)
-            if raw_path is not None:   # the digitizer has told its channel order: the records' layout
-                run.raw = self._recorder(raw_path, run, acq, request, drive_v)
-            self.lifecycle.start(acq)
-            step = batch_pixels(self.cfg, p)
-            while run.done < p.n_pixels and run.stop_reason is None:
-                if cancel.is_set():
-                    run.cancelled = True
-                    break
-                acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
-                if accepted:
-                    progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
-                                          new_points=run.points.take_new()))
-            if run.stop_reason is None and self.safety.tripped is not None:
-                self._safety_stop(run)      # the wall-clock watch tripped after the last read's check
-        except ScanFailed:
-            raise
-        except Exception as exc:
-            raise ScanFailed(describe_failure(exc), self.result(run)) from driver_error(exc)
+            self.safety.bring_up()
+            try:
+                acq = self.lifecycle.ready(p.acquisition, drive_v=drive_v, faults=run.faults)
+                if raw_path is not None:   # the digitizer has told its channel order: the records' layout
+                    run.raw = self._recorder(raw_path, run, acq, request, drive_v)
+                self.lifecycle.start(acq)
+                step = batch_pixels(self.cfg, p)
+                while run.done < p.n_pixels and run.stop_reason is None:
+                    if cancel.is_set():
+                        run.cancelled = True
+                        break
+                    acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
+                    if accepted:
+                        progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
+                                              new_points=run.points.take_new()))
+                if run.stop_reason is None and self.safety.tripped is not None:
+                    self._safety_stop(run)      # the wall-clock watch tripped after the last read's check
+            except ScanFailed:
+                raise
+            except Exception as exc:
+                raise ScanFailed(describe_failure(exc), self.result(run)) from driver_error(exc)
+            finally:
+                self._finish(run)
+                if run.raw is not None:
+                    run.raw.close(pixels_scanned=run.done, stop_reason=run.stop_reason)
+            return self.result(run)
         finally:
-            self._finish(run)
-            if run.raw is not None:
-                run.raw.close(pixels_scanned=run.done, stop_reason=run.stop_reason)
-        return self.result(run)
+            run.points.close()      # the DSP workers end on every path (after result(): nothing left)
 
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
         from ..raw.record import ScanRecorder   # zarr is loaded only by scans that record
@@ -227,7 +248,8 @@ class ScanLoop:
             adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
                  "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
             chirp=self.cfg.chirp.model_dump(), calibration_id=run.calibration_id,
-            scan={"pattern": request.pattern, "averages": p.averages, "max_range_m": float(request.max_range_m)},
+            scan={"pattern": request.pattern, "averages": p.averages, "max_range_m": float(request.max_range_m),
+                  "max_speed_mps": float(p.dsp.max_speed_mps)},
             drive_v=drive_v)
 
     # -- acquire ----------------------------------------------------------------------------------
@@ -336,7 +358,11 @@ class ScanLoop:
                     # the resolution asked of the digitizer (core bits + decimation gain + guard bits)
                     "resolution_bits": self.cfg.adc.record_bits(adc.fs_hz, adc.bits),
                     "bandwidth_hz": self.cfg.adc.bandwidth_hz,
-                    "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
+                    "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v,
+                    # the Doppler band the rate was sized for (the request's max_speed_mps): a faster
+                    # target's beat lies outside it and is flagged, never ranged
+                    "max_speed_mps": dsp.max_speed_mps,
+                    "doppler_band_hz": 2 * dsp.max_speed_mps / dsp.wavelength_m},
             "dsp": dsp.sidecar(p.phase_noise),
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,

@@ -30,6 +30,8 @@ class ScanRequest:
     pixels: tuple[tuple[int, int], ...] | None = None
     averages: int = 1
     max_range_m: float = 2.0
+    # the fastest radial speed to measure (sizes the ADC's Doppler band); None: scan.max_speed_mps
+    max_speed_mps: float | None = None
     formats: tuple[OutputFormat, ...] = ("ply",)
     # None: the configuration's scan.phase_noise_compensation ("auto" | "on" | "off")
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None

@@ -20,8 +20,13 @@ Policy (also in docs/api.md):
   records the check as ``linearization``.
 * Before every scan and linearization the newest stored range and pointing calibrations
   (:mod:`.calibrations`, issue 13) are handed to the instrument; a stored linearization made against
-  another monitor delay than the range calibration's is stale and redone. Calibration measurements
-  (plates, pointing targets) are queued like any job (``submit_task``).
+  another monitor delay than the range calibration's is stale and redone. Only records made on the
+  instrument's own set-up are handed over (``setup``, lidard.instrument.calibration.setup); the scan
+  says why others were not (``uncalibrated_reason``). Calibration measurements (plates, pointing
+  targets, the guided procedure of :mod:`.guided`) are queued like any job (``submit_task``).
+* A simulated bench with ``factory`` set (:class:`.guided.FactoryCalibration`) and no range/pointing
+  record of its set-up runs its factory calibration before the first scan (stage ``calibrating``),
+  once per worker.
 * Cancel: a queued scan becomes ``cancelled`` at once; a running scan's cancel event is set, the
   instrument returns the points so far, which are written and marked ``partial``.
 * Failure: the state becomes ``failed`` and ``error`` holds the exception type, message and cause

@@ -28,16 +28,21 @@ from ..store_calibrations import CalibrationRecord
 
 def add_plate(worker, known_m: float) -> concurrent.futures.Future:
     """Queue a plate measurement at ``known_m``; the future resolves to the stored pending measurement."""
-    from ..instrument.calibration.procedures import measure_plate
     known_m = float(known_m)
     if not (math.isfinite(known_m) and known_m > 0):
         raise CalibrationRefused(f"range calibration: known_m must be a positive distance in metres, got {known_m!r}")
 
-    def task() -> dict[str, Any]:
-        lin = worker.current_linearization()
-        m = measure_plate(worker.instrument, worker.optics, known_m, lin, worker.applied)
-        return worker.store.add_range_measurement(m.as_dict())
-    return worker.submit_task(task)
+    return worker.submit_task(lambda: plate_now(worker, known_m))
+
+
+def plate_now(worker, known_m: float) -> dict[str, Any]:
+    """On the worker thread: measure the plate now at ``known_m`` and keep it pending, tagged with the
+    instrument's range set-up (a fit refuses plates of another one)."""
+    from ..instrument.calibration.procedures import measure_plate
+    lin = worker.current_linearization()
+    m = measure_plate(worker.instrument, worker.optics, float(known_m), lin, worker.applied)
+    setup = worker.setup_of("range")
+    return worker.store.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
 
 
 def plates(store) -> list[dict[str, Any]]:
@@ -48,14 +53,22 @@ def remove_plates(store, ids: list[str] | None = None) -> int:
     return store.remove_range_measurements(ids)
 
 
-def fit_range(store, nominal_delay_s: float) -> CalibrationRecord:
-    """Fit the pending plates; store and answer the record (the plates are consumed)."""
+def fit_range(store, nominal_delay_s: float, setup: dict[str, Any] | None = None) -> CalibrationRecord:
+    """Fit the pending plates; store and answer the record (the plates are consumed). ``setup``: the
+    instrument's range set-up (``Setup.as_dict()``); plates measured on another one are refused by id."""
     pending = store.range_measurements()
+    if setup is not None:
+        alien = [m["id"] for m in pending if (m.get("setup") or {}).get("hash") != setup["hash"]]
+        if alien:
+            raise CalibrationRefused(f"range calibration: pending plate(s) {', '.join(alien)} were measured on another "
+                                     "set-up (laser, chirp, receiver or instruments); drop them "
+                                     "(`lidarctl calibration range drop ID`) and measure again")
     fit = _fit([PlateMeasurement.from_dict(m) for m in pending], nominal_delay_s)
     temps = [m["temperature_c"] for m in pending if m.get("temperature_c") is not None]
     rec = store.save_geometry_calibration(
         "range", temperature_c=sum(temps) / len(temps) if temps else None,
-        inputs={"measurements": pending}, fitted=fit.fitted(), residuals=fit.residuals())
+        inputs={"measurements": pending, **({"setup": setup} if setup else {})},
+        fitted=fit.fitted(), residuals=fit.residuals())
     store.remove_range_measurements([m["id"] for m in pending])
     return rec
 
@@ -64,25 +77,29 @@ def pointing(worker, geometry: dict[str, Any]) -> concurrent.futures.Future:
     """Queue a pointing calibration against ``geometry`` (the geometry file's structure); the future
     resolves to the stored record. Needs a range calibration first (the fit places points with ranges)."""
     from ..instrument.calibration.pointing import parse_geometry
-    from ..instrument.calibration.procedures import measure_pointing
     surfaces = parse_geometry(geometry, source="<request>")
+    return worker.submit_task(lambda: pointing_now(worker, surfaces))
 
-    def task() -> CalibrationRecord:
-        applied = worker.apply_geometry()
-        rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
-        if rng is None:   # refused before any linearization or scan
-            raise CalibrationRefused("pointing calibration: no range calibration yet; the fit places points with "
-                                     "range-calibrated ranges: run `lidarctl calibration range add/fit` first")
-        lin = worker.current_linearization()
-        # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
-        noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
-        fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)
-        return worker.store.save_geometry_calibration(
-            "pointing", temperature_c=worker.instrument.laser_temperature_c(),
-            inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
-                    "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan},
-            fitted=fit.fitted(), residuals=fit.residuals())
-    return worker.submit_task(task)
+
+def pointing_now(worker, surfaces) -> CalibrationRecord:
+    """On the worker thread: scan the known targets ``surfaces`` (parsed geometry), fit, store the record."""
+    from ..instrument.calibration.procedures import measure_pointing
+    applied = worker.apply_geometry()
+    rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
+    if rng is None:   # refused before any linearization or scan
+        raise CalibrationRefused("pointing calibration: no range calibration yet (of this set-up); the fit places points "
+                                 "with range-calibrated ranges: run `lidarctl calibrate` (or `lidarctl calibration "
+                                 "range add/fit`) first")
+    lin = worker.current_linearization()
+    # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
+    noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
+    fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)
+    return worker.store.save_geometry_calibration(
+        "pointing", temperature_c=worker.instrument.laser_temperature_c(),
+        inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
+                "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan,
+                **_setup(worker, "pointing")},
+        fitted=fit.fitted(), residuals=fit.residuals())
 
 
 def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
@@ -100,9 +117,14 @@ def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
         fit, scan = measure_iq(worker.instrument, worker.optics, lin, max_range_m=max_range_m)
         return worker.store.save_geometry_calibration(
             "iq", temperature_c=worker.instrument.laser_temperature_c(),
-            inputs={"linearization_id": lin.meta.get("id"), **scan},
+            inputs={"linearization_id": lin.meta.get("id"), **scan, **_setup(worker, "iq")},
             fitted=fit.fitted(), residuals=fit.residuals())
     return worker.submit_task(task)
+
+
+def _setup(worker, kind: str) -> dict[str, Any]:
+    setup = worker.setup_of(kind)
+    return {"setup": setup} if setup else {}
 
 
 def records(store, cfg, kind: str | None = None, limit: int = 20) -> list[dict[str, Any]]:

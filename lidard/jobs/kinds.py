@@ -60,6 +60,7 @@ def request_from_dict(d: dict[str, Any]) -> ScanRequest:
         cols=None if d.get("cols") is None else tuple(d["cols"]),
         pixels=None if d.get("pixels") is None else tuple(tuple(p) for p in d["pixels"]),
         averages=int(d.get("averages", 1)), max_range_m=float(d.get("max_range_m", 2.0)),
+        max_speed_mps=None if d.get("max_speed_mps") is None else float(d["max_speed_mps"]),
         formats=tuple(d.get("formats", ("ply",))),
         phase_noise_compensation=d.get("phase_noise_compensation"),
         record_raw=bool(d.get("record_raw", False)))
@@ -71,6 +72,9 @@ class _ScanJob:
     request: ScanRequest
     cancel: threading.Event = dataclasses.field(default_factory=threading.Event)
     done: threading.Event = dataclasses.field(default_factory=threading.Event)
+    # why ``cancel`` was set (a client's DELETE, Ctrl-C or SIGTERM of a one-shot scan, the daemon's
+    # shutdown): the sidecar's ``stop_reason`` of a cancelled or interrupted scan
+    cancel_reason: str | None = None
     # the linearization health check before the scan (lidard.instrument.healthcheck.health_record)
     linearization: dict | None = None
 

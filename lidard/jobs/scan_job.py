@@ -86,7 +86,8 @@ class ScanJobRun:
         iq = bool(getattr(self.instrument, "iq_receiver", False))
         self.store.update_scan(job.id, stage="scanning", calibration_id=self.cal_id,
                                range_calibration_id=applied.range_id, pointing_calibration_id=applied.pointing_id,
-                               receiver="iq" if iq else "real", iq_calibration_id=applied.iq_id if iq else None)
+                               receiver="iq" if iq else "real", iq_calibration_id=applied.iq_id if iq else None,
+                               uncalibrated_reason=applied.uncalibrated_reason)
         if job.request.pattern == "adaptive" and self.w.optics is not None:
             return run_adaptive(self.instrument, job, self.progress, cal, self.w.optics)
         # the raw capture goes next to the point clouds; only asked of the instrument when wanted
@@ -136,11 +137,13 @@ class ScanJobRun:
             log.warning("scan %s stopped: %s", job.id, stop_reason)
         elif job.cancel.is_set():
             state = "interrupted" if self.w._stopping else "cancelled"
+            log.info("scan %s %s: %s", job.id, state, job.cancel_reason)
         else:
             state = "done"
         self.store.update_scan(
             job.id, state=state, stage=state, partial=partial, files=files, finished=time.time(),
-            error=(f"SafetyStop: {stop_reason}" if stop_reason else None),
+            error=(f"SafetyStop: {stop_reason}" if stop_reason
+                   else job.cancel_reason if state == "interrupted" else None),
             points=int(len(result.points)), pixels_scanned=int(result.pixels_scanned),
             pixels_planned=int(result.pixels_planned), hardware_time_s=float(result.hardware_time_s),
             wall_time_s=wall, progress=(result.pixels_scanned / result.pixels_planned
@@ -166,7 +169,7 @@ class ScanJobRun:
             "software_version": software_version(),
             "simulated": bool(self.instrument.simulated),
             "partial": bool(result.partial or job.cancel.is_set()),
-            "stop_reason": result.stop_reason,
+            "stop_reason": result.stop_reason or (job.cancel_reason if job.cancel.is_set() else None),
         }
         out_dir = self.store.scan_dir(job.id)
         files = {}
@@ -181,7 +184,8 @@ class ScanJobRun:
         applied = self.w.applied or AppliedCalibrations()
         return {"range_calibration_id": applied.range_id, "pointing_calibration_id": applied.pointing_id,
                 "calibrated": applied.calibrated(self.cal_id is not None,
-                                                 iq=bool(getattr(self.instrument, "iq_receiver", False)))}
+                                                 iq=bool(getattr(self.instrument, "iq_receiver", False))),
+                "uncalibrated_reason": applied.uncalibrated_reason}
 
 
 def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], None],

@@ -23,6 +23,7 @@ from ..instrument.types import CalibrationResult, ScanRequest
 from ..physics.optics import FpsaOptics
 from ..scan import planned_pixel_count
 from ..store import ScanRecord, Store
+from . import heap
 from .events import EventHub, PointListener, Subscriber
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
                     request_to_dict)
@@ -37,7 +38,7 @@ class ScanWorker:
     def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
                  progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
                  pixels_planned: Callable[[ScanRequest], int] | None = None,
-                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5):
+                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5, setup=None):
         self.instrument = instrument
         self.store = store
         self.laser = laser
@@ -58,6 +59,13 @@ class ScanWorker:
         self._stopping = False
         self._thread: threading.Thread | None = None
         self.applied = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
+        # the instrument's set-up (lidard.instrument.calibration.setup.CalibrationSetup): records are
+        # made on it and only records made on it are applied; None (a test double): the newest record
+        self.setup = setup
+        # a simulated bench's factory calibration (lidard.jobs.guided.FactoryCalibration): run before the
+        # first scan when no range/pointing record of this set-up is stored; None: never
+        self.factory = None
+        self.sim_scene: dict[str, Any] | None = None   # the scene last placed over REST (PUT /sim/scene)
 
     # -- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -67,14 +75,16 @@ class ScanWorker:
         self._thread = threading.Thread(target=self._run, name="lidard-scan-worker", daemon=True)
         self._thread.start()
 
-    def stop(self, timeout_s: float | None = 30.0) -> None:
-        """Cancel the running scan (its points are kept), mark queued ones interrupted, join."""
+    def stop(self, timeout_s: float | None = 30.0, reason: str = "the daemon stopped") -> None:
+        """Cancel the running scan (its points are kept; ``reason`` becomes its stop reason), mark
+        queued ones interrupted, join."""
         with self._cv:
             self._stopping = True
             pending = list(self._queue)
             self._queue.clear()
             cur = self._current
-            if isinstance(cur, _ScanJob):
+            if isinstance(cur, _ScanJob) and not cur.cancel.is_set():
+                cur.cancel_reason = reason
                 cur.cancel.set()
             self._cv.notify_all()
         for job in pending:
@@ -145,8 +155,9 @@ class ScanWorker:
             self._enqueue(job)
         return job.future
 
-    def cancel(self, scan_id: str) -> ScanRecord:
-        """Cancel a queued or running scan; a finished one is returned unchanged."""
+    def cancel(self, scan_id: str, reason: str = "cancelled") -> ScanRecord:
+        """Cancel a queued or running scan (``reason``: the sidecar's stop reason of its partial
+        points); a finished one is returned unchanged."""
         with self._cv:
             job = self._jobs.get(scan_id)
             if job is not None and job in self._queue:
@@ -154,7 +165,8 @@ class ScanWorker:
                 self.store.transition(scan_id, ("queued",), state="cancelled", stage="cancelled",
                                       finished=time.time())
                 self._finish(job)
-            elif job is not None:
+            elif job is not None and not job.cancel.is_set():
+                job.cancel_reason = reason
                 job.cancel.set()
         rec = self.store.get_scan(scan_id)
         if rec is None:
@@ -221,6 +233,7 @@ class ScanWorker:
             finally:
                 with self._cv:
                     self._current = None
+                heap.trim()     # a daemon's RSS must not creep up job after job (lidard.jobs.heap)
 
     def _run_calibration(self, job: _CalibrationJob) -> None:
         if not job.future.set_running_or_notify_cancel():
@@ -278,16 +291,31 @@ class ScanWorker:
         the laser's temperature moved, when the range calibration changed the monitor delay it targets,
         or when the linearization health check finds its chirp off (announced as the scan's
         ``linearizing`` stage). ``job.linearization`` records the check."""
-        def announce() -> None:
-            self.store.update_scan(job.id, stage="linearizing")
+        def announce(step: dict | None = None) -> None:
+            # first the stage, then each of the linearization's measurements (its progress)
+            if step is None:
+                self.store.update_scan(job.id, stage="linearizing")
             self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "linearizing",
                                    "pixels_done": 0, "pixels_planned": 0, "points": 0,
-                                   "fraction": 0.0, "hardware_time_s": 0.0})
+                                   "fraction": 0.0, "hardware_time_s": 0.0, **(step or {})})
+        if self.factory is not None and not self.factory.tried:
+            self._factory_calibration(job)
         cal = self.current_linearization(announce)
         job.linearization = self.last_linearization
         return cal
 
-    def current_linearization(self, announce: Callable[[], None] | None = None) -> CalibrationResult:
+    def _factory_calibration(self, job: _ScanJob) -> None:
+        """The bench's factory calibration before this scan, announced as its ``calibrating`` stage."""
+        def stage(ev: dict[str, Any]) -> None:
+            done, steps = ev.get("done"), ev.get("steps")
+            self.events.publish(job.id, {"event": "progress", "id": job.id, "stage": "calibrating",
+                                         "pixels_done": 0, "pixels_planned": 0, "points": 0,
+                                         "fraction": (done / steps) if done is not None and steps else 0.0,
+                                         "hardware_time_s": 0.0, "calibration": ev})
+        self.store.update_scan(job.id, stage="calibrating")
+        self.factory.run_if_needed(self, stage)
+
+    def current_linearization(self, announce: Callable[..., None] | None = None) -> CalibrationResult:
         """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
         linearization if it is fresh (temperature rule, monitor delay) and passes the health check,
         else a new one (``announce()`` first). ``self.last_linearization`` records the check."""
@@ -302,21 +330,36 @@ class ScanWorker:
             log.info("linearizing: %s", reason)
             if announce is not None:
                 announce()
-            cal = self._own_laser(self.instrument.linearize())
+            cal = self._own_laser(self.instrument.linearize(announce))
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             used = self.instrument.check_linearization(cal)
         self.last_linearization = health_record(checked, used, reason)
         return cal
 
     def apply_geometry(self):
-        """Hand the newest stored range, pointing and I/Q calibrations to the instrument (issues 13, 14); answers
-        the :class:`AppliedCalibrations`. Runs on the worker thread before every scan and linearization."""
+        """Hand the newest stored range, pointing and I/Q calibrations made on this instrument's set-up
+        to the instrument (issues 13, 14); answers the :class:`AppliedCalibrations`, whose ``notes`` say
+        why records of another set-up were left unused. Runs on the worker thread before every scan and
+        linearization."""
         from ..instrument.calibration.applied import AppliedCalibrations
-        self.applied = AppliedCalibrations.from_records(self.store.latest_geometry_calibration("range"),
-                                                        self.store.latest_geometry_calibration("pointing"),
-                                                        self.store.latest_geometry_calibration("iq"))
+        from ..instrument.calibration.setup import select
+        chosen, notes = {}, []
+        for kind in ("range", "pointing", "iq"):
+            rec, why = select(self.store.list_geometry_calibrations(kind, limit=200),
+                              None if self.setup is None else self.setup[kind])
+            chosen[kind] = rec
+            if why is not None:
+                notes.append(why)
+        if self.factory is not None and self.factory.refused:
+            notes.append(f"the factory calibration was refused: {self.factory.refused}")
+        self.applied = AppliedCalibrations.from_records(chosen["range"], chosen["pointing"], chosen["iq"],
+                                                        notes=tuple(notes))
         self.instrument.use_calibrations(self.applied)
         return self.applied
+
+    def setup_of(self, kind: str) -> dict[str, Any] | None:
+        """What a new record of ``kind`` names as its set-up (None when the set-up is not known)."""
+        return None if self.setup is None else self.setup[kind].as_dict()
 
     def _own_laser(self, cal: CalibrationResult) -> CalibrationResult:
         # Cache under the configured laser name, whatever the instrument calls it, so that the next

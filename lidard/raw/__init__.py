@@ -20,6 +20,7 @@ _LAZY = {
     "remove_capture": "capture", "frame_points": "points", "ReplayDsp": "replay", "Reprocessed": "replay",
     "ReprocessSettings": "replay", "chunk_count": "replay", "frame_dsp_attrs": "replay",
     "replay_dsp": "replay", "reprocess": "replay", "reprocess_chunk": "replay",
+    "reprocess_task": "replay", "task_count": "replay", "local_map": "replay",
 }
 
 __all__ = sorted(_LAZY)

@@ -52,7 +52,7 @@ def _original_meta(store: Store, rec: ScanRecord) -> dict[str, Any]:
 
 def reprocess_scan(store: Store, scan_id: str, settings: ReprocessSettings | None = None, *,
                    formats: tuple[str, ...] | None = None,
-                   map_fn: Callable[..., Iterable[np.ndarray]] = map) -> ScanRecord:
+                   map_fn: Callable[..., Iterable[np.ndarray]] | None = None) -> ScanRecord:
     """Reprocess scan ``scan_id``; returns the new, finished scan record."""
     orig, path = _original(store, scan_id)
     settings = settings or ReprocessSettings()

@@ -67,21 +67,26 @@ class ChirpTrajectory:
 
     def _tiled_turns(self, periods: int):
         """:meth:`_tiled` in cycles (each table / 2 pi), for the static fast path (synth_grid)."""
-        key = ("tiled_turns", periods)
-        t = self._cache.get(key)
-        if t is None:
-            t = tuple(c * (1.0 / (2.0 * np.pi)) for c in self._tiled(periods))
-            self._cache[key] = t
-        return t
+        return self._prefix("tiled_turns", periods,
+                            lambda p: tuple(c * (1.0 / (2.0 * np.pi)) for c in self._tiled(p)))
 
     def _tiled(self, periods: int):
-        key = ("tiled", periods)
-        t = self._cache.get(key)
-        if t is None:
+        def build(p: int):
             c0, c1, c2, _ = self._tables()
-            t = tuple(np.tile(c, periods) for c in (c0, c1, c2))
-            self._cache[key] = t
-        return t
+            return tuple(np.tile(c, p) for c in (c0, c1, c2))
+        return self._prefix("tiled", periods, build)
+
+    def _prefix(self, name: str, periods: int, build):
+        """The tables tiled over ``periods`` periods, as views of the one longest tiling kept so far: a
+        tiling over fewer periods is a prefix of it. One cache entry per name, not one per period count
+        (a long-running bench sees many record lengths and range gates, each a new count)."""
+        kept = self._cache.get(name)
+        if kept is None or kept[0] < periods:
+            kept = self._cache[name] = (periods, build(periods))
+        if kept[0] == periods:
+            return kept[1]
+        n = periods * self.n
+        return tuple(c[:n] for c in kept[1])
 
     def periodic_phase_samples(self, x, periods: int | None = None) -> np.ndarray:
         """Periodic phase (mean frequency removed) at AWG-sample positions ``x`` (float64 out).

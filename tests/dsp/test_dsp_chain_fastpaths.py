@@ -6,7 +6,6 @@ import pytest
 from lidard.dsp import cfar
 from lidard.dsp.chain import detect_and_refine
 from lidard.dsp.rangefft import RangeFFT, check_samples
-from lidard.dsp.resolve import unresolved
 from lidard.dsp.window import DspInputError
 
 
@@ -59,23 +58,3 @@ def test_sample_check_accepts_huge_finite_ramps_and_counts_the_bad_ones():
     x[1, 4], x[2, 0] = np.nan, np.inf
     with pytest.raises(DspInputError, match=r"1 NaN and 1 infinite sample\(s\); first at index \(1, 4\)"):
         check_samples(x)
-
-
-def test_the_chain_hands_its_per_ramp_power_to_the_unresolved_test():
-    rng = np.random.default_rng(5)
-    n = 128
-    t = np.arange(n)
-    # two tones 0.6 bin apart in half the pixels (unresolved), one tone in the others
-    f = np.where(np.arange(30)[:, None, None] % 2 == 0, 0.6, 0.0)
-    x = np.cos(2 * np.pi * 30 * t / n) + np.cos(2 * np.pi * (30 + f) * t / n + 1.0)
-    x = x + 0.02 * rng.standard_normal((30, 4, n))
-    rf = RangeFFT(n, 5e6, 1.075e14, window="hann")
-    spec = rf(x)
-    res = detect_and_refine(spec, lambda idx: (x, rf.index_to_bin(idx), spec), window="hann", estimator="newton",
-                            average_axis=1, pfa=1e-6, max_detections=2)
-    np.testing.assert_array_equal(res.power, spec.real ** 2 + spec.imag ** 2)
-    args = (spec, res.detections.index, res.frac_bins, res.detections.valid, res.detections.noise)
-    kw = dict(window="hann", n_samples=n, average_axis=1)
-    given = unresolved(*args, **kw, power=res.power)
-    np.testing.assert_array_equal(given, unresolved(*args, **kw))
-    assert given[1::2, 0].sum() == 0 and given[0::2, 0].sum() >= 10

@@ -303,6 +303,7 @@ def test_broad_linewidth_at_the_shipped_delay_needs_the_narrow_band_refinement()
     assert res.converged and len(res.iterations) - 1 <= 10
 
 
+@pytest.mark.slow  # ILC runs to convergence (~5 s)
 def test_noise_floor_too_early_doubles_the_averages_not_for_a_narrow_laser():
     """32 averages stop a broad-linewidth laser at its noise floor far above the goal; with room to
     average more (max_averages) the same drive is re-measured with 2x, 4x ... the periods and learning
@@ -358,6 +359,7 @@ def test_fold_after_a_late_optical_turn_is_unfolded():
     assert unfolded < folded / 3
 
 
+@pytest.mark.slow  # ILC runs to convergence (~6 s)
 def test_slow_thermal_needs_the_inverse_response_update():
     """dfb_slow_thermal at the shipped delay: a scalar K (right for the slow response, 5x too large for
     the fast one, blind to the thermal lag) stays below 600x in 10 updates; dividing by the fitted

@@ -12,10 +12,13 @@ from __future__ import annotations
 import time
 
 import httpx
+import pytest
 
 from lidard.cli.lidarctl import main as lidarctl
 from lidard.config import load_config
 from tests.e2e.test_e2e_kill9 import _kill_group, _poll, _scan, _start_daemon
+
+pytestmark = pytest.mark.slow  # a real daemon through an interlock trip
 
 SCAN = {"pattern": "roi", "rows": [44, 48], "cols": [60, 70], "max_range_m": 2.0}
 

@@ -23,6 +23,8 @@ from lidard.store import Store
 from tests.helpers.api import app_client
 from tests.helpers.split_bench import open_split
 
+pytestmark = pytest.mark.slow  # benches with hidden tolerances, range and pointing calibrations (~1-3 min)
+
 TAU_TRUE = 201e-9
 ROI = {"pattern": "roi", "rows": [60, 68], "cols": [60, 68], "max_range_m": 2.0, "formats": ["npz"]}
 SPHERES = [(0.0, 0.0), (0.09, 0.09), (-0.09, 0.09), (0.09, -0.09), (-0.09, -0.08)]

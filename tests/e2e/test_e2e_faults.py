@@ -24,6 +24,8 @@ from lidard.jobs import ScanWorker
 from lidard.store import Store
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # a linearized bench, then one scan per fault kind (~1 min)
+
 ROI = ScanRequest(pattern="roi", rows=(40, 56), cols=(40, 72), max_range_m=2.0)   # 384 bonded pixels
 N_PIX = 12 * 32
 # Short wall-clock timeouts: a swallowed answer costs one timeout of real waiting (the pty / TCP

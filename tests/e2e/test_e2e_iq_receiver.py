@@ -25,6 +25,8 @@ from lidard.instrument.calibration.procedures import run_iq_calibration
 from lidard.instrument.calibration.range import CalibrationRefused
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # an I/Q bench calibrated and scanning
+
 GAIN_DB, PHASE_DEG = 0.8, 6.0
 # only the hybrid's tolerances on (at these bounds): the ranges are scored uncalibrated otherwise
 HYBRID_ENV = {"LIDARD__SIM__TOLERANCES__ENABLED": "true", "LIDARD__SIM__TOLERANCES__DRAW": "false",

@@ -21,6 +21,8 @@ from plyfile import PlyData
 
 from tests.helpers.daemon import kill_group, poll, start_daemon
 
+pytestmark = pytest.mark.slow  # two real daemon processes
+
 REPO = Path(__file__).resolve().parents[2]
 _start_daemon, _kill_group, _poll = start_daemon, kill_group, poll   # names the other e2e files import
 

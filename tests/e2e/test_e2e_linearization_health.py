@@ -24,6 +24,8 @@ from lidard.pointcloud import read_points, read_sidecar
 from lidard.store import Store
 from sim_devices.world.scene import Scene
 
+pytestmark = pytest.mark.slow  # a bench relinearized after a TEC step
+
 PLATE_M = 1.5
 STEP_C = 0.5
 OTHER_TOLERANCES_OFF = {f"LIDARD__SIM__TOLERANCES__{k}": "0" for k in

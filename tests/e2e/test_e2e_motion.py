@@ -17,6 +17,8 @@ from lidard.instrument import ScanRequest, open_instrument
 from sim_devices.world.scene import Scene
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # moving-target benches, linearized
+
 WL = 1.55e-6
 KAPPA = 8.6e9 / 80e-6
 C = 299_792_458.0
@@ -66,7 +68,7 @@ CASES = [(0.3, 0.0), (0.3, 4.7), (0.3, -5.0), (0.7, 0.12), (0.7, -2.2), (1.3, 0.
 def test_region_scan_ranges_moving_targets_with_signed_velocity(motion, range_m, v_mps):
     inst, bench, cal = motion
     bench.set_scene(Scene.from_dict({"name": "one", "target": [_plane(range_m, v_mps)]}))
-    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 64), cols=(62, 66), max_range_m=2.0))
+    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 64), cols=(62, 66), max_range_m=2.0, max_speed_mps=10.0))
     pts = res.points[res.points["valid"] == 1]
     assert len(pts) == res.pixels_scanned                 # every pixel ranged, one point each
     r_true, v_true = _truth(inst, bench, pts, v_mps)
@@ -103,10 +105,10 @@ def test_regime_boundary_without_a_hold_profile_is_flagged_not_misranged(motion)
     old = dataclasses.replace(cal, meta={k: v for k, v in cal.meta.items() if k != "hold_profile"})
     v = -_regime_boundary_speed(1.0)
     bench.set_scene(Scene.from_dict({"name": "edge", "target": [_plane(1.0, v)]}))
-    res = _scan(inst, old, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 64), max_range_m=2.0))
+    res = _scan(inst, old, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 64), max_range_m=2.0, max_speed_mps=10.0))
     assert not np.any(res.points["valid"] == 1)
     assert res.meta["dsp"]["hold_profile"] is False          # the sidecar says why
-    with_profile = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 64), max_range_m=2.0))
+    with_profile = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 64), max_range_m=2.0, max_speed_mps=10.0))
     assert np.count_nonzero(with_profile.points["valid"] == 1) == with_profile.pixels_scanned
     assert with_profile.meta["dsp"]["hold_profile"] is True
 
@@ -133,7 +135,7 @@ def test_full_frame_of_moving_targets_near_and_far(small_frame):
                (1.9, -3.0, 0.15, 0.15)]
     bench.set_scene(Scene.from_dict({"name": "patches", "target": [
         _plane(z, v, x * z, y * z, size_m=0.24 * z) for z, v, x, y in patches]}))
-    res = _scan(inst, cal, ScanRequest(pattern="raster", max_range_m=2.0))
+    res = _scan(inst, cal, ScanRequest(pattern="raster", max_range_m=2.0, max_speed_mps=10.0))
     assert res.pixels_scanned == res.pixels_planned == 400
     assert res.hardware_time_s < 0.12
     pts = res.points[res.points["valid"] == 1]
@@ -162,7 +164,7 @@ def test_averaged_points_refer_to_their_first_trigger(motion):
     inst, bench, cal = motion
     v = -5.0
     bench.set_scene(Scene.from_dict({"name": "fast", "target": [_plane(1.5, v)]}))
-    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 66), max_range_m=2.0, averages=3))
+    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 66), max_range_m=2.0, max_speed_mps=10.0, averages=3))
     pts = res.points[res.points["valid"] == 1]
     assert len(pts) == res.pixels_scanned
     r_true, v_true = _truth(inst, bench, pts, v)
@@ -177,7 +179,7 @@ def test_a_target_smeared_over_many_averages_is_flagged_not_misranged(motion):
     # peak; the shape test reads it as unresolved: drawn with its flag, never a valid wrong range
     inst, bench, cal = motion
     bench.set_scene(Scene.from_dict({"name": "fast", "target": [_plane(1.5, -5.0)]}))
-    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 66), max_range_m=2.0, averages=10))
+    res = _scan(inst, cal, ScanRequest(pattern="roi", rows=(60, 62), cols=(62, 66), max_range_m=2.0, max_speed_mps=10.0, averages=10))
     pts = res.points
     r_true, _ = _truth(inst, bench, pts, -5.0)
     ok = pts["valid"] == 1

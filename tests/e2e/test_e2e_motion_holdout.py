@@ -18,6 +18,8 @@ from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # hold-out scenes on linearized benches
+
 SCENE = "config/scenes/holdout/boxes_planes.toml"
 C_M_PER_S = 299_792_458.0
 
@@ -43,7 +45,7 @@ def _boundary_ratio(cfg, v_mps, r_m):
 def test_holdout_targets_ranged_within_the_done_when_bounds(instrument, target, rows, cols, ratio):
     cfg, inst, cal = instrument
     surfaces = ht.load(SCENE)
-    res = inst.run_scan(ScanRequest(rows=rows, cols=cols, max_range_m=2.0), lambda p: None,
+    res = inst.run_scan(ScanRequest(rows=rows, cols=cols, max_range_m=2.0, max_speed_mps=10.0), lambda p: None,
                         threading.Event(), cal)
     pts = res.points
     d = cfg.optics().directions(pts["row"], pts["col"])

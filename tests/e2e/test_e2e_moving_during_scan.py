@@ -12,6 +12,8 @@ from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # moving-scene benches, linearized
+
 V_MPS = (1.0, 0.0, 1.1)          # |v| = 1.49 m/s: across the beams and along them
 FRAME = dict(pattern="roi", rows=(48, 80), cols=(48, 80))
 
@@ -39,7 +41,7 @@ def embedded():
 
 def _scan(inst, cal, scn):
     inst.set_scene(scn)
-    return inst.run_scan(ScanRequest(max_range_m=7.0, **FRAME), lambda p: None, threading.Event(), cal)
+    return inst.run_scan(ScanRequest(max_range_m=7.0, max_speed_mps=10.0, **FRAME), lambda p: None, threading.Event(), cal)
 
 
 def test_points_follow_the_target_to_their_own_time(embedded):
@@ -76,7 +78,7 @@ def test_static_scene_keeps_the_per_pixel_cast_cache(embedded):
     assert w.rays_cast - n0 == res.pixels_planned          # one cast per pixel, as before motion
     assert w.moving_rays_cast == m0                          # nothing cast per beam
     n1 = w.rays_cast
-    inst.run_scan(ScanRequest(max_range_m=7.0, **FRAME), lambda p: None, threading.Event(), cal)
+    inst.run_scan(ScanRequest(max_range_m=7.0, max_speed_mps=10.0, **FRAME), lambda p: None, threading.Event(), cal)
     assert w.rays_cast == n1                                 # the cache serves a second scan
     # a moving box: the static wall still once per pixel, the box once per lit beam (the FPGA's
     # record of the run: a beam per trigger, and the previous pixel's while its switch releases)

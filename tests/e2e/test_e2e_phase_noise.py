@@ -18,6 +18,8 @@ from lidard.instrument import open_instrument
 from lidard.instrument import ScanRequest
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # a broad-linewidth bench linearized, far-wall scans (~1-3 min)
+
 C = 299_792_458.0
 WALL_Z_M = 3 * 200e-9 * C / 2          # 89.94 m: round trip 3 tau_m
 

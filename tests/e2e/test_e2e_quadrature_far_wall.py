@@ -17,6 +17,8 @@ import pytest
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
 
+pytestmark = pytest.mark.slow  # an embedded bench linearized with the quadrature monitor (~1-3 min)
+
 WALL_Z_M = 112.6
 
 

@@ -14,6 +14,8 @@ from lidard.dsp.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # benches per range gate, linearized
+
 MAX_RANGE_M = 2.0
 ROI = dict(pattern="roi", rows=(60, 68), cols=(60, 68))
 

@@ -3,11 +3,14 @@
 import io
 
 import numpy as np
+import pytest
 from plyfile import PlyData
 
 from lidard.config import load_config
 from lidard.instrument import open_instrument
 from tests.helpers.api import app_client
+
+pytestmark = pytest.mark.slow  # the REST API on an embedded bench, linearized (~20 s)
 
 
 def test_post_scan_poll_and_fetch_points_over_rest(tmp_path):

@@ -16,6 +16,8 @@ from lidard.instrument import ScanRequest
 from sim_devices.world.scene import Scene
 from tests.helpers.tolerances import NOMINAL_ENV
 
+pytestmark = pytest.mark.slow  # embedded and child-process benches, linearized
+
 
 def _scan(inst, req, cal):
     seen = []

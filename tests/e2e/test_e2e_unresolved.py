@@ -14,6 +14,8 @@ from lidard.config import load_config
 from lidard.dsp.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
 
+pytestmark = pytest.mark.slow  # benches per surface spacing, linearized
+
 Z0_M = 1.0
 
 

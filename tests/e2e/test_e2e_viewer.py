@@ -5,7 +5,8 @@ A real ``lidard`` process on the simulated bench (config/sim.toml, CAL letters, 
 scan from the form, wait for the page to see the end. Then the page's own state
 (``window.viewer.pointCount``, built from the incremental ``/points/live`` fetches) must equal the
 count the API reports, and the WebGL canvas must not be blank (pixel variance of what it drew, and
-of the screenshot). Only Debian's /usr/bin/chromium is used; nothing is downloaded. Without that
+of the screenshot). Then the control lease: a reload keeps control (under a fresh lease, the old one
+void), another tab is an observer, and closing the tab releases the lock. Only Debian's /usr/bin/chromium is used; nothing is downloaded. Without that
 executable (or the playwright package) the test skips, saying which is missing.
 """
 
@@ -21,6 +22,8 @@ import numpy as np
 import pytest
 
 from tests.helpers.daemon import start_daemon, stop_daemon
+
+pytestmark = pytest.mark.slow  # a real daemon and a browser
 
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = os.environ.get("LIDARD_CHROMIUM", "/usr/bin/chromium")
@@ -93,6 +96,46 @@ def check_panels(page, api):
     assert page.inner_text("#linearization").startswith(("chirp error", "chirp re-linearized"))
 
 
+def _control(url: str) -> dict:
+    return httpx.get(f"{url}/control", timeout=10).json()
+
+
+def _poll(fn, timeout_s: float, what: str):
+    import time
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        got = fn()
+        if got:
+            return got
+        time.sleep(0.05)       # polling interval only; the deadline decides
+    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
+    """The tab that took control keeps it across a reload, another tab cannot steer, closing releases."""
+    old = page.evaluate("window.viewer.lease")
+    assert old and _control(url)["holder"] == "web viewer"
+    page.reload()
+    page.wait_for_function("window.viewer && window.viewer.ready")
+    page.wait_for_selector("#scan-start:not([disabled])", timeout=10_000)    # still in control
+    new = page.evaluate("window.viewer.lease")
+    assert new and new != old and _control(url)["holder"] == "web viewer"
+    # the old page's lease is void: its late release (or anyone replaying it) frees nothing
+    r = httpx.delete(f"{url}/control", headers={"X-Lidard-Lease": old}, timeout=10)
+    assert r.status_code == 423 and _control(url)["held"] is True
+    # another tab (its own sessionStorage) is an observer
+    other = browser.new_page()
+    other.goto(url + "/")
+    other.wait_for_function("window.viewer && window.viewer.ready")
+    assert other.evaluate("window.viewer.lease") is None
+    assert other.is_disabled("#scan-start") and not other.is_hidden("#control-take")
+    other.close()
+    assert _control(url)["held"] is True        # a tab without the lease releases nothing
+    # closing the controlling tab releases the lock (pagehide, fetch keepalive)
+    page.close(run_before_unload=True)
+    _poll(lambda: not _control(url)["held"], 30, "the closed tab's release")
+
+
 def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
     sync_playwright = _browser_or_skip()
     from PIL import Image
@@ -133,6 +176,7 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
                 assert f"row       {picked['row']}" in page.inner_text("#picked")
                 assert page.evaluate("window.viewer.cloud.pick({clientX: -1e6, clientY: -1e6})") is None
                 check_panels(page, api)
+                check_lease_survives_reload_and_close(browser, page, url)
             finally:
                 browser.close()
     finally:

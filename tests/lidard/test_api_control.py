@@ -153,7 +153,7 @@ def lidarctl(capsys, *argv):
     return code, out, err
 
 
-def test_lidarctl_control_acquire_status_release_and_lease_header(live, capsys, monkeypatch):
+def test_lidarctl_control_acquire_status_release_and_lease_header(live, capsys, monkeypatch, tmp_path):
     import json
     url, inst = live
     monkeypatch.delenv("LIDARD_LEASE", raising=False)
@@ -164,7 +164,9 @@ def test_lidarctl_control_acquire_status_release_and_lease_header(live, capsys, 
     lease = json.loads(out)["lease"]
     code, out, err = lidarctl(capsys, "control", "status", "--url", url)
     assert code == 0 and "rig-pc" in out and lease not in out
-    # a command without the lease is refused with one line naming the holder
+    # another user (another lease file, tests/lidard/test_control_leases.py has this user's) has no lease:
+    # a command is refused with one line naming the holder
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "other-user"))
     code, out, err = lidarctl(capsys, "scan", "--url", url, "--rows", "0:1", "--cols", "0:2", "--json")
     assert code == 1 and "423" in err and "rig-pc" in err and len(err.strip().splitlines()) == 1
     assert inst.requests == []

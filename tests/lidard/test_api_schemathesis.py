@@ -70,6 +70,7 @@ def _without_lifespan(app):
 schema = schemathesis.pytest.from_fixture("lidard_openapi")
 
 
+@pytest.mark.slow  # every operation's generated cases (~50 s)
 @schema.parametrize()
 @settings(max_examples=50, derandomize=True, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,

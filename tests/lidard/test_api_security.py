@@ -232,6 +232,7 @@ def test_live_chunked_body_over_limit_is_413(tmp_path):
     assert len(inst.scenes) == 1
 
 
+@pytest.mark.slow  # a real daemon process and its child bench
 def test_real_daemon_with_token_on_all_interfaces_reads_open_writes_need_token(tmp_path):
     """`python -m lidard --host 0.0.0.0 --token T` on the simulated bench: serves, warns about plain
     HTTP, GET is open, POST without the token is 401 and with it 201."""

@@ -82,6 +82,19 @@ def test_scan_only_sections_do_not_change_the_key():
     assert calcache.config_key(cfg.model_copy(update={"scan": scan})) == calcache.config_key(cfg)
 
 
+def test_the_doppler_band_is_a_scan_request_not_part_of_the_key(fake):
+    # the band sizes the digitizer for one scan; the linearized drive does not depend on it
+    cfg = sim_config(_args())
+    fast = cfg.model_copy(update={"scan": cfg.scan.model_copy(update={"max_speed_mps": 10.0})})
+    assert calcache.config_key(fast) == calcache.config_key(cfg)
+    first = _scan_calibration_id(_args(), fake)
+    with embedded(_args(), None) as (worker, store, _):      # a 10 m/s request on the same cache
+        rec = worker.submit_scan(request_from_dict({"pattern": "roi", "rows": [0, 1], "cols": [0, 2],
+                                                    "max_speed_mps": 10.0}))
+        assert worker.wait(rec.id).state == "done"
+    assert fake.linearize_calls == 1 and fake.calibrations_used[-1].meta["id"] == first
+
+
 def test_moved_laser_temperature_relinearizes_and_replaces_the_entry(fake):
     first = _scan_calibration_id(_args(), fake)
     cfg = sim_config(_args())

@@ -95,14 +95,16 @@ def test_cancel_running_keeps_partial_points(rig):
     inst, store, w = rig(hold_after=25)
     a = w.submit_scan(ScanRequest(**SMALL, formats=("las",)))
     assert inst.reached.wait(T)
-    w.cancel(a.id)
+    w.cancel(a.id, reason="interrupted by SIGTERM")
+    w.cancel(a.id, reason="a second cancel does not rename the first")
     rec = w.wait(a.id, T)
-    assert rec.state == "cancelled" and rec.partial
+    assert rec.state == "cancelled" and rec.partial and rec.error is None
     assert (rec.points, rec.pixels_scanned, rec.pixels_planned) == (25, 25, 60)
     pts = read_points(store.data_dir / rec.files["las"])
     assert len(pts) == 25
     side = read_sidecar(store.data_dir / rec.files["las"])
     assert side["partial"] is True and side["coverage"] == pytest.approx(25 / 60)
+    assert side["stop_reason"] == "interrupted by SIGTERM"      # why the points stop where they do
 
 
 def test_failure_stores_device_and_cause(rig):
@@ -169,10 +171,12 @@ def test_stop_interrupts_queued_and_unknown_cancel(rig, tmp_path):
     a = w.submit_scan(ScanRequest(**SMALL))
     assert inst.reached.wait(T)
     b = w.submit_scan(ScanRequest(**SMALL))
-    w.stop()
+    w.stop(reason="lidard shut down (SIGTERM)")
     assert store.get_scan(b.id).state == "interrupted"
     ra = store.get_scan(a.id)
     assert ra.state == "interrupted" and ra.partial and ra.points == 1
+    assert ra.error == "lidard shut down (SIGTERM)"
+    assert read_sidecar(store.data_dir / ra.files["ply"])["stop_reason"] == "lidard shut down (SIGTERM)"
     with pytest.raises(UnknownScan):
         w.cancel("0000")
 
@@ -232,3 +236,37 @@ def test_calibration_is_redone_when_the_laser_temperature_moved(tmp_path):
         assert inst.calibrations_used[-1].temperature_c == pytest.approx(25.6)
     finally:
         w.stop()
+
+
+def test_the_worker_gives_freed_heap_back_after_every_job(rig, monkeypatch):
+    from lidard.jobs import heap
+    trims = []
+    monkeypatch.setattr(heap, "trim", lambda: trims.append(1) or True)
+    inst, store, w = rig()
+    for _ in range(2):
+        rec = w.wait(w.submit_scan(ScanRequest(**SMALL)).id, T)
+        assert rec.state == "done"
+    w.stop()                    # joins the worker: every job's clean-up has run
+    assert len(trims) == 2
+
+
+def test_heap_trim_returns_pages_on_glibc():
+    import ctypes
+    import sys
+
+    from lidard.jobs import heap
+    if not sys.platform.startswith("linux") or not hasattr(ctypes.CDLL(None), "malloc_trim"):
+        assert heap.trim() is False
+        return
+
+    def rss_kb() -> int:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:"))
+    # 64 MB of 20 kB blocks (below the mmap threshold: they live in the heap), then every other one
+    # freed: holes no top-of-heap trim can return, only malloc_trim's walk of the free chunks
+    blocks = [bytearray(20_000) for _ in range(3_200)]
+    del blocks[::2]
+    before = rss_kb()
+    assert heap.trim() is True
+    assert rss_kb() < before - 8_000, (before, rss_kb())
+    del blocks

@@ -21,13 +21,12 @@ def test_iq_plan_records_i_and_q_and_searches_the_doppler_band_without_a_prior()
     assert p.acquisition.channels == ("beat_i", "beat_q")
     assert p.dsp.iq and (p.dsp.iq_gain, p.dsp.iq_phase_rad) == (1.05, 0.03)
     assert p.dsp.cw_samples == 0
-    # the band is chirp.doppler_band_mps, whatever the triangle's prior says
-    assert speed_span_mps(c) == c.chirp.doppler_band_mps == p.dsp.max_speed_mps
-    assert speed_span_mps(cfg(LIDARD__SCAN__MAX_SPEED_MPS="0.4")) == c.chirp.doppler_band_mps
-    # a record covers the band: its rate grows with the band
-    fast = cfg(LIDARD__CHIRP__DOPPLER_BAND_MPS="20")
-    p2 = plan_scan(fast, fast.optics(), ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=2.0))
-    assert p2.adc.fs_hz > p.adc.fs_hz
+    # the band is the scan's max_speed_mps (config/sim_iq.toml: 10 m/s), searched as a band
+    assert speed_span_mps(c) == c.scan.max_speed_mps == 10.0 == p.dsp.max_speed_mps
+    # a record covers the band: its rate grows with the requested band
+    p2 = plan_scan(c, c.optics(), ScanRequest(pattern="roi", rows=(0, 2), cols=(0, 2), max_range_m=2.0,
+                                              max_speed_mps=20.0))
+    assert p2.dsp.max_speed_mps == 20.0 and p2.adc.fs_hz > p.adc.fs_hz
 
 
 def test_iq_with_the_three_segment_chirp_is_refused_naming_both_keys():

@@ -54,10 +54,33 @@ def test_drive_for_chirp_completes_a_triangle_and_refuses_other_lengths():
         drive_for_chirp(cfg, tri[:-10])
 
 
+def _need_hz(cfg, range_m, speed_mps):
+    """2.5x Nyquist of the highest beat: f_R(range) + f_D(speed)."""
+    return 2.5 * (2 * cfg.chirp.rate_hz_per_s * range_m / 299_792_458 + 2 * speed_mps / 1.55e-6)
+
+
 def test_record_holds_the_cw_segment_and_the_band_replaces_the_prior():
     three, tri = _cfg(), _cfg(shape="triangle")
-    p3, pt = adc_plan(three, 2.0), adc_plan(tri, 2.0)
+    p3, pt = adc_plan(three, 2.0, max_speed_mps=10.0), adc_plan(tri, 2.0)
     assert p3.record_length == 2 * p3.ramp_samples + int(p3.fs_hz * three.chirp.cw_s + 1e-9)
     assert pt.record_length == 2 * pt.ramp_samples
     # the rate holds f_R + f_D(10 m/s) at 2.5x Nyquist: 2.5 (1.43 + 12.9) MHz
-    assert p3.fs_hz >= 2.5 * (2 * three.chirp.rate_hz_per_s * 2.0 / 299_792_458 + 2 * 10.0 / 1.55e-6)
+    assert p3.fs_hz >= _need_hz(three, 2.0, 10.0)
+
+
+@pytest.mark.parametrize("speed_mps", [0.1, 0.4, 1.0, 3.0, 10.0, 30.0])
+def test_the_requested_speed_sizes_the_record_and_the_default_is_the_config(speed_mps):
+    cfg = _cfg()
+    p = adc_plan(cfg, 2.0, max_speed_mps=speed_mps)
+    # the slowest rate max_rate / k that holds the band: holds it, and the next slower divider would not
+    assert _need_hz(cfg, 2.0, speed_mps) <= p.fs_hz
+    k = round(cfg.adc.max_sample_rate_hz / p.fs_hz)
+    assert cfg.adc.max_sample_rate_hz / (k + 1) < max(_need_hz(cfg, 2.0, speed_mps), cfg.adc.min_sample_rate_hz) \
+        or abs(cfg.adc.max_sample_rate_hz / (k + 1) * cfg.chirp.ramp_s % 1) > 1e-6
+    assert adc_plan(cfg, 2.0) == adc_plan(cfg, 2.0, max_speed_mps=cfg.scan.max_speed_mps)
+    assert cfg.scan.max_speed_mps == 0.4        # config/sim.toml: a static lab scene
+
+
+def test_the_band_left_in_the_chirp_section_is_refused_naming_its_new_key():
+    with pytest.raises(ConfigError, match=r"chirp.doppler_band_mps is now scan.max_speed_mps"):
+        _cfg(doppler_band_mps=10.0)

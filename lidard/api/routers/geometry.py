@@ -6,6 +6,11 @@ plates, ``DELETE`` (all, or one by id) drops them; ``POST /calibration/range/fit
 the record (a refused fit answers 422 naming the plate to check, the plates are kept).
 Pointing: ``POST /calibration/pointing`` with the known target geometry scans and fits.
 I/Q (``adc.iq``): ``POST /calibration/iq`` scans the centre region and fits the receiver's imbalance.
+Guided (simulated bench, unattended): ``POST /calibration/run`` places the plates and the sphere
+target through the bench, measures, fits both and puts the scene back (lidard.jobs.guided; what
+``lidarctl calibrate`` does step by step with progress). Pending plates of an earlier run are refused
+unless ``pending`` says ``keep`` or ``drop``. On real hardware 409: a person moves the plate
+(``lidarctl calibrate`` asks for each position).
 Records: ``GET /calibration/records`` (range, pointing and linearization, newest first) and
 ``GET /calibration/records/{id}``. The domain functions are :mod:`lidard.jobs.calibrations`.
 
@@ -76,6 +81,23 @@ class RecordOut(BaseModel):
     residuals: dict[str, Any]
 
 
+class GuidedIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    pending: Literal["keep", "drop"] | None = Field(
+        default=None, description="plates left pending by an earlier run: keep them in this fit or drop them "
+                                  "(without: refused, 422, listing them)")
+    plates_m: list[float] | None = Field(default=None, min_length=2, max_length=20,
+                                         description="plate distances along the optical axis, m (default 0.8, 1.1, 1.4)")
+
+
+class GuidedOut(BaseModel):
+    range: RecordOut
+    pointing: RecordOut
+    plates: list[dict[str, Any]]
+    kept_pending: list[dict[str, Any]]
+    wall_s: float
+
+
 class Removed(BaseModel):
     removed: int
 
@@ -126,10 +148,10 @@ def drop_plate(plate_id: str, store: StoreDep) -> Removed:
 
 
 @router.post("/range/fit", response_model=RecordOut, status_code=status.HTTP_201_CREATED, responses=REFUSED)
-def fit_range(store: StoreDep, cfg: ConfigDep) -> RecordOut:
+def fit_range(store: StoreDep, cfg: ConfigDep, worker: WorkerDep) -> RecordOut:
     """Fit the pending plates: the effective monitor delay and the zero offset; later scans use them."""
     try:
-        return RecordOut.model_validate(cal.fit_range(store, cfg.monitor.delay_s).to_dict())
+        return RecordOut.model_validate(cal.fit_range(store, cfg.monitor.delay_s, worker.setup_of("range")).to_dict())
     except CalibrationRefused as exc:
         raise HTTPException(422, str(exc)) from None
 
@@ -148,6 +170,30 @@ async def iq(worker: WorkerDep, body: IqIn | None = None) -> RecordOut:
     body = body or IqIn()
     rec = await _wait(lambda: cal.iq(worker, body.max_range_m))
     return RecordOut.model_validate(_clean(rec.to_dict()))
+
+
+@router.post("/run", response_model=GuidedOut, status_code=status.HTTP_201_CREATED,
+             responses={**REFUSED, 409: {"description": "real hardware: the plate positions need an operator"}})
+async def run_guided(worker: WorkerDep, cfg: ConfigDep, body: GuidedIn | None = None) -> GuidedOut:
+    """The whole calibration on a simulated bench: range plates, the range fit, then the pointing spheres."""
+    from ...jobs.guided import GuidedPlan, bench_scene, run_guided as guided
+    body = body or GuidedIn()
+    if not worker.instrument.simulated:
+        raise HTTPException(status.HTTP_409_CONFLICT, "the instrument is real hardware: a person places the plate "
+                            "at each distance; run `lidarctl calibrate`, which asks for each position")
+    for d in body.plates_m or ():
+        if not (d > 0 and d <= 1000):
+            raise HTTPException(422, f"plates_m: {d!r} is not a distance in metres (0 < d <= 1000)")
+    plan = GuidedPlan(plates_m=tuple(body.plates_m)) if body.plates_m else GuidedPlan()
+    scene = bench_scene(cfg, worker)
+
+    def task():
+        try:
+            return guided(worker, plan, cfg.monitor.delay_s, pending=body.pending or "refuse")
+        finally:   # the bench shows what it showed before
+            worker.instrument.set_scene(scene)
+    out = await _wait(lambda: worker.submit_task(task))
+    return GuidedOut.model_validate({**out, "range": _clean(out["range"]), "pointing": _clean(out["pointing"])})
 
 
 @router.get("/records", response_model=list[RecordOut])

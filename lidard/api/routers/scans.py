@@ -118,7 +118,7 @@ def get_sidecar(scan_id: str, store: StoreDep, format: FileFormat = "ply") -> JS
 def cancel_scan(scan_id: str, worker: WorkerDep) -> ScanOut:
     """Cancel: queued -> cancelled at once; running -> stops, the points so far are kept (partial)."""
     try:
-        rec = worker.cancel(scan_id)
+        rec = worker.cancel(scan_id, reason=f"cancelled by a client (DELETE /scans/{scan_id})")
     except UnknownScan:
         raise _not_found(scan_id) from None
     return ScanOut.from_record(rec)
@@ -131,7 +131,9 @@ def _sse(event: dict) -> bytes:
 @router.get("/{scan_id}/events", response_class=StreamingResponse,
             responses={200: {"content": {"text/event-stream": {}}}, **_404})
 async def scan_events(scan_id: str, store: StoreDep, worker: WorkerDep) -> StreamingResponse:
-    """Server-sent events: ``progress`` while the scan runs, then one ``end`` and the stream closes."""
+    """Server-sent events: ``progress`` while the scan runs, then one ``end`` and the stream closes.
+    The ``end`` event carries the scan's final record (``scan``, as GET /scans/{id} answers it): a
+    client that follows a scan while the daemon shuts down gets it before its connection closes."""
     if store.get_scan(scan_id) is None:
         raise _not_found(scan_id)
     loop = asyncio.get_running_loop()
@@ -163,9 +165,13 @@ async def scan_events(scan_id: str, store: StoreDep, worker: WorkerDep) -> Strea
                 except asyncio.TimeoutError:
                     yield b": keep-alive\n\n"
                     continue
-                yield _sse(ev)
                 if ev["event"] == "end":
+                    final = store.get_scan(scan_id)
+                    if final is not None:
+                        ev = {**ev, "scan": ScanOut.from_record(final).model_dump(mode="json")}
+                    yield _sse(ev)
                     return
+                yield _sse(ev)
         finally:
             unsubscribe()
 

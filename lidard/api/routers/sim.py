@@ -62,7 +62,18 @@ async def put_scene(request: Request, instrument: InstrumentDep) -> SceneAccepte
     if worker is not None:
         worker.base_meta["scene"] = {"path": None, "source": "PUT /sim/scene", "name": summary["name"],
                                      "sha256": hashlib.sha256(body).hexdigest()}
+        worker.sim_scene = data   # what a factory calibration puts back once its fixtures are done
     return SceneAccepted(name=summary["name"], targets=summary["targets"])
+
+
+@router.get("/scene", response_model=dict[str, Any], responses={409: {"description": "real hardware"}})
+def get_scene(request: Request, instrument: InstrumentDep) -> dict[str, Any]:
+    """The scene the bench shows (the scene-file structure): the last one placed with PUT, else the
+    configuration's ``sim.scene``; what a calibration run puts back once its fixtures are done."""
+    from ...jobs.guided import bench_scene
+    if not instrument.simulated:
+        raise _real_hardware("only a simulated bench has a scene")
+    return bench_scene(request.app.state.config, request.app.state.worker)
 
 
 class FaultIn(BaseModel):

@@ -8,9 +8,10 @@
 * I/Q imbalance (:mod:`.iq`, only with ``adc.iq``): the DSP removes the fitted gain ratio and phase
   error of the coherent receiver before its two-sided spectrum (lidard.dsp.iqbalance).
 
-The job worker loads the newest stored record of each kind and hands them over before every scan and
-linearization; an instrument with none applies the nominal values and its scans say
-``calibrated: {"range": false, "pointing": false}``.
+The job worker loads the newest stored record of each kind made on the instrument's own set-up
+(:mod:`.setup`) and hands them over before every scan and linearization; an instrument with none
+applies the nominal values, its scans say ``calibrated: {"range": false, "pointing": false}`` and,
+when records exist for another set-up, ``uncalibrated_reason`` says why they were not used.
 """
 
 from __future__ import annotations
@@ -30,11 +31,14 @@ class AppliedCalibrations:
     pointing: Pointing | None = None
     iq_id: str | None = None
     iq_imbalance: tuple[float, float] = (1.0, 0.0)   # the I/Q receiver's (gain ratio, phase error rad)
+    #: why stored records were not applied (made on another set-up), one sentence per kind
+    notes: tuple[str, ...] = ()
 
     @classmethod
-    def from_records(cls, range_rec: Any = None, pointing_rec: Any = None, iq_rec: Any = None) -> "AppliedCalibrations":
+    def from_records(cls, range_rec: Any = None, pointing_rec: Any = None, iq_rec: Any = None,
+                     notes: tuple[str, ...] = ()) -> "AppliedCalibrations":
         """From stored records (``.id``, ``.fitted``; lidard.store_calibrations.CalibrationRecord)."""
-        kw: dict[str, Any] = {}
+        kw: dict[str, Any] = {"notes": tuple(notes)}
         if iq_rec is not None:
             kw.update(iq_id=iq_rec.id, iq_imbalance=(float(iq_rec.fitted["gain"]), float(iq_rec.fitted["phase_rad"])))
         if range_rec is not None:
@@ -62,6 +66,11 @@ class AppliedCalibrations:
         if iq:
             out["iq"] = self.iq_id is not None
         return out
+
+    @property
+    def uncalibrated_reason(self) -> str | None:
+        """Why stored calibrations were left unused (None when nothing was), for the scan record."""
+        return "; ".join(self.notes) or None
 
     def meta(self, nominal_delay_s: float) -> dict[str, Any]:
         """What a scan's sidecar records about the geometry it was computed with."""

@@ -39,12 +39,17 @@ class LinearizationHealth:
     """``check(drive_v)`` measures the chirp of ``drive_v`` through the monitor MZI (laser and HV up
     for the duration, as a linearization does) and answers a :class:`HealthCheck`."""
 
-    def __init__(self, cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: SafetyMonitor):
+    def __init__(self, cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: SafetyMonitor, *,
+                 mzi_delay_s: float | None = None):
         self.cfg, self.safety = cfg, safety
         self.records = int(cfg.scan.linearity_check_records)
         self.threshold_hz = float(cfg.scan.linearity_threshold_hz)
-        # the same geometry and measurement as the ILC: centre pixel, MZI-rate ADC, one drive period
-        self._lin = Linearization(cfg, optics, lifecycle, safety)
+        # the same geometry and measurement as the ILC: centre pixel, MZI-rate ADC, one drive period;
+        # and the same target: the ideal chirp is rate x the monitor delay the drive was learned
+        # against (the range calibration's effective delay when there is one). Against the nominal
+        # delay a calibrated drive would read (tau_eff / tau_nom - 1) x excursion off (~17 MHz for a
+        # 0.7 % delay error) and every scan would re-linearize for nothing.
+        self._lin = Linearization(cfg, optics, lifecycle, safety, mzi_delay_s=mzi_delay_s)
         self._lin.what = "linearization health check (before the scan)"
 
     def check(self, drive_v: np.ndarray) -> HealthCheck:

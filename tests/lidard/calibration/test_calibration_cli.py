@@ -7,6 +7,8 @@ import json
 import numpy as np
 import pytest
 
+from lidard.config import CONFIG_DIR, load_config
+from lidard.instrument.calibration.setup import calibration_setup
 from lidard.instrument.types import POINT_DTYPE, ScanProgress, ScanResult
 from lidard.scan import plan
 from tests.helpers.api import live_server, make_app
@@ -125,9 +127,11 @@ def test_sim_scan_says_uncalibrated_without_a_store_and_uses_the_stored_calibrat
 
     data = tmp_path / "data"
     st = Store(data)
-    rng = st.save_geometry_calibration("range", temperature_c=25.0, inputs={}, residuals={},
-                                       fitted={"delay_s": 201.2e-9, "zero_offset_m": 0.02})
-    pnt = st.save_geometry_calibration("pointing", temperature_c=25.0, inputs={}, residuals={},
+    setup = calibration_setup(load_config(CONFIG_DIR / "sim.toml"))   # what the --sim scans run on
+    rng = st.save_geometry_calibration("range", temperature_c=25.0, inputs={"setup": setup["range"].as_dict()},
+                                       residuals={}, fitted={"delay_s": 201.2e-9, "zero_offset_m": 0.02})
+    pnt = st.save_geometry_calibration("pointing", temperature_c=25.0, inputs={"setup": setup["pointing"].as_dict()},
+                                       residuals={},
                                        fitted={"focal_scale": 1.01, "decentre_px": [0.5, -0.2],
                                                "rotation_rad": 0.004, "k1": 0.1})
     st.close()
@@ -141,3 +145,27 @@ def test_sim_scan_says_uncalibrated_without_a_store_and_uses_the_stored_calibrat
     # the worker handed both to the instrument before the scan
     assert inst.applied.delay_s == 201.2e-9 and inst.applied.zero_offset_m == 0.02
     assert inst.applied.pointing.decentre_px == (0.5, -0.2) and inst.monitor_delay_s() == 201.2e-9
+
+    # the same data directory under another laser: its range records are another set-up's; the
+    # pointing (the chip behind its lens) is still this one's
+    other = tmp_path / "other_laser.toml"
+    other.write_text((CONFIG_DIR / "sim.toml").read_text().replace('laser = "dfb_default"', 'laser = "ideal"'))
+    code, out, err = run(capsys, "scan", "--sim", "--config", str(other), "--data-dir", str(data), "--rows", "2:4",
+                         "--out", str(out_file), "--json")
+    assert code == 0, err
+    got = json.loads(out)
+    assert got["calibrated"] == {"range": False, "pointing": True, "linearization": True}
+    assert f"range calibration {rng.id} not used" in got["uncalibrated_reason"]
+    assert "laser dfb_default here ideal" in got["uncalibrated_reason"]
+    assert err.count("warning: uncalibrated range:") == 1 and "another set-up" in err
+    side = read_sidecar(out_file)
+    assert side["calibrated"]["range"] is False and side["uncalibrated_reason"] == got["uncalibrated_reason"]
+    assert inst.applied.delay_s is None and inst.applied.pointing is not None
+    # a record that names no set-up (an older data directory) is not trusted either
+    st = Store(data)
+    st.save_geometry_calibration("range", temperature_c=25.0, inputs={}, residuals={},
+                                 fitted={"delay_s": 201.2e-9, "zero_offset_m": 0.02})
+    st.close()
+    code, out, err = run(capsys, "scan", "--sim", "--data-dir", str(data), "--rows", "2:4", "--json")
+    got = json.loads(out)
+    assert got["calibrated"]["range"] is True and got["uncalibrated_reason"] is None   # the older matching one

@@ -30,6 +30,7 @@ def recorded(capsys, monkeypatch, tmp_path):
     return data, sid, tmp_path
 
 
+@pytest.mark.slow  # a reprocessing through a local Dask cluster (~20 s)
 def test_reprocess_offline_reproduces_the_scan_and_links_it(capsys, recorded):
     data, sid, tmp = recorded
     code, out, err = run(capsys, "reprocess", sid, "--data-dir", str(data), "--out", str(tmp / "again.npz"), "--json")

@@ -147,3 +147,20 @@ def test_reprocessing_leaves_no_dsp_buffers_held_by_the_thread(capture):
     scratch_mod.scratch("t.held", (8,), np.float64)
     assert scratch_mod._LOCAL.bufs        # the check above can fail: buffers do stay between uses
     scratch_mod.release()
+
+
+@pytest.mark.parametrize("task_bytes", [1, 20_000, 1 << 30])
+def test_scan_sized_tasks_of_several_chunks_give_the_same_points(capture, monkeypatch, task_bytes):
+    # one chunk a task, a few chunks a task, the whole capture in one task: the DSP treats pixels on
+    # their own, so the cloud is the direct one whatever the tasks; local threads and a plain map agree
+    from lidard.raw import replay
+    monkeypatch.setattr(replay, "TASK_BYTES", task_bytes)
+    ref = _direct(capture, capture.dsp)
+    n_tasks = replay.task_count(capture.path)
+    assert (n_tasks == 3) if task_bytes == 1 else (n_tasks == 1) if task_bytes == 1 << 30 else (1 <= n_tasks <= 3)
+    threaded = reprocess(capture.path)
+    serial = reprocess(capture.path, map_fn=map)
+    assert threaded.meta["tasks"] == n_tasks and threaded.meta["chunks"] == 3
+    assert np.array_equal(threaded.points, ref) and np.array_equal(serial.points, ref)
+    with pytest.raises(RawCaptureError, match="out of range"):
+        replay.reprocess_task(capture.path, n_tasks)

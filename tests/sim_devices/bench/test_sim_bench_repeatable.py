@@ -17,6 +17,7 @@ from __future__ import annotations
 import threading
 
 import numpy as np
+import pytest
 
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import open_instrument
@@ -37,6 +38,7 @@ def _calibrate_and_scan(delay_s: float):
         inst.close()
 
 
+@pytest.mark.slow  # two benches, each linearized and scanning (~20 s)
 def test_virtual_delays_change_neither_the_calibration_nor_the_points():
     d0, p0, t0 = _calibrate_and_scan(0.0)
     d1, p1, t1 = _calibrate_and_scan(0.731)
@@ -48,6 +50,7 @@ def test_virtual_delays_change_neither_the_calibration_nor_the_points():
 
 
 
+@pytest.mark.slow  # repeated linearized scans (~17 s)
 def test_repeated_runs_still_get_fresh_noise():
     """A second scan of the same pixels is another noise draw (so averages and repeats help); only the
     run's index, not its virtual start, picks the draw."""

@@ -16,11 +16,16 @@ export function fmtDuration(s) {
   return `${Math.floor(s / 60)} min ${Math.round(s % 60)} s`;
 }
 
-// Remaining wall time of a running scan from its start and fraction done (a straight-line estimate).
+// Remaining wall time of a running scan: the fraction to go at the rate seen since this page first saw
+// the scan scanning with pixels done (its start time would count the linearization and set-up too).
+const firstSeen = new Map();
 export function eta(scan, nowS) {
   const f = scan.progress;
-  if (scan.state !== "running" || !scan.timing.started || !(f > 0)) return NaN;
-  return (nowS - scan.timing.started) * (1 - f) / f;
+  if (scan.state !== "running" || !(f > 0) || (scan.stage && scan.stage !== "scanning")) return NaN;
+  const first = firstSeen.get(scan.id);
+  if (!first) { firstSeen.set(scan.id, { t: nowS, f }); return NaN; }
+  if (!(f > first.f) || !(nowS > first.t)) return NaN;
+  return (nowS - first.t) * (1 - f) / (f - first.f);
 }
 
 export function renderQueue(ul, scans, { canAct, onCancel, onShow, shownId }) {

@@ -73,10 +73,24 @@ function showScan(id) {
 }
 
 // ---- control lease --------------------------------------------------------------------------
+// The lease lives in this tab's sessionStorage, so a reload keeps control instead of orphaning the
+// lease until it lapses. Leaving the page (close or reload: pagehide cannot tell them apart) sends
+// its release with fetch keepalive; a reload then takes control again by handing the stored lease
+// over to itself (POST /control/handover: a fresh lease, the old one void, so an old page's late
+// release cannot free the new one), or, when the release came first, by a plain POST /control.
+const LEASE_KEY = "lidard.lease";
+const CLIENT = "web viewer";
+
+function keepLease(lease, holder) {
+  viewer.lease = lease; viewer.holder = holder;
+  if (lease) sessionStorage.setItem(LEASE_KEY, JSON.stringify({ lease, holder }));
+  else sessionStorage.removeItem(LEASE_KEY);
+}
+
 async function takeControl() {
   try {
-    const r = await (await api("/control", { method: "POST", json: { client: "web viewer" } })).json();
-    viewer.lease = r.lease; viewer.holder = r.holder;
+    const r = await (await api("/control", { method: "POST", json: { client: CLIENT } })).json();
+    keepLease(r.lease, r.holder);
     showControl({ held: true, holder: r.holder });
   } catch (e) { $("scan-error").textContent = String(e); }
   refresh();
@@ -84,9 +98,30 @@ async function takeControl() {
 
 async function releaseControl() {
   try { await api("/control", { method: "DELETE" }); } catch (e) { /* already gone */ }
-  viewer.lease = null;
+  keepLease(null, null);
   refresh();
 }
+
+async function restoreControl() {
+  let kept = null;
+  try { kept = JSON.parse(sessionStorage.getItem(LEASE_KEY) || "null"); } catch (e) { /* unreadable */ }
+  if (!kept || !kept.lease) return;
+  viewer.lease = kept.lease;
+  try {
+    const r = await (await api("/control/handover", { method: "POST", json: { client: CLIENT } })).json();
+    keepLease(r.lease, r.holder);
+  } catch (e) {
+    viewer.lease = null;
+    if (e.status === 409) await takeControl();   // released on the way out, and nobody took it since
+    else keepLease(null, null);                  // lapsed, or another client holds it now
+  }
+}
+
+addEventListener("pagehide", () => {
+  if (!viewer.lease) return;
+  // keepalive: the request outlives the page (the browser's limit on such bodies is far above this)
+  fetch("/control", { method: "DELETE", keepalive: true, headers: { "X-Lidard-Lease": viewer.lease } });
+});
 
 async function startScan(ev) {
   ev.preventDefault();
@@ -109,7 +144,7 @@ async function cancelScan(id) {
 // ---- periodic refresh of the panels -------------------------------------------------------------
 function showControl(control) {
   const mine = !!(viewer.lease && control.held && control.holder === viewer.holder);
-  if (viewer.lease && !mine) viewer.lease = null;  // expired or taken over
+  if (viewer.lease && !mine) keepLease(null, null);  // expired or taken over
   $("control-status").textContent = control.held ? `control: ${mine ? "you" : control.holder}` : "control: free";
   $("control-take").hidden = mine; $("control-release").hidden = !mine;
   $("scan-start").disabled = !mine;
@@ -191,6 +226,8 @@ $("scan-form").addEventListener("submit", startScan);
 $("scan-form").elements.pattern.addEventListener("change", followPattern);
 followPattern();
 viewer.showScan = showScan;
-viewer.ready = true;
-refresh();
-setInterval(refresh, 1000);
+restoreControl().finally(() => {
+  viewer.ready = true;
+  refresh();
+  setInterval(refresh, 1000);
+});

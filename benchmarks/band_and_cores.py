@@ -1,0 +1,195 @@
+"""What a scan pays for its Doppler band, and whether it uses every core (docs/measured/27_band_and_cores.md).
+
+    nice python benchmarks/band_and_cores.py [frame] [taskset] [dsp] [startup] [--quick] [--json]
+
+* ``frame``: a full CAL frame (every bonded pixel, 10 averages, cal_letters scene, embedded bench) at
+  the default band (config/sim.toml's scan.max_speed_mps) and at 10 m/s: hardware time over wall time
+  (the real-time factor) and over CPU time, and the ADC rate / record length the band asked for.
+* ``taskset``: the same region scan (rows 40:72, every column, 10 averages) in a fresh process pinned
+  to one core (``taskset -c 0``) and to two (``taskset -c 0,1``), alternated; the wall speed-up.
+* ``dsp``: the frame DSP alone on records of a 10 m/s scan (bench-synthesized plane at 1.2 m): the
+  samples it processes per second with one worker (serial) and with the pipeline's workers, against
+  the digitizer's data rate (the sample rate of that band).
+* ``startup``: CPU time (user + sys, children) of a 16-pixel one-shot ``lidarctl scan --sim`` with a
+  warm calibration cache, and of ``lidarctl --help``; byte-compiled (a pycache under /tmp, as an
+  installed package has) -- the CPU the command costs, not the wall time a loaded machine stretches.
+
+The machine is shared: every figure is printed with the load average (``uptime``) next to it; compare
+ratios measured in one run, not absolute wall times across runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SCENE = str(REPO / "config" / "scenes" / "cal_letters.toml")
+REGION = {"pattern": "roi", "rows": (40, 72), "cols": (0, 128), "averages": 10, "max_range_m": 2.0}
+
+
+def load() -> float:
+    return os.getloadavg()[0]
+
+
+def _instrument(cfg):
+    """An embedded bench and its linearization (from the user's calibration cache when it has one)."""
+    from lidard import calcache
+    from lidard.instrument import open_instrument
+    inst = open_instrument(cfg, scene_path=SCENE, bench="embedded")
+    cal = calcache.load(cfg)
+    if cal is None or cal.laser != cfg.laser:
+        cal = inst.linearize()
+        calcache.save(cfg, cal)
+    return inst, cal
+
+
+def scan_figures(req_kw: dict) -> dict:
+    """One scan on a fresh embedded bench: wall, CPU, hardware time and the ADC plan."""
+    from lidard.config import load_config
+    from lidard.instrument import ScanRequest
+    cfg = load_config(REPO / "config" / "sim.toml")
+    inst, cal = _instrument(cfg)
+    try:
+        req = ScanRequest(**req_kw)
+        t, c, th = time.perf_counter(), time.process_time(), time.thread_time()
+        res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
+        wall, cpu, th = time.perf_counter() - t, time.process_time() - c, time.thread_time() - th
+    finally:
+        inst.close()
+    adc = res.meta["adc"]
+    return {"pixels": res.pixels_scanned, "points": int(len(res.points)), "hardware_s": res.hardware_time_s,
+            "wall_s": wall, "cpu_s": cpu, "scan_thread_cpu_s": th,
+            # the speed-up two cores allow (Amdahl): all the CPU over the larger of the scan thread's
+            # share and half of it -- a bound the machine's load does not change
+            "two_core_bound": cpu / max(th, cpu / 2), "rtf_wall": res.hardware_time_s / wall, "rtf_cpu": res.hardware_time_s / cpu,
+            "max_speed_mps": adc["max_speed_mps"], "fs_hz": adc["sample_rate_hz"],
+            "record_length": adc["record_length"], "load": load()}
+
+
+def frame(quick: bool) -> dict:
+    from lidard.config import load_config
+    band = load_config(REPO / "config" / "sim.toml").scan.max_speed_mps
+    rows = (40, 72) if quick else (0, 128)
+    out = {}
+    for v in (band, 10.0):
+        out[f"{v:g} m/s"] = scan_figures({**REGION, "rows": rows, "max_speed_mps": v})
+    return out
+
+
+_CHILD = ("import json, sys; sys.path.insert(0, {repo!r}); from benchmarks.band_and_cores import scan_figures; "
+          "print(json.dumps(scan_figures({req})))")
+
+
+def taskset(repeats: int) -> dict:
+    req = dict(REGION, rows=(40, 56) if repeats < 2 else REGION["rows"])
+    code = _CHILD.format(repo=str(REPO), req=repr(req))
+    runs: dict[str, list] = {"0": [], "0,1": []}
+    for _ in range(max(1, repeats)):
+        for cpus in ("0", "0,1"):           # alternated: the machine's load drifts
+            out = subprocess.run(["taskset", "-c", cpus, sys.executable, "-c", code], capture_output=True,
+                                 text=True, check=True, env={**os.environ, "PYTHONPATH": str(REPO)}).stdout
+            runs[cpus].append(json.loads(out.strip().splitlines()[-1]))
+    one = [r["wall_s"] for r in runs["0"]]
+    two = [r["wall_s"] for r in runs["0,1"]]
+    return {"region": req, "one_core_wall_s": one, "two_cores_wall_s": two,
+            "speedup_each": [a / b for a, b in zip(one, two)], "speedup_of_sums": sum(one) / sum(two),
+            "cpu_s_two_cores": [r["cpu_s"] for r in runs["0,1"]], "loads": [r["load"] for r in runs["0,1"]]}
+
+
+def dsp(quick: bool) -> dict:
+    """The frame DSP alone on a 10 m/s scan's records: samples per second against the digitizer's."""
+    import numpy as np
+    from lidard.config import load_config, load_laser
+    from lidard.instrument import ScanRequest
+    from lidard.instrument.pipeline import dsp_workers
+    from lidard.instrument.points import PointBuffer, RawBatch
+    from lidard.instrument.scan_loop import dsp_batch_bytes, plan_scan
+    from sim_devices.world.synth import AdcSpec, HitBatch, trajectory
+    from sim_devices.world.synth_parallel import synthesize_read
+    from sim_devices.world.laser import DfbLaser
+    from lidard.instrument.acquisition import AWG_RATE_HZ, plain_drive
+    cfg = load_config(REPO / "config" / "sim.toml")
+    optics = cfg.optics()
+    n_pix = 256 if quick else 1024
+    p = plan_scan(cfg, optics, ScanRequest(pattern="roi", rows=(0, 128), cols=(0, 128), averages=10,
+                                           max_speed_mps=10.0))
+    laser = DfbLaser(load_laser("ideal"))      # a linear chirp: every pixel's return is a clean tone
+    traj = trajectory(laser, plain_drive(cfg, laser.static_tuning_hz_per_v), AWG_RATE_HZ)
+    adc = AdcSpec(p.adc.fs_hz, p.adc.record_length, bits=16, input_range_v=cfg.adc.input_range_v, quantize=True)
+    seg = np.arange(n_pix * p.averages)
+    hits = HitBatch.from_targets(seg, np.full(seg.size, 1.2), 0.02, radial_velocity_m_s=np.full(seg.size, 0.7))
+    syn = synthesize_read(traj, adc, seg * cfg.chirp.period_s, hits, lambda s: np.random.default_rng([3, s]),
+                          noise_asd_v_per_rthz=3e-7)
+    beat = syn.beat.reshape(n_pix, p.averages, -1)
+    pixels = np.stack([np.zeros(n_pix, int), np.arange(n_pix) % 128], axis=1)
+    samples = beat.size
+    out = {"fs_hz": p.adc.fs_hz, "record_length": p.adc.record_length, "pixels": n_pix, "averages": p.averages}
+    for workers in (0, dsp_workers()):
+        per = max(1, dsp_batch_bytes(p, max(1, workers)) // (p.averages * p.adc.record_length * 2))
+        pb = PointBuffer(p.dsp, optics, lsb_v=p.lsb_v, mzi_delay_s=p.mzi_delay_s, flush_bytes=1, workers=workers)
+        pb.add(RawBatch(beat[:per], pixels[:per], np.zeros(per), np.zeros(per, bool)))   # warm caches
+        pb.points()
+        pb = PointBuffer(p.dsp, optics, lsb_v=p.lsb_v, mzi_delay_s=p.mzi_delay_s, flush_bytes=1, workers=workers)
+        t, c = time.perf_counter(), time.process_time()
+        for i in range(0, n_pix, per):
+            pb.add(RawBatch(beat[i:i + per], pixels[i:i + per], np.arange(i, min(n_pix, i + per)) * 1e-3,
+                            np.zeros(min(per, n_pix - i), bool)))
+        pts = pb.points()
+        wall, cpu = time.perf_counter() - t, time.process_time() - c
+        out[f"workers={workers}"] = {"wall_s": wall, "cpu_s": cpu, "samples_per_s": samples / wall,
+                                     "x_digitizer_rate": samples / wall / p.adc.fs_hz, "points": int(len(pts)),
+                                     "load": load()}
+    return out
+
+
+def _child_cpu(argv: list[str], env: dict) -> float:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    subprocess.run(argv, capture_output=True, check=True, env=env)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def startup(repeats: int) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(PYTHONPATH=str(REPO), PYTHONPYCACHEPREFIX="/tmp/lidard-bench-pycache")
+    cli = [sys.executable, "-c", "import sys; from lidard.cli.lidarctl import main; sys.exit(main())"]
+    scan = [*cli, "scan", "--sim", "--rows", "60:66", "--cols", "60:64",
+            "--progress", "none", "--out", "/tmp/lidard-bench-startup.ply"]
+    helpc = [*cli, "--help"]
+    _child_cpu(scan, env)          # byte-compiles, fills the calibration cache
+    _child_cpu(helpc, env)
+    scans, helps = [], []
+    for _ in range(max(1, repeats)):
+        scans.append(_child_cpu(scan, env))
+        helps.append(_child_cpu(helpc, env))
+    return {"scan_16px_cpu_s": scans, "help_cpu_s": helps, "load": load()}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("sections", nargs="*", default=["frame", "taskset", "dsp", "startup"],
+                    choices=["frame", "taskset", "dsp", "startup"])
+    ap.add_argument("--quick", action="store_true", help="a region instead of the full frame; one taskset pair")
+    ap.add_argument("--repeats", type=int, default=3, help="taskset pairs and start-up runs (alternated)")
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args(argv)
+    out = {"machine": f"{os.cpu_count()} cores", "load_start": load()}
+    for s in a.sections:
+        out[s] = {"frame": lambda: frame(a.quick), "taskset": lambda: taskset(1 if a.quick else a.repeats),
+                  "dsp": lambda: dsp(a.quick), "startup": lambda: startup(a.repeats)}[s]()
+        if not a.json:
+            print(s, json.dumps(out[s], indent=1, default=float), flush=True)
+    if a.json:
+        print(json.dumps(out, default=float))
+
+
+if __name__ == "__main__":
+    main()

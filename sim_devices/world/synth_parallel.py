@@ -1,0 +1,89 @@
+"""One digitizer read's beat synthesis on several threads (the bench's side of a scan using every core).
+
+A read of ``n`` segments is cut into parts of consecutive segments, each synthesized by
+:func:`sim_devices.world.synth.synthesize` on a thread of a small pool, and the parts' records joined
+in order. numpy's trig, arithmetic and random fills release the GIL, so the parts run side by side
+(and beside the host's DSP threads on an embedded bench).
+
+The noise stays what it was: each part draws from ``rng_for(first)``, the generator the bench seeds
+for a read starting at that segment, so a part is exactly the records a read of those segments alone
+would give (the bench already seeds each read by its first segment; the statistics are a read's).
+A read smaller than two parts of ``MIN_PART_SAMPLES`` stays on the calling thread, unchanged.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable
+
+import numpy as np
+
+from sim_devices.world.synth import synthesize
+from sim_devices.world.synth_types import HitBatch, Synthesized
+
+#: samples per part at least: below ~64 k samples (128 kB of int16) a part's fixed cost (tables,
+#: chunk set-up, the pool's hand-off) is a noticeable share of its work
+MIN_PART_SAMPLES = 1 << 16
+
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def synth_threads() -> int:
+    """Threads for one read: the cores this process may use, at most 4."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return max(1, min(4, cores))
+
+
+def _pool(workers: int) -> ThreadPoolExecutor:
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None or _POOL._max_workers < workers:      # grown once; threads idle between reads
+            _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sim-synth")
+        return _POOL
+
+
+def _part_hits(hits: HitBatch | None, a: int, b: int) -> HitBatch | None:
+    if hits is None:
+        return None
+    seg = np.asarray(hits.seg)
+    sel = (seg >= a) & (seg < b)
+    if not sel.any():
+        return None
+    pick = (lambda v: None if v is None else np.asarray(v)[sel] if np.ndim(v) else v)
+    return HitBatch(seg=seg[sel] - a, tau_s=np.asarray(hits.tau_s)[sel], amplitude_v=pick(hits.amplitude_v),
+                    doppler_hz=pick(hits.doppler_hz), phase_rad=pick(hits.phase_rad))
+
+
+def _joined(parts: list[Synthesized]) -> Synthesized:
+    first = parts[0]
+    cat = (lambda name: None if getattr(first, name) is None
+           else np.concatenate([getattr(p, name) for p in parts]))
+    volts = None if first.volts is None else {c: np.concatenate([p.volts[c] for p in parts]) for c in first.volts}
+    return Synthesized(beat=cat("beat"), beat_q=cat("beat_q"), mzi=cat("mzi"), overrange=cat("overrange"),
+                       channels=first.channels, lsb_v=first.lsb_v, volts=volts,
+                       phase_noise_rad=cat("phase_noise_rad"), phase_noise_pre=first.phase_noise_pre,
+                       mzi_q=cat("mzi_q"))
+
+
+def synthesize_read(traj, adc, t_start_s, hits: HitBatch | None, rng_for: Callable[[int], np.random.Generator],
+                    *, workers: int | None = None, **kw) -> Synthesized:
+    """:func:`synthesize` of a read, in parts on ``workers`` threads (default :func:`synth_threads`);
+    ``rng_for(s)``: the generator of a read starting at segment ``s`` of this one."""
+    t0 = np.asarray(t_start_s, dtype=np.float64)
+    n_seg = t0.size
+    workers = synth_threads() if workers is None else int(workers)
+    parts = max(1, min(workers, n_seg, n_seg * int(adc.n_samples) // MIN_PART_SAMPLES))
+    if parts == 1:
+        return synthesize(traj, adc, t0, hits, rng=rng_for(0), **kw)
+    bounds = np.linspace(0, n_seg, parts + 1).astype(int)
+    jobs = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    pool = _pool(parts)
+    futs = [pool.submit(synthesize, traj, adc, t0[a:b], _part_hits(hits, a, b), rng=rng_for(a), **kw)
+            for a, b in jobs]
+    return _joined([f.result() for f in futs])

@@ -1,0 +1,72 @@
+"""End to end: a semi-transparent pane 2-4 range cells (c / 2B = 17.4 mm) in front of a wall gives two
+valid points per pixel, each within a bound set by the Cramer-Rao bound of its own SNR (the joint
+model of lidard.dsp.ranging: the two returns are fitted together, neither biased by the other's lobe).
+
+Scene as tests/e2e/test_e2e_unresolved.py builds it: a glass pane (albedo 0.5, half the light through)
+1 m away and a retro-reflective sheet (albedo 2.0) behind it, the calibrated default bench (three-segment
+chirp, 40 MS/s, one record per pixel)."""
+
+import threading
+
+import numpy as np
+import pytest
+
+from lidard.config import load_config
+from lidard.dsp.crlb import crlb_freq_var_post_fft
+from lidard.instrument import ScanRequest, open_instrument
+
+Z0_M = 1.0
+CELL_M = 299_792_458.0 / (2 * 8.6e9)
+KAPPA = 8.6e9 / 80e-6
+FS_HZ, N_USED = 40e6, 2880          # the scan's 40 MS/s at a 2 m gate, 90 % of a 3200-sample ramp
+
+
+def pane(dz_m: float) -> dict:
+    return {"target": [
+        {"kind": "plane", "point": [0, 0, Z0_M], "normal": [0, 0, -1], "reflectivity": 0.5, "transmission": 0.5},
+        {"kind": "plane", "point": [0, 0, Z0_M + dz_m], "normal": [0, 0, -1], "reflectivity": 2.0}]}
+
+
+@pytest.fixture(scope="module")
+def embedded():
+    inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/empty.toml", bench="embedded")
+    cal = inst.linearize()
+    yield inst, inst._on_close.__self__, cal
+    inst.close()
+
+
+def crlb_range_m(snr_db: np.ndarray) -> np.ndarray:
+    """One return's range bound from its detection SNR (Hann peak over the noise per cell: 2/3 of the
+    rectangular window's on-bin post-FFT SNR), both ramps averaged: sigma_R = c sigma_f / (2 kappa) / sqrt(2)."""
+    rho = 1.5 * 10 ** (np.asarray(snr_db, dtype=np.float64) / 10)
+    var_hz2 = crlb_freq_var_post_fft(rho, N_USED, fs_hz=FS_HZ)
+    return 299_792_458.0 / (2 * KAPPA) * np.sqrt(var_hz2 / 2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cells", [2, 3, 4])
+def test_pane_in_front_of_a_wall_gives_both_surfaces_valid(embedded, cells):
+    inst, bench, cal = embedded
+    dz = cells * CELL_M
+    inst.set_scene(pane(dz))
+    res = inst.run_scan(ScanRequest(pattern="roi", rows=(56, 72), cols=(56, 72), max_range_m=2.0), lambda p: None,
+                        threading.Event(), cal)
+    pts = res.points[res.points["valid"] == 1]
+    near = bench.ground_truth(pts["row"], pts["col"])
+    far = near * (Z0_M + dz) / Z0_M
+    on_near = np.abs(pts["range"] - near) < 0.5 * CELL_M
+    on_far = np.abs(pts["range"] - far) < 0.5 * CELL_M
+    assert np.all(on_near | on_far)                      # no valid point between or beside the surfaces
+    pix = pts["row"].astype(np.int64) * 4096 + pts["col"]
+    both = np.intersect1d(pix[on_near], pix[on_far]).size
+    # the issue's target: >= 95 % of the pixels with both surfaces valid from 3 cells, >= 70 % at 2
+    assert both >= (0.95 if cells >= 3 else 0.7) * res.pixels_scanned, (both, res.pixels_scanned)
+    err = np.where(on_near, pts["range"] - near, pts["range"] - far)
+    sigma = crlb_range_m(pts["snr_db"])
+    # each point within 5 sigma of its one-return bound times 1.5 (the two-tone bound is at most 1.1x
+    # the one-tone bound from two cells: lidard.dsp.ranging.ramp.RESOLUTION_BINS), plus the
+    # calibrated chirp's residual (0.1 mm: docs/measured/25_mixed_pixels.md, non-mixed pixels)
+    assert np.all(np.abs(err) <= 5 * 1.5 * sigma + 1e-4), np.max(np.abs(err) / sigma)
+    # and no leakage bias: the mean error of each surface under 0.1 mm
+    for on in (on_near, on_far):
+        assert abs(np.mean(err[on])) < 1e-4

@@ -1,0 +1,35 @@
+"""A one-shot ``lidarctl scan --sim`` (linearization, health check, scan, DSP, writing) loads none of
+scipy's heavy subpackages: the windows and the analytic signal are numpy's, the OS-CFAR factor is a
+bisection (each import costs 0.3-1 s of every scan's start-up), and a scan this small does not load
+numba (lidard.dsp.jit.LOAD_AFTER_CELLS: its load costs more than its kernels would save). The probe asserts which modules are
+loaded, never a time (the CPU figures: benchmarks/band_and_cores.py, docs/measured/27_band_and_cores.md)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+_PROBE = """
+import contextlib, io, json, sys
+from lidard.cli import lidarctl
+with contextlib.redirect_stdout(io.StringIO()):
+    code = lidarctl.main(sys.argv[1:])
+print(json.dumps({"code": code, "scipy": sorted(m for m in sys.modules if m.startswith("scipy.")),
+                  "numba": "numba" in sys.modules}))
+"""
+
+
+def test_a_cold_one_shot_scan_imports_no_scipy_signal_stats_or_optimize(tmp_path):
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}     # cold: it linearizes too
+    argv = ["scan", "--sim", "--profile", "fpsa20", "--rows", "0:2", "--cols", "0:4", "--progress", "none",
+            "--out", str(tmp_path / "s.ply")]
+    out = subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, timeout=600,
+                         env=env, check=True).stdout
+    rep = json.loads(out.strip().splitlines()[-1])
+    assert rep["code"] == 0 and (tmp_path / "s.ply").stat().st_size > 0
+    assert rep["numba"] is False
+    assert not set(rep["scipy"]) & {"scipy.signal", "scipy.stats", "scipy.optimize", "scipy.interpolate"}, rep["scipy"]
