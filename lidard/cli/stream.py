@@ -34,6 +34,8 @@ def add_parser(sub) -> None:
     sp.add_argument("--frame-rate", type=float, default=None, metavar="HZ",
                     help="track: the frame rate the pixel budget of every frame is planned for (default 10)")
     sp.add_argument("--max-range", type=float, default=None, metavar="M", help="range gate in metres")
+    sp.add_argument("--max-speed", type=float, default=None, metavar="M/S",
+                    help="fastest radial speed to measure, sizes the ADC's Doppler band (default: scan.max_speed_mps)")
     sp.add_argument("--averages", type=int, default=None, metavar="N", help="chirps averaged per pixel")
     sp.add_argument("--format", default="ply", choices=("ply", "las", "npz", "pcd"),
                     help="per-frame file format of --out DIR/ (default ply)")
@@ -48,7 +50,8 @@ def _spec(args, cfg):
     req = ScanRequest(pattern=args.pattern, rows=tuple(_range(args.rows, "rows")) if args.rows else None,
                       cols=tuple(_range(args.cols, "cols")) if args.cols else None,
                       averages=args.averages or cfg.scan.averages,
-                      max_range_m=args.max_range or cfg.scan.max_range_m, formats=(args.format,))
+                      max_range_m=args.max_range or cfg.scan.max_range_m, max_speed_mps=args.max_speed,
+                      formats=(args.format,))
     if args.pattern == "roi" and not (args.rows or args.cols):
         raise CliError("--pattern roi: give --rows and/or --cols")
     if args.frame_rate is not None and args.pattern != "track":
@@ -104,7 +107,7 @@ def cmd_stream(args) -> int:
 
 def _body(args) -> dict:
     body = {"pattern": args.pattern, "frames": args.frames, "frame_rate_hz": args.frame_rate,
-            "max_range_m": args.max_range, "averages": args.averages,
+            "max_range_m": args.max_range, "max_speed_mps": args.max_speed, "averages": args.averages,
             "format": "mcap" if (args.out or "").endswith(".mcap") else args.format}
     if args.pattern == "roi" and not (args.rows or args.cols):
         raise CliError("--pattern roi: give --rows and/or --cols")

@@ -200,3 +200,14 @@ def test_scene_motion_refers_to_the_streams_first_trigger(held):
             assert on_box <= 0.5
     finally:
         i.close()
+
+
+def test_max_speed_sizes_the_streams_adc_band(inst):
+    """A stream asking for 1.5 m/s samples a wider Doppler band than the configuration's 0.4 m/s."""
+    import dataclasses
+    rates = []
+    for v in (None, 1.5):
+        req = dataclasses.replace(SMALL, max_speed_mps=v)
+        res = inst.run_stream(req, _small(inst), lambda f: None, threading.Event(), frames=1)
+        rates.append(res.meta["adc"]["sample_rate_hz"])
+    assert rates[1] > rates[0]

@@ -34,6 +34,8 @@ class StreamCreate(BaseModel):
     cols: tuple[StrictInt, StrictInt] | None = None
     averages: StrictInt | None = Field(default=None, ge=1, le=100)
     max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
+    # the fastest radial speed to measure (the ADC's Doppler band); null: scan.max_speed_mps
+    max_speed_mps: float | None = Field(default=None, gt=0, le=100, allow_inf_nan=False, strict=True)
     frames: StrictInt | None = Field(default=None, ge=1, le=1_000_000)
     frame_rate_hz: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False)
     format: Literal["ply", "las", "npz", "pcd", "mcap"] = "ply"
@@ -65,7 +67,7 @@ def create_stream(body: StreamCreate, request: Request, response: Response, work
                   optics: OpticsDep, instrument: InstrumentDep, cfg: ConfigDep, store: StoreDep) -> dict[str, Any]:
     req = ScanRequest(pattern=body.pattern, rows=body.rows, cols=body.cols,
                       averages=body.averages or cfg.scan.averages, max_range_m=body.max_range_m or cfg.scan.max_range_m,
-                      formats=(body.format,))
+                      max_speed_mps=body.max_speed_mps, formats=(body.format,))
     frame_rate = body.frame_rate_hz if body.frame_rate_hz is not None or body.pattern != "track" else 10.0
     try:
         plan(req if body.pattern != "track" else ScanRequest(pattern="raster", rows=body.rows, cols=body.cols),
