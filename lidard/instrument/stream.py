@@ -45,11 +45,11 @@ from .types import CalibrationResult, ScanRequest
 log = logging.getLogger(__name__)
 
 TEC_POLL_S = 1.0     # hardware time between TEC readings (one Modbus request each) during a stream
-# Reads per frame (at least): a read waits for its last trigger, so a frame read in one batch moves no
-# data while it triggers; in quarters, the read-out of the first quarter overlaps the triggers of the
-# rest. Where the bus is slower than the records arrive (the simulated digitizer: 40 MB/s against
-# 78 MB/s of 16-bit records on sim.toml), that is what bounds the frame period.
-FRAME_READS = 4
+# Hardware time of triggers per read inside a frame: a read waits for its last trigger, so the records of
+# the frame's last read are still on the bus when its triggers end, and the next frame cannot start
+# before they are read: shorter reads shorten that tail (the gap between frames) at a fixed cost per
+# read. 5 ms: the tail of a 10 Hz frame is ~2 ms on sim.toml (records 3.7 kB per pixel over 40 MB/s).
+FRAME_READ_S = 0.005
 
 
 @dataclass(frozen=True)
@@ -211,7 +211,7 @@ class StreamLoop:
             try:
                 acq = self.lifecycle.ready(p.acquisition, faults=run.faults)
                 self.lifecycle.start(acq)
-                step = min(batch_pixels(self.cfg, p), max(1, -(-p.n_pixels // FRAME_READS)))
+                step = min(batch_pixels(self.cfg, p), max(1, int(FRAME_READ_S / self.pixel_period_s(p))))
                 while run.done < p.n_pixels and run.stop_reason is None:
                     if cancel.is_set():
                         run.cancelled = True

@@ -10,7 +10,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
-from lidard.instrument.stream import FRAME_READS, FramePlan
+from lidard.instrument.stream import FRAME_READ_S, FramePlan
 from lidard.jobs.stream_job import FrameSink
 from lidard.outputs.mcap import read_mcap
 from lidard.scan import plan
@@ -65,9 +65,11 @@ def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
     reads = []
     real = inst.acquisition.read
 
-    def read(acq, first, count):   # stop inside frame 1, after its first batch (frame 0 takes FRAME_READS)
+    per_frame = -(-len(px) // int(FRAME_READ_S / (inst.cfg.chirp.period_s + inst.cfg.scan.settle_s)))
+
+    def read(acq, first, count):   # stop inside frame 1, after its first read (frame 0 takes per_frame)
         reads.append(count)
-        if len(reads) == FRAME_READS + 1:
+        if len(reads) == per_frame + 1:
             cancel.set()
         return real(acq, first, count)
 
