@@ -48,10 +48,11 @@ POINT_FIELDS: tuple[PointField, ...] = (
     PointField("row", "<i4", "", "FPSA pixel row of the beam"),
     PointField("col", "<i4", "", "FPSA pixel column of the beam"),
     PointField("return_index", "u1", "", "0 = first (nearest) return of that beam"),
-    PointField("t", "<f8", "s", "since scan start: hardware time of the pixel's first trigger"),
+    PointField("t", "<f8", "s", "since scan start (a stream: its first frame's): hardware time of the pixel's first trigger"),
     PointField("valid", "u1", "", "1 = a clean point; 0 = the DSP flagged it (see flags)"),
     PointField("flags", "u1", "", "why not valid, bits: 1 unresolved, 2 aliased, 4 harmonic, "
                                   "8 ambiguous pairing, 16 clipped; 0 on a clean point"),
+    PointField("frame", "<i4", "", "frame index inside a stream (0 for a single scan)"),
 )
 
 POINT_DTYPE = np.dtype([(f.name, f.dtype) for f in POINT_FIELDS])

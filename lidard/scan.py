@@ -175,6 +175,9 @@ def plan(request: ScanRequest, optics: FpsaOptics) -> np.ndarray:
         return grid(selected_rows(request, optics), selected_cols(request, optics), serpentine=True)
     if kind == "adaptive":
         return coarse_plan(request, optics)
+    if kind == "track":
+        raise ScanPlanError("pattern: 'track' plans each frame of a stream from the last ones (lidarctl stream, "
+                            "POST /streams); a single scan cannot use it")
     raise ScanPlanError(f"pattern: {kind!r} unknown; allowed: raster, serpentine, roi, pixels, adaptive")
 
 

@@ -134,6 +134,7 @@ class Bench(BenchFaults, BenchCapture):
         self._traj_key: bytes | None = None
         self._traj = None
         self._lock = threading.RLock()
+        self._scene_hold, self._scene_epoch_s = False, None   # hold_scene_clock
         self._pty = None
         self._bridge: UsbBridgeServer | None = None
         self._control: _ControlServer | None = None
@@ -246,9 +247,22 @@ class Bench(BenchFaults, BenchCapture):
         with self._lock:
             return self.world.is_mixed(rows, cols)
 
+    def hold_scene_clock(self, hold: bool) -> None:
+        """Scene time counts from the first trigger of the next run and runs on across the following
+        runs while held (the frames of a stream are one run each; a point's ``t`` counts from the
+        stream's first trigger); released, each run starts its scene at t = 0 again."""
+        with self._lock:
+            self._scene_hold = bool(hold)
+            self._scene_epoch_s = None
+
     def _run_first_trigger_s(self) -> float:
         sched = self.fpga.schedule
-        return 0.0 if sched is None else float(sched.trigger_s(np.array([0]))[0])
+        first = 0.0 if sched is None else float(sched.trigger_s(np.array([0]))[0])
+        if self._scene_hold:
+            if self._scene_epoch_s is None:
+                self._scene_epoch_s = first
+            return self._scene_epoch_s
+        return first
 
     def truth(self) -> BenchTruth:
         """The bench's hidden true values (sim_devices.world.tolerances): for tests and benchmarks

@@ -64,6 +64,9 @@ class _ControlServer:
             scene = Scene.from_dict(msg["scene"], source="<control>")
             b.set_scene(scene)
             return {"name": scene.name, "targets": len(scene)}
+        if cmd == "hold_scene_clock":
+            b.hold_scene_clock(bool(msg["hold"]))
+            return {}
         if cmd == "set_interlock":
             b.controller.set_interlock(bool(msg["closed"]))
             return {}

@@ -33,7 +33,7 @@ from ..store import Store
 from . import control, problems
 from .control import BodySizeLimit, ControlLock, LockHeld
 from ..live.points import LivePoints
-from .routers import calibration, controller, devices, geometry, health, raw, scans, selftest, sim, viewer
+from .routers import calibration, controller, devices, geometry, health, raw, scans, selftest, sim, streams, viewer
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +99,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
         try:
             yield
         finally:
+            streams.stop_all(app)   # a running stream ends after its frame in progress (frames kept)
             worker.stop()
             if app.state.foxglove is not None:
                 app.state.foxglove.close()
@@ -119,7 +120,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
     app.include_router(control.router)
     control.document_gates(app, token_set=token is not None)
     for r in (health.router, devices.router, scans.router, raw.router, calibration.router, geometry.router,
-              sim.router, selftest.router, viewer.router, controller.router):
+              sim.router, selftest.router, viewer.router, controller.router, streams.router):
         app.include_router(r)
     app.mount("/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer")
     _add_error_handlers(app)

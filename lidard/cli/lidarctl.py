@@ -9,7 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import calibrate, calibration, control, devices, faults, guided, optics, raw, scan, scans, selftest, sim, sweep
+from . import (calibrate, calibration, control, devices, faults, guided, optics, raw, scan, scans, selftest, sim,
+               stream, sweep)
 from .base import Parser, run, stop_signals
 
 # (module, registering function) in the order ``lidarctl --help`` lists them
@@ -17,7 +18,7 @@ GROUPS = ((scan, "add_parser"), (devices, "add_parsers"), (scans, "add_parser"),
           (faults, "add_parser"), (calibration, "add_parser"), (calibrate, "add_parser"), (guided, "add_parser"),
           (selftest, "add_parser"),
           (optics, "add_parsers"), (raw, "add_parsers"), (sweep, "add_parser"),
-          (sim, "add_parser"))
+          (sim, "add_parser"), (stream, "add_parser"))
 
 DESCRIPTION = """\
 Control and inspect an FPSA FMCW LiDAR through its daemon (lidard), or run it on an embedded

@@ -137,7 +137,7 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
                      inject_fault=lambda kind, **params: b.inject_fault(kind, **params),
                      clear_faults=lambda kind=None: b.clear_faults(kind),
                      active_faults=lambda: b.active_faults(),
-                     fidelity=b.fidelity.snapshot)
+                     fidelity=b.fidelity.snapshot, hold_scene_clock=b.hold_scene_clock)
     # on_close is the bench's own close: tests reach the embedded bench as ``inst._on_close.__self__``
     return LidarInstrument(cfg, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
                            on_close=b.close, **parts)
@@ -214,7 +214,8 @@ def _open_child(cfg: Config, scene_path: str | None) -> LidarInstrument:
                      inject_fault=lambda kind, **params: call("inject", kind=kind, **params)["fault"],
                      clear_faults=lambda kind=None: int(call("clear_faults", kind=kind)["cleared"]),
                      active_faults=lambda: call("faults")["faults"],
-                     fidelity=lambda: call("fidelity")["fidelity"])
+                     fidelity=lambda: call("fidelity")["fidelity"],
+                     hold_scene_clock=lambda hold: call("hold_scene_clock", hold=bool(hold)))
     parts = _connect(cfg, ep, backend_from_url(ep["usb_url"]), advance)
     return LidarInstrument(cfg, simulated=True, sleep=advance, now=lambda: float(ctl.call("ping")["t_s"]),
                            sim=hooks, on_close=stop_child, **parts)

@@ -57,6 +57,8 @@ class SimHooks:
     active_faults: Callable[[], list]
     #: the bench's ledger of modelled / skipped effects (cumulative counts of captured batches)
     fidelity: Callable[[], dict] | None = None
+    #: hold the scene's clock across runs (a stream's frames share the scene time of its first trigger)
+    hold_scene_clock: Callable[[bool], None] | None = None
 
 
 class LidarInstrument:
@@ -172,6 +174,24 @@ class LidarInstrument:
             if before is not None:
                 result.meta["sim"] = {"fidelity": _ledger_difference(self._fidelity(), before)}
             return result
+
+    def run_stream(self, request: ScanRequest, planner, on_frame, cancel: threading.Event,
+                   calibration: CalibrationResult | None = None, *, frames: int | None = None,
+                   health_interval_s: float = 60.0, on_points=None):
+        """Frames back to back over one bring-up (:mod:`.stream`); the linearization health check is
+        repeated between frames when the TEC or ``health_interval_s`` says so."""
+        from .stream import StreamLoop
+        with self._lock:
+            drive = (drive_for_chirp(self.cfg, calibration.drive_v)
+                     if (calibration is not None and calibration.drive_v.size) else self._plain_drive())
+            health = None
+            if self.cfg.scan.linearity_check:
+                health = lambda: LinearizationHealth(self.cfg, self.optics, self.acquisition,  # noqa: E731
+                                                     self.safety).check(drive)
+            loop = StreamLoop(self.scan_loop, health=health, tec=lambda: float(self.controller.tec_c()),
+                              scene_clock=self._sim.hold_scene_clock if self._sim is not None else None)
+            return loop.run(request, planner, on_frame, cancel, drive, calibration, frames=frames,
+                            health_interval_s=health_interval_s, on_points=on_points)
 
     def _fidelity(self) -> dict | None:
         """The simulated bench's ledger of modelled / skipped effects (None on real hardware)."""

@@ -17,7 +17,7 @@ import numpy as np
 # field), the same in memory and in every file format.
 from ..point_schema import POINT_DTYPE  # noqa: F401  (re-exported: the seam's point record)
 
-PatternKind = Literal["raster", "serpentine", "roi", "pixels", "adaptive"]
+PatternKind = Literal["raster", "serpentine", "roi", "pixels", "adaptive", "track"]  # track: streams only
 OutputFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]  # lidard.pointcloud.FORMATS
 
 

@@ -1,0 +1,138 @@
+"""Streams: start (queued on the scan worker like a scan), show (frames so far), stop (DELETE keeps every
+finished frame and the partial one), fetch a frame's points or the stream's MCAP file.
+
+A stream's frames are written under the data directory, ``streams/<id>/``: ``frame_NNNNN.<fmt>`` with
+its JSON sidecar each, or one ``stream.mcap`` (``formats: ["mcap"]``) with a message per frame.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+from fastapi import APIRouter, HTTPException, Request, Response, status
+from fastapi.responses import FileResponse
+from pydantic import BaseModel, ConfigDict, Field, StrictInt
+
+from ...instrument.types import ScanRequest
+from ...jobs import QueueFull, WorkerStopped
+from ...jobs.stream_job import StreamJob, StreamRequestError, StreamSpec
+from ...pointcloud import MEDIA_TYPE, suffix_of
+from ...scan import ScanPlanError, plan
+from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
+from .controller import latched_refusal
+
+router = APIRouter(prefix="/streams", tags=["streams"])
+
+
+class StreamCreate(BaseModel):
+    """POST /streams: a pattern and its frames; ``frames`` null streams until DELETE."""
+
+    model_config = ConfigDict(extra="forbid")
+    pattern: Literal["raster", "serpentine", "roi", "track"] = "raster"
+    rows: tuple[StrictInt, StrictInt] | None = None
+    cols: tuple[StrictInt, StrictInt] | None = None
+    averages: StrictInt | None = Field(default=None, ge=1, le=100)
+    max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
+    # the fastest radial speed to measure (the ADC's Doppler band); null: scan.max_speed_mps
+    max_speed_mps: float | None = Field(default=None, gt=0, le=100, allow_inf_nan=False, strict=True)
+    frames: StrictInt | None = Field(default=None, ge=1, le=1_000_000)
+    frame_rate_hz: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False)
+    format: Literal["ply", "las", "npz", "pcd", "mcap"] = "ply"
+    health_interval_s: float = Field(default=60.0, gt=0, le=86_400)
+
+
+def _streams(request: Request) -> dict[str, StreamJob]:
+    st = request.app.state
+    if not hasattr(st, "streams"):
+        st.streams = {}
+    return st.streams
+
+
+def _job(request: Request, stream_id: str) -> StreamJob:
+    job = _streams(request).get(stream_id)
+    if job is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"stream {stream_id!r} not found")
+    return job
+
+
+def stream_dir(store, stream_id: str) -> Path:
+    return Path(store.data_dir) / "streams" / stream_id
+
+
+@router.post("", status_code=status.HTTP_201_CREATED,
+             responses={503: {"description": "the queue is full or the daemon is shutting down"},
+                        409: {"description": "a controller fault is latched"}})
+def create_stream(body: StreamCreate, request: Request, response: Response, worker: WorkerDep,
+                  optics: OpticsDep, instrument: InstrumentDep, cfg: ConfigDep, store: StoreDep) -> dict[str, Any]:
+    req = ScanRequest(pattern=body.pattern, rows=body.rows, cols=body.cols,
+                      averages=body.averages or cfg.scan.averages, max_range_m=body.max_range_m or cfg.scan.max_range_m,
+                      max_speed_mps=body.max_speed_mps, formats=(body.format,))
+    frame_rate = body.frame_rate_hz if body.frame_rate_hz is not None or body.pattern != "track" else 10.0
+    try:
+        plan(req if body.pattern != "track" else ScanRequest(pattern="raster", rows=body.rows, cols=body.cols),
+             optics)
+        spec = StreamSpec(req, frames=body.frames, frame_rate_hz=frame_rate, health_interval_s=body.health_interval_s)
+        spec.check()
+    except (ScanPlanError, StreamRequestError) as exc:
+        raise HTTPException(422, [{"loc": ["body", str(exc).split(":", 1)[0]], "msg": str(exc),
+                                   "type": "value_error"}]) from None
+    refusal = latched_refusal(instrument)
+    if refusal is not None:
+        raise HTTPException(status.HTTP_409_CONFLICT, refusal)
+    job = StreamJob(spec)
+    out = stream_dir(store, job.id)
+    spec.out = str(out / "stream.mcap") if body.format == "mcap" else str(out)
+    meta = dict(getattr(worker, "base_meta", {}) or {})
+    try:
+        worker.submit_task(lambda: job.run(worker, meta))
+    except (QueueFull, WorkerStopped) as exc:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
+    _streams(request)[job.id] = job
+    response.headers["Location"] = f"/streams/{job.id}"
+    return job.status()
+
+
+_404 = {404: {"description": "no stream with this id"}}
+
+
+@router.get("/{stream_id}", responses=_404)
+def show_stream(stream_id: str, request: Request) -> dict[str, Any]:
+    job = _job(request, stream_id)
+    return {**job.status(), "frames": list(job.frames)}
+
+
+@router.delete("/{stream_id}", responses=_404)
+def stop_stream(stream_id: str, request: Request) -> dict[str, Any]:
+    """Stop after the frame in progress (kept, partial); a finished stream answers as it is."""
+    job = _job(request, stream_id)
+    job.cancel.set()
+    return job.status()
+
+
+@router.get("/{stream_id}/frames/{index}", responses={404: {"description": "no such stream or frame file"}})
+def frame_points(stream_id: str, index: int, request: Request, store: StoreDep):
+    job = _job(request, stream_id)
+    fmt = job.spec.request.formats[0]
+    if fmt == "mcap":
+        raise HTTPException(status.HTTP_404_NOT_FOUND, "this stream writes one MCAP file: GET /streams/{id}/mcap")
+    path = stream_dir(store, stream_id) / f"frame_{index:05d}{suffix_of(fmt)}"
+    if not path.exists():
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"stream {stream_id!r} has no frame {index} (yet)")
+    return FileResponse(path, media_type=MEDIA_TYPE[fmt])
+
+
+@router.get("/{stream_id}/mcap", responses={404: {"description": "no such stream, or not an MCAP stream, or running"}})
+def stream_mcap(stream_id: str, request: Request, store: StoreDep):
+    """The stream's MCAP file, once the stream has ended (it is renamed into place then)."""
+    job = _job(request, stream_id)
+    path = stream_dir(store, stream_id) / "stream.mcap"
+    if job.spec.request.formats[0] != "mcap" or not path.exists():
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"stream {stream_id!r} has no finished MCAP file")
+    return FileResponse(path, media_type=MEDIA_TYPE["mcap"])
+
+
+def stop_all(app) -> None:
+    """Daemon shutdown: every running stream ends after its frame in progress."""
+    for job in getattr(app.state, "streams", {}).values():
+        job.cancel.set()
