@@ -60,8 +60,6 @@ def serve(args) -> int:
         raise CliError(f"refusing to bind non-loopback address {host}: set an API token "
                        "(--token or LIDARD_API_TOKEN) first")
     data_dir = args.data_dir or cfg.daemon.data_dir
-    from ..jobs import heap
-    heap.avoid_huge_pages()     # a daemon's RSS must not grow page by huge page (lidard.jobs.heap)
     # Bind before starting the bench or the hardware: a busy port is then one clear line.
     sock = bind(host, port)
     import uvicorn

@@ -270,21 +270,3 @@ def test_heap_trim_returns_pages_on_glibc():
     assert heap.trim() is True
     assert rss_kb() < before - 8_000, (before, rss_kb())
     del blocks
-
-
-def test_the_daemon_turns_numpys_huge_page_request_off_unless_asked(monkeypatch):
-    from numpy._core.multiarray import _set_madvise_hugepage
-
-    from lidard.jobs import heap
-    before = _set_madvise_hugepage(True)            # the state before, and numpy's default back on
-    try:
-        monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
-        assert heap.avoid_huge_pages() is True
-        assert _set_madvise_hugepage(True) is False     # it was off
-        import os
-        assert os.environ["NUMPY_MADVISE_HUGEPAGE"] == "0"     # the child bench inherits the choice
-        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")      # a user who wants them keeps them
-        assert heap.avoid_huge_pages() is False
-        assert _set_madvise_hugepage(True) is True
-    finally:
-        _set_madvise_hugepage(before)
