@@ -23,7 +23,8 @@ Reported (and checked at the end):
 
     nice -n 19 python benchmarks/soak.py --minutes 60 [--seed 1] [--json out.json] [--rss-csv rss.csv]
 
-The figures of a run go to docs/reliability.md by hand, with the machine and the command.
+The figures of a run go to docs/reliability.md with the machine and the command;
+``benchmarks/soak_report.py`` renders the JSON and the CSV as markdown (docs/measured/28_soak_memory.md).
 """
 
 from __future__ import annotations
