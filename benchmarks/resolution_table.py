@@ -31,6 +31,8 @@ from lidard.dsp.ranging.lines import lines, render
 from lidard.dsp.rangefft import C_M_PER_S
 
 FS_HZ, RAMP, CW = 40e6, 3200, 3120
+#: the two false-point rates checked on noise-only pixels
+PFAS = (1e-6, 3e-6)
 RATE = 8.6e9 / 80e-6
 WAVELENGTH = 1.55e-6
 CELL_M = C_M_PER_S / (2 * 8.6e9)
@@ -149,8 +151,9 @@ def table(n_pix: int, seed: int) -> list[str]:
 
 
 def false_points(pfa: float, n_pix: int, seed: int) -> str:
-    """Noise-only pixels through the scan's DSP at ``pfa``: false points per gate cell (both ramps'
-    cells searched: the gate's bins of the up ramp are the places a point can be)."""
+    """Noise-only pixels through the scan's DSP at ``pfa`` (false points per range cell): valid false
+    points per gate cell (a bin of the searched band, FrameDsp.bin_range) against pfa, with the per-ramp
+    detector's level and its measured alarms per ramp cell."""
     dsp = scan_dsp(pfa=pfa)
     rng = np.random.default_rng(seed)
     lo, hi = dsp.bin_range
@@ -169,8 +172,9 @@ def false_points(pfa: float, n_pix: int, seed: int) -> str:
     total = cells * n_pix
     rate = n_valid / total
     lo_ci, hi_ci = _poisson_ci(n_valid)
-    return (f"| {pfa:.0e} | {n_pix:,} | {total:,} | {n_alarms / (2 * total) / pfa:.2f} | {n_points:,} | {n_valid:,} | "
-            f"{rate:.2e} ({lo_ci / total:.1e}-{hi_ci / total:.1e}) | {rate / pfa:.4f} |")
+    return (f"| {pfa:.0e} | {dsp.ramp_pfa:.2e} | {n_alarms / (2 * total) / dsp.ramp_pfa:.2f} | {n_pix:,} | {total:,} | "
+            f"{n_points:,} | {n_valid:,} | {rate:.2e} ({lo_ci / total:.1e}-{hi_ci / total:.1e}) | {rate / pfa:.2f} "
+            f"({lo_ci / total / pfa:.2f}-{hi_ci / total / pfa:.2f}) |")
 
 
 def _poisson_ci(k: int) -> tuple[float, float]:
@@ -226,18 +230,21 @@ def bench_scenes() -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pixels", type=int, default=200, help="pixels per cell of the resolution table")
-    ap.add_argument("--noise-pixels", type=int, default=1200, help="noise-only pixels per pfa setting")
+    ap.add_argument("--noise-count", type=float, default=25.0,
+                    help="noise-only pixels per pfa setting: enough for this many expected false points (and >= 1e6 cells)")
     ap.add_argument("--seed", type=int, default=25)
     ap.add_argument("--out", default=None, help="write the tables (markdown) here")
     ap.add_argument("--no-bench", action="store_true", help="skip the scenes on the simulated bench")
     args = ap.parse_args()
     t0 = time.process_time()
     rows = table(args.pixels, args.seed)
-    fp = ["| pfa | pixels | gate cells | detector alarms per ramp cell / pfa | points | valid points "
-          "| valid per gate cell (95 % CI) | / pfa |",
-          "|---:|---:|---:|---:|---:|---:|---|---:|"]
-    for pfa in (1e-4, 1e-3):
-        fp.append(false_points(pfa, args.noise_pixels, args.seed + 1))
+    fp = ["| pfa (false points per range cell) | per-ramp level | detector alarms per ramp cell / level | pixels "
+          "| gate cells | points | valid points | valid per gate cell (95 % CI) | / pfa (95 % CI) |",
+          "|---:|---:|---:|---:|---:|---:|---:|---|---|"]
+    for pfa in PFAS:
+        cells = np.subtract(*scan_dsp().bin_range[::-1]) + 1
+        n_pix = int(np.ceil(max(args.noise_count / (pfa * cells), 1e6 / cells)))
+        fp.append(false_points(pfa, n_pix, args.seed + 1))
         print(fp[-1], flush=True)
     scenes = [] if args.no_bench else bench_scenes()
     print(f"CPU {time.process_time() - t0:.0f} s")
