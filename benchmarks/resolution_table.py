@@ -53,16 +53,17 @@ return recedes at 1 m/s. Both valid = each return has a valid point within half 
 RMSE and bias over those points; the two-tone CRLB from lidard.dsp.crlb.crlb_tones_freq_var (both
 ramps); RMSE / CRLB the larger of the two returns'. 200 pixels per row."""
 
-FP_TEXT = """### Noise-only pixels
+FP_TEXT = """### Noise-only pixels: the false-point rate that `scan.pfa` states
 
 White noise through the same FrameDsp at two pfa settings; a gate cell is a bin of the searched band
-(FrameDsp.bin_range). `scan.pfa` is the per-ramp, per-cell false-alarm probability of the detector
-(OS-CFAR) and of the joint model's grown tones; a false POINT needs a false alarm on both ramps that
-pair (and, on the three-segment chirp, CW evidence), so the rate of valid false points per gate cell is
-far below pfa, not within 2x of it: the point-level statistic with a stated rate is not built (see the
-report of issue 25). The detector itself: its alarms per ramp and gate cell against pfa (a Hann window
-correlates neighbouring cells: about 2x at 1e-4, lidard/dsp/cfar.py; at 1e-3 the two slots per ramp
-cap it)."""
+(FrameDsp.bin_range, c / 2B). `scan.pfa` is the rate of valid false points per range cell: a point is a
+(range, velocity) hypothesis whose lines both ramps detect, in noise q^2 per hypothesis at a per-ramp
+level q, and a range cell holds m hypotheses noise can complete (the three-segment chirp: the static
+ones, whose |f_D| lies in the CW spectrum's DC guard; lidard/dsp/ranging/points.py), so the per-ramp
+OS-CFAR runs at q = sqrt(pfa / m) (m = 10 here). Enough pixels for ~25 expected false points and
+>= 1e6 cells. The detector's alarms per ramp cell exceed its level (a Hann window correlates
+neighbouring cells, lidard/dsp/cfar.py); the pairing's own tests (CW evidence, the pair's power
+balance) take about as many back."""
 
 SCENES_TEXT = """### The issue's scenes on the simulated bench
 

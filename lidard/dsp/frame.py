@@ -56,6 +56,26 @@ class FrameResult:
     flags: np.ndarray | None = None     # uint8 lidard.dsp.gate.PointFlag bits (why not valid)
 
 
+#: candidate peaks searched per ramp for each return a pixel may hold (FrameDsp.candidate_slots): two
+#: equal returns two cells apart lose their second slot to a noise peak of the looser per-ramp level in
+#: ~35 % of pixels with one slot each, ~4 % with two (benchmarks/resolution_table.py, 30 dB)
+CANDIDATES_PER_RETURN = 2
+
+
+def keep_returns(res: FrameResult, k: int) -> FrameResult:
+    """The ``k`` slots of each pixel that matter most: valid points first, then drawn ones, each by SNR."""
+    if res.present.shape[-1] <= k:
+        return res
+    key = (np.where(res.present & res.valid, 2.0, np.where(res.present, 1.0, 0.0)) * 1e6
+           + np.clip(np.nan_to_num(res.snr_db, nan=-1e5), -1e5, 1e5) / 10)
+    order = np.argsort(-key, axis=-1, kind="stable")[..., :k]
+    pick = {f: np.take_along_axis(getattr(res, f), order, axis=-1) for f in
+            ("present", "valid", "range_m", "velocity_mps", "snr_db", "intensity_v")}
+    if res.flags is not None:
+        pick["flags"] = np.take_along_axis(res.flags, order, axis=-1)
+    return FrameResult(**pick)
+
+
 @dataclass(frozen=True)
 class FrameDsp:
     ramp_samples: int
@@ -142,6 +162,13 @@ class FrameDsp:
         return ramp_pfa(self.pfa, m)
 
     @property
+    def candidate_slots(self) -> int:
+        """Peaks kept per ramp by the candidate search: at the looser per-ramp level a noise peak can
+        take a return's slot, so each return gets a second (CANDIDATES_PER_RETURN); the points are
+        then cut back to ``max_returns`` (:func:`keep_returns`)."""
+        return CANDIDATES_PER_RETURN * self.max_returns
+
+    @property
     def range_resolution_m(self) -> float:
         return C_M_PER_S / (2 * self.chirp_rate_hz_per_s * self.n_used / self.fs_hz)
 
@@ -213,8 +240,10 @@ class FrameDsp:
         else:
             out_f, out_det = self._plain_front_end(x, lsb_v, codes=np.asarray(beat).dtype.kind in "iu")
         if self.cw_samples:
-            return FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
-        return self._pair(out_f, out_det)
+            res = FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
+        else:
+            res = self._pair(out_f, out_det)
+        return keep_returns(res, self.max_returns)
 
     def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list, list]:
         """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT.
@@ -233,7 +262,7 @@ class FrameDsp:
             res = detect_and_refine(
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.ramp_pfa, iq=self.iq,
-                max_detections=self.max_returns, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
+                max_detections=self.candidate_slots, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
                 power=p)
             det = res.detections
             if self.iq:     # the hybrid's image of a stronger return is not a return
