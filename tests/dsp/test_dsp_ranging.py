@@ -225,3 +225,16 @@ def test_noise_only_pixels_give_false_points_at_the_stated_rate():
         valid += int(np.count_nonzero(res.present & res.valid))
     expected = dsp.pfa * n_pix * (hi - lo + 1)
     assert expected / 2 <= valid <= 2 * expected          # Poisson(26): outside with probability ~2e-3
+
+
+def test_points_are_cut_back_to_max_returns_valid_first_then_by_snr():
+    from lidard.dsp.frame import FrameResult, keep_returns
+    present = np.array([[True, True, True, False]])
+    valid = np.array([[False, True, True, False]])
+    snr = np.array([[40.0, 10.0, 20.0, 50.0]])
+    rng_m = np.array([[1.0, 2.0, 3.0, 4.0]])
+    res = FrameResult(present=present, valid=valid, range_m=rng_m, velocity_mps=np.zeros((1, 4)), snr_db=snr,
+                      intensity_v=np.ones((1, 4)), flags=np.zeros((1, 4), np.uint8))
+    out = keep_returns(res, 2)
+    assert out.range_m.tolist() == [[3.0, 2.0]]          # both valid points, the stronger first
+    assert keep_returns(res, 3).range_m.tolist() == [[3.0, 2.0, 1.0]]   # then the drawn one, not the absent
