@@ -8,7 +8,8 @@ A segment is one triangle period captured after one trigger: the up ramp then th
 2. takes the windowed range FFT of every ramp (:class:`RangeFFT`) and averages the powers over the
    segments of a pixel (incoherent averaging),
 3. detects up to ``max_returns`` peaks per ramp with OS-CFAR at ``ramp_pfa``, the per-ramp level
-   that makes ``pfa`` the rate of false points per range cell (:mod:`lidard.dsp.ranging.points`), inside the range gate widened by the Doppler allowance,
+   that makes ``pfa`` the rate of false points per range cell (:mod:`lidard.dsp.ranging.points`),
+   inside the range gate widened by the Doppler allowance,
 4. refines each detection to a fractional bin on every segment with the selected sub-bin estimator
    and averages those frequencies (the dissertation averages 10 distance measurements per pixel);
    a ramp's several detections are refined jointly and every detection is tested against the fitted
@@ -87,8 +88,9 @@ class FrameDsp:
     max_speed_mps: float = 5.0
     window: str = "hann"
     # the rate of valid false points per range cell (one ramp FFT bin of the searched band) in noise
-    # alone; the per-ramp detector runs at the looser ramp_pfa (lidard.dsp.ranging.points)
-    pfa: float = 1e-6
+    # alone; the per-ramp detector runs at the looser ramp_pfa (lidard.dsp.ranging.points). 1e-10: one
+    # false point in 1e10 cells, the per-ramp level ~3e-6 on the scan's chirp
+    pfa: float = 1e-10
     max_returns: int = 2
     use_fraction: float = 0.9
     estimator: str = DEFAULT_METHOD
