@@ -57,12 +57,6 @@ class FrameResult:
     flags: np.ndarray | None = None     # uint8 lidard.dsp.gate.PointFlag bits (why not valid)
 
 
-#: candidate peaks searched per ramp for each return a pixel may hold (FrameDsp.candidate_slots): two
-#: equal returns two cells apart lose their second slot to a noise peak of the looser per-ramp level in
-#: ~35 % of pixels with one slot each, ~4 % with two (benchmarks/resolution_table.py, 30 dB)
-CANDIDATES_PER_RETURN = 2
-
-
 def keep_returns(res: FrameResult, k: int) -> FrameResult:
     """The ``k`` slots of each pixel that matter most: valid points first, then drawn ones, each by SNR."""
     if res.present.shape[-1] <= k:
@@ -165,10 +159,13 @@ class FrameDsp:
 
     @property
     def candidate_slots(self) -> int:
-        """Peaks kept per ramp by the candidate search: at the looser per-ramp level a noise peak can
-        take a return's slot, so each return gets a second (CANDIDATES_PER_RETURN); the points are
-        then cut back to ``max_returns`` (:func:`keep_returns`)."""
-        return CANDIDATES_PER_RETURN * self.max_returns
+        """Peaks kept per ramp by the candidate search: ``max_returns`` and as many more as the noise
+        alarms the per-ramp level lets through the band (the median of their Poisson count, round(q x
+        cells)): a noise peak must not take a return's slot (two equal returns two cells apart lost the
+        second one in ~35 % of pixels at q = 3e-4 without them). The points are then cut back to
+        ``max_returns`` (:func:`keep_returns`)."""
+        lo, hi = self.bin_range
+        return self.max_returns + int(round(self.ramp_pfa * (hi - lo + 1) / self.rfft.zero_pad))
 
     @property
     def range_resolution_m(self) -> float:
