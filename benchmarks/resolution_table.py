@@ -77,7 +77,7 @@ at 2, 3 and 4 cells, with the faint pane and at 6 cm; both ranges biased ~+2 mm.
 def scan_dsp(**over) -> FrameDsp:
     """The scan's FrameDsp for config/sim.toml at a 10 m gate (lidard.instrument.scan_loop.plan_scan)."""
     kw = dict(ramp_samples=RAMP, fs_hz=FS_HZ, chirp_rate_hz_per_s=RATE, wavelength_m=WAVELENGTH, max_range_m=10.0,
-              max_speed_mps=10.0, window="hann", pfa=1e-10, max_returns=2, cw_samples=CW)
+              max_speed_mps=10.0, window="hann", pfa=1e-11, max_returns=2, cw_samples=CW)
     kw.update(over)
     return FrameDsp(**kw)
 

@@ -82,9 +82,9 @@ class FrameDsp:
     max_speed_mps: float = 5.0
     window: str = "hann"
     # the rate of valid false points per range cell (one ramp FFT bin of the searched band) in noise
-    # alone; the per-ramp detector runs at the looser ramp_pfa (lidard.dsp.ranging.points). 1e-10: one
-    # false point in 1e10 cells, the per-ramp level ~3e-6 on the scan's chirp
-    pfa: float = 1e-10
+    # alone; the per-ramp detector runs at the looser ramp_pfa (lidard.dsp.ranging.points). 1e-11: the
+    # per-ramp level 1e-6 on the scan's three-segment chirp (m = 10), the operating point it was tuned at
+    pfa: float = 1e-11
     max_returns: int = 2
     use_fraction: float = 0.9
     estimator: str = DEFAULT_METHOD
