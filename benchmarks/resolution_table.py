@@ -60,8 +60,9 @@ White noise through the same FrameDsp at two pfa settings; a gate cell is a bin 
 (range, velocity) hypothesis whose lines both ramps detect, in noise q^2 per hypothesis at a per-ramp
 level q, and a range cell holds m hypotheses noise can complete (the three-segment chirp: the static
 ones, whose |f_D| lies in the CW spectrum's DC guard; lidard/dsp/ranging/points.py), so the per-ramp
-OS-CFAR runs at q = sqrt(pfa / m) (m = 10 here), keeping two candidate peaks per return a pixel may
-hold (FrameDsp.candidate_slots; the points are cut back to max_returns). Enough pixels for ~25 expected false points and
+OS-CFAR runs at q = sqrt(pfa / m) (m = 10 here), keeping max_returns candidate peaks per ramp plus
+the median count of noise alarms q lets through the band (FrameDsp.candidate_slots; none at these two
+settings nor at the default 1e-11; the points are cut back to max_returns). Enough pixels for ~25 expected false points and
 >= 1e6 cells. The detector's alarms per ramp cell exceed its level (a Hann window correlates
 neighbouring cells, lidard/dsp/cfar.py); the pairing's own tests (CW evidence, the pair's power
 balance) take about as many back."""
