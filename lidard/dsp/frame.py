@@ -165,7 +165,7 @@ class FrameDsp:
         second one in ~35 % of pixels at q = 3e-4 without them). The points are then cut back to
         ``max_returns`` (:func:`keep_returns`)."""
         lo, hi = self.bin_range
-        return self.max_returns + int(round(self.ramp_pfa * (hi - lo + 1) / self.rfft.zero_pad))
+        return self.max_returns + round(self.ramp_pfa * (hi - lo + 1) / self.rfft.zero_pad)
 
     @property
     def range_resolution_m(self) -> float:
