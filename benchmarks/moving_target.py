@@ -30,7 +30,8 @@ def rms(e: np.ndarray) -> float:
 
 
 def main() -> int:
-    cfg = load_config("config/sim.toml", environ={"LIDARD__SCAN__MAX_SPEED_MPS": "2.0", "LIDARD__SCAN__PFA": "1e-9"})
+    # scan.pfa is false points per range cell: 1e-17 is the per-ramp level 1e-9 (m ~ 10, lidard.dsp.ranging.points)
+    cfg = load_config("config/sim.toml", environ={"LIDARD__SCAN__MAX_SPEED_MPS": "2.0", "LIDARD__SCAN__PFA": "1e-17"})
     inst = open_instrument(cfg, scene_path="config/scenes/empty.toml", bench="embedded")
     bench = inst._on_close.__self__
     try:

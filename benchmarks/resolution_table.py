@@ -31,6 +31,8 @@ from lidard.dsp.ranging.lines import lines, render
 from lidard.dsp.rangefft import C_M_PER_S
 
 FS_HZ, RAMP, CW = 40e6, 3200, 3120
+#: the two false-point rates checked on noise-only pixels
+PFAS = (1e-6, 3e-6)
 RATE = 8.6e9 / 80e-6
 WAVELENGTH = 1.55e-6
 CELL_M = C_M_PER_S / (2 * 8.6e9)
@@ -51,16 +53,19 @@ return recedes at 1 m/s. Both valid = each return has a valid point within half 
 RMSE and bias over those points; the two-tone CRLB from lidard.dsp.crlb.crlb_tones_freq_var (both
 ramps); RMSE / CRLB the larger of the two returns'. 200 pixels per row."""
 
-FP_TEXT = """### Noise-only pixels
+FP_TEXT = """### Noise-only pixels: the false-point rate that `scan.pfa` states
 
 White noise through the same FrameDsp at two pfa settings; a gate cell is a bin of the searched band
-(FrameDsp.bin_range). `scan.pfa` is the per-ramp, per-cell false-alarm probability of the detector
-(OS-CFAR) and of the joint model's grown tones; a false POINT needs a false alarm on both ramps that
-pair (and, on the three-segment chirp, CW evidence), so the rate of valid false points per gate cell is
-far below pfa, not within 2x of it: the point-level statistic with a stated rate is not built (see the
-report of issue 25). The detector itself: its alarms per ramp and gate cell against pfa (a Hann window
-correlates neighbouring cells: about 2x at 1e-4, lidard/dsp/cfar.py; at 1e-3 the two slots per ramp
-cap it)."""
+(FrameDsp.bin_range, c / 2B). `scan.pfa` is the rate of valid false points per range cell: a point is a
+(range, velocity) hypothesis whose lines both ramps detect, in noise q^2 per hypothesis at a per-ramp
+level q, and a range cell holds m hypotheses noise can complete (the three-segment chirp: the static
+ones, whose |f_D| lies in the CW spectrum's DC guard; lidard/dsp/ranging/points.py), so the per-ramp
+OS-CFAR runs at q = sqrt(pfa / m) (m = 10 here), keeping max_returns candidate peaks per ramp plus
+the median count of noise alarms q lets through the band (FrameDsp.candidate_slots; none at these two
+settings nor at the default 1e-11; the points are cut back to max_returns). Enough pixels for ~25 expected false points and
+>= 1e6 cells. The detector's alarms per ramp cell exceed its level (a Hann window correlates
+neighbouring cells, lidard/dsp/cfar.py); the pairing's own tests (CW evidence, the pair's power
+balance) take about as many back."""
 
 SCENES_TEXT = """### The issue's scenes on the simulated bench
 
@@ -73,7 +78,7 @@ at 2, 3 and 4 cells, with the faint pane and at 6 cm; both ranges biased ~+2 mm.
 def scan_dsp(**over) -> FrameDsp:
     """The scan's FrameDsp for config/sim.toml at a 10 m gate (lidard.instrument.scan_loop.plan_scan)."""
     kw = dict(ramp_samples=RAMP, fs_hz=FS_HZ, chirp_rate_hz_per_s=RATE, wavelength_m=WAVELENGTH, max_range_m=10.0,
-              max_speed_mps=10.0, window="hann", pfa=1e-6, max_returns=2, cw_samples=CW)
+              max_speed_mps=10.0, window="hann", pfa=1e-11, max_returns=2, cw_samples=CW)
     kw.update(over)
     return FrameDsp(**kw)
 
@@ -149,8 +154,9 @@ def table(n_pix: int, seed: int) -> list[str]:
 
 
 def false_points(pfa: float, n_pix: int, seed: int) -> str:
-    """Noise-only pixels through the scan's DSP at ``pfa``: false points per gate cell (both ramps'
-    cells searched: the gate's bins of the up ramp are the places a point can be)."""
+    """Noise-only pixels through the scan's DSP at ``pfa`` (false points per range cell): valid false
+    points per gate cell (a bin of the searched band, FrameDsp.bin_range) against pfa, with the per-ramp
+    detector's level and its measured alarms per ramp cell."""
     dsp = scan_dsp(pfa=pfa)
     rng = np.random.default_rng(seed)
     lo, hi = dsp.bin_range
@@ -169,8 +175,9 @@ def false_points(pfa: float, n_pix: int, seed: int) -> str:
     total = cells * n_pix
     rate = n_valid / total
     lo_ci, hi_ci = _poisson_ci(n_valid)
-    return (f"| {pfa:.0e} | {n_pix:,} | {total:,} | {n_alarms / (2 * total) / pfa:.2f} | {n_points:,} | {n_valid:,} | "
-            f"{rate:.2e} ({lo_ci / total:.1e}-{hi_ci / total:.1e}) | {rate / pfa:.4f} |")
+    return (f"| {pfa:.0e} | {dsp.ramp_pfa:.2e} | {n_alarms / (2 * total) / dsp.ramp_pfa:.2f} | {n_pix:,} | {total:,} | "
+            f"{n_points:,} | {n_valid:,} | {rate:.2e} ({lo_ci / total:.1e}-{hi_ci / total:.1e}) | {rate / pfa:.2f} "
+            f"({lo_ci / total / pfa:.2f}-{hi_ci / total / pfa:.2f}) |")
 
 
 def _poisson_ci(k: int) -> tuple[float, float]:
@@ -226,18 +233,21 @@ def bench_scenes() -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pixels", type=int, default=200, help="pixels per cell of the resolution table")
-    ap.add_argument("--noise-pixels", type=int, default=1200, help="noise-only pixels per pfa setting")
+    ap.add_argument("--noise-count", type=float, default=25.0,
+                    help="noise-only pixels per pfa setting: enough for this many expected false points (and >= 1e6 cells)")
     ap.add_argument("--seed", type=int, default=25)
     ap.add_argument("--out", default=None, help="write the tables (markdown) here")
     ap.add_argument("--no-bench", action="store_true", help="skip the scenes on the simulated bench")
     args = ap.parse_args()
     t0 = time.process_time()
     rows = table(args.pixels, args.seed)
-    fp = ["| pfa | pixels | gate cells | detector alarms per ramp cell / pfa | points | valid points "
-          "| valid per gate cell (95 % CI) | / pfa |",
-          "|---:|---:|---:|---:|---:|---:|---|---:|"]
-    for pfa in (1e-4, 1e-3):
-        fp.append(false_points(pfa, args.noise_pixels, args.seed + 1))
+    fp = ["| pfa (false points per range cell) | per-ramp level | detector alarms per ramp cell / level | pixels "
+          "| gate cells | points | valid points | valid per gate cell (95 % CI) | / pfa (95 % CI) |",
+          "|---:|---:|---:|---:|---:|---:|---:|---|---|"]
+    for pfa in PFAS:
+        cells = np.subtract(*scan_dsp().bin_range[::-1]) + 1
+        n_pix = int(np.ceil(max(args.noise_count / (pfa * cells), 1e6 / cells)))
+        fp.append(false_points(pfa, n_pix, args.seed + 1))
         print(fp[-1], flush=True)
     scenes = [] if args.no_bench else bench_scenes()
     print(f"CPU {time.process_time() - t0:.0f} s")

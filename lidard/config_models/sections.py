@@ -148,7 +148,9 @@ class ScanDefaults(_Model):
     max_range_m: PosFloat = 2.0
     pattern: Literal["raster", "serpentine", "roi", "pixels", "adaptive"] = "raster"
     settle_s: NonNegFloat = 5e-6
-    pfa: float = Field(default=1e-6, gt=0, lt=0.1)
+    # the rate of valid false points per range cell (c / 2B of the searched band) in noise alone; the
+    # per-ramp detector runs at the looser level this implies (lidard.dsp.ranging.points)
+    pfa: float = Field(default=1e-11, gt=0, lt=0.1)
     max_returns: int = Field(default=2, ge=1, le=8)
     window: Literal["rectangular", "hann", "blackmanharris"] = "hann"
     # The fastest radial speed a scan is asked to measure (a request, like max_range_m; per scan:

@@ -7,8 +7,9 @@ A segment is one triangle period captured after one trigger: the up ramp then th
    after pre-distortion, whose region of interest is the middle of each ramp, §2.2),
 2. takes the windowed range FFT of every ramp (:class:`RangeFFT`) and averages the powers over the
    segments of a pixel (incoherent averaging),
-3. detects up to ``max_returns`` peaks per ramp with OS-CFAR at the configured false-alarm
-   probability, inside the range gate widened by the Doppler allowance,
+3. detects up to ``max_returns`` peaks per ramp with OS-CFAR at ``ramp_pfa``, the per-ramp level
+   that makes ``pfa`` the rate of false points per range cell (:mod:`lidard.dsp.ranging.points`),
+   inside the range gate widened by the Doppler allowance,
 4. refines each detection to a fractional bin on every segment with the selected sub-bin estimator
    and averages those frequencies (the dissertation averages 10 distance measurements per pixel);
    a ramp's several detections are refined jointly and every detection is tested against the fitted
@@ -36,7 +37,8 @@ from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .cwhold import HoldProfile
-from .threeseg import cw_front_end, drift_rho, pair_frame_three
+from .threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
+from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import refine_ramp
 from .scratch import scratch
 from .velocity import pair_up_down
@@ -55,6 +57,20 @@ class FrameResult:
     flags: np.ndarray | None = None     # uint8 lidard.dsp.gate.PointFlag bits (why not valid)
 
 
+def keep_returns(res: FrameResult, k: int) -> FrameResult:
+    """The ``k`` slots of each pixel that matter most: valid points first, then drawn ones, each by SNR."""
+    if res.present.shape[-1] <= k:
+        return res
+    key = (np.where(res.present & res.valid, 2.0, np.where(res.present, 1.0, 0.0)) * 1e6
+           + np.clip(np.nan_to_num(res.snr_db, nan=-1e5), -1e5, 1e5) / 10)
+    order = np.argsort(-key, axis=-1, kind="stable")[..., :k]
+    pick = {f: np.take_along_axis(getattr(res, f), order, axis=-1) for f in
+            ("present", "valid", "range_m", "velocity_mps", "snr_db", "intensity_v")}
+    if res.flags is not None:
+        pick["flags"] = np.take_along_axis(res.flags, order, axis=-1)
+    return FrameResult(**pick)
+
+
 @dataclass(frozen=True)
 class FrameDsp:
     ramp_samples: int
@@ -65,7 +81,10 @@ class FrameDsp:
     min_range_m: float = 0.05
     max_speed_mps: float = 5.0
     window: str = "hann"
-    pfa: float = 1e-6
+    # the rate of valid false points per range cell (one ramp FFT bin of the searched band) in noise
+    # alone; the per-ramp detector runs at the looser ramp_pfa (lidard.dsp.ranging.points). 1e-11: the
+    # per-ramp level 1e-6 on the scan's three-segment chirp (m = 10), the operating point it was tuned at
+    pfa: float = 1e-11
     max_returns: int = 2
     use_fraction: float = 0.9
     estimator: str = DEFAULT_METHOD
@@ -94,6 +113,7 @@ class FrameDsp:
         check_imbalance(self.iq_gain, self.iq_phase_rad)
         if not 0.0 < self.order_level < 1.0:
             raise ValueError(f"order_level must be in (0, 1), got {self.order_level!r}")
+        _ = self.ramp_pfa       # a false-point rate the per-ramp detector cannot give is refused here
 
     @property
     def n_used(self) -> int:
@@ -124,6 +144,28 @@ class FrameDsp:
     def bin_range(self) -> tuple[int, int]:
         """(first, last) spectrum index searched by CFAR: the range gate plus the Doppler allowance."""
         return self._bin_range(self.rfft)
+
+    @cached_property
+    def ramp_pfa(self) -> float:
+        """The per-ramp detector's false-alarm probability per cell that makes ``pfa`` the rate of false
+        points per range cell (:mod:`lidard.dsp.ranging.points`)."""
+        lo, hi = self.bin_range
+        guard = None
+        if self.cw_samples:
+            guard = CW_GUARD_BINS * self.fs_hz / cw_window(self)[1]
+        m = hypotheses_per_cell(ramp_cell_hz=self.fs_hz / self.n_used, band_cells=(hi - lo + 1) // self.rfft.zero_pad,
+                                doppler_max_hz=2 * self.max_speed_mps / self.wavelength_m, static_guard_hz=guard)
+        return ramp_pfa(self.pfa, m)
+
+    @property
+    def candidate_slots(self) -> int:
+        """Peaks kept per ramp by the candidate search: ``max_returns`` and as many more as the noise
+        alarms the per-ramp level lets through the band (the median of their Poisson count, round(q x
+        cells)): a noise peak must not take a return's slot (two equal returns two cells apart lost the
+        second one in ~35 % of pixels at q = 3e-4 without them). The points are then cut back to
+        ``max_returns`` (:func:`keep_returns`)."""
+        lo, hi = self.bin_range
+        return self.max_returns + round(self.ramp_pfa * (hi - lo + 1) / self.rfft.zero_pad)
 
     @property
     def range_resolution_m(self) -> float:
@@ -197,8 +239,10 @@ class FrameDsp:
         else:
             out_f, out_det = self._plain_front_end(x, lsb_v, codes=np.asarray(beat).dtype.kind in "iu")
         if self.cw_samples:
-            return FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
-        return self._pair(out_f, out_det)
+            res = FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
+        else:
+            res = self._pair(out_f, out_det)
+        return keep_returns(res, self.max_returns)
 
     def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list, list]:
         """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT.
@@ -216,8 +260,8 @@ class FrameDsp:
             spec = (rf.spectrum_of if codes else rf)(ramp, scratch("frame.spec", shape, np.complex128), p)
             res = detect_and_refine(
                 spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
-                estimator=self.estimator, average_axis=1, method="os", pfa=self.pfa, iq=self.iq,
-                max_detections=self.max_returns, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
+                estimator=self.estimator, average_axis=1, method="os", pfa=self.ramp_pfa, iq=self.iq,
+                max_detections=self.candidate_slots, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
                 power=p)
             det = res.detections
             if self.iq:     # the hybrid's image of a stronger return is not a return
@@ -226,7 +270,7 @@ class FrameDsp:
             # the ramp's detections refined jointly (no mutual leakage bias), and the model-order test:
             # a peak the fitted tones do not explain hides a second surface (lidard.dsp.ranging)
             frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_records, rf=rf, window=self.window,
-                                    level=self.order_level, pfa=self.pfa)
+                                    level=self.order_level, pfa=self.ramp_pfa)
             out_f.append(frac * rf.delta_f)
             out_det.append(det)
         return out_f, out_det

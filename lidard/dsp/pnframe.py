@@ -87,7 +87,9 @@ class FrameGeometry(Protocol):
     max_speed_mps: float
     window: str
     pfa: float
+    ramp_pfa: float
     max_returns: int
+    candidate_slots: int
     estimator: str
     iq: bool
     offset: int
@@ -338,8 +340,8 @@ def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray,
         res = detect_and_refine(
             spec, lambda idx, ramps=ramps, m_of_bin=m_of_bin: (ramps.real_signals(m_of_bin[idx]),
                                                                rf.index_to_bin(idx), None),
-            window=dsp.window, estimator=dsp.estimator, average_axis=1, method="os", pfa=dsp.pfa, iq=dsp.iq,
-            max_detections=dsp.max_returns, bin_range=dsp.bin_range, idle_index=int(rf.bin_to_index(1)))
+            window=dsp.window, estimator=dsp.estimator, average_axis=1, method="os", pfa=dsp.ramp_pfa, iq=dsp.iq,
+            max_detections=dsp.candidate_slots, bin_range=dsp.bin_range, idle_index=int(rf.bin_to_index(1)))
         det = res.detections
         if dsp.iq:      # the hybrid's image of a stronger return is not a return
             det = replace(det, valid=det.valid & ~mirror_images(det.index, det.power, det.valid, rf.n_fft))

@@ -58,6 +58,11 @@ CW_SKIP_FRACTION = 0.25
 DECHIRP_SKIP_FRACTION = 0.02
 
 
+#: bins of the CW spectrum left out at DC (the DC bin and its Hann window's main lobe): a regime that
+#: predicts |f_D| inside them expects no CW beat (the static hypotheses of lidard.dsp.ranging.points)
+CW_GUARD_BINS = 2
+
+
 def _range_max_table(p: np.ndarray, top_level: int | None = None) -> list[np.ndarray]:
     """Sparse table: level k holds the max of p over [i, i + 2**k) for every i (range-max queries);
     levels up to ``top_level`` (default: all), or more already built in a ``_RangeMax``."""
@@ -274,7 +279,7 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict
     profile = dsp.hold
     rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
                                              chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
-                                             wavelength_m=dsp.wavelength_m, guard_bins=2, max_targets=k,
+                                             wavelength_m=dsp.wavelength_m, guard_bins=CW_GUARD_BINS, max_targets=k,
                                              rho=dsp.drift_rho,
                                              power=(du.power.reshape(-1, k), dd.power.reshape(-1, k)))
     if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)

@@ -104,9 +104,9 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
     power, threshold, dets = {}, {}, []
     for name, start in (("up", 0), ("down", d.ramp_samples)):
         p = _ramp_power(replay, beat, mzi, mzi_q, start)
-        det = cfar_detect(p, method="os", pfa=d.pfa, max_detections=d.max_returns, window=d.window,
+        det = cfar_detect(p, method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
                           bin_range=gate, iq=d.iq)
-        noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.pfa, None, exact=True)   # drawn at every bin
+        noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True)   # drawn at every bin
         power[name], threshold[name] = p[0], (alpha * noise)[0]
         for j in np.flatnonzero(det.valid[0]):
             b = int(det.index[0, j])

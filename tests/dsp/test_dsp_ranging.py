@@ -195,3 +195,46 @@ def test_order_level_is_the_rate_at_which_clean_returns_are_flagged():
         rate = np.mean((res.flags[first] & PointFlag.UNRESOLVED) != 0)
         want = 1 - (1 - level) ** 2
         assert abs(rate - want) < 4 * np.sqrt(want * (1 - want) / first.sum()) + 0.02, (level, rate)
+
+
+def test_per_ramp_level_squared_times_hypotheses_is_the_point_rate():
+    from lidard.dsp.ranging.points import hypotheses_per_cell, ramp_pfa
+    m = hypotheses_per_cell(ramp_cell_hz=1e4, band_cells=1000, doppler_max_hz=0.0, static_guard_hz=3e4)
+    assert m == pytest.approx(12.0)                       # |f_up - f_dn| < 2 x 30 kHz: 12 cells of 10 kHz
+    assert ramp_pfa(1e-6, m) ** 2 * m == pytest.approx(1e-6)
+    # a triangle's speed prior: the down line within 2 |f_D|max; never more hypotheses than the band's cells
+    assert hypotheses_per_cell(ramp_cell_hz=1e4, band_cells=1000, doppler_max_hz=5e4) == pytest.approx(20.0)
+    assert hypotheses_per_cell(ramp_cell_hz=1e4, band_cells=100, doppler_max_hz=6e6) == pytest.approx(100.0)
+    with pytest.raises(ValueError, match="too high"):
+        ramp_pfa(0.09, 1.0)
+    with pytest.raises(ValueError, match="pfa"):
+        ramp_pfa(0.0, 10.0)
+
+
+@pytest.mark.slow
+def test_noise_only_pixels_give_false_points_at_the_stated_rate():
+    """scan.pfa is the rate of valid false points per range cell: ~25 expected in white noise."""
+    dsp = FrameDsp(ramp_samples=3200, fs_hz=40e6, chirp_rate_hz_per_s=8.6e9 / 80e-6, wavelength_m=1.55e-6,
+                   max_range_m=10.0, max_speed_mps=10.0, pfa=3e-6, max_returns=2, cw_samples=3120)
+    lo, hi = dsp.bin_range
+    rng = np.random.default_rng(7)
+    n_pix = 6000
+    valid = 0
+    for _ in range(3):
+        res = dsp.process(rng.standard_normal((n_pix // 3, 1, 2 * 3200 + 3120)))
+        valid += int(np.count_nonzero(res.present & res.valid))
+    expected = dsp.pfa * n_pix * (hi - lo + 1)
+    assert expected / 2 <= valid <= 2 * expected          # Poisson(26): outside with probability ~2e-3
+
+
+def test_points_are_cut_back_to_max_returns_valid_first_then_by_snr():
+    from lidard.dsp.frame import FrameResult, keep_returns
+    present = np.array([[True, True, True, False]])
+    valid = np.array([[False, True, True, False]])
+    snr = np.array([[40.0, 10.0, 20.0, 50.0]])
+    rng_m = np.array([[1.0, 2.0, 3.0, 4.0]])
+    res = FrameResult(present=present, valid=valid, range_m=rng_m, velocity_mps=np.zeros((1, 4)), snr_db=snr,
+                      intensity_v=np.ones((1, 4)), flags=np.zeros((1, 4), np.uint8))
+    out = keep_returns(res, 2)
+    assert out.range_m.tolist() == [[3.0, 2.0]]          # both valid points, the stronger first
+    assert keep_returns(res, 3).range_m.tolist() == [[3.0, 2.0, 1.0]]   # then the drawn one, not the absent

@@ -45,8 +45,14 @@ def test_overrides_change_what_the_spectrum_shows(capture):
     hann = pixel_spectrum(capture.path, row, col)
     loose = pixel_spectrum(capture.path, row, col, ReprocessSettings(pfa=1e-2))
     assert loose.dsp["pfa"] == 1e-2
-    # a higher false-alarm probability lowers the threshold by the ratio of the OS-CFAR alphas
-    ratio = os_cfar_alpha(16, 12, 1e-2) / os_cfar_alpha(16, 12, 1e-6)
+    # a higher false-point rate lowers the threshold by the ratio of the OS-CFAR alphas at the two
+    # per-ramp levels sqrt(pfa / m) (lidard.dsp.ranging.points)
+    from lidard.raw.capture import RawCapture
+    from lidard.raw.replay import replay_dsp
+    attrs = RawCapture(capture.path).attrs
+    q0, q1 = (replay_dsp(attrs, s).dsp.ramp_pfa for s in (None, ReprocessSettings(pfa=1e-2)))
+    assert q1 / q0 == pytest.approx(np.sqrt(1e-2 / replay_dsp(attrs).dsp.pfa))
+    ratio = os_cfar_alpha(16, 12, q1) / os_cfar_alpha(16, 12, q0)
     assert np.allclose(loose.threshold["up"], ratio * hann.threshold["up"], rtol=1e-9)
     bh = pixel_spectrum(capture.path, row, col, ReprocessSettings(window="blackmanharris"))
     assert bh.dsp["window"] == "blackmanharris" and not np.array_equal(bh.power["up"], hann.power["up"])
