@@ -35,7 +35,7 @@ examples:
   lidarctl scan --sim --data-dir /tmp/d --rows 40:60 --cols 20:50 --record-raw --json   # prints the scan id
   lidarctl reprocess --data-dir /tmp/d SCAN_ID --estimator jacobsen --out /tmp/jacobsen.ply
   lidarctl reprocess --data-dir /tmp/d SCAN_ID --workers 4                 # a LocalCluster of 4 processes
-  lidarctl reprocess --data-dir /tmp/d ID1 ID2 --same-settings --pfa 1e-4 --scheduler tcp://host:8786
+  lidarctl reprocess --data-dir /tmp/d ID1 ID2 --same-settings --pfa 1e-9 --scheduler tcp://host:8786
   lidarctl spectrum --data-dir /tmp/d SCAN_ID --pixel 48,30 --plot /tmp/px.png
 """
 
