@@ -217,7 +217,7 @@ def cmd_scan(args) -> int:
 
 
 def warn_uncalibrated(calibrated: dict[str, bool] | None, reason: str | None = None) -> None:
-    """One stderr line when the scan had no range or pointing calibration (issue 13 item 4), with the
+    """One stderr line when the scan had no range or pointing calibration (uncalibrated is said, never hidden), with the
     reason stored calibrations were left out (made on another set-up) when there was one."""
     missing = [k for k in ("range", "pointing") if calibrated is not None and not calibrated.get(k)]
     if missing:

@@ -338,7 +338,7 @@ class ScanWorker:
 
     def apply_geometry(self):
         """Hand the newest stored range, pointing and I/Q calibrations made on this instrument's set-up
-        to the instrument (issues 13, 14); answers the :class:`AppliedCalibrations`, whose ``notes`` say
+        to the instrument; answers the :class:`AppliedCalibrations`, whose ``notes`` say
         why records of another set-up were left unused. Runs on the worker thread before every scan and
         linearization."""
         from ..instrument.calibration.applied import AppliedCalibrations
