@@ -74,24 +74,29 @@ def load(cfg, root: Path | None = None) -> CalibrationResult | None:
         return None
 
 
-def save(cfg, cal: CalibrationResult, root: Path | None = None) -> Path | None:
-    """Store ``cal`` as the entry of ``cfg``'s key (atomic rename); None if it could not be written."""
-    path = _path(cfg, root)
-    fields = {"iterations": cal.iterations, "reduction": cal.reduction, "converged": bool(cal.converged),
-              "laser": cal.laser, "temperature_c": float(cal.temperature_c),
-              "fs_drive_hz": float(cal.fs_drive_hz), "meta": cal.meta}
+def _write_atomic(path: Path, write) -> Path | None:
+    """``write(file)`` into a temporary file beside ``path``, then rename it over ``path``; None (and a
+    warning) if it could not be written: a cache that cannot be written is no reason to fail a scan."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "wb") as f:
-            np.savez(f, drive_v=np.asarray(cal.drive_v, dtype=np.float64),
-                     fields=np.array(json.dumps(fields, default=str)))
+            write(f)
         os.replace(tmp, path)
         return path
     except OSError as exc:
         log.warning("calibration cache %s not written (%s)", path, exc)
         tmp.unlink(missing_ok=True)
         return None
+
+
+def save(cfg, cal: CalibrationResult, root: Path | None = None) -> Path | None:
+    """Store ``cal`` as the entry of ``cfg``'s key (atomic rename); None if it could not be written."""
+    fields = {"iterations": cal.iterations, "reduction": cal.reduction, "converged": bool(cal.converged),
+              "laser": cal.laser, "temperature_c": float(cal.temperature_c),
+              "fs_drive_hz": float(cal.fs_drive_hz), "meta": cal.meta}
+    return _write_atomic(_path(cfg, root), lambda f: np.savez(
+        f, drive_v=np.asarray(cal.drive_v, dtype=np.float64), fields=np.array(json.dumps(fields, default=str))))
 
 
 # -- range / pointing calibration records (the simulated bench's factory calibration) -----------------
@@ -122,14 +127,5 @@ def load_records(setup_hash: str, root: Path | None = None) -> list[dict] | None
 
 def save_records(setup_hash: str, records: list[dict], root: Path | None = None) -> Path | None:
     """Keep ``records`` as the entry of ``setup_hash`` (atomic rename); None if it could not be written."""
-    path = _records_path(setup_hash, root)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps({"setup": setup_hash, "records": records}, default=str))
-        os.replace(tmp, path)
-        return path
-    except OSError as exc:
-        log.warning("calibration cache %s not written (%s)", path, exc)
-        tmp.unlink(missing_ok=True)
-        return None
+    body = json.dumps({"setup": setup_hash, "records": records}, default=str).encode()
+    return _write_atomic(_records_path(setup_hash, root), lambda f: f.write(body))

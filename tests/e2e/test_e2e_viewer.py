@@ -21,7 +21,7 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.helpers.daemon import start_daemon, stop_daemon
+from tests.helpers.daemon import poll, start_daemon, stop_daemon
 
 pytestmark = pytest.mark.slow  # a real daemon and a browser
 
@@ -100,17 +100,6 @@ def _control(url: str) -> dict:
     return httpx.get(f"{url}/control", timeout=10).json()
 
 
-def _poll(fn, timeout_s: float, what: str):
-    import time
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        got = fn()
-        if got:
-            return got
-        time.sleep(0.05)       # polling interval only; the deadline decides
-    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-
-
 def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
     """The tab that took control keeps it across a reload, another tab cannot steer, closing releases."""
     old = page.evaluate("window.viewer.lease")
@@ -133,7 +122,7 @@ def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
     assert _control(url)["held"] is True        # a tab without the lease releases nothing
     # closing the controlling tab releases the lock (pagehide, fetch keepalive)
     page.close(run_before_unload=True)
-    _poll(lambda: not _control(url)["held"], 30, "the closed tab's release")
+    poll(lambda: not _control(url)["held"], 30, "the closed tab's release")
 
 
 def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
