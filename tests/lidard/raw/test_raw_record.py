@@ -18,7 +18,9 @@ class Header:
 
 
 def _start(path, **kw):
-    dsp = FrameDsp(ramp_samples=8, fs_hz=1e6, chirp_rate_hz_per_s=1e14, wavelength_m=1.55e-6, max_range_m=2.0)
+    # the whole 8-sample ramp used: the smallest range FFT a FrameDsp builds (n >= 8)
+    dsp = FrameDsp(ramp_samples=8, use_fraction=1.0, fs_hz=1e6, chirp_rate_hz_per_s=1e14, wavelength_m=1.55e-6,
+                   max_range_m=2.0)
     args = dict(pixels=np.array([[0, 0], [0, 1], [1, 0]]), directions=np.tile([0.0, 0.0, 1.0], (3, 1)),
                 averages=2, channels=("mzi", "beat"), record_length=16, dsp=dsp, lsb_v=3e-5, phase_noise=True,
                 mzi_delay_s=2e-7, adc={"sample_rate_hz": 1e6, "bits": 16}, chirp={"excursion_hz": 8.6e9},
