@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = [("first run (factory calibration)", first, s_first), ("second run (cached)", again, s_again),
             ("--uncalibrated, fresh cache", raw, s_raw), ("--uncalibrated, chirp cached", raw2, s_raw2)]
     lines = [
-        "# The README main job, calibrated out of the box (issue 26)",
+        "## The README main job, calibrated out of the box",
         "",
         "Command: `python benchmarks/main_job_calibrated.py` (runs `lidarctl scan --sim --scene "
         f"{SCENE} --out cal.ply` with a fresh cache, again, and with `--uncalibrated`; config/sim.toml, its "

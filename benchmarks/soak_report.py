@@ -30,7 +30,7 @@ def render(res: dict, rows: list[tuple[float, float, float]], commit: str, load:
     d, b = res["rss_mb"], res["bench_rss_mb"]
     minutes = rows[-1][0] / 60.0
     lines = [
-        "# Soak: memory of the daemon and of its child bench",
+        "## Soak: memory of the daemon and of its child bench",
         "",
         f"`{command}` then `python benchmarks/soak_report.py ...` (this file). Machine: {res['machine']}, "
         f"shared with other sessions' test suites (load average {load}); commit {commit}.",
