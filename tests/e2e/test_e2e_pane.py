@@ -11,9 +11,9 @@ import threading
 import numpy as np
 import pytest
 
-from lidard.config import load_config
 from lidard.dsp.crlb import crlb_freq_var_post_fft
-from lidard.instrument import ScanRequest, open_instrument
+from lidard.instrument import ScanRequest
+from tests.helpers.sim_bench import linearized_embedded_instrument, pane_before_wall
 
 Z0_M = 1.0
 CELL_M = 299_792_458.0 / (2 * 8.6e9)
@@ -22,17 +22,13 @@ FS_HZ, N_USED = 40e6, 2880          # the scan's 40 MS/s at a 2 m gate, 90 % of 
 
 
 def pane(dz_m: float) -> dict:
-    return {"target": [
-        {"kind": "plane", "point": [0, 0, Z0_M], "normal": [0, 0, -1], "reflectivity": 0.5, "transmission": 0.5},
-        {"kind": "plane", "point": [0, 0, Z0_M + dz_m], "normal": [0, 0, -1], "reflectivity": 2.0}]}
+    return pane_before_wall(Z0_M, dz_m)
 
 
 @pytest.fixture(scope="module")
 def embedded():
-    inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/empty.toml", bench="embedded")
-    cal = inst.linearize()
-    yield inst, inst._on_close.__self__, cal
-    inst.close()
+    with linearized_embedded_instrument() as ready:
+        yield ready
 
 
 def crlb_range_m(snr_db: np.ndarray) -> np.ndarray:

@@ -10,9 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from lidard.config import load_config
 from lidard.dsp.gate import PointFlag
-from lidard.instrument import ScanRequest, open_instrument
+from lidard.instrument import ScanRequest
+from tests.helpers.sim_bench import linearized_embedded_instrument, pane_before_wall
 
 pytestmark = pytest.mark.slow  # benches per surface spacing, linearized
 
@@ -20,17 +20,13 @@ Z0_M = 1.0
 
 
 def pair(dz_m: float) -> dict:
-    return {"target": [
-        {"kind": "plane", "point": [0, 0, Z0_M], "normal": [0, 0, -1], "reflectivity": 0.5, "transmission": 0.5},
-        {"kind": "plane", "point": [0, 0, Z0_M + dz_m], "normal": [0, 0, -1], "reflectivity": 2.0}]}
+    return pane_before_wall(Z0_M, dz_m)
 
 
 @pytest.fixture(scope="module")
 def embedded():
-    inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/empty.toml", bench="embedded")
-    cal = inst.linearize()
-    yield inst, inst._on_close.__self__, cal
-    inst.close()
+    with linearized_embedded_instrument() as ready:
+        yield ready
 
 
 def _frame(inst, cal, dz_m):

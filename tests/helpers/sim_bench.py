@@ -90,3 +90,24 @@ def restart(fp: FpsaController) -> None:
     fp.stop()
     fp.arm()
     fp.start()
+
+
+def pane_before_wall(z0_m: float, dz_m: float) -> dict:
+    """A scene: a half-transmitting pane at ``z0_m`` in front of a retro-reflective wall ``dz_m`` behind
+    it (two returns per pixel, ``dz_m`` apart)."""
+    return {"target": [
+        {"kind": "plane", "point": [0, 0, z0_m], "normal": [0, 0, -1], "reflectivity": 0.5, "transmission": 0.5},
+        {"kind": "plane", "point": [0, 0, z0_m + dz_m], "normal": [0, 0, -1], "reflectivity": 2.0}]}
+
+
+@contextlib.contextmanager
+def linearized_embedded_instrument() -> Iterator[tuple]:
+    """The instrument on an embedded bench (config/sim.toml, an empty scene), linearized once:
+    ``(instrument, bench, calibration)``."""
+    from lidard.instrument import open_instrument
+    inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/empty.toml", bench="embedded")
+    try:
+        cal = inst.linearize()
+        yield inst, inst._on_close.__self__, cal
+    finally:
+        inst.close()
