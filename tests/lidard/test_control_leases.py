@@ -13,6 +13,7 @@ import pytest
 
 from lidard.api.control import LEASE_HEADER
 from tests.helpers.api import live_server, make_app
+from tests.helpers.cli import run as lidarctl
 from tests.helpers.fakes import FakeInstrument
 
 SMALL = {"pattern": "roi", "rows": [0, 1], "cols": [0, 4]}
@@ -25,13 +26,6 @@ def live(tmp_path, monkeypatch):
     inst = FakeInstrument(profile="fpsa20")
     with live_server(make_app(tmp_path / "data", inst, progress_interval_s=0.0)) as url:
         yield url, inst
-
-
-def lidarctl(capsys, *argv):
-    from lidard import cli
-    code = cli.lidarctl_main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_acquire_stores_the_lease_for_the_same_users_later_calls(live, capsys, monkeypatch, tmp_path):
