@@ -35,28 +35,25 @@ from __future__ import annotations
 import os
 import socket
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.digitizer import protocol as digitizer_protocol
 from lidard.config import Config
 from lidard.dsp.crlb import crlb_freq_var
 from lidard.dsp.cwhold import PROFILE_DT_S
 from lidard.dsp.frame import FrameResult
 from lidard.instrument.acquisition import AWG_RATE_HZ, plain_drive
-from lidard.instrument.dsp_plan import AdcPlan, DspCalibration, plan_signal
+from lidard.instrument.dsp_plan import AdcPlan, DspCalibration, SignalPlan, plan_signal
 from lidard.instrument.dsp_plan import phase_noise_on as pn_rule
 from lidard.physics.budget import monitor_noise_asd, quantization_asd, snr_db
 from lidard.physics.constants import C_M_PER_S
-from sim_devices.digitizer import decimation_filter
+from sim_devices.digitizer import decimation_filter, write_samples
+from sim_devices.world.fidelity import phase_noise_negligible
 from sim_devices.world.scene import Scene
-from sim_devices.world.synth import (
-    AdcSpec,
-    HitBatch,
-    synthesize,
-    trajectory_from_frequency,
-)
-from sim_devices.world.synth_chirp import ChirpTrajectory
-from sim_devices.world.world import World
+from sim_devices.world.synth import AdcSpec, ChirpTrajectory, HitBatch, synthesize, trajectory_from_frequency
+from sim_devices.world.world import BeamHits, World
 
 from .spec import SweepTask
 
@@ -104,31 +101,47 @@ def _world(task: SweepTask, row: int, col: int) -> World:
     return World(pt.cfg, pt.profile, pt.laser, Scene.from_dict({"target": [target]}, source="sweep target"))
 
 
-def _noise_asd(cfg: Config, world: World) -> float:
-    """The bench's white noise at the ADC input (sim_devices.bench_capture.BenchCapture._capture), V/sqrt(Hz)."""
-    eff = cfg.sim.effects
-    asd = world.white_noise_asd_v() if eff.noise else 0.0
-    if eff.quantization and RECORD_BITS > cfg.adc.bits:
-        q = quantization_asd(cfg.adc.input_range_v, cfg.adc.bits, cfg.adc.max_sample_rate_hz)
-        asd = float(np.hypot(asd, q))
-    return asd
+def _core_asd(cfg: Config, fs_hz: float) -> float:
+    """The converter core's quantization noise in a record decimated on board (a record resolution
+    above the core's bits, config.Adc.record_bits), as white noise: the bench's
+    (sim_devices.bench_capture.BenchCapture._core_asd), V/sqrt(Hz)."""
+    a = cfg.adc
+    if not cfg.sim.effects.quantization or a.record_bits(fs_hz, RECORD_BITS) <= a.bits:
+        return 0.0
+    return quantization_asd(a.input_range_v, a.bits, a.max_sample_rate_hz)
 
 
-def _monitor_asd(cfg: Config, rin_db_per_hz: float) -> float:
+def _noise_asd(cfg: Config, world: World, fs_hz: float) -> float:
+    """The bench's white noise at the ADC input (sim_devices.bench_capture.BenchCapture._synthesize), V/sqrt(Hz)."""
+    asd = world.white_noise_asd_v() if cfg.sim.effects.noise else 0.0
+    return float(np.hypot(asd, _core_asd(cfg, fs_hz)))
+
+
+def _monitor_asd(cfg: Config, rin_db_per_hz: float, fs_hz: float) -> float:
     """The bench's white noise on the monitor-MZI channel (sim_devices.bench_capture.BenchCapture._monitor_asd), V/sqrt(Hz)."""
-    eff, mon = cfg.sim.effects, cfg.monitor
+    mon = cfg.monitor
     asd = 0.0
-    if eff.noise:
+    if cfg.sim.effects.noise:
         asd = monitor_noise_asd(mon.amplitude_v, mon.power_w, cfg.detector.responsivity_a_per_w,
                                 rin_db_per_hz)["total"]
-    if eff.quantization and RECORD_BITS > cfg.adc.bits:
-        asd = float(np.hypot(asd, quantization_asd(cfg.adc.input_range_v, cfg.adc.bits, cfg.adc.max_sample_rate_hz)))
-    return asd
+    return float(np.hypot(asd, _core_asd(cfg, fs_hz)))
 
 
-def run_task(task: SweepTask) -> dict:
-    """Synthesize and range ``task.trials`` pixels; return the task's result row (see evaluate)."""
-    t0 = time.perf_counter()
+@dataclass(frozen=True)
+class TaskFrame:
+    """A task's pixels through the scan's DSP: the frame result and what produced it."""
+
+    result: FrameResult
+    plan: SignalPlan
+    pixel: tuple[int, int]
+    world: World
+    hits: BeamHits
+    noise_asd_v_per_rthz: float
+
+
+def task_frame(task: SweepTask, rng: np.random.Generator | None = None) -> TaskFrame:
+    """Synthesize ``task.trials`` pixels (each ``scan.averages`` records) and run the scan's DSP.
+    ``rng``: the noise's generator (default: the task's own, from its seeds; tests give the bench's)."""
     pt = task.point
     cfg = pt.cfg
     traj = linear_trajectory(cfg)
@@ -137,7 +150,7 @@ def run_task(task: SweepTask) -> dict:
     sig = plan_signal(cfg, calibration(cfg, traj, adc_only), max_range_m=cfg.scan.max_range_m,
                       estimator=pt.dsp.estimator)
     dsp, pn_on = sig.dsp, sig.phase_noise
-    fs, r, rl = sig.adc.fs_hz, sig.adc.ramp_samples, sig.adc.record_length
+    fs, rl = sig.adc.fs_hz, sig.adc.record_length
     avg, n = cfg.scan.averages, task.trials
     n_seg = n * avg
     row, col = target_pixel(task)
@@ -152,18 +165,50 @@ def run_task(task: SweepTask) -> dict:
         hits = HitBatch(seg=bh.beam.astype(np.intp), tau_s=bh.tau_s, amplitude_v=bh.amplitude_v,
                         doppler_hz=-2.0 * bh.velocity_mps / cfg.chirp.wavelength_m, phase_rad=phase)
     adc = AdcSpec(sample_rate_hz=fs, n_samples=rl, bits=RECORD_BITS, input_range_v=cfg.adc.input_range_v)
-    asd = _noise_asd(cfg, world)
+    asd = _noise_asd(cfg, world, fs)
     linewidth = pt.laser.linewidth_hz if cfg.sim.effects.phase_noise else 0.0
-    rng = np.random.default_rng([task.base_seed, task.seed, int(task.key[:12], 16)])
+    # as the bench: no Wiener phase noise where it cannot matter and no monitor channel needs it
+    if not pn_on and (hits is None or phase_noise_negligible(hits.tau_s, hits.amplitude_v, linewidth, asd,
+                                                             cfg.chirp.ramp_s, cfg.chirp.rate_hz_per_s)):
+        linewidth = 0.0
+    if rng is None:
+        rng = np.random.default_rng([task.base_seed, task.seed, int(task.key[:12], 16)])
     syn = synthesize(traj, adc, np.zeros(n_seg), hits, noise_asd_v_per_rthz=asd, linewidth_hz=linewidth, rng=rng,
                      beat_filter=decimation_filter(fs, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db),
                      mzi_delay_s=cfg.monitor.delay_s if pn_on else None,
                      mzi_amplitude_v=cfg.monitor.amplitude_v if pn_on else None,
-                     mzi_noise_asd_v_per_rthz=_monitor_asd(cfg, pt.laser.rin_db_per_hz) if pn_on else 0.0)
+                     mzi_noise_asd_v_per_rthz=_monitor_asd(cfg, pt.laser.rin_db_per_hz, fs) if pn_on else 0.0)
     shape = (n, avg, rl)
-    mzi = syn.mzi.reshape(shape) if pn_on else None
-    res = dsp.process(syn.beat.reshape(shape), syn.lsb_v, mzi=mzi,
+    beat = _recorded(cfg, fs, syn.beat).reshape(shape)
+    mzi = _recorded(cfg, fs, syn.mzi).reshape(shape) if pn_on else None
+    res = dsp.process(beat, syn.lsb_v, mzi=mzi,
                       mzi_delay_s=cfg.monitor.delay_s if pn_on else None, mzi_lsb_v=syn.lsb_v)
+    return TaskFrame(result=res, plan=sig, pixel=(row, col), world=world, hits=bh, noise_asd_v_per_rthz=asd)
+
+
+def _recorded(cfg: Config, fs_hz: float, codes: np.ndarray) -> np.ndarray:
+    """The digitizer's record of a channel's synthesized codes (n_seg, n): its analogue anti-alias
+    corner and its quantizer at the resolution the daemon asks for (config.Adc.record_bits), as the
+    bench's digitizer applies them (sim_devices.digitizer_front_end.write_samples)."""
+    n_seg, n = codes.shape
+    pcfg = digitizer_protocol.Config(
+        sample_rate_hz=round(fs_hz), record_length=n, segments=n_seg, channel_mask=1, bits=RECORD_BITS,
+        input_range_mv=round(cfg.adc.input_range_v * 1000), resolution_bits=cfg.adc.record_bits(fs_hz, RECORD_BITS),
+        bandwidth_hz=round(cfg.adc.bandwidth_hz))
+    out = np.empty((n_seg, 1, n), np.int16)
+    write_samples(out, codes[:, None, :], np.zeros((n_seg, 1), bool), pcfg)
+    return out[:, 0, :]
+
+
+def run_task(task: SweepTask) -> dict:
+    """Synthesize and range ``task.trials`` pixels; return the task's result row (see evaluate)."""
+    t0 = time.perf_counter()
+    tf = task_frame(task)
+    pt, cfg, res, bh, asd = task.point, task.point.cfg, tf.result, tf.hits, tf.noise_asd_v_per_rthz
+    dsp, pn_on, world = tf.plan.dsp, tf.plan.phase_noise, tf.world
+    fs, r, rl = tf.plan.adc.fs_hz, tf.plan.adc.ramp_samples, tf.plan.adc.record_length
+    avg, n = cfg.scan.averages, task.trials
+    n_seg = n * avg
     truth_m = float(bh.range_m[0]) if bh.beam.size else task.distance_m
     amp_v = float(bh.amplitude_v[0]) if bh.beam.size else 0.0
     row_out = evaluate(res, truth_m, task.velocity_mps, tol_m=2.0 * dsp.range_resolution_m)
