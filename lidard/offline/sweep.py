@@ -180,7 +180,7 @@ def task_frame(task: SweepTask, rng: np.random.Generator | None = None) -> TaskF
                      mzi_noise_asd_v_per_rthz=_monitor_asd(cfg, pt.laser.rin_db_per_hz, fs) if pn_on else 0.0)
     shape = (n, avg, rl)
     beat = _recorded(cfg, fs, syn.beat).reshape(shape)
-    mzi = _recorded(cfg, fs, syn.mzi).reshape(shape) if pn_on else None
+    mzi = _recorded(cfg, fs, syn.mzi).reshape(shape) if pn_on and syn.mzi is not None else None
     res = dsp.process(beat, syn.lsb_v, mzi=mzi,
                       mzi_delay_s=cfg.monitor.delay_s if pn_on else None, mzi_lsb_v=syn.lsb_v)
     return TaskFrame(result=res, plan=sig, pixel=(row, col), world=world, hits=bh, noise_asd_v_per_rthz=asd)

@@ -32,8 +32,8 @@ def _bench_rng(task) -> np.random.Generator:
     return np.random.default_rng([task.point.cfg.sim.seed, 1, 0])
 
 
-def _task(distance_m: float, velocity_mps: float):
-    raw = {"sweep": {"seeds": 1, "trials_per_task": 1}, "grid": GRID,
+def _task(distance_m: float, velocity_mps: float, shape: str = "three_segment"):
+    raw = {"sweep": {"seeds": 1, "trials_per_task": 1}, "grid": {**GRID, "chirp.shape": shape},
            "target": {"distances_m": [distance_m], "reflectivity": 0.5, "velocity_mps": velocity_mps}}
     (task,) = expand_sweep(raw).tasks
     return task
@@ -70,12 +70,24 @@ def _scan_points(task, tf, tmp_path):
     return res.points, res.meta
 
 
-@pytest.mark.parametrize("distance_m, velocity_mps", [(1.5, 0.0), (3.0, 0.25), (2.2, -0.3)])
-def test_a_sweep_task_and_a_scan_of_its_pixel_give_the_same_points(tmp_path, distance_m, velocity_mps):
-    task = _task(distance_m, velocity_mps)
+def test_a_sweep_runs_the_scans_default_chirp():
+    raw = {"sweep": {"seeds": 1, "trials_per_task": 1}, "target": {"distances_m": [2.0]}}
+    (task,) = expand_sweep(raw).tasks
+    plan = task_frame(task).plan
+    assert task.point.cfg.chirp.shape == "three_segment"
+    # the record holds the constant segment (chirp.cw_s of sim.toml: 78 us) after the two ramps
+    assert plan.adc.record_length - 2 * plan.adc.ramp_samples == int(plan.adc.fs_hz * 78e-6 + 1e-9)
+    assert plan.dsp.cw_samples == plan.adc.cw_samples and plan.dsp.hold_profile is not None
+
+
+@pytest.mark.parametrize("distance_m, velocity_mps, shape", [(1.5, 0.0, "three_segment"),
+                                                            (3.0, 0.25, "three_segment"),
+                                                            (2.2, -0.3, "three_segment"), (2.5, 0.2, "triangle")])
+def test_a_sweep_task_and_a_scan_of_its_pixel_give_the_same_points(tmp_path, distance_m, velocity_mps, shape):
+    task = _task(distance_m, velocity_mps, shape)
     tf = task_frame(task, _bench_rng(task))
     dsp = tf.plan.dsp
-    assert dsp.cw_samples > 0                              # the scans' default chirp: three segments
+    assert (dsp.cw_samples > 0) == (shape == "three_segment")
     scan, meta = _scan_points(task, tf, tmp_path)
     # the same plan: rate, record, band and DSP settings as the scan's sidecar reports them
     assert meta["adc"]["sample_rate_hz"] == tf.plan.adc.fs_hz
