@@ -13,7 +13,9 @@ simulated bench uses, called directly instead of through the byte protocols:
   losses, beat amplitude G R sqrt(P_ref P_rx) (eq. 2-11), white noise of eqs. 2-16..2-18, 2-20/21;
 * the bench's digitizer model: 16-bit records, the 8-bit core's quantization noise added as white
   noise when the record is wider than the core (``sim_devices.bench_capture``), Wiener phase noise of the
-  laser's linewidth, the monitor MZI when phase-noise compensation is on;
+  laser's linewidth (unless the bench's fidelity rule finds it negligible), the monitor MZI when
+  phase-noise compensation is on, and the digitizer's front end (anti-alias corner, quantizer at the
+  resolution the daemon asks: ``sim_devices.digitizer_front_end.write_samples``);
 * the daemon's signal path (``lidard.instrument.dsp_plan.plan_signal``, the one constructor the scan
   loop calls): the ADC plan (rate from the maximum range and the Doppler band of scan.max_speed_mps,
   the record with the chirp's constant segment), the phase-noise choice and the frame DSP
