@@ -25,7 +25,7 @@ Only paired detections become points; unpaired peaks (mostly noise) are dropped.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
 import numpy as np
@@ -114,6 +114,20 @@ class FrameDsp:
         if not 0.0 < self.order_level < 1.0:
             raise ValueError(f"order_level must be in (0, 1), got {self.order_level!r}")
         _ = self.ramp_pfa       # a false-point rate the per-ramp detector cannot give is refused here
+
+    def to_record(self) -> dict:
+        """Every field, JSON-ready: what a raw capture stores under ``dsp`` (:meth:`from_record`)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_record(cls, record: dict, **overrides) -> FrameDsp:
+        """The FrameDsp a capture recorded (:meth:`to_record`), ``overrides`` over it: a replay runs
+        exactly the DSP the scan built (its fields, not today's configuration, decide the points)."""
+        unknown = set(record) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"recorded dsp fields {sorted(unknown)} are not FrameDsp settings "
+                             "(written by another lidard version?)")
+        return cls(**{**record, **overrides})
 
     @property
     def n_used(self) -> int:

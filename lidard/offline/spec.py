@@ -5,7 +5,7 @@ with dotted keys overridden: the full factorial of ``[grid]`` (a scalar is a fix
 axis), times the explicit ``[[cases]]`` if any (each case a table of key = value). Keys are the
 configuration's own (``laser``, ``lens``, ``profile``, ``link.tx_power_w``, ``scan.averages``,
 ``scan.max_range_m``, ``detector.balanced``, ``chirp.excursion_hz``, ...) so that a key added to
-:mod:`lidard.config` (a chirp shape beyond ``chirp.shape = "triangle"``, a receiver variant such as
+:mod:`lidard.config` (a chirp shape beyond the three-segment chirp and the triangle, a receiver variant such as
 ``adc.iq``) becomes sweepable by adding it to :data:`SWEEPABLE` once the task honours it; settings
 that only the DSP has live under ``dsp.`` (``dsp.estimator``). Keys the task does not use are
 refused with the reason, never silently ignored. Example (docs/scale-out.md has the full format)::
