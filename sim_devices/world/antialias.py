@@ -37,11 +37,22 @@ def max_chirp_rate_hz_per_s(nu_hz: np.ndarray, fs_awg_hz: float) -> float:
 
 def sample_gains(dphi: np.ndarray, fs_hz: float, filt: BeatFilter, bound_hz: np.ndarray, *,
                  turns: bool = False):
-    """(rows, gains) for the returns of ``dphi`` (n_hits, n) whose beat may leave the pass band
-    (``bound_hz`` per hit), gains (len(rows), n) = |G(f_inst)|; None when no return can.
+    """(rows, gains) for the returns of ``dphi`` (n_hits, n) whose beat leaves the pass band somewhere
+    (screened by ``bound_hz`` per hit), gains (len(rows), n) = |G(f_inst)|; None when no return does.
     ``turns``: ``dphi`` is in cycles (rad / 2 pi), as the synthesis' static fast path gives it."""
     rows = np.flatnonzero(np.asarray(bound_hz) > filt.passband_hz)
     if rows.size == 0:
         return None
-    f_inst = np.gradient(dphi[rows], axis=1) * (fs_hz if turns else fs_hz / (2.0 * np.pi))
-    return rows, filt.response(f_inst)
+    f_inst = np.gradient(dphi[rows], axis=1)
+    f_inst *= fs_hz if turns else fs_hz / (2.0 * np.pi)
+    # |G| = 1 exactly in the pass band: the response is evaluated only where the beat leaves it (the
+    # bound is a worst case over the record; most samples of most such returns stay inside), and only
+    # the rows with such samples are returned (the others' gains are all 1)
+    out = np.abs(f_inst) > filt.passband_hz
+    hit = out.any(axis=1)
+    if not hit.any():
+        return None
+    f_inst, out = f_inst[hit], out[hit]
+    gains = np.ones(f_inst.shape)
+    gains[out] = filt.response(f_inst[out])
+    return rows[hit], gains
