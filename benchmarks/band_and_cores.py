@@ -30,6 +30,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Self
 
 REPO = Path(__file__).resolve().parents[1]
 SCENE = str(REPO / "config" / "scenes" / "cal_letters.toml")
@@ -83,7 +84,7 @@ class ThreadCpu:
         while not self._stop.wait(0.02):
             self._sample()
 
-    def __enter__(self) -> "ThreadCpu":
+    def __enter__(self) -> Self:
         self._sample()
         self._before = dict(self._seen)
         self._t.start()
