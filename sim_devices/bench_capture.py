@@ -47,6 +47,10 @@ HYBRID_CHANNEL_AMPLITUDE = 0.5
 # runs whose capture number (:meth:`BenchCapture._run_index`, the noise seed) is remembered: a capture
 # only ever reads the run in progress or the one just before it
 RUN_IDS_KEPT = 8
+#: pattern pixels the world casts ahead in one call when a read reaches pixels not cast yet: reads
+#: hold tens of pixels, and casting ~1000 at once costs a fifth of casting them read by read
+#: (World.precast); the cast rays are cached per pixel either way
+CAST_AHEAD_PIXELS = 1024
 
 
 def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarray:
@@ -59,6 +63,8 @@ def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarr
 
 class BenchCapture:
     """The bench's ``SegmentSource`` (a mixin of :class:`~sim_devices.bench.Bench`)."""
+
+    _cast_to: tuple | None = None        # (run start, first, end) of the pattern pixels cast ahead
 
     def _trajectory(self):
         drive, fs = self.awg.drive_volts()
@@ -209,6 +215,7 @@ class BenchCapture:
         """The world's returns of the emitting beams as a HitBatch (None when nothing returns), and
         the world's answer (for the fidelity ledger)."""
         rows, cols, trans, beam_seg = beams
+        self._cast_ahead(trig)
         chirp = np.asarray(trig.index)[np.asarray(beam_seg)[emitting]]
         # scene time: since the run's first trigger (a point's t counts from the same trigger)
         t_scene = np.asarray(trig.t_s)[np.asarray(beam_seg)[emitting]] - self._run_first_trigger_s()
@@ -224,6 +231,18 @@ class BenchCapture:
                         doppler_hz=-2.0 * bh.velocity_mps / self.cfg.chirp.wavelength_m,
                         phase_rad=phase)
         return hits, bh
+
+    def _cast_ahead(self, trig) -> None:
+        """The run's next CAST_AHEAD_PIXELS pattern pixels cast in one call (World.precast) when this
+        read reaches a pixel past the last look-ahead."""
+        if not len(trig.pixel_index):
+            return
+        run, first, last = self.fpga.run_start_s, int(trig.pixel_index[0]), int(trig.pixel_index[-1])
+        if self._cast_to is not None and self._cast_to[0] == run and self._cast_to[1] <= first and last < self._cast_to[2]:
+            return
+        rows, cols = self.fpga.pattern_pixels(first, CAST_AHEAD_PIXELS)
+        self.world.precast(rows, cols)
+        self._cast_to = (run, first, first + CAST_AHEAD_PIXELS)
 
     def _synthesize(self, cfg: CaptureConfig, adc: AdcSpec, n: int, hits, bh, light: bool, gain: float,
                     first: int):

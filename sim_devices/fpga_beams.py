@@ -125,6 +125,15 @@ class ChipOptics:
             _, r, c, tr = self._beams(np.array([t0_s], float), np.array([t1_s], float))
             return r, c, tr
 
+    def pattern_pixels(self, first_pixel: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) of the current run's pattern pixels ``first_pixel ..`` (at most ``count``;
+        none without a run): what the run will point at next, for the bench's look-ahead."""
+        with self._lock:
+            if self._run is None or count <= 0:
+                return np.zeros(0, np.int16), np.zeros(0, np.int16)
+            px = self._run.pattern[max(0, int(first_pixel)):max(0, int(first_pixel)) + int(count)]
+            return px[:, 0].astype(np.int16), px[:, 1].astype(np.int16)
+
     def triggers(self, first: int, count: int, capture_s: float) -> TriggerBatch:
         """Triggers ``first .. first+count-1`` of the current run and their lit beams.
 

@@ -55,28 +55,55 @@ _COSINE_SUM: dict[str, tuple[float, ...]] = {
 
 
 def _dirichlet(x_bins: np.ndarray, n: int) -> np.ndarray:
-    """sum_{t<n} exp(-j 2 pi x t / n) for x in bins of the n-point grid (-> n at x = 0 mod n)."""
-    den = np.sin(np.pi * x_bins / n)
+    """sum_{t<n} exp(-j 2 pi x t / n) for x in bins of the n-point grid (-> n at x = 0 mod n).
+
+    = exp(-j pi x (n-1)/n) sin(pi x) / sin(pi x / n). The phase factor is built from a real cosine and
+    sine (numpy's complex exp is a scalar loop, several times slower), and the limit at the grid's
+    multiples (at x = m n the sum is n exp(-j pi m (n-1)) times (-1)^(m(n-1)): n exactly) is taken
+    only where the denominator vanishes."""
+    a = np.pi * np.asarray(x_bins, dtype=np.float64)
+    den = np.sin(a / n)
     near = np.abs(den) < 1e-12
-    # at x = m n the sum is n exp(-j pi m (n-1)) times (-1)^(m(n-1)): n exactly
-    ratio = np.where(near, n * np.cos(np.pi * x_bins) / np.where(near, np.cos(np.pi * x_bins / n), 1.0),
-                     np.sin(np.pi * x_bins) / np.where(near, 1.0, den))
-    return np.exp(-1j * np.pi * x_bins * (n - 1) / n) * ratio
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.sin(a, out=np.empty(a.shape))
+        ratio /= den
+    if near.any():
+        an = a[near]
+        ratio[near] = n * np.cos(an) / np.cos(an / n)
+    b = a * (n - 1)
+    b /= n
+    out = np.empty(a.shape, dtype=np.complex128)
+    np.multiply(np.cos(b), ratio, out=out.real)
+    np.multiply(np.sin(b), ratio, out=out.imag)
+    np.negative(out.imag, out=out.imag)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _cosine_sum(window: str, n: int) -> tuple[float, ...] | None:
+    """The window's cosine-sum coefficients when get_window gives exactly that sum at this length
+    (checked once per window and length, not on every call), else None."""
+    coef = _COSINE_SUM.get(window)
+    if coef is None:
+        return None
+    t = np.arange(n)
+    w = get_window(window, n)
+    ok = np.allclose(sum(c * np.cos(2.0 * np.pi * k * t / n) for k, c in enumerate(coef)), w, rtol=0, atol=1e-12)
+    return coef if ok else None
 
 
 def _window_dtft_bins(window: str, n: int, x_bins: np.ndarray) -> np.ndarray:
     """W(x) = sum_t w[t] exp(-j 2 pi x t / n) of the periodic window, x in bins of n points."""
-    w = get_window(window, n)
-    coef = _COSINE_SUM.get(window)
-    t = np.arange(n)
-    if coef is not None and np.allclose(
-            sum(c * np.cos(2.0 * np.pi * k * t / n) for k, c in enumerate(coef)), w, rtol=0, atol=1e-12):
+    coef = _cosine_sum(window, n)
+    if coef is not None:
         x = np.asarray(x_bins, dtype=np.float64)
         out = coef[0] * _dirichlet(x, n)
         for k, c in enumerate(coef[1:], start=1):
             out = out + 0.5 * c * (_dirichlet(x - k, n) + _dirichlet(x + k, n))
         return out
     # not a known cosine sum: direct sum, chunked to bound the (points x n) temporary
+    w = get_window(window, n)
+    t = np.arange(n)
     x = np.asarray(x_bins, dtype=np.float64).ravel()
     out = np.empty(x.size, dtype=np.complex128)
     step = max(1, 4_000_000 // n)

@@ -184,12 +184,12 @@ def beat_chunk(tb: Tables, h: SortedHits, hs: slice, s0: int, nc: int, phi, n_pr
         sin_part += math.sin(iq_imbalance[1]) * cos_part
     cos_part *= a
     if aa is not None:
-        cos_part[aa[0]] *= aa[1]
+        cos_part[aa[0], aa[1]] *= aa[2]
     parts["beat"] = cos_part
     if adc.iq:
         sin_part *= a * iq_imbalance[0]
         if aa is not None:
-            sin_part[aa[0]] *= aa[1]
+            sin_part[aa[0], aa[1]] *= aa[2]
         parts["beat_q"] = sin_part
     return _by_rank(parts, h.rank[hs], lseg, h.max_rank, hs.stop - hs.start, nc, n)
 

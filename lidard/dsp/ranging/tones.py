@@ -60,6 +60,20 @@ def _stencil(k: int) -> np.ndarray:
     return np.array(pts)
 
 
+def _gram(f: np.ndarray, n: int) -> np.ndarray:
+    """G_ij = D(f_i - f_j) of the tones ``f`` (..., M), D the Dirichlet kernel: Hermitian with n on the
+    diagonal, so the kernel is evaluated on the pairs above it only (M (M - 1) / 2 of M^2)."""
+    m = f.shape[-1]
+    i, j = np.triu_indices(m, 1)
+    upper = _dirichlet(f[..., i] - f[..., j], n)
+    g = np.empty(f.shape + (m,), dtype=np.complex128)
+    g[..., i, j] = upper
+    g[..., j, i] = np.conj(upper)
+    d = np.arange(m)
+    g[..., d, d] = n
+    return g
+
+
 def joint_energy(b: np.ndarray, f: np.ndarray, active: np.ndarray, n: int, real: bool) -> np.ndarray:
     """J per pixel and stencil point: ``b`` (P, S, L, K) the records' DTFT at the tones, ``f`` (P, S, K)
     the tones (bins of the n-point grid), ``active`` (P, K) the tones in the model (an inactive tone's
@@ -68,7 +82,7 @@ def joint_energy(b: np.ndarray, f: np.ndarray, active: np.ndarray, n: int, real:
         b = np.concatenate([b, np.conj(b)], axis=-1)
         f = np.concatenate([f, -f], axis=-1)
         active = np.concatenate([active, active], axis=-1)
-    g = _dirichlet(f[..., :, None] - f[..., None, :], n)                 # (P, S, M, M)  G_ij = <e_i, e_j>
+    g = _gram(f, n)                                                      # (P, S, M, M)  G_ij = <e_i, e_j>
     on = active[:, None, :, None] & active[:, None, None, :]
     eye = np.eye(f.shape[-1], dtype=bool)
     g = np.where(on, g, np.where(eye, 1.0 + 0j, 0j))
