@@ -76,7 +76,7 @@ class Config(_Model):
         return v
 
     @model_validator(mode="after")
-    def _iq_on_the_triangle(self) -> "Config":
+    def _iq_on_the_triangle(self) -> Config:
         if self.adc.iq and self.chirp.shape != "triangle":
             raise ValueError("adc.iq = true: a coherent (I/Q) receiver measures the beat's sign on the triangle "
                              "alone; set chirp.shape = \"triangle\" (the three-segment chirp is for one photodiode)")

@@ -264,7 +264,7 @@ class ControllerSim:
         self._thread = None
         self._loop = None
 
-    def __enter__(self) -> "ControllerSim":
+    def __enter__(self) -> ControllerSim:
         self.start()
         return self
 

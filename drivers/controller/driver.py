@@ -139,7 +139,7 @@ class LaserHvController(PowerSequences):
                 raise DeviceUnreachable(DEVICE, self.host, self.port, "reconnect")
             self.reconnect_count += 1
 
-    def __enter__(self) -> "LaserHvController":
+    def __enter__(self) -> LaserHvController:
         return self
 
     def __exit__(self, *exc: object) -> None:

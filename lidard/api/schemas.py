@@ -12,10 +12,10 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 
 from ..config import ScanDefaults
 from ..instrument.types import PatternKind, ScanRequest
+from ..point_schema import POINT_FORMATS, PointFormat
 
-# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs;
-# "ros2" is the rosbag2 MCAP flavour (sensor_msgs/msg/PointCloud2, CDR), file suffix .ros2.mcap
-FileFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]
+# the one list of point-file formats (lidard.point_schema)
+FileFormat = PointFormat
 
 
 def describe_errors(errors: list[dict[str, Any]]) -> str:
@@ -38,7 +38,7 @@ def describe_errors(errors: list[dict[str, Any]]) -> str:
     return "; ".join(parts)
 
 
-def check_scan_body(body: dict[str, Any]) -> "ScanCreate":
+def check_scan_body(body: dict[str, Any]) -> ScanCreate:
     """Validate a POST /scans body exactly as the daemon will; ``ValueError`` carries
     :func:`describe_errors`' line."""
     from pydantic import ValidationError
@@ -71,7 +71,8 @@ class ScanCreate(_In):
     max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
     # the fastest radial speed to measure, m/s: sizes the digitizer's Doppler band; null: scan.max_speed_mps
     max_speed_mps: float | None = Field(default=None, gt=0, le=100, allow_inf_nan=False, strict=True)
-    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=6)
+    formats: list[FileFormat] = Field(default_factory=lambda: list[FileFormat](["ply"]), min_length=1,
+                                      max_length=len(POINT_FORMATS))
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
     # keep the digitizer's raw segments (Zarr under the data directory) for reprocessing
@@ -92,7 +93,7 @@ class ScanCreate(_In):
         return v
 
     @model_validator(mode="after")
-    def _pixels_only_with_pixels(self) -> "ScanCreate":
+    def _pixels_only_with_pixels(self) -> ScanCreate:
         if self.pattern == "pixels" and not self.pixels:
             raise ValueError("pattern 'pixels' needs a non-empty 'pixels' list")
         if self.pattern not in ("pixels", None) and self.pixels is not None:
@@ -158,7 +159,7 @@ class ScanOut(_Out):
                                                               "not used (made on another set-up); null when none was left out")
 
     @classmethod
-    def from_record(cls, rec) -> "ScanOut":
+    def from_record(cls, rec) -> ScanOut:
         return cls(id=rec.id, state=rec.state, stage=rec.stage, progress=rec.progress,
                    partial=rec.partial, error=rec.error, request=rec.request,
                    timing=Timing(created=rec.created, started=rec.started, finished=rec.finished,
@@ -228,7 +229,7 @@ class CalibrationOut(_Out):
     drive_samples: int
 
     @classmethod
-    def from_result(cls, cal) -> "CalibrationOut":
+    def from_result(cls, cal) -> CalibrationOut:
         return cls(id=cal.meta.get("id"), laser=cal.laser, temperature_c=cal.temperature_c,
                    converged=bool(cal.converged), created=cal.meta.get("created"),
                    iterations=[{k: float(v) for k, v in it.items()} for it in cal.iterations],
@@ -279,7 +280,7 @@ class ReprocessCreate(_In):
     pfa: float | None = Field(default=None, gt=0, lt=0.1, allow_inf_nan=False, strict=True)
     window: WindowName | None = None
     phase_noise: Literal["on", "off"] | None = None
-    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=6,
+    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=len(POINT_FORMATS),
                                                description="files of the new scan (default: the original's)")
 
     @field_validator("formats")

@@ -24,7 +24,8 @@ from __future__ import annotations
 import json
 import sys
 import time
-from typing import Any, Callable, TextIO
+from typing import Any, TextIO
+from collections.abc import Callable
 
 MODES = ("auto", "bar", "lines", "json", "none")
 _STEP = 10  # percent between two lines in ``lines`` mode

@@ -13,7 +13,7 @@ front end (the front ends build on it: no import cycle, checked by import-linter
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

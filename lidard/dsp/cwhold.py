@@ -66,7 +66,7 @@ class HoldProfile:
         object.__setattr__(self, "nu_hz", tuple(float(v) for v in nu))
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "HoldProfile | None":
+    def from_dict(cls, d: dict | None) -> HoldProfile | None:
         if not d:
             return None
         try:

@@ -55,11 +55,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Callable, Literal
+from typing import Literal
+from collections.abc import Callable
 
 import numpy as np
 
-from .ilcmeasure import _Analysis, _Analyzer, _directions  # noqa: F401  (_Analyzer: tests reach in)
+from .ilcmeasure import _Analysis, _Analyzer, _directions
 from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
 from .instfreq import check_finite_array, check_positive
 

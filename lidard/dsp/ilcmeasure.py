@@ -168,7 +168,7 @@ class _Analyzer:
         rms, err_rms, slips = [], [], 0
         ramps_e = []
         ramps_nu = []
-        su = sv = suu = 0.0
+        su = suu = 0.0
         for r, (t, nu, s) in enumerate(full):
             slips += s
             roi = self._roi(t, r, self.roi)

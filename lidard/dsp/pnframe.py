@@ -159,7 +159,7 @@ class PhaseNoiseCompensator:
         return np.clip(np.rint(np.asarray(freq_hz) / self.mzi_beat_hz), 0, self.m_max).astype(np.int64)
 
     def prepare(self, beat: np.ndarray, mzi: np.ndarray, start: int, n: int,
-                mzi_q: np.ndarray | None = None) -> "CompensatedRamps":
+                mzi_q: np.ndarray | None = None) -> CompensatedRamps:
         """Analytic beat and the compensation phases of the window [start, start + n) of every ramp.
 
         ``beat``, ``mzi``: (..., ramp_samples) real, sample-aligned (same trigger, same record). A

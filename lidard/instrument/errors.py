@@ -21,7 +21,7 @@ names are those of the bench in §4.4.1.)
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Iterator
+from collections.abc import Iterator
 
 from ..errors import LidardError
 from .types import ScanResult

@@ -34,7 +34,8 @@ import logging
 import sys
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from drivers.controller.driver import SettleCheck
 

@@ -15,7 +15,8 @@ import logging
 import math
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from ..instrument.healthcheck import health_record
 from ..instrument.protocol import Instrument

@@ -93,7 +93,7 @@ class LinkParams:
     incidence_rad: float = 0.0
 
     @classmethod
-    def table_2_2(cls, **overrides) -> "LinkParams":
+    def table_2_2(cls, **overrides) -> LinkParams:
         """Table 2-2 of the dissertation."""
         wl = 1550e-9
         p = cls(
@@ -106,7 +106,7 @@ class LinkParams:
         )
         return replace(p, **overrides)
 
-    def with_(self, **changes) -> "LinkParams":
+    def with_(self, **changes) -> LinkParams:
         return replace(self, **changes)
 
     def as_dict(self) -> dict:

@@ -104,7 +104,7 @@ class FpsaOptics:
     #: the pointing model's deviations from the nominal design (issue 13); all zero: eq. 4-1 exactly.
     #: The simulated bench draws hidden true values (``[sim.tolerances]``); the daemon uses the values
     #: its pointing calibration fitted. See :class:`Pointing`.
-    pointing: "Pointing" = field(default_factory=lambda: Pointing())
+    pointing: Pointing = field(default_factory=lambda: Pointing())
 
     def __post_init__(self) -> None:
         if self.rows < 1 or self.cols < 1:
@@ -161,7 +161,7 @@ class FpsaOptics:
         x, y = self.pointing.chip_coords(-d[..., 0] / d[..., 2], -d[..., 1] / d[..., 2], self.focal_m, self.pitch_m)
         return self.pixel_from_xy(x, y)
 
-    def with_pointing(self, pointing: "Pointing") -> "FpsaOptics":
+    def with_pointing(self, pointing: Pointing) -> FpsaOptics:
         """The same scanner with another pointing model (a calibration's fit, or the bench's truth)."""
         return replace(self, pointing=pointing)
 

@@ -23,7 +23,7 @@ _LAZY = {
     "reprocess_task": "replay", "task_count": "replay", "local_map": "replay",
 }
 
-__all__ = sorted(_LAZY)
+__all__ = sorted(_LAZY)  # noqa: PLE0605 - the lazily loaded names, listed once in _LAZY
 
 
 __getattr__ = lazy_getattr(__name__, _LAZY, globals())

@@ -98,7 +98,7 @@ class RawWriter:
     @classmethod
     def create(cls, path: str | Path, *, pixels: np.ndarray, directions: np.ndarray, averages: int,
                channels: tuple[str, ...] | list[str], record_length: int, chunk_pixels: int,
-               attrs: dict[str, Any], drive_v: np.ndarray | None = None) -> "RawWriter":
+               attrs: dict[str, Any], drive_v: np.ndarray | None = None) -> RawWriter:
         """A new capture for the planned ``pixels`` (in scan order); refuses an existing path.
 
         ``attrs`` must hold ``adc`` (with ``lsb_v``) and ``dsp`` (the frame DSP's fields, see

@@ -48,7 +48,7 @@ class PixelSpectrum:
                 "points": [{k: p[k].item() for k in p.dtype.names} for p in self.points]}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "PixelSpectrum":
+    def from_dict(cls, d: dict[str, Any]) -> PixelSpectrum:
         """Inverse of :meth:`to_dict` (what a client gets from ``GET /scans/{id}/spectrum``)."""
         pts = np.zeros(len(d["points"]), POINT_DTYPE)
         for i, p in enumerate(d["points"]):

@@ -16,7 +16,7 @@ chirp rate + |Doppler|) are left alone: no per-sample work for in-gate targets.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -68,7 +68,7 @@ class _Section:
     b1: float
 
     @classmethod
-    def make(cls, gain: float, tau_s: float, dt_s: float) -> "_Section":
+    def make(cls, gain: float, tau_s: float, dt_s: float) -> _Section:
         x = dt_s / tau_s
         one_minus_a = -math.expm1(-x)
         a = 1.0 - one_minus_a
@@ -97,7 +97,7 @@ class DfbLaser:
         self.nu0_offset_hz = float(nu0_offset_hz)      # carrier shift from the preset's (temperature)
         self.response_scale = float(response_scale)    # FM response relative to the preset's
 
-    def retuned(self, *, nu0_offset_hz: float, response_scale: float) -> "DfbLaser":
+    def retuned(self, *, nu0_offset_hz: float, response_scale: float) -> DfbLaser:
         """This laser with its carrier moved by ``nu0_offset_hz`` and its FM response (carrier and
         thermal terms alike) scaled by ``response_scale``, both relative to the preset."""
         return DfbLaser(self.preset, nu0_offset_hz=nu0_offset_hz, response_scale=response_scale)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Union
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -187,4 +187,4 @@ class PolygonTarget(_TargetBase):
         return d
 
 
-Target = Union[PlaneTarget, BoxTarget, SphereTarget, PolygonTarget]
+Target = PlaneTarget | BoxTarget | SphereTarget | PolygonTarget

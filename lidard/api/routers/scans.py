@@ -162,7 +162,7 @@ async def scan_events(scan_id: str, store: StoreDep, worker: WorkerDep) -> Strea
             while True:
                 try:
                     ev = await asyncio.wait_for(queue.get(), timeout=15.0)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     yield b": keep-alive\n\n"
                     continue
                 if ev["event"] == "end":

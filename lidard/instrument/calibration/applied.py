@@ -36,7 +36,7 @@ class AppliedCalibrations:
 
     @classmethod
     def from_records(cls, range_rec: Any = None, pointing_rec: Any = None, iq_rec: Any = None,
-                     notes: tuple[str, ...] = ()) -> "AppliedCalibrations":
+                     notes: tuple[str, ...] = ()) -> AppliedCalibrations:
         """From stored records (``.id``, ``.fitted``; lidard.store_calibrations.CalibrationRecord)."""
         kw: dict[str, Any] = {"notes": tuple(notes)}
         if iq_rec is not None:

@@ -23,7 +23,8 @@ lidard.dsp.threeseg).
 from __future__ import annotations
 
 import logging
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
