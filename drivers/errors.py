@@ -76,12 +76,12 @@ class DeviceError(Exception):
             message = f"{device}: {command}" + (f": {detail}" if detail else "")
         super().__init__(message)
 
-    def __reduce__(self):  # type: ignore[no-untyped-def]
+    def __reduce__(self) -> tuple[object, tuple[type[DeviceError], dict[str, object], str]]:
         # Exceptions cross process boundaries (pytest-xdist, a worker pool); keep the context.
         return _rebuild, (type(self), self.__dict__.copy(), str(self))
 
 
-def _rebuild(cls: type, state: dict, message: str) -> DeviceError:
+def _rebuild(cls: type[DeviceError], state: dict[str, object], message: str) -> DeviceError:
     exc = cls.__new__(cls)  # not __init__: subclasses have their own signatures
     exc.args = (message,)
     exc.__dict__.update(state)

@@ -65,6 +65,9 @@ POINT_FIELDS: tuple[PointField, ...] = (
 
 POINT_DTYPE = np.dtype([(f.name, f.dtype) for f in POINT_FIELDS])
 FIELD_BY_NAME = {f.name: f for f in POINT_FIELDS}
+POINT_NAMES: tuple[str, ...] = tuple(f.name for f in POINT_FIELDS)
+# each field's byte offset in a POINT_DTYPE record (the packed layout of the binary formats)
+POINT_OFFSETS: dict[str, int] = {name: POINT_DTYPE.fields[name][1] for name in POINT_NAMES}  # type: ignore[index]
 
 # Format type codes of each numpy dtype used above.
 PLY_TYPE = {"<f4": "float", "<f8": "double", "<i4": "int", "u1": "uchar"}

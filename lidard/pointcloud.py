@@ -36,7 +36,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from .point_schema import (FIELD_BY_NAME, LAS_EXTRA_FIELDS, POINT_DTYPE, POINT_FORMATS, las_description,
+from .point_schema import (FIELD_BY_NAME, LAS_EXTRA_FIELDS, POINT_DTYPE, POINT_FORMATS, POINT_NAMES, las_description,
                            las_extra_name)
 
 # Format names (lidard.point_schema.POINT_FORMATS; pcd, mcap, ros2 are written by lidard.outputs) and
@@ -107,7 +107,7 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
 def _as_points(points: np.ndarray) -> np.ndarray:
     arr = np.asarray(points)
     if arr.dtype != POINT_DTYPE:
-        if arr.dtype.names is None or set(arr.dtype.names) != set(POINT_DTYPE.names):
+        if arr.dtype.names is None or set(arr.dtype.names) != set(POINT_NAMES):
             raise PointCloudError(f"points: expected POINT_DTYPE records, got dtype {arr.dtype}")
         arr = arr.astype(POINT_DTYPE)
     return np.ascontiguousarray(arr.reshape(-1))
@@ -144,7 +144,7 @@ def read_ply(path: str | os.PathLike) -> np.ndarray:
     ply = PlyData.read(str(path))
     data = ply["vertex"].data
     out = np.zeros(len(data), dtype=POINT_DTYPE)
-    for name in POINT_DTYPE.names:
+    for name in POINT_NAMES:
         out[name] = data[name]
     return out
 

@@ -36,7 +36,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable
-from urllib.parse import urlsplit
+from urllib.parse import SplitResult, urlsplit
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
@@ -62,9 +62,9 @@ log = logging.getLogger(__name__)
 _TRANSIENT_CODES = frozenset({5, 6})
 
 
-class LaserHvController(PowerSequences):
+class LaserHvController:
     """Laser / TEC / HV controller on Modbus TCP (``bring_up``/``bring_down``:
-    :class:`~drivers.controller.sequences.PowerSequences`)."""
+    :class:`~drivers.controller.sequences.PowerSequences` over this driver's registers)."""
 
     def __init__(
         self,
@@ -95,6 +95,7 @@ class LaserHvController(PowerSequences):
         self.retries = retries
         self.limits = limits
         self.settle_check = settle_check
+        self._sequences = PowerSequences(self)
         import time as _time
         self._sleep = sleep if sleep is not None else _time.sleep
         self.backoff_s = float(backoff_s)
@@ -117,7 +118,7 @@ class LaserHvController(PowerSequences):
     def from_url(cls, url: str, **kwargs: object) -> LaserHvController:
         """``modbus+tcp://host[:port]`` (port 502 by default), as the other drivers' ``from_url``;
         a URL of any other form is a ConfigError naming it. Keywords go to the constructor."""
-        parts = urlsplit(url) if isinstance(url, str) else None
+        parts: SplitResult | None = urlsplit(url) if isinstance(url, str) else None
         try:
             port = parts.port if parts is not None else None
         except ValueError:
@@ -253,6 +254,15 @@ class LaserHvController(PowerSequences):
 
     def heartbeat(self) -> int:
         return int(self._read("read heartbeat", p.HEARTBEAT))
+
+    # -- power sequences (drivers.controller.sequences) --------------------------------------
+    def bring_up(self, current_ma: float, hv_v: float, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """TEC settled -> HV on -> laser on, each read back (:meth:`PowerSequences.bring_up`)."""
+        return self._sequences.bring_up(current_ma, hv_v, settle_check=settle_check)
+
+    def bring_down(self, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """Laser off, then HV off, both read back to 0 (:meth:`PowerSequences.bring_down`)."""
+        return self._sequences.bring_down(settle_check=settle_check)
 
     # -- laser ------------------------------------------------------------------------------
     def laser_enable(self, on: bool) -> None:

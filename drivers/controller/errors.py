@@ -10,7 +10,12 @@ and by the driver alike.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from drivers import errors as _e
+
+if TYPE_CHECKING:
+    from drivers.controller.protocol import Fault
 
 DEVICE = "controller"
 
@@ -127,7 +132,7 @@ class InterlockOpen(ControllerError, _e.DeviceFaulted):
 class DeviceFaulted(ControllerError, _e.DeviceFaulted):
     """Latched faults prevent the operation."""
 
-    def __init__(self, operation: str, faults: frozenset) -> None:
+    def __init__(self, operation: str, faults: frozenset[Fault]) -> None:
         self.operation = operation
         self.faults = faults
         names = ", ".join(sorted(f.name for f in faults)) or "none"

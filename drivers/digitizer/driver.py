@@ -71,7 +71,7 @@ class DigitizerDriver:
         self._timeout_ms = int(timeout_ms)
         self._retries = int(retries)
         self._chunk = array.array("B", bytes(chunk_bytes))
-        self._spare: dict[int, array.array] = {}     # transfer buffers of other sizes, by size
+        self._spare: dict[int, array.array[int]] = {}     # transfer buffers of other sizes, by size
         try:
             device.set_configuration()
         except usb.core.USBError as exc:
@@ -263,13 +263,13 @@ class DigitizerDriver:
             pos += n
         return out
 
-    def _bulk_in(self, buf: array.array, command: str, pos: int, total: int) -> int:
+    def _bulk_in(self, buf: array.array[int], command: str, pos: int, total: int) -> int:
         n = self._guard(command, lambda: self._dev.read(p.EP_DATA_IN, buf, self._timeout_ms))
         if n <= 0:
             raise DigitizerDataError(DEVICE, command, f"empty bulk transfer at byte {pos} of {total}")
         return n
 
-    def _transfer_buffer(self, size: int) -> array.array:
+    def _transfer_buffer(self, size: int) -> array.array[int]:
         """An array of exactly ``size`` bytes for one transfer (pyusb reads len(buffer) bytes):
         the chunk, or a kept buffer of that size (a scan's reads repeat a few sizes)."""
         if size == len(self._chunk):
@@ -292,7 +292,7 @@ class DigitizerDriver:
         if not (np.all(recs["n_samples"] == cfg.record_length) and np.all(recs["mask"] == cfg.channel_mask)
                 and np.all(recs["bits"] == cfg.bits)):
             raise DigitizerDataError(DEVICE, command, "segment header does not match configuration")
-        mv = memoryview(raw)
+        mv = raw.data
         size = recs.dtype.itemsize
         crc = zlib.crc32
         # the expected values as Python ints once (indexing a numpy field per segment cost more

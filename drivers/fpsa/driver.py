@@ -163,7 +163,7 @@ class FpsaController:
     # --- lifecycle ------------------------------------------------------------------------------
     def close(self) -> None:
         if self._owns_port:
-            self._port.close()
+            _close(self._port)
 
     def reconnect(self) -> None:
         """Close the port and open a fresh one through ``reopen`` (TransportError if impossible).
@@ -174,7 +174,7 @@ class FpsaController:
             raise TransportError(self.device, "reconnect",
                                  "cannot reopen a channel that was passed in without reopen=")
         try:
-            self._port.close()
+            _close(self._port)
         except Exception:  # a vanished device may fail to close; the reopen is what matters
             pass
         port = self._reopen()
@@ -376,3 +376,10 @@ class FpsaController:
 
     def status(self) -> p.Status:
         return p.Status.unpack(self._transact(p.Cmd.STATUS))
+
+
+def _close(channel: ByteChannel) -> None:
+    """Close a channel that has ``close()`` (an optional extra of :class:`ByteChannel`)."""
+    close = getattr(channel, "close", None)
+    if close is not None:
+        close()

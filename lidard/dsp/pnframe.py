@@ -79,24 +79,41 @@ class FrameGeometry(Protocol):
     """What this front end reads of a :class:`lidard.dsp.frame.FrameDsp` (frame builds on this module,
     not the reverse: no import cycle)."""
 
-    ramp_samples: int
-    fs_hz: float
-    chirp_rate_hz_per_s: float
-    wavelength_m: float
-    max_range_m: float
-    max_speed_mps: float
-    window: str
-    pfa: float
-    ramp_pfa: float
-    max_returns: int
-    candidate_slots: int
-    estimator: str
-    iq: bool
-    offset: int
-    n_used: int
-    rfft: RangeFFT
-    bin_range: tuple[int, int]
-
+    # read-only (FrameDsp is frozen; some are its properties)
+    @property
+    def ramp_samples(self) -> int: ...
+    @property
+    def fs_hz(self) -> float: ...
+    @property
+    def chirp_rate_hz_per_s(self) -> float: ...
+    @property
+    def wavelength_m(self) -> float: ...
+    @property
+    def max_range_m(self) -> float: ...
+    @property
+    def max_speed_mps(self) -> float: ...
+    @property
+    def window(self) -> str: ...
+    @property
+    def pfa(self) -> float: ...
+    @property
+    def ramp_pfa(self) -> float: ...
+    @property
+    def max_returns(self) -> int: ...
+    @property
+    def candidate_slots(self) -> int: ...
+    @property
+    def estimator(self) -> str: ...
+    @property
+    def iq(self) -> bool: ...
+    @property
+    def offset(self) -> int: ...
+    @property
+    def n_used(self) -> int: ...
+    @property
+    def rfft(self) -> RangeFFT: ...
+    @property
+    def bin_range(self) -> tuple[int, int]: ...
 
 @dataclass(frozen=True)
 class PhaseNoiseCompensator:

@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from ..dsp.cfar import _noise_os, cfar_detect   # the kernel cfar_detect thresholds with (no public twin)
+from ..dsp.cfar import cfar_detect
+from ..dsp.cfar_os import _noise_os   # the kernel cfar_detect thresholds with (no public twin)
 from ..dsp.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
@@ -52,7 +53,7 @@ class PixelSpectrum:
         """Inverse of :meth:`to_dict` (what a client gets from ``GET /scans/{id}/spectrum``)."""
         pts = np.zeros(len(d["points"]), POINT_DTYPE)
         for i, p in enumerate(d["points"]):
-            for k in POINT_DTYPE.names:
+            for k in POINT_NAMES:
                 if k in p:          # a server older than a field (e.g. ``flags``) leaves it 0
                     pts[i][k] = p[k]
         return cls(row=int(d["row"]), col=int(d["col"]), range_m=np.asarray(d["range_m"], np.float64),
