@@ -105,7 +105,7 @@ def link_params(cfg: Config, profile: Profile, laser: LaserPreset) -> LinkParams
     lens = profile.lenses[cfg.lens or profile.default_lens]
     ln = cfg.link
     aperture = ln.rx_aperture_m or lens.aperture_m
-    common = dict(
+    common: dict[str, Any] = dict(
         wavelength_m=cfg.chirp.wavelength_m, ramp_s=cfg.chirp.ramp_s,
         coherence_time_s=laser.coherence_time_s, rin_db_per_hz=laser.rin_db_per_hz,
         responsivity_a_per_w=cfg.detector.responsivity_a_per_w,

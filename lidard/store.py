@@ -201,7 +201,7 @@ class Store(GeometryCalibrationStore):
             (self.data_dir / "calibrations").mkdir(parents=True, exist_ok=True)
             # Before anything is read or changed: only the lock's holder may mark another
             # process's running scans interrupted.
-            self._lock_fd = _lock_data_dir(self.data_dir)
+            self._lock_fd: int | None = _lock_data_dir(self.data_dir)
             self.db_path = self.data_dir / "lidard.sqlite3"
             self._conn = sqlite3.connect(self.db_path, check_same_thread=False, isolation_level=None,
                                          timeout=10.0)
@@ -334,7 +334,7 @@ class Store(GeometryCalibrationStore):
 
     def list_scans(self, limit: int = 100, state: str | None = None) -> list[ScanRecord]:
         """Newest first."""
-        q, args = "SELECT * FROM scans", []
+        q, args = "SELECT * FROM scans", list[str | int]()
         if state is not None:
             q += " WHERE state = ?"
             args.append(state)

@@ -45,7 +45,7 @@ def check_scan_body(body: dict[str, Any]) -> ScanCreate:
     try:
         return ScanCreate.model_validate(body)
     except ValidationError as exc:
-        raise ValueError(describe_errors(exc.errors())) from None
+        raise ValueError(describe_errors([dict(e) for e in exc.errors()])) from None
 
 
 class _In(BaseModel):
@@ -108,7 +108,7 @@ class ScanCreate(_In):
         d = defaults if defaults is not None else ScanDefaults()
         pattern = self.pattern or ("pixels" if self.pixels is not None else d.pattern)
         return ScanRequest(pattern=pattern, rows=self.rows, cols=self.cols,
-                           pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
+                           pixels=None if self.pixels is None else tuple((p[0], p[1]) for p in self.pixels),
                            averages=d.averages if self.averages is None else self.averages,
                            max_range_m=d.max_range_m if self.max_range_m is None else self.max_range_m,
                            max_speed_mps=d.max_speed_mps if self.max_speed_mps is None else self.max_speed_mps,

@@ -274,6 +274,7 @@ def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_p
         found = _os_detected(p2, n_ref_side, n_guard, pfa, os_rank, _FLOOR, kern)
         if found is None:   # the compiled pass met a NaN, infinite or negative value: name it
             _check_power_values(p2)
+            raise DspInputError("power holds a value the compiled CFAR pass refused")
         r, c, nz = found
 
     info = window_info(window, 64)

@@ -22,7 +22,7 @@ from .jit import power as power_of
 from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .rangefft import RangeFFT, check_samples
 from .scratch import scratch
-from .window import DspInputError
+from .window import DspInputError, WindowName
 
 # (indices of the detections (..., K) with invalid slots at a harmless bin) -> (signals, signed peak
 # bins for the estimator, precomputed spectrum or None)
@@ -41,7 +41,7 @@ class ChainResult:
     frac_records: np.ndarray | None = None
 
 
-def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, estimator: str,
+def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: WindowName, estimator: str,
                       average_axis: int | None = None, zero_pad: int = 1, iq: bool = False,
                       keep: np.ndarray | None = None, idle_index: int = 1, power: np.ndarray | None = None,
                       **cfar_kwargs) -> ChainResult:

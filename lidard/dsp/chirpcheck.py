@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ilc import _directions
+from .ilcmeasure import _directions
 from .ilcmeasure import _Analyzer
 from .instfreq import check_finite_array, check_positive
 

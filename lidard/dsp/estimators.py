@@ -136,6 +136,7 @@ def _est_quinn2(b: _Batch) -> np.ndarray:
 def _near(b: _Batch, f0_bins: np.ndarray, max_abs_delta: float) -> _DtftNearBin:
     """Moment evaluator around original-grid frequencies f0 (one per (ramp, peak))."""
     k = b.pb.shape[1]
+    rows: np.ndarray | None
     if b.rows is not None:
         rows = b.rows if k == 1 else np.repeat(b.rows, k)
     else:

@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Any, Literal
 from collections.abc import Callable
 
 import numpy as np
@@ -106,7 +106,7 @@ class IlcResult:
     best_iteration: int
     phase_slips: int                       # total over all measurements
     stop_reason: str = ""
-    meta: dict = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
 
 
@@ -201,7 +201,7 @@ def _check_knobs(*, q_cutoff_hz, meas_cutoff_hz, beta, roi, learn, max_iter, upd
     return max_avg
 
 
-def _drive_cap(u0: np.ndarray, max_drive_factor: float, max_drive_v: float | None) -> dict:
+def _drive_cap(u0: np.ndarray, max_drive_factor: float, max_drive_v: float | None) -> dict[str, Any]:
     """The largest |drive| ever sent (relative to the plain drive, and the output stage's range) and
     how it reads in a stop reason; a plain drive already beyond ``max_drive_v`` is refused."""
     peak0 = float(np.abs(u0).max())

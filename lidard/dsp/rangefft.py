@@ -231,7 +231,7 @@ class RangeFFT:
     def index_to_bin(self, index: np.ndarray) -> np.ndarray:
         return np.asarray(index) - (self.n_fft // 2 if self.iq else 0)
 
-    def bin_to_index(self, bins: np.ndarray) -> np.ndarray:
+    def bin_to_index(self, bins: np.ndarray | int) -> np.ndarray:
         return np.asarray(bins) + (self.n_fft // 2 if self.iq else 0)
 
     def bin_to_range_m(self, bins: np.ndarray) -> np.ndarray:

@@ -36,6 +36,8 @@ peak used once (after :func:`lidard.dsp.velocity.pair_up_down`'s matcher). Pure 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .cwhold import HoldProfile, resolve_boundary
@@ -163,7 +165,7 @@ def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
     noise = _median_last(p_cw)[:, None]
     regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
-    bands = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
+    bands: list[Any] = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
     table = _RangeMax(p_cw)                      # one table for both regimes and every tier
     t_n, t_f = (_regime_tier(table, df_hz, f_r, d, noise, guard_bins, guard_hz, band)
                 for (f_r, d), band in zip(regimes, bands))
@@ -267,7 +269,7 @@ def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
 
 
-def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict:
+def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarray) -> dict[str, Any]:
     """The FrameResult fields (as a dict) of a three-segment frame; ``x`` the batch's records (the
     CW segments the boundary's dechirp reads)."""
     (fu, fd), (du, dd) = out_f, out_det
@@ -277,7 +279,8 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict
     flat = [np.abs(a).reshape(-1, a.shape[-1]) for a in (fu, fd)]
     vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
     profile = dsp.hold
-    rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
+    (flat_u, flat_d), (valid_u, valid_d) = flat, vflat
+    rng, vel, ok, seen, iu, idn = pair_three(flat_u, flat_d, valid_u, valid_d, p_cw.reshape(-1, p_cw.shape[-1]), df,
                                              chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
                                              wavelength_m=dsp.wavelength_m, guard_bins=CW_GUARD_BINS, max_targets=k,
                                              rho=dsp.drift_rho,

@@ -59,7 +59,7 @@ class SimHooks:
     #: the bench's ledger of modelled / skipped effects (cumulative counts of captured batches)
     fidelity: Callable[[], dict] | None = None
     #: hold the scene's clock across runs (a stream's frames share the scene time of its first trigger)
-    hold_scene_clock: Callable[[bool], None] | None = None
+    hold_scene_clock: Callable[[bool], object] | None = None
 
 
 class LidarInstrument:
@@ -172,8 +172,9 @@ class LidarInstrument:
                      if (calibration is not None and calibration.drive_v.size) else self._plain_drive())
             before = self._fidelity()
             result = self.scan_loop.run(request, progress, cancel, drive, calibration, raw_path=raw_path)
-            if before is not None:
-                result.meta["sim"] = {"fidelity": _ledger_difference(self._fidelity(), before)}
+            after = self._fidelity()
+            if before is not None and after is not None:
+                result.meta["sim"] = {"fidelity": _ledger_difference(after, before)}
             return result
 
     def run_stream(self, request: ScanRequest, planner, on_frame, cancel: threading.Event,
@@ -194,7 +195,7 @@ class LidarInstrument:
             return loop.run(request, planner, on_frame, cancel, drive, calibration, frames=frames,
                             health_interval_s=health_interval_s, on_points=on_points)
 
-    def _fidelity(self) -> dict | None:
+    def _fidelity(self) -> dict[str, Any] | None:
         """The simulated bench's ledger of modelled / skipped effects (None on real hardware)."""
         if self._sim is None or self._sim.fidelity is None:
             return None

@@ -174,7 +174,7 @@ class ScanJobRun:
             "stop_reason": result.stop_reason or (job.cancel_reason if job.cancel.is_set() else None),
         }
         out_dir = self.store.scan_dir(job.id)
-        files = {}
+        files: dict[str, str] = {}
         for fmt in job.request.formats:
             path = out_dir / f"scan{suffix_of(fmt)}"
             write_points(path, result.points, meta, fmt)

@@ -137,7 +137,7 @@ def run_task(task: SweepTask) -> dict:
                    max_speed_mps=cfg.scan.max_speed_mps, window=cfg.scan.window, pfa=cfg.scan.pfa,
                    max_returns=cfg.scan.max_returns, estimator=pt.dsp.estimator)
     shape = (n, avg, 2 * r)
-    mzi = syn.mzi.reshape(shape) if pn_on else None
+    mzi = syn.mzi.reshape(shape) if pn_on and syn.mzi is not None else None
     res = dsp.process(syn.beat.reshape(shape), syn.lsb_v, mzi=mzi,
                       mzi_delay_s=cfg.monitor.delay_s if pn_on else None, mzi_lsb_v=syn.lsb_v)
     truth_m = float(bh.range_m[0]) if bh.beam.size else task.distance_m

@@ -86,7 +86,10 @@ def reprocess_scan(store: Store, scan_id: str, settings: ReprocessSettings | Non
     store.update_scan(new.id, state="done", stage="done", progress=1.0, finished=time.time(), files=files,
                       points=int(len(rep.points)), pixels_scanned=int(rep.meta["pixels"]), partial=partial,
                       hardware_time_s=orig.hardware_time_s, wall_time_s=wall)
-    return store.get_scan(new.id)
+    done = store.get_scan(new.id)
+    if done is None:   # deleted while it was written
+        raise UnknownScan(f"scan {new.id} is gone")
+    return done
 
 
 def scan_spectrum(store: Store, scan_id: str, row: int, col: int,

@@ -21,6 +21,7 @@ from ..dsp.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
 from ..instrument.types import POINT_DTYPE
+from ..point_schema import POINT_NAMES
 from .capture import PixelNotRecorded, RawCapture
 from .replay import ReplayDsp, ReprocessSettings, replay_dsp
 
@@ -69,7 +70,7 @@ def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, mzi
     a, n, r = d.offset, d.n_used, d.ramp_samples
     # an I/Q capture's beat is the corrected complex I + jQ; its down ramp in the up ramp's sign
     b = ramp_volts(beat[..., start:start + r], replay.lsb_v, iq=d.iq, down=bool(start))
-    if mzi is None:
+    if mzi is None or replay.mzi_delay_s is None:
         spec = d.rfft(b[..., a:a + n])
     else:
         comp = compensator_for(d, replay.mzi_delay_s)

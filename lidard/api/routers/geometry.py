@@ -32,7 +32,7 @@ from ..deps import ConfigDep, StoreDep, WorkerDep
 
 router = APIRouter(prefix="/calibration", tags=["calibration"])
 
-REFUSED = {422: {"description": "the calibration was refused (too few or inconsistent measurements; named)"},
+REFUSED: dict[int | str, dict[str, Any]] = {422: {"description": "the calibration was refused (too few or inconsistent measurements; named)"},
            503: {"description": "a device fault stopped the measurement, or the queue is full"}}
 
 

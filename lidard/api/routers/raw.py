@@ -19,7 +19,7 @@ from ..schemas import EstimatorName, ReprocessCreate, ScanOut, WindowName
 
 router = APIRouter(prefix="/scans", tags=["raw captures"])
 
-_ERRORS = {404: {"description": "no scan with this id, or the pixel was not recorded"},
+_ERRORS: dict[int | str, dict[str, Any]] = {404: {"description": "no scan with this id, or the pixel was not recorded"},
            409: {"description": "the scan has no raw capture (not scanned with record_raw)"},
            422: {"description": "an override the capture cannot honour (e.g. phase_noise on without a monitor channel)"}}
 

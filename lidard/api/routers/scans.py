@@ -25,7 +25,7 @@ _POINTS_DOC = ("the point file: " + ", ".join(f"{fmt} {media}" for fmt, media in
                + "; `X-Lidard-Partial: true|false`")
 
 
-_404 = {404: {"description": "no scan with this id"}}
+_404: dict[int | str, dict[str, Any]] = {404: {"description": "no scan with this id"}}
 
 
 def _not_found(scan_id: str) -> HTTPException:

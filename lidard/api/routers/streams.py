@@ -93,7 +93,7 @@ def create_stream(body: StreamCreate, request: Request, response: Response, work
     return job.status()
 
 
-_404 = {404: {"description": "no stream with this id"}}
+_404: dict[int | str, dict[str, Any]] = {404: {"description": "no stream with this id"}}
 
 
 @router.get("/{stream_id}", responses=_404)
