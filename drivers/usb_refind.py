@@ -1,4 +1,4 @@
-"""Finding a USB instrument again after it was unplugged (issue 6): the one loop both USB drivers use.
+"""Finding a USB instrument again after it was unplugged: the one loop both USB drivers use.
 
 A replugged device is a new pyusb ``Device``: look it up again through ``finder`` (VID:PID on the
 driver's backend), with bounded exponential backoff, and set its configuration.

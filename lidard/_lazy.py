@@ -1,5 +1,6 @@
 """Names a package imports on first use (PEP 562), so the light entry points (``lidarctl --help``,
-the API, the job queue) do not load the heavy modules behind them (issue 18, start-up)."""
+the API, the job queue) do not load the heavy modules behind them
+(every command's start-up time)."""
 
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ dynamics and Table 4-4 losses), a *laser preset* (``config/profiles/lasers.toml`
 (§4.4.1), detector/TIA/ADC and link-budget parameters (Table 2-2, §4.4.2), the device addresses and the
 simulation settings.
 
-Rooms (issue 12): the section models live in :mod:`lidard.config_models.sections`, the profile and
+Rooms: the section models live in :mod:`lidard.config_models.sections`, the profile and
 laser preset models in :mod:`lidard.config_models.presets`; this module composes them into
 :class:`Config`, loads files and applies environment overrides, and re-exports every model.
 

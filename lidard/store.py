@@ -158,13 +158,13 @@ class ScanRecord:
     reprocessed_from: str | None = None   # the scan whose raw capture this one was computed from
     range_calibration_id: str | None = None      # the range scale/zero calibration the scan used
     pointing_calibration_id: str | None = None   # the pointing calibration the scan used
-    receiver: str | None = None                  # "real" (one photodiode) or "iq" (adc.iq, issue 14)
+    receiver: str | None = None                  # "real" (one photodiode) or "iq" (adc.iq)
     iq_calibration_id: str | None = None         # the I/Q imbalance calibration the scan used
     uncalibrated_reason: str | None = None       # why stored calibrations were not used (another set-up)
 
     @property
     def calibrated(self) -> dict[str, bool]:
-        """Which calibrations the scan used (issue 13 item 4: uncalibrated is said, not hidden); an
+        """Which calibrations the scan used (uncalibrated is said, not hidden); an
         I/Q receiver's scan also says whether its imbalance was calibrated."""
         out = {"range": self.range_calibration_id is not None,
                "pointing": self.pointing_calibration_id is not None,

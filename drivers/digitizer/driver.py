@@ -248,7 +248,7 @@ class DigitizerDriver:
 
         Each transfer asks for exactly the bytes still due, at most ``chunk_bytes`` (a device
         that has sent all it has ends the transfer without a zero-length packet). A read that one
-        transfer fills is parsed in the transfer buffer itself: no copy (issue 18)."""
+        transfer fills is parsed in the transfer buffer itself: no copy."""
         first = self._transfer_buffer(min(len(self._chunk), total))
         n = self._bulk_in(first, command, 0, total)
         if n == total:

@@ -6,7 +6,7 @@ starts the scan worker and, on shutdown, stops the worker and closes the instrum
 created at import time. Routers know nothing of hardware; they talk to the worker and the store.
 See docs/api.md for the endpoints and the queue policy.
 
-Length (issue 12): ``create_app`` is about 70 lines with its docstring because the lifespan stays a
+Length: ``create_app`` is about 70 lines with its docstring because the lifespan stays a
 closure over the factory's arguments (the store, instrument and worker it builds live exactly as
 long as the app); the scan metadata and the error handlers are separate functions.
 """

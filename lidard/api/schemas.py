@@ -190,7 +190,7 @@ class Health(_Out):
     # latched POST /scans answers 409 until `lidarctl faults ack` (POST /controller/acknowledge)
     latched_faults: list[str] | None = None
     interlock_closed: bool | None = None
-    # the last scan's linearization health check (issue 13; the sidecar's "linearization"): the chirp
+    # the last scan's linearization health check (the sidecar's "linearization"): the chirp
     # error residual_hz against threshold_hz, whether it re-linearized and why. None before any scan
     linearization: dict[str, Any] | None = None
 

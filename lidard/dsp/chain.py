@@ -79,7 +79,7 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: Window
 
 def _refine_valid(x: np.ndarray, bins: np.ndarray, valid: np.ndarray, spectrum: np.ndarray | None,
                   **kw) -> np.ndarray:
-    """The estimator on the valid detection slots only (issue 18): a CAL pixel has about one return
+    """The estimator on the valid detection slots only: a CAL pixel has about one return
     among ``max_returns`` slots, and an empty slot's refinement is thrown away. ``x`` (lead..., N),
     ``bins`` (lead..., K) or (lead...) and ``valid`` of the shape of ``bins``; empty slots give the
     slot's integer bin (never read: the detection is invalid)."""

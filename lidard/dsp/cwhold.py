@@ -1,4 +1,4 @@
-"""The held segment's frequency drift, measured once and taken out of the CW beat (issue 14; §2.2).
+"""The held segment's frequency drift, measured once and taken out of the CW beat (§2.2).
 
 The three-segment chirp's constant-frequency (CW) segment is held, not linearized: a DFB's thermal
 terms keep relaxing after the drive stops, so the optical frequency drifts by some 650 MHz over the

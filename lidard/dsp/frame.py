@@ -177,7 +177,7 @@ class FrameDsp:
         """From a pixel's first trigger (a point's ``t``) to the instant its range refers to: the two
         ramps' beats give the range at their mean centre, one ramp time after a trigger, averaged over
         the pixel's triggers ((averages - 1) / 2 periods later still). A target at 5 m/s moves 0.4 mm
-        in the 80 us of one average (issue 14's hold-out check measured this offset)."""
+        in the 80 us of one average (a hold-out check against moving targets measured this offset)."""
         period_s = (2 * self.ramp_samples + self.cw_samples) / self.fs_hz
         return self.ramp_samples / self.fs_hz + 0.5 * (int(averages) - 1) * period_s
 

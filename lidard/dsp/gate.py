@@ -1,4 +1,4 @@
-"""The honest range gate and the per-point flags (issue 14; dissertation §2.1.1, §4.4.3).
+"""The honest range gate and the per-point flags (dissertation §2.1.1, §4.4.3).
 
 A real beat sampled at fs cannot say on which side of a multiple of fs its tone was: a target
 beyond the gate whose beat folds into it looks like one inside. Two things keep such folds out of

@@ -42,7 +42,7 @@ previous best drive is restored and beta halved (back off instead of diverging).
 "up" and "down" name the first and second half of the drive period (with
 ``sim_devices.world.laser.triangle_drive`` the first half is the optical up-chirp).
 
-Rooms (issue 12): the measurement (demodulation, refinement, unfolding, errors) is
+Rooms: the measurement (demodulation, refinement, unfolding, errors) is
 :mod:`lidard.dsp.ilcmeasure`; the response fit and the update law :mod:`lidard.dsp.ilcupdate`; this
 module is the iteration driver (:func:`linearize`), whose state between measurements is one explicit
 :class:`_IlcState`. :func:`linearize` is about 70 lines with its docstring: argument checks and
@@ -320,7 +320,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     default: no growth) and learning goes on. A broad-linewidth laser on a long MZI needs this: its
     averaged beat shrinks by exp(-pi linewidth tau_m) while the noise does not, and a narrow laser
     never pays for it. The default target, 4e-6 of the excursion, is what a >= 1000x reduction of a
-    ~0.7 % RMS nonlinearity needs (issue 15); the measurement itself is unchanged.
+    ~0.7 % RMS nonlinearity needs; the measurement itself is unchanged.
     """
     if not callable(measure):
         raise TypeError("measure must be callable as measure(drive_v, n_avg)")

@@ -1,4 +1,4 @@
-"""I/Q imbalance of a coherent receiver: its model, its correction and its estimation (issue 14 item 2).
+"""I/Q imbalance of a coherent receiver: its model, its correction and its estimation.
 
 A coherent receiver mixes the return with the local oscillator in a 90-degree optical hybrid and
 detects the in-phase and quadrature outputs on two balanced photodiodes, digitized on two channels.

@@ -1,4 +1,4 @@
-"""Signed velocity with one photodiode and no speed prior: the three-segment chirp (issue 14; §2.1.2).
+"""Signed velocity with one photodiode and no speed prior: the three-segment chirp (§2.1.2).
 
 A period is an up ramp, a down ramp and a constant-frequency (CW) segment. With the range beat
 f_R = 2 kappa R / c and the return's Doppler shift f_D (``sim_devices``' convention f_D = -2 v / lambda,
@@ -77,7 +77,7 @@ def _range_max_table(p: np.ndarray, top_level: int | None = None) -> list[np.nda
 
 class _RangeMax:
     """The sparse table of one CW spectrum, built once for every band query and only as deep as the
-    widest band asks (issue 18: six full tables per batch were a third of the three-segment DSP)."""
+    widest band asks (six full tables per batch were a third of the three-segment DSP)."""
 
     def __init__(self, p: np.ndarray):
         self.p = p

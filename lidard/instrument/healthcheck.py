@@ -1,4 +1,4 @@
-"""The result of a linearization health check and what a scan's sidecar says about it (issue 13).
+"""The result of a linearization health check and what a scan's sidecar says about it.
 
 Light (numpy and the standard library only) so that the job queue, which decides whether a scan
 re-linearizes first (:meth:`lidard.jobs.worker.ScanWorker.calibration_for_scan`), and the API can use

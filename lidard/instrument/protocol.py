@@ -46,7 +46,7 @@ class Instrument(Protocol):
 
     def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:
         """The linearization health check of the drive a scan with ``calibration`` would use: its chirp
-        measured through the monitor MZI against the ideal (issue 13); None when the check is off."""
+        measured through the monitor MZI against the ideal; None when the check is off."""
 
     def use_calibrations(self, applied: AppliedCalibrations) -> None:
         """Use these range/pointing calibrations (effective monitor delay, zero offset, pointing) for the

@@ -1,4 +1,4 @@
-"""The job kinds of the scan worker's queue and what a job's record holds (lidard.jobs, issue 12).
+"""The job kinds of the scan worker's queue and what a job's record holds (lidard.jobs).
 
 A scan (:class:`_ScanJob`, recorded in the store under its id), a chirp linearization (§2.2) and a
 switch self-test (both resolved through a future); the errors the queue raises; and the one-line

@@ -1,4 +1,4 @@
-"""One scan job, from ``queued`` to a terminal state, on the worker thread (lidard.jobs, issue 12).
+"""One scan job, from ``queued`` to a terminal state, on the worker thread (lidard.jobs).
 
 :class:`ScanJobRun` is the explicit context of a running scan (what the worker used to keep in closures
 and ``[value]`` cells): the calibration it uses, when the store last heard its progress, and the
@@ -161,7 +161,7 @@ class ScanJobRun:
             "request": request_to_dict(job.request),
             "calibration_id": self.cal_id,
             "linearization": job.linearization,
-            # issue 13 item 4: which calibrations the points were computed with, said in every sidecar
+            # which calibrations the points were computed with, said in every sidecar
             **self._calibrated(),
             "hardware_time_s": float(result.hardware_time_s),
             "wall_time_s": float(wall_s),

@@ -1,6 +1,6 @@
 """The Foxglove channels lidard publishes, shared by the live server and the MCAP file writer.
 
-Three topics, one per thing a robotics user looks at (issue 16 item 2):
+Three topics, one per thing a robotics user looks at:
 
 * ``/lidar/points``: ``foxglove.PointCloud`` (protobuf) in frame ``lidar`` (the sensor frame of
   §4.1.1: +z the optical axis). Every field of :data:`lidard.point_schema.POINT_FIELDS` (``valid``,

@@ -41,7 +41,7 @@ def _bisect_root(f: Callable[[float], float], a: float, b: float, xtol: float) -
     """A root of f in [a, b] where f(a) > 0 >= f(b), to xtol (bisection: about 35 steps here).
 
     Not scipy.optimize.brentq: importing scipy.optimize costs about a second of start-up of every
-    command that needs a link budget (``lidarctl budget``, config loading; issue 18).
+    command that needs a link budget (``lidarctl budget``, config loading).
     """
     while b - a > xtol:
         m = 0.5 * (a + b)

@@ -1,7 +1,7 @@
 """Chirp arithmetic (§2.1): chirp rate, beat frequency <-> range, triangle and three-segment drives,
 ADC plan.
 
-The three-segment waveform (issue 14) is the triangle followed by a constant-frequency segment: the
+The three-segment waveform is the triangle followed by a constant-frequency segment: the
 drive holds between the end of the down ramp and the start of the next up ramp, so the segment's beat
 is the Doppler shift alone (docs/physics.md derives the pairing).
 

@@ -1,4 +1,4 @@
-"""The digitizer's decimation (anti-alias) filter, and what it means for the range gate (issue 14).
+"""The digitizer's decimation (anti-alias) filter, and what it means for the range gate.
 
 The converter core samples at ``adc.max_sample_rate_hz`` (Table 2-2: 1 GS/s, behind the analogue
 front end's ``adc.bandwidth_hz``); a record at a lower rate fs = f_core / D is decimated on board by a

@@ -31,7 +31,7 @@ GAUSSIAN_FWHM_FACTOR = float(np.sqrt(2.0 * np.log(2.0)))  # eq. 4-16, ~1.177
 
 @dataclass(frozen=True)
 class Pointing:
-    """Deviations of a real scanner from the nominal pointing of eq. 4-1 (issue 13).
+    """Deviations of a real scanner from the nominal pointing of eq. 4-1.
 
     An antenna at nominal chip position (x, y) (:meth:`FpsaOptics.antenna_xy_m`) sits, on the real
     die, rotated by ``rotation_rad`` about the optical axis and shifted by ``decentre_px`` (x, y) pixel
@@ -103,7 +103,7 @@ class FpsaOptics:
     focal_m: float
     bonded_rows: tuple[int, ...] = field(default=())
     wavelength_m: float = 1.55e-6
-    #: the pointing model's deviations from the nominal design (issue 13); all zero: eq. 4-1 exactly.
+    #: the pointing model's deviations from the nominal design; all zero: eq. 4-1 exactly.
     #: The simulated bench draws hidden true values (``[sim.tolerances]``); the daemon uses the values
     #: its pointing calibration fitted. See :class:`Pointing`.
     pointing: Pointing = field(default_factory=lambda: Pointing())

@@ -1,6 +1,6 @@
 """Distances from points to the surfaces of known targets: planes, spheres, boxes, planar polygons.
 
-Pure numpy. Used to score a point cloud without trusting the pointing model (issue 13 item 3: the
+Pure numpy. Used to score a point cloud without trusting the pointing model (the
 point-to-surface distance of each measured (x, y, z) to the scene's true surfaces, not only the
 range along the beam), and by calibrations that fit geometry to points on known targets (a plate
 on a rail: :func:`distance_to_plane`; reference spheres: :func:`distance_to_sphere`).

@@ -1,4 +1,4 @@
-"""Raw digitizer captures (Zarr) and reprocessing them with the scan DSP (issue 16, items 3-4).
+"""Raw digitizer captures (Zarr) and reprocessing them with the scan DSP.
 
 :mod:`.capture` writes and reads the captures, :mod:`.points` turns DSP results into point records
 (shared with the scan loop), :mod:`.record` is the scan loop's side of a capture, :mod:`.replay`

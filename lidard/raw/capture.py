@@ -1,4 +1,4 @@
-"""Raw digitizer captures in Zarr: write them during a scan, read them back for reprocessing (issue 16).
+"""Raw digitizer captures in Zarr: write them during a scan, read them back for reprocessing.
 
 A scan with ``record_raw`` keeps every digitizer segment exactly as read (int16 codes, every
 channel the acquisition had: the LiDAR ``beat`` and, with phase-noise compensation, the monitor

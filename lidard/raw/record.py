@@ -1,4 +1,4 @@
-"""Recording a scan's raw segments as it runs: the scan loop's side of a raw capture (issue 16, item 3).
+"""Recording a scan's raw segments as it runs: the scan loop's side of a raw capture.
 
 :class:`ScanRecorder` is created when an acquisition is ready (the digitizer has told its channel
 order), fed every batch of segments the scan loop accepts (the same records its DSP gets; a batch

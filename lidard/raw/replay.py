@@ -1,4 +1,4 @@
-"""Run the scan's DSP again on a raw capture, optionally with other settings (issue 16, item 4).
+"""Run the scan's DSP again on a raw capture, optionally with other settings.
 
 The scan loop turns each batch of digitizer segments into points with :class:`FrameDsp` (range FFT,
 OS-CFAR, sub-bin estimator, up/down pairing: dissertation §2.1, §4.4.3; with the monitor MZI, the

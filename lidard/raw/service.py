@@ -1,4 +1,4 @@
-"""Reprocessing a stored scan: a new scan record, linked to the original, from its raw capture (issue 16).
+"""Reprocessing a stored scan: a new scan record, linked to the original, from its raw capture.
 
 What ``POST /scans/{id}/reprocess`` and ``lidarctl reprocess`` do, knowing nothing about HTTP: read
 the original's raw capture (``scans/<id>/raw.zarr``), run the DSP again (:func:`lidard.raw.reprocess`,

@@ -1,4 +1,4 @@
-"""One pixel's range spectra from a raw capture, with the CFAR threshold and the detections (issue 16).
+"""One pixel's range spectra from a raw capture, with the CFAR threshold and the detections.
 
 What the scan DSP saw for that pixel (dissertation §2.1 range FFT, §4.4.3 detection): per ramp
 (up, down) the power spectrum averaged over the pixel's segments (with phase-noise compensation,

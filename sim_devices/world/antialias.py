@@ -1,4 +1,4 @@
-"""The digitizer's anti-alias/decimation filter acting on synthesized beat tones (issue 14).
+"""The digitizer's anti-alias/decimation filter acting on synthesized beat tones.
 
 The synthesis works at the record's own rate fs, so a beat above fs/2 comes out already folded: a
 filter run on the record afterwards could not tell it from an in-band tone. The filter is therefore

@@ -1,4 +1,4 @@
-"""The laser/HV controller's latched safety faults: ``POST /controller/acknowledge`` (issue 11, item 4).
+"""The laser/HV controller's latched safety faults: ``POST /controller/acknowledge``.
 
 A latched fault (the interlock opened, an HV supply trip; docs/protocols/controller.md) keeps the laser
 and the FPSA's HV (dissertation §4.3.3) off until a person resets it, as laser safety expects. The

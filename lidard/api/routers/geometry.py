@@ -1,4 +1,4 @@
-"""Range scale/zero, pointing and I/Q calibrations over REST (issue 13 item 2), and every calibration's record.
+"""Range scale/zero, pointing and I/Q calibrations over REST, and every calibration's record.
 
 Range: ``POST /calibration/range/plates`` measures the plate now in front of the sensor at the given
 known distance (queued like a scan; the measurement is kept in the store); ``GET`` lists the pending

@@ -1,4 +1,4 @@
-"""Raw captures of scans: reprocess one into a new scan, one pixel's spectra, remove a capture (issue 16).
+"""Raw captures of scans: reprocess one into a new scan, one pixel's spectra, remove a capture.
 
 The work is :mod:`lidard.raw.service`'s; here only HTTP: a scan without a capture answers 409 (it
 exists, it was not recorded), an unknown scan 404, an override the capture cannot honour 422.

@@ -1,6 +1,6 @@
 """POST /selftest: toggle every FPSA row and column against the monitor tap, report stuck switches.
 
-The self-test (``LidarInstrument.selftest``, issue 6) needs the optical path, so it is queued behind
+The self-test (``LidarInstrument.selftest``) needs the optical path, so it is queued behind
 the running and waiting scans like a linearization and the request waits for its report. A device
 fault during the test answers 503 naming the cause; a stuck switch is a finding, not an error: 200
 with ``ok: false`` and the stuck lines.

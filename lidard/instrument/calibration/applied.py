@@ -1,4 +1,4 @@
-"""The geometric calibrations an instrument applies to its linearizations and scans (issue 13 item 2).
+"""The geometric calibrations an instrument applies to its linearizations and scans.
 
 * range scale and zero (:mod:`.range`): the effective monitor MZI delay replaces the configuration's
   nominal ``monitor.delay_s`` as the ILC's target (§2.2) and in the phase-noise compensation (§2.3), so

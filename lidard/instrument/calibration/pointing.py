@@ -1,4 +1,4 @@
-"""Pointing calibration: fit the scanner's pointing model to a known target geometry (issue 13 item 2).
+"""Pointing calibration: fit the scanner's pointing model to a known target geometry.
 
 The nominal pointing is eq. 4-1 of the dissertation (§4.1.1: theta = -arctan(x / f)); a real scanner
 deviates by a focal-length error, a decentred and rotated array and the lens's radial distortion

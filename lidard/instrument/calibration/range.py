@@ -1,4 +1,4 @@
-"""Range scale and zero calibration from a flat plate at known distances (issue 13 item 2).
+"""Range scale and zero calibration from a flat plate at known distances.
 
 Physics (dissertation §2.1.1, eq. 2-3: R = c f_b / (2 kappa); §2.2: the ILC locks the chirp to the
 monitor MZI). The ILC makes the MZI beat equal ``kappa_nom * tau_used`` measured through the TRUE MZI
@@ -104,7 +104,7 @@ class RangeFit:
 
 
 def _chi2_sf(x, dof):
-    # imported on first use: scipy.stats costs ~0.3 s of every command's start-up (issue 18)
+    # imported on first use: scipy.stats costs ~0.3 s of every command's start-up
     from scipy import stats
     return stats.chi2.sf(x, dof)
 
