@@ -35,7 +35,7 @@ from .config_models.sections import (  # noqa: F401  (re-exported)
     Adc, AwgDevice, Chirp, ControllerDevice, Daemon, Detector, Devices, Effects, FpsaDevice, Link, Live, Tolerances,
     Monitor, ScanDefaults, Sim, UsbDevice,
 )
-from .errors import ConfigError
+from .errors import ConfigError, describe_validation
 from .physics.budget import LinkParams, optical_bandwidth_hz
 from .physics.optics import FpsaOptics
 
@@ -136,18 +136,7 @@ def link_params(cfg: Config, profile: Profile, laser: LaserPreset) -> LinkParams
 # Loading
 # --------------------------------------------------------------------------------------------------
 def _format_validation(source: str, err: ValidationError) -> str:
-    parts = []
-    for e in err.errors():
-        loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
-        msg = e["msg"]
-        if e["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif e["type"] == "literal_error":
-            msg = f"must be {e['ctx']['expected']}"
-        got = e.get("input")
-        detail = f" (got {got!r})" if got is not None and e["type"] not in ("missing",) and not isinstance(got, dict) else ""
-        parts.append(f"{source}: {loc}: {msg}{detail}")
-    return "; ".join(parts)
+    return describe_validation(err.errors(), source=source, show_input=True)
 
 
 def _read_toml(path: Path) -> dict:

@@ -24,7 +24,6 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from ..config import Config
-from ..errors import LidardError
 from ..instrument.protocol import Instrument
 from ..instrument.calibration.setup import instrument_setup
 from ..jobs import ScanWorker, software_version
@@ -143,12 +142,7 @@ def _add_error_handlers(app: FastAPI) -> None:
     # every error answer is an RFC 9457 problem (lidard.api.problems)
     problems.install(app)
 
-    @app.exception_handler(LidardError)
-    async def lidard_error(request: Request, exc: LidardError) -> JSONResponse:
-        # Domain errors (config, device faults reported by the instrument) are the server's state,
-        # not a crash: name them instead of answering a bare 500.
-        return problems.problem(503, f"{type(exc).__name__}: {exc}")
-
+    # (domain errors: their own status, lidard.errors.LidardError.http_status, in problems.install)
     @app.exception_handler(LockHeld)
     async def lock_held(request: Request, exc: LockHeld) -> JSONResponse:
         return control.locked_response(exc)

@@ -11,6 +11,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
 from ..config import ScanDefaults
+from ..errors import describe_validation
 from ..instrument.types import PatternKind, ScanRequest
 from ..point_schema import POINT_FORMATS, PointFormat
 
@@ -20,22 +21,9 @@ FileFormat = PointFormat
 
 def describe_errors(errors: list[dict[str, Any]]) -> str:
     """One line for a list of validation errors (pydantic's, or the daemon's 422 ``detail``):
-    ``averages: Input should be greater than or equal to 1; ...``.
-
-    The single formatter for the daemon's 422 bodies and for lidarctl's own check of a request
-    before it starts a bench, so both say the same words. The ``body`` location prefix and
-    pydantic's "Value error, " are dropped, and a message that already names its field (the scan
-    planner's "rows: ...") is not prefixed twice.
-    """
-    parts = []
-    for e in errors:
-        loc = [str(x) for x in (e.get("loc") or ())]
-        if loc and loc[0] == "body":
-            loc = loc[1:]
-        where = ".".join(loc)
-        msg = str(e.get("msg", "")).removeprefix("Value error, ")
-        parts.append(msg if not where or msg.startswith(where) else f"{where}: {msg}")
-    return "; ".join(parts)
+    :func:`lidard.errors.describe_validation`, the one wording of the configuration's errors, the
+    daemon's 422 bodies and lidarctl's own check of a request before it starts a bench."""
+    return describe_validation(errors)
 
 
 def check_scan_body(body: dict[str, Any]) -> ScanCreate:

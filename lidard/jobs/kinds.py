@@ -20,9 +20,13 @@ from ..instrument.types import ScanRequest
 class QueueFull(LidardError):
     """The job queue is at its limit; try again after the running jobs finish."""
 
+    retry_after_s = 5
+
 
 class WorkerStopped(LidardError):
     """The worker is not running (daemon shutting down)."""
+
+    retry_after_s = 5
 
 
 def software_version() -> str:

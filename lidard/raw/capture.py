@@ -53,9 +53,13 @@ _COMPRESSOR = BloscCodec(cname="lz4", clevel=1, shuffle="shuffle")
 class RawCaptureError(LidardError):
     """A raw capture is missing, malformed, or asked for something it does not hold; names it."""
 
+    http_status = 422
+
 
 class PixelNotRecorded(RawCaptureError):
     """The capture holds no committed record of the pixel asked for."""
+
+    http_status = 404
 
 
 def _software() -> dict[str, str]:

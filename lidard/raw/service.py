@@ -27,6 +27,8 @@ from .spectrum import PixelSpectrum, pixel_spectrum
 class NoRawCapture(RawCaptureError):
     """The scan was not recorded with ``record_raw`` (or its capture was removed)."""
 
+    http_status = 409
+
 
 def raw_path(store: Store, scan_id: str) -> Path:
     return store.scan_dir(scan_id) / RAW_NAME

@@ -26,7 +26,7 @@ from fastapi import APIRouter, HTTPException, Query, status
 from pydantic import BaseModel, ConfigDict, Field
 
 from ...instrument.calibration.range import CalibrationRefused
-from ...jobs import QueueFull, WorkerStopped, describe_error
+from ...jobs import describe_error
 from ...jobs import calibrations as cal
 from ..deps import ConfigDep, StoreDep, WorkerDep
 
@@ -103,16 +103,11 @@ class Removed(BaseModel):
 
 
 async def _wait(submit) -> Any:
-    try:
-        future = submit()
-    except CalibrationRefused as exc:
-        raise HTTPException(422, str(exc)) from None
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
+    future = submit()   # CalibrationRefused: 422; QueueFull, WorkerStopped: 503 with Retry-After
     try:
         return await asyncio.wrap_future(future)
-    except CalibrationRefused as exc:
-        raise HTTPException(422, str(exc)) from None
+    except CalibrationRefused:
+        raise
     except Exception as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, f"calibration failed: {describe_error(exc)}") from None
 

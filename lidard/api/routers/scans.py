@@ -10,7 +10,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 
-from ...jobs import QueueFull, UnknownScan, WorkerStopped
+from ...jobs import UnknownScan
 from ...pointcloud import MEDIA_TYPE, read_sidecar, suffix_of
 from ...scan import ScanPlanError, plan
 from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
@@ -46,11 +46,7 @@ def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics:
     refusal = latched_refusal(instrument)
     if refusal is not None:      # a scan would only fail at bring-up: say what to do instead
         raise HTTPException(status.HTTP_409_CONFLICT, refusal)
-    try:
-        rec = worker.submit_scan(req)
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc),
-                            headers={"Retry-After": "5"}) from None
+    rec = worker.submit_scan(req)   # QueueFull, WorkerStopped: 503 with Retry-After
     response.headers["Location"] = f"/scans/{rec.id}"
     return ScanOut.from_record(rec)
 

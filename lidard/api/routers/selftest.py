@@ -12,7 +12,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, HTTPException, status
 from pydantic import BaseModel
 
-from ...jobs import QueueFull, WorkerStopped, describe_error
+from ...jobs import describe_error
 from ..deps import WorkerDep
 
 router = APIRouter(tags=["selftest"])
@@ -43,10 +43,7 @@ class SelftestReport(BaseModel):
              responses={503: {"description": "a device fault stopped the self-test, or the queue is full"}})
 async def selftest(worker: WorkerDep) -> SelftestReport:
     """Queue a switch self-test behind the jobs already waiting and return its report."""
-    try:
-        future = worker.submit_selftest()
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
+    future = worker.submit_selftest()   # QueueFull, WorkerStopped: 503 with Retry-After
     try:
         report: dict[str, Any] = await asyncio.wrap_future(future)
     except Exception as exc:

@@ -47,6 +47,8 @@ ROI_HALF = 3            # centre region: up to 2*ROI_HALF bonded rows x 2*ROI_HA
 class CalibrationRefused(InstrumentError):
     """A calibration's measurements do not support a fit (too few, inconsistent); the message says why."""
 
+    http_status = 422
+
 
 @dataclass(frozen=True)
 class PlateMeasurement:
