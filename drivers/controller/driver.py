@@ -55,6 +55,7 @@ from drivers.controller.errors import (
     modbus_exception,
 )
 from drivers.controller.sequences import PowerSequences, SettleCheck
+from drivers.retry import RetryPolicy
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +103,10 @@ class LaserHvController:
         if not (isinstance(busy_retries, int) and busy_retries >= 0):
             raise ConfigError(f"{DEVICE}: busy_retries must be an int >= 0, got {busy_retries!r}")
         self.busy_retries = busy_retries
+        # two budgets: requests that got no answer (re-sent at once after a timeout, after the
+        # backoff when the connection was refused), and "busy, come back later" answers
+        self._no_reply = RetryPolicy.retries(retries, self.backoff_s, self._sleep)
+        self._busy = RetryPolicy.retries(busy_retries, self.backoff_s, self._sleep)
         self.reconnect_count = 0    # connections re-established after a loss
         self._lost = False
         #: bytes handed to the socket so far (tests use it to prove that a refused write sent nothing)
@@ -157,9 +162,9 @@ class LaserHvController:
         attempts = 0   # attempts that failed for want of an answer (timeout / no connection)
         busy = 0       # "come back later" exception answers
         unreachable: ConnectionException | None = None
-        while attempts < self.retries + 1:
+        while attempts < self._no_reply.attempts:
             if unreachable is not None:
-                self._sleep(self.backoff_s * 2 ** (attempts - 1))
+                self._no_reply.sleep(self._no_reply.delay_s(attempts))
             try:
                 with self._io_lock:
                     try:
@@ -182,13 +187,13 @@ class LaserHvController:
                 code = getattr(rsp, "exception_code", None)
                 if not isinstance(code, int):
                     raise ProtocolError(f"{operation} reply", rsp, "error response without an exception code")
-                if code in _TRANSIENT_CODES and busy < self.busy_retries:
+                if code in _TRANSIENT_CODES and busy + 1 < self._busy.attempts:
                     # ACKNOWLEDGE / SERVER DEVICE BUSY mean "try again later": back off and repeat
-                    delay = self.backoff_s * 2 ** busy
                     busy += 1
+                    delay = self._busy.delay_s(busy)
                     log.warning("%s: %s answered Modbus exception %d; retry %d/%d in %.3g s", DEVICE,
                                 operation, code, busy, self.busy_retries, delay)
-                    self._sleep(delay)
+                    self._busy.sleep(delay)
                     continue
                 raise modbus_exception(operation, register.name, value, code)
             if self._lost:

@@ -31,6 +31,7 @@ import usb.core
 
 from drivers.digitizer import protocol as p
 from drivers.errors import ProtocolError
+from drivers.retry import RetryPolicy
 from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
@@ -65,11 +66,12 @@ class DigitizerDriver:
             raise DeviceTimeout(DEVICE, "usb.core.find", "no digitizer found on the USB backend")
         self._dev = device
         self._finder = finder
-        self._sleep = sleep
-        self._backoff_s = float(backoff_s)
+        # a timed-out transfer has waited timeout_ms already: re-sent at once; the looks for a
+        # replugged device are spaced by backoff_s (doubling) on the injected clock
+        self._transfers = RetryPolicy.retries(retries, 0.0, sleep)
+        self._refind = RetryPolicy.retries(retries, backoff_s, sleep)
         self.reconnect_count = 0
         self._timeout_ms = int(timeout_ms)
-        self._retries = int(retries)
         self._chunk = array.array("B", bytes(chunk_bytes))
         self._spare: dict[int, array.array[int]] = {}     # transfer buffers of other sizes, by size
         try:
@@ -84,14 +86,13 @@ class DigitizerDriver:
 
         Tries ``retries + 1`` times with exponential backoff; ``DeviceDisconnected`` if it stays away.
         """
-        self._dev = refind_device(self._finder, device=DEVICE, command=command, attempts=self._retries + 1,
-                                  backoff_s=self._backoff_s, sleep=self._sleep)
+        self._dev = refind_device(self._finder, device=DEVICE, command=command, policy=self._refind)
         self.reconnect_count += 1
         log.warning("digitizer: reconnected after %s", command)
 
     def _guard(self, command: str, fn: Callable[[], T], retry: bool = True) -> T:
         last: Exception | None = None
-        for attempt in range(self._retries + 1 if retry else 1):
+        for attempt in (self._transfers if retry else RetryPolicy(1)).tries():
             try:
                 return fn()
             except usb.core.USBError as exc:

@@ -44,6 +44,7 @@ import numpy as np
 import serial
 
 from drivers.errors import DeviceGone, InvalidValue
+from drivers.retry import RetryPolicy
 from drivers.transport import ByteChannel, DeviceTimeout, TracedChannel, TransportError, open_channel
 
 from . import protocol as p
@@ -197,16 +198,15 @@ class FpsaController:
         self._seq = (self._seq + 1) & 0xFF
         seq = self._seq
         frame = p.encode_frame(seq, cmd, payload)
-        attempts = self.retries + 1
+        policy = RetryPolicy.retries(self.retries, self.backoff_s, self._sleep)
+        attempts = policy.attempts
         failure = "timeout"
         reopen_error: TransportError | None = None
-        for attempt in range(attempts):
+        for attempt in policy.tries():   # waited policy.delay_s(attempt) before each retry
             if attempt:
                 self.retry_count += 1
-                delay = self.backoff_s * 2 ** (attempt - 1)
                 log.warning("%s: %s attempt %d/%d after %s (backoff %.3g s)", self.device,
-                            cmd.name, attempt + 1, attempts, failure, delay)
-                self._sleep(delay)
+                            cmd.name, attempt + 1, attempts, failure, policy.delay_s(attempt))
             if self._port_broken and self._reopen is not None:
                 try:
                     self.reconnect()
