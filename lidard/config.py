@@ -20,6 +20,7 @@ validated.
 
 from __future__ import annotations
 
+import functools
 import os
 import tomllib
 from pathlib import Path
@@ -94,7 +95,8 @@ class Config(_Model):
         return load_laser(self.laser, Path(self.base_dir) / "profiles")
 
     def optics(self) -> FpsaOptics:
-        return self.load_profile().optics(self.lens, self.chirp.wavelength_m)
+        path = _profile_path(self.profile, Path(self.base_dir) / "profiles")
+        return _optics(path, _stamp(path), self.lens, self.chirp.wavelength_m)
 
     def link_params(self, profile: Profile | None = None, laser: LaserPreset | None = None) -> LinkParams:
         return link_params(self, profile or self.load_profile(), laser or self.load_laser())
@@ -228,11 +230,29 @@ def available_profiles(profiles_dir: Path = CONFIG_DIR / "profiles") -> list[str
     return sorted(p.stem for p in profiles_dir.glob("*.toml") if p.stem != "lasers")
 
 
+# The presets are read once: every view of a configuration (cfg.load_profile(), cfg.optics(),
+# cfg.load_laser(), from the API, the CLI, the instrument and the bench alike) shares the one parsed,
+# validated (frozen) model of a file, re-read only when the file itself changes (its mtime and size).
+def _stamp(path: Path) -> tuple[int, int]:
+    st = path.stat()
+    return st.st_mtime_ns, st.st_size
+
+
 def load_profile(name: str, profiles_dir: Path = CONFIG_DIR / "profiles") -> Profile:
+    path = _profile_path(name, profiles_dir)
+    return _profile_file(path, _stamp(path))
+
+
+def _profile_path(name: str, profiles_dir: Path) -> Path:
     path = Path(profiles_dir) / f"{name}.toml"
     if name == "lasers" or not path.is_file():
         raise ConfigError(f"profile: {name!r} not found in {profiles_dir}; allowed: "
                           f"{', '.join(available_profiles(Path(profiles_dir)))}")
+    return path.resolve()
+
+
+@functools.lru_cache(maxsize=32)
+def _profile_file(path: Path, stamp: tuple[int, int]) -> Profile:
     data = _read_toml(path)
     try:
         return Profile.model_validate(data)
@@ -240,8 +260,22 @@ def load_profile(name: str, profiles_dir: Path = CONFIG_DIR / "profiles") -> Pro
         raise ConfigError(_format_validation(str(path), exc)) from None
 
 
+@functools.lru_cache(maxsize=32)
+def _optics(path: Path, stamp: tuple[int, int], lens: str | None, wavelength_m: float) -> FpsaOptics:
+    return _profile_file(path, stamp).optics(lens, wavelength_m)
+
+
 def load_lasers(profiles_dir: Path = CONFIG_DIR / "profiles") -> dict[str, LaserPreset]:
     path = Path(profiles_dir) / "lasers.toml"
+    try:
+        stamp = _stamp(path)
+    except OSError:
+        stamp = (0, 0)            # not there: _read_toml names it
+    return dict(_lasers_file(path.resolve(), stamp))
+
+
+@functools.lru_cache(maxsize=32)
+def _lasers_file(path: Path, stamp: tuple[int, int]) -> dict[str, LaserPreset]:
     data = _read_toml(path)
     presets = data.get("laser")
     if not isinstance(presets, dict) or not presets:
