@@ -26,7 +26,10 @@ No caller needs to parse a message or guess the device from a module name.
     +-- SettleError                  a readback did not reach its setpoint in time
 
 Per-device names stay importable and are subclasses of these (so ``except DeviceTimeout`` from
-this module catches a timeout of any device, and old ``except`` clauses keep working):
+this module catches a timeout of any device, and old ``except`` clauses keep working). A timeout is
+one class whatever the device (``drivers.usbtmc.DeviceTimeout`` and
+``drivers.controller.errors.DeviceTimeout`` are the name ``DeviceTimeout`` of this module, the
+device named by ``exc.device``):
 
     drivers.transport.errors   TransportError, DeviceTimeout            (the classes above)
     drivers.usbtmc             UsbDeviceError, DeviceTimeout, DeviceStall (CommandRefused),

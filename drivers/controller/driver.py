@@ -202,7 +202,7 @@ class LaserHvController:
             return rsp
         if unreachable is not None:
             raise DeviceUnreachable(DEVICE, self.host, self.port, operation) from unreachable
-        raise DeviceTimeout(DEVICE, operation, attempts)
+        raise DeviceTimeout(DEVICE, operation, attempts=attempts)
 
     def _read_words(self, operation: str, register: p.Register, count: int) -> list[int]:
         fn = (self._client.read_input_registers if register.table is p.Table.INPUT

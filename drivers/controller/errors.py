@@ -2,7 +2,8 @@
 
 Every error names the device ("controller"), the register or quantity involved and the offending
 value, so a log line alone says what went wrong. The hierarchy lets callers catch broadly
-(``ControllerError``) or narrowly (``DeviceRefused``, ``DeviceTimeout``, ``InterlockOpen``).
+(``ControllerError``, or :class:`drivers.errors.DeviceError` for any device's failure, a timeout
+included) or narrowly (``DeviceRefused``, ``DeviceTimeout``, ``InterlockOpen``).
 All classes sit in the tree of :mod:`drivers.errors` and carry ``device`` and ``command`` (the
 Modbus operation or the setpoint being written). Pure module: no I/O, importable by the simulator
 and by the driver alike.
@@ -56,14 +57,9 @@ class ProtocolError(ControllerError, _e.ProtocolError):
         super().__init__(f"{DEVICE}: bad {what} = {value!r}: {reason}", command=f"decode {what}")
 
 
-class DeviceTimeout(ControllerError, _e.DeviceTimeout):
-    """No reply after the bounded number of attempts."""
-
-    def __init__(self, device: str, operation: str, attempts: int = 1) -> None:
-        self.operation = operation
-        self.attempts = attempts
-        super().__init__(f"{device}: no reply to {operation} after {attempts} attempt(s)",
-                         command=operation, device=device)
+#: No reply after the bounded number of attempts: the one timeout of every device
+#: (:class:`drivers.errors.DeviceTimeout`; ``device``, ``command`` = the Modbus operation, ``attempts``).
+DeviceTimeout = _e.DeviceTimeout
 
 
 class DeviceUnreachable(ControllerError, _e.DeviceGone):

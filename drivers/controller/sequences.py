@@ -18,10 +18,10 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from drivers.controller import protocol as p
+from drivers.errors import DeviceError
 from drivers.controller.errors import (
     DEVICE,
     ConfigError,
-    ControllerError,
     DeviceFaulted,
     InterlockOpen,
     SettleError,
@@ -119,7 +119,7 @@ class PowerSequences:
             self.regs.set_laser_current_ma(current)
             self.regs.laser_enable(True)
             self._settle("laser current", current, self.regs.laser_current_ma, sc.laser_tol_ma, "mA", sc)
-        except ControllerError:
+        except DeviceError:
             self._safe_off()
             raise
         return self.regs.status()
@@ -139,5 +139,5 @@ class PowerSequences:
         for fn in (self.regs.laser_enable, self.regs.hv_enable):
             try:
                 fn(False)
-            except ControllerError:
+            except DeviceError:
                 pass  # the original error is what the caller needs to see
