@@ -48,11 +48,11 @@ Policy (also in docs/api.md):
 from __future__ import annotations
 
 from .events import Event, EventHub, PointListener, Subscriber
-from .kinds import (QueueFull, UnknownScan, WorkerStopped, describe_error, request_from_dict, request_to_dict,
-                    software_version)
+from .kinds import (JobFailed, QueueFull, UnknownScan, WorkerStopped, describe_error, request_from_dict,
+                    request_to_dict, software_version)
 from .scan_job import ScanJobRun
 from .worker import ScanWorker
 
-__all__ = ["Event", "EventHub", "PointListener", "QueueFull", "ScanJobRun", "ScanWorker", "Subscriber",
+__all__ = ["Event", "EventHub", "JobFailed", "PointListener", "QueueFull", "ScanJobRun", "ScanWorker", "Subscriber",
            "UnknownScan", "WorkerStopped", "describe_error", "request_from_dict", "request_to_dict",
            "software_version"]

@@ -23,6 +23,11 @@ class QueueFull(LidardError):
     retry_after_s = 5
 
 
+class JobFailed(LidardError):
+    """A queued job (a linearization, a self-test, a calibration) failed on the worker; the message
+    names the job and the chain of causes (503: the daemon's state, not the request's fault)."""
+
+
 class WorkerStopped(LidardError):
     """The worker is not running (daemon shutting down)."""
 

@@ -17,7 +17,7 @@ from lidard.api.control import NotHeld
 from lidard.errors import ConfigError, LidardError, UnknownScan, describe_validation
 from lidard.instrument.calibration.range import CalibrationRefused
 from lidard.instrument.errors import DeviceFault, FaultsStillOpen, NotSimulated, SceneRejected
-from lidard.jobs import QueueFull, WorkerStopped
+from lidard.jobs import JobFailed, QueueFull, WorkerStopped
 from lidard.raw import PixelNotRecorded, RawCaptureError
 from lidard.raw.service import NoRawCapture
 
@@ -35,6 +35,7 @@ CASES = [
     (WorkerStopped("daemon shutting down"), 503, "5"),
     (DeviceFault("digitizer", "ARM", TimeoutError("no answer")), 503, None),
     (ConfigError("lab.toml: adc.bits: must be 8"), 503, None),
+    (JobFailed("linearization failed: DeviceFault: awg: timeout"), 503, None),
 ]
 
 

@@ -26,7 +26,7 @@ from fastapi import APIRouter, HTTPException, Query, status
 from pydantic import BaseModel, ConfigDict, Field
 
 from ...instrument.calibration.range import CalibrationRefused
-from ...jobs import describe_error
+from ...jobs import JobFailed, describe_error
 from ...jobs import calibrations as cal
 from ..deps import ConfigDep, StoreDep, WorkerDep
 
@@ -109,7 +109,7 @@ async def _wait(submit) -> Any:
     except CalibrationRefused:
         raise
     except Exception as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, f"calibration failed: {describe_error(exc)}") from None
+        raise JobFailed(f"calibration failed: {describe_error(exc)}") from exc
 
 
 def _clean(d: dict[str, Any]) -> dict[str, Any]:

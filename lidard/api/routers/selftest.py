@@ -9,10 +9,10 @@ with ``ok: false`` and the stuck lines.
 import asyncio
 from typing import Any, Literal
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter
 from pydantic import BaseModel
 
-from ...jobs import describe_error
+from ...jobs import JobFailed, describe_error
 from ..deps import WorkerDep
 
 router = APIRouter(tags=["selftest"])
@@ -47,8 +47,7 @@ async def selftest(worker: WorkerDep) -> SelftestReport:
     try:
         report: dict[str, Any] = await asyncio.wrap_future(future)
     except Exception as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
-                            f"self-test failed: {describe_error(exc)}") from None
+        raise JobFailed(f"self-test failed: {describe_error(exc)}") from exc
     v1 = report.get("single_beam_v")
     clean = {**report, "single_beam_v": v1 if isinstance(v1, float) and v1 == v1 else None}
     return SelftestReport.model_validate(clean)
