@@ -1,4 +1,4 @@
-"""A per-user cache of chirp linearizations for one-shot ``--sim`` commands (issue 18).
+"""A per-user cache of chirp linearizations for one-shot ``--sim`` commands.
 
 A ``lidarctl scan --sim`` without ``--data-dir`` runs on a temporary store, so without this cache
 every run would linearize the chirp again (ILC, dissertation §2.2: seconds of work for the same

@@ -158,13 +158,13 @@ class ScanRecord:
     reprocessed_from: str | None = None   # the scan whose raw capture this one was computed from
     range_calibration_id: str | None = None      # the range scale/zero calibration the scan used
     pointing_calibration_id: str | None = None   # the pointing calibration the scan used
-    receiver: str | None = None                  # "real" (one photodiode) or "iq" (adc.iq, issue 14)
+    receiver: str | None = None                  # "real" (one photodiode) or "iq" (adc.iq)
     iq_calibration_id: str | None = None         # the I/Q imbalance calibration the scan used
     uncalibrated_reason: str | None = None       # why stored calibrations were not used (another set-up)
 
     @property
     def calibrated(self) -> dict[str, bool]:
-        """Which calibrations the scan used (issue 13 item 4: uncalibrated is said, not hidden); an
+        """Which calibrations the scan used (uncalibrated is said, not hidden); an
         I/Q receiver's scan also says whether its imbalance was calibrated."""
         out = {"range": self.range_calibration_id is not None,
                "pointing": self.pointing_calibration_id is not None,
@@ -201,7 +201,7 @@ class Store(GeometryCalibrationStore):
             (self.data_dir / "calibrations").mkdir(parents=True, exist_ok=True)
             # Before anything is read or changed: only the lock's holder may mark another
             # process's running scans interrupted.
-            self._lock_fd = _lock_data_dir(self.data_dir)
+            self._lock_fd: int | None = _lock_data_dir(self.data_dir)
             self.db_path = self.data_dir / "lidard.sqlite3"
             self._conn = sqlite3.connect(self.db_path, check_same_thread=False, isolation_level=None,
                                          timeout=10.0)
@@ -334,7 +334,7 @@ class Store(GeometryCalibrationStore):
 
     def list_scans(self, limit: int = 100, state: str | None = None) -> list[ScanRecord]:
         """Newest first."""
-        q, args = "SELECT * FROM scans", []
+        q, args = "SELECT * FROM scans", list[str | int]()
         if state is not None:
             q += " WHERE state = ?"
             args.append(state)

@@ -1,4 +1,4 @@
-"""The store's records of the geometric calibrations (range scale/zero, pointing; issue 13 item 2).
+"""The store's records of the geometric calibrations (range scale/zero, pointing).
 
 A mixin of :class:`lidard.store.Store` (its SQLite connection and lock). Two tables:
 

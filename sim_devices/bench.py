@@ -30,7 +30,7 @@ stdin closes or it gets SIGTERM), with the USB transfers carried over a local so
 control socket (set_scene, set_interlock, advance, ground_truth, truth, ping, inject, clear_faults,
 faults, fidelity: the ledger of modelled / skipped effects).
 
-Hidden truths (issue 13, :mod:`sim_devices.world.tolerances`): the bench draws, from
+Hidden truths (:mod:`sim_devices.world.tolerances`): the bench draws, from
 ``[sim.tolerances]`` and its seed, the monitor MZI's true delay (used for the monitor fringes
 instead of the configured ``monitor.delay_s``), the range zero offset and the true pointing (both
 in the world). ``Bench.truth()`` and the control command ``truth`` give them to tests and
@@ -41,7 +41,7 @@ The FPGA's serial port is published as a STABLE path, a symlink in the bench's t
 is cleared the FPGA comes back on a NEW pty and the symlink is re-pointed, so a driver reopens the
 same ``fpsa_url``.
 
-Fault injection (issue 6): ``inject_fault(kind, **params) -> dict``, ``clear_faults(kind=None) ->
+Fault injection: ``inject_fault(kind, **params) -> dict``, ``clear_faults(kind=None) ->
 int``, ``active_faults()``; ``[[sim.faults]]`` tables of the configuration are injected by
 :meth:`Bench.start`. Tap channel (self-test): digitizer channel ``tap`` is a monitor photodiode on
 the light leaving the FPSA (one beam for a healthy pixel, two when a line is stuck on, none when
@@ -113,7 +113,7 @@ class Bench(BenchFaults, BenchCapture):
             scene = Scene.from_toml(cfg.resolve_path(cfg.sim.scene))
         self.seed = cfg.sim.seed if seed is None else int(seed)
         self.clock = VirtualClock()
-        # the hidden truths (issue 13): drawn once, never told to the daemon
+        # the hidden truths: drawn once, never told to the daemon
         self._truth = draw_truth(cfg.sim.tolerances, nominal_mzi_delay_s=cfg.monitor.delay_s, seed=self.seed)
         self.world = World(cfg, self.profile, self.laser_preset, scene, seed=self.seed, truth=self._truth)
         self.laser = DfbLaser(self.laser_preset)
@@ -127,7 +127,7 @@ class Bench(BenchFaults, BenchCapture):
             row_dynamics=row_dyn, col_dynamics=col_dyn, threshold_spread_v=pr.threshold_spread_v))
         self.awg = SimAwg()
         self.digitizer = SimDigitizer(self.clock, source=self)
-        # the laser's true temperature moves its chirp (issue 13; sim_devices.world.tec)
+        # the laser's true temperature moves its chirp (sim_devices.world.tec)
         self.tec_tuning, tec_drift = tec_model(cfg.sim.tolerances, self.seed)
         self.controller = ControllerSim(self.clock, tec_drift=tec_drift)
         self.fpga.supply = self._hv_drive  # the controller's HV is the HV583 supply rail

@@ -1,4 +1,4 @@
-"""Fault injection on the simulated bench (issue 6; catalogue and parameters in ``sim_devices.faults``).
+"""Fault injection on the simulated bench (catalogue and parameters in ``sim_devices.faults``).
 
 :class:`BenchFaults` is the fault half of :class:`sim_devices.bench.Bench`: ``inject_fault(kind,
 **params) -> dict``, ``clear_faults(kind=None) -> int``, ``active_faults()``, and what each kind does

@@ -22,7 +22,7 @@ wire format in docs/protocols/controller.md). What it models:
 - TEC: the loop holds its thermistor at the set point and TEC_TEMPERATURE reads that thermistor; the
   laser chip's TRUE temperature (``laser_temperature_c()``, what the bench's laser model uses) adds a
   slow drift (``tec_drift``: sim_devices.world.tec.TecDrift) and an injected step (``tec_offset_c``,
-  fault ``tec_offset``) that the readback cannot show (issue 13).
+  fault ``tec_offset``) that the readback cannot show.
 
 The device logic (state, lags, limits, interlock, faults) is ``sim_devices.controller_model``; this
 module serves it over Modbus TCP and injects the protocol-level faults. Start/stop from a thread
@@ -264,7 +264,7 @@ class ControllerSim:
         self._thread = None
         self._loop = None
 
-    def __enter__(self) -> "ControllerSim":
+    def __enter__(self) -> ControllerSim:
         self.start()
         return self
 

@@ -1,5 +1,6 @@
 """The device logic of the simulated laser / TEC / HV controller, without the Modbus server
-(§4.4.1, Fig. 4-29: DFB laser current; §4.3 and §4.2.6: the MEMS HV supply; issue 13: the TEC).
+(§4.4.1, Fig. 4-29: DFB laser current; §4.3 and §4.2.6: the MEMS HV supply; the TEC,
+whose set point the laser chip's true temperature may not follow).
 
 :class:`ControllerModel` holds the state behind the register map of ``drivers.controller.protocol``:
 readbacks follow their targets with first-order lags on the shared virtual clock (x -> target +

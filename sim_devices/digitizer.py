@@ -26,7 +26,7 @@ corner f_d forward and backward squares its magnitude, 1 / (1 + (t / t_d)**(2N))
 t = tan(pi f / fs); the design corner t_d = t_c * (sqrt(2) - 1) ** (-1 / (2N)) puts the -3 dB point
 of the pair at f_c. A corner at or above fs / 2 leaves the record as it is.
 
-Decimation filter (issue 14): a record below the core's rate is decimated on board, behind a
+Decimation filter: a record below the core's rate is decimated on board, behind a
 digital filter that tracks the record rate (pass band to 0.4 fs, stop band from 0.6 fs,
 ``stopband_db`` down; lidard.physics.decimation). It must act before the rate reduction, so it is
 applied by the synthesis to every return at its true beat frequency (:func:`decimation_filter`,

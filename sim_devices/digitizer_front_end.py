@@ -1,8 +1,8 @@
-"""The simulated digitizer's analog front end: anti-alias band limit, then the quantizer (issue 11, 18).
+"""The simulated digitizer's analog front end: anti-alias band limit, then the quantizer.
 
 Split from :mod:`sim_devices.digitizer` (which re-exports these names); the response and the
 quantizer are documented there and in docs/protocols/digitizer.md. Integer codes that no filter
-touches at the record rate are quantized in integer arithmetic (issue 18): the same codes as the
+touches at the record rate are quantized in integer arithmetic: the same codes as the
 float path, in a few passes and without a float64 copy of every batch.
 """
 
@@ -16,13 +16,13 @@ from drivers.digitizer import protocol as p
 
 
 def butter(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    # imported on first use: scipy.signal costs about a second of every command's start-up
     from scipy.signal import butter as fn
     return fn(*args, **kwargs)
 
 
 def sosfiltfilt(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    # imported on first use: scipy.signal costs about a second of every command's start-up
     from scipy.signal import sosfiltfilt as fn
     return fn(*args, **kwargs)
 
@@ -82,7 +82,7 @@ def _quantizes_in_record(codes: np.ndarray, cfg: p.Config) -> bool:
 
 def quantize_int16_into(out: np.ndarray, codes: np.ndarray, resolution_bits: int) -> None:
     """``out[...] = clip(quantize(codes), -32768, top)`` for int16 codes in the 16-bit format, in
-    int16 arithmetic (issue 18: a few in-place passes, no int32 or float copy of a batch).
+    int16 arithmetic (a few in-place passes, no int32 or float copy of a batch).
 
     The top code of the resolution, top = 32768 - step, is a multiple of the step, so a code above it
     quantizes to top or to 32768, which the converter clips to top: the result is quantize(min(codes,
@@ -115,7 +115,7 @@ def _round_half_even_in_place(q: np.ndarray, shift: int) -> None:
 
 
 def quantize_int_codes(codes: np.ndarray, resolution_bits: int, format_bits: int) -> tuple[np.ndarray, int]:
-    """:func:`quantize_codes` of integer codes in integer arithmetic (issue 18: the float64 round
+    """:func:`quantize_codes` of integer codes in integer arithmetic (the float64 round
     trip of every sample was most of the simulated transport's time). Same values: round half to
     even, as ``np.round`` does; int32 out, so codes beyond full scale survive for the clip."""
     step = 1 << (format_bits - resolution_bits)

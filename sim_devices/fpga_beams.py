@@ -33,7 +33,7 @@ def beams_in_windows(rows_bank: SwitchBank, cols_bank: SwitchBank, candidate_row
     dwell. Candidate switches are then found once per dwell, over the dwell's whole span (a switch
     that may be lit in a window may be lit in any span containing it: levels are monotone between
     events and an ON command inside is caught), and the exact transmissions are computed per
-    window for those candidates only (issue 18: the averages of a pixel no longer evaluate every
+    window for those candidates only (the averages of a pixel no longer evaluate every
     switch each)."""
     if dwell is None:
         span0, span1, of = t0, t1, np.arange(t0.size)

@@ -12,7 +12,7 @@ a = pi (N-1)/N.  The moments are one small real matrix product per batch; afterw
 and d2X/ddelta2 at any offset are polynomial evaluations, so Newton steps cost O(terms) per ramp.
 
 The product does not read the ramps against s^p itself but against the Chebyshev polynomials T_q(s)
-(issue 18): by Jacobi-Anger, exp(-j a delta s) = sum_q eps_q (-j)^q J_q(a delta) T_q(s), and J_q falls
+(fewer moments for the same accuracy): by Jacobi-Anger, exp(-j a delta s) = sum_q eps_q (-j)^q J_q(a delta) T_q(s), and J_q falls
 off like (a delta / 2)^q / q!, so Q Chebyshev moments nu_q = sum_n z[n] T_q(s) carry what ~1.4 Q power
 moments do (20 against 26 for |delta| <= 1 bin at 1e-13). mu_p follows from them exactly for p < Q
 (s^p = 2^(1-p) sum' C(p, m) T_(p-2m)(s)) and with the part of s^p beyond T_(Q-1) dropped for p >= Q,
@@ -187,7 +187,7 @@ def _small_gemm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     time of the frame DSP went there). A stacked matmul calls BLAS per block, and a block below
     OpenBLAS's multithreading threshold runs on the calling thread. OpenBLAS 0.3.2x+ (numpy's wheels)
     gives a product M*N*K / 2.6e5 threads, so blocks under 5.2e5 stay on one (measured with numpy
-    2.4's OpenBLAS 0.3.31: 1.0e6 still one thread, 1.2e6 two); 5e5 rather than 2e5 (issue 18):
+    2.4's OpenBLAS 0.3.31: 1.0e6 still one thread, 1.2e6 two); 5e5 rather than 2e5:
     at N = 2880 the old budget made single-row products, each re-reading the whole table. Same sums.
     """
     rows, n = a.shape
@@ -240,7 +240,7 @@ class _DtftNearBin:
         ``delta`` (..., m) for the m pairs: several offsets per pair in one pass (the leading axes).
         Real and imaginary parts run as separate real arrays: a complex array times a real ``delta``
         is a full complex product in numpy (four multiplications, two of them by zero); the parts
-        give the same values with half the work (issue 18).
+        give the same values with half the work.
         """
         gr, gi = self._terms()
         delta = np.asarray(delta, dtype=np.float64)
@@ -324,7 +324,7 @@ def _twiddle_table(n: int) -> np.ndarray:
 
 
 def _moments_on_bins(x: np.ndarray, rows: np.ndarray | None, f0: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """The Chebyshev moments (m, 2, Q) around whole bins f0, grouped by bin (issue 18).
+    """The Chebyshev moments (m, 2, Q) around whole bins f0, grouped by bin.
 
     Around a whole bin k the demodulated basis T_q(s) exp(-j 2 pi k t / N) is the same for every ramp
     whose peak is at k, so each distinct bin costs one (N x 2Q) table and its ramps one real matrix

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +43,7 @@ from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import refine_ramp
 from .scratch import scratch
 from .velocity import pair_up_down
+from .window import WindowName
 
 
 @dataclass(frozen=True)
@@ -80,7 +82,7 @@ class FrameDsp:
     max_range_m: float
     min_range_m: float = 0.05
     max_speed_mps: float = 5.0
-    window: str = "hann"
+    window: WindowName = "hann"
     # the rate of valid false points per range cell (one ramp FFT bin of the searched band) in noise
     # alone; the per-ramp detector runs at the looser ramp_pfa (lidard.dsp.ranging.points). 1e-11: the
     # per-ramp level 1e-6 on the scan's three-segment chirp (m = 10), the operating point it was tuned at
@@ -94,7 +96,7 @@ class FrameDsp:
     cw_samples: int = 0         # samples of the constant-frequency segment after the ramps (0: triangle)
     # the held segment's measured drift (lidard.dsp.cwhold.HoldProfile.as_dict; the linearization's):
     # where the real receiver's two regimes meet, |f_D| comes from the dechirped CW segment
-    hold_profile: dict | None = None
+    hold_profile: dict[str, Any] | None = None
     # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.gate): the top of its
     # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
     alias_free_hz: float | None = None
@@ -189,11 +191,11 @@ class FrameDsp:
         """From a pixel's first trigger (a point's ``t``) to the instant its range refers to: the two
         ramps' beats give the range at their mean centre, one ramp time after a trigger, averaged over
         the pixel's triggers ((averages - 1) / 2 periods later still). A target at 5 m/s moves 0.4 mm
-        in the 80 us of one average (issue 14's hold-out check measured this offset)."""
+        in the 80 us of one average (a hold-out check against moving targets measured this offset)."""
         period_s = (2 * self.ramp_samples + self.cw_samples) / self.fs_hz
         return self.ramp_samples / self.fs_hz + 0.5 * (int(averages) - 1) * period_s
 
-    def sidecar(self, phase_noise: bool) -> dict:
+    def sidecar(self, phase_noise: bool) -> dict[str, Any]:
         """The ``dsp`` block of a scan's sidecar (the scan loop's and a reprocessing's alike)."""
         return {"window": self.window, "estimator": self.estimator, "pfa": self.pfa,
                 "range_resolution_m": self.range_resolution_m, "use_fraction": self.use_fraction,
@@ -214,7 +216,7 @@ class FrameDsp:
         if self.iq:
             f_lo = max(f_lo, -gate_top_hz(self.fs_hz / 2, self.alias_free_hz))
             lo = int(rf.bin_to_index(int(np.floor(f_lo / df))))
-            hi = int(min(rf.bin_to_index(int(np.ceil(f_hi / df)) + 2), rf.n_fft - 1))
+            hi = min(int(rf.bin_to_index(int(np.ceil(f_hi / df)) + 2)), rf.n_fft - 1)
             return max(lo, 0), hi
         n_bins = rf.n_fft // 2 + 1
         lo = int(np.floor(max(f_lo, 0.0) / df))
@@ -258,7 +260,7 @@ class FrameDsp:
             res = self._pair(out_f, out_det)
         return keep_returns(res, self.max_returns)
 
-    def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list, list]:
+    def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list[Any], list[Any]]:
         """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT.
         ``codes``: the beat came as integer ADC codes, so its volts are finite and the range FFT's
         NaN/inf pass over every sample is skipped (volts given as floats are checked)."""
@@ -272,8 +274,12 @@ class FrameDsp:
             shape = rf.spectrum_shape(ramp.shape[:-1])
             p = scratch("frame.power", shape, np.float64)
             spec = (rf.spectrum_of if codes else rf)(ramp, scratch("frame.spec", shape, np.complex128), p)
+            def signals(idx: np.ndarray, ramp: np.ndarray = ramp,
+                        spec: np.ndarray = spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                return ramp, rf.index_to_bin(idx), spec
+
             res = detect_and_refine(
-                spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
+                spec, signals, window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.ramp_pfa, iq=self.iq,
                 max_detections=self.candidate_slots, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
                 power=p)
@@ -283,13 +289,14 @@ class FrameDsp:
                 det = replace(det, valid=det.valid & ~img)
             # the ramp's detections refined jointly (no mutual leakage bias), and the model-order test:
             # a peak the fitted tones do not explain hides a second surface (lidard.dsp.ranging)
+            assert res.power is not None and res.frac_records is not None   # power=p was given
             frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_records, rf=rf, window=self.window,
                                     level=self.order_level, pfa=self.ramp_pfa)
             out_f.append(frac * rf.delta_f)
             out_det.append(det)
         return out_f, out_det
 
-    def _pair(self, out_f: list, out_det: list) -> FrameResult:
+    def _pair(self, out_f: list[Any], out_det: list[Any]) -> FrameResult:
         """Up/down pairing (eqs. 2-6, 2-7), validity flags and the range gate."""
         du, dd = out_det
         # I/Q: the band is not a prior; a target at its edge keeps its pair (two bins of search margin)

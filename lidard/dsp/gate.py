@@ -1,4 +1,4 @@
-"""The honest range gate and the per-point flags (issue 14; dissertation §2.1.1, §4.4.3).
+"""The honest range gate and the per-point flags (dissertation §2.1.1, §4.4.3).
 
 A real beat sampled at fs cannot say on which side of a multiple of fs its tone was: a target
 beyond the gate whose beat folds into it looks like one inside. Two things keep such folds out of
@@ -24,6 +24,7 @@ is not valid. Pure numpy.
 from __future__ import annotations
 
 from enum import IntFlag
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,7 @@ def point_flags(*, unresolved, leak, harmonic, unpaired) -> np.ndarray:
     return f
 
 
-def decimation_gate(fs_hz: float, core_rate_hz: float, stopband_db: float, input_range_v: float) -> dict:
+def decimation_gate(fs_hz: float, core_rate_hz: float, stopband_db: float, input_range_v: float) -> dict[str, Any]:
     """FrameDsp's ``alias_free_hz`` and ``alias_ceiling_v`` for a record at ``fs_hz`` decimated from a
     core at ``core_rate_hz`` (none at the core's own rate: only the analogue front end filters)."""
     if core_rate_hz / float(fs_hz) < 2.0 - 1e-9:

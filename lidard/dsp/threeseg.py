@@ -1,4 +1,4 @@
-"""Signed velocity with one photodiode and no speed prior: the three-segment chirp (issue 14; §2.1.2).
+"""Signed velocity with one photodiode and no speed prior: the three-segment chirp (§2.1.2).
 
 A period is an up ramp, a down ramp and a constant-frequency (CW) segment. With the range beat
 f_R = 2 kappa R / c and the return's Doppler shift f_D (``sim_devices``' convention f_D = -2 v / lambda,
@@ -35,6 +35,8 @@ peak used once (after :func:`lidard.dsp.velocity.pair_up_down`'s matcher). Pure 
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -75,7 +77,7 @@ def _range_max_table(p: np.ndarray, top_level: int | None = None) -> list[np.nda
 
 class _RangeMax:
     """The sparse table of one CW spectrum, built once for every band query and only as deep as the
-    widest band asks (issue 18: six full tables per batch were a third of the three-segment DSP)."""
+    widest band asks (six full tables per batch were a third of the three-segment DSP)."""
 
     def __init__(self, p: np.ndarray):
         self.p = p
@@ -163,7 +165,7 @@ def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
     noise = _median_last(p_cw)[:, None]
     regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
-    bands = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
+    bands: list[Any] = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
     table = _RangeMax(p_cw)                      # one table for both regimes and every tier
     t_n, t_f = (_regime_tier(table, df_hz, f_r, d, noise, guard_bins, guard_hz, band)
                 for (f_r, d), band in zip(regimes, bands))
@@ -267,7 +269,7 @@ def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
 
 
-def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict:
+def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarray) -> dict[str, Any]:
     """The FrameResult fields (as a dict) of a three-segment frame; ``x`` the batch's records (the
     CW segments the boundary's dechirp reads)."""
     (fu, fd), (du, dd) = out_f, out_det
@@ -277,7 +279,8 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict
     flat = [np.abs(a).reshape(-1, a.shape[-1]) for a in (fu, fd)]
     vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
     profile = dsp.hold
-    rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
+    (flat_u, flat_d), (valid_u, valid_d) = flat, vflat
+    rng, vel, ok, seen, iu, idn = pair_three(flat_u, flat_d, valid_u, valid_d, p_cw.reshape(-1, p_cw.shape[-1]), df,
                                              chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
                                              wavelength_m=dsp.wavelength_m, guard_bins=CW_GUARD_BINS, max_targets=k,
                                              rho=dsp.drift_rho,

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
 from drivers.usbtmc import DeviceDisconnected, DeviceStall, DeviceTimeout as UsbTimeout, UsbDeviceError
+from drivers.retry import RetryPolicy
 
 from ..config import Config
 from ..physics.chirp import hold_segment_v, three_segment_drive_v, triangle_drive_v
@@ -82,6 +84,7 @@ class AcquisitionLifecycle:
         self.devices = devices
         self.cfg = cfg
         self._sleep = sleep
+        self._batch_retry = RetryPolicy.retries(BATCH_RETRIES, BATCH_BACKOFF_S, sleep)
 
     # -- ready ----------------------------------------------------------------------------------
     def load_drive(self, drive_v: np.ndarray) -> None:
@@ -136,12 +139,11 @@ class AcquisitionLifecycle:
         failures re-read the whole batch (bounded), then :class:`SegmentsLost`."""
         dig = self.devices["digitizer"]
         last: Exception | None = None
-        for attempt in range(BATCH_RETRIES + 1):
+        for attempt in self._batch_retry.tries():   # waited BATCH_BACKOFF_S (doubling) before a re-read
             if attempt:
                 acq.faults["batch_retries"] += 1
                 log.warning("digitizer: re-reading segments %d..%d (attempt %d/%d) after %s",
                             first, first + count - 1, attempt + 1, BATCH_RETRIES + 1, last)
-                self._sleep(BATCH_BACKOFF_S * 2 ** (attempt - 1))
             with on_device("digitizer", "READ_SEGMENTS"):
                 try:
                     return dig.read_segments(first, count, acq.layout)

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from collections.abc import Callable
 
 from .healthcheck import HealthCheck
 from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
@@ -45,9 +46,9 @@ class Instrument(Protocol):
 
     def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:
         """The linearization health check of the drive a scan with ``calibration`` would use: its chirp
-        measured through the monitor MZI against the ideal (issue 13); None when the check is off."""
+        measured through the monitor MZI against the ideal; None when the check is off."""
 
-    def use_calibrations(self, applied: "AppliedCalibrations") -> None:
+    def use_calibrations(self, applied: AppliedCalibrations) -> None:
         """Use these range/pointing calibrations (effective monitor delay, zero offset, pointing) for the
         following linearizations and scans (the job worker hands the newest stored ones over)."""
 

@@ -140,7 +140,7 @@ class ScanLoop:
                  simulated: bool):
         self.cfg, self.optics, self.lifecycle, self.safety = cfg, optics, lifecycle, safety
         self.simulated = simulated
-        self.applied = AppliedCalibrations()   # the facade's use_calibrations sets it (issue 13)
+        self.applied = AppliedCalibrations()   # the facade's use_calibrations sets it
 
     def run(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event, drive_v: np.ndarray,
             calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
@@ -315,7 +315,7 @@ class ScanLoop:
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),
-            # issue 13: the range / pointing calibrations the ranges and directions were computed with
+            # the range / pointing calibrations the ranges and directions were computed with
             "geometry": self.applied.meta(self.cfg.monitor.delay_s),
             "calibrated": self.applied.calibrated(run.calibration_id is not None, iq=p.dsp.iq),
         }

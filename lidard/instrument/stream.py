@@ -120,7 +120,7 @@ class StreamLoop:
     """Runs frames back to back on the scan loop's acquisition, safety and DSP machinery."""
 
     def __init__(self, loop: ScanLoop, *, health: Callable[[], Any] | None = None,
-                 tec: Callable[[], float] | None = None, scene_clock: Callable[[bool], None] | None = None,
+                 tec: Callable[[], float] | None = None, scene_clock: Callable[[bool], object] | None = None,
                  history_frames: int = 4, tec_poll_s: float = TEC_POLL_S):
         self.loop = loop
         self.cfg, self.lifecycle, self.safety = loop.cfg, loop.lifecycle, loop.safety
@@ -242,7 +242,8 @@ class StreamLoop:
         else:
             setup = 0.0
         pts = self._place(pts, index, run, st)
-        frame = Frame(index, pts, px, run.done, 0.0 if frame_t0 is None else (frame_t0 - st.t0_ns) * 1e-9,
+        frame = Frame(index, pts, px, run.done,
+                      0.0 if frame_t0 is None or st.t0_ns is None else (frame_t0 - st.t0_ns) * 1e-9,
                       run.hw_last_s, setup, self.pixel_period_s(p),
                       partial=run.done < p.n_pixels, stop_reason=run.stop_reason, trade=dict(fp.trade),
                       faults=dict(run.faults))
@@ -286,6 +287,8 @@ class StreamLoop:
 
     def _recheck(self, st: _State, drive_v: np.ndarray, why: str) -> str | None:
         """Run the health check between frames; answers the stop reason when the chirp is off."""
+        if self._health is None:        # no check configured: nothing is ever due (_health_due)
+            return None
         check = self._health()          # its own acquisition; outputs up and down around it
         st.checked_s, st.tec_c = self._now_s(st), self._read_tec()
         if check is not None:

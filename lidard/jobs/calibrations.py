@@ -1,6 +1,6 @@
 """Range, pointing and I/Q calibrations as daemon procedures: queued on the worker, recorded in the store.
 
-The steps a lab runs (issue 13 item 2; the physics is in lidard.instrument.calibration.range / .pointing):
+The steps a lab runs (the physics is in lidard.instrument.calibration.range / .pointing):
 
 * ``add_plate(known_m)``: queued behind the jobs waiting; scans the centre region against the plate
   now in front of the sensor, keeps the measurement in the store (pending, survives a restart);
@@ -103,7 +103,7 @@ def pointing_now(worker, surfaces) -> CalibrationRecord:
 
 
 def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
-    """Queue an I/Q imbalance calibration on the targets in front of the sensor (issue 14 item 2); the
+    """Queue an I/Q imbalance calibration on the targets in front of the sensor; the
     future resolves to the stored record."""
     from ..instrument.calibration.iq import measure_iq, require_iq_receiver
     max_range_m = float(max_range_m)

@@ -1,4 +1,4 @@
-"""One scan job, from ``queued`` to a terminal state, on the worker thread (lidard.jobs, issue 12).
+"""One scan job, from ``queued`` to a terminal state, on the worker thread (lidard.jobs).
 
 :class:`ScanJobRun` is the explicit context of a running scan (what the worker used to keep in closures
 and ``[value]`` cells): the calibration it uses, when the store last heard its progress, and the
@@ -12,9 +12,11 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from ..instrument.calibration.applied import AppliedCalibrations
+from ..instrument.errors import ScanFailed
 from ..instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from ..pointcloud import suffix_of, write_points
 from ..scan import adaptive_plans, planned_pixel_count
@@ -98,7 +100,7 @@ class ScanJobRun:
     def _failed(self, exc: Exception) -> None:
         job = self.job
         log.warning("scan %s failed: %s", job.id, describe_error(exc))
-        partial_result = getattr(exc, "partial", None)
+        partial_result = exc.partial if isinstance(exc, ScanFailed) else None
         files: dict[str, str] = {}
         counts: dict[str, Any] = {}
         if isinstance(partial_result, ScanResult) and partial_result.pixels_scanned > 0:
@@ -159,7 +161,7 @@ class ScanJobRun:
             "request": request_to_dict(job.request),
             "calibration_id": self.cal_id,
             "linearization": job.linearization,
-            # issue 13 item 4: which calibrations the points were computed with, said in every sidecar
+            # which calibrations the points were computed with, said in every sidecar
             **self._calibrated(),
             "hardware_time_s": float(result.hardware_time_s),
             "wall_time_s": float(wall_s),
@@ -172,7 +174,7 @@ class ScanJobRun:
             "stop_reason": result.stop_reason or (job.cancel_reason if job.cancel.is_set() else None),
         }
         out_dir = self.store.scan_dir(job.id)
-        files = {}
+        files: dict[str, str] = {}
         for fmt in job.request.formats:
             path = out_dir / f"scan{suffix_of(fmt)}"
             write_points(path, result.points, meta, fmt)
@@ -230,12 +232,16 @@ def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], N
                           pixels_planned=planned, hardware_time_s=offset_s + second.hardware_time_s,
                           partial=second.partial, stop_reason=second.stop_reason)
 
+    nothing = dataclasses.replace(first, points=first.points[:0], pixels_scanned=0, hardware_time_s=0.0, meta={})
     try:
         second = instrument.run_scan(as_pixels(dense), dense_progress, job.cancel, cal)
-    except Exception as exc:
+    except ScanFailed as exc:
         # the coarse pass is measured data: it rides on the failure like any partial result
-        part = getattr(exc, "partial", None)
-        exc.partial = merged(part if isinstance(part, ScanResult) else dataclasses.replace(
-            first, points=first.points[:0], pixels_scanned=0, hardware_time_s=0.0, meta={}))
+        exc.partial = merged(exc.partial if exc.partial is not None else nothing)
         raise
+    except ScanCancelled:
+        raise
+    except Exception as exc:
+        # any other failure of the dense pass: a ScanFailed, so that the coarse points have a typed home
+        raise ScanFailed(f"the dense pass of the adaptive scan failed: {exc}", partial=merged(nothing)) from exc
     return merged(second)

@@ -15,7 +15,8 @@ import logging
 import math
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from ..instrument.healthcheck import health_record
 from ..instrument.protocol import Instrument
@@ -25,6 +26,7 @@ from ..scan import planned_pixel_count
 from ..store import ScanRecord, Store
 from . import heap
 from .events import EventHub, PointListener, Subscriber
+from .guided import FactoryCalibration
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
                     request_to_dict)
 from .scan_job import ScanJobRun, raw_path
@@ -64,7 +66,7 @@ class ScanWorker:
         self.setup = setup
         # a simulated bench's factory calibration (lidard.jobs.guided.FactoryCalibration): run before the
         # first scan when no range/pointing record of this set-up is stored; None: never
-        self.factory = None
+        self.factory: FactoryCalibration | None = None
         self.sim_scene: dict[str, Any] | None = None   # the scene last placed over REST (PUT /sim/scene)
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -313,7 +315,8 @@ class ScanWorker:
                                          "fraction": (done / steps) if done is not None and steps else 0.0,
                                          "hardware_time_s": 0.0, "calibration": ev})
         self.store.update_scan(job.id, stage="calibrating")
-        self.factory.run_if_needed(self, stage)
+        if self.factory is not None:
+            self.factory.run_if_needed(self, stage)
 
     def current_linearization(self, announce: Callable[..., None] | None = None) -> CalibrationResult:
         """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
@@ -334,6 +337,7 @@ class ScanWorker:
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             used = self.instrument.check_linearization(cal)
         self.last_linearization = health_record(checked, used, reason)
+        assert cal is not None   # with none stored, reason was set and one was made
         return cal
 
     def apply_geometry(self):

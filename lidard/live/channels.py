@@ -1,6 +1,6 @@
 """The Foxglove channels lidard publishes, shared by the live server and the MCAP file writer.
 
-Three topics, one per thing a robotics user looks at (issue 16 item 2):
+Three topics, one per thing a robotics user looks at:
 
 * ``/lidar/points``: ``foxglove.PointCloud`` (protobuf) in frame ``lidar`` (the sensor frame of
   §4.1.1: +z the optical axis). Every field of :data:`lidard.point_schema.POINT_FIELDS` (``valid``,
@@ -26,7 +26,7 @@ from foxglove.channels import PointCloudChannel
 from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud, Pose, Quaternion, \
     Timestamp, Vector3
 
-from ..point_schema import FOXGLOVE_TYPE, POINT_DTYPE, POINT_FIELDS
+from ..point_schema import FOXGLOVE_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS
 
 FRAME_ID = "lidar"
 POINTS_TOPIC, STATUS_TOPIC, DEVICES_TOPIC = "/lidar/points", "/lidar/scan_status", "/lidar/devices"
@@ -69,7 +69,7 @@ def json_schema(schema: dict[str, Any]) -> foxglove.Schema:
 
 
 def packed_fields() -> list[PackedElementField]:
-    return [PackedElementField(name=f.name, offset=PACKED_DTYPE.fields[f.name][1], type=_NUMERIC[FOXGLOVE_TYPE[f.dtype]])
+    return [PackedElementField(name=f.name, offset=POINT_OFFSETS[f.name], type=_NUMERIC[FOXGLOVE_TYPE[f.dtype]])
             for f in POINT_FIELDS]
 
 

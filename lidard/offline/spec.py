@@ -37,7 +37,7 @@ import json
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Union
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -46,7 +46,7 @@ from lidard.config import CONFIG_DIR, Config, LaserPreset, Profile, load_config
 from lidard.dsp.estimators import DEFAULT_METHOD, EstimatorName
 from lidard.errors import ConfigError, LidardError
 
-Scalar = Union[bool, int, float, str]
+Scalar = bool | int | float | str
 
 # Configuration keys the sweep task honours (it builds the link budget, the ADC plan, the synthesis
 # and the DSP from them exactly as the daemon and the bench do). Whole sections end with ".".

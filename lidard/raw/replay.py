@@ -1,4 +1,4 @@
-"""Run the scan's DSP again on a raw capture, optionally with other settings (issue 16, item 4).
+"""Run the scan's DSP again on a raw capture, optionally with other settings.
 
 The scan loop turns each batch of digitizer segments into points with :class:`FrameDsp` (range FFT,
 OS-CFAR, sub-bin estimator, up/down pairing: dissertation §2.1, §4.4.3; with the monitor MZI, the
@@ -26,7 +26,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, get_args
+from typing import Any, get_args
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -147,7 +148,9 @@ def task_count(raw_path: str | Path) -> int:
 def _joined(chunks: list[RawChunk]) -> RawChunk:
     if len(chunks) == 1:
         return chunks[0]
-    cat = (lambda name: np.concatenate([getattr(c, name) for c in chunks]))
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(c, name) for c in chunks])
+
     return RawChunk(index=chunks[0].index, segments=cat("segments"), overrange=cat("overrange"),
                     trigger_time_ns=cat("trigger_time_ns"), pixels=cat("pixels"), directions=cat("directions"),
                     t_s=cat("t_s"))

@@ -1,4 +1,4 @@
-"""The digitizer's anti-alias/decimation filter acting on synthesized beat tones (issue 14).
+"""The digitizer's anti-alias/decimation filter acting on synthesized beat tones.
 
 The synthesis works at the record's own rate fs, so a beat above fs/2 comes out already folded: a
 filter run on the record afterwards could not tell it from an in-band tone. The filter is therefore
@@ -16,7 +16,7 @@ chirp rate + |Doppler|) are left alone: no per-sample work for in-gate targets.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -117,7 +117,7 @@ def cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = Fals
         phase *= 2.0 * np.pi
         r32 = phase.astype(np.float32)
     # the record stays float32 from here (amplitude, filter gains, noise): 7 digits against the
-    # 16-bit converter's 4.6, and half the memory traffic of float64 (issue 18)
+    # 16-bit converter's 4.6, and half the memory traffic of float64
     c = np.cos(r32, out=r32) if not want_sin else np.cos(r32)
     s = np.sin(r32, out=r32) if want_sin else None
     return c, s

@@ -1,4 +1,4 @@
-"""Fast path of the beat synthesis for static returns on a rational sample grid (issue 18).
+"""Fast path of the beat synthesis for static returns on a rational sample grid.
 
 Follows the same physics as :mod:`sim_devices.world.synth` (dissertation §2.1 eqs. 2-1..2-3): the
 deterministic beat phase of a static return delayed by tau is

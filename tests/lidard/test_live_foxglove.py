@@ -14,12 +14,12 @@ import pytest
 from fastapi.testclient import TestClient
 from websockets.sync.client import connect
 
-from tests.helpers.fakes import FakeInstrument  # noqa: E402
+from tests.helpers.fakes import FakeInstrument
 
-from lidard.api.app import create_app  # noqa: E402
-from lidard.config import ConfigError, load_config  # noqa: E402
-from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC  # noqa: E402
-from lidard.outputs.mcap import decode_point_cloud  # noqa: E402
+from lidard.api.app import create_app
+from lidard.config import ConfigError, load_config
+from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC
+from lidard.outputs.mcap import decode_point_cloud
 
 T = 20.0
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]

@@ -15,7 +15,6 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
 from ...instrument.types import ScanRequest
-from ...jobs import QueueFull, WorkerStopped
 from ...jobs.stream_job import StreamJob, StreamRequestError, StreamSpec
 from ...pointcloud import MEDIA_TYPE, suffix_of
 from ...scan import ScanPlanError, plan
@@ -84,16 +83,13 @@ def create_stream(body: StreamCreate, request: Request, response: Response, work
     out = stream_dir(store, job.id)
     spec.out = str(out / "stream.mcap") if body.format == "mcap" else str(out)
     meta = dict(getattr(worker, "base_meta", {}) or {})
-    try:
-        worker.submit_task(lambda: job.run(worker, meta))
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
+    worker.submit_task(lambda: job.run(worker, meta))   # QueueFull, WorkerStopped: 503 with Retry-After
     _streams(request)[job.id] = job
     response.headers["Location"] = f"/streams/{job.id}"
     return job.status()
 
 
-_404 = {404: {"description": "no stream with this id"}}
+_404: dict[int | str, dict[str, Any]] = {404: {"description": "no stream with this id"}}
 
 
 @router.get("/{stream_id}", responses=_404)

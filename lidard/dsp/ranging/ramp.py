@@ -22,6 +22,7 @@ grown model to pass: the rate is below ``level``. Pure numpy.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -127,7 +128,7 @@ def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def _grow(ramp, spec, power, det: Detections, frac, pix, noise, centre, half, slot, *, rf: RangeFFT, window: str,
-          test: dict, pfa: float):
+          test: dict[str, Any], pfa: float):
     """Step 3 of the module doc on the pixels ``pix`` (each has a free slot): a tone searched within
     ``half`` cells of ``centre`` in the records less the fitted tones; ``slot`` the detection whose
     noise estimate it takes; ``frac`` (P, L, K) per record."""

@@ -289,7 +289,7 @@ def test_timeouts_retry_bounded_then_device_timeout(fast, sim):
     sim.inject_timeout(3)  # retries=2 -> 3 attempts, all unanswered
     with pytest.raises(DeviceTimeout) as ei:
         ctl.status()
-    assert ei.value.device == "controller" and ei.value.operation == "read status"
+    assert ei.value.device == "controller" and ei.value.command == "read status"
     assert ei.value.attempts == 3
     assert sim.requests_received - received == 3 and sim.responses_dropped == 3
     assert "controller" in str(ei.value) and "read status" in str(ei.value)

@@ -131,7 +131,7 @@ def test_fpga_naks_unbonded_row_when_driver_check_is_bypassed():
     pattern = np.array([[0, 0], [1, 1], [2, 2], [3, 3]])
     with pytest.raises(NakError) as ei:
         liar.upload_pattern(pattern)
-    assert ei.value.code == p.NakCode.BAD_ROW_UNBONDED and ei.value.detail == 3
+    assert ei.value.code == p.NakCode.BAD_ROW_UNBONDED and ei.value.nak_detail == 3
     assert ei.value.command == "PATTERN_CHUNK" and "fpsa" in str(ei.value)
     with pytest.raises(NakError) as ei:
         liar.set_pixel(7, 0)
@@ -141,7 +141,7 @@ def test_fpga_naks_unbonded_row_when_driver_check_is_bypassed():
     liar2.reset()
     with pytest.raises(NakError) as ei:
         liar2.upload_pattern(np.array([[0, 0], [0, 99], [0, 100]]))
-    assert ei.value.code == p.NakCode.OUT_OF_RANGE and ei.value.detail == 2
+    assert ei.value.code == p.NakCode.OUT_OF_RANGE and ei.value.nak_detail == 2
 
 
 class CorruptWrites:

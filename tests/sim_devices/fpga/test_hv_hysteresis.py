@@ -16,7 +16,7 @@ from lidard.selftest_analysis import hv_margin_problem, hv_pull_in_problem
 from sim_devices.bench import Bench
 from sim_devices.clock import VirtualClock
 from sim_devices.fpga import FpgaConfig, FpgaSim
-from sim_devices.hv_drive import HOLD_BOOST_S, HvDrive
+from sim_devices.hv_drive import HvDrive
 from sim_devices.world.mems import SwitchDynamics, switch_thresholds
 
 PULL_IN_V, RELEASE_V = 32.0, 29.0  # §4.2.6
