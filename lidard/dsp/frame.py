@@ -117,12 +117,12 @@ class FrameDsp:
             raise ValueError(f"order_level must be in (0, 1), got {self.order_level!r}")
         _ = self.ramp_pfa       # a false-point rate the per-ramp detector cannot give is refused here
 
-    def to_record(self) -> dict:
+    def to_record(self) -> dict[str, Any]:
         """Every field, JSON-ready: what a raw capture stores under ``dsp`` (:meth:`from_record`)."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @classmethod
-    def from_record(cls, record: dict, **overrides) -> FrameDsp:
+    def from_record(cls, record: dict[str, Any], **overrides: Any) -> FrameDsp:
         """The FrameDsp a capture recorded (:meth:`to_record`), ``overrides`` over it: a replay runs
         exactly the DSP the scan built (its fields, not today's configuration, decide the points)."""
         unknown = set(record) - {f.name for f in fields(cls)}

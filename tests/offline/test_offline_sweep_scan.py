@@ -43,7 +43,8 @@ def _scene_toml(task, row: int, col: int) -> str:
     """The sweep task's target (lidard.offline.sweep._world) as a scene file."""
     pt = task.point
     u = pt.profile.optics(pt.cfg.lens, pt.cfg.chirp.wavelength_m).directions(np.array([row]), np.array([col]))[0]
-    vec = (lambda a: "[" + ", ".join(repr(float(x)) for x in a) + "]")
+    def vec(a: np.ndarray) -> str:
+        return "[" + ", ".join(repr(float(x)) for x in a) + "]"
     return (f'[[target]]\nkind = "plane"\npoint = {vec(u * task.distance_m)}\nnormal = {vec(-u)}\n'
             f"reflectivity = {task.reflectivity!r}\nvelocity = {vec(u * task.velocity_mps)}\n")
 
