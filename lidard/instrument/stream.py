@@ -5,7 +5,7 @@ stream does the set-up once: outputs up and the drive loaded at the start, down 
 frames only what a new frame needs crosses the wire: its pixel pattern to the FPGA, the digitizer
 configured for its segment count and armed, the FPGA armed and started (the FPGA refuses a new
 pattern while it runs, so a frame is one acquisition). The batches of a frame are read, checked
-(safety) and turned into points by the scan loop's own step (:meth:`ScanLoop._step`); this module
+(safety) and turned into points by the scan loop's own step (:meth:`ScanLoop.step`); this module
 only sequences frames.
 
 Time: every point's ``t`` counts from the stream's first trigger (on a simulated bench the scene's
@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from .errors import describe_failure, driver_error
-from .points import PointBuffer
+from .frames import Frame, FramePlan, Planner, StreamResult, pixel_period_s
 from .scan_loop import BATCH_BYTES, ScanLoop, ScanPlan, ScanRun, batch_pixels, plan_scan
 from .types import CalibrationResult, ScanRequest
 
@@ -50,58 +50,6 @@ TEC_POLL_S = 1.0     # hardware time between TEC readings (one Modbus request ea
 # before they are read: shorter reads shorten that tail (the gap between frames) at a fixed cost per
 # read. 5 ms: the tail of a 10 Hz frame is ~2 ms on sim.toml (records 3.7 kB per pixel over 40 MB/s).
 FRAME_READ_S = 0.005
-
-
-@dataclass(frozen=True)
-class FramePlan:
-    """What the next frame visits, and the planner's account of the trade (the sidecar's ``plan``)."""
-
-    pixels: np.ndarray
-    trade: dict[str, Any] = field(default_factory=dict)
-
-
-#: planner(frame_index, history) -> FramePlan; history: the finished frames, oldest first
-Planner = Callable[[int, list], FramePlan]
-
-
-@dataclass
-class Frame:
-    """One finished (or partial) frame of a stream."""
-
-    index: int
-    points: np.ndarray
-    pixels: np.ndarray                 # (n, 2) the pixels planned for this frame
-    pixels_scanned: int
-    start_s: float                     # first trigger, since the stream's first trigger
-    hardware_time_s: float             # first trigger to the end of the last record read
-    setup_s: float                     # hardware gap before the first trigger since the last frame's end
-    pixel_period_s: float              # hardware time one pixel takes (triggers + settle)
-    partial: bool = False
-    stop_reason: str | None = None
-    trade: dict[str, Any] = field(default_factory=dict)
-    faults: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def coverage(self) -> float:
-        return 0.0 if len(self.pixels) == 0 else self.pixels_scanned / len(self.pixels)
-
-    def sidecar(self) -> dict[str, Any]:
-        return {"frame": self.index, "start_s": self.start_s, "hardware_time_s": self.hardware_time_s,
-                "setup_s": self.setup_s, "pixels_planned": len(self.pixels),
-                "pixels_scanned": int(self.pixels_scanned), "coverage": self.coverage,
-                "points": len(self.points), "valid_points": int(np.sum(self.points["valid"] == 1)),
-                "partial": self.partial, "stop_reason": self.stop_reason, "plan": self.trade,
-                "faults": dict(self.faults)}
-
-
-@dataclass
-class StreamResult:
-    frames: int
-    hardware_time_s: float
-    stop_reason: str | None
-    cancelled: bool
-    health: list[dict[str, Any]]
-    meta: dict[str, Any]
 
 
 @dataclass
@@ -140,7 +88,7 @@ class StreamLoop:
                          (calibration.meta or {}).get("hold_profile") if calibration else None)
 
     def pixel_period_s(self, p: ScanPlan) -> float:
-        return p.averages * self.cfg.chirp.period_s + self.cfg.scan.settle_s
+        return pixel_period_s(self.cfg, p.averages)
 
     def run(self, request: ScanRequest, planner: Planner, on_frame: Callable[[Frame], None],
             cancel: threading.Event, drive_v: np.ndarray, calibration: CalibrationResult | None = None, *,
@@ -204,9 +152,7 @@ class StreamLoop:
         px = np.asarray(fp.pixels, dtype=np.int64).reshape(-1, 2)
         p = dataclasses.replace(base, pixels=px, acquisition=dataclasses.replace(base.acquisition, pixels=px))
         loop = self.loop
-        run = ScanRun(p, PointBuffer(p.dsp, loop.applied.optics(loop.optics), lsb_v=p.lsb_v,
-                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=BATCH_BYTES,
-                                     zero_offset_m=loop.applied.zero_offset_m), calibration_id=cal_id)
+        run = loop.new_run(p, cal_id, flush_bytes=BATCH_BYTES)
         if len(px):
             try:
                 acq = self.lifecycle.ready(p.acquisition, faults=run.faults)
@@ -216,13 +162,13 @@ class StreamLoop:
                     if cancel.is_set():
                         run.cancelled = True
                         break
-                    acq, accepted = loop._step(run, acq, min(step, p.n_pixels - run.done))
+                    acq, accepted = loop.step(run, acq, min(step, p.n_pixels - run.done))
                     if accepted and on_points is not None:
                         new = run.points.take_new()
                         if new is not None:
                             on_points(self._place(new, index, run, st))
                 if run.stop_reason is None and self.safety.tripped is not None:
-                    loop._safety_stop(run)
+                    loop.safety_stop(run)
                 try:
                     self.lifecycle.stop(acq)
                 finally:

@@ -44,6 +44,9 @@ class StreamSpec:
     frame_rate_hz: float | None = None    # the track pattern's pixel budget
     out: str | None = None                # a directory (frames in request.formats[0]) or a .mcap file
     health_interval_s: float = 60.0
+    # hardware time of one pixel (lidard.instrument.frames.pixel_period_s of the configuration): the
+    # unit of the track pattern's pixel budget
+    pixel_s: float | None = None
 
     def check(self) -> None:
         pat = self.request.pattern
@@ -59,17 +62,22 @@ class StreamSpec:
                                      f"a {pat!r} frame takes as long as its pixels")
         if not self.health_interval_s > 0:
             raise StreamRequestError(f"health_interval_s: {self.health_interval_s} must be > 0")
+        if pat == "track" and not (self.pixel_s is not None and self.pixel_s > 0):
+            raise StreamRequestError(f"pixel_s: the track pattern needs the hardware time of one pixel, got "
+                                     f"{self.pixel_s!r}")
 
 
-def planner_for(spec: StreamSpec, optics, cfg) -> Callable:
+def planner_for(spec: StreamSpec, optics) -> Callable:
     """The frame planner of a stream: the same pixels every frame, or the track planner."""
-    from ..instrument.stream import FramePlan
+    from ..instrument.frames import FramePlan
     from ..scan import plan
     req = spec.request
     if req.pattern == "track":
         from ..tracking import TrackParams, track_planner
-        pixel_s = req.averages * cfg.chirp.period_s + cfg.scan.settle_s
-        return track_planner(req, optics, TrackParams(frame_rate_hz=spec.frame_rate_hz or 10.0, pixel_s=pixel_s))
+        spec.check()
+        assert spec.pixel_s is not None     # check() refuses a track stream without it
+        return track_planner(req, optics, TrackParams(frame_rate_hz=spec.frame_rate_hz or 10.0,
+                                                      pixel_s=spec.pixel_s))
     px = plan(req, optics)
     trade = {"pattern": req.pattern, "pixels": len(px)}
     return lambda k, history: FramePlan(px, trade)
@@ -148,9 +156,8 @@ class StreamJob:
         try:
             cal = worker.current_linearization()
             self.linearization = worker.last_linearization
-            cfg = inst.cfg
             sink = FrameSink(self.spec.out, self.spec.request.formats[0], dict(meta or {}))
-            planner = planner_for(self.spec, inst.optics, cfg)
+            planner = planner_for(self.spec, worker.optics)
 
             def frame_done(frame) -> None:
                 sink.add(frame)

@@ -149,7 +149,7 @@ def test_stream_job_hands_each_frame_to_the_live_listeners(inst, tmp_path):
     from lidard.jobs.stream_job import StreamJob, StreamSpec, frame_id
 
     class Worker:                   # what StreamJob.run needs of the scan worker
-        instrument, last_linearization, events = inst, None, EventHub()
+        instrument, last_linearization, events, optics = inst, None, EventHub(), inst.optics
 
         def current_linearization(self):
             return None

@@ -14,6 +14,7 @@ from fastapi import APIRouter, HTTPException, Request, Response, status
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
+from ...instrument.frames import pixel_period_s
 from ...instrument.types import ScanRequest
 from ...jobs import QueueFull, WorkerStopped
 from ...jobs.stream_job import StreamJob, StreamRequestError, StreamSpec
@@ -72,7 +73,8 @@ def create_stream(body: StreamCreate, request: Request, response: Response, work
     try:
         plan(req if body.pattern != "track" else ScanRequest(pattern="raster", rows=body.rows, cols=body.cols),
              optics)
-        spec = StreamSpec(req, frames=body.frames, frame_rate_hz=frame_rate, health_interval_s=body.health_interval_s)
+        spec = StreamSpec(req, frames=body.frames, frame_rate_hz=frame_rate, health_interval_s=body.health_interval_s,
+                          pixel_s=pixel_period_s(cfg, req.averages))
         spec.check()
     except (ScanPlanError, StreamRequestError) as exc:
         raise HTTPException(422, [{"loc": ["body", str(exc).split(":", 1)[0]], "msg": str(exc),
