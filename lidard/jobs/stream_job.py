@@ -182,9 +182,16 @@ class StreamJob:
             self.state, self.error = "failed", describe_failure(exc)
             raise
         finally:
-            if sink is not None:
-                try:
-                    sink.close()
-                finally:
-                    self.files = list(sink.written)
-            self.done.set()
+            try:
+                if sink is not None:
+                    try:
+                        sink.close()
+                    finally:
+                        self.files = list(sink.written)
+            finally:
+                events = getattr(worker, "events", None)
+                if events is not None:      # the stream's end, after its last frame event
+                    events.publish(self.id, {"event": "end", "id": self.id, "state": self.state,
+                                             "frames": len(self.frames), "stop_reason": self.stop_reason,
+                                             "error": self.error})
+                self.done.set()

@@ -163,7 +163,9 @@ def test_stream_job_hands_each_frame_to_the_live_listeners(inst, tmp_path):
     assert job.state == "done" and len(job.frames) == 2
     assert [c[0] for c in clouds] == [frame_id(job.id, 0), frame_id(job.id, 1)]
     assert all(c[2] and c[1] > 0 and c[3] == {k} for k, c in enumerate(clouds))
-    assert [(e["event"], e["frame"], e["points"]) for e in events] == [("frame", k, clouds[k][1]) for k in range(2)]
+    assert [(e["event"], e["frame"], e["points"]) for e in events[:-1]] == [("frame", k, clouds[k][1]) for k in range(2)]
+    assert events[-1] == {"event": "end", "id": job.id, "state": "done", "frames": 2, "stop_reason": None,
+                          "error": None}
     assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == [
         "frame_00000.ply", "frame_00000.ply.json", "frame_00001.ply", "frame_00001.ply.json"]
 
