@@ -31,6 +31,9 @@ from ..instrument.types import ScanRequest
 log = logging.getLogger("lidard.jobs")
 
 STREAM_PATTERNS = ("raster", "serpentine", "roi", "pixels", "track")
+# frames whose points a stream keeps in memory for live clients (a few MB at the sizes lidard streams);
+# older frames are read back from their files
+KEEP_FRAMES = 32
 
 
 class StreamRequestError(ValueError):
@@ -139,9 +142,18 @@ class StreamJob:
     linearization: dict | None = None
     started_at: float | None = None
     on_frame: Callable[[Any], None] | None = None      # live listeners (the frame object)
+    # the newest frames' points by index (the web viewer animates them; older ones are read from their
+    # files): at most ``keep_frames``
+    recent: dict[int, Any] = dataclasses.field(default_factory=dict)
+    keep_frames: int = KEEP_FRAMES
+    created_at: float = dataclasses.field(default_factory=time.time)
+
+    def frame_points(self, index: int):
+        """Frame ``index``'s points when still held in memory, else None."""
+        return self.recent.get(int(index))
 
     def status(self) -> dict[str, Any]:
-        return {"id": self.id, "state": self.state, "frames_done": len(self.frames),
+        return {"id": self.id, "state": self.state, "created_at": self.created_at, "frames_done": len(self.frames),
                 "frames_planned": self.spec.frames, "pattern": self.spec.request.pattern,
                 "frame_rate_hz": self.spec.frame_rate_hz, "out": self.spec.out, "stop_reason": self.stop_reason,
                 "error": self.error, "files": list(self.files), "linearization": self.linearization,
@@ -162,6 +174,9 @@ class StreamJob:
             def frame_done(frame) -> None:
                 sink.add(frame)
                 side = frame.sidecar()
+                self.recent[frame.index] = frame.points
+                for old in [k for k in self.recent if k <= frame.index - self.keep_frames]:
+                    del self.recent[old]
                 self.frames.append(side)
                 # live: each frame as one complete cloud (web viewer, Foxglove) and a "frame" event
                 # (Foxglove's status topic, subscribers of the stream's id)
