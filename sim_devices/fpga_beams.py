@@ -125,6 +125,30 @@ class ChipOptics:
             _, r, c, tr = self._beams(np.array([t0_s], float), np.array([t1_s], float))
             return r, c, tr
 
+    def triggers_since(self, armed_s: float, first: int, count: int, capture_s: float) -> TriggerBatch:
+        """Triggers ``first .. first+count-1`` counted from a digitizer's arm at ``armed_s``: the
+        digitizer numbers the triggers it sees, whichever run of the board fired them, so segment 0
+        of a digitizer armed before several runs is the first trigger of the first of them. Only the
+        current run's triggers can be synthesized (the drive log keeps its lines only)."""
+        with self._lock:
+            if self._run is None:
+                raise ValueError("fpga: no run has been started (no triggers)")
+            local = self._triggers_fired_before(armed_s) + first - self._trigger_base
+            if local < 0:
+                raise ValueError(f"fpga: segments {first}..{first + count - 1} since the arm at {armed_s:.6f} s "
+                                 "were fired by an earlier run, no longer in the drive log")
+            return self.triggers(local, count, capture_s)
+
+    def _triggers_fired_before(self, t_s: float) -> int:
+        """The board's trigger number of the first trigger after ``t_s`` (triggers since power-up)."""
+        sched = self._run.schedule
+        if t_s >= sched.run_start_s:
+            return self._trigger_base + sched.triggers_before(t_s)
+        for old, base in reversed(self._retired):
+            if t_s >= old.run_start_s:
+                return base + old.triggers_before(t_s)
+        return self._retired[0][1] if self._retired else self._trigger_base
+
     def triggers(self, first: int, count: int, capture_s: float) -> TriggerBatch:
         """Triggers ``first .. first+count-1`` of the current run and their lit beams.
 

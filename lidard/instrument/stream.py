@@ -1,12 +1,14 @@
 """A stream of frames back to back over one bring-up (dissertation §4.1 random access, §5.2.2 adaptive scanning).
 
 A scan brings laser and HV up, loads the drive, acquires one pattern and brings everything down. A
-stream does the set-up once: outputs up and the drive loaded at the start, down at the end. Between
-frames only what a new frame needs crosses the wire: its pixel pattern to the FPGA, the digitizer
-configured for its segment count and armed, the FPGA armed and started (the FPGA refuses a new
-pattern while it runs, so a frame is one acquisition). The batches of a frame are read, checked
-(safety) and turned into points by the scan loop's own step (:meth:`ScanLoop.step`); this module
-only sequences frames.
+stream does the set-up once: outputs up and the drive loaded at the start, down at the end, and one
+digitizer acquisition armed for ``ACQUISITION_SPAN_S`` of chirps that runs across frames: the
+digitizer numbers the triggers it sees whichever FPGA run fired them, so between frames only the next
+pixel pattern goes to the FPGA, which is armed and started again (it refuses a new pattern while it
+runs: a frame is one FPGA run). The digitizer is set up again only when that arm's segments are used
+up or a health check needed the digitizer. The batches of a frame are read, checked (safety) and
+turned into points by the scan loop's own step (:meth:`ScanLoop.step`); this module only sequences
+frames.
 
 Time: every point's ``t`` counts from the stream's first trigger (on a simulated bench the scene's
 motion refers to the same moment, :meth:`StreamLoop.run` pins it). A frame's record says where it
@@ -37,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from .acquisition import Acquisition
 from .errors import describe_failure, driver_error
 from .frames import Frame, FramePlan, Planner, StreamResult, pixel_period_s
 from .scan_loop import BATCH_BYTES, ScanLoop, ScanPlan, ScanRun, batch_pixels, plan_scan
@@ -45,6 +48,10 @@ from .types import CalibrationResult, ScanRequest
 log = logging.getLogger(__name__)
 
 TEC_POLL_S = 1.0     # hardware time between TEC readings (one Modbus request each) during a stream
+# Hardware time one digitizer acquisition spans in a stream: frames run on one arm until its segments are
+# used up, then the digitizer is set up again (one frame's gap). 60 s of chirps is 375,000 segments at
+# 160 us, far inside the digitizer's 2^24 segment counter (docs/protocols/digitizer.md).
+ACQUISITION_SPAN_S = 60.0
 # Hardware time of triggers per read inside a frame: a read waits for its last trigger, so the records of
 # the frame's last read are still on the bus when its triggers end, and the next frame cannot start
 # before they are read: shorter reads shorten that tail (the gap between frames) at a fixed cost per
@@ -62,6 +69,8 @@ class _State:
     tec_read_s: float = -math.inf
     history: list = field(default_factory=list)
     health: list = field(default_factory=list)
+    acq: Acquisition | None = None      # the last frame's acquisition, when the next may run on its arm
+    arms: int = 0                       # digitizer acquisitions set up (configure + arm) so far
 
 
 class StreamLoop:
@@ -129,6 +138,9 @@ class StreamLoop:
             stop_reason = describe_failure(exc)
             log.warning("stream stopped after %d frames: %s", count, stop_reason)
         finally:
+            if st.acq is not None:      # the arm the frames ran on has room left: end it
+                self.lifecycle.abort(st.acq)
+                st.acq = None
             try:
                 if safe is not None:    # a safety stop: outputs already down (and read back)
                     self.safety.stop_watch()
@@ -141,7 +153,7 @@ class StreamLoop:
         meta = {"pixel_period_s": self.pixel_period_s(base), "calibration_id": cal_id,
                 "adc": {"sample_rate_hz": base.adc.fs_hz, "record_length": base.adc.record_length},
                 "dsp": base.dsp.sidecar(base.phase_noise), "simulated": self.loop.simulated,
-                "health_interval_s": float(health_interval_s)}
+                "health_interval_s": float(health_interval_s), "digitizer_arms": st.arms}
         if safe is not None:
             meta["safe_state"] = safe
         return StreamResult(count, hw, stop_reason, cancel.is_set(), st.health, meta)
@@ -155,7 +167,11 @@ class StreamLoop:
         run = loop.new_run(p, cal_id, flush_bytes=BATCH_BYTES)
         if len(px):
             try:
-                acq = self.lifecycle.ready(p.acquisition, faults=run.faults)
+                acq = None if st.acq is None else self.lifecycle.next_pattern(st.acq, p.acquisition, run.faults)
+                st.acq = None
+                if acq is None:         # the first frame, or the last arm is used up: set the digitizer up
+                    acq = self.lifecycle.ready(p.acquisition, faults=run.faults, segments=self._capacity(p))
+                    st.arms += 1
                 self.lifecycle.start(acq)
                 step = min(batch_pixels(self.cfg, p), max(1, int(FRAME_READ_S / self.pixel_period_s(p))))
                 while run.done < p.n_pixels and run.stop_reason is None:
@@ -174,6 +190,8 @@ class StreamLoop:
                 finally:
                     if run.done < p.n_pixels:
                         self.lifecycle.abort(acq)
+                    else:               # the next frame may continue on this arm
+                        st.acq = acq
             except Exception as exc:     # a device that stays down: this frame is the last (partial)
                 run.stop_reason = describe_failure(exc)
                 log.warning("stream frame %d failed: %s", index, run.stop_reason, exc_info=driver_error(exc))
@@ -193,6 +211,11 @@ class StreamLoop:
                       partial=run.done < p.n_pixels, stop_reason=run.stop_reason, trade=dict(fp.trade),
                       faults=dict(run.faults))
         return run, frame
+
+    def _capacity(self, p: ScanPlan) -> int:
+        """Segments a stream's digitizer acquisition is armed for: ACQUISITION_SPAN_S of chirps, at
+        least the frame's."""
+        return max(p.acquisition.segments, int(ACQUISITION_SPAN_S / self.cfg.chirp.period_s))
 
     @staticmethod
     def _place(pts: np.ndarray, index: int, run: ScanRun, st: _State) -> np.ndarray:
@@ -232,6 +255,9 @@ class StreamLoop:
 
     def _recheck(self, st: _State, drive_v: np.ndarray, why: str) -> str | None:
         """Run the health check between frames; answers the stop reason when the chirp is off."""
+        if st.acq is not None:          # the check sets the digitizer up for itself
+            self.lifecycle.abort(st.acq)
+            st.acq = None
         check = self._health()          # its own acquisition; outputs up and down around it
         st.checked_s, st.tec_c = self._now_s(st), self._read_tec()
         if check is not None:

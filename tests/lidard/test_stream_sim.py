@@ -35,14 +35,28 @@ def _fixed(inst):
 
 def test_frames_to_mcap_with_one_bring_up(inst, tmp_path, monkeypatch):
     px, planner = _fixed(inst)
-    ups = []
+    ups, configures = [], []
     real = inst.safety.bring_up
     monkeypatch.setattr(inst.safety, "bring_up", lambda **kw: (ups.append(1), real(**kw))[1])
+    real_conf = inst.digitizer.configure
+    monkeypatch.setattr(inst.digitizer, "configure", lambda **kw: (configures.append(kw), real_conf(**kw))[1])
     sink = FrameSink(str(tmp_path / "s.mcap"), "ply", {})
     frames = []
     res = inst.run_stream(REQ, planner, lambda f: (frames.append(f), sink.add(f)), threading.Event(), frames=3)
     sink.close()
     assert res.frames == 3 and res.stop_reason is None and len(ups) == 1
+    # one digitizer acquisition for all frames: configured and armed once, its segments numbered on
+    assert len(configures) == 1 and res.meta["digitizer_arms"] == 1
+    assert configures[0]["segments"] >= 3 * len(px)
+    # ... and each frame's segments are its own pixels' (the static scene: the same ranges frame to frame)
+    first = lambda p: p[p["return_index"] == 0]    # noqa: E731  (unlinearized: few returns pass as valid)
+    ref = first(frames[0].points)
+    key = lambda p: p["row"].astype(np.int64) * 1000 + p["col"]   # noqa: E731
+    for f in frames[1:]:
+        v = first(f.points)
+        common, i0, i1 = np.intersect1d(key(ref), key(v), return_indices=True)
+        assert len(common) >= 0.9 * len(ref) > 100
+        assert np.median(np.abs(ref["range"][i0] - v["range"][i1])) < 0.005
     pts, statuses = read_mcap(tmp_path / "s.mcap")
     assert [s["frame"] for s in statuses] == [0, 1, 2]
     assert sorted(set(pts["frame"].tolist())) == [0, 1, 2]
@@ -113,6 +127,7 @@ def test_health_check_repeats_after_its_hardware_time_budget(inst):
                           health_interval_s=0.001)
     assert res.frames == 3 and res.stop_reason is None
     assert len(res.health) == 2 and all("hardware time" in h["why"] for h in res.health)
+    assert res.meta["digitizer_arms"] == 3        # the check used the digitizer: each frame set it up again
     assert all(not h["exceeded"] and h["residual_hz"] < h["threshold_hz"] for h in res.health)
     assert all(len(f.points) > 0 for f in frames)
 
