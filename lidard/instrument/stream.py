@@ -57,6 +57,15 @@ ACQUISITION_SPAN_S = 60.0
 # before they are read: shorter reads shorten that tail (the gap between frames) at a fixed cost per
 # read. 5 ms: the tail of a 10 Hz frame is ~2 ms on sim.toml (records 3.7 kB per pixel over 40 MB/s).
 FRAME_READ_S = 0.005
+# ... and the frame's last read is this short: only its records are left on the bus after the last
+# trigger (1 ms of triggers: ~4 pixels, 0.4 ms of read-out on sim.toml, against ~1.5 ms for a 5 ms read)
+FRAME_TAIL_S = 0.001
+
+
+def read_size(left: int, step: int, tail: int) -> int:
+    """Pixels of the next read of a frame with ``left`` pixels to go: ``step`` at a time, the last
+    ``tail`` pixels a read of their own (the read-out after the frame's last trigger is theirs only)."""
+    return left if left <= tail else min(step, left - tail)
 
 
 @dataclass
@@ -174,11 +183,12 @@ class StreamLoop:
                     st.arms += 1
                 self.lifecycle.start(acq)
                 step = min(batch_pixels(self.cfg, p), max(1, int(FRAME_READ_S / self.pixel_period_s(p))))
+                tail = min(step, max(1, int(FRAME_TAIL_S / self.pixel_period_s(p))))
                 while run.done < p.n_pixels and run.stop_reason is None:
                     if cancel.is_set():
                         run.cancelled = True
                         break
-                    acq, accepted = loop.step(run, acq, min(step, p.n_pixels - run.done))
+                    acq, accepted = loop.step(run, acq, read_size(p.n_pixels - run.done, step, tail))
                     if accepted and on_points is not None:
                         new = run.points.take_new()
                         if new is not None:

@@ -10,7 +10,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
-from lidard.instrument.stream import FRAME_READ_S, FramePlan
+from lidard.instrument.stream import FRAME_READ_S, FRAME_TAIL_S, FramePlan, read_size
 from lidard.jobs.stream_job import FrameSink
 from lidard.outputs.mcap import read_mcap
 from lidard.scan import plan
@@ -72,6 +72,15 @@ def test_frames_to_mcap_with_one_bring_up(inst, tmp_path, monkeypatch):
     assert starts[0] == 0.0
 
 
+def test_a_frame_is_read_in_steps_and_its_last_pixels_on_their_own():
+    sizes, left = [], 396
+    while left:
+        sizes.append(read_size(left, 20, 4))
+        left -= sizes[-1]
+    assert sizes == [20] * 19 + [12, 4]
+    assert read_size(3, 20, 4) == 3 and read_size(5, 20, 4) == 1 and read_size(30, 20, 4) == 20
+
+
 def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
     px, planner = _fixed(inst)
     cancel = threading.Event()
@@ -79,7 +88,9 @@ def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
     reads = []
     real = inst.acquisition.read
 
-    per_frame = -(-len(px) // int(FRAME_READ_S / (inst.cfg.chirp.period_s + inst.cfg.scan.settle_s)))
+    pixel_s = inst.cfg.chirp.period_s + inst.cfg.scan.settle_s
+    step, tail = int(FRAME_READ_S / pixel_s), int(FRAME_TAIL_S / pixel_s)
+    per_frame = -(-(len(px) - tail) // step) + 1       # 5 ms reads, then the last 1 ms on its own
 
     def read(acq, first, count):   # stop inside frame 1, after its first read (frame 0 takes per_frame)
         reads.append(count)
