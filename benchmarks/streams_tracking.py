@@ -95,10 +95,17 @@ def default_speed(inst, bench, cal, frames: int) -> dict:
     v_max = inst.cfg.scan.max_speed_mps
     lam = inst.cfg.chirp.wavelength_m
     good = box & (pts["valid"] == 1)
+    # the range gate tops out at the beat of max_range_m plus the Doppler of max_speed_mps: a target
+    # faster than that speed shows a beat above the gate (range beat + its Doppler) until it is nearer than
+    hz_per_m = 2 * inst.cfg.chirp.rate_hz_per_s / 299_792_458.0
+    limit_m = req.max_range_m - 2 * (1.0 - v_max) / lam / hz_per_m
+    first = next((k for k, n in enumerate(on_box) if n >= 5), None)
     return {"max_speed_mps": v_max, "band_mhz": 2 * v_max / lam / 1e6, "doppler_mhz": 2 * 1.0 / lam / 1e6,
             "yield": f"{100 * np.mean(on_box[seen] >= 5):.0f} % of {int(seen.sum())}",
             "box_returns": int(box.sum()), "box_valid": int(good.sum()), "flags": flags,
-            "fast_valid": int(np.sum(good & (np.abs(pts["velocity"]) > v_max))), "stop": res.stop_reason}
+            "fast_valid": int(np.sum(good & (np.abs(pts["velocity"]) > v_max))), "stop": res.stop_reason,
+            "limit_m": limit_m, "first_frame": first, "per_frame": on_box.tolist(),
+            "first_range_m": None if first is None else 2.2 - 1.0 * (got[first].start_s + 0.5 * got[first].hardware_time_s)}
 
 
 def main(argv=None) -> int:
@@ -130,7 +137,8 @@ def main(argv=None) -> int:
                 rows.append((kind, hz, rate, overhead, f"{100 * np.mean(on_box >= 5):.0f} % of {len(on_box)}", int(on_box.min()),
                              float(np.median(on_box)), float(np.mean([t["pixels"] for t in tr])),
                              float(np.mean([t["survey_pixels"] for t in tr])),
-                             float(np.median([t["survey_revisit_s"] for t in tr])), res.stop_reason))
+                             float(np.median([t["survey_revisit_s"] for t in tr])), res.stop_reason,
+                             float(np.median([f.setup_s for f in got[1:]]))))
                 print(rows[-1], flush=True)
         if "default_speed" in parts:
             slow = default_speed(inst, bench, cal, a.frames)
@@ -148,11 +156,11 @@ def main(argv=None) -> int:
         inst.close()
     cpu = resource.getrusage(resource.RUSAGE_SELF).ru_utime - cpu0
     load = os.getloadavg()[0]
-    lines = ["| scene | --frame-rate (Hz) | hardware frame rate (Hz) | overhead | frames with >= 5 points on the "
+    lines = ["| scene | --frame-rate (Hz) | hardware frame rate (Hz) | overhead | median gap (ms) | frames with >= 5 points on the "
              "object (of the frames it is in view) | min / median points on it | pixels per frame | survey pixels per frame | survey revisit (s) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        lines.append(f"| {r[0]} | {r[1]:g} | {r[2]:.2f} | {100 * r[3]:.1f} % | {r[4]} | {r[5]} / {r[6]:.0f} "
+        lines.append(f"| {r[0]} | {r[1]:g} | {r[2]:.2f} | {100 * r[3]:.1f} % | {1e3 * r[11]:.2f} | {r[4]} | {r[5]} / {r[6]:.0f} "
                      f"| {r[7]:.0f} | {r[8]:.0f} | {r[9]:.2f} |")
     lines.append("")
     if fixed is not None:
@@ -165,7 +173,11 @@ def main(argv=None) -> int:
                      f"{slow['doppler_mhz']:.2f} MHz): frames with >= 5 valid points on the box {slow['yield']}; of the "
                      f"box's beams' returns in all frames {slow['box_returns']} detected, {slow['box_valid']} valid, "
                      f"flags of the rest {slow['flags']}; valid points on the box with |velocity| > "
-                     f"{slow['max_speed_mps']:g} m/s: {slow['fast_valid']}.")
+                     f"{slow['max_speed_mps']:g} m/s: {slow['fast_valid']}. Points on the box per frame "
+                     f"{slow['per_frame']}: the first frame with >= 5 is frame {slow['first_frame']}, the box then "
+                     f"at {slow['first_range_m']:.2f} m; the range gate (max_range_m {ROI.max_range_m:g} m of beat plus "
+                     f"the Doppler of {slow['max_speed_mps']:g} m/s) holds the beat of a 1 m/s approaching return on the ramp where its Doppler adds to the range beat "
+                     f"only nearer than {slow['limit_m']:.2f} m.")
     lines.append(f"CPU {cpu:.0f} s, load average {load:.2f} (2-core Xeon).")
     text = "\n".join(lines)
     print(text)
