@@ -72,13 +72,13 @@ def test_frames_to_mcap_with_one_bring_up(inst, tmp_path, monkeypatch):
     assert starts[0] == 0.0
 
 
-def test_a_frame_is_read_in_steps_and_its_last_pixels_on_their_own():
+def test_a_frame_is_read_in_steps_then_halving_to_its_last_pixels():
     sizes, left = [], 396
     while left:
         sizes.append(read_size(left, 20, 4))
         left -= sizes[-1]
-    assert sizes == [20] * 19 + [12, 4]
-    assert read_size(3, 20, 4) == 3 and read_size(5, 20, 4) == 1 and read_size(30, 20, 4) == 20
+    assert sizes == [20] * 18 + [18, 9, 5, 4]          # steps, then halving to the tail read
+    assert read_size(3, 20, 4) == 3 and read_size(7, 20, 4) == 3 and read_size(60, 20, 4) == 20
 
 
 def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
@@ -90,7 +90,10 @@ def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
 
     pixel_s = inst.cfg.chirp.period_s + inst.cfg.scan.settle_s
     step, tail = int(FRAME_READ_S / pixel_s), int(FRAME_TAIL_S / pixel_s)
-    per_frame = -(-(len(px) - tail) // step) + 1       # 5 ms reads, then the last 1 ms on its own
+    per_frame, left = 0, len(px)                       # 5 ms reads, halving to the last 1 ms
+    while left:
+        left -= read_size(left, step, tail)
+        per_frame += 1
 
     def read(acq, first, count):   # stop inside frame 1, after its first read (frame 0 takes per_frame)
         reads.append(count)
