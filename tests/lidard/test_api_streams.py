@@ -45,3 +45,20 @@ def test_streams_are_listed_and_each_frame_is_served_in_the_viewer_layout(tmp_pa
         missing = c.get(f"/streams/{sid}/frames/4/live")
         assert missing.status_code == 404 and "frames done: 4" in missing.text
         assert c.get("/streams/nope/frames/0/live").status_code == 404
+
+
+def test_a_track_stream_budgets_its_first_frame_from_the_configured_chirp(tmp_path):
+    """POST /streams pattern track: the router hands the planner the hardware time of one pixel from the
+    configuration (averages x chirp period + settle), so frame 0's budget is margin / rate / (2 x that)
+    (no frames measured yet), and the frame visits no more pixels than that."""
+    cfg = load_config()
+    app = create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path / "data", progress_interval_s=0.0)
+    with TestClient(app) as c:
+        r = c.post("/streams", json={"pattern": "track", "frame_rate_hz": 20, "averages": 2, "frames": 2})
+        assert r.status_code == 201, r.text
+        job = app.state.streams[r.json()["id"]]
+        assert job.done.wait(T) and job.state == "done", job.error
+    pixel_s = 2 * cfg.chirp.period_s + cfg.scan.settle_s
+    plan0 = job.frames[0]["plan"]
+    assert plan0["pattern"] == "track" and plan0["budget_pixels"] == int(0.95 / 20 / (2 * pixel_s))
+    assert 0 < job.frames[0]["pixels_planned"] <= plan0["budget_pixels"]
