@@ -133,21 +133,30 @@ class ChipOptics:
         with self._lock:
             if self._run is None:
                 raise ValueError("fpga: no run has been started (no triggers)")
-            local = self._triggers_fired_before(armed_s) + first - self._trigger_base
+            g = self._arm_counts.get(armed_s)
+            if g is None:       # first read since this arm: while the runs around it are remembered
+                g = self._arm_counts[armed_s] = self._triggers_fired_before(armed_s)
+                while len(self._arm_counts) > 16:
+                    del self._arm_counts[next(iter(self._arm_counts))]
+            local = g + first - self._trigger_base
             if local < 0:
                 raise ValueError(f"fpga: segments {first}..{first + count - 1} since the arm at {armed_s:.6f} s "
                                  "were fired by an earlier run, no longer in the drive log")
             return self.triggers(local, count, capture_s)
 
     def _triggers_fired_before(self, t_s: float) -> int:
-        """The board's trigger number of the first trigger after ``t_s`` (triggers since power-up)."""
-        sched = self._run.schedule
-        if t_s >= sched.run_start_s:
-            return self._trigger_base + sched.triggers_before(t_s)
-        for old, base in reversed(self._retired):
-            if t_s >= old.run_start_s:
-                return base + old.triggers_before(t_s)
-        return self._retired[0][1] if self._retired else self._trigger_base
+        """The board's number (triggers since power-up) of the first trigger a digitizer armed at
+        ``t_s`` records. Armed during a run, it records that run from its first trigger: the simulator
+        is lenient there (tests and tools start a pattern before they arm the digitizer, or arm again to
+        re-read a run that has ended; lidard always arms first), so only runs started after the arm's
+        run add to the count, and an arm after the current run's end re-reads the current run."""
+        runs = self._retired + [(self._run.schedule, self._trigger_base)]
+        for i in range(len(runs) - 1, -1, -1):
+            sched, base = runs[i]
+            if t_s >= sched.run_start_s:
+                during = t_s < sched.end_s or i == len(runs) - 1
+                return base if during else base + sched.total_triggers
+        return runs[0][1]
 
     def triggers(self, first: int, count: int, capture_s: float) -> TriggerBatch:
         """Triggers ``first .. first+count-1`` of the current run and their lit beams.
