@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from .instrument.stream import FramePlan
+from .instrument.frames import FramePlan
 from .instrument.types import ScanRequest
 from .physics.optics import FpsaOptics
 from .scan import ADAPTIVE_STEP, coarse_plan, selected_cols, selected_rows

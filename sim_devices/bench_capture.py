@@ -165,7 +165,8 @@ class BenchCapture:
     def _capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
         eff = self.cfg.sim.effects
         capture_s = cfg.record_length / cfg.sample_rate_hz
-        trig = self.fpga.triggers(first, count, capture_s)
+        trig = (self.fpga.triggers(first, count, capture_s) if cfg.armed_at_s is None
+                else self.fpga.triggers_since(cfg.armed_at_s, first, count, capture_s))
         n = len(trig)
         st = self.controller.state
         light = bool(st.laser_on and st.interlock_closed)

@@ -72,6 +72,9 @@ class CaptureConfig:
     #: ADC resolution and anti-alias corner the digitizer applies after the source (information)
     resolution_bits: int = 16
     bandwidth_hz: float = 0.0
+    #: virtual time of the ARM: segment k is the k-th trigger after it, whichever FPGA run fired it
+    #: (None: the k-th trigger of the FPGA's current run, for sources driven without a digitizer)
+    armed_at_s: float | None = None
 
 
 @dataclass
@@ -118,6 +121,7 @@ class SimDigitizer(SimUsbDevice):
         self.segments_captured = 0
         self.overrange_count = 0
         self._armed_cfg: p.Config | None = None
+        self._armed_at_s: float | None = None
         self._next = 0          # next segment index to stream
         self._end = 0           # one past the last segment requested by READ_SEGMENTS
         self._batch: memoryview | None = None
@@ -127,7 +131,8 @@ class SimDigitizer(SimUsbDevice):
     def capture_config(self, c: p.Config | None = None) -> CaptureConfig:
         c = c or self.config
         return CaptureConfig(float(c.sample_rate_hz), c.record_length, c.channels, c.bits,
-                             c.input_range_mv / 1000.0, c.resolution_bits, float(c.bandwidth_hz))
+                             c.input_range_mv / 1000.0, c.resolution_bits, float(c.bandwidth_hz),
+                             self._armed_at_s if c is self._armed_cfg else None)
 
     # ------------------------------------------------------------------------ control
 
@@ -151,6 +156,7 @@ class SimDigitizer(SimUsbDevice):
                 self._reset_acquisition()
                 self.state = p.State.ARMED
                 self._armed_cfg = self.config
+                self._armed_at_s = self.clock.now()
             elif r is p.Req.ABORT:
                 self._reset_acquisition()
             elif r is p.Req.READ_SEGMENTS:

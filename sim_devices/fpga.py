@@ -134,6 +134,11 @@ class FpgaSim(FirmwareCommands, ChipOptics):
         self._pattern: np.ndarray | None = None  # verified
         self._run: _Run | None = None
         self._run_slot = -1
+        # triggers of the runs before the current one (since power-up), and the last runs' schedules
+        # with their first trigger's number: what a digitizer armed across runs counts
+        self._trigger_base = 0
+        self._retired: list[tuple[PixelSchedule, int]] = []
+        self._arm_counts: dict[float, int] = {}   # digitizer arm time -> its first trigger's number
         self._row_high = np.zeros(self.config.rows, bool)
         self._col_high = np.zeros(self.config.cols, bool)
         self._apply_outputs(self.clock.now())

@@ -134,6 +134,39 @@ class ChipOptics:
             px = self._run.pattern[max(0, int(first_pixel)):max(0, int(first_pixel)) + int(count)]
             return px[:, 0].astype(np.int16), px[:, 1].astype(np.int16)
 
+    def triggers_since(self, armed_s: float, first: int, count: int, capture_s: float) -> TriggerBatch:
+        """Triggers ``first .. first+count-1`` counted from a digitizer's arm at ``armed_s``: the
+        digitizer numbers the triggers it sees, whichever run of the board fired them, so segment 0
+        of a digitizer armed before several runs is the first trigger of the first of them. Only the
+        current run's triggers can be synthesized (the drive log keeps its lines only)."""
+        with self._lock:
+            if self._run is None:
+                raise ValueError("fpga: no run has been started (no triggers)")
+            g = self._arm_counts.get(armed_s)
+            if g is None:       # first read since this arm: while the runs around it are remembered
+                g = self._arm_counts[armed_s] = self._triggers_fired_before(armed_s)
+                while len(self._arm_counts) > 16:
+                    del self._arm_counts[next(iter(self._arm_counts))]
+            local = g + first - self._trigger_base
+            if local < 0:
+                raise ValueError(f"fpga: segments {first}..{first + count - 1} since the arm at {armed_s:.6f} s "
+                                 "were fired by an earlier run, no longer in the drive log")
+            return self.triggers(local, count, capture_s)
+
+    def _triggers_fired_before(self, t_s: float) -> int:
+        """The board's number (triggers since power-up) of the first trigger a digitizer armed at
+        ``t_s`` records. Armed during a run, it records that run from its first trigger: the simulator
+        is lenient there (tests and tools start a pattern before they arm the digitizer, or arm again to
+        re-read a run that has ended; lidard always arms first), so only runs started after the arm's
+        run add to the count, and an arm after the current run's end re-reads the current run."""
+        runs = self._retired + [(self._run.schedule, self._trigger_base)]
+        for i in range(len(runs) - 1, -1, -1):
+            sched, base = runs[i]
+            if t_s >= sched.run_start_s:
+                during = t_s < sched.end_s or i == len(runs) - 1
+                return base if during else base + sched.total_triggers
+        return runs[0][1]
+
     def triggers(self, first: int, count: int, capture_s: float) -> TriggerBatch:
         """Triggers ``first .. first+count-1`` of the current run and their lit beams.
 

@@ -27,6 +27,10 @@ from .hv583 import HV583
 from .hv_drive import HOLD_BOOST_S
 from .triggers import PixelSchedule
 
+# Finished runs whose trigger count the board remembers (a digitizer armed before them numbers its
+# segments across them; a stream arms once for many frames, each a run)
+RETIRED_RUNS_KEPT = 64
+
 
 class _Nak(Exception):
     def __init__(self, code: p.NakCode, detail: int | None = None) -> None:
@@ -107,6 +111,7 @@ class FirmwareCommands:
         self.timing = p.DEFAULT_TIMING
         self._upload = None
         self._pattern = None
+        self._retire_run()
         self._run = None
         return b""
 
@@ -206,10 +211,22 @@ class FirmwareCommands:
             run_start_s=now, n_pixels=int(self._pattern.shape[0]), refresh_s=HV583.refresh_s(),
             settle_s=tm.settle_ns * 1e-9, trigger_period_s=tm.trigger_period_ns * 1e-9,
             triggers_per_pixel=tm.triggers_per_pixel, dwell_s=tm.dwell_ns * 1e-9)
+        self._retire_run()
         self._run = _Run(self._pattern.copy(), sched)
         self._log_run_events(self._run)
         self.state = p.State.RUNNING
         return b""
+
+    def _retire_run(self) -> None:
+        """Count the triggers of the run that ends here (ran out or was stopped) into the board's trigger
+        count: a digitizer armed across several runs numbers its segments by that count."""
+        run = self._run
+        if run is None:
+            return
+        total = run.schedule.total_triggers
+        self._retired.append((run.schedule, self._trigger_base))
+        del self._retired[:-RETIRED_RUNS_KEPT]
+        self._trigger_base += total
 
     def _log_run_events(self, run: _Run) -> None:
         """Every line change of the whole run, in closed form (one event list, cut on STOP)."""

@@ -38,6 +38,7 @@ from .calibration.linearization import Linearization
 from .devices import DeviceRegistry
 from .errors import NotSimulated, SimFaultError
 from .errors import on_device
+from .frames import Frame, Planner, StreamResult
 from .safety import FaultsStillOpen, SafetyMonitor, acknowledge, latched_state
 from .scan_loop import ScanLoop
 from .selftest import run_selftest
@@ -177,9 +178,10 @@ class LidarInstrument:
                 result.meta["sim"] = {"fidelity": _ledger_difference(after, before)}
             return result
 
-    def run_stream(self, request: ScanRequest, planner, on_frame, cancel: threading.Event,
-                   calibration: CalibrationResult | None = None, *, frames: int | None = None,
-                   health_interval_s: float = 60.0, on_points=None):
+    def run_stream(self, request: ScanRequest, planner: Planner, on_frame: Callable[[Frame], None],
+                   cancel: threading.Event, calibration: CalibrationResult | None = None, *,
+                   frames: int | None = None, health_interval_s: float = 60.0,
+                   on_points: Callable[[Any], None] | None = None) -> StreamResult:
         """Frames back to back over one bring-up (:mod:`.stream`); the linearization health check is
         repeated between frames when the TEC or ``health_interval_s`` says so."""
         from .stream import StreamLoop

@@ -19,6 +19,7 @@ from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
 
 if TYPE_CHECKING:   # the seam stays free of the calibration rooms at run time
     from .calibration.applied import AppliedCalibrations
+    from .frames import Frame, Planner, StreamResult
 
 StageFn = Callable[[dict[str, Any]], None]
 
@@ -40,6 +41,16 @@ class Instrument(Protocol):
         """Run one scan; on cancel return the points so far with ``partial=True``. With ``raw_path``
         the digitizer's raw segments are recorded there (lidard.raw; the job queue passes it only for
         a request with ``record_raw``)."""
+
+    def run_stream(self, request: ScanRequest, planner: Planner, on_frame: Callable[[Frame], None],
+                   cancel: threading.Event, calibration: CalibrationResult | None = None, *,
+                   frames: int | None = None, health_interval_s: float = 60.0,
+                   on_points: Callable[[Any], None] | None = None) -> StreamResult:
+        """Frames back to back over one bring-up (:mod:`lidard.instrument.stream`): ``planner(k,
+        history)`` says which pixels frame ``k`` visits, each finished (or the partial last) frame goes
+        to ``on_frame`` as soon as it is complete, until ``frames`` are done or ``cancel`` is set; the
+        linearization health check is repeated between frames when the TEC or ``health_interval_s``
+        of hardware time says so."""
 
     def linearize(self, progress: StageFn | None = None) -> CalibrationResult:
         """Run the ILC chirp linearization through the monitor MZI."""
@@ -89,7 +100,7 @@ class Instrument(Protocol):
 
 
 #: The names callers may use on an instrument (what a fake must provide; checked in the tests).
-INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "linearize", "check_linearization",
-                      "use_calibrations", "monitor_delay_s", "laser_temperature_c",
+INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "run_stream", "linearize",
+                      "check_linearization", "use_calibrations", "monitor_delay_s", "laser_temperature_c",
                       "selftest", "controller_faults", "acknowledge_faults", "set_scene", "inject_fault",
                       "clear_faults", "active_faults", "close")

@@ -149,10 +149,8 @@ class ScanLoop:
                       self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
         workers = dsp_workers()
-        run = ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
-                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=dsp_batch_bytes(p, workers),
-                                     zero_offset_m=self.applied.zero_offset_m, workers=workers),
-                      calibration_id=(calibration.meta or {}).get("id") if calibration else None)
+        run = self.new_run(p, (calibration.meta or {}).get("id") if calibration else None,
+                           flush_bytes=dsp_batch_bytes(p, workers), workers=workers)
         try:
             self.safety.bring_up()
             try:
@@ -165,12 +163,12 @@ class ScanLoop:
                     if cancel.is_set():
                         run.cancelled = True
                         break
-                    acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
+                    acq, accepted = self.step(run, acq, min(step, p.n_pixels - run.done))
                     if accepted:
                         progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
                                               new_points=run.points.take_new()))
                 if run.stop_reason is None and self.safety.tripped is not None:
-                    self._safety_stop(run)      # the wall-clock watch tripped after the last read's check
+                    self.safety_stop(run)      # the wall-clock watch tripped after the last read's check
             except ScanFailed:
                 raise
             except Exception as exc:
@@ -182,6 +180,13 @@ class ScanLoop:
             return self.result(run)
         finally:
             run.points.close()      # the DSP workers end on every path (after result(): nothing left)
+
+    def new_run(self, p: ScanPlan, calibration_id: Any = None, *, flush_bytes: int, workers: int = 0) -> ScanRun:
+        """The context of one run of ``p``: its points computed with the calibrations in use."""
+        return ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
+                                      mzi_delay_s=p.mzi_delay_s, flush_bytes=flush_bytes,
+                                      zero_offset_m=self.applied.zero_offset_m, workers=workers),
+                       calibration_id=calibration_id)
 
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
         from ..raw.record import (
@@ -201,18 +206,21 @@ class ScanLoop:
             drive_v=drive_v)
 
     # -- acquire ----------------------------------------------------------------------------------
-    def _step(self, run: ScanRun, acq: Acquisition, bp: int) -> tuple[Acquisition, bool]:
+    def step(self, run: ScanRun, acq: Acquisition, bp: int) -> tuple[Acquisition, bool]:
         """Read the next ``bp`` pixels, check safety, hand them on. Answers the acquisition to go on
-        with and whether the pixels were accepted (not after a safety stop or a resume)."""
+        with and whether the pixels were accepted (not after a safety stop or a resume).
+
+        Public with :meth:`new_run` and :meth:`safety_stop`: a stream (:mod:`.stream`) runs its frames
+        on the same read / check / DSP step as a scan, only the sequencing differs."""
         avg = run.plan.averages
         try:
             headers, samples = self.lifecycle.read(acq, (run.done - acq.first_pixel) * avg, bp * avg)
         except SegmentsLost as exc:
             # before blaming the digitizer: did the interlock or a fault stop the light?
-            if self._safety_stop(run):
+            if self.safety_stop(run):
                 return acq, False
             return self._resume(run, acq, exc), False
-        if self._safety_stop(run):
+        if self.safety_stop(run):
             # Outputs first; the batch in flight is discarded (when the light went is unknown).
             run.faults["discarded_pixels"] = bp
             log.warning("scan stopped after %d of %d pixels: %s", run.done, run.plan.n_pixels, run.stop_reason)
@@ -220,7 +228,9 @@ class ScanLoop:
         self._accept(run, acq, headers, samples, bp)
         return acq, True
 
-    def _safety_stop(self, run: ScanRun) -> bool:
+    def safety_stop(self, run: ScanRun) -> bool:
+        """Trip the safe state when the safety check (or the wall-clock watch) says so; the run keeps
+        the readbacks and the reason. Answers whether it stopped."""
         reason = self.safety.check()        # the watch's reason once it tripped, else the flags
         if reason is None:
             return False

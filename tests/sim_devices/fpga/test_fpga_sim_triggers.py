@@ -158,3 +158,64 @@ def test_stop_truncates_the_run_and_darkens_the_array():
     assert not rows.any() and not cols.any()
     r, c, t = sim.lit_beams(clock.now() + 40e-6, clock.now() + 50e-6)
     assert r.size == 0
+
+
+def test_a_digitizer_armed_before_several_runs_numbers_their_triggers_on():
+    """Segments since an arm count every trigger the board fires after it, run after run (a stream's
+    frames on one digitizer acquisition): segment n of the second run's first trigger, with that run's
+    pixels and times; armed during a run, the digitizer counts that run from its start (the simulator's
+    leniency); armed between runs, from the next run; an earlier run cannot be synthesized."""
+    pattern = [[0, 0], [1, 5], [2, 9]]
+    tm = p.Timing(settle_ns=3000, dwell_ns=2000, triggers_per_pixel=2, trigger_period_ns=5000)
+    clock, sim = run(pattern, tm)
+    first_start = sim.run_start_s
+    armed = first_start - 1e-6                       # armed just before the first START
+    clock.advance(1e-3)                              # the first run (6 triggers) ends
+    assert sim.triggers_since(armed, 0, 6, 0.0).t_s[0] == pytest.approx(first_start + REFRESH + 3e-6)
+    send(sim, 8, p.Cmd.STOP)
+    second = [[4, 1], [5, 2]]
+    px = p.pack_pixels(np.asarray(second))
+    send(sim, 9, p.Cmd.PATTERN_BEGIN, p.encode_pattern_begin(len(second), p.crc32(px)))
+    send(sim, 10, p.Cmd.PATTERN_CHUNK, p.encode_pattern_chunk(0, px))
+    send(sim, 11, p.Cmd.PATTERN_END)
+    send(sim, 12, p.Cmd.ARM)
+    send(sim, 13, p.Cmd.START)
+    b = sim.triggers_since(armed, 6, 4, 0.0)          # segments 6..9: the second run's 4 triggers
+    period = REFRESH + 3e-6 + 2 * 5e-6 + 2e-6
+    i, k = np.divmod(np.arange(4), 2)
+    np.testing.assert_allclose(b.t_s, sim.run_start_s + i * period + REFRESH + 3e-6 + k * 5e-6, atol=1e-15)
+    np.testing.assert_array_equal(np.c_[b.row, b.col], np.asarray(second)[i])
+    # armed during the first run, after its first two triggers: still counted from its start
+    during = first_start + REFRESH + 3e-6 + 5e-6 + 1e-7
+    np.testing.assert_allclose(sim.triggers_since(during, 6, 1, 0.0).t_s, b.t_s[:1])
+    # armed between the runs: segment 0 is the second run's first trigger
+    between = first_start + 5e-4
+    np.testing.assert_allclose(sim.triggers_since(between, 0, 4, 0.0).t_s, b.t_s)
+    with pytest.raises(ValueError, match="earlier run"):
+        sim.triggers_since(armed, 5, 1, 0.0)
+
+
+def test_segments_since_an_arm_stay_numbered_over_more_runs_than_the_board_remembers():
+    """A stream longer than the runs the board keeps (RETIRED_RUNS_KEPT): read run by run, as a stream
+    does, the segments of the 80th run are still that run's triggers."""
+    from sim_devices.fpga_firmware import RETIRED_RUNS_KEPT
+
+    tm = p.Timing(settle_ns=3000, dwell_ns=0, triggers_per_pixel=1, trigger_period_ns=5000)
+    clock, sim = run([[0, 0], [1, 1]], tm)
+    armed = sim.run_start_s - 1e-6
+    runs = RETIRED_RUNS_KEPT + 16
+    seq = 8
+    for k in range(runs):
+        row = 4 * (k % 30)                            # bonded rows (every 4th row from 3 on is not)
+        if k:
+            pattern = np.array([[row, 0], [row, 1]])
+            px = p.pack_pixels(pattern)
+            for cmd, payload in ((p.Cmd.STOP, b""), (p.Cmd.PATTERN_BEGIN, p.encode_pattern_begin(2, p.crc32(px))),
+                                 (p.Cmd.PATTERN_CHUNK, p.encode_pattern_chunk(0, px)), (p.Cmd.PATTERN_END, b""),
+                                 (p.Cmd.ARM, b""), (p.Cmd.START, b"")):
+                send(sim, seq % 256, cmd, payload)
+                seq += 1
+        b = sim.triggers_since(armed, 2 * k, 2, 0.0)
+        assert b.row.tolist() == ([row, row] if k else [0, 1])
+        assert b.t_s[0] > sim.run_start_s
+        clock.advance(1e-4)
