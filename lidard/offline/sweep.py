@@ -12,7 +12,7 @@ simulated bench uses, called directly instead of through the byte protocols:
 * the world (``sim_devices.world.world.World``): ray cast, eq. 2-10 return with the FPSA's Table 4-4
   losses, beat amplitude G R sqrt(P_ref P_rx) (eq. 2-11), white noise of eqs. 2-16..2-18, 2-20/21;
 * the bench's digitizer model: 16-bit records, the 8-bit core's quantization noise added as white
-  noise when the record is wider than the core (``sim_devices.bench_capture``), Wiener phase noise of the
+  noise when the record is wider than the core (``sim_devices.bench.capture``), Wiener phase noise of the
   laser's linewidth, the monitor MZI when phase-noise compensation is on;
 * the daemon's ADC plan (``lidard.instrument.scan_loop.adc_plan``: rate from the maximum range) and its
   DSP (``lidard.dsp.frame.FrameDsp``: range FFT, OS-CFAR, estimator, up/down pairing), unchanged.
@@ -88,7 +88,7 @@ def _world(task: SweepTask, row: int, col: int) -> World:
 
 
 def _noise_asd(cfg: Config, world: World) -> float:
-    """The bench's white noise at the ADC input (sim_devices.bench_capture.BenchCapture._capture), V/sqrt(Hz)."""
+    """The bench's white noise at the ADC input (sim_devices.bench.capture.BenchCapture._capture), V/sqrt(Hz)."""
     eff = cfg.sim.effects
     asd = world.white_noise_asd_v() if eff.noise else 0.0
     if eff.quantization and RECORD_BITS > cfg.adc.bits:
@@ -98,7 +98,7 @@ def _noise_asd(cfg: Config, world: World) -> float:
 
 
 def _monitor_asd(cfg: Config, rin_db_per_hz: float) -> float:
-    """The bench's white noise on the monitor-MZI channel (sim_devices.bench_capture.BenchCapture._monitor_asd), V/sqrt(Hz)."""
+    """The bench's white noise on the monitor-MZI channel (sim_devices.bench.capture.BenchCapture._monitor_asd), V/sqrt(Hz)."""
     eff, mon = cfg.sim.effects, cfg.monitor
     asd = 0.0
     if eff.noise:

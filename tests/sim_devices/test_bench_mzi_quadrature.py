@@ -4,7 +4,7 @@ unconnected. Checked against the definition I = A cos(theta), Q = A sin(theta) o
 
 import numpy as np
 
-from sim_devices.digitizer import CaptureConfig
+from sim_devices.digitizer.device import CaptureConfig
 from tests.helpers.sim_bench import lit_bench
 
 FS = 100e6

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from drivers.digitizer import protocol as p
-from sim_devices.digitizer import front_end, quantize_codes, quantize_int_codes
+from sim_devices.digitizer.device import front_end, quantize_codes, quantize_int_codes
 
 
 @pytest.mark.parametrize("format_bits", [8, 16])
@@ -40,7 +40,7 @@ def test_int16_quantizer_into_a_record_is_quantize_then_clip():
     # every int16 code, every resolution below 16 bits: the record gets clip(quantize(code)) as the
     # float path gives it (quantize_codes, then the converter's clip to the resolution's top code)
     from drivers.digitizer.protocol import segment_dtype
-    from sim_devices.digitizer import quantize_int16_into
+    from sim_devices.digitizer.device import quantize_int16_into
 
     codes = np.arange(-32768, 32768, dtype=np.int64).astype(np.int16).reshape(16, 1, 4096)
     recs = np.zeros(16, segment_dtype(1, 4096, 16))
@@ -55,7 +55,7 @@ def test_sim_digitizer_flags_over_range_after_quantizing():
     # a code that rounds above the 14-bit top (32764 -> 32768) is clipped and flagged; one that
     # rounds down to the top is not
     from sim_devices.clock import VirtualClock
-    from sim_devices.digitizer import CapturedSegments, SimDigitizer
+    from sim_devices.digitizer.device import CapturedSegments, SimDigitizer
 
     class Source:
         def capture(self, first, count, cfg):

@@ -18,8 +18,8 @@ from scipy.signal import hilbert
 
 from lidard.config import load_config
 from lidard.physics.constants import C_M_PER_S
-from sim_devices.bench import Bench, BenchControlClient
-from sim_devices.digitizer import CaptureConfig
+from sim_devices.bench.bench import Bench, BenchControlClient
+from sim_devices.digitizer.device import CaptureConfig
 from sim_devices.world.scene import Scene
 from tests.helpers.sim_bench import SIM_TOML, lit_bench
 from tests.helpers.tolerances import NOMINAL_ENV

@@ -12,9 +12,9 @@ import numpy as np
 
 from drivers.fpsa import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
-from sim_devices.fpga_drive_log import DriveEvents, compact, settle_horizon_s
-from sim_devices.hv_drive import HvDrive
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
+from sim_devices.fpsa.drive_log import DriveEvents, compact, settle_horizon_s
+from sim_devices.fpsa.hv_drive import HvDrive
 from sim_devices.world.mems import SwitchDynamics
 
 US = 1e-6

@@ -12,7 +12,7 @@ import pytest
 
 from drivers.fpsa import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import HV583, FpgaConfig, FpgaSim, default_bonded_rows
+from sim_devices.fpsa.device import HV583, FpgaConfig, FpgaSim, default_bonded_rows
 
 DOC = Path(__file__).resolve().parents[3] / "docs" / "protocols" / "fpsa.md"
 

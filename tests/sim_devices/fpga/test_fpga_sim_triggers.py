@@ -12,7 +12,7 @@ from scipy.integrate import quad
 
 from drivers.fpsa import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
 
 TAU_ROW = 1.0e-6 / math.log(10)  # 90 % in 1 us
 TAU_COL_ON = 2.7e-6 / math.log(10)

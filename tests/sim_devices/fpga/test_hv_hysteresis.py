@@ -13,10 +13,10 @@ from drivers.controller import protocol as ctl_p
 from drivers.fpsa import protocol as p
 from lidard.config import CONFIG_DIR, load_config
 from lidard.selftest_analysis import hv_margin_problem, hv_pull_in_problem
-from sim_devices.bench import Bench
+from sim_devices.bench.bench import Bench
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
-from sim_devices.hv_drive import HOLD_BOOST_S, HvDrive
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
+from sim_devices.fpsa.hv_drive import HOLD_BOOST_S, HvDrive
 from sim_devices.world.mems import SwitchDynamics, switch_thresholds
 
 PULL_IN_V, RELEASE_V = 32.0, 29.0  # §4.2.6

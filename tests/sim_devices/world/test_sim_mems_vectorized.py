@@ -13,7 +13,7 @@ import pytest
 
 from drivers.fpsa import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
 from sim_devices.world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchBank, mean_path_transmission
 
 

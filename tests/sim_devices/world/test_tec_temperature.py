@@ -11,9 +11,9 @@ import pytest
 
 from drivers.controller import protocol as p
 from lidard.config import CONFIG_DIR, load_config, load_laser
-from sim_devices.bench import Bench
+from sim_devices.bench.bench import Bench
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerModel
+from sim_devices.controller.device import ControllerModel
 from sim_devices.faults import validate_fault
 from sim_devices.world.laser import DfbLaser, triangle_drive
 from sim_devices.world.synth import trajectory

@@ -19,7 +19,7 @@ import numpy as np
 
 from drivers import usbtmc
 from drivers.awg import protocol as p
-from sim_devices.usb_backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_timeout
+from sim_devices.usb.backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_timeout
 
 #: instrument limits (those of a typical 16-bit, 1 GS/s AWG)
 SAMPLE_RATE_MIN_HZ = 1e3

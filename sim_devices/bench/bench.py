@@ -3,7 +3,7 @@
 Wires the byte-level peers to one :class:`~sim_devices.world.world.World` (scene, optics, link
 budget), one DFB laser model and one :class:`~sim_devices.clock.VirtualClock`:
 
-* the FPGA (``sim_devices.fpga``, served on a pty) steps the uploaded pattern and decides, per
+* the FPGA (``sim_devices.fpsa.device``, served on a pty) steps the uploaded pattern and decides, per
   trigger, which pixel is commanded and which beams actually leave the chip (MEMS dynamics, §4.3.6);
 * the AWG (USBTMC over the pyusb backend) holds the drive waveform that the laser model turns into
   nu(t) (the trajectory is computed once per waveform and laser temperature, to 1 mK, and cached; the
@@ -48,9 +48,9 @@ the light leaving the FPSA (one beam for a healthy pixel, two when a line is stu
 one is stuck off).
 
 Parts: this module builds the bench and runs it (devices, lifecycle, the FPGA's pty behind a stable
-path, world control, ``lidar-sim``); the fault catalogue's effects are ``sim_devices.bench_faults``,
+path, world control, ``lidar-sim``); the fault catalogue's effects are ``sim_devices.bench.fault_injector``,
 the segment synthesis (the digitizer's ``SegmentSource``, the tap channel)
-``sim_devices.bench_capture``, the JSON control socket and its client ``sim_devices.bench_control``.
+``sim_devices.bench.capture``, the JSON control socket and its client ``sim_devices.bench.control``.
 
 This module is a composition root of the simulator; like the world it reads ``lidard.config``.
 """
@@ -73,31 +73,31 @@ import numpy as np
 
 from lidard.config import Config, ConfigError, load_config
 
-from .awg import SimAwg
-from .bench_capture import HYBRID_CHANNEL_AMPLITUDE, BenchCapture, TapSpec, core_overrange
-from .bench_control import BenchControlClient, _ControlServer
-from .bench_faults import BenchFaults
-from .clock import VirtualClock
-from .controller import ControllerSim
-from .digitizer import SimDigitizer
-from .faults import SerialLineNoise, validate_fault
-from .fpga import FpgaConfig, FpgaSim
-from .hv_drive import HvDrive
-from .usb_backend import SimUsbBackend, UsbBridgeServer
-from .world.fidelity import FidelityLedger
-from .world.laser import DfbLaser
-from .world.mems import SwitchDynamics
-from .world.scene import Scene, SceneError
-from .world.tec import from_tolerances as tec_model
-from .world.tolerances import BenchTruth, draw_truth
-from .world.world import World
+from sim_devices.awg.device import SimAwg
+from sim_devices.bench.capture import HYBRID_CHANNEL_AMPLITUDE, BenchCapture, TapSpec, core_overrange
+from sim_devices.bench.control import BenchControlClient, _ControlServer
+from sim_devices.bench.fault_injector import BenchFaults
+from sim_devices.clock import VirtualClock
+from sim_devices.controller.device import ControllerSim
+from sim_devices.digitizer.device import SimDigitizer
+from sim_devices.faults import SerialLineNoise, validate_fault
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
+from sim_devices.fpsa.hv_drive import HvDrive
+from sim_devices.usb.backend import SimUsbBackend, UsbBridgeServer
+from sim_devices.world.fidelity import FidelityLedger
+from sim_devices.world.laser import DfbLaser
+from sim_devices.world.mems import SwitchDynamics
+from sim_devices.world.scene import Scene, SceneError
+from sim_devices.world.tec import from_tolerances as tec_model
+from sim_devices.world.tolerances import BenchTruth, draw_truth
+from sim_devices.world.world import World
 
 
 class Bench(BenchFaults, BenchCapture):
     """Every simulated device around one world and one virtual clock.
 
-    Fault injection: :class:`~sim_devices.bench_faults.BenchFaults`; segment synthesis:
-    :class:`~sim_devices.bench_capture.BenchCapture`."""
+    Fault injection: :class:`~sim_devices.bench.fault_injector.BenchFaults`; segment synthesis:
+    :class:`~sim_devices.bench.capture.BenchCapture`."""
 
     def __init__(self, cfg: Config, scene: Scene | None = None, *, seed: int | None = None) -> None:
         self.cfg = cfg

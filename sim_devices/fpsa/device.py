@@ -9,7 +9,7 @@ UART wire time at the configured baud (10 bit times per byte).
 
 Hardware modelled:
 
-* Two HV583 converters (:class:`~sim_devices.hv583.HV583`: 0.8 us full refresh, §4.3.3) whose
+* Two HV583 converters (:class:`~sim_devices.fpsa.hv583.HV583`: 0.8 us full refresh, §4.3.3) whose
   registers power up RANDOM: until the host sends RESET the array shows garbage (many rows and
   columns on), the state is FAULT and STATUS flags HV_UNINITIALIZED.
 * Wiring (§4.3.3): converter A output r drives row switch r, but only bonded rows are wired
@@ -17,7 +17,7 @@ Hardware modelled:
   A pattern pixel on an unbonded row is NAKed with BAD_ROW_UNBONDED.
 * MEMS switches (``sim_devices.world.mems``: pull-in/release hysteresis, first-order optical
   response); the HV supply (``hv_supply_v``) must exceed pull-in for anything to switch.
-* The firmware steps an uploaded pattern on the virtual clock (``sim_devices.triggers``). During a
+* The firmware steps an uploaded pattern on the virtual clock (``sim_devices.fpsa.triggers``). During a
   transition the old row/column is still partly on, so the capture windows see ghost beams
   exactly as the dynamics predict; :meth:`FpgaSim.triggers` reports them.
 
@@ -29,9 +29,9 @@ transports take a :class:`~sim_devices.faults.SerialLineNoise` (byte drops, bit 
 directions), and :meth:`PtyServer.close` makes the device vanish from the host's point of view.
 
 Parts: this module is the board (configuration, HV583 line bookkeeping, the byte interface with its
-retry cache, inspection, stuck-switch faults); the command handlers are ``sim_devices.fpga_firmware``,
-the drive-event log and stuck-switch intervals ``sim_devices.fpga_drive_log``, the switch banks, lit
-beams and triggers ``sim_devices.fpga_beams``, the transports ``sim_devices.fpga_serial``.
+retry cache, inspection, stuck-switch faults); the command handlers are ``sim_devices.fpsa.firmware``,
+the drive-event log and stuck-switch intervals ``sim_devices.fpsa.drive_log``, the switch banks, lit
+beams and triggers ``sim_devices.fpsa.beams``, the transports ``sim_devices.fpsa.serial_port``.
 """
 
 from __future__ import annotations
@@ -47,16 +47,16 @@ import numpy as np
 from drivers.fpsa import protocol as p
 from drivers.fpsa.errors import ProtocolError
 
-from .clock import VirtualClock
-from .faults import SerialLineNoise
-from .fpga_beams import ChipOptics
-from .fpga_drive_log import COL, ROW, DriveEvents, StuckSwitches, line_kind, lines_high_before, settle_horizon_s
-from .fpga_firmware import FirmwareCommands, _Run, _Upload
-from .fpga_serial import PtyServer, SimSerial
-from .hv583 import HV583, default_bonded_rows
-from .hv_drive import HOLD_BOOST_S, HvDrive
-from .triggers import PixelSchedule
-from .world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchBank, SwitchDynamics
+from sim_devices.clock import VirtualClock
+from sim_devices.faults import SerialLineNoise
+from sim_devices.fpsa.beams import ChipOptics
+from sim_devices.fpsa.drive_log import COL, ROW, DriveEvents, StuckSwitches, line_kind, lines_high_before, settle_horizon_s
+from sim_devices.fpsa.firmware import FirmwareCommands, _Run, _Upload
+from sim_devices.fpsa.serial_port import PtyServer, SimSerial
+from sim_devices.fpsa.hv583 import HV583, default_bonded_rows
+from sim_devices.fpsa.hv_drive import HOLD_BOOST_S, HvDrive
+from sim_devices.fpsa.triggers import PixelSchedule
+from sim_devices.world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchBank, SwitchDynamics
 
 
 @dataclass(frozen=True)
@@ -93,8 +93,8 @@ class FpgaConfig:
 class FpgaSim(FirmwareCommands, ChipOptics):
     """The FPGA firmware + HV583 board + MEMS array, driven by bytes, timed by a virtual clock.
 
-    The command handlers live in :class:`~sim_devices.fpga_firmware.FirmwareCommands`, the light
-    that leaves the chip (switch banks, beams, triggers) in :class:`~sim_devices.fpga_beams.ChipOptics`."""
+    The command handlers live in :class:`~sim_devices.fpsa.firmware.FirmwareCommands`, the light
+    that leaves the chip (switch banks, beams, triggers) in :class:`~sim_devices.fpsa.beams.ChipOptics`."""
 
     def __init__(self, clock: VirtualClock, config: FpgaConfig | None = None) -> None:
         self.clock = clock
@@ -110,7 +110,7 @@ class FpgaSim(FirmwareCommands, ChipOptics):
         self.tx_bytes = 0
         self.executed = 0  # commands executed (cached retries are not counted)
         self._events = DriveEvents()
-        self._holds = DriveEvents()  # hold-level drive after each pull-in boost (sim_devices.hv_drive)
+        self._holds = DriveEvents()  # hold-level drive after each pull-in boost (sim_devices.fpsa.hv_drive)
         #: What the HV583 outputs carry; the bench points this at the controller's HV output.
         self.supply: Callable[[], HvDrive] = lambda: HvDrive(self.config.hv_supply_v)
         self._banks: tuple[SwitchBank, SwitchBank] | None = None

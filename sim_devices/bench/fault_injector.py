@@ -1,6 +1,6 @@
 """Fault injection on the simulated bench (issue 6; catalogue and parameters in ``sim_devices.faults``).
 
-:class:`BenchFaults` is the fault half of :class:`sim_devices.bench.Bench`: ``inject_fault(kind,
+:class:`BenchFaults` is the fault half of :class:`sim_devices.bench.bench.Bench`: ``inject_fault(kind,
 **params) -> dict``, ``clear_faults(kind=None) -> int``, ``active_faults()``, and what each kind does
 to the devices (serial line noise, the FPGA's pty vanishing and coming back, USB faults, digitizer
 overrange gain, Modbus exceptions and timeouts, the interlock opening at a virtual time or after a
@@ -20,7 +20,7 @@ import numpy as np
 
 from drivers.controller import protocol as ctl_p
 
-from .faults import FAULT_KINDS, validate_fault
+from sim_devices.faults import FAULT_KINDS, validate_fault
 
 # Faults of which a bench holds at most one: a second injection replaces the first.
 _SINGLETONS = ("serial_drop", "serial_flip", "serial_disconnect", "digitizer_overrange", "hv_fault",
@@ -29,7 +29,7 @@ _USB_KIND = {"usb_timeout": "timeout", "usb_stall": "stall", "usb_disconnect": "
 
 
 class BenchFaults:
-    """Fault injection of the simulated bench (a mixin of :class:`~sim_devices.bench.Bench`)."""
+    """Fault injection of the simulated bench (a mixin of :class:`~sim_devices.bench.bench.Bench`)."""
 
     def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
         """Inject a fault (catalogue: ``sim_devices.faults``); returns it as a dict with an ``id``.

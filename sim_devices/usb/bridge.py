@@ -21,9 +21,9 @@ from urllib.parse import urlparse
 
 import usb.core
 
-from .usb_descriptors import DeviceSpec, _DescriptorBackend, _SimHandle
-from .usb_device import SimUsbDevice
-from .usb_errors import usb_nodev
+from sim_devices.usb.descriptors import DeviceSpec, _DescriptorBackend, _SimHandle
+from sim_devices.usb.device import SimUsbDevice
+from sim_devices.usb.errors import usb_nodev
 
 # --------------------------------------------------------------------------------- the bridge
 #

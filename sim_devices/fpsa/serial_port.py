@@ -1,6 +1,6 @@
 """Host-side channels to a simulated FPSA board: an in-memory serial port and a pty server.
 
-The FPGA simulator (:class:`sim_devices.fpga.FpgaSim`) is a byte handler (``feed(bytes) -> bytes``);
+The FPGA simulator (:class:`sim_devices.fpsa.device.FpgaSim`) is a byte handler (``feed(bytes) -> bytes``);
 these wrap it in what a driver opens. :class:`SimSerial` behaves like a pyserial port for tests (a
 read returns what is buffered, as a real port does when its timeout expires, so no wall-clock
 wait); :class:`PtyServer` serves the handler on a pseudo-terminal whose slave path the driver opens
@@ -16,7 +16,7 @@ import threading
 import tty
 from typing import Protocol
 
-from .faults import SerialLineNoise
+from sim_devices.faults import SerialLineNoise
 
 
 class ByteHandler(Protocol):
@@ -26,7 +26,7 @@ class ByteHandler(Protocol):
 
 
 class SimSerial:
-    """In-memory serial-like channel to an :class:`~sim_devices.fpga.FpgaSim` (write -> device -> read buffer).
+    """In-memory serial-like channel to an :class:`~sim_devices.fpsa.device.FpgaSim` (write -> device -> read buffer).
 
     ``read`` returns what is buffered, possibly nothing, as a real port does when its read
     timeout expires, so a driver's timeout logic runs without any wall-clock wait.
@@ -69,7 +69,7 @@ class SimSerial:
 
 
 class PtyServer:
-    """Serve an :class:`~sim_devices.fpga.FpgaSim` on a pseudo-terminal; open :attr:`path` like a serial device.
+    """Serve an :class:`~sim_devices.fpsa.device.FpgaSim` on a pseudo-terminal; open :attr:`path` like a serial device.
 
     A thread reads the master side, feeds the simulator and writes its answers back. The slave
     fd stays open here so the pty does not hang up when the driver closes and reopens it.

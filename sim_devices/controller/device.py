@@ -24,7 +24,7 @@ wire format in docs/protocols/controller.md). What it models:
   slow drift (``tec_drift``: sim_devices.world.tec.TecDrift) and an injected step (``tec_offset_c``,
   fault ``tec_offset``) that the readback cannot show (issue 13).
 
-The device logic (state, lags, limits, interlock, faults) is ``sim_devices.controller_model``; this
+The device logic (state, lags, limits, interlock, faults) is ``sim_devices.controller.model``; this
 module serves it over Modbus TCP and injects the protocol-level faults. Start/stop from a thread
 (``start()``/``stop()``, or ``with ControllerSim(...) as sim``) or from a running asyncio loop
 (``await start_async()``/``await stop_async()``). Port 0 binds a free port, reported by ``.port``.
@@ -42,7 +42,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.controller import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.controller_model import ControllerModel, ControllerState, Dynamics, _bits_to_words
+from sim_devices.controller.model import ControllerModel, ControllerState, Dynamics, _bits_to_words
 
 _READ_FC_TABLE = {1: p.Table.COIL, 2: p.Table.DISCRETE_INPUT, 3: p.Table.HOLDING, 4: p.Table.INPUT}
 _WRITE_FC_TABLE = {5: p.Table.COIL, 15: p.Table.COIL, 6: p.Table.HOLDING, 16: p.Table.HOLDING,

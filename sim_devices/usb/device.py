@@ -1,11 +1,11 @@
 """Base of a simulated USB device on the bench's USB bus (§4.4.1: the AWG and the ADC).
 
-Simulated devices (``sim_devices.awg``, ``sim_devices.digitizer``) subclass :class:`SimUsbDevice`:
-they set a :class:`~sim_devices.usb_descriptors.DeviceSpec` and handle control, bulk-OUT and bulk-IN
+Simulated devices (``sim_devices.awg.device``, ``sim_devices.digitizer.device``) subclass :class:`SimUsbDevice`:
+they set a :class:`~sim_devices.usb.descriptors.DeviceSpec` and handle control, bulk-OUT and bulk-IN
 transfers; the base answers the standard string-descriptor requests, holds a per-device lock and
 applies injected faults before every transfer. USB failures are raised as pyusb's own exceptions
 (``USBTimeoutError``, ``USBError`` with errno EPIPE for a stall, ENODEV for a disconnected device;
-``sim_devices.usb_errors``) so the drivers exercise the same error paths as on hardware; tests
+``sim_devices.usb.errors``) so the drivers exercise the same error paths as on hardware; tests
 inject them with :meth:`SimUsbDevice.inject_fault`.
 """
 
@@ -16,8 +16,8 @@ from typing import Literal
 
 import usb.core
 
-from .usb_descriptors import DeviceSpec, _string_descriptor
-from .usb_errors import usb_nodev, usb_stall, usb_timeout
+from sim_devices.usb.descriptors import DeviceSpec, _string_descriptor
+from sim_devices.usb.errors import usb_nodev, usb_stall, usb_timeout
 
 FaultKind = Literal["timeout", "stall", "disconnect"]
 FaultOp = Literal["ctrl", "bulk_out", "bulk_in", "any"]

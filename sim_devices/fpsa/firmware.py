@@ -1,13 +1,13 @@
 """The FPSA board's firmware commands: what each wire command of docs/protocols/fpsa.md does to the
 board's state (§4.3.3 and Fig. 4-22; the run's line changes follow the pixel schedule of
-``sim_devices.triggers``).
+``sim_devices.fpsa.triggers``).
 
-:class:`FirmwareCommands` is the command half of :class:`sim_devices.fpga.FpgaSim`: it maps a
+:class:`FirmwareCommands` is the command half of :class:`sim_devices.fpsa.device.FpgaSim`: it maps a
 decoded frame to its handler, enforces the state machine (FAULT until RESET; configuration only in
 IDLE/DONE/ARMED; START only when ARMED), validates payloads (NAK codes of the protocol), uploads and
 verifies patterns chunk by chunk, and at START logs every HV line change of the whole run in closed
 form (cut short later by STOP/RESET). The board half (HV583 registers, drive log, switch banks,
-beams, transports) stays in ``sim_devices.fpga``; the handlers reach it through ``self``:
+beams, transports) stays in ``sim_devices.fpsa.device``; the handlers reach it through ``self``:
 ``config``, ``state``, ``faults``, ``timing``, ``hv_rows``/``hv_cols``, the drive logs
 ``_events``/``_holds``, ``_row_high``/``_col_high``, ``supply()``, and the line bookkeeping
 ``_apply_outputs``, ``_load_lines``, ``_cut_run``, ``_sync``.
@@ -22,10 +22,10 @@ import numpy as np
 from drivers.fpsa import protocol as p
 from drivers.fpsa.errors import LengthError, PayloadError
 
-from .fpga_drive_log import COL, ROW, compact
-from .hv583 import HV583
-from .hv_drive import HOLD_BOOST_S
-from .triggers import PixelSchedule
+from sim_devices.fpsa.drive_log import COL, ROW, compact
+from sim_devices.fpsa.hv583 import HV583
+from sim_devices.fpsa.hv_drive import HOLD_BOOST_S
+from sim_devices.fpsa.triggers import PixelSchedule
 
 
 class _Nak(Exception):
@@ -49,7 +49,7 @@ class _Upload:
 
 
 class FirmwareCommands:
-    """Command handlers of the FPGA firmware (a mixin of :class:`~sim_devices.fpga.FpgaSim`)."""
+    """Command handlers of the FPGA firmware (a mixin of :class:`~sim_devices.fpsa.device.FpgaSim`)."""
 
     def _execute(self, frame: p.Frame) -> bytes:
         now = self.clock.now()

@@ -5,8 +5,8 @@ A simulated device states its identity as a :class:`DeviceSpec` (VID/PID, string
 its bulk endpoints); pyusb reads descriptor fields with getattr(), so the builders return plain
 attribute bags. :class:`_DescriptorBackend` serves them (device, configuration, interface and
 endpoint descriptors, configuration and claim bookkeeping) for both the in-process backend
-(``sim_devices.usb_backend.SimUsbBackend``) and the one across processes
-(``sim_devices.usb_bridge.RemoteUsbBackend``); the transfers are theirs.
+(``sim_devices.usb.backend.SimUsbBackend``) and the one across processes
+(``sim_devices.usb.bridge.RemoteUsbBackend``); the transfers are theirs.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import usb.backend
 
-from .usb_errors import usb_stall
+from sim_devices.usb.errors import usb_stall
 
 
 class _Desc:

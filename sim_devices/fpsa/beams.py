@@ -5,7 +5,7 @@ A beam (row r, column c) carries the product of the two switches' optical transm
 digitizer sees its mean over a capture window. During a transition the old row/column is still
 partly on, so the windows see ghost beams exactly as the dynamics predict. This module finds them
 for many windows at once (:func:`beams_in_windows`). :class:`ChipOptics` is the optical half of
-:class:`sim_devices.fpga.FpgaSim`: it builds the row and column switch banks from the board's drive
+:class:`sim_devices.fpsa.device.FpgaSim`: it builds the row and column switch banks from the board's drive
 log (with the hold-level drive and the stuck switches), and answers which beams are lit in a window
 (:meth:`ChipOptics.lit_beams`) and which triggers of the run see which beams
 (:meth:`ChipOptics.triggers`); it uses the board's ``config``, ``_lock``, ``_run``, ``_events``,
@@ -18,9 +18,9 @@ import math
 
 import numpy as np
 
-from .fpga_drive_log import COL, ROW, with_holds
-from .triggers import TriggerBatch
-from .world.mems import SwitchBank, mean_path_transmission, switch_thresholds
+from sim_devices.fpsa.drive_log import COL, ROW, with_holds
+from sim_devices.fpsa.triggers import TriggerBatch
+from sim_devices.world.mems import SwitchBank, mean_path_transmission, switch_thresholds
 
 
 def beams_in_windows(rows_bank: SwitchBank, cols_bank: SwitchBank, candidate_rows: np.ndarray,
@@ -75,7 +75,7 @@ def beams_in_windows(rows_bank: SwitchBank, cols_bank: SwitchBank, candidate_row
 
 class ChipOptics:
     """Switch banks, lit beams and triggers of the FPGA simulator (a mixin of
-    :class:`~sim_devices.fpga.FpgaSim`)."""
+    :class:`~sim_devices.fpsa.device.FpgaSim`)."""
 
     def _switch_banks(self) -> tuple[SwitchBank, SwitchBank]:
         if self._banks is None:
@@ -114,7 +114,7 @@ class ChipOptics:
 
     def _beams(self, t0: np.ndarray, t1: np.ndarray, dwell: np.ndarray | None = None):
         """(window, row, col, transmission) of every beam above the floor in each window
-        (:func:`sim_devices.fpga_beams.beams_in_windows`)."""
+        (:func:`sim_devices.fpsa.beams.beams_in_windows`)."""
         rows_bank, cols_bank = self._switch_banks()
         return beams_in_windows(rows_bank, cols_bank, self._candidate_rows(), self.config.cols,
                                 self.config.beam_floor, t0, t1, dwell)

@@ -2,7 +2,7 @@
 tones from the world, synthesized at the sample rate the host configured (§2.1 eq. 2-1; §2.4.1;
 §4.3.6; §4.4).
 
-:class:`BenchCapture` is the capture half of :class:`sim_devices.bench.Bench`. Per batch of triggers
+:class:`BenchCapture` is the capture half of :class:`sim_devices.bench.bench.Bench`. Per batch of triggers
 it decides which segments see light (laser on, interlock closed, an interlock fault cutting the
 batch), which beams emit (the switch dynamics, or the commanded pixel when every switch pulls in),
 the hits the world returns, the noise (detector, the converter core's quantization when the record
@@ -24,10 +24,10 @@ import numpy as np
 
 from lidard.physics.budget import monitor_noise_asd, quantization_asd
 
-from .digitizer import CaptureConfig, CapturedSegments, decimation_filter
-from .world.fidelity import phase_noise_negligible
-from .world.synth import AdcSpec, HitBatch, trajectory
-from .world.synth_parallel import synthesize_read
+from sim_devices.digitizer.device import CaptureConfig, CapturedSegments, decimation_filter
+from sim_devices.world.fidelity import phase_noise_negligible
+from sim_devices.world.synth import AdcSpec, HitBatch, trajectory
+from sim_devices.world.synth_parallel import synthesize_read
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarr
 
 
 class BenchCapture:
-    """The bench's ``SegmentSource`` (a mixin of :class:`~sim_devices.bench.Bench`)."""
+    """The bench's ``SegmentSource`` (a mixin of :class:`~sim_devices.bench.bench.Bench`)."""
 
     def _trajectory(self):
         drive, fs = self.awg.drive_volts()

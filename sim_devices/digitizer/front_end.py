@@ -1,6 +1,6 @@
 """The simulated digitizer's analog front end: anti-alias band limit, then the quantizer (issue 11, 18).
 
-Split from :mod:`sim_devices.digitizer` (which re-exports these names); the response and the
+Split from :mod:`sim_devices.digitizer.device` (which re-exports these names); the response and the
 quantizer are documented there and in docs/protocols/digitizer.md. Integer codes that no filter
 touches at the record rate are quantized in integer arithmetic (issue 18): the same codes as the
 float path, in a few passes and without a float64 copy of every batch.

@@ -5,8 +5,8 @@
 readbacks follow their targets with first-order lags on the shared virtual clock (x -> target +
 (x - target) exp(-dt / tau), :class:`Dynamics`), out-of-range or refused writes return the Modbus
 exception code and change nothing, the interlock and latched faults trip the outputs, and the laser
-chip's true temperature adds what the TEC readback cannot show. ``sim_devices.controller`` serves
-it over Modbus TCP (:class:`~sim_devices.controller.ControllerSim`).
+chip's true temperature adds what the TEC readback cannot show. ``sim_devices.controller.device`` serves
+it over Modbus TCP (:class:`~sim_devices.controller.device.ControllerSim`).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class ControllerState:
     tec_c: float = 25.0
     laser_setpoint_ma: float = 0.0
     hv_setpoint_v: float = 0.0
-    hv_hold_setpoint_v: float = 0.0  # 0 = lines held at the full HV (sim_devices.hv_drive)
+    hv_hold_setpoint_v: float = 0.0  # 0 = lines held at the full HV (sim_devices.fpsa.hv_drive)
     tec_setpoint_c: float = 25.0
     faults: set[p.Fault] = field(default_factory=set)
     last_command: int = 0

@@ -8,7 +8,7 @@ the log and the views on it the simulator needs:
 
 * :func:`lines_high_before`: which lines were driven high just before a moment;
 * :func:`with_holds`: one line kind's drive events plus the hold-level events of the pull-in/hold
-  drive (``sim_devices.hv_drive``) that a later line change did not cut short;
+  drive (``sim_devices.fpsa.hv_drive``) that a later line change did not cut short;
 * :class:`StuckSwitches`: fault injection, switches that ignore their drive during intervals, and
   the drive events such a switch actually follows (:func:`line_kind` checks a switch's name);
 * :func:`compact`: the log of a bench that runs for weeks stays bounded. A line's history before its
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .hv_drive import valid_holds
+from sim_devices.fpsa.hv_drive import valid_holds
 
 ROW, COL = 0, 1  # line kinds in the drive-event log
 

@@ -2,7 +2,7 @@
 
 A JSON-lines protocol on 127.0.0.1: set_scene, set_interlock, advance, ground_truth, truth, ping,
 inject, clear_faults, faults, fidelity (the ledger of modelled / skipped effects). The server side
-calls the :class:`sim_devices.bench.Bench` it serves; the client (:class:`BenchControlClient`) is
+calls the :class:`sim_devices.bench.bench.Bench` it serves; the client (:class:`BenchControlClient`) is
 what lidard's composition root uses to steer a child bench.
 """
 
@@ -14,7 +14,7 @@ import threading
 
 import numpy as np
 
-from .world.scene import Scene, SceneError
+from sim_devices.world.scene import Scene, SceneError
 
 
 class _ControlServer:
@@ -27,7 +27,7 @@ class _ControlServer:
     ``{"cmd": "truth"}`` -> ``{"truth": BenchTruth.as_dict()}`` (the hidden tolerances).
     """
 
-    def __init__(self, bench) -> None:   # a sim_devices.bench.Bench (not imported: no cycle)
+    def __init__(self, bench) -> None:   # a sim_devices.bench.bench.Bench (not imported: no cycle)
         self.bench = bench
         self._sock = socket.create_server(("127.0.0.1", 0))
         self.port = self._sock.getsockname()[1]

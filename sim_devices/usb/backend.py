@@ -18,8 +18,8 @@ and bulk-IN transfers. USB failures are raised as pyusb's own exceptions (``USBT
 the same error paths as on hardware; tests inject them with ``SimUsbDevice.inject_fault``.
 
 Parts: this module is the in-process backend and the URL scheme table; the device base is
-``sim_devices.usb_device``, its pyusb errors ``sim_devices.usb_errors``, the descriptors
-``sim_devices.usb_descriptors``, the bridge across processes ``sim_devices.usb_bridge``.
+``sim_devices.usb.device``, its pyusb errors ``sim_devices.usb.errors``, the descriptors
+``sim_devices.usb.descriptors``, the bridge across processes ``sim_devices.usb.bridge``.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ from urllib.parse import urlparse
 
 import usb.backend
 
-from .usb_bridge import RemoteUsbBackend, UsbBridgeServer
-from .usb_descriptors import DeviceSpec, EndpointSpec, _DescriptorBackend, _SimHandle
-from .usb_device import FaultKind, FaultOp, SimUsbDevice
-from .usb_errors import usb_nodev, usb_stall, usb_timeout
+from sim_devices.usb.bridge import RemoteUsbBackend, UsbBridgeServer
+from sim_devices.usb.descriptors import DeviceSpec, EndpointSpec, _DescriptorBackend, _SimHandle
+from sim_devices.usb.device import FaultKind, FaultOp, SimUsbDevice
+from sim_devices.usb.errors import usb_nodev, usb_stall, usb_timeout
 
 
 class SimUsbBackend(_DescriptorBackend):

@@ -5,7 +5,7 @@ Two of these drive the 128x128 switch array (converter A: rows, converter B: col
 32-bit shift registers clocked in parallel at 40 MHz, a latch, blanking and polarity: loading all
 128 outputs takes 32 clocks = 0.8 us, the 1.25 MHz full-refresh rate of §4.3.3. Registers and
 latches power up with random contents (the caller's seeded generator), so the array shows garbage
-until the firmware clears them. Used by :mod:`sim_devices.fpga` and its command handlers.
+until the firmware clears them. Used by :mod:`sim_devices.fpsa.device` and its command handlers.
 """
 
 from __future__ import annotations
