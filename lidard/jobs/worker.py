@@ -345,7 +345,7 @@ class ScanWorker:
         from ..instrument.calibration.setup import select
         chosen, notes = {}, []
         for kind in ("range", "pointing", "iq"):
-            rec, why = select(self.store.list_geometry_calibrations(kind, limit=200),
+            rec, why = select(self.store.geometry.recent(kind, limit=200),
                               None if self.setup is None else self.setup[kind])
             chosen[kind] = rec
             if why is not None:

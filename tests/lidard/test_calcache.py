@@ -1,4 +1,4 @@
-"""The calibration cache of one-shot ``--sim`` commands (lidard.calcache, issue 18).
+"""The calibration cache of one-shot ``--sim`` commands (lidard.store.calcache, issue 18).
 
 A second embedded scan of the same configuration reuses the first one's linearization (same id,
 no second linearize call); another laser preset, a moved laser temperature or ``--no-cal-cache``
@@ -11,7 +11,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from lidard import calcache
+from lidard.store import calcache
 from lidard.cli import base as cli_base
 from lidard.cli.embedded import embedded, sim_config
 from lidard.config import CONFIG_DIR

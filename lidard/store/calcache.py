@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .instrument.types import CalibrationResult
+from ..instrument.types import CalibrationResult
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,7 @@
-"""The store's records of the geometric calibrations (range scale/zero, pointing; issue 13 item 2).
+"""The store's records of the geometric calibrations (range scale/zero, pointing).
 
-A mixin of :class:`lidard.store.Store` (its SQLite connection and lock). Two tables:
+:class:`GeometryCalibrations` is held by :class:`lidard.store.Store` as ``store.geometry``: it shares
+the store's SQLite connection and lock (given to it, not reached for) and keeps two tables:
 
 * ``geometry_calibrations``: one row per accepted fit: id, kind (``range`` | ``pointing``), time, the
   laser TEC temperature when it was made, its inputs (the plate measurements, the target geometry),
@@ -9,14 +10,17 @@ A mixin of :class:`lidard.store.Store` (its SQLite connection and lock). Two tab
   that a daemon restart between ``calibration range add`` and ``calibration range fit`` loses nothing;
   a successful fit consumes them.
 
-The chirp linearizations (§2.2) stay in the ``calibrations`` table of :mod:`lidard.store`.
+The chirp linearizations (§2.2) stay in the ``calibrations`` table of :class:`lidard.store.Store`.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import sqlite3
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
@@ -71,12 +75,19 @@ def _json(value: Any) -> str:
     return json.dumps(_clean(value), default=str, allow_nan=False)
 
 
-class GeometryCalibrationStore:
-    """Methods of :class:`lidard.store.Store` for the geometric calibrations (needs ``_conn``, ``_lock``
-    and ``_new_id``, the store's id maker)."""
+class GeometryCalibrations:
+    """The geometric calibrations and the pending range measurements of one store.
 
-    def save_geometry_calibration(self, kind: str, *, temperature_c: float | None, inputs: dict[str, Any],
-                                  fitted: dict[str, Any], residuals: dict[str, Any]) -> CalibrationRecord:
+    ``conn`` and ``lock`` are the store's (one connection guarded by one lock serves every thread);
+    ``new_id`` makes the records' ids (time-sortable, as the scans')."""
+
+    def __init__(self, conn: sqlite3.Connection, lock: threading.RLock, new_id: Callable[[], str]):
+        self._conn = conn
+        self._lock = lock
+        self._new_id = new_id
+
+    def save(self, kind: str, *, temperature_c: float | None, inputs: dict[str, Any],
+             fitted: dict[str, Any], residuals: dict[str, Any]) -> CalibrationRecord:
         if kind not in GEOMETRY_KINDS:
             raise ValueError(f"calibration kind {kind!r} is not one of {GEOMETRY_KINDS}")
         t = None if temperature_c is None or temperature_c != temperature_c else float(temperature_c)
@@ -89,7 +100,7 @@ class GeometryCalibrationStore:
                 (rec.id, kind, rec.created, t, json.dumps(rec.inputs), json.dumps(rec.fitted), json.dumps(rec.residuals)))
         return rec
 
-    def import_geometry_calibration(self, rec: dict[str, Any]) -> CalibrationRecord:
+    def import_record(self, rec: dict[str, Any]) -> CalibrationRecord:
         """Put a record made elsewhere (``CalibrationRecord.to_dict()``: a cached factory calibration) into
         this store under its own id and time; a record already there is left as it is."""
         r = CalibrationRecord(**{k: rec[k] for k in CalibrationRecord.__dataclass_fields__})
@@ -103,30 +114,30 @@ class GeometryCalibrationStore:
         return r
 
     @staticmethod
-    def _geometry_from_row(row) -> CalibrationRecord:
+    def _from_row(row: sqlite3.Row) -> CalibrationRecord:
         return CalibrationRecord(id=row["id"], kind=row["kind"], created=row["created"],
                                  temperature_c=row["temperature_c"], inputs=json.loads(row["inputs"]),
                                  fitted=json.loads(row["fitted"]), residuals=json.loads(row["residuals"]))
 
-    def latest_geometry_calibration(self, kind: str) -> CalibrationRecord | None:
+    def latest(self, kind: str) -> CalibrationRecord | None:
         with self._lock:
             row = self._conn.execute("SELECT * FROM geometry_calibrations WHERE kind = ? "
                                      "ORDER BY created DESC, id DESC LIMIT 1", (kind,)).fetchone()
-        return None if row is None else self._geometry_from_row(row)
+        return None if row is None else self._from_row(row)
 
-    def list_geometry_calibrations(self, kind: str | None = None, limit: int = 20) -> list[CalibrationRecord]:
+    def recent(self, kind: str | None = None, limit: int = 20) -> list[CalibrationRecord]:
         q, args = "SELECT * FROM geometry_calibrations", []
         if kind is not None:
             q += " WHERE kind = ?"
             args.append(kind)
         with self._lock:
             rows = self._conn.execute(q + " ORDER BY created DESC, id DESC LIMIT ?", [*args, int(limit)]).fetchall()
-        return [self._geometry_from_row(r) for r in rows]
+        return [self._from_row(r) for r in rows]
 
-    def get_geometry_calibration(self, cal_id: str) -> CalibrationRecord | None:
+    def get(self, cal_id: str) -> CalibrationRecord | None:
         with self._lock:
             row = self._conn.execute("SELECT * FROM geometry_calibrations WHERE id = ?", (cal_id,)).fetchone()
-        return None if row is None else self._geometry_from_row(row)
+        return None if row is None else self._from_row(row)
 
     # -- pending plate measurements of the next range fit ------------------------------------------
     def add_range_measurement(self, data: dict[str, Any]) -> dict[str, Any]:

@@ -8,7 +8,8 @@ Layout under the data directory::
     calibrations/<id>.npy           the linearized drive waveform u(t) of §2.2 (ILC, Fig. 2-5)
 
 Range and pointing calibrations (and the plates measured for the next range fit) are in tables of
-their own (:mod:`lidard.store_calibrations`, a mixin of :class:`Store`).
+their own, kept by ``Store.geometry`` (:class:`lidard.store.geometry.GeometryCalibrations`, which shares
+the store's connection and lock).
 
 One connection guarded by a lock serves all threads (the scan worker and the API's threadpool);
 SQLite in WAL mode lets outside readers (``sqlite3`` shell, a second daemon refusing to start) read
@@ -37,10 +38,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import LidardError
-from .instrument.types import CalibrationResult
-from .pointcloud import atomic_write
-from .store_calibrations import GEOMETRY_SCHEMA, GeometryCalibrationStore
+from ..errors import LidardError
+from ..instrument.types import CalibrationResult
+from ..pointcloud import atomic_write
+from .geometry import GEOMETRY_SCHEMA, GeometryCalibrations
 
 SCAN_STATES = ("queued", "running", "done", "failed", "cancelled", "interrupted")
 TERMINAL_STATES = frozenset({"done", "failed", "cancelled", "interrupted"})
@@ -189,10 +190,10 @@ _ADDED_COLUMNS = {"raw_bytes": "INTEGER", "reprocessed_from": "TEXT", "range_cal
                   "uncalibrated_reason": "TEXT"}
 
 
-class Store(GeometryCalibrationStore):
-    """SQLite + files under ``data_dir``; thread-safe (one connection, one lock)."""
+class Store:
+    """SQLite + files under ``data_dir``; thread-safe (one connection, one lock).
 
-    _new_id = staticmethod(new_id)
+    ``geometry`` keeps the range and pointing calibrations over the same connection and lock."""
 
     def __init__(self, data_dir: str | os.PathLike):
         self.data_dir = Path(data_dir).expanduser()
@@ -224,6 +225,7 @@ class Store(GeometryCalibrationStore):
                 "UPDATE scans SET state='interrupted', stage='interrupted', "
                 "error=COALESCE(error, 'daemon stopped while the scan was ' || state) "
                 "WHERE state IN ('queued', 'running')").rowcount
+        self.geometry = GeometryCalibrations(self._conn, self._lock, new_id)
         self.swept_tmp = self._sweep_temp_files()
         for scan_id in cut:   # a killed scan's raw capture keeps its committed prefix: count it
             raw = self.scan_dir(scan_id) / "raw.zarr"
