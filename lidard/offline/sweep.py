@@ -88,7 +88,7 @@ def _world(task: SweepTask, row: int, col: int) -> World:
 
 
 def _noise_asd(cfg: Config, world: World) -> float:
-    """The bench's white noise at the ADC input (sim_devices.bench.capture.BenchCapture._capture), V/sqrt(Hz)."""
+    """The bench's white noise at the ADC input (sim_devices.bench.capture.SegmentSynthesizer._capture), V/sqrt(Hz)."""
     eff = cfg.sim.effects
     asd = world.white_noise_asd_v() if eff.noise else 0.0
     if eff.quantization and RECORD_BITS > cfg.adc.bits:
@@ -98,7 +98,7 @@ def _noise_asd(cfg: Config, world: World) -> float:
 
 
 def _monitor_asd(cfg: Config, rin_db_per_hz: float) -> float:
-    """The bench's white noise on the monitor-MZI channel (sim_devices.bench.capture.BenchCapture._monitor_asd), V/sqrt(Hz)."""
+    """The bench's white noise on the monitor-MZI channel (sim_devices.bench.capture.SegmentSynthesizer.monitor_asd), V/sqrt(Hz)."""
     eff, mon = cfg.sim.effects, cfg.monitor
     asd = 0.0
     if eff.noise:

@@ -41,16 +41,17 @@ The FPGA's serial port is published as a STABLE path, a symlink in the bench's t
 is cleared the FPGA comes back on a NEW pty and the symlink is re-pointed, so a driver reopens the
 same ``fpsa_url``.
 
-Fault injection (issue 6): ``inject_fault(kind, **params) -> dict``, ``clear_faults(kind=None) ->
-int``, ``active_faults()``; ``[[sim.faults]]`` tables of the configuration are injected by
-:meth:`Bench.start`. Tap channel (self-test): digitizer channel ``tap`` is a monitor photodiode on
+Fault injection: ``inject_fault(kind, **params) -> dict``, ``clear_faults(kind=None) -> int``,
+``active_faults()`` (the bench's :class:`~sim_devices.bench.fault_injector.FaultInjector`,
+``bench.faults``); ``[[sim.faults]]`` tables of the configuration are injected by :meth:`Bench.start`. Tap channel (self-test): digitizer channel ``tap`` is a monitor photodiode on
 the light leaving the FPSA (one beam for a healthy pixel, two when a line is stuck on, none when
 one is stuck off).
 
 Parts: this module builds the bench and runs it (devices, lifecycle, the FPGA's pty behind a stable
-path, world control, ``lidar-sim``); the fault catalogue's effects are ``sim_devices.bench.fault_injector``,
-the segment synthesis (the digitizer's ``SegmentSource``, the tap channel)
-``sim_devices.bench.capture``, the JSON control socket and its client ``sim_devices.bench.control``.
+path, world control, ``lidar-sim``). The bench HOLDS its parts, each given the devices it acts on: the
+fault injector (``bench.faults``, ``sim_devices.bench.fault_injector``), the segment synthesizer (the
+digitizer's ``SegmentSource`` and the tap channel: ``bench.synthesizer``, ``sim_devices.bench.capture``)
+and the JSON control socket and its client (``sim_devices.bench.control``).
 
 This module is a composition root of the simulator; like the world it reads ``lidard.config``.
 """
@@ -58,7 +59,6 @@ This module is a composition root of the simulator; like the world it reads ``li
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import os
 import shutil
@@ -74,15 +74,17 @@ import numpy as np
 from lidard.config import Config, ConfigError, load_config
 
 from sim_devices.awg.device import SimAwg
-from sim_devices.bench.capture import HYBRID_CHANNEL_AMPLITUDE, BenchCapture, TapSpec, core_overrange
+from sim_devices.bench.capture import (HYBRID_CHANNEL_AMPLITUDE, CaptureDevices, LaserParts, SegmentSynthesizer,
+                                       TapSpec, core_overrange)
 from sim_devices.bench.control import BenchControlClient, _ControlServer
-from sim_devices.bench.fault_injector import BenchFaults
+from sim_devices.bench.fault_injector import FaultInjector, FaultTargets
 from sim_devices.clock import VirtualClock
 from sim_devices.controller.device import ControllerSim
-from sim_devices.digitizer.device import SimDigitizer
+from sim_devices.digitizer.device import CaptureConfig, CapturedSegments, SimDigitizer
 from sim_devices.faults import SerialLineNoise, validate_fault
 from sim_devices.fpsa.device import FpgaConfig, FpgaSim
 from sim_devices.fpsa.hv_drive import HvDrive
+from sim_devices.fpsa.serial_port import PtyServer
 from sim_devices.usb.backend import SimUsbBackend, UsbBridgeServer
 from sim_devices.world.fidelity import FidelityLedger
 from sim_devices.world.laser import DfbLaser
@@ -93,11 +95,52 @@ from sim_devices.world.tolerances import BenchTruth, draw_truth
 from sim_devices.world.world import World
 
 
-class Bench(BenchFaults, BenchCapture):
+class FpsaPort:
+    """The FPGA's serial port behind a STABLE path (a symlink to the current pty slave, like
+    ``/dev/serial/by-id/...``): dropped by a ``serial_disconnect`` fault, opened again on a new pty."""
+
+    def __init__(self, fpga: FpgaSim, serial_line: SerialLineNoise) -> None:
+        self.fpga = fpga
+        self.serial_line = serial_line
+        self.path: str | None = None    # set when the bench starts
+        self._pty: PtyServer | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._pty is not None
+
+    @property
+    def published(self) -> bool:
+        """True once the bench has given the port its stable path."""
+        return self.path is not None
+
+    def open(self) -> None:
+        self._pty = self.fpga.serve_pty(self.serial_line)
+        assert self.path is not None
+        tmp = self.path + ".new"
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
+        os.symlink(self._pty.path, tmp)
+        os.replace(tmp, self.path)  # atomic: a reader sees the old or the new target
+
+    def drop(self) -> None:
+        self.close()
+        if self.path is not None and os.path.lexists(self.path):
+            os.unlink(self.path)  # the device node vanishes, as /dev/serial/by-id/* does
+        self.fpga.reset_link()
+
+    def close(self) -> None:
+        if self._pty is not None:
+            self._pty.close()
+            self._pty = None
+
+
+class Bench:
     """Every simulated device around one world and one virtual clock.
 
-    Fault injection: :class:`~sim_devices.bench.fault_injector.BenchFaults`; segment synthesis:
-    :class:`~sim_devices.bench.capture.BenchCapture`."""
+    Holds its fault injector (``faults``: :class:`~sim_devices.bench.fault_injector.FaultInjector`)
+    and its segment synthesizer (``synthesizer``: :class:`~sim_devices.bench.capture.SegmentSynthesizer`,
+    the digitizer's segment source)."""
 
     def __init__(self, cfg: Config, scene: Scene | None = None, *, seed: int | None = None) -> None:
         self.cfg = cfg
@@ -113,7 +156,7 @@ class Bench(BenchFaults, BenchCapture):
             scene = Scene.from_toml(cfg.resolve_path(cfg.sim.scene))
         self.seed = cfg.sim.seed if seed is None else int(seed)
         self.clock = VirtualClock()
-        # the hidden truths (issue 13): drawn once, never told to the daemon
+        # the hidden truths: drawn once, never told to the daemon
         self._truth = draw_truth(cfg.sim.tolerances, nominal_mzi_delay_s=cfg.monitor.delay_s, seed=self.seed)
         self.world = World(cfg, self.profile, self.laser_preset, scene, seed=self.seed, truth=self._truth)
         self.laser = DfbLaser(self.laser_preset)
@@ -126,46 +169,70 @@ class Bench(BenchFaults, BenchCapture):
             baudrate=cfg.devices.fpsa.baudrate, hv_supply_v=pr.actuation_v, seed=self.seed,
             row_dynamics=row_dyn, col_dynamics=col_dyn, threshold_spread_v=pr.threshold_spread_v))
         self.awg = SimAwg()
-        self.digitizer = SimDigitizer(self.clock, source=self)
-        # the laser's true temperature moves its chirp (issue 13; sim_devices.world.tec)
+        self.digitizer = SimDigitizer(self.clock, source=self)   # Bench.capture: the synthesizer's segments
+        # the laser's true temperature moves its chirp (sim_devices.world.tec)
         self.tec_tuning, tec_drift = tec_model(cfg.sim.tolerances, self.seed)
         self.controller = ControllerSim(self.clock, tec_drift=tec_drift)
         self.fpga.supply = self._hv_drive  # the controller's HV is the HV583 supply rail
-        self._traj_key: bytes | None = None
-        self._traj = None
-        self._lock = threading.RLock()
-        self._scene_hold, self._scene_epoch_s = False, None   # hold_scene_clock
-        self._pty = None
         self._bridge: UsbBridgeServer | None = None
         self._control: _ControlServer | None = None
-        self.usb_backend = None
-        self.segments_synthesized = 0
-        # FPGA run start (virtual s) -> 1, 2, ... in the order runs are first captured: the noise seed
-        # (see _run_index)
-        self._run_ids: dict[float, int] = {}
-        self._runs_captured = 0
-        self.fidelity = FidelityLedger()  # which effects each captured batch modelled or skipped
-        self.tap = TapSpec()
+        self.usb_backend: SimUsbBackend | None = None
         # Serial line noise seeded from the bench seed: a run with faults repeats byte for byte.
         self.serial_line = SerialLineNoise((self.seed, 0x5E71A1))
+        self.fpsa_port = FpsaPort(self.fpga, self.serial_line)
         self._tmpdir: str | None = None
-        self.fpsa_link: str | None = None
-        self._faults: dict[int, dict[str, Any]] = {}
-        self._fault_ids = itertools.count(1)
-        self._fault_lock = threading.RLock()
-        self._timers: dict[int, int] = {}          # fault id -> clock timer handle
-        self._overrange_gain = 1.0
-        self._interlock_at_s: float | None = None      # a timed opening not yet reached
-        self._interlock_after: int | None = None       # open when segments_synthesized reaches this
-        self._interlock_fid: int | None = None
+        self.faults = FaultInjector(FaultTargets(
+            clock=self.clock, fpga=self.fpga, awg=self.awg, digitizer=self.digitizer, controller=self.controller,
+            serial_line=self.serial_line, port=self.fpsa_port, rows=pr.rows, cols=pr.cols,
+            segments_synthesized=lambda: self.synthesizer.segments_synthesized))
+        self.synthesizer = SegmentSynthesizer(
+            cfg, self.world, LaserParts(self.laser, self.laser_preset, self.tec_tuning),
+            CaptureDevices(self.fpga, self.awg, self.controller), self.faults, seed=self.seed, truth=self._truth)
+
+    @property
+    def fpsa_link(self) -> str | None:
+        """The FPGA's serial port: a stable path (None before :meth:`start`)."""
+        return self.fpsa_port.path
+
+    @property
+    def fidelity(self) -> FidelityLedger:
+        return self.synthesizer.fidelity
+
+    @property
+    def tap(self) -> TapSpec:
+        return self.synthesizer.tap
+
+    @property
+    def segments_synthesized(self) -> int:
+        return self.synthesizer.segments_synthesized
+
+    # -- faults and capture: the held parts -----------------------------------------------------------
+    def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
+        """Inject a fault (catalogue: ``sim_devices.faults``); see :meth:`FaultInjector.inject`."""
+        return self.faults.inject(kind, **params)
+
+    def clear_faults(self, kind: str | None = None) -> int:
+        """Clear active faults of ``kind`` (all if None); returns how many were cleared."""
+        return self.faults.clear(kind)
+
+    def active_faults(self) -> list[dict[str, Any]]:
+        return self.faults.active()
+
+    def capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
+        """Segments ``first`` .. ``first + count - 1`` as the digitizer would stream them."""
+        return self.synthesizer.capture(first, count, cfg)
+
+    def tap_volts_per_beam(self) -> float:
+        """Tap level of one fully open beam (what a healthy pixel reads), V."""
+        return self.synthesizer.tap_volts_per_beam()
 
     # -- lifecycle ----------------------------------------------------------------------------------
     def start(self, *, usb: str = "inproc", control: bool = False) -> dict[str, Any]:
         """Serve the FPGA on a pty, the controller on Modbus TCP and the USB devices; apply the
         configuration's ``[[sim.faults]]``; return endpoints."""
         self._tmpdir = tempfile.mkdtemp(prefix="lidard-bench-")
-        self.fpsa_link = os.path.join(self._tmpdir, "fpsa")
-        self._open_pty()
+        self.fpsa_port.path = os.path.join(self._tmpdir, "fpsa")
+        self.fpsa_port.open()
         self.controller.start()
         if usb == "inproc":
             self.usb_backend = SimUsbBackend([self.awg, self.digitizer])
@@ -192,10 +259,8 @@ class Bench(BenchFaults, BenchCapture):
         }
 
     def close(self) -> None:
-        for handle in list(self._timers.values()):
-            self.clock.cancel(handle)
-        self._timers.clear()
-        for thing in (self._control, self._bridge, self._pty):
+        self.faults.close()
+        for thing in (self._control, self._bridge, self.fpsa_port):
             if thing is not None:
                 try:
                     thing.close()
@@ -209,60 +274,30 @@ class Bench(BenchFaults, BenchCapture):
             shutil.rmtree(self._tmpdir, ignore_errors=True)
             self._tmpdir = None
 
-    # -- the FPGA's serial port behind a stable path ------------------------------------------------
-    def _open_pty(self) -> None:
-        self._pty = self.fpga.serve_pty(self.serial_line)
-        assert self.fpsa_link is not None
-        tmp = self.fpsa_link + ".new"
-        if os.path.lexists(tmp):
-            os.unlink(tmp)
-        os.symlink(self._pty.path, tmp)
-        os.replace(tmp, self.fpsa_link)  # atomic: a reader sees the old or the new target
-
-    def _drop_pty(self) -> None:
-        if self._pty is not None:
-            self._pty.close()
-            self._pty = None
-        if self.fpsa_link is not None and os.path.lexists(self.fpsa_link):
-            os.unlink(self.fpsa_link)  # the device node vanishes, as /dev/serial/by-id/* does
-        self.fpga.reset_link()
-
     def _hv_drive(self) -> HvDrive:
         st = self.controller.state
         return HvDrive(st.hv_v if st.hv_on else 0.0, st.hv_hold_setpoint_v if st.hv_on else 0.0)
 
     # -- world control ------------------------------------------------------------------------------
     def set_scene(self, scene: Scene) -> None:
-        with self._lock:
+        with self.synthesizer.lock:
             self.world.set_scene(scene)
 
     def ground_truth(self, rows, cols, t_s=None, measured_m=None) -> np.ndarray:
         """First-hit range per pixel; ``t_s``: scene time per pixel (a point's ``t``) for moving targets;
         ``measured_m``: score mixed pixels against their footprint's nearest return (World.ground_truth)."""
-        with self._lock:
+        with self.synthesizer.lock:
             return self.world.ground_truth(rows, cols, t_s, measured_m)
 
     def mixed_pixels(self, rows, cols) -> np.ndarray:
         """True per pixel where the footprint crosses a target outline (weighted returns)."""
-        with self._lock:
+        with self.synthesizer.lock:
             return self.world.is_mixed(rows, cols)
 
     def hold_scene_clock(self, hold: bool) -> None:
-        """Scene time counts from the first trigger of the next run and runs on across the following
-        runs while held (the frames of a stream are one run each; a point's ``t`` counts from the
-        stream's first trigger); released, each run starts its scene at t = 0 again."""
-        with self._lock:
-            self._scene_hold = bool(hold)
-            self._scene_epoch_s = None
-
-    def _run_first_trigger_s(self) -> float:
-        sched = self.fpga.schedule
-        first = 0.0 if sched is None else float(sched.trigger_s(np.array([0]))[0])
-        if self._scene_hold:
-            if self._scene_epoch_s is None:
-                self._scene_epoch_s = first
-            return self._scene_epoch_s
-        return first
+        """Scene time counts from the first trigger of the next run while held (see
+        :meth:`SegmentSynthesizer.hold_scene_clock`)."""
+        self.synthesizer.hold_scene_clock(hold)
 
     def truth(self) -> BenchTruth:
         """The bench's hidden true values (sim_devices.world.tolerances): for tests and benchmarks

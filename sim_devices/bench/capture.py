@@ -2,8 +2,11 @@
 tones from the world, synthesized at the sample rate the host configured (§2.1 eq. 2-1; §2.4.1;
 §4.3.6; §4.4).
 
-:class:`BenchCapture` is the capture half of :class:`sim_devices.bench.bench.Bench`. Per batch of triggers
-it decides which segments see light (laser on, interlock closed, an interlock fault cutting the
+:class:`SegmentSynthesizer` is held by :class:`sim_devices.bench.bench.Bench` as ``bench.synthesizer``
+and is the digitizer's segment source. It is given what it reads (the configuration, the world, the
+laser, the FPGA, AWG and controller, the fault injector, the seed and the hidden truths) and owns
+what it keeps (the trajectory cache, the run numbers, the scene clock, the fidelity ledger). Per
+batch of triggers it decides which segments see light (laser on, interlock closed, an interlock fault cutting the
 batch), which beams emit (the switch dynamics, or the commanded pixel when every switch pulls in),
 the hits the world returns, the noise (detector, the converter core's quantization when the record
 is decimated on board, Wiener phase noise unless negligible: ``sim_devices.world.fidelity``), and
@@ -18,16 +21,27 @@ white detector noise.
 from __future__ import annotations
 
 import hashlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
+from lidard.config import Config, LaserPreset
 from lidard.physics.budget import monitor_noise_asd, quantization_asd
 
+from sim_devices.awg.device import SimAwg
+from sim_devices.bench.fault_injector import FaultInjector
+from sim_devices.controller.device import ControllerSim
 from sim_devices.digitizer.device import CaptureConfig, CapturedSegments, decimation_filter
-from sim_devices.world.fidelity import phase_noise_negligible
+from sim_devices.fpsa.device import FpgaSim
+from sim_devices.world.fidelity import FidelityLedger, phase_noise_negligible
+from sim_devices.world.laser import DfbLaser
 from sim_devices.world.synth import AdcSpec, HitBatch, trajectory
+from sim_devices.world.synth_chirp import ChirpTrajectory
 from sim_devices.world.synth_parallel import synthesize_read
+from sim_devices.world.tec import TecTuning
+from sim_devices.world.tolerances import BenchTruth
+from sim_devices.world.world import World
 
 
 @dataclass(frozen=True)
@@ -44,7 +58,7 @@ class TapSpec:
 #: circulator set-up, i.e. half the amplitude per channel; each channel keeps the single photodiode's
 #: noise (its own TIA and converter) -- docs/physics.md, "The coherent (I/Q) receiver"
 HYBRID_CHANNEL_AMPLITUDE = 0.5
-# runs whose capture number (:meth:`BenchCapture._run_index`, the noise seed) is remembered: a capture
+# runs whose capture number (:meth:`SegmentSynthesizer._run_index`, the noise seed) is remembered: a capture
 # only ever reads the run in progress or the one just before it
 RUN_IDS_KEPT = 8
 
@@ -57,10 +71,74 @@ def core_overrange(hits: HitBatch, n_seg: int, input_range_v: float) -> np.ndarr
     return peak > 0.5 * input_range_v
 
 
-class BenchCapture:
-    """The bench's ``SegmentSource`` (a mixin of :class:`~sim_devices.bench.bench.Bench`)."""
+@dataclass(frozen=True)
+class LaserParts:
+    """The bench's laser: its model, its preset and the TEC tuning of its true temperature (None:
+    the temperature effect is off)."""
 
-    def _trajectory(self):
+    model: DfbLaser
+    preset: LaserPreset
+    tec_tuning: TecTuning | None
+
+
+@dataclass(frozen=True)
+class CaptureDevices:
+    """The devices a capture reads: the FPGA (triggers, beams), the AWG (the drive) and the controller
+    (laser, interlock, HV; the laser's true temperature)."""
+
+    fpga: FpgaSim
+    awg: SimAwg
+    controller: ControllerSim
+
+
+class SegmentSynthesizer:
+    """The bench's ``SegmentSource``: the segments the digitizer streams, synthesized from the world."""
+
+    def __init__(self, cfg: Config, world: World, laser: LaserParts, devices: CaptureDevices,
+                 faults: FaultInjector, *, seed: int, truth: BenchTruth) -> None:
+        self.cfg = cfg
+        self.world = world
+        self.laser = laser.model
+        self.laser_preset = laser.preset
+        self.tec_tuning = laser.tec_tuning
+        self.fpga, self.awg, self.controller = devices.fpga, devices.awg, devices.controller
+        self.faults = faults
+        self.seed = seed
+        self._truth = truth
+        #: guards the world and the synthesis state: a capture against a scene change
+        self.lock = threading.RLock()
+        self._traj_key: bytes | None = None
+        self._traj: ChirpTrajectory | None = None
+        self._scene_hold = False                 # hold_scene_clock
+        self._scene_epoch_s: float | None = None
+        self.segments_synthesized = 0
+        # FPGA run start (virtual s) -> 1, 2, ... in the order runs are first captured: the noise seed
+        # (see _run_index)
+        self._run_ids: dict[float, int] = {}
+        self._runs_captured = 0
+        self.fidelity = FidelityLedger()  # which effects each captured batch modelled or skipped
+        self.tap = TapSpec()
+
+    def hold_scene_clock(self, hold: bool) -> None:
+        """Scene time counts from the first trigger of the next run and runs on across the following
+        runs while held (the frames of a stream are one run each; a point's ``t`` counts from the
+        stream's first trigger); released, each run starts its scene at t = 0 again."""
+        with self.lock:
+            self._scene_hold = bool(hold)
+            self._scene_epoch_s = None
+
+    def _run_first_trigger_s(self) -> float:
+        sched = self.fpga.schedule
+        first = 0.0 if sched is None else float(sched.trigger_s(np.array([0]))[0])
+        if self._scene_hold:
+            if self._scene_epoch_s is None:
+                self._scene_epoch_s = first
+            return self._scene_epoch_s
+        return first
+
+    def trajectory(self) -> ChirpTrajectory:
+        """The laser's frequency trajectory for the AWG's waveform at the laser's true temperature
+        (cached per waveform and 1 mK of temperature)."""
         drive, fs = self.awg.drive_volts()
         if not self.awg.output_on:
             drive = np.zeros_like(drive)
@@ -72,6 +150,7 @@ class BenchCapture:
         if key != self._traj_key:
             self._traj = trajectory(laser, drive, fs)
             self._traj_key = key
+        assert self._traj is not None
         return self._traj
 
     def _tap_codes(self, path_sum: np.ndarray, adc: AdcSpec, first: int):
@@ -101,7 +180,7 @@ class BenchCapture:
             return 0.0
         return quantization_asd(a.input_range_v, a.bits, a.max_sample_rate_hz)
 
-    def _monitor_asd(self, capture: CaptureConfig) -> float:
+    def monitor_asd(self, capture: CaptureConfig) -> float:
         """White-noise ASD of the monitor-MZI channel: its photodiode's shot noise and the laser's
         RIN (``sim.effects.noise``), plus the decimated core's quantization noise (:meth:`_core_asd`,
         ``sim.effects.quantization``)."""
@@ -153,7 +232,7 @@ class BenchCapture:
         return 0.0 if skip else linewidth_hz
 
     def capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
-        with self._lock:
+        with self.lock:
             return self._capture(first, count, cfg)
 
     def _capture(self, first: int, count: int, cfg: CaptureConfig) -> CapturedSegments:
@@ -169,10 +248,10 @@ class BenchCapture:
         # Light per segment: an interlock that opens inside this batch (at a virtual time or after
         # a number of segments) darkens the segments from that trigger on.
         lit = np.full(n, light)
-        cut_s = self._interlock_cut_s(trig.t_s)
+        cut_s = self.faults.interlock_cut_s(trig.t_s, self.segments_synthesized)
         if cut_s is not None:
             lit &= np.asarray(trig.t_s) < cut_s
-        gain = self._overrange_gain
+        gain = self.faults.overrange_gain
         iq = "beat_i" in cfg.channels
         adc = AdcSpec(sample_rate_hz=cfg.sample_rate_hz, n_samples=cfg.record_length, bits=cfg.bits,
                       input_range_v=cfg.input_range_v, iq=iq, quantize=True)
@@ -217,7 +296,7 @@ class BenchCapture:
             return None, bh
         phase = None
         if bh.speckle_phase_rad is not None:  # others keep the synthesis' 2 pi nu0 tau
-            plain = 2.0 * np.pi * np.mod(self._trajectory().nu0_hz * bh.tau_s, 1.0)
+            plain = 2.0 * np.pi * np.mod(self.trajectory().nu0_hz * bh.tau_s, 1.0)
             phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
         hits = HitBatch(seg=np.asarray(beam_seg[emitting])[bh.beam].astype(np.intp),
                         tau_s=bh.tau_s, amplitude_v=bh.amplitude_v * gain * (HYBRID_CHANNEL_AMPLITUDE if iq else 1.0),
@@ -233,7 +312,7 @@ class BenchCapture:
         noise_asd = gain * self.world.white_noise_asd_v() if (eff.noise and light) else 0.0
         if eff.quantization:
             noise_asd = float(np.hypot(noise_asd, self._core_asd(cfg)))
-        mzi_asd = self._monitor_asd(cfg) if light else 0.0
+        mzi_asd = self.monitor_asd(cfg) if light else 0.0
         linewidth = self.laser.linewidth_hz if (eff.phase_noise and light) else 0.0
         want_mzi = "mzi" in cfg.channels and light
         # the quadrature output exists only with the hybrid fitted ([monitor] quadrature); without
@@ -248,7 +327,7 @@ class BenchCapture:
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
         # a large read in parts on the bench's threads, each part seeded as a read from its first segment
-        return synthesize_read(self._trajectory(), adc, np.zeros(n), hits,
+        return synthesize_read(self.trajectory(), adc, np.zeros(n), hits,
                                lambda s: np.random.default_rng([self.seed, run, int(first) + s]),
                                noise_asd_v_per_rthz=noise_asd, beat_filter=aa, linewidth_hz=linewidth,
                           mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,

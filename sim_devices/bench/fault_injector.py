@@ -1,26 +1,34 @@
-"""Fault injection on the simulated bench (issue 6; catalogue and parameters in ``sim_devices.faults``).
+"""Fault injection on the simulated bench (catalogue and parameters in ``sim_devices.faults``).
 
-:class:`BenchFaults` is the fault half of :class:`sim_devices.bench.bench.Bench`: ``inject_fault(kind,
-**params) -> dict``, ``clear_faults(kind=None) -> int``, ``active_faults()``, and what each kind does
+:class:`FaultInjector` is held by :class:`sim_devices.bench.bench.Bench` as ``bench.faults``:
+``inject(kind, **params) -> dict``, ``clear(kind=None) -> int``, ``active()``, and what each kind does
 to the devices (serial line noise, the FPGA's pty vanishing and coming back, USB faults, digitizer
 overrange gain, Modbus exceptions and timeouts, the interlock opening at a virtual time or after a
 number of segments, stuck MEMS switches, the HV fault, a TEC offset). Faults of the kinds in
 ``_SINGLETONS`` are one per bench: injecting one again replaces the earlier one (its ``id``
-changes). Count-limited faults (``n``) drop out of ``active_faults()`` once used up. Timed ends run
-on the bench's virtual clock. The mixin uses the bench's ``clock``, ``profile``, ``controller``,
-``fpga``, ``awg``, ``digitizer``, ``serial_line``, ``segments_synthesized``, its pty helpers
-(``_open_pty``, ``_drop_pty``) and the fault bookkeeping set up in ``Bench.__init__``.
+changes). Count-limited faults (``n``) drop out of ``active()`` once used up. Timed ends run on the
+bench's virtual clock. The injector is given every device it acts on (:class:`FaultTargets`) and the
+FPGA's serial port (:class:`SerialPort`); the segment synthesis asks it for the overrange gain and
+where an interlock opening cuts a batch.
 """
 
 from __future__ import annotations
 
-from typing import Any
+import itertools
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
 from drivers.controller import protocol as ctl_p
-
-from sim_devices.faults import FAULT_KINDS, validate_fault
+from sim_devices.awg.device import SimAwg
+from sim_devices.clock import VirtualClock
+from sim_devices.controller.device import ControllerSim
+from sim_devices.digitizer.device import SimDigitizer
+from sim_devices.faults import FAULT_KINDS, SerialLineNoise, validate_fault
+from sim_devices.fpsa.device import FpgaSim
 
 # Faults of which a bench holds at most one: a second injection replaces the first.
 _SINGLETONS = ("serial_drop", "serial_flip", "serial_disconnect", "digitizer_overrange", "hv_fault",
@@ -28,10 +36,61 @@ _SINGLETONS = ("serial_drop", "serial_flip", "serial_disconnect", "digitizer_ove
 _USB_KIND = {"usb_timeout": "timeout", "usb_stall": "stall", "usb_disconnect": "disconnect"}
 
 
-class BenchFaults:
-    """Fault injection of the simulated bench (a mixin of :class:`~sim_devices.bench.bench.Bench`)."""
+class SerialPort(Protocol):
+    """The FPGA's serial port as the bench publishes it: a ``serial_disconnect`` drops it, clearing
+    the fault opens it again (on a new pty, behind the same path)."""
 
-    def inject_fault(self, kind: str, **params: Any) -> dict[str, Any]:
+    @property
+    def is_open(self) -> bool: ...
+
+    @property
+    def published(self) -> bool: ...
+
+    def open(self) -> None: ...
+
+    def drop(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class FaultTargets:
+    """What the faults act on: the devices, the serial line's noise, the array's size (a stuck
+    switch's index is checked against it) and the count of segments synthesized so far (an
+    interlock opening ``after_segments`` counts from it)."""
+
+    clock: VirtualClock
+    fpga: FpgaSim
+    awg: SimAwg
+    digitizer: SimDigitizer
+    controller: ControllerSim
+    serial_line: SerialLineNoise
+    port: SerialPort
+    rows: int
+    cols: int
+    segments_synthesized: Callable[[], int]
+
+
+class FaultInjector:
+    """The simulated bench's active faults and their effects on its devices."""
+
+    def __init__(self, targets: FaultTargets) -> None:
+        self._t = targets
+        self._faults: dict[int, dict[str, Any]] = {}
+        self._fault_ids = itertools.count(1)
+        self._fault_lock = threading.RLock()
+        self._timers: dict[int, int] = {}          # fault id -> clock timer handle
+        #: the gain a ``digitizer_overrange`` fault puts on the returns (1 without one)
+        self.overrange_gain = 1.0
+        self._interlock_at_s: float | None = None      # a timed opening not yet reached
+        self._interlock_after: int | None = None       # open when segments_synthesized reaches this
+        self._interlock_fid: int | None = None
+
+    def close(self) -> None:
+        """Cancel the timed ends of the faults (the bench is closing)."""
+        for handle in list(self._timers.values()):
+            self._t.clock.cancel(handle)
+        self._timers.clear()
+
+    def inject(self, kind: str, **params: Any) -> dict[str, Any]:
         """Inject a fault (catalogue: ``sim_devices.faults``); returns it as a dict with an ``id``.
 
         Raises ``ValueError`` naming the kind or parameter if it is unknown or bad (nothing is
@@ -39,7 +98,7 @@ class BenchFaults:
         spec = validate_fault(kind, params)
         with self._fault_lock:
             if kind == "stuck_switch":
-                n = self.profile.rows if spec["line"] == "row" else self.profile.cols
+                n = self._t.rows if spec["line"] == "row" else self._t.cols
                 if spec["index"] >= n:
                     raise ValueError(f"fault stuck_switch: index must be 0..{n - 1} for a "
                                      f"{spec['line']}, got {spec['index']}")
@@ -48,12 +107,12 @@ class BenchFaults:
                     if rec["kind"] == kind:
                         self._undo(fid, rec, replacing=True)
             fid = next(self._fault_ids)
-            rec = {"id": fid, **spec, "since_s": self.clock.now()}
+            rec = {"id": fid, **spec, "since_s": self._t.clock.now()}
             self._faults[fid] = rec
             self._apply(fid, rec)
             return dict(rec)
 
-    def clear_faults(self, kind: str | None = None) -> int:
+    def clear(self, kind: str | None = None) -> int:
         """Clear active faults of ``kind`` (all if None) and restore normal behaviour; returns
         how many were cleared."""
         if kind is not None and kind not in FAULT_KINDS:
@@ -67,13 +126,13 @@ class BenchFaults:
                     n += 1
             return n
 
-    def active_faults(self) -> list[dict[str, Any]]:
+    def active(self) -> list[dict[str, Any]]:
         with self._fault_lock:
             self._prune()
             return [dict(r) for r in self._faults.values()]
 
-    def _usb_device(self, name: str):
-        return self.awg if name == "awg" else self.digitizer
+    def _usb_device(self, name: str) -> SimAwg | SimDigitizer:
+        return self._t.awg if name == "awg" else self._t.digitizer
 
     def _prune(self) -> None:
         """Forget count-limited faults whose count is used up (their effect is over)."""
@@ -87,22 +146,22 @@ class BenchFaults:
                 else:
                     done = not any(f[0] == _USB_KIND[k] for f in dev._faults)
             elif k == "modbus_exception" and rec["n"] is not None:
-                done = not self.controller._pending_exceptions
+                done = not self._t.controller._pending_exceptions
             elif k == "modbus_timeout" and rec["n"] is not None:
-                done = self.controller._pending_timeouts == 0
+                done = self._t.controller._pending_timeouts == 0
             if done:
                 del self._faults[fid]
 
     def _apply(self, fid: int, rec: dict[str, Any]) -> None:
         k = rec["kind"]
         if k == "serial_drop":
-            self.serial_line.drop_rate = rec["rate"]
+            self._t.serial_line.drop_rate = rec["rate"]
         elif k == "serial_flip":
-            self.serial_line.flip_rate = rec["rate"]
+            self._t.serial_line.flip_rate = rec["rate"]
         elif k == "serial_disconnect":
-            self._drop_pty()
+            self._t.port.drop()
             if rec["reconnect_after_s"] is not None:
-                self._timers[fid] = self.clock.call_at(
+                self._timers[fid] = self._t.clock.call_at(
                     rec["since_s"] + rec["reconnect_after_s"], lambda: self._expire(fid))
         elif k in _USB_KIND:
             dev = self._usb_device(rec["device"])
@@ -111,41 +170,41 @@ class BenchFaults:
             else:
                 dev.inject_fault(_USB_KIND[k], "any", rec["n"])
         elif k == "digitizer_overrange":
-            self._overrange_gain = rec["gain"]
+            self.overrange_gain = rec["gain"]
         elif k == "modbus_exception":
-            self.controller.inject_exception(rec["code"], rec["n"])
+            self._t.controller.inject_exception(rec["code"], rec["n"])
         elif k == "modbus_timeout":
-            self.controller.inject_timeout(rec["n"])
+            self._t.controller.inject_timeout(rec["n"])
         elif k == "interlock_open":
             self._interlock_fid = fid
-            now = self.clock.now()
+            now = self._t.clock.now()
             if rec["after_segments"] is not None:
-                self._interlock_after = self.segments_synthesized + rec["after_segments"]
+                self._interlock_after = self._t.segments_synthesized() + rec["after_segments"]
             elif rec["at_s"] is not None and rec["at_s"] > now:
                 self._interlock_at_s = rec["at_s"]
-                self._timers[fid] = self.clock.call_at(rec["at_s"], self._open_interlock)
+                self._timers[fid] = self._t.clock.call_at(rec["at_s"], self._open_interlock)
             else:
                 self._open_interlock()
         elif k == "stuck_switch":
-            self.fpga.stick_switch(rec["line"], rec["index"], rec["state"] == "on")
+            self._t.fpga.stick_switch(rec["line"], rec["index"], rec["state"] == "on")
         elif k == "hv_fault":
-            self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, True)
+            self._t.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, True)
         elif k == "tec_offset":
-            self.controller.model.tec_offset_c = rec["offset_c"]
+            self._t.controller.model.tec_offset_c = rec["offset_c"]
 
     def _undo(self, fid: int, rec: dict[str, Any], *, replacing: bool = False) -> None:
         self._faults.pop(fid, None)
         handle = self._timers.pop(fid, None)
         if handle is not None:
-            self.clock.cancel(handle)
+            self._t.clock.cancel(handle)
         k = rec["kind"]
         if k == "serial_drop":
-            self.serial_line.drop_rate = 0.0
+            self._t.serial_line.drop_rate = 0.0
         elif k == "serial_flip":
-            self.serial_line.flip_rate = 0.0
+            self._t.serial_line.flip_rate = 0.0
         elif k == "serial_disconnect":
-            if self._pty is None and self.fpsa_link is not None:
-                self._open_pty()
+            if not self._t.port.is_open and self._t.port.published:
+                self._t.port.open()
         elif k in _USB_KIND:
             dev = self._usb_device(rec["device"])
             if k == "usb_disconnect":
@@ -153,21 +212,21 @@ class BenchFaults:
             else:
                 dev.clear_faults(_USB_KIND[k])
         elif k == "digitizer_overrange":
-            self._overrange_gain = 1.0
+            self.overrange_gain = 1.0
         elif k == "modbus_exception":
-            self.controller.clear_injected("exception")
+            self._t.controller.clear_injected("exception")
         elif k == "modbus_timeout":
-            self.controller.clear_injected("timeout")
+            self._t.controller.clear_injected("timeout")
         elif k == "interlock_open":
             self._interlock_at_s = self._interlock_after = self._interlock_fid = None
             if not replacing:
-                self.controller.set_interlock(True)
+                self._t.controller.set_interlock(True)
         elif k == "stuck_switch":
-            self.fpga.release_switch(rec["line"], rec["index"])
+            self._t.fpga.release_switch(rec["line"], rec["index"])
         elif k == "hv_fault":
-            self.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, False)
+            self._t.controller.set_fault_cause(ctl_p.Fault.HV_FAULT, False)
         elif k == "tec_offset":
-            self.controller.model.tec_offset_c = 0.0
+            self._t.controller.model.tec_offset_c = 0.0
 
     def _expire(self, fid: int) -> None:
         """A fault that ends by itself (``reconnect_after_s``)."""
@@ -180,13 +239,14 @@ class BenchFaults:
     def _open_interlock(self) -> None:
         self._interlock_at_s = None
         self._interlock_after = None
-        self.controller.set_interlock(False)
+        self._t.controller.set_interlock(False)
 
-    def _interlock_cut_s(self, t_s: np.ndarray) -> float | None:
-        """Trigger time from which an interlock opening darkens this batch (None: it does not)."""
+    def interlock_cut_s(self, t_s: np.ndarray, segments_before: int) -> float | None:
+        """Trigger time from which an interlock opening darkens this batch of triggers at ``t_s``,
+        ``segments_before`` segments having been synthesized before it (None: it does not)."""
         with self._fault_lock:
             if self._interlock_after is not None and len(t_s):
-                k = self._interlock_after - self.segments_synthesized
+                k = self._interlock_after - segments_before
                 if k < len(t_s):
                     cut = float(t_s[max(k, 0)])
                     self._open_interlock()  # the loop opens now: later batches see it tripped

@@ -44,8 +44,8 @@ def test_bench_monitor_channel_carries_shot_rin_and_core_quantization():
 
     def capture(resolution_bits: int) -> CaptureConfig:   # the resolution the host configured
         return CaptureConfig(10e6, 1600, ("beat", "mzi"), 16, cfg.adc.input_range_v, resolution_bits)
-    assert bench._monitor_asd(capture(16)) == pytest.approx(math.hypot(shot_rin, q_core), rel=1e-9)
-    assert bench._monitor_asd(capture(cfg.adc.bits)) == pytest.approx(shot_rin, rel=1e-9)  # record = core
+    assert bench.synthesizer.monitor_asd(capture(16)) == pytest.approx(math.hypot(shot_rin, q_core), rel=1e-9)
+    assert bench.synthesizer.monitor_asd(capture(cfg.adc.bits)) == pytest.approx(shot_rin, rel=1e-9)  # record = core
 
 
 RAMP_S, EXC_HZ, FS, TAU_M = 80e-6, 8.6e9, 100e6, 200e-9
