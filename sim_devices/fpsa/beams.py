@@ -4,12 +4,12 @@
 A beam (row r, column c) carries the product of the two switches' optical transmissions; the
 digitizer sees its mean over a capture window. During a transition the old row/column is still
 partly on, so the windows see ghost beams exactly as the dynamics predict. This module finds them
-for many windows at once (:func:`beams_in_windows`). :class:`ChipOptics` is the optical half of
-:class:`sim_devices.fpsa.device.FpgaSim`: it builds the row and column switch banks from the board's drive
-log (with the hold-level drive and the stuck switches), and answers which beams are lit in a window
-(:meth:`ChipOptics.lit_beams`) and which triggers of the run see which beams
-(:meth:`ChipOptics.triggers`); it uses the board's ``config``, ``_lock``, ``_run``, ``_events``,
-``_holds``, ``_stuck``, ``_bonded``, ``supply()`` and its cached ``_banks``.
+for many windows at once (:func:`beams_in_windows`). :class:`ChipOptics` is held by
+:class:`sim_devices.fpsa.device.FpgaSim` as ``fpga.optics`` and reads the board it is given
+(:class:`~sim_devices.fpsa.board.FpsaBoard`): it builds the row and column switch banks from the
+board's drive log (with the hold-level drive and the stuck switches; rebuilt when the board's
+``revision`` moved), and answers which beams are lit in a window (:meth:`ChipOptics.lit_beams`) and
+which triggers of a run see which beams (:meth:`ChipOptics.triggers`).
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ import math
 
 import numpy as np
 
+from sim_devices.fpsa.board import FpsaBoard
 from sim_devices.fpsa.drive_log import COL, ROW, with_holds
-from sim_devices.fpsa.triggers import TriggerBatch
+from sim_devices.fpsa.triggers import PixelSchedule, TriggerBatch
 from sim_devices.world.mems import SwitchBank, mean_path_transmission, switch_thresholds
 
 
@@ -74,81 +75,80 @@ def beams_in_windows(rows_bank: SwitchBank, cols_bank: SwitchBank, candidate_row
 
 
 class ChipOptics:
-    """Switch banks, lit beams and triggers of the FPGA simulator (a mixin of
-    :class:`~sim_devices.fpsa.device.FpgaSim`)."""
+    """Switch banks, lit beams and triggers of the simulated FPSA chip, from its board's drive log.
 
-    def _switch_banks(self) -> tuple[SwitchBank, SwitchBank]:
-        if self._banks is None:
-            kinds, lines, ts, vs = self._events.arrays()
+    Not thread-safe on its own: the FPGA simulator calls it under its lock."""
+
+    def __init__(self, board: FpsaBoard) -> None:
+        self.board = board
+        self.config = board.config
+        self._banks: tuple[SwitchBank, SwitchBank] | None = None
+        self._banks_revision = -1
+
+    def switch_banks(self) -> tuple[SwitchBank, SwitchBank]:
+        """The row and column switch banks that follow the board's drive log as it is now."""
+        board = self.board
+        if self._banks is None or self._banks_revision != board.revision:
+            kinds, lines, ts, vs = board.events.arrays()
             banks = []
             for k, n, dyn in ((ROW, self.config.rows, self.config.row_dynamics),
                               (COL, self.config.cols, self.config.col_dynamics)):
-                ln, t, v = self._with_holds(k, kinds, lines, ts, vs)
-                ln, t, v = self._with_stuck(k, ln, t, v)
+                ln, t, v = with_holds(k, kinds, lines, ts, vs, board.holds)
+                # the drive events the switches actually follow (stuck ones ignore theirs)
+                ln, t, v = board.stuck.apply(k, ln, t, v)
                 thresholds = switch_thresholds(n, dyn, self.config.threshold_spread_v,
                                                [self.config.seed, 0x4B5, k])
                 banks.append(SwitchBank(n, dyn, ln, t, v, thresholds=thresholds))
             self._banks = (banks[0], banks[1])
+            self._banks_revision = board.revision
         return self._banks
-
-    def _with_holds(self, kind: int, kinds, lines, ts, vs):
-        """Drive events of one line kind, with the hold-level events that still apply."""
-        return with_holds(kind, kinds, lines, ts, vs, self._holds)
 
     def pulls_in_every_switch(self) -> bool:
         """Whether the present drive pulls in every row and column switch (the bench can then
         take the commanded pixel for the lit one when it skips the switch dynamics)."""
-        with self._lock:
-            rows_bank, cols_bank = self._switch_banks()
-            hv = self.supply().hv_v
-            return bool(hv >= rows_bank.pull_in_v.max() and hv >= cols_bank.pull_in_v.max())
+        rows_bank, cols_bank = self.switch_banks()
+        hv = self.board.supply().hv_v
+        return bool(hv >= rows_bank.pull_in_v.max() and hv >= cols_bank.pull_in_v.max())
 
-    def _with_stuck(self, kind: int, lines: np.ndarray, ts: np.ndarray, vs: np.ndarray):
-        """The drive events the switches of one line kind actually follow (stuck ones ignore theirs)."""
-        return self._stuck.apply(kind, lines, ts, vs)
+    def candidate_rows(self) -> np.ndarray:
+        """The rows that can pass light at all: bonded ones, and any row switch stuck on (an
+        unbonded row has no drive, but stuck on it still passes light)."""
+        extra = self.board.stuck.rows_ever_on()
+        return np.asarray(sorted(set(self.board.bonded) | set(extra)), np.int64)
 
-    def _candidate_rows(self) -> np.ndarray:
-        # unbonded rows have no drive, but a row switch stuck on still passes light
-        extra = self._stuck.rows_ever_on()
-        return np.asarray(sorted(set(self._bonded) | set(extra)), np.int64)
-
-    def _beams(self, t0: np.ndarray, t1: np.ndarray, dwell: np.ndarray | None = None):
+    def beams(self, t0: np.ndarray, t1: np.ndarray, dwell: np.ndarray | None = None):
         """(window, row, col, transmission) of every beam above the floor in each window
         (:func:`sim_devices.fpsa.beams.beams_in_windows`)."""
-        rows_bank, cols_bank = self._switch_banks()
-        return beams_in_windows(rows_bank, cols_bank, self._candidate_rows(), self.config.cols,
+        rows_bank, cols_bank = self.switch_banks()
+        return beams_in_windows(rows_bank, cols_bank, self.candidate_rows(), self.config.cols,
                                 self.config.beam_floor, t0, t1, dwell)
 
     def lit_beams(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rows, cols, mean path transmission) of beams leaving the chip during [t0, t1]."""
-        with self._lock:
-            _, r, c, tr = self._beams(np.array([t0_s], float), np.array([t1_s], float))
-            return r, c, tr
+        _, r, c, tr = self.beams(np.array([t0_s], float), np.array([t1_s], float))
+        return r, c, tr
 
-    def triggers(self, first: int, count: int, capture_s: float) -> TriggerBatch:
-        """Triggers ``first .. first+count-1`` of the current run and their lit beams.
+    def triggers(self, pattern: np.ndarray, sched: PixelSchedule, first: int, count: int,
+                 capture_s: float) -> TriggerBatch:
+        """Triggers ``first .. first+count-1`` of the run of ``pattern`` on ``sched`` and their lit beams.
 
         Pure computation from the schedule and the drive log: does not advance the clock.
         """
-        with self._lock:
-            if self._run is None:
-                raise ValueError("fpga: no run has been started (no triggers)")
-            total = self._run.schedule.total_triggers
-            if first < 0 or count < 0 or first + count > total:
-                raise ValueError(
-                    f"fpga: triggers {first}..{first + count - 1} outside the run's 0..{total - 1}")
-            if not capture_s >= 0 or not math.isfinite(capture_s):
-                raise ValueError(f"fpga: capture_s must be finite and >= 0, got {capture_s!r}")
-            if count == 0:
-                return TriggerBatch.empty(capture_s)
-            sched = self._run.schedule
-            index = np.arange(first, first + count, dtype=np.int64)
-            t = sched.trigger_s(index)
-            pixel = (index // sched.triggers_per_pixel).astype(np.int32)
-            px = self._run.pattern[pixel]
-            bk, br, bc, bt = self._beams(t, t + capture_s, dwell=pixel)
-            return TriggerBatch(
-                index=index, t_s=t, pixel_index=pixel, row=px[:, 0].astype(np.int16),
-                col=px[:, 1].astype(np.int16), beam_trigger=bk.astype(np.int32),
-                beam_row=br.astype(np.int16), beam_col=bc.astype(np.int16),
-                beam_transmission=bt.astype(np.float64), capture_s=float(capture_s))
+        total = sched.total_triggers
+        if first < 0 or count < 0 or first + count > total:
+            raise ValueError(
+                f"fpga: triggers {first}..{first + count - 1} outside the run's 0..{total - 1}")
+        if not capture_s >= 0 or not math.isfinite(capture_s):
+            raise ValueError(f"fpga: capture_s must be finite and >= 0, got {capture_s!r}")
+        if count == 0:
+            return TriggerBatch.empty(capture_s)
+        index = np.arange(first, first + count, dtype=np.int64)
+        t = sched.trigger_s(index)
+        pixel = (index // sched.triggers_per_pixel).astype(np.int32)
+        px = pattern[pixel]
+        bk, br, bc, bt = self.beams(t, t + capture_s, dwell=pixel)
+        return TriggerBatch(
+            index=index, t_s=t, pixel_index=pixel, row=px[:, 0].astype(np.int16),
+            col=px[:, 1].astype(np.int16), beam_trigger=bk.astype(np.int32),
+            beam_row=br.astype(np.int16), beam_col=bc.astype(np.int16),
+            beam_transmission=bt.astype(np.float64), capture_s=float(capture_s))

@@ -28,187 +28,89 @@ drive log itself is untouched (the HV583 still drives the line, the switch does 
 transports take a :class:`~sim_devices.faults.SerialLineNoise` (byte drops, bit flips, both
 directions), and :meth:`PtyServer.close` makes the device vanish from the host's point of view.
 
-Parts: this module is the board (configuration, HV583 line bookkeeping, the byte interface with its
-retry cache, inspection, stuck-switch faults); the command handlers are ``sim_devices.fpsa.firmware``,
-the drive-event log and stuck-switch intervals ``sim_devices.fpsa.drive_log``, the switch banks, lit
-beams and triggers ``sim_devices.fpsa.beams``, the transports ``sim_devices.fpsa.serial_port``.
+Parts: :class:`FpgaSim` is the byte interface (parser, retry cache, wire time), its lock, inspection
+and the stuck-switch faults; it HOLDS the board (``board``: HV583 registers, line wiring, drive log,
+``sim_devices.fpsa.board``), the firmware that commands it (``firmware``: state machine and command
+handlers, ``sim_devices.fpsa.firmware``) and the chip optics that read it (``optics``: switch banks,
+lit beams, triggers, ``sim_devices.fpsa.beams``). The drive-event log and stuck-switch intervals are
+``sim_devices.fpsa.drive_log``, the transports ``sim_devices.fpsa.serial_port``.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from drivers.fpsa import protocol as p
 from drivers.fpsa.errors import ProtocolError
-
 from sim_devices.clock import VirtualClock
 from sim_devices.faults import SerialLineNoise
 from sim_devices.fpsa.beams import ChipOptics
-from sim_devices.fpsa.drive_log import COL, ROW, DriveEvents, StuckSwitches, line_kind, lines_high_before, settle_horizon_s
-from sim_devices.fpsa.firmware import FirmwareCommands, _Run, _Upload
-from sim_devices.fpsa.serial_port import PtyServer, SimSerial
+from sim_devices.fpsa.board import FpgaConfig, FpsaBoard
+from sim_devices.fpsa.drive_log import line_kind
+from sim_devices.fpsa.firmware import Firmware
 from sim_devices.fpsa.hv583 import HV583, default_bonded_rows
-from sim_devices.fpsa.hv_drive import HOLD_BOOST_S, HvDrive
-from sim_devices.fpsa.triggers import PixelSchedule
-from sim_devices.world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchBank, SwitchDynamics
+from sim_devices.fpsa.hv_drive import HvDrive
+from sim_devices.fpsa.serial_port import PtyServer, SimSerial
+from sim_devices.fpsa.triggers import PixelSchedule, TriggerBatch
 
 
-@dataclass(frozen=True)
-class FpgaConfig:
-    rows: int = 128
-    cols: int = 128
-    bonded_rows: tuple[int, ...] | None = None  # None: default_bonded_rows(rows)
-    baudrate: int = 3_000_000
-    hv_supply_v: float = 40.0  # above the 32 V pull-in of §4.2.6
-    seed: int = 0  # power-up register contents
-    vendor: str = "lidard-sim"
-    model: str = "FPSA128-HV583"
-    firmware: tuple[int, int, int] = (1, 0, 0)
-    row_dynamics: SwitchDynamics = ROW_SWITCH
-    col_dynamics: SwitchDynamics = COLUMN_SWITCH
-    beam_floor: float = 1e-6  # beams dimmer than this (path transmission) are not reported
-    threshold_spread_v: float = 0.0  # 1-sigma switch-to-switch spread of pull-in/release (seeded)
-    min_trigger_period_ns: int = 100
-
-    def __post_init__(self) -> None:
-        if not (1 <= self.rows <= HV583.N_OUTPUTS and 1 <= self.cols <= HV583.N_OUTPUTS):
-            raise ValueError(f"rows/cols must be 1..128 (one HV583 each), got {self.rows}x{self.cols}")
-        if not self.baudrate > 0:
-            raise ValueError(f"baudrate must be > 0, got {self.baudrate!r}")
-
-    @property
-    def bonded(self) -> tuple[int, ...]:
-        b = default_bonded_rows(self.rows) if self.bonded_rows is None else tuple(self.bonded_rows)
-        if any(not 0 <= r < self.rows for r in b):
-            raise ValueError(f"bonded_rows must lie in 0..{self.rows - 1}")
-        return tuple(sorted(set(b)))
-
-
-class FpgaSim(FirmwareCommands, ChipOptics):
+class FpgaSim:
     """The FPGA firmware + HV583 board + MEMS array, driven by bytes, timed by a virtual clock.
 
-    The command handlers live in :class:`~sim_devices.fpsa.firmware.FirmwareCommands`, the light
-    that leaves the chip (switch banks, beams, triggers) in :class:`~sim_devices.fpsa.beams.ChipOptics`."""
+    Holds its board (:class:`~sim_devices.fpsa.board.FpsaBoard`), its firmware
+    (:class:`~sim_devices.fpsa.firmware.Firmware`) and its chip optics
+    (:class:`~sim_devices.fpsa.beams.ChipOptics`)."""
 
     def __init__(self, clock: VirtualClock, config: FpgaConfig | None = None) -> None:
         self.clock = clock
         self.config = config or FpgaConfig()
         self._lock = threading.RLock()
-        self._bonded = self.config.bonded
-        self._bonded_mask = np.zeros(self.config.rows, bool)
-        self._bonded_mask[list(self._bonded)] = True
         self._parser = p.FrameParser()
         self._last_request: bytes | None = None
         self._last_response = b""
         self.rx_bytes = 0
         self.tx_bytes = 0
         self.executed = 0  # commands executed (cached retries are not counted)
-        self._events = DriveEvents()
-        self._holds = DriveEvents()  # hold-level drive after each pull-in boost (sim_devices.fpsa.hv_drive)
-        #: What the HV583 outputs carry; the bench points this at the controller's HV output.
-        self.supply: Callable[[], HvDrive] = lambda: HvDrive(self.config.hv_supply_v)
-        self._banks: tuple[SwitchBank, SwitchBank] | None = None
-        # intervals in which a switch ignores its drive (fault injection)
-        self._stuck = StuckSwitches()
-        # a line's drive history older than this (before its last switch-off) is dropped at each START
-        self._settle_horizon_s = settle_horizon_s(self.config.row_dynamics, self.config.col_dynamics)
-        self._power_up()
+        #: What the HV583 outputs carry (``supply``); the bench points it at the controller's HV output.
+        self._supply: Callable[[], HvDrive] = lambda: HvDrive(self.config.hv_supply_v)
+        self.board = FpsaBoard(self.config, lambda: self._supply())
+        self.firmware = Firmware(self.board)
+        self.optics = ChipOptics(self.board)
+        self.firmware.power_up(self.clock.now())
 
-    # --- power-up and line bookkeeping ----------------------------------------------------------
-    def _power_up(self) -> None:
-        rng = np.random.default_rng(self.config.seed)
-        self.hv_rows = HV583(rng)
-        self.hv_cols = HV583(rng)
-        self.state = p.State.FAULT
-        self.faults = p.FaultFlag.HV_UNINITIALIZED
-        if self._bonded_lines(self.hv_rows.outputs).sum() > 1:
-            self.faults |= p.FaultFlag.MULTI_ROW
-        self.timing = p.DEFAULT_TIMING
-        self._upload: _Upload | None = None
-        self._pattern: np.ndarray | None = None  # verified
-        self._run: _Run | None = None
-        self._run_slot = -1
-        self._row_high = np.zeros(self.config.rows, bool)
-        self._col_high = np.zeros(self.config.cols, bool)
-        self._apply_outputs(self.clock.now())
+    @property
+    def supply(self) -> Callable[[], HvDrive]:
+        """What the HV583 outputs carry: a callable answering the present :class:`HvDrive`."""
+        return self._supply
 
-    def _bonded_lines(self, outputs: np.ndarray) -> np.ndarray:
-        return outputs[: self.config.rows] & self._bonded_mask
+    @supply.setter
+    def supply(self, fn: Callable[[], HvDrive]) -> None:
+        self._supply = fn
 
-    def _apply_outputs(self, t_s: float) -> None:
-        """Log drive events for every wired line whose HV583 output changed at ``t_s``."""
-        rows = self._bonded_lines(self.hv_rows.outputs)
-        cols = self.hv_cols.outputs[: self.config.cols]
-        drive = self.supply()
-        for kind, new, old in ((ROW, rows, self._row_high), (COL, cols, self._col_high)):
-            changed = np.flatnonzero(new != old)
-            if changed.size:
-                self._events.add(kind, changed, t_s, np.where(new[changed], drive.hv_v, 0.0))
-                rising = changed[new[changed]]
-                if drive.holds and rising.size:
-                    self._holds.add(kind, rising, t_s + HOLD_BOOST_S, drive.hold_v)
-        self._row_high, self._col_high = rows.copy(), cols.copy()
-        self._banks = None
+    # the firmware's and the board's state, for the bench and tests
+    @property
+    def state(self) -> p.State:
+        return self.firmware.state
 
-    def _load_lines(self, t_s: float, row: int | None, col: int | None) -> float:
-        """Firmware: shift one row bit and one column bit (never two rows), latch. Returns the
-        latch time (t_s + 0.8 us)."""
-        want_r = np.zeros(HV583.N_OUTPUTS, bool)
-        want_c = np.zeros(HV583.N_OUTPUTS, bool)
-        if row is not None:
-            want_r[row] = True
-        if col is not None:
-            want_c[col] = True
-        self.hv_rows.shift_in(want_r)
-        self.hv_cols.shift_in(want_c)
-        t_latch = t_s + HV583.refresh_s()
-        self.hv_rows.latch_enable()
-        self.hv_cols.latch_enable()
-        self._apply_outputs(t_latch)
-        return t_latch
+    @property
+    def faults(self) -> p.FaultFlag:
+        return self.firmware.faults
 
-    def _sync(self, now: float) -> None:
-        """Bring the firmware state up to ``now`` (a run that ended becomes DONE)."""
-        run = self._run
-        if self.state == p.State.RUNNING and run is not None and now >= run.schedule.end_s:
-            self.state = p.State.DONE
-            self._finish_run_hardware()
+    @property
+    def timing(self) -> p.Timing:
+        return self.firmware.timing
 
-    def _finish_run_hardware(self) -> None:
-        # After the run the firmware leaves the registers cleared (the event log already holds
-        # the lines-off events at the run's end).
-        for hv in (self.hv_rows, self.hv_cols):
-            hv.shift[:] = False
-            hv.latch[:] = False
-        self._row_high[:] = False
-        self._col_high[:] = False
+    @property
+    def hv_rows(self) -> HV583:
+        return self.board.hv_rows
 
-    def _cut_run(self, t_s: float) -> None:
-        """STOP/RESET during a run: drop run events after ``t_s`` and switch its lines off."""
-        run = self._run
-        if run is None or self.state != p.State.RUNNING or t_s >= run.schedule.end_s:
-            return
-        sched = run.schedule
-        # the run's events are one slot of the log: keep only what happened before the cut
-        ev, k = self._events, self._run_slot
-        keep = ev.t[k] < t_s
-        ev.kind[k], ev.line[k], ev.t[k], ev.v[k] = (ev.kind[k][keep], ev.line[k][keep],
-                                                    ev.t[k][keep], ev.v[k][keep])
-        # whatever is still high just before the cut goes off at the cut (blanking)
-        rows_high, cols_high = self._lines_high_before(t_s)
-        for kind, high in ((ROW, rows_high), (COL, cols_high)):
-            idx = np.flatnonzero(high)
-            if idx.size:
-                self._events.add(kind, idx, t_s, 0.0)
-        self._run = _Run(run.pattern, dataclasses.replace(sched, cut_s=t_s))
-        self._finish_run_hardware()
-        self._banks = None
+    @property
+    def hv_cols(self) -> HV583:
+        return self.board.hv_cols
 
     # --- byte-level interface -----------------------------------------------------------------
     def feed(self, data: bytes) -> bytes:
@@ -236,7 +138,7 @@ class FpgaSim(FirmwareCommands, ChipOptics):
 
     def _handle(self, item: p.Frame | ProtocolError) -> bytes:
         if isinstance(item, ProtocolError):
-            self.faults |= p.FaultFlag.LINK_ERRORS
+            self.firmware.faults |= p.FaultFlag.LINK_ERRORS
             seq = getattr(item, "seq", None)
             cmd = getattr(item, "cmd", None)
             code = p.NakCode.BAD_CRC if isinstance(item, p.CrcError) else p.NakCode.BAD_LENGTH
@@ -246,7 +148,7 @@ class FpgaSim(FirmwareCommands, ChipOptics):
         key = p.encode_inner(item.seq, item.cmd, item.payload)
         if key == self._last_request:
             return self._last_response  # a retry: answer again, do not execute again
-        resp = self._execute(item)
+        resp = self.firmware.execute(item, self.clock.now())
         self._last_request, self._last_response = key, resp
         self.executed += 1
         return resp
@@ -255,45 +157,34 @@ class FpgaSim(FirmwareCommands, ChipOptics):
     def status(self, now: float | None = None) -> p.Status:
         """What STATUS would report at ``now`` (clears LINK_ERRORS like a STATUS read does)."""
         with self._lock:
-            now = self.clock.now() if now is None else now
-            self._sync(now)
-            idx = pixels = trig = 0
-            if self._run is not None:
-                s = self._run.schedule
-                idx, pixels, trig = s.pattern_index(now), s.pixels_done(now), s.triggers_before(now)
-            st = p.Status(self.state, self.faults, idx, pixels, trig)
-            self.faults &= ~p.FaultFlag.LINK_ERRORS
-            return st
+            return self.firmware.status(self.clock.now() if now is None else now)
 
     @property
     def total_triggers(self) -> int:
         """Triggers of the current (or last) run, up to a STOP if it was stopped; 0 if none."""
         with self._lock:
-            return 0 if self._run is None else self._run.schedule.total_triggers
+            return 0 if self.firmware.run is None else self.firmware.run.schedule.total_triggers
 
     @property
     def run_start_s(self) -> float | None:
         with self._lock:
-            return None if self._run is None else self._run.schedule.run_start_s
+            return None if self.firmware.run is None else self.firmware.run.schedule.run_start_s
 
     @property
     def schedule(self) -> PixelSchedule | None:
         with self._lock:
-            return None if self._run is None else self._run.schedule
+            return None if self.firmware.run is None else self.firmware.run.schedule
 
     def drive_events(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(kind 0=row 1=col, line, t_s, volts) of every line change so far (incl. a run's future)."""
         with self._lock:
-            return self._events.arrays()
+            return self.board.events.arrays()
 
     def lines_high(self, t_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Row and column lines driven high at ``t_s`` (default now), from the drive log."""
         with self._lock:
             t_s = self.clock.now() if t_s is None else t_s
-            return self._lines_high_before(np.nextafter(t_s, math.inf))
-
-    def _lines_high_before(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
-        return lines_high_before(self._events, self.config.rows, self.config.cols, t_s)
+            return self.board.lines_high_before(float(np.nextafter(t_s, math.inf)))
 
     # --- stuck switches (fault injection) -------------------------------------------------------
     def _line_kind(self, line: str, index: int) -> int:
@@ -304,27 +195,47 @@ class FpgaSim(FirmwareCommands, ChipOptics):
         kind = self._line_kind(line, index)
         with self._lock:
             t = self.clock.now() if t_s is None else float(t_s)
-            self._stuck.stick(kind, int(index), on, t)
-            self._banks = None
+            self.board.stuck.stick(kind, int(index), on, t)
+            self.board.touch()
 
     def release_switch(self, line: str, index: int, t_s: float | None = None) -> None:
         """From ``t_s`` (default now) the switch follows its drive again."""
         kind = self._line_kind(line, index)
         with self._lock:
             t = self.clock.now() if t_s is None else float(t_s)
-            self._stuck.release(kind, int(index), t)
-            self._banks = None
+            self.board.stuck.release(kind, int(index), t)
+            self.board.touch()
 
     @property
     def stuck_switches(self) -> list[tuple[str, int, bool]]:
         """(line, index, on) of the switches stuck right now."""
         with self._lock:
-            return self._stuck.stuck_now()
+            return self.board.stuck.stuck_now()
 
     def reset_link(self) -> None:
         """The serial link went away: a frame half-received is lost."""
         with self._lock:
             self._parser = p.FrameParser()
+
+    # --- the light that leaves the chip (the chip optics, under the lock) ------------------------
+    def pulls_in_every_switch(self) -> bool:
+        """Whether the present drive pulls in every row and column switch."""
+        with self._lock:
+            return self.optics.pulls_in_every_switch()
+
+    def lit_beams(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, cols, mean path transmission) of beams leaving the chip during [t0, t1]."""
+        with self._lock:
+            return self.optics.lit_beams(t0_s, t1_s)
+
+    def triggers(self, first: int, count: int, capture_s: float) -> TriggerBatch:
+        """Triggers ``first .. first+count-1`` of the current run and their lit beams (does not
+        advance the clock)."""
+        with self._lock:
+            run = self.firmware.run
+            if run is None:
+                raise ValueError("fpga: no run has been started (no triggers)")
+            return self.optics.triggers(run.pattern, run.schedule, first, count, capture_s)
 
     # --- transports ---------------------------------------------------------------------------
     def open_pipe(self, line: SerialLineNoise | None = None) -> SimSerial:

@@ -1,20 +1,20 @@
-"""The FPSA board's firmware commands: what each wire command of docs/protocols/fpsa.md does to the
-board's state (§4.3.3 and Fig. 4-22; the run's line changes follow the pixel schedule of
+"""The FPSA board's firmware: its state machine and what each wire command of docs/protocols/fpsa.md
+does to the board (§4.3.3 and Fig. 4-22; the run's line changes follow the pixel schedule of
 ``sim_devices.fpsa.triggers``).
 
-:class:`FirmwareCommands` is the command half of :class:`sim_devices.fpsa.device.FpgaSim`: it maps a
-decoded frame to its handler, enforces the state machine (FAULT until RESET; configuration only in
-IDLE/DONE/ARMED; START only when ARMED), validates payloads (NAK codes of the protocol), uploads and
-verifies patterns chunk by chunk, and at START logs every HV line change of the whole run in closed
-form (cut short later by STOP/RESET). The board half (HV583 registers, drive log, switch banks,
-beams, transports) stays in ``sim_devices.fpsa.device``; the handlers reach it through ``self``:
-``config``, ``state``, ``faults``, ``timing``, ``hv_rows``/``hv_cols``, the drive logs
-``_events``/``_holds``, ``_row_high``/``_col_high``, ``supply()``, and the line bookkeeping
-``_apply_outputs``, ``_load_lines``, ``_cut_run``, ``_sync``.
+:class:`Firmware` is held by :class:`sim_devices.fpsa.device.FpgaSim` as ``fpga.firmware`` and holds
+the board it commands (:class:`~sim_devices.fpsa.board.FpsaBoard`: HV583 registers, drive log). It
+owns the firmware's state (state, fault flags, timing, the pattern upload, the verified pattern, the
+run), maps a decoded frame to its handler, enforces the state machine (FAULT until RESET;
+configuration only in IDLE/DONE/ARMED; START only when ARMED), validates payloads (NAK codes of the
+protocol), uploads and verifies patterns chunk by chunk, and at START logs every HV line change of
+the whole run in closed form (cut short later by STOP/RESET). The byte interface, its retry cache
+and the transports stay in ``sim_devices.fpsa.device``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +22,7 @@ import numpy as np
 from drivers.fpsa import protocol as p
 from drivers.fpsa.errors import LengthError, PayloadError
 
+from sim_devices.fpsa.board import FpsaBoard
 from sim_devices.fpsa.drive_log import COL, ROW, compact
 from sim_devices.fpsa.hv583 import HV583
 from sim_devices.fpsa.hv_drive import HOLD_BOOST_S
@@ -48,12 +49,75 @@ class _Upload:
     received: np.ndarray  # (total,) bool
 
 
-class FirmwareCommands:
-    """Command handlers of the FPGA firmware (a mixin of :class:`~sim_devices.fpsa.device.FpgaSim`)."""
+class Firmware:
+    """The FPGA firmware's state machine and command handlers over one board."""
 
-    def _execute(self, frame: p.Frame) -> bytes:
-        now = self.clock.now()
-        self._sync(now)
+    def __init__(self, board: FpsaBoard) -> None:
+        self.board = board
+        self.config = board.config
+        self.state = p.State.FAULT
+        self.faults = p.FaultFlag.HV_UNINITIALIZED
+        self.timing = p.DEFAULT_TIMING
+        self._upload: _Upload | None = None
+        self._pattern: np.ndarray | None = None  # verified
+        self.run: _Run | None = None
+        self._run_slot = -1
+
+    def power_up(self, t_s: float) -> None:
+        """Power-up: FAULT with HV_UNINITIALIZED (and MULTI_ROW when the random registers drive
+        several bonded rows) until the host sends RESET."""
+        self.state = p.State.FAULT
+        self.faults = p.FaultFlag.HV_UNINITIALIZED
+        if self.board.power_up(t_s):
+            self.faults |= p.FaultFlag.MULTI_ROW
+        self.timing = p.DEFAULT_TIMING
+        self._upload = None
+        self._pattern = None
+        self.run = None
+        self._run_slot = -1
+
+    def sync(self, now: float) -> None:
+        """Bring the firmware state up to ``now`` (a run that ended becomes DONE)."""
+        run = self.run
+        if self.state == p.State.RUNNING and run is not None and now >= run.schedule.end_s:
+            self.state = p.State.DONE
+            self.board.clear_registers()
+
+    def cut_run(self, t_s: float) -> None:
+        """STOP/RESET during a run: drop run events after ``t_s`` and switch its lines off."""
+        run = self.run
+        if run is None or self.state != p.State.RUNNING or t_s >= run.schedule.end_s:
+            return
+        sched = run.schedule
+        # the run's events are one slot of the log: keep only what happened before the cut
+        ev, k = self.board.events, self._run_slot
+        keep = ev.t[k] < t_s
+        ev.kind[k], ev.line[k], ev.t[k], ev.v[k] = (ev.kind[k][keep], ev.line[k][keep],
+                                                    ev.t[k][keep], ev.v[k][keep])
+        # whatever is still high just before the cut goes off at the cut (blanking)
+        rows_high, cols_high = self.board.lines_high_before(t_s)
+        for kind, high in ((ROW, rows_high), (COL, cols_high)):
+            idx = np.flatnonzero(high)
+            if idx.size:
+                ev.add(kind, idx, t_s, 0.0)
+        self.run = _Run(run.pattern, dataclasses.replace(sched, cut_s=t_s))
+        self.board.clear_registers()
+        self.board.touch()
+
+    def status(self, now: float) -> p.Status:
+        """What STATUS reports at ``now`` (clears LINK_ERRORS like a STATUS read does)."""
+        self.sync(now)
+        idx = pixels = trig = 0
+        if self.run is not None:
+            s = self.run.schedule
+            idx, pixels, trig = s.pattern_index(now), s.pixels_done(now), s.triggers_before(now)
+        st = p.Status(self.state, self.faults, idx, pixels, trig)
+        self.faults &= ~p.FaultFlag.LINK_ERRORS
+        return st
+
+    def execute(self, frame: p.Frame, now: float) -> bytes:
+        """The response to one decoded frame received at ``now`` (an ACK or a NAK)."""
+        self.sync(now)
         try:
             cmd = p.Cmd(frame.cmd)
         except ValueError:
@@ -86,48 +150,48 @@ class FirmwareCommands:
     def _cmd_identify(self, payload: bytes, now: float) -> bytes:
         self._no_payload(payload)
         c = self.config
-        return p.Identity(c.vendor, c.model, c.firmware, c.rows, c.cols, self._bonded).pack()
+        return p.Identity(c.vendor, c.model, c.firmware, c.rows, c.cols, self.board.bonded).pack()
 
     def _cmd_reset(self, payload: bytes, now: float) -> bytes:
         self._no_payload(payload)
-        self._cut_run(now)
+        self.cut_run(now)
         # Firmware reset: blank, clock zeros through every register, latch, set polarity,
         # un-blank. Blanking first means the garbage disappears at once, not after 0.8 us.
-        for hv in (self.hv_rows, self.hv_cols):
+        for hv in (self.board.hv_rows, self.board.hv_cols):
             hv.blank = True
-        self._apply_outputs(now)
-        for hv in (self.hv_rows, self.hv_cols):
+        self.board.apply_outputs(now)
+        for hv in (self.board.hv_rows, self.board.hv_cols):
             hv.shift_in(np.zeros(HV583.N_OUTPUTS, bool))
             hv.latch_enable()
             hv.polarity_inverted = False
             hv.blank = False
-        self._apply_outputs(now + HV583.refresh_s())
+        self.board.apply_outputs(now + HV583.refresh_s())
         self.state = p.State.IDLE
         self.faults = p.FaultFlag.NONE
         self.timing = p.DEFAULT_TIMING
         self._upload = None
         self._pattern = None
-        self._run = None
+        self.run = None
         return b""
 
     def _check_pixel(self, row: int, col: int, index: int | None) -> None:
         if not (0 <= row < self.config.rows and 0 <= col < self.config.cols):
             raise _Nak(p.NakCode.OUT_OF_RANGE, index)
-        if not self._bonded_mask[row]:
+        if not self.board.bonded_mask[row]:
             raise _Nak(p.NakCode.BAD_ROW_UNBONDED, index)
 
     def _cmd_set_pixel(self, payload: bytes, now: float) -> bytes:
         row, col = p.decode_set_pixel(payload)
         self._require_config_state()
         self._check_pixel(row, col, None)
-        self._load_lines(now, row, col)
+        self.board.load_lines(now, row, col)
         self.state = p.State.IDLE
         return b""
 
     def _cmd_clear(self, payload: bytes, now: float) -> bytes:
         self._no_payload(payload)
         self._require_config_state()
-        self._load_lines(now, None, None)
+        self.board.load_lines(now, None, None)
         self.state = p.State.IDLE
         return b""
 
@@ -153,7 +217,7 @@ class FirmwareCommands:
         px = p.unpack_pixels(chunk.pixel_bytes).astype(np.int64)
         r, c = px[:, 0], px[:, 1]
         bad_range = (r >= self.config.rows) | (c >= self.config.cols)
-        bad_bond = ~bad_range & ~self._bonded_mask[np.minimum(r, self.config.rows - 1)]
+        bad_bond = ~bad_range & ~self.board.bonded_mask[np.minimum(r, self.config.rows - 1)]
         bad = bad_range | bad_bond
         if bad.any():
             i = int(np.argmax(bad))
@@ -206,8 +270,8 @@ class FirmwareCommands:
             run_start_s=now, n_pixels=int(self._pattern.shape[0]), refresh_s=HV583.refresh_s(),
             settle_s=tm.settle_ns * 1e-9, trigger_period_s=tm.trigger_period_ns * 1e-9,
             triggers_per_pixel=tm.triggers_per_pixel, dwell_s=tm.dwell_ns * 1e-9)
-        self._run = _Run(self._pattern.copy(), sched)
-        self._log_run_events(self._run)
+        self.run = _Run(self._pattern.copy(), sched)
+        self._log_run_events(self.run)
         self.state = p.State.RUNNING
         return b""
 
@@ -215,12 +279,13 @@ class FirmwareCommands:
         """Every line change of the whole run, in closed form (one event list, cut on STOP)."""
         sched = run.schedule
         # what happened long before this run shapes nothing in it: keep the log bounded
-        compact(self._events, self._holds, sched.run_start_s - self._settle_horizon_s, self._stuck.lines())
+        board = self.board
+        compact(board.events, board.holds, sched.run_start_s - board.settle_horizon_s, board.stuck.lines())
         rows = run.pattern[:, 0].astype(np.int64)
         cols = run.pattern[:, 1].astype(np.int64)
         n = rows.size
         latch = sched.latch_s(np.arange(n))
-        drive = self.supply()
+        drive = board.supply()
         v = drive.hv_v
         kinds, lines, ts, vs = [], [], [], []
 
@@ -230,7 +295,7 @@ class FirmwareCommands:
             ts.append(np.asarray(t, np.float64))
             vs.append(np.full(line.size, volts))
 
-        for k, seq, high in ((ROW, rows, self._row_high), (COL, cols, self._col_high)):
+        for k, seq, high in ((ROW, rows, board.row_high), (COL, cols, board.col_high)):
             # first latch: whatever was on before the run goes off, pixel 0 goes on
             pre = np.flatnonzero(high)
             pre = pre[pre != seq[0]]
@@ -242,26 +307,26 @@ class FirmwareCommands:
             add(k, seq[ch - 1], latch[ch], 0.0)
             add(k, seq[ch], latch[ch], v)
             add(k, seq[-1:], np.array([sched.natural_end_s]), 0.0)
-        self._run_slot = len(self._events.kind)
+        self._run_slot = len(board.events.kind)
         all_k, all_l, all_t, all_v = (np.concatenate(kinds), np.concatenate(lines),
                                       np.concatenate(ts), np.concatenate(vs))
-        self._events.add(all_k, all_l, all_t, all_v)
+        board.events.add(all_k, all_l, all_t, all_v)
         rising = all_v > 0
         if drive.holds and rising.any():  # holds cut short by a line change are dropped later
-            self._holds.add(all_k[rising], all_l[rising], all_t[rising] + HOLD_BOOST_S, drive.hold_v)
-        self._row_high[:] = False
-        self._col_high[:] = False
-        self._banks = None
+            board.holds.add(all_k[rising], all_l[rising], all_t[rising] + HOLD_BOOST_S, drive.hold_v)
+        board.row_high[:] = False
+        board.col_high[:] = False
+        board.touch()
 
     def _cmd_stop(self, payload: bytes, now: float) -> bytes:
         self._no_payload(payload)
         if self.state == p.State.RUNNING:
-            self._cut_run(now)
+            self.cut_run(now)
         else:
-            for hv in (self.hv_rows, self.hv_cols):
+            for hv in (self.board.hv_rows, self.board.hv_cols):
                 hv.shift_in(np.zeros(HV583.N_OUTPUTS, bool))
                 hv.latch_enable()
-            self._apply_outputs(now + HV583.refresh_s())
+            self.board.apply_outputs(now + HV583.refresh_s())
         self.state = p.State.IDLE
         return b""
 

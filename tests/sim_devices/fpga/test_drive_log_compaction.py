@@ -27,7 +27,7 @@ def _sim(horizon_s: float | None) -> tuple[VirtualClock, FpgaSim]:
                                     col_dynamics=dyn, threshold_spread_v=0.5, seed=3))
     sim.supply = lambda: HvDrive(35.0, hold_v=30.5)     # pull in at 35 V, hold at 30.5 V
     if horizon_s is not None:
-        sim._settle_horizon_s = horizon_s
+        sim.board.settle_horizon_s = horizon_s
     _send(sim, p.Cmd.RESET)
     clock.advance(100 * US)
     return clock, sim
