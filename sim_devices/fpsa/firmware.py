@@ -59,7 +59,7 @@ class Firmware:
         self.faults = p.FaultFlag.HV_UNINITIALIZED
         self.timing = p.DEFAULT_TIMING
         self._upload: _Upload | None = None
-        self._pattern: np.ndarray | None = None  # verified
+        self.pattern: np.ndarray | None = None  # verified
         self.run: _Run | None = None
         self._run_slot = -1
 
@@ -72,7 +72,7 @@ class Firmware:
             self.faults |= p.FaultFlag.MULTI_ROW
         self.timing = p.DEFAULT_TIMING
         self._upload = None
-        self._pattern = None
+        self.pattern = None
         self.run = None
         self._run_slot = -1
 
@@ -170,7 +170,7 @@ class Firmware:
         self.faults = p.FaultFlag.NONE
         self.timing = p.DEFAULT_TIMING
         self._upload = None
-        self._pattern = None
+        self.pattern = None
         self.run = None
         return b""
 
@@ -201,7 +201,7 @@ class Firmware:
         if not 1 <= total <= self.config.rows * self.config.cols:
             raise _Nak(p.NakCode.OUT_OF_RANGE)
         self._upload = _Upload(total, crc, np.zeros((total, 2), np.uint8), np.zeros(total, bool))
-        self._pattern = None
+        self.pattern = None
         self.state = p.State.IDLE
         return b""
 
@@ -239,7 +239,7 @@ class Firmware:
             self.faults |= p.FaultFlag.PATTERN_INVALID
             self._upload = None
             raise _Nak(p.NakCode.PATTERN_CRC)
-        self._pattern = up.data.copy()
+        self.pattern = up.data.copy()
         self._upload = None
         self.faults &= ~p.FaultFlag.PATTERN_INVALID
         return b""
@@ -256,21 +256,21 @@ class Firmware:
     def _cmd_arm(self, payload: bytes, now: float) -> bytes:
         self._no_payload(payload)
         self._require_config_state()
-        if self._pattern is None:
+        if self.pattern is None:
             raise _Nak(p.NakCode.BAD_STATE)
         self.state = p.State.ARMED
         return b""
 
     def _cmd_start(self, payload: bytes, now: float) -> bytes:
         self._no_payload(payload)
-        if self.state != p.State.ARMED or self._pattern is None:
+        if self.state != p.State.ARMED or self.pattern is None:
             raise _Nak(p.NakCode.BAD_STATE)
         tm = self.timing
         sched = PixelSchedule(
-            run_start_s=now, n_pixels=int(self._pattern.shape[0]), refresh_s=HV583.refresh_s(),
+            run_start_s=now, n_pixels=int(self.pattern.shape[0]), refresh_s=HV583.refresh_s(),
             settle_s=tm.settle_ns * 1e-9, trigger_period_s=tm.trigger_period_ns * 1e-9,
             triggers_per_pixel=tm.triggers_per_pixel, dwell_s=tm.dwell_ns * 1e-9)
-        self.run = _Run(self._pattern.copy(), sched)
+        self.run = _Run(self.pattern.copy(), sched)
         self._log_run_events(self.run)
         self.state = p.State.RUNNING
         return b""
