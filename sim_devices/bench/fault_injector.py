@@ -29,11 +29,12 @@ from sim_devices.controller.device import ControllerSim
 from sim_devices.digitizer.device import SimDigitizer
 from sim_devices.faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from sim_devices.fpsa.device import FpgaSim
+from sim_devices.usb.device import FaultKind
 
 # Faults of which a bench holds at most one: a second injection replaces the first.
 _SINGLETONS = ("serial_drop", "serial_flip", "serial_disconnect", "digitizer_overrange", "hv_fault",
                "interlock_open", "tec_offset")
-_USB_KIND = {"usb_timeout": "timeout", "usb_stall": "stall", "usb_disconnect": "disconnect"}
+_USB_KIND: dict[str, FaultKind] = {"usb_timeout": "timeout", "usb_stall": "stall", "usb_disconnect": "disconnect"}
 
 
 class SerialPort(Protocol):

@@ -209,7 +209,8 @@ class ControllerSim:
         )
         await server.serve_forever(background=True)
         self._server = server
-        self.port = server.transport.sockets[0].getsockname()[1]
+        # pymodbus types its transport as a BaseTransport; serving TCP, it is the asyncio.Server
+        self.port = server.transport.sockets[0].getsockname()[1]  # type: ignore[attr-defined]
         return self.port
 
     async def stop_async(self) -> None:

@@ -59,7 +59,7 @@ def _approach(x: float, target: float, dt_s: float, tau_s: float) -> float:
     return target + (x - target) * math.exp(-dt_s / tau_s)
 
 
-def _bits_to_words(bits: Sequence[bool]) -> list[int]:
+def _bits_to_words(bits: Sequence[bool | int]) -> list[int]:
     # pymodbus' SimDevice packs coil/discrete-input n at bit (n % 16) of word n // 16.
     words = [0] * ((len(bits) + 15) // 16)
     for i, b in enumerate(bits):
@@ -229,8 +229,10 @@ class ControllerModel:
                 return p.ExceptionCode.ILLEGAL_DATA_ADDRESS
             try:
                 value = p.decode_value(reg, [w])
+                if isinstance(value, str):   # text registers are input registers, several words each
+                    return p.ExceptionCode.ILLEGAL_DATA_VALUE
                 if reg is p.COMMAND:
-                    value = p.Command(value)
+                    value = p.Command(int(value))   # a U16 at scale 1: already an int
                 else:
                     self.hw_limits.check(reg, float(value))
             except (p.ProtocolError, p.LimitError, ValueError):

@@ -222,7 +222,7 @@ class SimDigitizer(SimUsbDevice):
         t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
         recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
         raw = recs.view(np.uint8)
-        mv = memoryview(raw)
+        mv = raw.data   # the records' bytes, no copy
         size = rec.itemsize
         crc = zlib.crc32
         # payloads first: the header's crc covers the payload crc's field (bytes 24..27)
