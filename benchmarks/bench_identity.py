@@ -31,9 +31,8 @@ def _digest(*arrays: np.ndarray) -> str:
 def bench_bytes() -> list[str]:
     import sys
     sys.path.insert(0, str(ROOT))
-    from tests.helpers.sim_bench import lit_bench
-
     from sim_devices.digitizer.device import CaptureConfig
+    from tests.helpers.sim_bench import lit_bench
 
     out = []
     pixels = [(r, c) for r in (60, 62) for c in range(60, 76)]

@@ -72,10 +72,15 @@ from typing import Any
 import numpy as np
 
 from lidard.config import Config, ConfigError, load_config
-
 from sim_devices.awg.device import SimAwg
-from sim_devices.bench.capture import (HYBRID_CHANNEL_AMPLITUDE, CaptureDevices, LaserParts, SegmentSynthesizer,
-                                       TapSpec, core_overrange)
+from sim_devices.bench.capture import (
+    HYBRID_CHANNEL_AMPLITUDE,
+    CaptureDevices,
+    LaserParts,
+    SegmentSynthesizer,
+    TapSpec,
+    core_overrange,
+)
 from sim_devices.bench.control import BenchControlClient, _ControlServer
 from sim_devices.bench.fault_injector import FaultInjector, FaultTargets
 from sim_devices.clock import VirtualClock

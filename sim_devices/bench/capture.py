@@ -28,11 +28,14 @@ import numpy as np
 
 from lidard.config import Config, LaserPreset
 from lidard.physics.budget import monitor_noise_asd, quantization_asd
-
 from sim_devices.awg.device import SimAwg
 from sim_devices.bench.fault_injector import FaultInjector
 from sim_devices.controller.device import ControllerSim
-from sim_devices.digitizer.device import CaptureConfig, CapturedSegments, decimation_filter
+from sim_devices.digitizer.device import (
+    CaptureConfig,
+    CapturedSegments,
+    decimation_filter,
+)
 from sim_devices.fpsa.device import FpgaSim
 from sim_devices.world.fidelity import FidelityLedger, phase_noise_negligible
 from sim_devices.world.laser import DfbLaser

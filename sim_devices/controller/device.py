@@ -42,7 +42,12 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.controller import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.controller.model import ControllerModel, ControllerState, Dynamics, _bits_to_words
+from sim_devices.controller.model import (
+    ControllerModel,
+    ControllerState,
+    Dynamics,
+    _bits_to_words,
+)
 
 _READ_FC_TABLE = {1: p.Table.COIL, 2: p.Table.DISCRETE_INPUT, 3: p.Table.HOLDING, 4: p.Table.INPUT}
 _WRITE_FC_TABLE = {5: p.Table.COIL, 15: p.Table.COIL, 6: p.Table.HOLDING, 16: p.Table.HOLDING,

@@ -47,12 +47,24 @@ from drivers.digitizer import protocol as p
 from lidard.physics.decimation import PASSBAND_FRACTION, DecimationFilter
 from sim_devices.clock import VirtualClock
 from sim_devices.digitizer.front_end import (  # noqa: F401  (re-exported: tests, benchmarks, the bench)
-    ANTI_ALIAS_ORDER, band_limit, butter, front_end, quantize_codes, quantize_int16_into, quantize_int_codes,
-    sosfiltfilt, write_samples,
+    ANTI_ALIAS_ORDER,
+    band_limit,
+    butter,
+    front_end,
+    quantize_codes,
+    quantize_int16_into,
+    quantize_int_codes,
+    sosfiltfilt,
+    write_samples,
 )
-from sim_devices.usb.backend import DeviceSpec, EndpointSpec, SimUsbDevice, usb_stall, usb_timeout
+from sim_devices.usb.backend import (
+    DeviceSpec,
+    EndpointSpec,
+    SimUsbDevice,
+    usb_stall,
+    usb_timeout,
+)
 from sim_devices.world.antialias import BeatFilter
-
 
 SAMPLE_RATE_MIN_HZ = 1_000
 SAMPLE_RATE_MAX_HZ = 5_000_000_000

@@ -16,7 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_devices.fpsa.drive_log import COL, ROW, DriveEvents, StuckSwitches, lines_high_before, settle_horizon_s
+from sim_devices.fpsa.drive_log import (
+    COL,
+    ROW,
+    DriveEvents,
+    StuckSwitches,
+    lines_high_before,
+    settle_horizon_s,
+)
 from sim_devices.fpsa.hv583 import HV583, default_bonded_rows
 from sim_devices.fpsa.hv_drive import HOLD_BOOST_S, HvDrive
 from sim_devices.world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchDynamics

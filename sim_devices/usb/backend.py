@@ -30,7 +30,12 @@ from urllib.parse import urlparse
 import usb.backend
 
 from sim_devices.usb.bridge import RemoteUsbBackend, UsbBridgeServer
-from sim_devices.usb.descriptors import DeviceSpec, EndpointSpec, _DescriptorBackend, _SimHandle
+from sim_devices.usb.descriptors import (
+    DeviceSpec,
+    EndpointSpec,
+    _DescriptorBackend,
+    _SimHandle,
+)
 from sim_devices.usb.device import FaultKind, FaultOp, SimUsbDevice
 from sim_devices.usb.errors import usb_nodev, usb_stall, usb_timeout
 
