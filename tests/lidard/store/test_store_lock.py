@@ -78,7 +78,7 @@ def test_close_releases_the_directory(tmp_path):
 def test_held_directory_refuses_daemon_and_one_shot_scan(tmp_path, holder, argv):
     from pathlib import Path
     proc, _ = holder
-    repo = Path(__file__).resolve().parents[2]
+    repo = Path(__file__).resolve().parents[3]
     out = subprocess.run([sys.executable, *argv, "--data-dir", str(tmp_path)], cwd=repo,
                          capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
     assert out.returncode != 0
