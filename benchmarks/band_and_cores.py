@@ -43,7 +43,7 @@ def load() -> float:
 
 def _instrument(cfg):
     """An embedded bench and its linearization (from the user's calibration cache when it has one)."""
-    from lidard import calcache
+    from lidard.store import calcache
     from lidard.instrument import open_instrument
     inst = open_instrument(cfg, scene_path=SCENE, bench="embedded")
     cal = calcache.load(cfg)

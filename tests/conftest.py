@@ -79,7 +79,7 @@ def pytest_configure(config: pytest.Config) -> None:
 @pytest.fixture(autouse=True)
 def _private_cache_dir(tmp_path_factory, monkeypatch):
     """Every test gets its own $XDG_CACHE_HOME: --sim commands cache calibrations there
-    (lidard.calcache), and a test must neither see another's nor write to the user's."""
+    (lidard.store.calcache), and a test must neither see another's nor write to the user's."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
     # and its own $XDG_STATE_HOME: `lidarctl control acquire` stores leases there (lidard.cli.leases)
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("xdg-state")))

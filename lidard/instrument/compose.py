@@ -115,7 +115,7 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
 
 def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | None = None,
                    scene: dict | None = None) -> LidarInstrument:
-    from sim_devices.bench import Bench
+    from sim_devices.bench.bench import Bench
     from sim_devices.world.scene import Scene, SceneError
 
     start_scene: Scene | None
@@ -155,7 +155,7 @@ def open_split_bench(daemon_cfg: Config, bench_cfg: Config, scene: dict | None =
 
 def _start_child(cfg: Config, scene_path: str | None) -> tuple[subprocess.Popen, dict[str, Any]]:
     """Start ``lidar-sim --json`` on the same configuration file; answers the process and its endpoints."""
-    cmd = [sys.executable, "-m", "sim_devices.bench", "--json"]
+    cmd = [sys.executable, "-m", "sim_devices.bench.bench", "--json"]
     if cfg.path is not None:
         cmd += ["--config", str(cfg.path)]
     if scene_path:
@@ -185,8 +185,8 @@ def _start_child(cfg: Config, scene_path: str | None) -> tuple[subprocess.Popen,
 
 
 def _open_child(cfg: Config, scene_path: str | None) -> LidarInstrument:
-    from sim_devices.bench import BenchControlClient
-    from sim_devices.usb_backend import backend_from_url
+    from sim_devices.bench.bench import BenchControlClient
+    from sim_devices.usb.backend import backend_from_url
 
     proc, ep = _start_child(cfg, scene_path)
     ctl = BenchControlClient(ep["control_port"])

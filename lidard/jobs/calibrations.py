@@ -23,7 +23,7 @@ import math
 from typing import Any
 
 from ..instrument.calibration.range import DEFAULT_NOISE_M, CalibrationRefused, PlateMeasurement, fit_range as _fit
-from ..store_calibrations import CalibrationRecord
+from ..store import CalibrationRecord
 
 
 def add_plate(worker, known_m: float) -> concurrent.futures.Future:
@@ -42,21 +42,21 @@ def plate_now(worker, known_m: float) -> dict[str, Any]:
     lin = worker.current_linearization()
     m = measure_plate(worker.instrument, worker.optics, float(known_m), lin, worker.applied)
     setup = worker.setup_of("range")
-    return worker.store.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
+    return worker.store.geometry.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
 
 
 def plates(store) -> list[dict[str, Any]]:
-    return store.range_measurements()
+    return store.geometry.range_measurements()
 
 
 def remove_plates(store, ids: list[str] | None = None) -> int:
-    return store.remove_range_measurements(ids)
+    return store.geometry.remove_range_measurements(ids)
 
 
 def fit_range(store, nominal_delay_s: float, setup: dict[str, Any] | None = None) -> CalibrationRecord:
     """Fit the pending plates; store and answer the record (the plates are consumed). ``setup``: the
     instrument's range set-up (``Setup.as_dict()``); plates measured on another one are refused by id."""
-    pending = store.range_measurements()
+    pending = store.geometry.range_measurements()
     if setup is not None:
         alien = [m["id"] for m in pending if (m.get("setup") or {}).get("hash") != setup["hash"]]
         if alien:
@@ -65,11 +65,11 @@ def fit_range(store, nominal_delay_s: float, setup: dict[str, Any] | None = None
                                      "(`lidarctl calibration range drop ID`) and measure again")
     fit = _fit([PlateMeasurement.from_dict(m) for m in pending], nominal_delay_s)
     temps = [m["temperature_c"] for m in pending if m.get("temperature_c") is not None]
-    rec = store.save_geometry_calibration(
+    rec = store.geometry.save(
         "range", temperature_c=sum(temps) / len(temps) if temps else None,
         inputs={"measurements": pending, **({"setup": setup} if setup else {})},
         fitted=fit.fitted(), residuals=fit.residuals())
-    store.remove_range_measurements([m["id"] for m in pending])
+    store.geometry.remove_range_measurements([m["id"] for m in pending])
     return rec
 
 
@@ -85,7 +85,7 @@ def pointing_now(worker, surfaces) -> CalibrationRecord:
     """On the worker thread: scan the known targets ``surfaces`` (parsed geometry), fit, store the record."""
     from ..instrument.calibration.procedures import measure_pointing
     applied = worker.apply_geometry()
-    rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
+    rng = worker.store.geometry.get(applied.range_id) if applied.range_id else None
     if rng is None:   # refused before any linearization or scan
         raise CalibrationRefused("pointing calibration: no range calibration yet (of this set-up); the fit places points "
                                  "with range-calibrated ranges: run `lidarctl calibrate` (or `lidarctl calibration "
@@ -94,7 +94,7 @@ def pointing_now(worker, surfaces) -> CalibrationRecord:
     # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
     noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
     fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)
-    return worker.store.save_geometry_calibration(
+    return worker.store.geometry.save(
         "pointing", temperature_c=worker.instrument.laser_temperature_c(),
         inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
                 "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan,
@@ -115,7 +115,7 @@ def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
         worker.apply_geometry()
         lin = worker.current_linearization()
         fit, scan = measure_iq(worker.instrument, worker.optics, lin, max_range_m=max_range_m)
-        return worker.store.save_geometry_calibration(
+        return worker.store.geometry.save(
             "iq", temperature_c=worker.instrument.laser_temperature_c(),
             inputs={"linearization_id": lin.meta.get("id"), **scan, **_setup(worker, "iq")},
             fitted=fit.fitted(), residuals=fit.residuals())
@@ -131,7 +131,7 @@ def records(store, cfg, kind: str | None = None, limit: int = 20) -> list[dict[s
     """Range, pointing and I/Q records and the chirp linearizations, newest first, as one listing."""
     out: list[dict[str, Any]] = []
     if kind in (None, "range", "pointing", "iq"):
-        out += [r.to_dict() for r in store.list_geometry_calibrations(kind, limit)]
+        out += [r.to_dict() for r in store.geometry.recent(kind, limit)]
     if kind in (None, "linearization"):
         out += [linearization_record(c) for c in store.list_calibrations(limit, cfg.laser)]
     return sorted(out, key=lambda r: r["created"] or 0.0, reverse=True)[:limit]
@@ -146,7 +146,7 @@ def linearization_record(cal) -> dict[str, Any]:
 
 
 def record(store, cal_id: str) -> dict[str, Any] | None:
-    rec = store.get_geometry_calibration(cal_id)
+    rec = store.geometry.get(cal_id)
     if rec is not None:
         return rec.to_dict()
     lin = store.get_calibration(cal_id)

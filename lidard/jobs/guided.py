@@ -69,11 +69,11 @@ def pending_refusal(pending: list[dict[str, Any]]) -> str:
 def resolve_pending(store, pending: Pending) -> list[dict[str, Any]]:
     """Apply the pending-plates policy; answers the plates kept."""
     from ..instrument.calibration.range import CalibrationRefused
-    waiting = store.range_measurements()
+    waiting = store.geometry.range_measurements()
     if not waiting:
         return []
     if pending == "drop":
-        store.remove_range_measurements([m["id"] for m in waiting])
+        store.geometry.remove_range_measurements([m["id"] for m in waiting])
         return []
     if pending == "keep":
         return waiting

@@ -18,6 +18,7 @@ import time
 from typing import Any
 from collections.abc import Callable
 
+from ..instrument.calibration.applied import AppliedCalibrations
 from ..instrument.healthcheck import health_record
 from ..instrument.protocol import Instrument
 from ..instrument.types import CalibrationResult, ScanRequest
@@ -60,7 +61,7 @@ class ScanWorker:
         self.events = EventHub()
         self._stopping = False
         self._thread: threading.Thread | None = None
-        self.applied = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
+        self.applied: AppliedCalibrations | None = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
         # the instrument's set-up (lidard.instrument.calibration.setup.CalibrationSetup): records are
         # made on it and only records made on it are applied; None (a test double): the newest record
         self.setup = setup
@@ -93,7 +94,7 @@ class ScanWorker:
             if isinstance(job, _ScanJob):
                 self.store.transition(job.id, ("queued",), state="interrupted", stage="interrupted",
                                       error="daemon stopped before the scan started", finished=time.time())
-                self._finish(job)
+                self.finish_scan(job)
             else:
                 job.future.set_exception(WorkerStopped("daemon stopped before the calibration ran"))
         if self._thread is not None:
@@ -166,7 +167,7 @@ class ScanWorker:
                 self._queue.remove(job)
                 self.store.transition(scan_id, ("queued",), state="cancelled", stage="cancelled",
                                       finished=time.time())
-                self._finish(job)
+                self.finish_scan(job)
             elif job is not None and not job.cancel.is_set():
                 job.cancel_reason = reason
                 job.cancel.set()
@@ -199,7 +200,14 @@ class ScanWorker:
         """Call ``fn(event)`` for the progress and end events of every scan (live publishers)."""
         self.events.add_event_listener(fn)
 
-    def _finish(self, job: _ScanJob) -> None:
+    @property
+    def stopping(self) -> bool:
+        """True once :meth:`stop` was called (a scan cancelled then is ``interrupted``, not ``cancelled``)."""
+        return self._stopping
+
+    def finish_scan(self, job: _ScanJob) -> None:
+        """A scan reached its terminal state: record its raw capture's size, publish its end event,
+        wake its waiters."""
         if job.request.record_raw:   # whatever the outcome: a capture (maybe a partial prefix) is on disk
             from ..raw.capture import capture_size_bytes
             size = capture_size_bytes(raw_path(self.store, job.id))
@@ -345,11 +353,10 @@ class ScanWorker:
         to the instrument; answers the :class:`AppliedCalibrations`, whose ``notes`` say
         why records of another set-up were left unused. Runs on the worker thread before every scan and
         linearization."""
-        from ..instrument.calibration.applied import AppliedCalibrations
         from ..instrument.calibration.setup import select
         chosen, notes = {}, []
         for kind in ("range", "pointing", "iq"):
-            rec, why = select(self.store.list_geometry_calibrations(kind, limit=200),
+            rec, why = select(self.store.geometry.recent(kind, limit=200),
                               None if self.setup is None else self.setup[kind])
             chosen[kind] = rec
             if why is not None:

@@ -12,10 +12,10 @@ simulated bench uses, called directly instead of through the byte protocols:
 * the world (``sim_devices.world.world.World``): ray cast, eq. 2-10 return with the FPSA's Table 4-4
   losses, beat amplitude G R sqrt(P_ref P_rx) (eq. 2-11), white noise of eqs. 2-16..2-18, 2-20/21;
 * the bench's digitizer model: 16-bit records, the 8-bit core's quantization noise added as white
-  noise when the record is wider than the core (``sim_devices.bench_capture``), Wiener phase noise of the
+  noise when the record is wider than the core (``sim_devices.bench.capture``), Wiener phase noise of the
   laser's linewidth (unless the bench's fidelity rule finds it negligible), the monitor MZI when
   phase-noise compensation is on, and the digitizer's front end (anti-alias corner, quantizer at the
-  resolution the daemon asks: ``sim_devices.digitizer_front_end.write_samples``);
+  resolution the daemon asks: ``sim_devices.digitizer.front_end.write_samples``);
 * the daemon's signal path (``lidard.instrument.dsp_plan.plan_signal``, the one constructor the scan
   loop calls): the ADC plan (rate from the maximum range and the Doppler band of scan.max_speed_mps,
   the record with the chirp's constant segment), the phase-noise choice and the frame DSP
@@ -51,7 +51,8 @@ from lidard.instrument.dsp_plan import AdcPlan, DspCalibration, SignalPlan, plan
 from lidard.instrument.dsp_plan import phase_noise_on as pn_rule
 from lidard.physics.budget import monitor_noise_asd, quantization_asd, snr_db
 from lidard.physics.constants import C_M_PER_S
-from sim_devices.digitizer import decimation_filter, write_samples
+from sim_devices.digitizer.device import decimation_filter
+from sim_devices.digitizer.front_end import write_samples
 from sim_devices.world.fidelity import phase_noise_negligible
 from sim_devices.world.scene import Scene
 from sim_devices.world.synth import AdcSpec, ChirpTrajectory, HitBatch, synthesize, trajectory_from_frequency
@@ -106,7 +107,7 @@ def _world(task: SweepTask, row: int, col: int) -> World:
 def _core_asd(cfg: Config, fs_hz: float) -> float:
     """The converter core's quantization noise in a record decimated on board (a record resolution
     above the core's bits, config.Adc.record_bits), as white noise: the bench's
-    (sim_devices.bench_capture.BenchCapture._core_asd), V/sqrt(Hz)."""
+    (sim_devices.bench.capture.SegmentSynthesizer._core_asd), V/sqrt(Hz)."""
     a = cfg.adc
     if not cfg.sim.effects.quantization or a.record_bits(fs_hz, RECORD_BITS) <= a.bits:
         return 0.0
@@ -114,13 +115,13 @@ def _core_asd(cfg: Config, fs_hz: float) -> float:
 
 
 def _noise_asd(cfg: Config, world: World, fs_hz: float) -> float:
-    """The bench's white noise at the ADC input (sim_devices.bench_capture.BenchCapture._synthesize), V/sqrt(Hz)."""
+    """The bench's white noise at the ADC input (sim_devices.bench.capture.SegmentSynthesizer._synthesize), V/sqrt(Hz)."""
     asd = world.white_noise_asd_v() if cfg.sim.effects.noise else 0.0
     return float(np.hypot(asd, _core_asd(cfg, fs_hz)))
 
 
 def _monitor_asd(cfg: Config, rin_db_per_hz: float, fs_hz: float) -> float:
-    """The bench's white noise on the monitor-MZI channel (sim_devices.bench_capture.BenchCapture._monitor_asd), V/sqrt(Hz)."""
+    """The bench's white noise on the monitor-MZI channel (sim_devices.bench.capture.SegmentSynthesizer.monitor_asd), V/sqrt(Hz)."""
     mon = cfg.monitor
     asd = 0.0
     if cfg.sim.effects.noise:
@@ -191,7 +192,7 @@ def task_frame(task: SweepTask, rng: np.random.Generator | None = None) -> TaskF
 def _recorded(cfg: Config, fs_hz: float, codes: np.ndarray) -> np.ndarray:
     """The digitizer's record of a channel's synthesized codes (n_seg, n): its analogue anti-alias
     corner and its quantizer at the resolution the daemon asks for (config.Adc.record_bits), as the
-    bench's digitizer applies them (sim_devices.digitizer_front_end.write_samples)."""
+    bench's digitizer applies them (sim_devices.digitizer.front_end.write_samples)."""
     n_seg, n = codes.shape
     pcfg = digitizer_protocol.Config(
         sample_rate_hz=round(fs_hz), record_length=n, segments=n_seg, channel_mask=1, bits=RECORD_BITS,

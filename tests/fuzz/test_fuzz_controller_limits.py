@@ -20,7 +20,7 @@ from drivers.controller.driver import LaserHvController, SettleCheck
 from drivers.controller.errors import LimitError
 from lidard.config import Config
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerSim
+from sim_devices.controller.device import ControllerSim
 
 CFG = Config().devices.controller
 DEPLOY = p.Limits(max_laser_current_ma=CFG.max_laser_current_ma, max_hv_v=CFG.max_hv_v, tec_range_c=(15.0, 40.0))

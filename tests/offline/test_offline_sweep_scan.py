@@ -28,7 +28,7 @@ GRID = {"laser": "ideal", "scan.max_range_m": 4.0, "sim.effects.mems_dynamics": 
 
 
 def _bench_rng(task) -> np.random.Generator:
-    """The noise generator of the bench's first read of its first run (BenchCapture._synthesize)."""
+    """The noise generator of the bench's first read of its first run (SegmentSynthesizer._synthesize)."""
     return np.random.default_rng([task.point.cfg.sim.seed, 1, 0])
 
 

@@ -37,7 +37,7 @@ class AppliedCalibrations:
     @classmethod
     def from_records(cls, range_rec: Any = None, pointing_rec: Any = None, iq_rec: Any = None,
                      notes: tuple[str, ...] = ()) -> AppliedCalibrations:
-        """From stored records (``.id``, ``.fitted``; lidard.store_calibrations.CalibrationRecord)."""
+        """From stored records (``.id``, ``.fitted``; lidard.store.CalibrationRecord)."""
         kw: dict[str, Any] = {"notes": tuple(notes)}
         if iq_rec is not None:
             kw.update(iq_id=iq_rec.id, iq_imbalance=(float(iq_rec.fitted["gain"]), float(iq_rec.fitted["phase_rad"])))

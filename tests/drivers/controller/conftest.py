@@ -7,7 +7,7 @@ import pytest
 from drivers.controller import protocol as p
 from drivers.controller.driver import LaserHvController, SettleCheck
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerSim
+from sim_devices.controller.device import ControllerSim
 
 # Deployment limits tighter than the hardware's (250 mA, 100 V, 15..40 degC).
 LIMITS = p.Limits(max_laser_current_ma=200.0, max_hv_v=60.0, tec_range_c=(18.0, 35.0))

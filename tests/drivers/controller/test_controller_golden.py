@@ -122,7 +122,7 @@ def _exchange(port: int, request: bytes, expected_len: int) -> bytes:
 
 def test_server_answers_golden_requests_with_golden_responses():
     from sim_devices.clock import VirtualClock
-    from sim_devices.controller import ControllerSim
+    from sim_devices.controller.device import ControllerSim
 
     clock = VirtualClock()
     with ControllerSim(clock) as sim:

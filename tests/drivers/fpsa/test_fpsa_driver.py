@@ -11,7 +11,7 @@ from drivers.fpsa.errors import NakError, PatternError
 from drivers.errors import DeviceGone, TransportError
 from drivers.transport import DeviceTimeout
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
 
 BONDED = tuple(r for r in range(128) if r % 4 != 3)
 

@@ -12,7 +12,7 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.controller import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerModel, ControllerSim, Dynamics
+from sim_devices.controller.device import ControllerModel, ControllerSim, Dynamics
 
 EC = p.ExceptionCode
 

@@ -16,7 +16,7 @@ from drivers.controller.errors import (
 from drivers.controller.protocol import Fault
 from drivers.digitizer import protocol as dig_p
 from drivers.digitizer.driver import DigitizerDriver
-from sim_devices.digitizer import CaptureConfig
+from sim_devices.digitizer.device import CaptureConfig
 from tests.helpers.sim_bench import controller, fpsa, power_up, run_pattern
 
 PIXELS = [[0, c] for c in range(10)]   # row 0 is bonded; one trigger per pixel

@@ -34,7 +34,7 @@ def test_bit_flips_are_caught_by_crc_and_retried_then_clearing_stops_them(bench)
     assert bench.serial_line.bytes_flipped > 5
     assert fp.retry_count > 0                 # NAK BAD_CRC / garbled answers were retried
     # nothing corrupt got through: the FPGA holds exactly the pattern (PATTERN_END checked its CRC)
-    assert np.array_equal(bench.fpga._pattern.astype(np.int64), PATTERN)
+    assert np.array_equal(bench.fpga.firmware.pattern.astype(np.int64), PATTERN)
     bench.clear_faults("serial_flip")
     flipped, retries = bench.serial_line.bytes_flipped, fp.retry_count
     _exercise(fp, 40)
