@@ -39,6 +39,7 @@ from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .cwhold import HoldProfile
 from .threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
+from .ranging.assign import line_snr
 from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import refine_ramp
 from .scratch import scratch
@@ -284,7 +285,7 @@ class FrameDsp:
         speed = self.max_speed_mps + (self.wavelength_m * self.rfft.delta_f if self.iq else 0.0)
         rng_m, vel, ok, match = pair_up_down_matched(
             out_f[0], out_f[1], du.valid, dd.valid, self.chirp_rate_hz_per_s, self.wavelength_m, iq=self.iq,
-            max_speed_mps=speed, snr=_snr(du, dd), records=records, tie_level=self.order_level)
+            max_speed_mps=speed, snr=line_snr(du, dd), records=records, tie_level=self.order_level)
         paired = (match >= 0) & du.valid
         # |X| = A/2 for a real tone, A for a complex one
         intensity = np.sqrt(du.power) * (1.0 if self.iq else 2.0)
@@ -302,15 +303,3 @@ class FrameDsp:
         flags = point_flags(unresolved=unres, leak=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
                            snr_db=du.snr_db, intensity_v=intensity, flags=flags)
-
-
-def _snr(du, dd) -> tuple[np.ndarray, np.ndarray]:
-    """The two ramps' detections as the pair likelihood's noise-normalised powers x (0 where no
-    detection), over one noise level per pixel: the receiver's noise is the same on both ramps, and a
-    per-detection local estimate (the CFAR's reference cells, a neighbour's skirt in them) would move
-    one line's x against the other's by tens of percent."""
-    dets = (du, dd)
-    w = sum(np.count_nonzero(d.valid, axis=-1) for d in dets)
-    total = sum(np.where(d.valid, d.noise, 0.0).sum(axis=-1) for d in dets)
-    noise = np.maximum(total / np.maximum(w, 1), 1e-300)[..., None]
-    return np.where(du.valid, du.power / noise, 0.0), np.where(dd.valid, dd.power / noise, 0.0)

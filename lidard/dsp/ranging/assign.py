@@ -101,3 +101,15 @@ def best_matching(score: np.ndarray, motion: np.ndarray, tie: float) -> np.ndarr
     choice = np.argmax(np.where(top, total, -np.inf), axis=1)
     out[rows] = m[choice]
     return out
+
+
+def line_snr(du, dd) -> tuple[np.ndarray, np.ndarray]:
+    """Two ramps' detections (:class:`lidard.dsp.cfar.Detections`, (..., K)) as the pair likelihood's
+    noise-normalised powers x (0 where no detection), over one noise level per pixel: the receiver's
+    noise is the same on both ramps, and a per-detection local estimate (the CFAR's reference cells, a
+    neighbour's skirt in them) would move one line's x against the other's by tens of percent."""
+    dets = (du, dd)
+    w = sum(np.count_nonzero(d.valid, axis=-1) for d in dets)
+    total = sum(np.where(d.valid, d.noise, 0.0).sum(axis=-1) for d in dets)
+    noise = np.maximum(total / np.maximum(w, 1), 1e-300)[..., None]
+    return np.where(du.valid, du.power / noise, 0.0), np.where(dd.valid, dd.power / noise, 0.0)
