@@ -33,7 +33,7 @@ import numpy as np
 
 from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
-from .gate import aliased, gate_top_hz, point_flags
+from .gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
 from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
@@ -244,6 +244,13 @@ class FrameDsp:
             res = FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
         else:
             res = self._pair(out_f, out_det, x.shape[1])
+        # a speed beyond the band the record was sized for: flagged, never valid (lidard.dsp.gate)
+        fast = out_of_band(res.present, res.velocity_mps, self.max_speed_mps,
+                           self.wavelength_m * self.fs_hz / (2 * self.n_used))
+        if fast.any():
+            flags = np.zeros(fast.shape, np.uint8) if res.flags is None else res.flags
+            res = replace(res, valid=res.valid & ~fast,
+                          flags=flags | np.where(fast, np.uint8(PointFlag.OUT_OF_BAND), np.uint8(0)))
         return keep_returns(res, self.max_returns)
 
     def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list, list]:
