@@ -41,14 +41,13 @@ total likelihood is taken (the least motion among equally good sets). Pure numpy
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import gammaincinv
 
 from .cwhold import HoldProfile, resolve_boundary
 from .gate import aliased, point_flags
 from .rangefft import C_M_PER_S, RangeFFT
 from .ranging.assign import best_matching, line_snr, pair_loglik, tie_llr
-from .ranging.order import chi2_isf, median_last as _median_last
-
+from .ranging.order import chi2_isf
+from .ranging.order import median_last as _median_last
 
 #: the held segment's frequency still relaxes (the DFB's thermal terms, ~20 us): over the CW window its
 #: slope is taken to lie within RHO_MAX x the ramps' rate (the default DFB after the skip: -9 % .. -1 %,
@@ -121,7 +120,7 @@ def cw_line_threshold(cw_pfa, records: int, cells=1):
 def cw_noise(p_cw: np.ndarray, records: int) -> np.ndarray:
     """The CW spectrum's mean noise power per cell (n,): its median over the median of a chi-square(2L)
     / 2L cell (ln 2 for one record)."""
-    return _median_last(p_cw) / (float(gammaincinv(records, 0.5)) / records)
+    return _median_last(p_cw) / (float(chi2_isf(0.5, 2.0 * records)) / (2.0 * records))
 
 
 def _regime_line(table, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band, records, cw_pfa):
@@ -201,7 +200,7 @@ def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float
     vu, vd = np.asarray(vu, dtype=bool), np.asarray(vd, dtype=bool)
     n, ku = fu.shape
     kd = fd.shape[1]
-    ok_pair, folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
+    ok_pair, _folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
                                                  guard_hz=guard_bins * df_hz, rho=rho, records=records,
                                                  cw_pfa=cw_pfa)
     loglik = np.ones((n, ku, kd)) if snr is None else pair_loglik(snr[0], snr[1], records)
