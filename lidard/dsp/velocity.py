@@ -28,6 +28,8 @@ among equally likely sets, the one needing the least motion.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from lidard.dsp.rangefft import C_M_PER_S
@@ -42,7 +44,7 @@ def _as_2d(a: object, name: str, dtype) -> np.ndarray:
     return arr.astype(dtype, copy=False)
 
 
-def pair_up_down(*args, **kwargs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pair_up_down(*args: Any, **kwargs: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pair up/down-ramp peaks and solve eqs. 2-6/2-7: (range_m, velocity_mps, valid) of
     :func:`pair_up_down_matched` (its arguments)."""
     rng, vel, ok, _ = pair_up_down_matched(*args, **kwargs)
