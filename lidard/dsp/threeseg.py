@@ -114,7 +114,8 @@ def cw_line_threshold(cw_pfa, records: int, cells=1):
     """The noise-normalised power the peak of ``cells`` CW cells, each averaged over ``records`` records,
     passes with probability ``cw_pfa`` in noise alone (each cell at cw_pfa / cells: chi-square with 2L
     degrees of freedom, over 2L)."""
-    return chi2_isf(cw_pfa / np.maximum(cells, 1), 2.0 * records) / (2.0 * records)
+    w, inv = np.unique(np.maximum(cells, 1), return_inverse=True)   # a few widths: one quantile each
+    return (chi2_isf(cw_pfa / w, 2.0 * records) / (2.0 * records))[inv].reshape(np.shape(cells))
 
 
 def cw_noise(p_cw: np.ndarray, records: int) -> np.ndarray:
