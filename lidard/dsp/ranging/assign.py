@@ -34,6 +34,7 @@ from itertools import combinations, permutations
 
 import numpy as np
 
+from ..cfar import Detections
 from .order import chi2_isf
 
 
@@ -103,7 +104,7 @@ def best_matching(score: np.ndarray, motion: np.ndarray, tie: float) -> np.ndarr
     return out
 
 
-def line_snr(du, dd) -> tuple[np.ndarray, np.ndarray]:
+def line_snr(du: Detections, dd: Detections) -> tuple[np.ndarray, np.ndarray]:
     """Two ramps' detections (:class:`lidard.dsp.cfar.Detections`, (..., K)) as the pair likelihood's
     noise-normalised powers x (0 where no detection), over one noise level per pixel: the receiver's
     noise is the same on both ramps, and a per-detection local estimate (the CFAR's reference cells, a

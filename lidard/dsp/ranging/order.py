@@ -38,7 +38,7 @@ from ..dtft import _window_dtft_bins
 from ..window import get_window
 
 
-def chi2_isf(p, dof):
+def chi2_isf(p: float | np.ndarray, dof: float | np.ndarray) -> np.ndarray:
     """The chi-square quantile exceeded with probability ``p`` at ``dof`` degrees of freedom
     (scipy.stats.chi2.isf through the inverse regularized gamma function: scipy.stats costs ~0.5 s of
     start-up on every scan, scipy.special is already loaded)."""
