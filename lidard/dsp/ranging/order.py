@@ -42,7 +42,7 @@ def chi2_isf(p: float | np.ndarray, dof: float | np.ndarray) -> np.ndarray:
     """The chi-square quantile exceeded with probability ``p`` at ``dof`` degrees of freedom
     (scipy.stats.chi2.isf through the inverse regularized gamma function: scipy.stats costs ~0.5 s of
     start-up on every scan, scipy.special is already loaded)."""
-    return 2.0 * gammainccinv(np.asarray(dof, dtype=float) / 2.0, p)
+    return np.asarray(2.0 * gammainccinv(np.asarray(dof, dtype=float) / 2.0, p), dtype=np.float64)
 
 #: cells on each side of a detection that the test reads (the Hann main lobe is +-2 bins: a second
 #: tone hidden under the peak leaves its misfit inside +-3)
