@@ -152,8 +152,8 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
 
 
 # -- the frame DSP's use (lidard.dsp.threeseg.pair_frame_three) ---------------------------------------
-#: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB, as the
-#: regime search's CW_BAND_SNR)
+#: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB: an exponential
+#: noise cell passes with probability exp(-20 ln 2) ~ 1e-6)
 PEAK_SNR = 20.0
 #: a lower ramp beat this many ramp bins from DC or more is estimated without bias: the ramps range it
 RAMP_CLEAR_BINS = 4.0

@@ -234,15 +234,18 @@ class _DtftNearBin:
         gt = _small_gemm_by_columns(coef_map, nu.reshape(f0.size, -1))
         self._gt = (gt[:n_terms], gt[n_terms:])
 
-    def eval(self, delta: np.ndarray, derivs: int = 0):
+    def eval(self, delta: np.ndarray, derivs: int = 0, cols: np.ndarray | None = None):
         """G, G', G'' at ``delta`` by Horner; X = exp(-j pi delta (n-1)/n) G.
 
         ``delta`` (..., m) for the m pairs: several offsets per pair in one pass (the leading axes).
         Real and imaginary parts run as separate real arrays: a complex array times a real ``delta``
         is a full complex product in numpy (four multiplications, two of them by zero); the parts
-        give the same values with half the work.
+        give the same values with half the work. ``cols``: evaluate only these pairs
+        (``delta`` (..., len(cols))).
         """
         gr, gi = self._terms()
+        if cols is not None:        # only these pairs (an iteration's pixels still moving)
+            gr, gi = gr[:, cols], gi[:, cols]
         delta = np.asarray(delta, dtype=np.float64)
         shape = np.broadcast_shapes(delta.shape, gr.shape[1:])
         parts = [np.zeros(shape) for _ in range(2 * (derivs + 1))]      # G, G', G'' as (re, im)
@@ -272,8 +275,8 @@ class _DtftNearBin:
         """The coefficients term-major (P, m), real and imaginary parts, contiguous per term."""
         return self._gt
 
-    def dtft(self, delta: np.ndarray) -> np.ndarray:
-        G, _, _ = self.eval(delta)
+    def dtft(self, delta: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+        G, _, _ = self.eval(delta, cols=cols)
         return np.exp(-1j * np.pi * delta * (self.n - 1) / self.n) * G
 
 

@@ -15,7 +15,8 @@ A segment is one triangle period captured after one trigger: the up ramp then th
    a ramp's several detections are refined jointly and every detection is tested against the fitted
    tones (:mod:`lidard.dsp.ranging`: no mutual leakage bias; ``unresolved`` by a model-order test at
    ``order_level``; a return hidden beside a stronger one is added),
-5. pairs up- and down-ramp peaks (eqs. 2-6, 2-7): range, radial velocity (positive receding),
+5. pairs up- and down-ramp peaks (eqs. 2-6, 2-7) by the likelihood of joint (range, velocity)
+   hypotheses (:mod:`lidard.dsp.ranging.assign`): range, radial velocity (positive receding),
    validity (folding, harmonic ghosts, unresolved peaks are flagged, not reported as clean points).
    With a three-segment chirp (``cw_samples`` > 0: the record holds a constant-frequency segment after
    the ramps) the CW spectrum joins the pairing and no speed prior is used (:mod:`.threeseg`).
@@ -33,16 +34,17 @@ import numpy as np
 
 from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
-from .gate import aliased, gate_top_hz, point_flags
+from .gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
 from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .cwhold import HoldProfile
 from .threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
+from .ranging.assign import line_snr
 from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import refine_ramp
 from .scratch import scratch
-from .velocity import pair_up_down
+from .velocity import pair_up_down_matched
 from .window import WindowName
 
 
@@ -257,7 +259,14 @@ class FrameDsp:
         if self.cw_samples:
             res = FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
         else:
-            res = self._pair(out_f, out_det)
+            res = self._pair(out_f, out_det, x.shape[1])
+        # a speed beyond the band the record was sized for: flagged, never valid (lidard.dsp.gate)
+        fast = out_of_band(res.present, res.velocity_mps, self.max_speed_mps,
+                           self.wavelength_m * self.fs_hz / (2 * self.n_used))
+        if fast.any():
+            flags = np.zeros(fast.shape, np.uint8) if res.flags is None else res.flags
+            res = replace(res, valid=res.valid & ~fast,
+                          flags=flags | np.where(fast, np.uint8(PointFlag.OUT_OF_BAND), np.uint8(0)))
         return keep_returns(res, self.max_returns)
 
     def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list[Any], list[Any]]:
@@ -296,54 +305,29 @@ class FrameDsp:
             out_det.append(det)
         return out_f, out_det
 
-    def _pair(self, out_f: list[Any], out_det: list[Any]) -> FrameResult:
-        """Up/down pairing (eqs. 2-6, 2-7), validity flags and the range gate."""
+    def _pair(self, out_f: list[Any], out_det: list[Any], records: int) -> FrameResult:
+        """Up/down pairing by likelihood (eqs. 2-6, 2-7; :mod:`lidard.dsp.ranging.assign`), validity
+        flags and the range gate."""
         du, dd = out_det
         # I/Q: the band is not a prior; a target at its edge keeps its pair (two bins of search margin)
         speed = self.max_speed_mps + (self.wavelength_m * self.rfft.delta_f if self.iq else 0.0)
-        rng_m, vel, ok = pair_up_down(out_f[0], out_f[1], du.valid, dd.valid, self.chirp_rate_hz_per_s,
-                                      self.wavelength_m, iq=self.iq, max_speed_mps=speed,
-                                      strength=(du.power, dd.power) if self.iq else None)
+        rng_m, vel, ok, match = pair_up_down_matched(
+            out_f[0], out_f[1], du.valid, dd.valid, self.chirp_rate_hz_per_s, self.wavelength_m, iq=self.iq,
+            max_speed_mps=speed, snr=line_snr(du, dd), records=records, tie_level=self.order_level)
+        paired = (match >= 0) & du.valid
         # |X| = A/2 for a real tone, A for a complex one
         intensity = np.sqrt(du.power) * (1.0 if self.iq else 2.0)
         leak = du.valid & aliased(intensity, self.alias_ceiling_v)
-        if self.iq:
-            # signs measured, nothing folds: a point is a pair, and only ITS down peak's shape counts
-            # (the band is wide: "some down peak within the band" would be any noise peak of the ramp)
-            present = ok & du.valid
-            unres = du.unresolved | _paired_down_unresolved(out_f[0], out_f[1], rng_m, ok, dd, self.chirp_rate_hz_per_s)
-        else:
-            paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, self.max_speed_mps, self.wavelength_m)
-            present = (ok | paired_any) & du.valid
-            # unresolved on either ramp: the pair's relative phase differs between up and down ramps
-            unres = du.unresolved | _near_down(out_f[0], out_f[1], du.valid, dd.valid & dd.unresolved,
-                                               self.max_speed_mps, self.wavelength_m)
+        # unresolved on either ramp's peak of the pair (the pair's relative phase differs between ramps)
+        unres = du.unresolved | (paired & np.take_along_axis(dd.unresolved, np.maximum(match, 0), axis=-1))
         flagged = du.harmonic | unres | leak
         valid = ok & ~flagged
-        # Flagged or ambiguous pairs keep a range from the up ramp alone so they can be drawn (valid=0).
+        # Pairs that fold (ambiguous) or are flagged keep a range from the up ramp alone so they can be
+        # drawn (valid=0).
         rng_fallback = C_M_PER_S * np.abs(out_f[0]) / (2 * self.chirp_rate_hz_per_s)
         rng_m = np.where(ok, rng_m, rng_fallback)
         in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
-        present &= in_gate
+        present = paired & in_gate
         flags = point_flags(unresolved=unres, leak=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
                            snr_db=du.snr_db, intensity_v=intensity, flags=flags)
-
-
-def _paired_down_unresolved(fu, fd, rng_m, ok, dd, rate_hz_per_s) -> np.ndarray:
-    """Per up slot of an accepted pair: its down peak (f_dn = 2 f_R - f_up, eq. 2-6) is unresolved."""
-    f_dn = 4.0 * rate_hz_per_s * rng_m / C_M_PER_S - fu                # (n, K) the matched down beats
-    same = np.abs(fd[:, None, :] - f_dn[:, :, None]) <= 1e-6 * np.maximum(np.abs(f_dn[:, :, None]), 1.0)
-    return ok & (same & (dd.valid & dd.unresolved)[:, None, :]).any(axis=-1)
-
-
-def _paired(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
-    """Up detections that have SOME down detection within the Doppler allowance (maybe ambiguous)."""
-    return _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m)
-
-
-def _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
-    """Up detections with a down detection of ``vd`` within the Doppler allowance."""
-    tol = 4.0 * max_speed_mps / wavelength_m
-    close = np.abs(np.abs(fd)[:, None, :] - np.abs(fu)[:, :, None]) <= tol
-    return (close & vu[:, :, None] & vd[:, None, :]).any(axis=-1)

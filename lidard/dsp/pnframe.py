@@ -366,6 +366,11 @@ def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray,
         det = res.detections
         if dsp.iq:      # the hybrid's image of a stronger return is not a return
             det = replace(det, valid=det.valid & ~mirror_images(det.index, det.power, det.valid, rf.n_fft))
+        # "unresolved" here stays the detector's -6 dB width test, not the model-order test of the plain
+        # spectrum (lidard.dsp.ranging.order): after compensation a clean return keeps a residual phase
+        # noise proportional to its amplitude, and the tone model leaves 0.5-1.1 % of its energy in the
+        # cells (0.3 % on the plain spectrum): the order test flagged 14 of 80 clean ramps at a 3.2 MHz
+        # linewidth (its stated level: 0.1 %), on the composite spectrum and on each peak's own delay alike
         out_f.append(res.frac_bins * rf.delta_f)
         out_det.append(det)
     return out_f, out_det
