@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import math
 import os
 import platform
 import random
@@ -285,7 +286,7 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
 
 def memory_figures(rss: list[tuple[float, float]]) -> dict[str, Any]:
     """Medians of the daemon's RSS: minutes 2-6 against the last 5 minutes (the issue's target)."""
-    rss = [(t, m) for t, m in rss if m == m]        # NaN: the process was not there to sample
+    rss = [(t, m) for t, m in rss if not math.isnan(m)]   # NaN: the process was not there to sample
     if not rss:
         return {}
     end = rss[-1][0]
