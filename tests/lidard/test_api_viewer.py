@@ -14,8 +14,9 @@ from lidard.config import load_config  # noqa: E402
 from lidard.instrument.types import POINT_DTYPE  # noqa: E402
 from lidard.live.points import LIVE_FIELDS, LivePoints, decode_points, encode_points  # noqa: E402
 from lidard.pointcloud import read_npz  # noqa: E402
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0
+T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 
 
 @pytest.fixture

@@ -20,8 +20,9 @@ from lidard.api.app import create_app  # noqa: E402
 from lidard.config import ConfigError, load_config  # noqa: E402
 from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC  # noqa: E402
 from lidard.outputs.mcap import decode_point_cloud  # noqa: E402
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0
+T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
 
