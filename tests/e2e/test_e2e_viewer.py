@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from tests.helpers.daemon import poll, start_daemon, stop_daemon
+from tests.helpers.deadlines import HTTP_S, WAIT_S
 
 pytestmark = pytest.mark.slow  # a real daemon and a browser
 
@@ -49,7 +50,7 @@ def run_scan_in_page(page, url: str, rows: tuple[int, int], cols: tuple[int, int
     page.goto(url + "/")
     page.wait_for_function("window.viewer && window.viewer.ready")
     page.click("#control-take")
-    page.wait_for_selector("#scan-start:not([disabled])", timeout=10_000)
+    page.wait_for_selector("#scan-start:not([disabled])", timeout=WAIT_S * 1000)
     page.select_option("select[name=pattern]", "roi")
     for name, value in (("row0", rows[0]), ("row1", rows[1]), ("col0", cols[0]), ("col1", cols[1])):
         page.fill(f"input[name={name}]", str(value))
@@ -66,7 +67,7 @@ def check_panels(page, api):
     """What the page says beside the cloud: a colour bar with the mode's unit and the limits the points
     are coloured with, the unbonded rows named, rows/cols inputs that follow the pattern, device and
     calibration panels with content."""
-    page.wait_for_function("window.viewer.calibrationsShown && window.viewer.scanner", timeout=30_000)
+    page.wait_for_function("window.viewer.calibrationsShown && window.viewer.scanner", timeout=WAIT_S * 1000)
     legend = page.evaluate("window.viewer.legend")
     assert legend["mode"] == "range" and legend["unit"] == "range, m"
     assert page.inner_text("#legend-unit") == "range, m"
@@ -99,7 +100,7 @@ def check_panels(page, api):
 
 
 def _control(url: str) -> dict:
-    return httpx.get(f"{url}/control", timeout=10).json()
+    return httpx.get(f"{url}/control", timeout=HTTP_S).json()
 
 
 def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
@@ -108,11 +109,11 @@ def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
     assert old and _control(url)["holder"] == "web viewer"
     page.reload()
     page.wait_for_function("window.viewer && window.viewer.ready")
-    page.wait_for_selector("#scan-start:not([disabled])", timeout=10_000)    # still in control
+    page.wait_for_selector("#scan-start:not([disabled])", timeout=WAIT_S * 1000)    # still in control
     new = page.evaluate("window.viewer.lease")
     assert new and new != old and _control(url)["holder"] == "web viewer"
     # the old page's lease is void: its late release (or anyone replaying it) frees nothing
-    r = httpx.delete(f"{url}/control", headers={"X-Lidard-Lease": old}, timeout=10)
+    r = httpx.delete(f"{url}/control", headers={"X-Lidard-Lease": old}, timeout=HTTP_S)
     assert r.status_code == 423 and _control(url)["held"] is True
     # another tab (its own sessionStorage) is an observer
     other = browser.new_page()
@@ -124,7 +125,7 @@ def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
     assert _control(url)["held"] is True        # a tab without the lease releases nothing
     # closing the controlling tab releases the lock (pagehide, fetch keepalive)
     page.close(run_before_unload=True)
-    poll(lambda: not _control(url)["held"], 30, "the closed tab's release")
+    poll(lambda: not _control(url)["held"], WAIT_S, "the closed tab's release")
 
 
 def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
@@ -137,8 +138,8 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             try:
                 page = browser.new_page(viewport={"width": 1100, "height": 700})
-                sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=120)
-                api = httpx.get(f"{url}/scans/{sid}", timeout=10).json()
+                sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=WAIT_S)
+                api = httpx.get(f"{url}/scans/{sid}", timeout=HTTP_S).json()
                 assert api["state"] == "done"
                 # every planned pixel (the ROI's bonded rows) was scanned
                 assert 0 < api["counts"]["pixels_scanned"] == api["counts"]["pixels_planned"] <= 256

@@ -19,6 +19,7 @@ from lidard.scan import plan
 
 from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
 from lidard.instrument.errors import FaultsStillOpen
+from tests.helpers.deadlines import WAIT_S
 
 
 class DeviceFault(Exception):
@@ -207,6 +208,6 @@ class StreamingInstrument(FakeInstrument):
         half = self.n // 2
         progress(ScanProgress(half, self.n, half, 0.1, new_points=pts[:half]))
         self.first_batch.set()
-        assert self.release.wait(20.0)
+        assert self.release.wait(WAIT_S)
         progress(ScanProgress(self.n, self.n, self.n, 0.2, new_points=pts[half:]))
         return ScanResult(points=pts, meta={}, pixels_scanned=self.n, pixels_planned=self.n, hardware_time_s=0.2)

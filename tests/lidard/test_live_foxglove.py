@@ -20,8 +20,9 @@ from lidard.api.app import create_app
 from lidard.config import ConfigError, load_config
 from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC
 from lidard.outputs.mcap import decode_point_cloud
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0
+T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
 

@@ -26,10 +26,8 @@ from drivers.controller.errors import (
     SettleError,
 )
 
-# Same values as conftest.py (ranges asserted in messages below).
-LIMITS = p.Limits(max_laser_current_ma=200.0, max_hv_v=60.0, tec_range_c=(18.0, 35.0))
-TIMEOUT_S = 2.0
-FAST_TIMEOUT_S = 0.25
+# LIMITS' ranges are asserted in messages below.
+from .conftest import FAST_TIMEOUT_S, LIMITS, TIMEOUT_S
 
 
 # --- round trips ----------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ from drivers.errors import DeviceGone, TransportError
 from drivers.transport import DeviceTimeout
 from sim_devices.clock import VirtualClock
 from sim_devices.fpsa.device import FpgaConfig, FpgaSim
+from tests.helpers.deadlines import REPLY_S
 
 BONDED = tuple(r for r in range(128) if r % 4 != 3)
 
@@ -79,7 +80,7 @@ def test_every_command_over_a_real_pty():
     clock = VirtualClock()
     sim = FpgaSim(clock, FpgaConfig(seed=3))
     with sim.serve_pty() as server:
-        with FpsaController.from_url(server.path, timeout_s=2.0, retries=1) as drv:
+        with FpsaController.from_url(server.path, timeout_s=REPLY_S, retries=1) as drv:
             exercise_every_command(drv, sim, clock)
 
 
@@ -87,7 +88,7 @@ def test_full_12288_pixel_pattern_over_pty_and_run_completes():
     clock = VirtualClock()
     sim = FpgaSim(clock)
     pattern = full_raster()
-    with sim.serve_pty() as server, FpsaController.from_url(server.path, timeout_s=2.0) as drv:
+    with sim.serve_pty() as server, FpsaController.from_url(server.path, timeout_s=REPLY_S) as drv:
         drv.reset()
         assert drv.upload_pattern(pattern) == 12
         drv.set_timing(settle_ns=8000, trigger_period_ns=10_000)

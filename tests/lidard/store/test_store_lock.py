@@ -11,6 +11,7 @@ import textwrap
 
 import pytest
 
+from tests.helpers.deadlines import WAIT_S
 from lidard.store import LOCK_NAME, DataDirLocked, Store
 
 _HOLDER = textwrap.dedent("""
@@ -38,7 +39,7 @@ def holder(tmp_path):
     yield proc, scan_id
     if proc.poll() is None:
         proc.kill()
-    proc.wait(timeout=10)
+    proc.wait(timeout=WAIT_S)
 
 
 def test_second_process_is_refused_naming_the_holder(tmp_path, holder):
@@ -53,7 +54,7 @@ def test_second_process_is_refused_naming_the_holder(tmp_path, holder):
 def test_next_holder_after_kill_9_marks_the_running_scan_interrupted(tmp_path, holder):
     proc, scan_id = holder
     os.kill(proc.pid, signal.SIGKILL)
-    proc.wait(timeout=10)
+    proc.wait(timeout=WAIT_S)
     store = Store(tmp_path)           # the kernel released the dead holder's lock
     try:
         assert store.recovered == 1
@@ -80,7 +81,7 @@ def test_held_directory_refuses_daemon_and_one_shot_scan(tmp_path, holder, argv)
     proc, _ = holder
     repo = Path(__file__).resolve().parents[3]
     out = subprocess.run([sys.executable, *argv, "--data-dir", str(tmp_path)], cwd=repo,
-                         capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+                         capture_output=True, text=True, timeout=WAIT_S, stdin=subprocess.DEVNULL)
     assert out.returncode != 0
     assert f"PID {proc.pid}" in out.stderr and "in use by another lidard process" in out.stderr
     assert "serving on" not in out.stderr     # refused before binding a bench or serving
