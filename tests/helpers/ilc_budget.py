@@ -3,7 +3,7 @@
 ``lidard.instrument.calibration.linearization.MAX_AVERAGES`` (2048) is how far the ILC may double its
 averages per measurement when the noise floor stops learning above its target; on the broad-linewidth
 laser it doubles all the way, and the 1024- and 2048-record steps are most of a linearization's CPU
-(116 s of 125 s for tests/e2e/test_e2e_quadrature_far_wall.py's bench). A far-wall test asserts
+(116 s of the 132 s of CPU of tests/e2e/test_e2e_quadrature_far_wall.py). A far-wall test asserts
 what the scan ranges with the learned chirp, not how far the ILC got, and at 256 the learned chirp
 still ranges every pixel of those tests (a >= 200x reduction; measured in docs/measured/28_suite_cpu.md).
 Tests that grade the ILC itself (tests/dsp/test_dsp_ilc.py) keep their own ceilings.
