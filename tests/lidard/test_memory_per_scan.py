@@ -30,13 +30,16 @@ SCAN = {"pattern": "roi", "rows": (40, 44), "cols": (48, 56), "max_range_m": 2.0
 FAULTS = [None, ("serial_drop", {"rate": 1e-3}), None, ("usb_timeout", {"device": "digitizer", "n": 2}),
           None, ("modbus_exception", {"code": 6, "n": 2}), ("serial_disconnect", {"reconnect_after_s": 0.05}),
           None, ("usb_disconnect", {"device": "digitizer", "n": 1})]
-WARM, N, WINDOWS = 12, 12, 3    # warm-up scans, scans per window, windows (the first still warming)
+# warm-up scans, scans per window, windows (the first still warming). A window is one cycle of FAULTS,
+# so every window runs every fault path once and the windows compare like with like.
+WARM, N, WINDOWS = 12, len(FAULTS), 3
 # The soak's target (each process within 10 MB an hour, at about 40 scans a minute) is about 4 kB a
 # scan. Measured once warm: 0.8-1.8 kB a scan (bounded caches still filling: sqlite's statements and
 # pages, re); the drive log that kept every run added 3.9 kB a scan in process (its own bound is tested
 # in tests/sim_devices/fpsa/test_drive_log_compaction.py).
 BUDGET_PER_SCAN = 4 << 10       # bytes a scan may leave behind once warm
-SITE_GROWTH = 16 << 10          # bytes one allocation site may gain in every window before it counts as a leak
+# bytes one allocation site may gain in every window before it counts as a leak: 1.33 kB a scan
+SITE_GROWTH = N * ((16 << 10) // 12)
 
 
 @contextlib.contextmanager
@@ -60,7 +63,7 @@ def _sites(before, after) -> dict[str, int]:
     return {str(s.traceback[0]): s.size_diff for s in after.compare_to(before, "lineno") if s.size_diff > 0}
 
 
-@pytest.mark.slow  # 48 scans on an embedded bench under tracemalloc (~1-2 min)
+@pytest.mark.slow  # 39 scans on an embedded bench under tracemalloc (~30 s CPU)
 def test_per_scan_allocations_do_not_grow(tmp_path):
     from lidard.instrument import ScanRequest
     cfg = load_config(CONFIG_DIR / "sim.toml")
