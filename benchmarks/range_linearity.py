@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.variants:
         t0 = time.perf_counter()
         rows = measure(args.config, VARIANTS[name], args.plates)
-        chi2, dev, dof = line_fit(rows)
+        chi2, dev, dof = line_fit(rows) if len(rows) >= 3 else (float("nan"), float("nan"), 0)
         line = (f"| {name} | " + " | ".join(f"{e * 1e3:+.3f} +- {s * 1e3:.3f}" for _, e, s in rows)
                 + f" | {chi2:.1f} ({dof}), {dev * 1e3:.3f} | {time.perf_counter() - t0:.0f} |")
         print(line, flush=True)
