@@ -60,6 +60,9 @@ class PlateMeasurement:
     delay_s: float               # the monitor delay the chirp was linearized against (tau_used)
     temperature_c: float = float("nan")
     linearization_id: str | None = None
+    #: the plate scan's resolved phase-noise compensation, "on" or "off" (None: not recorded); a range
+    #: record holds plates of one mode and applies to scans in that mode (setup.mode_differs)
+    phase_noise_compensation: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -125,7 +128,8 @@ def centre_request(optics, max_range_m: float, half: int, **kw) -> ScanRequest:
 
 
 def plate_measurement(points: np.ndarray, known_m: float, *, delay_s: float, zero_offset_used_m: float = 0.0,
-                      temperature_c: float = float("nan"), linearization_id: str | None = None) -> PlateMeasurement:
+                      temperature_c: float = float("nan"), linearization_id: str | None = None,
+                      phase_noise_compensation: str | None = None) -> PlateMeasurement:
     """Reduce a plate scan's points (POINT_DTYPE) to a :class:`PlateMeasurement`.
 
     ``zero_offset_used_m``: the zero offset the scan already subtracted (added back: the fit wants raw
@@ -148,7 +152,7 @@ def plate_measurement(points: np.ndarray, known_m: float, *, delay_s: float, zer
     return PlateMeasurement(known_m=known_m, known_range_m=float(np.mean(known_m / dz)), raw_range_m=float(raw.mean()),
                             sem_m=max(std / math.sqrt(len(p)), SEM_FLOOR_M), pixel_std_m=std, n=int(len(p)),
                             delay_s=float(delay_s), temperature_c=float(temperature_c),
-                            linearization_id=linearization_id)
+                            linearization_id=linearization_id, phase_noise_compensation=phase_noise_compensation)
 
 
 def _describe(i: int, m: PlateMeasurement, resid_m: float, norm: float) -> str:
