@@ -88,6 +88,9 @@ class RangeFit:
     residuals_m: tuple[float, ...]
     normalized_residuals: tuple[float, ...]
     pixel_std_m: float           # pooled single-pixel range noise of the plates
+    #: covariance of (delay_s, zero_offset_m), s m: with both standard errors, the range error the fit
+    #: leaves at any range (AppliedCalibrations.range_uncertainty_m)
+    delay_zero_offset_cov: float = 0.0
 
     @property
     def scale(self) -> float:
@@ -97,7 +100,7 @@ class RangeFit:
     def fitted(self) -> dict[str, Any]:
         return {"delay_s": self.delay_s, "zero_offset_m": self.zero_offset_m, "scale": self.scale,
                 "nominal_delay_s": self.nominal_delay_s, "delay_stderr_s": self.delay_stderr_s,
-                "zero_offset_stderr_m": self.zero_offset_stderr_m}
+                "zero_offset_stderr_m": self.zero_offset_stderr_m, "delay_zero_offset_cov": self.delay_zero_offset_cov}
 
     def residuals(self) -> dict[str, Any]:
         return {"chi2": self.chi2, "dof": self.dof, "p_value": self.p_value,
@@ -226,7 +229,8 @@ def fit_range(measurements: Sequence[PlateMeasurement], nominal_delay_s: float, 
     return RangeFit(delay_s=tau_eff, zero_offset_m=z0, nominal_delay_s=float(nominal_delay_s),
                     delay_stderr_s=float(np.sqrt(c2[0, 0])), zero_offset_stderr_m=float(np.sqrt(c2[1, 1])),
                     chi2=chi2, dof=dof, p_value=p, residuals_m=tuple(float(x) for x in resid_m),
-                    normalized_residuals=tuple(float(x) for x in norm), pixel_std_m=pooled)
+                    normalized_residuals=tuple(float(x) for x in norm), pixel_std_m=pooled,
+                    delay_zero_offset_cov=float(c2[0, 1]))
 
 
 def plate_scene(distance_m: float, size_m: float = 0.6, reflectivity: float = 0.5) -> dict[str, Any]:

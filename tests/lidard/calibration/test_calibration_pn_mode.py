@@ -93,3 +93,33 @@ def test_a_scan_in_the_other_mode_is_not_range_calibrated(capsys, monkeypatch, t
     assert f"range calibration {rng.id} not used: its plates were measured with phase-noise compensation off, " \
            "this scan has it on" in got["uncalibrated_reason"]
     assert "warning: uncalibrated range" in err
+
+
+def test_stated_range_uncertainty_matches_the_spread_of_refits():
+    """The sidecar's ``geometry.range_uncertainty_m`` (AppliedCalibrations.range_uncertainty_m): the 1-sigma
+    range error a fit leaves at a range, from the fit's standard errors and their covariance. Against the
+    spread of the errors of 1000 fits of noisy plates at 0.8 / 1.1 / 1.4 m (the factory plates): at 150 m
+    (scale-dominated) and at 1.1 m (the plates' centre, where the covariance cancels most of it)."""
+    import numpy as np
+    from lidard.instrument.calibration.applied import AppliedCalibrations
+    from lidard.instrument.calibration.range import PlateMeasurement
+    from lidard.instrument.calibration.range import fit_range as fit_plates
+    tau_nom, tau_true, z0, sem = 200e-9, 200.8e-9, 0.031, 30e-6
+    rng = np.random.default_rng(5)
+    errs, stated = {150.0: [], 1.1: []}, {}
+    for _ in range(1000):
+        ms = [PlateMeasurement(known_m=d, known_range_m=d, raw_range_m=(d + z0) * tau_nom / tau_true
+                               + rng.normal(0, sem * tau_nom / tau_true), sem_m=sem, pixel_std_m=3e-4, n=36,
+                               delay_s=tau_nom) for d in (0.8, 1.1, 1.4)]
+        f = fit_plates(ms, tau_nom, p_min=0.0)
+        for r in errs:   # a scan at true range r reads (r + z0) tau_fit / tau_true - z0_fit
+            errs[r].append((r + z0) * f.delay_s / tau_true - f.zero_offset_m - r)
+    rec = CalibrationRecord("r", "range", 0.0, None, {}, f.fitted(), {})
+    applied = AppliedCalibrations.from_records(rec)
+    for r, e in errs.items():
+        stated[r] = applied.range_uncertainty_m(r)
+        assert stated[r] == pytest.approx(float(np.std(e)), rel=0.08), (r, stated[r], np.std(e))
+    assert stated[150.0] > 50 * stated[1.1]
+    meta = applied.meta(tau_nom, 150.0)
+    assert meta["range_uncertainty_at_m"] == 150.0 and meta["range_uncertainty_m"] == stated[150.0]
+    assert AppliedCalibrations().meta(tau_nom, 150.0)["range_uncertainty_m"] is None     # uncalibrated: none
