@@ -101,6 +101,7 @@ def test_stated_range_uncertainty_matches_the_spread_of_refits():
     spread of the errors of 1000 fits of noisy plates at 0.8 / 1.1 / 1.4 m (the factory plates): at 150 m
     (scale-dominated) and at 1.1 m (the plates' centre, where the covariance cancels most of it)."""
     import numpy as np
+
     from lidard.instrument.calibration.applied import AppliedCalibrations
     from lidard.instrument.calibration.range import PlateMeasurement
     from lidard.instrument.calibration.range import fit_range as fit_plates
@@ -112,8 +113,8 @@ def test_stated_range_uncertainty_matches_the_spread_of_refits():
                                + rng.normal(0, sem * tau_nom / tau_true), sem_m=sem, pixel_std_m=3e-4, n=36,
                                delay_s=tau_nom) for d in (0.8, 1.1, 1.4)]
         f = fit_plates(ms, tau_nom, p_min=0.0)
-        for r in errs:   # a scan at true range r reads (r + z0) tau_fit / tau_true - z0_fit
-            errs[r].append((r + z0) * f.delay_s / tau_true - f.zero_offset_m - r)
+        for r, e in errs.items():   # a scan at true range r reads (r + z0) tau_fit / tau_true - z0_fit
+            e.append((r + z0) * f.delay_s / tau_true - f.zero_offset_m - r)
     rec = CalibrationRecord("r", "range", 0.0, None, {}, f.fitted(), {})
     applied = AppliedCalibrations.from_records(rec)
     for r, e in errs.items():
