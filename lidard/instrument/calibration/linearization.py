@@ -19,17 +19,13 @@ The constant segment is held, not learned: the laser's thermal terms keep drifti
 and the DSP takes it out of the CW beat where the real receiver's two regimes meet (|f_D| ~ f_R,
 lidard.dsp.threeseg).
 
-Learning region: the chirp is learned over the part of each ramp the range estimator uses
-(:attr:`lidard.dsp.frame.FrameDsp.use_fraction`) and a margin beyond it. The range scale of a scan is the
-chirp's mean slope over that window, weighted by the estimator's window. With the ILC's own default
-learning region (0.92 of the ramp, inside the 0.9 window's edges by only 1 % of a ramp) the learned drive
-left the turnaround transient's tail, MHz-sized at 4-6 % from a ramp end, inside the window: a range
-scale of about -2.2e-5 at short range and less at long range (the beat averages the tail over its round
-trip), i.e. a range error that no scale and offset absorb (docs/measured/26_range_linearity.md).
-Learning the window plus ``LEARN_MARGIN`` moves the transient out of it. The region the ILC judges and
-stops on (its ROI, where the reported RMS nonlinearity is taken) stays the ILC's central 0.8: the window's
-edges are learned by the same updates, and judging them too only made a broad-linewidth laser average
-longer for the same range linearity (3x the linearization's CPU time, docs/measured/26_range_linearity.md).
+Region of interest: the chirp is linearized over the part of each ramp the range estimator uses
+(:attr:`lidard.dsp.frame.FrameDsp.use_fraction`, the ROI), learning a margin beyond it. The range scale
+of a scan is the chirp's mean slope over that window, weighted about uniformly by the estimator. With
+the ILC's own defaults (ROI 0.8, learning 0.92 of a 0.9 window) the learned drive left the turnaround
+transient's tail, MHz-sized at 4-6 % from a ramp end, inside the window: a range scale of about -2.2e-5
+at short range and less at long range (the beat averages the tail over its round trip), i.e. a range
+error that no scale and offset absorb (docs/measured/26_range_linearity.md).
 """
 
 from __future__ import annotations
@@ -58,10 +54,10 @@ MAX_AVERAGES = 2048
 #: periods averaged for the held segment's drift (three-segment chirp): the repeatable fringe stays,
 #: the laser's phase noise and the monitor's noise average out (61 ms of hardware time at 238 us)
 HOLD_AVERAGES = 256
-#: the fraction of each ramp the scan's range estimator uses (the DSP's default: one source of truth)
+#: the ILC's region of interest: the fraction of each ramp the scan's range estimator uses
 RANGE_WINDOW_FRACTION = FrameDsp.__dataclass_fields__["use_fraction"].default
-#: the learning region reaches this far (fraction of a ramp) beyond the range window, so the
-#: turnaround's transient, which the learned drive can only shorten, settles before the window opens
+#: the learning region reaches this far (fraction of a ramp) beyond the ROI, so the turnaround's
+#: transient, which the learned drive can only shorten, settles before the range window opens
 LEARN_MARGIN = 0.05
 
 
@@ -124,7 +120,8 @@ class Linearization:
                                 averages=32, max_averages=MAX_AVERAGES, max_drive_v=self.cfg.devices.awg.max_output_v,
                                 # a slow thermal term needs ~19 steps to its noise floor (issue 15;
                                 # the default DFB stops at ~8 by itself)
-                                max_iter=MAX_ITERATIONS, learn=min(1.0, RANGE_WINDOW_FRACTION + LEARN_MARGIN))
+                                max_iter=MAX_ITERATIONS, roi=RANGE_WINDOW_FRACTION,
+                                learn=min(1.0, RANGE_WINDOW_FRACTION + LEARN_MARGIN))
             hold = self.measure_hold(res.drive_v) if c.shape == "three_segment" else None
         finally:
             self.safety.bring_down()
