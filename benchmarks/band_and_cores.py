@@ -6,7 +6,8 @@
   the default band (config/sim.toml's scan.max_speed_mps) and at 10 m/s: hardware time over wall time
   (the real-time factor) and over CPU time, and the ADC rate / record length the band asked for.
 * ``taskset``: the same region scan (rows 40:72, every column, 10 averages) in a fresh process pinned
-  to one core (``taskset -c 0``) and to two (``taskset -c 0,1``), alternated; the wall speed-up.
+  to one core (``taskset -c 0``) and to two (``taskset -c 0,1``), alternated; the wall speed-up, the
+  CPU over wall of each run (its utilisation: the cores it kept busy) and the CPU per thread group.
 * ``dsp``: the frame DSP alone on records of a 10 m/s scan (bench-synthesized plane at 1.2 m): the
   samples it processes per second with one worker (serial) and with the pipeline's workers, against
   the digitizer's data rate (the sample rate of that band).
@@ -29,6 +30,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Self
 
 REPO = Path(__file__).resolve().parents[1]
 SCENE = str(REPO / "config" / "scenes" / "cal_letters.toml")
@@ -41,7 +43,7 @@ def load() -> float:
 
 def _instrument(cfg):
     """An embedded bench and its linearization (from the user's calibration cache when it has one)."""
-    from lidard import calcache
+    from lidard.store import calcache
     from lidard.instrument import open_instrument
     inst = open_instrument(cfg, scene_path=SCENE, bench="embedded")
     cal = calcache.load(cfg)
@@ -49,6 +51,57 @@ def _instrument(cfg):
         cal = inst.linearize()
         calcache.save(cfg, cal)
     return inst, cal
+
+
+class ThreadCpu:
+    """CPU seconds per thread group (the thread's name up to its number) while inside, from
+    /proc/self/task polled every 20 ms (a thread's last reading is kept after it ends): which
+    threads the scan's CPU ran on, so the speed-up two idle cores allow can be bounded on a busy
+    machine, where wall times cannot show it."""
+
+    def __init__(self):
+        self._seen: dict[str, tuple[str, float]] = {}
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._poll, name="cpu-poller", daemon=True)
+
+    @staticmethod
+    def _cpu(tid: str) -> float | None:
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            return None
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def _sample(self) -> None:
+        names = {str(t.native_id): t.name.rstrip("0123456789_-") for t in threading.enumerate()}
+        for tid in os.listdir("/proc/self/task"):
+            cpu = self._cpu(tid)
+            if cpu is not None:
+                self._seen[tid] = (names.get(tid, self._seen.get(tid, ("other",))[0]), cpu)
+
+    def _poll(self) -> None:
+        while not self._stop.wait(0.02):
+            self._sample()
+
+    def __enter__(self) -> Self:
+        self._sample()
+        self._before = dict(self._seen)
+        self._t.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._t.join()
+        self._sample()
+
+    def groups(self) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for tid, (name, cpu) in self._seen.items():
+            if name == "cpu-poller":
+                continue
+            out[name] = out.get(name, 0.0) + cpu - self._before.get(tid, (name, 0.0))[1]
+        return {k: round(v, 2) for k, v in sorted(out.items(), key=lambda kv: -kv[1])}
 
 
 def scan_figures(req_kw: dict) -> dict:
@@ -59,14 +112,16 @@ def scan_figures(req_kw: dict) -> dict:
     inst, cal = _instrument(cfg)
     try:
         req = ScanRequest(**req_kw)
-        t, c, th = time.perf_counter(), time.process_time(), time.thread_time()
-        res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
-        wall, cpu, th = time.perf_counter() - t, time.process_time() - c, time.thread_time() - th
+        with ThreadCpu() as tc:
+            t, c, th = time.perf_counter(), time.process_time(), time.thread_time()
+            res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
+            wall, cpu, th = time.perf_counter() - t, time.process_time() - c, time.thread_time() - th
     finally:
         inst.close()
     adc = res.meta["adc"]
     return {"pixels": res.pixels_scanned, "points": int(len(res.points)), "hardware_s": res.hardware_time_s,
-            "wall_s": wall, "cpu_s": cpu, "scan_thread_cpu_s": th,
+            "wall_s": wall, "cpu_s": cpu, "scan_thread_cpu_s": th, "utilisation": cpu / wall,
+            "thread_cpu_s": tc.groups(),
             # the speed-up two cores allow (Amdahl): all the CPU over the larger of the scan thread's
             # share and half of it -- a bound the machine's load does not change
             "two_core_bound": cpu / max(th, cpu / 2), "rtf_wall": res.hardware_time_s / wall, "rtf_cpu": res.hardware_time_s / cpu,
@@ -101,7 +156,12 @@ def taskset(repeats: int) -> dict:
     two = [r["wall_s"] for r in runs["0,1"]]
     return {"region": req, "one_core_wall_s": one, "two_cores_wall_s": two,
             "speedup_each": [a / b for a, b in zip(one, two)], "speedup_of_sums": sum(one) / sum(two),
-            "cpu_s_two_cores": [r["cpu_s"] for r in runs["0,1"]], "loads": [r["load"] for r in runs["0,1"]]}
+            "cpu_s_one_core": [r["cpu_s"] for r in runs["0"]], "cpu_s_two_cores": [r["cpu_s"] for r in runs["0,1"]],
+            # CPU over wall: the cores the scan kept busy (<= 1 pinned to one core, <= 2 on two)
+            "utilisation_one_core": [r["utilisation"] for r in runs["0"]],
+            "utilisation_two_cores": [r["utilisation"] for r in runs["0,1"]],
+            "thread_cpu_s_two_cores": runs["0,1"][-1]["thread_cpu_s"],
+            "loads_one_core": [r["load"] for r in runs["0"]], "loads": [r["load"] for r in runs["0,1"]]}
 
 
 def dsp(quick: bool) -> dict:
@@ -145,7 +205,8 @@ def dsp(quick: bool) -> dict:
         pts = pb.points()
         wall, cpu = time.perf_counter() - t, time.process_time() - c
         out[f"workers={workers}"] = {"wall_s": wall, "cpu_s": cpu, "samples_per_s": samples / wall,
-                                     "x_digitizer_rate": samples / wall / p.adc.fs_hz, "points": int(len(pts)),
+                                     "x_digitizer_rate": samples / wall / p.adc.fs_hz,
+                                     "x_digitizer_rate_per_cpu_s": samples / cpu / p.adc.fs_hz, "points": int(len(pts)),
                                      "load": load()}
     return out
 

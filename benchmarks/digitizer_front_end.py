@@ -17,7 +17,7 @@ import numpy as np
 
 from drivers.digitizer import protocol as p
 from drivers.fpsa import protocol as fp
-from sim_devices.digitizer import front_end
+from sim_devices.digitizer.device import front_end
 
 
 def _rate(fn, n_items: float, repeat: int) -> float:

@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from lidard.instrument.calibration.applied import AppliedCalibrations
     from lidard.instrument.calibration.range import CalibrationRefused, fit_range
-    from lidard.store_calibrations import CalibrationRecord
+    from lidard.store import CalibrationRecord
     t0, c0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
     r = run(args.seed, args.far, args.check, args.early or None, args.laser)
     truth, R = r["truth"], args.check

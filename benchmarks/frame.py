@@ -61,7 +61,7 @@ def peak_rss_mb() -> float:
 @contextlib.contextmanager
 def stage_timers():
     """Wrap the scan's stage functions; yield {stage: [wall_s, thread_cpu_s]} filled while inside."""
-    import sim_devices.bench as bench
+    import sim_devices.bench.bench as bench
     import sim_devices.world.synth_parallel as bench_capture   # where the bench's capture calls synthesize
     from lidard.instrument import acquisition, points
     acc: dict[str, list[float]] = {k: [0.0, 0.0] for k in ("capture", "beat_synthesis", "read", "dsp")}

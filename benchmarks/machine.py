@@ -39,7 +39,7 @@ def machine_facts() -> dict:
             commit += " + uncommitted changes"
     except (OSError, subprocess.SubprocessError):
         commit = ""
-    return {"date_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    return {"date_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
             "cpus": os.cpu_count(), "cpu_model": model, "python": platform.python_version(),
             "numpy": np.__version__, "scipy": scipy.__version__, "platform": platform.platform(),
             "commit": commit, "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset")}

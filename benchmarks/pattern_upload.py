@@ -22,7 +22,7 @@ import numpy as np
 from drivers.fpsa import protocol as p
 from drivers.fpsa.driver import FpsaController
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim, default_bonded_rows
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim, default_bonded_rows
 
 
 def raster() -> np.ndarray:

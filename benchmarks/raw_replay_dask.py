@@ -29,7 +29,6 @@ import math
 import os
 import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 from raw_replay import REPO, _machine, _range, _scan

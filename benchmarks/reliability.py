@@ -29,8 +29,8 @@ import argparse
 import json
 import tempfile
 import time
-from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

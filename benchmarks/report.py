@@ -31,7 +31,7 @@ import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 from benchmarks.machine import ROOT, machine_facts
 from benchmarks.report_sections.dsp import ILC_PAPER, sec_estimators, sec_ilc

@@ -41,11 +41,11 @@ from scipy import stats
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))   # `python benchmarks/scaling.py` too
 
-from benchmarks.frame import peak_rss_mb, reset_peak_rss  # noqa: E402
-from lidard.config import CONFIG_DIR, load_config  # noqa: E402
-from lidard.instrument import open_instrument  # noqa: E402
-from lidard.instrument import ScanRequest  # noqa: E402
-from lidard.instrument.scan_loop import phase_noise_on  # noqa: E402
+from benchmarks.frame import peak_rss_mb, reset_peak_rss
+from lidard.config import CONFIG_DIR, load_config
+from lidard.instrument import open_instrument
+from lidard.instrument import ScanRequest
+from lidard.instrument.scan_loop import phase_noise_on
 
 FULL = {"pixels": (1024, 2048, 4096, 8192, 16384), "averages": (1, 2, 5, 10), "avg_pixels": 1024,
         "ranges_m": (2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 150.0), "samples_budget": 2.0e7,

@@ -19,7 +19,8 @@ Reported (and checked at the end):
 * memory per process (VmRSS of the daemon and, separately, of its child bench, sampled once per
   scan): the median of the last minute against the median of minute 2 (``growth``; target: each
   within 10 MB, however long the run), and the median of the last 5 minutes against minutes 2-6
-  (``drift``). ``--rss-csv FILE`` writes every sample (seconds, daemon MB, bench MB).
+  (``drift``). ``--rss-csv FILE`` writes every sample (seconds, daemon MB, bench MB, and where the daemon's memory
+  is: anonymous MB, of which in transparent huge pages, threads).
 
     nice -n 19 python benchmarks/soak.py --minutes 60 [--seed 1] [--json out.json] [--rss-csv rss.csv]
 
@@ -32,6 +33,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import math
 import os
 import platform
 import random
@@ -134,6 +136,22 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
+def heap_detail(pid: int) -> tuple[float, float, int]:
+    """Where a process's memory is: anonymous MB, of which in transparent huge pages (MB), threads."""
+    anon = huge = float("nan")
+    threads = 0
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Anonymous:"):
+                anon = int(line.split()[1]) / 1024.0
+            elif line.startswith("AnonHugePages:"):
+                huge = int(line.split()[1]) / 1024.0
+        threads = len(list(Path(f"/proc/{pid}/task").iterdir()))
+    except OSError:
+        pass
+    return anon, huge, threads
+
+
 def children(pid: int) -> list[int]:
     """The direct children of ``pid`` (the daemon's child bench)."""
     out: list[int] = []
@@ -203,6 +221,7 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
     clean_not_done: list[dict[str, Any]] = []
     rss: list[tuple[float, float]] = []
     bench_rss: list[tuple[float, float]] = []
+    detail: list[tuple[float, float, int]] = []         # the daemon's anonymous / huge-page MB, threads
     refused_injections: list[dict[str, Any]] = []
     ack_refusals: list[str] = []
     lost = scans = files_checked = 0
@@ -246,6 +265,7 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
             t_now = time.monotonic() - t0
             rss.append((t_now, rss_mb(proc.pid)))
             bench_rss.append((t_now, bench_rss_mb(proc.pid)))
+            detail.append(heap_detail(proc.pid))
     finally:
         tmp_left = [str(p) for p in data_dir.rglob("*.tmp")]
         stop_daemon(proc)
@@ -259,13 +279,14 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
         "clean_scans_not_done": clean_not_done, "files_checked": files_checked, "points_lost": lost,
         "http": {str(k): v for k, v in c.status.items()}, "http_5xx": sum(v for k, v in c.status.items() if k >= 500),
         "temp_files_left": tmp_left, "rss_mb": memory_figures(rss), "bench_rss_mb": memory_figures(bench_rss),
-        "rss_samples": [(round(t, 1), round(d, 2), round(b, 2)) for (t, d), (_, b) in zip(rss, bench_rss)],
+        "rss_samples": [(round(t, 1), round(d, 2), round(b, 2), round(a, 2), round(h, 2), n)
+                        for (t, d), (_, b), (a, h, n) in zip(rss, bench_rss, detail)],
     }
 
 
 def memory_figures(rss: list[tuple[float, float]]) -> dict[str, Any]:
     """Medians of the daemon's RSS: minutes 2-6 against the last 5 minutes (the issue's target)."""
-    rss = [(t, m) for t, m in rss if m == m]        # NaN: the process was not there to sample
+    rss = [(t, m) for t, m in rss if not math.isnan(m)]   # NaN: the process was not there to sample
     if not rss:
         return {}
     end = rss[-1][0]
@@ -289,12 +310,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--minutes", type=float, default=15.0, help="wall time to run (minutes)")
     ap.add_argument("--seed", type=int, default=1, help="seed of the fault choice")
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
-    ap.add_argument("--rss-csv", default=None, help="write every RSS sample here: seconds, daemon MB, bench MB")
+    ap.add_argument("--rss-csv", default=None, help="write every RSS sample here: seconds, daemon MB, bench MB, daemon anonymous MB, "
+                         "of which huge pages, daemon threads")
     args = ap.parse_args(argv)
     res = soak(args.minutes, args.seed)
     samples = res.pop("rss_samples")
     if args.rss_csv:
-        Path(args.rss_csv).write_text("t_s,daemon_mb,bench_mb\n" + "".join(f"{t},{d},{b}\n" for t, d, b in samples))
+        Path(args.rss_csv).write_text("t_s,daemon_mb,bench_mb,daemon_anon_mb,daemon_anon_huge_mb,daemon_threads\n"
+                                      + "".join(",".join(map(str, row)) + "\n" for row in samples))
     print(json.dumps(res, indent=2))
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2))

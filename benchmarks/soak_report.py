@@ -14,19 +14,20 @@ import statistics
 from pathlib import Path
 
 
-def at_minutes(rows: list[tuple[float, float, float]], step_min: float) -> list[tuple[float, float, float]]:
-    """Median daemon and bench RSS in each minute that ends on a multiple of ``step_min``."""
+def at_minutes(rows: list[tuple[float, ...]], step_min: float) -> list[tuple[float, ...]]:
+    """Median of every column after the time (daemon RSS, bench RSS, and where sampled the daemon's
+    anonymous and huge-page MB) in each minute that ends on a multiple of ``step_min``."""
     out = []
     end = rows[-1][0] / 60.0
     marks = [1.0, 2.0] + [float(x) for x in range(int(step_min), int(end) + 1, int(step_min)) if x > 2]
     for m in marks:
         win = [r for r in rows if (m - 1) * 60.0 <= r[0] < m * 60.0]
         if win:
-            out.append((m, statistics.median(r[1] for r in win), statistics.median(r[2] for r in win)))
+            out.append((m, *(statistics.median(r[k] for r in win) for k in range(1, len(win[0])))))
     return out
 
 
-def render(res: dict, rows: list[tuple[float, float, float]], commit: str, load: str, command: str) -> str:
+def render(res: dict, rows: list[tuple[float, ...]], commit: str, load: str, command: str) -> str:
     d, b = res["rss_mb"], res["bench_rss_mb"]
     minutes = rows[-1][0] / 60.0
     lines = [
@@ -47,10 +48,14 @@ def render(res: dict, rows: list[tuple[float, float, float]], commit: str, load:
         "",
         "RSS by minute (median of the samples taken after each scan in that minute):",
         "",
-        "| minute | daemon | bench |",
-        "|---|---|---|",
     ]
-    lines += [f"| {m:g} | {dm:.1f} MB | {bm:.1f} MB |" for m, dm, bm in at_minutes(rows, 5.0)]
+    if len(rows[0]) > 3:        # the daemon's anonymous memory and its share in transparent huge pages
+        lines += ["| minute | daemon | bench | daemon anonymous | of which huge pages |", "|---|---|---|---|---|"]
+        lines += [f"| {m:g} | {dm:.1f} MB | {bm:.1f} MB | {am:.1f} MB | {hm:.1f} MB |"
+                  for m, dm, bm, am, hm in at_minutes(rows, 5.0)]
+    else:
+        lines += ["| minute | daemon | bench |", "|---|---|---|"]
+        lines += [f"| {m:g} | {dm:.1f} MB | {bm:.1f} MB |" for m, dm, bm in at_minutes(rows, 5.0)]
     return "\n".join(lines) + "\n"
 
 
@@ -63,7 +68,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     res = json.loads(Path(args.json).read_text())
     with open(args.csv) as f:
-        rows = [(float(r["t_s"]), float(r["daemon_mb"]), float(r["bench_mb"])) for r in csv.DictReader(f)]
+        cols = ["t_s", "daemon_mb", "bench_mb"]
+        reader = csv.DictReader(f)
+        if "daemon_anon_mb" in (reader.fieldnames or []):
+            cols += ["daemon_anon_mb", "daemon_anon_huge_mb"]
+        rows = [tuple(float(r[k]) for k in cols) for r in reader]
     command = f"nice -n 19 python benchmarks/soak.py --minutes {res['minutes']:g} --json soak.json --rss-csv soak.csv"
     print(render(res, rows, args.commit, args.load, command), end="")
     return 0

@@ -38,7 +38,8 @@ import argparse
 import json
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

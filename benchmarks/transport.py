@@ -29,8 +29,8 @@ import usb.core
 from drivers.digitizer import protocol as p
 from drivers.digitizer.driver import DigitizerDriver
 from sim_devices.clock import VirtualClock
-from sim_devices.digitizer import CapturedSegments, SimDigitizer
-from sim_devices.usb_backend import SimUsbBackend
+from sim_devices.digitizer.device import CapturedSegments, SimDigitizer
+from sim_devices.usb.backend import SimUsbBackend
 
 PERIOD_S = 160e-6
 #: record geometries of the frame benchmark's chirps (CAL letters, 2 m): rate, samples per record,

@@ -22,8 +22,8 @@ import usb.core
 from drivers.digitizer import protocol as p
 from drivers.digitizer.driver import DigitizerDriver
 from sim_devices.clock import VirtualClock
-from sim_devices.digitizer import CapturedSegments, SimDigitizer
-from sim_devices.usb_backend import RemoteUsbBackend, SimUsbBackend, UsbBridgeServer
+from sim_devices.digitizer.device import CapturedSegments, SimDigitizer
+from sim_devices.usb.backend import RemoteUsbBackend, SimUsbBackend, UsbBridgeServer
 
 RATE_HZ = 250e6
 RECORD = 20_000

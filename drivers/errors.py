@@ -26,7 +26,10 @@ No caller needs to parse a message or guess the device from a module name.
     +-- SettleError                  a readback did not reach its setpoint in time
 
 Per-device names stay importable and are subclasses of these (so ``except DeviceTimeout`` from
-this module catches a timeout of any device, and old ``except`` clauses keep working):
+this module catches a timeout of any device, and old ``except`` clauses keep working). A timeout is
+one class whatever the device (``drivers.usbtmc.DeviceTimeout`` and
+``drivers.controller.errors.DeviceTimeout`` are the name ``DeviceTimeout`` of this module, the
+device named by ``exc.device``):
 
     drivers.transport.errors   TransportError, DeviceTimeout            (the classes above)
     drivers.usbtmc             UsbDeviceError, DeviceTimeout, DeviceStall (CommandRefused),
@@ -76,12 +79,12 @@ class DeviceError(Exception):
             message = f"{device}: {command}" + (f": {detail}" if detail else "")
         super().__init__(message)
 
-    def __reduce__(self):  # type: ignore[no-untyped-def]
+    def __reduce__(self) -> tuple[object, tuple[type[DeviceError], dict[str, object], str]]:
         # Exceptions cross process boundaries (pytest-xdist, a worker pool); keep the context.
         return _rebuild, (type(self), self.__dict__.copy(), str(self))
 
 
-def _rebuild(cls: type, state: dict, message: str) -> DeviceError:
+def _rebuild(cls: type[DeviceError], state: dict[str, object], message: str) -> DeviceError:
     exc = cls.__new__(cls)  # not __init__: subclasses have their own signatures
     exc.args = (message,)
     exc.__dict__.update(state)

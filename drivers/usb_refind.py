@@ -1,7 +1,8 @@
-"""Finding a USB instrument again after it was unplugged (issue 6): the one loop both USB drivers use.
+"""Finding a USB instrument again after it was unplugged: the one loop both USB drivers use.
 
 A replugged device is a new pyusb ``Device``: look it up again through ``finder`` (VID:PID on the
-driver's backend), with bounded exponential backoff, and set its configuration.
+driver's backend), the looks spaced by the driver's :class:`drivers.retry.RetryPolicy` (bounded,
+exponential backoff on the injected clock), and set its configuration.
 """
 
 from __future__ import annotations
@@ -10,19 +11,18 @@ from collections.abc import Callable
 
 import usb.core
 
+from drivers.retry import RetryPolicy
 from drivers.usbtmc import DeviceDisconnected, classify_usb_error
 
 
 def refind_device(finder: Callable[[], usb.core.Device | None] | None, *, device: str, command: str,
-                  attempts: int, backoff_s: float, sleep: Callable[[float], object]) -> usb.core.Device:
+                  policy: RetryPolicy) -> usb.core.Device:
     """The configured device, found again; :class:`DeviceDisconnected` naming ``device`` and
-    ``command`` if it is not back after ``attempts`` looks (backoff ``backoff_s * 2**k`` between)."""
+    ``command`` if it is not back after ``policy.attempts`` looks (``policy``'s backoff between)."""
     if finder is None:
         raise DeviceDisconnected(device, command, "device disconnected and no finder to look for it")
     cause = "not found on the bus"
-    for k in range(attempts):
-        if k:
-            sleep(backoff_s * 2 ** (k - 1))
+    for _ in policy.tries():
         try:
             dev = finder()
             if dev is None:
@@ -32,4 +32,4 @@ def refind_device(finder: Callable[[], usb.core.Device | None] | None, *, device
             cause = str(classify_usb_error(exc, device, "set_configuration"))
             continue
         return dev
-    raise DeviceDisconnected(device, command, f"device gone and not back after {attempts} looks ({cause})")
+    raise DeviceDisconnected(device, command, f"device gone and not back after {policy.attempts} looks ({cause})")

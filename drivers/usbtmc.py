@@ -22,7 +22,7 @@ Golden byte vectors are in docs/protocols/awg.md.
 
 The typed USB driver errors (``DeviceTimeout`` etc.) live here too because both USB drivers raise
 them and both map pyusb's ``USBError`` the same way (errno ETIMEDOUT/EPIPE/ENODEV). They are
-subclasses of the shared tree in :mod:`drivers.errors` (``DeviceTimeout`` of its DeviceTimeout,
+subclasses of the shared tree in :mod:`drivers.errors` (``DeviceTimeout`` IS its DeviceTimeout,
 ``DeviceStall`` of CommandRefused, ``DeviceDisconnected`` of DeviceGone, codec errors of its
 ProtocolError), so every one carries ``device`` and ``command``.
 """
@@ -67,8 +67,9 @@ class UsbDeviceError(_e.DeviceError):
         _e.DeviceError.__init__(self, device, command, detail, message=msg)
 
 
-class DeviceTimeout(UsbDeviceError, _e.DeviceTimeout):
-    """The device did not answer within the timeout after the bounded retries."""
+#: The device did not answer within the timeout after the bounded retries: the one timeout of every
+#: device (:class:`drivers.errors.DeviceTimeout`, the device named as data).
+DeviceTimeout = _e.DeviceTimeout
 
 
 class DeviceStall(UsbDeviceError, _e.CommandRefused):
@@ -93,7 +94,7 @@ class InvalidArgument(_e.InvalidValue):
         super().__init__(device, command, message, message=message)
 
 
-def classify_usb_error(exc: BaseException, device: str, command: str) -> UsbDeviceError:
+def classify_usb_error(exc: BaseException, device: str, command: str) -> _e.DeviceError:
     """Map a pyusb ``USBError`` to the typed driver error (does not raise)."""
     # pyusb sets errno for libusb1 errors; USBTimeoutError carries ETIMEDOUT
     code = getattr(exc, "errno", None)

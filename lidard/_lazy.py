@@ -1,10 +1,12 @@
 """Names a package imports on first use (PEP 562), so the light entry points (``lidarctl --help``,
-the API, the job queue) do not load the heavy modules behind them (issue 18, start-up)."""
+the API, the job queue) do not load the heavy modules behind them
+(every command's start-up time)."""
 
 from __future__ import annotations
 
 import importlib
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 
 def lazy_getattr(package: str, table: dict[str, str], namespace: dict[str, Any]) -> Callable[[str], Any]:

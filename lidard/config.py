@@ -6,7 +6,7 @@ dynamics and Table 4-4 losses), a *laser preset* (``config/profiles/lasers.toml`
 (§4.4.1), detector/TIA/ADC and link-budget parameters (Table 2-2, §4.4.2), the device addresses and the
 simulation settings.
 
-Rooms (issue 12): the section models live in :mod:`lidard.config_models.sections`, the profile and
+Rooms: the section models live in :mod:`lidard.config_models.sections`, the profile and
 laser preset models in :mod:`lidard.config_models.presets`; this module composes them into
 :class:`Config`, loads files and applies environment overrides, and re-exports every model.
 
@@ -20,6 +20,7 @@ validated.
 
 from __future__ import annotations
 
+import functools
 import os
 import tomllib
 from pathlib import Path
@@ -35,7 +36,7 @@ from .config_models.sections import (  # noqa: F401  (re-exported)
     Adc, AwgDevice, Chirp, ControllerDevice, Daemon, Detector, Devices, Effects, FpsaDevice, Link, Live, Tolerances,
     Monitor, ScanDefaults, Sim, UsbDevice,
 )
-from .errors import ConfigError
+from .errors import ConfigError, describe_validation
 from .physics.budget import LinkParams, optical_bandwidth_hz
 from .physics.optics import FpsaOptics
 
@@ -76,7 +77,7 @@ class Config(_Model):
         return v
 
     @model_validator(mode="after")
-    def _iq_on_the_triangle(self) -> "Config":
+    def _iq_on_the_triangle(self) -> Config:
         if self.adc.iq and self.chirp.shape != "triangle":
             raise ValueError("adc.iq = true: a coherent (I/Q) receiver measures the beat's sign on the triangle "
                              "alone; set chirp.shape = \"triangle\" (the three-segment chirp is for one photodiode)")
@@ -94,7 +95,8 @@ class Config(_Model):
         return load_laser(self.laser, Path(self.base_dir) / "profiles")
 
     def optics(self) -> FpsaOptics:
-        return self.load_profile().optics(self.lens, self.chirp.wavelength_m)
+        path = _profile_path(self.profile, Path(self.base_dir) / "profiles")
+        return _optics(path, _stamp(path), self.lens, self.chirp.wavelength_m)
 
     def link_params(self, profile: Profile | None = None, laser: LaserPreset | None = None) -> LinkParams:
         return link_params(self, profile or self.load_profile(), laser or self.load_laser())
@@ -105,7 +107,7 @@ def link_params(cfg: Config, profile: Profile, laser: LaserPreset) -> LinkParams
     lens = profile.lenses[cfg.lens or profile.default_lens]
     ln = cfg.link
     aperture = ln.rx_aperture_m or lens.aperture_m
-    common = dict(
+    common: dict[str, Any] = dict(
         wavelength_m=cfg.chirp.wavelength_m, ramp_s=cfg.chirp.ramp_s,
         coherence_time_s=laser.coherence_time_s, rin_db_per_hz=laser.rin_db_per_hz,
         responsivity_a_per_w=cfg.detector.responsivity_a_per_w,
@@ -136,18 +138,7 @@ def link_params(cfg: Config, profile: Profile, laser: LaserPreset) -> LinkParams
 # Loading
 # --------------------------------------------------------------------------------------------------
 def _format_validation(source: str, err: ValidationError) -> str:
-    parts = []
-    for e in err.errors():
-        loc = ".".join(str(x) for x in e["loc"]) or "(top level)"
-        msg = e["msg"]
-        if e["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif e["type"] == "literal_error":
-            msg = f"must be {e['ctx']['expected']}"
-        got = e.get("input")
-        detail = f" (got {got!r})" if got is not None and e["type"] not in ("missing",) and not isinstance(got, dict) else ""
-        parts.append(f"{source}: {loc}: {msg}{detail}")
-    return "; ".join(parts)
+    return describe_validation(err.errors(), source=source, show_input=True)
 
 
 def _read_toml(path: Path) -> dict:
@@ -239,11 +230,29 @@ def available_profiles(profiles_dir: Path = CONFIG_DIR / "profiles") -> list[str
     return sorted(p.stem for p in profiles_dir.glob("*.toml") if p.stem != "lasers")
 
 
+# The presets are read once: every view of a configuration (cfg.load_profile(), cfg.optics(),
+# cfg.load_laser(), from the API, the CLI, the instrument and the bench alike) shares the one parsed,
+# validated (frozen) model of a file, re-read only when the file itself changes (its mtime and size).
+def _stamp(path: Path) -> tuple[int, int]:
+    st = path.stat()
+    return st.st_mtime_ns, st.st_size
+
+
 def load_profile(name: str, profiles_dir: Path = CONFIG_DIR / "profiles") -> Profile:
+    path = _profile_path(name, profiles_dir)
+    return _profile_file(path, _stamp(path))
+
+
+def _profile_path(name: str, profiles_dir: Path) -> Path:
     path = Path(profiles_dir) / f"{name}.toml"
     if name == "lasers" or not path.is_file():
         raise ConfigError(f"profile: {name!r} not found in {profiles_dir}; allowed: "
                           f"{', '.join(available_profiles(Path(profiles_dir)))}")
+    return path.resolve()
+
+
+@functools.lru_cache(maxsize=32)
+def _profile_file(path: Path, stamp: tuple[int, int]) -> Profile:
     data = _read_toml(path)
     try:
         return Profile.model_validate(data)
@@ -251,8 +260,22 @@ def load_profile(name: str, profiles_dir: Path = CONFIG_DIR / "profiles") -> Pro
         raise ConfigError(_format_validation(str(path), exc)) from None
 
 
+@functools.lru_cache(maxsize=32)
+def _optics(path: Path, stamp: tuple[int, int], lens: str | None, wavelength_m: float) -> FpsaOptics:
+    return _profile_file(path, stamp).optics(lens, wavelength_m)
+
+
 def load_lasers(profiles_dir: Path = CONFIG_DIR / "profiles") -> dict[str, LaserPreset]:
     path = Path(profiles_dir) / "lasers.toml"
+    try:
+        stamp = _stamp(path)
+    except OSError:
+        stamp = (0, 0)            # not there: _read_toml names it
+    return dict(_lasers_file(path.resolve(), stamp))
+
+
+@functools.lru_cache(maxsize=32)
+def _lasers_file(path: Path, stamp: tuple[int, int]) -> dict[str, LaserPreset]:
     data = _read_toml(path)
     presets = data.get("laser")
     if not isinstance(presets, dict) or not presets:

@@ -25,8 +25,16 @@ Pure: numpy only, no I/O.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
+
+# The point-file formats, the one list: the scan request's ``formats`` (lidard.instrument.types),
+# the API's ``FileFormat`` and the writers' dispatch (lidard.pointcloud) all take it from here.
+# "mcap" is the Foxglove flavour (foxglove.PointCloud, protobuf), "ros2" the rosbag2 flavour
+# (sensor_msgs/msg/PointCloud2, CDR); both are MCAP files, told apart by the suffix ``.ros2.mcap``.
+PointFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]
+POINT_FORMATS: tuple[PointFormat, ...] = get_args(PointFormat)
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,9 @@ POINT_FIELDS: tuple[PointField, ...] = (
 
 POINT_DTYPE = np.dtype([(f.name, f.dtype) for f in POINT_FIELDS])
 FIELD_BY_NAME = {f.name: f for f in POINT_FIELDS}
+POINT_NAMES: tuple[str, ...] = tuple(f.name for f in POINT_FIELDS)
+# each field's byte offset in a POINT_DTYPE record (the packed layout of the binary formats)
+POINT_OFFSETS: dict[str, int] = {name: POINT_DTYPE.fields[name][1] for name in POINT_NAMES}  # type: ignore[index]
 
 # Format type codes of each numpy dtype used above.
 PLY_TYPE = {"<f4": "float", "<f8": "double", "<i4": "int", "u1": "uchar"}
@@ -104,7 +115,7 @@ def formats_table() -> str:
     rows = ["| field | PLY | PCD | MCAP `foxglove.PointCloud` | ROS 2 `PointField` | LAS 1.4 |",
             "|---|---|---|---|---|---|"]
     for f in POINT_FIELDS:
-        pcd = "%s%d" % PCD_TYPE[f.dtype]
+        pcd = "{}{}".format(*PCD_TYPE[f.dtype])
         las = []
         if f.name in LAS_STANDARD:
             las.append(LAS_STANDARD[f.name])

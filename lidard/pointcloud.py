@@ -31,17 +31,18 @@ import json
 import os
 import tempfile
 from pathlib import Path
-from typing import Any, BinaryIO, Iterator
+from typing import Any, BinaryIO
+from collections.abc import Iterator
 
 import numpy as np
 
-from .point_schema import FIELD_BY_NAME, LAS_EXTRA_FIELDS, POINT_DTYPE, las_description, las_extra_name
+from .point_schema import (FIELD_BY_NAME, LAS_EXTRA_FIELDS, POINT_DTYPE, POINT_FORMATS, POINT_NAMES, las_description,
+                           las_extra_name)
 
-# Format names and their file suffixes. "mcap" is the Foxglove flavour (foxglove.PointCloud, protobuf:
-# Foxglove, Lichtblick), "ros2" the rosbag2 flavour (sensor_msgs/msg/PointCloud2, CDR: ros2 bag, rosbags,
-# RViz via a bag player); both are MCAP files, told apart by the suffix ``.ros2.mcap``.
-FORMATS = ("ply", "las", "npz", "pcd", "mcap", "ros2")  # pcd, mcap, ros2: lidard.outputs
-SUFFIX = {"ros2": ".ros2.mcap"}
+# Format names (lidard.point_schema.POINT_FORMATS; pcd, mcap, ros2 are written by lidard.outputs) and
+# their file suffixes: Foxglove (mcap) and rosbag2 (ros2) are both MCAP files, told apart by the suffix.
+FORMATS = POINT_FORMATS
+SUFFIX: dict[str, str] = {"ros2": ".ros2.mcap"}
 # Download media types (x-: no IANA registration exists for these formats; LAS has vnd.las)
 MEDIA_TYPE = {"ply": "model/x-ply", "las": "application/vnd.las", "npz": "application/x-npz",
               "pcd": "application/x-pcd", "mcap": "application/x-mcap", "ros2": "application/x-mcap"}
@@ -106,7 +107,7 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
 def _as_points(points: np.ndarray) -> np.ndarray:
     arr = np.asarray(points)
     if arr.dtype != POINT_DTYPE:
-        if arr.dtype.names is None or set(arr.dtype.names) != set(POINT_DTYPE.names):
+        if arr.dtype.names is None or set(arr.dtype.names) != set(POINT_NAMES):
             raise PointCloudError(f"points: expected POINT_DTYPE records, got dtype {arr.dtype}")
         arr = arr.astype(POINT_DTYPE)
     return np.ascontiguousarray(arr.reshape(-1))
@@ -143,7 +144,7 @@ def read_ply(path: str | os.PathLike) -> np.ndarray:
     ply = PlyData.read(str(path))
     data = ply["vertex"].data
     out = np.zeros(len(data), dtype=POINT_DTYPE)
-    for name in POINT_DTYPE.names:
+    for name in POINT_NAMES:
         out[name] = data[name]
     return out
 

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from .instrument.stream import FramePlan
+from .instrument.frames import FramePlan
 from .instrument.types import ScanRequest
 from .physics.optics import FpsaOptics
 from .scan import ADAPTIVE_STEP, coarse_plan, selected_cols, selected_rows
@@ -185,8 +185,9 @@ def plan_track(request: ScanRequest, optics: FpsaOptics, frame_index: int, histo
     take = (cursor + np.arange(n_survey)) % len(order)
     survey = order[take]
     if len(dense_px):   # a survey pixel inside a box is already scanned
-        inbox = mask[np.searchsorted(rows, survey[:, 0]), np.searchsorted(cols, survey[:, 1])] if len(survey) else []
-        survey = survey[~np.asarray(inbox, bool)] if len(survey) else survey
+        if len(survey):
+            inbox = mask[np.searchsorted(rows, survey[:, 0]), np.searchsorted(cols, survey[:, 1])]
+            survey = survey[~np.asarray(inbox, bool)]
     pixels = np.concatenate([dense_px, survey]).astype(np.int64)
     revisit = len(order) / max(1, n_survey)
     trade = {"pattern": "track", "frame_rate_hz": p.frame_rate_hz, "budget_pixels": budget,

@@ -1,5 +1,5 @@
 """Fault catalogue of the simulated bench: which faults can be injected, their parameters, and the
-serial line-noise filter (issue 6, "Deliver 1").
+serial line-noise filter.
 
 Where this deviates from / adds to the task brief (read this first):
 
@@ -47,7 +47,7 @@ kind                      parameters (``*`` required)
                           through CLEAR_FAULTS until the fault is cleared on the bench).
 ``tec_offset``            ``offset_c``* (C, within +-10): the laser chip's TRUE temperature steps
                           by offset_c from now on (a thermistor offset or a new thermal gradient,
-                          issue 13); the TEC readback still shows the set point. Clearing it
+                          which only a calibration can see); the TEC readback still shows the set point. Clearing it
                           steps back. One per bench.
 ========================  =======================================================================
 

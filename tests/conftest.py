@@ -76,10 +76,31 @@ def pytest_configure(config: pytest.Config) -> None:
         )
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Modules that hold a slow test run first, each module still in one piece (its module-scoped
+    fixtures are built once). Under ``pytest -n 2`` (work stealing, below) the long
+    tests then start at once, and a worker that runs out of work takes the short ones left in the
+    other's queue: the suite ends when its longest test does, not after a tail of slow tests that
+    happened to be queued last on one worker."""
+    has_slow = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in has_slow)   # stable: order kept within
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``pytest -n 2`` schedules by work stealing: xdist's default (``load``) hands each worker a fixed
+    share up front, so with the slow modules first one worker could be left with all of them while
+    the other idles. An explicit ``--dist loadscope`` / ``loadfile`` / ``loadgroup`` is kept."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import WorkStealingScheduling
+
+    return WorkStealingScheduling(config, log)
+
+
 @pytest.fixture(autouse=True)
 def _private_cache_dir(tmp_path_factory, monkeypatch):
     """Every test gets its own $XDG_CACHE_HOME: --sim commands cache calibrations there
-    (lidard.calcache), and a test must neither see another's nor write to the user's."""
+    (lidard.store.calcache), and a test must neither see another's nor write to the user's."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
     # and its own $XDG_STATE_HOME: `lidarctl control acquire` stores leases there (lidard.cli.leases)
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("xdg-state")))

@@ -40,7 +40,7 @@ def sec_estimators(quick: bool, img: Path, log) -> Section:
         "(Hann rFFT + argmax + estimator) throughput on one core. `benchmarks/speed_vs_error.py`.\n\n"
         + table(["N", "estimator", "ramps/s (estimator)", "ramps/s (chain)"]
                 + [f"ratio @ {x} dB" for x in sve.SNRS_DB] + ["max bias/sqrt(CRLB) @ 20 dB", "outliers @ 10 dB"], rows)
-        + f"\n![speed vs error](img/speed_vs_error.png)\n")
+        + "\n![speed vs error](img/speed_vs_error.png)\n")
     return s
 
 

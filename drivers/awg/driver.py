@@ -32,6 +32,7 @@ import usb.core
 from drivers import usbtmc
 from drivers.awg import protocol as p
 from drivers.errors import CommandRefused
+from drivers.retry import RetryPolicy
 from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
@@ -71,11 +72,12 @@ class AwgDriver:
             raise DeviceTimeout(DEVICE, "usb.core.find", "no AWG found on the USB backend")
         self._dev = device
         self._finder = finder
-        self._sleep = sleep
-        self._backoff_s = float(backoff_s)
+        # a timed-out transfer has waited timeout_ms already: re-sent at once; the looks for a
+        # replugged device are spaced by backoff_s (doubling) on the injected clock
+        self._transfers = RetryPolicy.retries(retries, 0.0, sleep)
+        self._refind = RetryPolicy.retries(retries, backoff_s, sleep)
         self.reconnect_count = 0
         self._timeout_ms = int(timeout_ms)
-        self._retries = int(retries)
         self._ep_out = ep_out
         self._ep_in = ep_in
         self._btag = 0
@@ -120,8 +122,7 @@ class AwgDriver:
 
         Tries ``retries + 1`` times with exponential backoff; ``DeviceDisconnected`` if it stays away.
         """
-        self._dev = refind_device(self._finder, device=DEVICE, command=command, attempts=self._retries + 1,
-                                  backoff_s=self._backoff_s, sleep=self._sleep)
+        self._dev = refind_device(self._finder, device=DEVICE, command=command, policy=self._refind)
         self._btag = 0
         self.reconnect_count += 1
         log.warning("awg: reconnected after %s", command)
@@ -129,7 +130,7 @@ class AwgDriver:
     def _transact(self, message: bytes, query: bool) -> bytes:
         name = message[:40].decode("ascii", "replace")
         last: Exception | None = None
-        for attempt in range(self._retries + 1):
+        for attempt in self._transfers.tries():
             try:
                 self._send(message)
                 return self._receive() if query else b""
@@ -137,7 +138,7 @@ class AwgDriver:
                 err = classify_usb_error(exc, DEVICE, name)
                 if isinstance(err, DeviceDisconnected) and self._finder is not None:
                     log.warning("awg: %s (attempt %d/%d); looking for the device again", err,
-                                attempt + 1, self._retries + 1)
+                                attempt + 1, self._transfers.attempts)
                     self.reconnect(name)
                     last = exc
                     continue
@@ -148,10 +149,10 @@ class AwgDriver:
                     raise err from exc
                 last = exc
                 self._clear_buffers()
-                log.warning("awg: timeout on %r (attempt %d/%d)", name, attempt + 1, self._retries + 1)
+                log.warning("awg: timeout on %r (attempt %d/%d)", name, attempt + 1, self._transfers.attempts)
             except ProtocolError as exc:
                 raise UsbDeviceError(DEVICE, name, f"bad reply: {exc}") from exc
-        raise DeviceTimeout(DEVICE, name, f"no answer after {self._retries + 1} attempts") from last
+        raise DeviceTimeout(DEVICE, name, f"no answer after {self._transfers.attempts} attempts") from last
 
     def _clear_buffers(self) -> None:
         """USBTMC INITIATE_CLEAR + CHECK_CLEAR_STATUS: the device drops partial input and unread

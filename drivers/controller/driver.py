@@ -36,7 +36,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable
-from urllib.parse import urlsplit
+from urllib.parse import SplitResult, urlsplit
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
@@ -55,6 +55,7 @@ from drivers.controller.errors import (
     modbus_exception,
 )
 from drivers.controller.sequences import PowerSequences, SettleCheck
+from drivers.retry import RetryPolicy
 
 log = logging.getLogger(__name__)
 
@@ -62,9 +63,9 @@ log = logging.getLogger(__name__)
 _TRANSIENT_CODES = frozenset({5, 6})
 
 
-class LaserHvController(PowerSequences):
+class LaserHvController:
     """Laser / TEC / HV controller on Modbus TCP (``bring_up``/``bring_down``:
-    :class:`~drivers.controller.sequences.PowerSequences`)."""
+    :class:`~drivers.controller.sequences.PowerSequences` over this driver's registers)."""
 
     def __init__(
         self,
@@ -95,12 +96,17 @@ class LaserHvController(PowerSequences):
         self.retries = retries
         self.limits = limits
         self.settle_check = settle_check
+        self._sequences = PowerSequences(self)
         import time as _time
         self._sleep = sleep if sleep is not None else _time.sleep
         self.backoff_s = float(backoff_s)
         if not (isinstance(busy_retries, int) and busy_retries >= 0):
             raise ConfigError(f"{DEVICE}: busy_retries must be an int >= 0, got {busy_retries!r}")
         self.busy_retries = busy_retries
+        # two budgets: requests that got no answer (re-sent at once after a timeout, after the
+        # backoff when the connection was refused), and "busy, come back later" answers
+        self._no_reply = RetryPolicy.retries(retries, self.backoff_s, self._sleep)
+        self._busy = RetryPolicy.retries(busy_retries, self.backoff_s, self._sleep)
         self.reconnect_count = 0    # connections re-established after a loss
         self._lost = False
         #: bytes handed to the socket so far (tests use it to prove that a refused write sent nothing)
@@ -117,7 +123,7 @@ class LaserHvController(PowerSequences):
     def from_url(cls, url: str, **kwargs: object) -> LaserHvController:
         """``modbus+tcp://host[:port]`` (port 502 by default), as the other drivers' ``from_url``;
         a URL of any other form is a ConfigError naming it. Keywords go to the constructor."""
-        parts = urlsplit(url) if isinstance(url, str) else None
+        parts: SplitResult | None = urlsplit(url) if isinstance(url, str) else None
         try:
             port = parts.port if parts is not None else None
         except ValueError:
@@ -139,7 +145,7 @@ class LaserHvController(PowerSequences):
                 raise DeviceUnreachable(DEVICE, self.host, self.port, "reconnect")
             self.reconnect_count += 1
 
-    def __enter__(self) -> "LaserHvController":
+    def __enter__(self) -> LaserHvController:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -156,9 +162,9 @@ class LaserHvController(PowerSequences):
         attempts = 0   # attempts that failed for want of an answer (timeout / no connection)
         busy = 0       # "come back later" exception answers
         unreachable: ConnectionException | None = None
-        while attempts < self.retries + 1:
+        while attempts < self._no_reply.attempts:
             if unreachable is not None:
-                self._sleep(self.backoff_s * 2 ** (attempts - 1))
+                self._no_reply.sleep(self._no_reply.delay_s(attempts))
             try:
                 with self._io_lock:
                     try:
@@ -181,13 +187,13 @@ class LaserHvController(PowerSequences):
                 code = getattr(rsp, "exception_code", None)
                 if not isinstance(code, int):
                     raise ProtocolError(f"{operation} reply", rsp, "error response without an exception code")
-                if code in _TRANSIENT_CODES and busy < self.busy_retries:
+                if code in _TRANSIENT_CODES and busy + 1 < self._busy.attempts:
                     # ACKNOWLEDGE / SERVER DEVICE BUSY mean "try again later": back off and repeat
-                    delay = self.backoff_s * 2 ** busy
                     busy += 1
+                    delay = self._busy.delay_s(busy)
                     log.warning("%s: %s answered Modbus exception %d; retry %d/%d in %.3g s", DEVICE,
                                 operation, code, busy, self.busy_retries, delay)
-                    self._sleep(delay)
+                    self._busy.sleep(delay)
                     continue
                 raise modbus_exception(operation, register.name, value, code)
             if self._lost:
@@ -196,7 +202,7 @@ class LaserHvController(PowerSequences):
             return rsp
         if unreachable is not None:
             raise DeviceUnreachable(DEVICE, self.host, self.port, operation) from unreachable
-        raise DeviceTimeout(DEVICE, operation, attempts)
+        raise DeviceTimeout(DEVICE, operation, attempts=attempts)
 
     def _read_words(self, operation: str, register: p.Register, count: int) -> list[int]:
         fn = (self._client.read_input_registers if register.table is p.Table.INPUT
@@ -253,6 +259,15 @@ class LaserHvController(PowerSequences):
 
     def heartbeat(self) -> int:
         return int(self._read("read heartbeat", p.HEARTBEAT))
+
+    # -- power sequences (drivers.controller.sequences) --------------------------------------
+    def bring_up(self, current_ma: float, hv_v: float, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """TEC settled -> HV on -> laser on, each read back (:meth:`PowerSequences.bring_up`)."""
+        return self._sequences.bring_up(current_ma, hv_v, settle_check=settle_check)
+
+    def bring_down(self, *, settle_check: SettleCheck | None = None) -> p.Status:
+        """Laser off, then HV off, both read back to 0 (:meth:`PowerSequences.bring_down`)."""
+        return self._sequences.bring_down(settle_check=settle_check)
 
     # -- laser ------------------------------------------------------------------------------
     def laser_enable(self, on: bool) -> None:

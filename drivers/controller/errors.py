@@ -2,7 +2,8 @@
 
 Every error names the device ("controller"), the register or quantity involved and the offending
 value, so a log line alone says what went wrong. The hierarchy lets callers catch broadly
-(``ControllerError``) or narrowly (``DeviceRefused``, ``DeviceTimeout``, ``InterlockOpen``).
+(``ControllerError``, or :class:`drivers.errors.DeviceError` for any device's failure, a timeout
+included) or narrowly (``DeviceRefused``, ``DeviceTimeout``, ``InterlockOpen``).
 All classes sit in the tree of :mod:`drivers.errors` and carry ``device`` and ``command`` (the
 Modbus operation or the setpoint being written). Pure module: no I/O, importable by the simulator
 and by the driver alike.
@@ -10,7 +11,12 @@ and by the driver alike.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from drivers import errors as _e
+
+if TYPE_CHECKING:
+    from drivers.controller.protocol import Fault
 
 DEVICE = "controller"
 
@@ -51,14 +57,9 @@ class ProtocolError(ControllerError, _e.ProtocolError):
         super().__init__(f"{DEVICE}: bad {what} = {value!r}: {reason}", command=f"decode {what}")
 
 
-class DeviceTimeout(ControllerError, _e.DeviceTimeout):
-    """No reply after the bounded number of attempts."""
-
-    def __init__(self, device: str, operation: str, attempts: int = 1) -> None:
-        self.operation = operation
-        self.attempts = attempts
-        super().__init__(f"{device}: no reply to {operation} after {attempts} attempt(s)",
-                         command=operation, device=device)
+#: No reply after the bounded number of attempts: the one timeout of every device
+#: (:class:`drivers.errors.DeviceTimeout`; ``device``, ``command`` = the Modbus operation, ``attempts``).
+DeviceTimeout = _e.DeviceTimeout
 
 
 class DeviceUnreachable(ControllerError, _e.DeviceGone):
@@ -127,7 +128,7 @@ class InterlockOpen(ControllerError, _e.DeviceFaulted):
 class DeviceFaulted(ControllerError, _e.DeviceFaulted):
     """Latched faults prevent the operation."""
 
-    def __init__(self, operation: str, faults: frozenset) -> None:
+    def __init__(self, operation: str, faults: frozenset[Fault]) -> None:
         self.operation = operation
         self.faults = faults
         names = ", ".join(sorted(f.name for f in faults)) or "none"

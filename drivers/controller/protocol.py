@@ -1,7 +1,7 @@
 """Register map, scaling and limits of the laser / TEC / HV controller (Modbus TCP).
 
 Pure code: no sockets, no pymodbus, no clock. Both the driver (drivers/controller/driver.py) and
-the simulated device (sim_devices/controller.py) import this module, so the map lives in one place;
+the simulated device (sim_devices/controller/device.py) import this module, so the map lives in one place;
 docs/protocols/controller.md is the human-readable copy with golden bytes.
 
 What the controller drives (dissertation):

@@ -6,8 +6,8 @@ temperature; §4.3 and §4.2.6: the MEMS HV).
 after the outputs were touched, both are switched off (best effort) before the error propagates.
 Waiting uses the injected :attr:`SettleCheck.sleep` (``time.sleep`` in the lab,
 ``VirtualClock.advance`` on the bench), so this module never decides what time is.
-:class:`PowerSequences` is a mixin of :class:`drivers.controller.driver.LaserHvController`; it
-uses the driver's typed register methods, ``limits`` and ``settle_check``.
+:class:`PowerSequences` is held by :class:`drivers.controller.driver.LaserHvController`, whose
+typed register methods, ``limits`` and ``settle_check`` it uses through :class:`ControllerRegisters`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 from drivers.controller import protocol as p
+from drivers.errors import DeviceError
 from drivers.controller.errors import (
     DEVICE,
     ConfigError,
-    ControllerError,
     DeviceFaulted,
     InterlockOpen,
     SettleError,
@@ -51,11 +52,33 @@ class SettleCheck:
             raise ConfigError(f"{DEVICE}: SettleCheck.sleep must be callable, got {self.sleep!r}")
 
 
+class ControllerRegisters(Protocol):
+    """What the sequences need of the driver: its limits, its default wait, and typed registers."""
+
+    limits: p.Limits
+    settle_check: SettleCheck | None
+
+    def status(self) -> p.Status: ...
+    def laser_enable(self, on: bool) -> None: ...
+    def set_laser_current_ma(self, current_ma: float) -> None: ...
+    def laser_current_ma(self) -> float: ...
+    def tec_setpoint_c(self) -> float: ...
+    def tec_c(self) -> float: ...
+    def hv_enable(self, on: bool) -> None: ...
+    def set_hv_v(self, voltage_v: float) -> None: ...
+    def hv_v(self) -> float: ...
+    def interlock_closed(self) -> bool: ...
+    def faults(self) -> frozenset[p.Fault]: ...
+
+
 class PowerSequences:
-    """``bring_up`` / ``bring_down`` over the driver's register methods (a mixin of the driver)."""
+    """``bring_up`` / ``bring_down`` over the driver's register methods."""
+
+    def __init__(self, regs: ControllerRegisters) -> None:
+        self.regs = regs
 
     def _settle_check(self, settle_check: SettleCheck | None, operation: str) -> SettleCheck:
-        sc = settle_check if settle_check is not None else self.settle_check
+        sc = settle_check if settle_check is not None else self.regs.settle_check
         if sc is None:
             raise ConfigError(f"{DEVICE}: {operation} needs a SettleCheck (argument or constructor)")
         return sc
@@ -80,41 +103,41 @@ class PowerSequences:
         were touched, laser and HV are switched off (best effort) before the error propagates.
         """
         sc = self._settle_check(settle_check, "bring_up")
-        current = self.limits.check(p.LASER_CURRENT_SETPOINT, current_ma)
-        hv = self.limits.check(p.HV_SETPOINT, hv_v)
-        if not self.interlock_closed():
+        current = self.regs.limits.check(p.LASER_CURRENT_SETPOINT, current_ma)
+        hv = self.regs.limits.check(p.HV_SETPOINT, hv_v)
+        if not self.regs.interlock_closed():
             raise InterlockOpen("bring_up")
-        latched = self.faults()
+        latched = self.regs.faults()
         if latched:
             raise DeviceFaulted("bring_up", latched)
         # The DFB's wavelength follows its temperature: no light before the TEC has settled.
-        self._settle("TEC temperature", self.tec_setpoint_c(), self.tec_c, sc.tec_tol_c, "degC", sc)
+        self._settle("TEC temperature", self.regs.tec_setpoint_c(), self.regs.tec_c, sc.tec_tol_c, "degC", sc)
         try:
-            self.set_hv_v(hv)
-            self.hv_enable(True)
-            self._settle("HV voltage", hv, self.hv_v, sc.hv_tol_v, "V", sc)
-            self.set_laser_current_ma(current)
-            self.laser_enable(True)
-            self._settle("laser current", current, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
-        except ControllerError:
+            self.regs.set_hv_v(hv)
+            self.regs.hv_enable(True)
+            self._settle("HV voltage", hv, self.regs.hv_v, sc.hv_tol_v, "V", sc)
+            self.regs.set_laser_current_ma(current)
+            self.regs.laser_enable(True)
+            self._settle("laser current", current, self.regs.laser_current_ma, sc.laser_tol_ma, "mA", sc)
+        except DeviceError:
             self._safe_off()
             raise
-        return self.status()
+        return self.regs.status()
 
     def bring_down(self, *, settle_check: SettleCheck | None = None) -> p.Status:
         """Laser off (current to 0) first, then HV off (voltage to 0); both read back to 0."""
         sc = self._settle_check(settle_check, "bring_down")
-        self.laser_enable(False)
-        self.set_laser_current_ma(0.0)
-        self._settle("laser current", 0.0, self.laser_current_ma, sc.laser_tol_ma, "mA", sc)
-        self.hv_enable(False)
-        self.set_hv_v(0.0)
-        self._settle("HV voltage", 0.0, self.hv_v, sc.hv_tol_v, "V", sc)
-        return self.status()
+        self.regs.laser_enable(False)
+        self.regs.set_laser_current_ma(0.0)
+        self._settle("laser current", 0.0, self.regs.laser_current_ma, sc.laser_tol_ma, "mA", sc)
+        self.regs.hv_enable(False)
+        self.regs.set_hv_v(0.0)
+        self._settle("HV voltage", 0.0, self.regs.hv_v, sc.hv_tol_v, "V", sc)
+        return self.regs.status()
 
     def _safe_off(self) -> None:
-        for fn in (self.laser_enable, self.hv_enable):
+        for fn in (self.regs.laser_enable, self.regs.hv_enable):
             try:
                 fn(False)
-            except ControllerError:
+            except DeviceError:
                 pass  # the original error is what the caller needs to see

@@ -31,6 +31,7 @@ import usb.core
 
 from drivers.digitizer import protocol as p
 from drivers.errors import ProtocolError
+from drivers.retry import RetryPolicy
 from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
@@ -65,13 +66,14 @@ class DigitizerDriver:
             raise DeviceTimeout(DEVICE, "usb.core.find", "no digitizer found on the USB backend")
         self._dev = device
         self._finder = finder
-        self._sleep = sleep
-        self._backoff_s = float(backoff_s)
+        # a timed-out transfer has waited timeout_ms already: re-sent at once; the looks for a
+        # replugged device are spaced by backoff_s (doubling) on the injected clock
+        self._transfers = RetryPolicy.retries(retries, 0.0, sleep)
+        self._refind = RetryPolicy.retries(retries, backoff_s, sleep)
         self.reconnect_count = 0
         self._timeout_ms = int(timeout_ms)
-        self._retries = int(retries)
         self._chunk = array.array("B", bytes(chunk_bytes))
-        self._spare: dict[int, array.array] = {}     # transfer buffers of other sizes, by size
+        self._spare: dict[int, array.array[int]] = {}     # transfer buffers of other sizes, by size
         try:
             device.set_configuration()
         except usb.core.USBError as exc:
@@ -84,14 +86,13 @@ class DigitizerDriver:
 
         Tries ``retries + 1`` times with exponential backoff; ``DeviceDisconnected`` if it stays away.
         """
-        self._dev = refind_device(self._finder, device=DEVICE, command=command, attempts=self._retries + 1,
-                                  backoff_s=self._backoff_s, sleep=self._sleep)
+        self._dev = refind_device(self._finder, device=DEVICE, command=command, policy=self._refind)
         self.reconnect_count += 1
         log.warning("digitizer: reconnected after %s", command)
 
     def _guard(self, command: str, fn: Callable[[], T], retry: bool = True) -> T:
         last: Exception | None = None
-        for attempt in range(self._retries + 1 if retry else 1):
+        for attempt in (self._transfers if retry else RetryPolicy(1)).tries():
             try:
                 return fn()
             except usb.core.USBError as exc:
@@ -248,7 +249,7 @@ class DigitizerDriver:
 
         Each transfer asks for exactly the bytes still due, at most ``chunk_bytes`` (a device
         that has sent all it has ends the transfer without a zero-length packet). A read that one
-        transfer fills is parsed in the transfer buffer itself: no copy (issue 18)."""
+        transfer fills is parsed in the transfer buffer itself: no copy."""
         first = self._transfer_buffer(min(len(self._chunk), total))
         n = self._bulk_in(first, command, 0, total)
         if n == total:
@@ -263,13 +264,13 @@ class DigitizerDriver:
             pos += n
         return out
 
-    def _bulk_in(self, buf: array.array, command: str, pos: int, total: int) -> int:
+    def _bulk_in(self, buf: array.array[int], command: str, pos: int, total: int) -> int:
         n = self._guard(command, lambda: self._dev.read(p.EP_DATA_IN, buf, self._timeout_ms))
         if n <= 0:
             raise DigitizerDataError(DEVICE, command, f"empty bulk transfer at byte {pos} of {total}")
         return n
 
-    def _transfer_buffer(self, size: int) -> array.array:
+    def _transfer_buffer(self, size: int) -> array.array[int]:
         """An array of exactly ``size`` bytes for one transfer (pyusb reads len(buffer) bytes):
         the chunk, or a kept buffer of that size (a scan's reads repeat a few sizes)."""
         if size == len(self._chunk):
@@ -292,7 +293,7 @@ class DigitizerDriver:
         if not (np.all(recs["n_samples"] == cfg.record_length) and np.all(recs["mask"] == cfg.channel_mask)
                 and np.all(recs["bits"] == cfg.bits)):
             raise DigitizerDataError(DEVICE, command, "segment header does not match configuration")
-        mv = memoryview(raw)
+        mv = raw.data
         size = recs.dtype.itemsize
         crc = zlib.crc32
         # the expected values as Python ints once (indexing a numpy field per segment cost more

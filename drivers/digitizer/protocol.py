@@ -25,7 +25,7 @@ payload (channel-major: all samples of channel 0, then channel 1, ...; little-en
 
 Channel ``tap`` (bit 4, added for the FPSA self-test; older masks are unchanged) is the monitor
 photodiode on the light leaving the FPSA chip: a DC level proportional to the total emitted power.
-Channel ``mzi_q`` (bit 5, added for phase-noise compensation at any range, issue 15) is the monitor
+Channel ``mzi_q`` (bit 5, added for phase-noise compensation at any range) is the monitor
 MZI's quadrature output (a 90-degree hybrid or 3x3 coupler): only together with ``mzi``.
 
 All integers little endian. This module is PURE; parsers raise only ``DigitizerProtocolError``.

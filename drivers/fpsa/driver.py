@@ -44,6 +44,7 @@ import numpy as np
 import serial
 
 from drivers.errors import DeviceGone, InvalidValue
+from drivers.retry import RetryPolicy
 from drivers.transport import ByteChannel, DeviceTimeout, TracedChannel, TransportError, open_channel
 
 from . import protocol as p
@@ -163,7 +164,7 @@ class FpsaController:
     # --- lifecycle ------------------------------------------------------------------------------
     def close(self) -> None:
         if self._owns_port:
-            self._port.close()
+            _close(self._port)
 
     def reconnect(self) -> None:
         """Close the port and open a fresh one through ``reopen`` (TransportError if impossible).
@@ -174,7 +175,7 @@ class FpsaController:
             raise TransportError(self.device, "reconnect",
                                  "cannot reopen a channel that was passed in without reopen=")
         try:
-            self._port.close()
+            _close(self._port)
         except Exception:  # a vanished device may fail to close; the reopen is what matters
             pass
         port = self._reopen()
@@ -197,16 +198,15 @@ class FpsaController:
         self._seq = (self._seq + 1) & 0xFF
         seq = self._seq
         frame = p.encode_frame(seq, cmd, payload)
-        attempts = self.retries + 1
+        policy = RetryPolicy.retries(self.retries, self.backoff_s, self._sleep)
+        attempts = policy.attempts
         failure = "timeout"
         reopen_error: TransportError | None = None
-        for attempt in range(attempts):
+        for attempt in policy.tries():   # waited policy.delay_s(attempt) before each retry
             if attempt:
                 self.retry_count += 1
-                delay = self.backoff_s * 2 ** (attempt - 1)
                 log.warning("%s: %s attempt %d/%d after %s (backoff %.3g s)", self.device,
-                            cmd.name, attempt + 1, attempts, failure, delay)
-                self._sleep(delay)
+                            cmd.name, attempt + 1, attempts, failure, policy.delay_s(attempt))
             if self._port_broken and self._reopen is not None:
                 try:
                     self.reconnect()
@@ -376,3 +376,10 @@ class FpsaController:
 
     def status(self) -> p.Status:
         return p.Status.unpack(self._transact(p.Cmd.STATUS))
+
+
+def _close(channel: ByteChannel) -> None:
+    """Close a channel that has ``close()`` (an optional extra of :class:`ByteChannel`)."""
+    close = getattr(channel, "close", None)
+    if close is not None:
+        close()

@@ -86,4 +86,3 @@ class NakError(FpsaError, _e.CommandRefused):
         name = getattr(code, "name", str(code))
         extra = f" (detail {detail})" if detail is not None else ""
         super().__init__(f"{device}: {command} refused with NAK {name}{extra}", device=device, command=command)
-        self.detail = detail  # historical meaning of .detail on a NAK: the FPGA's detail byte

@@ -23,7 +23,7 @@ def validate_pixels(pixels: Any, what: str, rows: int, cols: int, bonded: np.nda
 
     ``what``: "SET_PIXEL" or the name of the pattern (it names the command in the error);
     ``bonded``: bool per row, True where the row is wire-bonded."""
-    ctx = {"device": device, "command": "SET_PIXEL" if what == "SET_PIXEL" else "UPLOAD_PATTERN"}
+    ctx: dict[str, Any] = {"device": device, "command": "SET_PIXEL" if what == "SET_PIXEL" else "UPLOAD_PATTERN"}
     arr = np.asarray(pixels)
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise PatternError(f"{device}: {what} must have shape (n, 2), got {arr.shape}", **ctx)

@@ -4,7 +4,7 @@ The FPGA (Digilent Cmod-S7) receives scan patterns "from a personal computer via
 communications" (§4.3.3) and drives two HV583 serial-to-parallel high-voltage converters that
 select one row switch and one column switch of the row-column addressed FPSA (§4.2.1). This
 module is the wire format only: no I/O, no clock, no logging. The driver (``driver.py``) and the
-simulated FPGA (``sim_devices/fpga.py``) both use it, and docs/protocols/fpsa.md holds golden
+simulated FPGA (``sim_devices/fpsa/device.py``) both use it, and docs/protocols/fpsa.md holds golden
 byte vectors that tests check on both sides.
 
 Wire format (all integers little-endian)::

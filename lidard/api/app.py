@@ -6,7 +6,7 @@ starts the scan worker and, on shutdown, stops the worker and closes the instrum
 created at import time. Routers know nothing of hardware; they talk to the worker and the store.
 See docs/api.md for the endpoints and the queue policy.
 
-Length (issue 12): ``create_app`` is about 70 lines with its docstring because the lifespan stays a
+Length: ``create_app`` is about 70 lines with its docstring because the lifespan stays a
 closure over the factory's arguments (the store, instrument and worker it builds live exactly as
 long as the app); the scan metadata and the error handlers are separate functions.
 """
@@ -24,7 +24,6 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from ..config import Config
-from ..errors import LidardError
 from ..instrument.protocol import Instrument
 from ..instrument.calibration.setup import instrument_setup
 from ..jobs import ScanWorker, software_version
@@ -143,12 +142,7 @@ def _add_error_handlers(app: FastAPI) -> None:
     # every error answer is an RFC 9457 problem (lidard.api.problems)
     problems.install(app)
 
-    @app.exception_handler(LidardError)
-    async def lidard_error(request: Request, exc: LidardError) -> JSONResponse:
-        # Domain errors (config, device faults reported by the instrument) are the server's state,
-        # not a crash: name them instead of answering a bare 500.
-        return problems.problem(503, f"{type(exc).__name__}: {exc}")
-
+    # (domain errors: their own status, lidard.errors.LidardError.http_status, in problems.install)
     @app.exception_handler(LockHeld)
     async def lock_held(request: Request, exc: LockHeld) -> JSONResponse:
         return control.locked_response(exc)

@@ -42,6 +42,7 @@ from urllib.parse import urlsplit
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import JSONResponse
 
+from ..errors import LidardError
 from .problems import PROBLEM_MEDIA_TYPE, document, problem, problem_bytes
 from .schemas import ControlAcquire, ControlLease, ControlStatus
 
@@ -77,8 +78,10 @@ class LockHeld(Exception):
                          "(POST /control/handover)")
 
 
-class NotHeld(Exception):
-    """A handover while nobody holds the lock (HTTP 409): take it with POST /control instead."""
+class NotHeld(LidardError):
+    """A handover while nobody holds the lock: take it with POST /control instead."""
+
+    http_status = 409
 
 
 class ControlLock:
@@ -296,10 +299,7 @@ def control_release(request: Request) -> ControlStatus:
 def control_handover(body: ControlAcquire, request: Request) -> ControlLease:
     """Hand the lock to ``client`` under a fresh lease (answered here); the lease sent is void after."""
     lock = _lock(request)
-    try:
-        lease = lock.handover(body.client, request.headers.get(LEASE_HEADER))
-    except NotHeld as exc:
-        raise HTTPException(409, str(exc)) from None
+    lease = lock.handover(body.client, request.headers.get(LEASE_HEADER))   # NotHeld: 409
     return ControlLease(lease=lease.token, holder=lease.holder, expires_at=_wall(lock, lease), ttl_s=lock.ttl_s)
 
 

@@ -25,6 +25,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from ..errors import LidardError
 from .schemas import describe_errors
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
@@ -49,7 +50,7 @@ class Problem(BaseModel):
 
 
 def problem_body(status: int, detail: Any, **extra: Any) -> dict[str, Any]:
-    if isinstance(detail, list):       # field-level errors (a route's own 422): one line + the list
+    if isinstance(detail, list):       # field-level errors (pydantic's, a route's own 422): one line + the list
         extra.setdefault("errors", [{"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")),
                                      "type": str(e.get("type", ""))} for e in detail if isinstance(e, dict)])
         detail = describe_errors(detail)
@@ -80,9 +81,21 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
-        errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
-                  for e in exc.errors()]
-        return problem(422, errors)
+        return problem(422, list(exc.errors()))
+
+    @app.exception_handler(LidardError)
+    async def domain_error(request: Request, exc: LidardError) -> JSONResponse:
+        return domain_problem(exc)
+
+
+def domain_problem(exc: LidardError) -> JSONResponse:
+    """The problem answering a domain error: its class's ``http_status`` (and ``Retry-After``). A
+    refusal of the request (4xx) or a busy queue says its own message; the daemon's state (a
+    device fault, 503) is named with its type."""
+    status = exc.http_status
+    headers = None if exc.retry_after_s is None else {"Retry-After": str(exc.retry_after_s)}
+    detail = str(exc) if status < 500 or headers else f"{type(exc).__name__}: {exc}"
+    return problem(status, detail, headers=headers)
 
 
 # ------------------------------------------------------------------------------------------ OpenAPI

@@ -11,41 +11,29 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, model_validator
 
 from ..config import ScanDefaults
+from ..errors import describe_validation
 from ..instrument.types import PatternKind, ScanRequest
+from ..point_schema import POINT_FORMATS, PointFormat
 
-# lidard.pointcloud.FORMATS: PLY/LAS/NPZ there, PCD and MCAP (Foxglove topics) in lidard.outputs;
-# "ros2" is the rosbag2 MCAP flavour (sensor_msgs/msg/PointCloud2, CDR), file suffix .ros2.mcap
-FileFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]
+# the one list of point-file formats (lidard.point_schema)
+FileFormat = PointFormat
 
 
 def describe_errors(errors: list[dict[str, Any]]) -> str:
     """One line for a list of validation errors (pydantic's, or the daemon's 422 ``detail``):
-    ``averages: Input should be greater than or equal to 1; ...``.
-
-    The single formatter for the daemon's 422 bodies and for lidarctl's own check of a request
-    before it starts a bench, so both say the same words. The ``body`` location prefix and
-    pydantic's "Value error, " are dropped, and a message that already names its field (the scan
-    planner's "rows: ...") is not prefixed twice.
-    """
-    parts = []
-    for e in errors:
-        loc = [str(x) for x in (e.get("loc") or ())]
-        if loc and loc[0] == "body":
-            loc = loc[1:]
-        where = ".".join(loc)
-        msg = str(e.get("msg", "")).removeprefix("Value error, ")
-        parts.append(msg if not where or msg.startswith(where) else f"{where}: {msg}")
-    return "; ".join(parts)
+    :func:`lidard.errors.describe_validation`, the one wording of the configuration's errors, the
+    daemon's 422 bodies and lidarctl's own check of a request before it starts a bench."""
+    return describe_validation(errors)
 
 
-def check_scan_body(body: dict[str, Any]) -> "ScanCreate":
+def check_scan_body(body: dict[str, Any]) -> ScanCreate:
     """Validate a POST /scans body exactly as the daemon will; ``ValueError`` carries
     :func:`describe_errors`' line."""
     from pydantic import ValidationError
     try:
         return ScanCreate.model_validate(body)
     except ValidationError as exc:
-        raise ValueError(describe_errors(exc.errors())) from None
+        raise ValueError(describe_errors([dict(e) for e in exc.errors()])) from None
 
 
 class _In(BaseModel):
@@ -71,7 +59,8 @@ class ScanCreate(_In):
     max_range_m: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False, strict=True)
     # the fastest radial speed to measure, m/s: sizes the digitizer's Doppler band; null: scan.max_speed_mps
     max_speed_mps: float | None = Field(default=None, gt=0, le=100, allow_inf_nan=False, strict=True)
-    formats: list[FileFormat] = Field(default_factory=lambda: ["ply"], min_length=1, max_length=6)
+    formats: list[FileFormat] = Field(default_factory=lambda: list[FileFormat](["ply"]), min_length=1,
+                                      max_length=len(POINT_FORMATS))
     # laser phase-noise compensation from the monitor MZI (§2.3); null: the config's scan default
     phase_noise_compensation: Literal["auto", "on", "off"] | None = None
     # keep the digitizer's raw segments (Zarr under the data directory) for reprocessing
@@ -92,7 +81,7 @@ class ScanCreate(_In):
         return v
 
     @model_validator(mode="after")
-    def _pixels_only_with_pixels(self) -> "ScanCreate":
+    def _pixels_only_with_pixels(self) -> ScanCreate:
         if self.pattern == "pixels" and not self.pixels:
             raise ValueError("pattern 'pixels' needs a non-empty 'pixels' list")
         if self.pattern not in ("pixels", None) and self.pixels is not None:
@@ -107,7 +96,7 @@ class ScanCreate(_In):
         d = defaults if defaults is not None else ScanDefaults()
         pattern = self.pattern or ("pixels" if self.pixels is not None else d.pattern)
         return ScanRequest(pattern=pattern, rows=self.rows, cols=self.cols,
-                           pixels=None if self.pixels is None else tuple(tuple(p) for p in self.pixels),
+                           pixels=None if self.pixels is None else tuple((p[0], p[1]) for p in self.pixels),
                            averages=d.averages if self.averages is None else self.averages,
                            max_range_m=d.max_range_m if self.max_range_m is None else self.max_range_m,
                            max_speed_mps=d.max_speed_mps if self.max_speed_mps is None else self.max_speed_mps,
@@ -158,7 +147,7 @@ class ScanOut(_Out):
                                                               "not used (made on another set-up); null when none was left out")
 
     @classmethod
-    def from_record(cls, rec) -> "ScanOut":
+    def from_record(cls, rec) -> ScanOut:
         return cls(id=rec.id, state=rec.state, stage=rec.stage, progress=rec.progress,
                    partial=rec.partial, error=rec.error, request=rec.request,
                    timing=Timing(created=rec.created, started=rec.started, finished=rec.finished,
@@ -189,7 +178,7 @@ class Health(_Out):
     # latched POST /scans answers 409 until `lidarctl faults ack` (POST /controller/acknowledge)
     latched_faults: list[str] | None = None
     interlock_closed: bool | None = None
-    # the last scan's linearization health check (issue 13; the sidecar's "linearization"): the chirp
+    # the last scan's linearization health check (the sidecar's "linearization"): the chirp
     # error residual_hz against threshold_hz, whether it re-linearized and why. None before any scan
     linearization: dict[str, Any] | None = None
 
@@ -228,7 +217,7 @@ class CalibrationOut(_Out):
     drive_samples: int
 
     @classmethod
-    def from_result(cls, cal) -> "CalibrationOut":
+    def from_result(cls, cal) -> CalibrationOut:
         return cls(id=cal.meta.get("id"), laser=cal.laser, temperature_c=cal.temperature_c,
                    converged=bool(cal.converged), created=cal.meta.get("created"),
                    iterations=[{k: float(v) for k, v in it.items()} for it in cal.iterations],
@@ -279,7 +268,7 @@ class ReprocessCreate(_In):
     pfa: float | None = Field(default=None, gt=0, lt=0.1, allow_inf_nan=False, strict=True)
     window: WindowName | None = None
     phase_noise: Literal["on", "off"] | None = None
-    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=6,
+    formats: list[FileFormat] | None = Field(default=None, min_length=1, max_length=len(POINT_FORMATS),
                                                description="files of the new scan (default: the original's)")
 
     @field_validator("formats")

@@ -19,7 +19,8 @@ import shutil
 import signal
 import sys
 from pathlib import Path
-from typing import Any, Callable, NoReturn
+from typing import Any, NoReturn
+from collections.abc import Callable
 
 from ..errors import ConfigError, LidardError
 

@@ -1,5 +1,5 @@
 """``lidarctl calibration``: the range scale/zero, pointing and I/Q calibrations on a running daemon, and the
-records of every calibration (issue 13 item 2; REST: lidard.api.routers.geometry).
+records of every calibration (REST: lidard.api.routers.geometry).
 
 The steps a lab runs (the reference plate on a rail, perpendicular to the optical axis)::
 

@@ -48,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def serve(args) -> int:
+    # before any thread exists: a daemon's heap must not creep up over weeks of scans (lidard.jobs.heap)
+    from ..jobs import heap
+    heap.configure()
     cfg = base.load_config(args.config)
     if args.foxglove:
         cfg = cfg.model_copy(update={"live": cfg.live.model_copy(update={"foxglove": True})})

@@ -56,7 +56,7 @@ def fields_line(data) -> str:
     if "error_queue" in data:
         q = data["error_queue"]
         return "ready" if not q else "; ".join(f"error {e['code']}: {e['text']}" for e in q)
-    parts = []
+    parts: list[str] = []
     for k, v in data.items():
         if k == "faults":
             continue  # said by the FAULTS column

@@ -3,12 +3,12 @@
 The command runs the same job code as the daemon (lidard.jobs.ScanWorker over lidard.store.Store),
 so a one-shot ``lidarctl scan --sim`` and a scan through ``lidard`` write the same files. Without
 ``--data-dir`` the store is a temporary directory: it starts with the calibration of the same
-configuration from the user's cache (lidard.calcache), or without one, and then linearizes the chirp
+configuration from the user's cache (lidard.store.calcache), or without one, and then linearizes the chirp
 first (ILC, dissertation §2.2) and leaves the result in the cache. ``--no-cal-cache`` skips the cache;
 ``--data-dir DIR`` keeps calibrations in DIR instead.
 
 Range and pointing calibrations (a scan, ``factory=True``): the temporary store also starts with the
-cached records of the bench's set-up (lidard.calcache.load_records, keyed by the set-up hash the records
+cached records of the bench's set-up (lidard.store.calcache.load_records, keyed by the set-up hash the records
 are tied to). With none there (nor in ``--data-dir``), the first scan runs the simulated bench's factory
 calibration (lidard.jobs.guided: plates, fit, spheres; through the instruments), says so once on stderr
 and keeps the records in the cache (or in ``--data-dir``). ``sim.factory_calibration = false`` or
@@ -106,7 +106,7 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
 def _seed_from_cache(cfg, store) -> str | None:
     """Put the cached calibration of this configuration into the (temporary) store; its id or None.
     The worker then reuses it unless the laser temperature moved (scan.recalibrate_delta_c)."""
-    from .. import calcache
+    from ..store import calcache
     cal = calcache.load(cfg)
     if cal is None or cal.laser != cfg.laser:
         return None
@@ -115,7 +115,7 @@ def _seed_from_cache(cfg, store) -> str | None:
 
 def _update_cache(cfg, store, seeded: str | None) -> None:
     """Keep a calibration made by this run (none, or the seeded one: nothing to write)."""
-    from .. import calcache
+    from ..store import calcache
     cal = store.latest_calibration(cfg.laser)
     if cal is not None and cal.meta.get("id") != seeded:
         calcache.save(cfg, cal)
@@ -139,15 +139,15 @@ def _factory(cfg, scene_path: str | None, where: str):
 
 def _seed_records(setup, store) -> int:
     """Put the cached range/pointing records of this set-up into the (temporary) store."""
-    from .. import calcache
+    from ..store import calcache
     recs = calcache.load_records(setup.hash) or []
     for rec in recs:
-        store.import_geometry_calibration(rec)
+        store.geometry.import_record(rec)
     return len(recs)
 
 
 def _keep_records(setup, result: dict) -> None:
-    from .. import calcache
+    from ..store import calcache
     calcache.save_records(setup.hash, [result["range"], result["pointing"]])
 
 

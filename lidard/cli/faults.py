@@ -1,4 +1,4 @@
-"""``lidarctl faults ack``: acknowledge the controller's latched safety faults (issue 11, item 4).
+"""``lidarctl faults ack``: acknowledge the controller's latched safety faults.
 
 A latched fault (an interlock opened, an HV fault) keeps the laser and HV off until a person resets
 it, as laser safety expects. ``POST /controller/acknowledge`` clears the latches only when their

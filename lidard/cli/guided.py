@@ -21,7 +21,8 @@ from __future__ import annotations
 import argparse
 import sys
 import tomllib
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from . import output
 from .base import CliError

@@ -9,7 +9,8 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import sys
-from typing import Any, Iterable, Sequence
+from typing import Any
+from collections.abc import Iterable, Sequence
 
 _LONG = 8  # sequences longer than this are summarised, not listed
 

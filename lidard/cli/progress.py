@@ -24,7 +24,8 @@ from __future__ import annotations
 import json
 import sys
 import time
-from typing import Any, Callable, TextIO
+from typing import Any, TextIO
+from collections.abc import Callable
 
 MODES = ("auto", "bar", "lines", "json", "none")
 _STEP = 10  # percent between two lines in ``lines`` mode
@@ -41,7 +42,7 @@ class Progress:
         if mode == "auto":
             mode = "bar" if _isatty(self.file) else "lines"
         self.mode, self.width, self.clock = mode, width, clock
-        self._bar = None
+        self._bar: Any = None   # the stage's tqdm bar
         self._stage: str | None = None
         self._decile = -1
         self._rate_from: tuple[float, int] | None = None    # (clock, pixels done) of the stage's first report
@@ -95,13 +96,14 @@ class Progress:
                              bar_format="{desc} [{bar:WIDTH}] {percentage:5.1f}% {n_fmt}/{total_fmt} px"
                                         "{postfix}".replace("WIDTH", str(self.width)))
         eta = self.eta_s(ev)
-        self._bar.set_postfix_str(f"{int(ev.get('points') or 0)} pts  ETA "
+        bar = self._bar
+        bar.set_postfix_str(f"{int(ev.get('points') or 0)} pts  ETA "
                                   f"{'?' if eta is None else _duration(eta)}", refresh=False)
         done = int(ev.get("pixels_done") or 0)
-        if done > self._bar.n:
-            self._bar.update(done - self._bar.n)
+        if done > bar.n:
+            bar.update(done - bar.n)
         else:
-            self._bar.refresh()
+            bar.refresh()
 
     def _close_bar(self) -> None:
         if self._bar is not None:

@@ -1,4 +1,4 @@
-"""``lidarctl reprocess`` and ``lidarctl spectrum``: replay a scan's raw capture (issue 16, items 3-4).
+"""``lidarctl reprocess`` and ``lidarctl spectrum``: replay a scan's raw capture.
 
 Both work on a scan recorded with ``record_raw`` (``lidarctl scan --record-raw``): through a running
 daemon (``POST /scans/{id}/reprocess``, ``GET /scans/{id}/spectrum``), or offline on a data
@@ -7,7 +7,7 @@ Reprocessing runs the scan DSP again with the original settings unless overridde
 scan linked to the original (``reprocessed_from``).
 
 Offline, the raw Zarr chunks are independent tasks (``lidard.raw.replay.reprocess_chunk``, the unchanged
-DSP) and may run on Dask (issue 17, item 1): ``--scheduler ADDRESS`` uses an existing
+DSP) and may run on Dask: ``--scheduler ADDRESS`` uses an existing
 ``dask.distributed`` scheduler, ``--dask`` / ``--workers N`` start a LocalCluster of worker processes.
 Without any of these the default is a LocalCluster when the ``offline`` extra is installed and the work
 has more than one chunk, else this process; ``--in-process`` forces this process. The results come back

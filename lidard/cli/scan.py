@@ -196,7 +196,7 @@ def cmd_scan(args) -> int:
     base.check_out(args.out)
     body = request_body(args, fmt)
     bar = Progress(args.progress)
-    interrupted: list = [None]         # the signal number that stopped the scan
+    interrupted: list[int | None] = [None]   # the signal number that stopped the scan
     try:
         s = _scan_sim(args, body, bar, interrupted) if args.sim else _scan_daemon(args, body, bar, interrupted)
     finally:
@@ -235,7 +235,7 @@ def _flat(rec: dict[str, Any]) -> dict[str, Any]:
             "hardware_time_s": rec["timing"]["hardware_time_s"], "wall_time_s": rec["timing"]["wall_time_s"]}
 
 
-def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list) -> dict[str, Any]:
+def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[int | None]) -> dict[str, Any]:
     from ..pointcloud import sidecar_path
     with client(args) as c:
         sid = c.request("POST", "/scans", json=body).json()["id"]
@@ -271,7 +271,7 @@ def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list) -> dict[str
         return s
 
 
-def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[str, Any]:
+def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[int | None]) -> dict[str, Any]:
     from ..pointcloud import sidecar_path
     from .embedded import embedded, resolve, sim_config
     cfg = sim_config(args)
@@ -283,8 +283,8 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[bool]) -> dict[
         try:
             final = worker.wait(rec.id)
         except KeyboardInterrupt as exc:
-            interrupted[0] = signal_of(exc)
-            worker.cancel(rec.id, reason=f"interrupted by {describe_signal(interrupted[0])}")
+            interrupted[0] = sig = signal_of(exc)
+            worker.cancel(rec.id, reason=f"interrupted by {describe_signal(sig)}")
             final = worker.wait(rec.id)
         out = None
         fmt = body["formats"][0]

@@ -41,7 +41,7 @@ def _request_text(req: dict[str, Any]) -> str:
 
 
 def _calibrated_text(s: dict[str, Any]) -> str | None:
-    """``range <id>, pointing NO, linearization <id>`` (issue 13: uncalibrated is said)."""
+    """``range <id>, pointing NO, linearization <id>`` (uncalibrated is said)."""
     cal = s.get("calibrated")
     if not cal:
         return None

@@ -45,6 +45,7 @@ def add_parser(sub) -> None:
 
 
 def _spec(args, cfg):
+    from ..instrument.frames import pixel_period_s
     from ..instrument.types import ScanRequest
     from ..jobs.stream_job import StreamSpec
     req = ScanRequest(pattern=args.pattern, rows=tuple(_range(args.rows, "rows")) if args.rows else None,
@@ -57,7 +58,8 @@ def _spec(args, cfg):
     if args.frame_rate is not None and args.pattern != "track":
         raise CliError("--frame-rate: only --pattern track plans its frames to a frame rate")
     spec = StreamSpec(req, frames=args.frames, out=args.out,
-                      frame_rate_hz=args.frame_rate if args.pattern == "track" else None)
+                      frame_rate_hz=args.frame_rate if args.pattern == "track" else None,
+                      pixel_s=pixel_period_s(cfg, req.averages))
     if args.pattern == "track" and spec.frame_rate_hz is None:
         spec.frame_rate_hz = 10.0
     try:

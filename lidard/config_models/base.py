@@ -1,4 +1,4 @@
-"""The building blocks every configuration model shares (lidard.config, issue 12).
+"""The building blocks every configuration model shares (lidard.config).
 
 ``_Model`` forbids unknown keys (a typo in a TOML file is an error naming the key, not a silent
 default) and freezes the object (a loaded configuration is a value, shared between the API, the job

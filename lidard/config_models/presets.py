@@ -84,7 +84,7 @@ class Profile(_Model):
     losses_improved: FpsaLosses | None = None
 
     @model_validator(mode="after")
-    def _check(self) -> "Profile":
+    def _check(self) -> Profile:
         if self.default_lens not in self.lenses:
             raise ValueError(f"default_lens {self.default_lens!r} is not one of the lenses {sorted(self.lenses)}")
         if not self.release_v < self.pull_in_v <= self.actuation_v:

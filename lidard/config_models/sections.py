@@ -138,7 +138,7 @@ class Monitor(_Model):
     power_w: PosFloat = 100e-6
     # The MZI is also read in quadrature (a 90-degree hybrid or 3x3 coupler and a second digitizer
     # channel, ``mzi_q``): the laser phase is then rebuilt per sample and phase-noise compensation holds
-    # at EVERY range (lidard.dsp.pnrecon, issue 15). False is the dissertation's single real MZI: the
+    # at EVERY range (lidard.dsp.pnrecon). False is the dissertation's single real MZI: the
     # compensation is exact only where the round trip is a whole multiple of delay_s (docs/benchmarks.md).
     quadrature: bool = False
 
@@ -169,7 +169,7 @@ class ScanDefaults(_Model):
     # A stored chirp linearization is reused only while the laser's TEC temperature stays within this
     # of the temperature it was made at: a DFB's tuning (and so the learned drive) moves with it.
     recalibrate_delta_c: float = Field(default=0.5, gt=0, le=50)
-    # Linearization health (issue 13, lidard.instrument.calibration.health): before each scan the
+    # Linearization health (lidard.instrument.calibration.health): before each scan the
     # monitor MZI records ``linearity_check_records`` periods of the drive in use; when their RMS error
     # against the ideal chirp exceeds ``linearity_threshold_hz`` the chirp is re-linearized first (the
     # temperature rule above stays as a second trigger). The default sits between the error of a fresh
@@ -222,11 +222,11 @@ class Effects(_Model):
 
 
 class Tolerances(_Model):
-    """What a real bench has and the daemon does not know (issue 13): the simulated bench draws each
+    """What a real bench has and the daemon does not know: the simulated bench draws each
     true value once (seeded by ``seed``, or ``sim.seed`` when None) uniformly within +- its bound, or
     takes the bound itself with ``draw = false`` (sensitivity studies). A bound of 0 switches that
     tolerance off; ``enabled = false`` switches them all off (the bench then matches the nominal
-    configuration exactly, as before issue 13). The daemon never reads this section: it learns the
+    configuration exactly: every instrument identical to its data sheet). The daemon never reads this section: it learns the
     truth only through its calibrations."""
 
     enabled: bool = True

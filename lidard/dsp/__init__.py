@@ -3,7 +3,8 @@
 numpy/scipy only: no I/O, no logging, no clock.
 """
 
-from lidard.dsp.cfar import CfarMethod, Detections, ca_cfar_alpha, cfar_detect, os_cfar_alpha
+from lidard.dsp.cfar import CfarMethod, Detections, ca_cfar_alpha, cfar_detect
+from lidard.dsp.cfar_os import os_cfar_alpha
 from lidard.dsp.crlb import crlb_freq_var, crlb_freq_var_post_fft, post_fft_snr
 from lidard.dsp.chain import PeakMeasurements, measure_peaks
 from lidard.dsp.estimators import DEFAULT_METHOD, ESTIMATORS, EstimatorName, estimate

@@ -186,7 +186,7 @@ def cfar_detect(
     lead = p.shape[:-1]
     p2 = p.reshape(-1, p.shape[-1])
     n_bins = p2.shape[-1]
-    # the compiled OS-CFAR checks the values in its own pass over the spectra (issue 18); else they are checked here
+    # the compiled OS-CFAR checks the values in its own pass over the spectra; else they are checked here
     kern = jit.kernels(p2.size) if method == "os" and n_bins > max(2, n_guard + n_ref // 2) else None
     if kern is None:
         _check_power_values(p2)
@@ -274,6 +274,7 @@ def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_p
         found = _os_detected(p2, n_ref_side, n_guard, pfa, os_rank, _FLOOR, kern)
         if found is None:   # the compiled pass met a NaN, infinite or negative value: name it
             _check_power_values(p2)
+            raise DspInputError("power holds a value the compiled CFAR pass refused")
         r, c, nz = found
 
     info = window_info(window, 64)

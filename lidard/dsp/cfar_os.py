@@ -3,7 +3,7 @@
 Ordered statistic (Rohling 1983): the noise of a cell is the k-th smallest of its N reference cells;
 alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential noise (§2.4: detection
 at a chosen false-alarm rate). The detector computes the statistic exactly only at the local maxima
-that could pass the threshold (issue 18, :func:`_os_screened`: screens that are necessary conditions of
+that could pass the threshold (:func:`_os_screened`: screens that are necessary conditions of
 the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
 every bin (exactly, or a lower bound where nothing can pass). Pure numpy;
 :func:`_os_detected`, the detector's entry, takes the compiled pass instead when numba is installed
@@ -49,7 +49,7 @@ def _check_pfa(pfa: float) -> None:
 
 
 def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, exact: bool = False):
-    """OS-CFAR noise per bin, exact wherever the threshold test can pass (issue 18).
+    """OS-CFAR noise per bin, exact wherever the threshold test can pass.
 
     The k-th smallest of a set is never below the k-th smallest of a superset, so the k-th smallest
     of a block's whole neighbourhood (``_OS_BLOCK`` bins plus their reach on both sides, the cell
@@ -94,7 +94,7 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
 
 
 def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None):
-    """The detector's sparse OS-CFAR (issue 18): ``(r, c, noise, scaled_alpha)`` for the local maxima
+    """The detector's sparse OS-CFAR: ``(r, c, noise, scaled_alpha)`` for the local maxima
     of ``p`` (rows, n) that may pass the threshold, with the exact statistic at each (as
     :func:`_noise_os` computes it); no local maximum left out passes ``p > scaled_alpha * noise``.
 

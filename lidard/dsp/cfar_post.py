@@ -6,7 +6,7 @@ ghosts of clipping (a detection at ~2x/3x the frequency of a much stronger one).
 Detections are few (about one per ramp in a frame), so each step works on the list of detected cells,
 not on (ramps x slots) arrays: a per-ramp sort only where a ramp has several, the width search only
 for the peaks whose crossing is not yet found, the harmonic test only on pairs of valid detections
-(issue 18; the results are those of the dense forms, bit for bit, tested in tests/dsp/test_dsp_cfar_post.py).
+(the results are those of the dense forms, bit for bit, tested in tests/dsp/test_dsp_cfar_post.py).
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def _strongest_cells(p2, rows, cols, noise, max_detections):
     n_rows, n_bins = p2.shape
     k = min(max_detections, n_bins)
     # Candidates are few (about one per ramp): rank them per ramp instead of partitioning every
-    # bin of every ramp (issue 18), and sort only the ramps with several. Equal powers keep the
+    # bin of every ramp, and sort only the ramps with several. Equal powers keep the
     # lower bin first (a stable sort of cells in row-major order); empty slots are invalid.
     pw = p2[rows, cols]
     count = np.bincount(rows, minlength=n_rows)

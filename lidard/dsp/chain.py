@@ -13,7 +13,7 @@ front end (the front ends build on it: no import cycle, checked by import-linter
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from .jit import power as power_of
 from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .rangefft import RangeFFT, check_samples
 from .scratch import scratch
-from .window import DspInputError
+from .window import DspInputError, WindowName
 
 # (indices of the detections (..., K) with invalid slots at a harmless bin) -> (signals, signed peak
 # bins for the estimator, precomputed spectrum or None)
@@ -41,7 +41,7 @@ class ChainResult:
     frac_records: np.ndarray | None = None
 
 
-def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, estimator: str,
+def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: WindowName, estimator: str,
                       average_axis: int | None = None, zero_pad: int = 1, iq: bool = False,
                       keep: np.ndarray | None = None, idle_index: int = 1, power: np.ndarray | None = None,
                       **cfar_kwargs) -> ChainResult:
@@ -79,7 +79,7 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: str, e
 
 def _refine_valid(x: np.ndarray, bins: np.ndarray, valid: np.ndarray, spectrum: np.ndarray | None,
                   **kw) -> np.ndarray:
-    """The estimator on the valid detection slots only (issue 18): a CAL pixel has about one return
+    """The estimator on the valid detection slots only: a CAL pixel has about one return
     among ``max_returns`` slots, and an empty slot's refinement is thrown away. ``x`` (lead..., N),
     ``bins`` (lead..., K) or (lead...) and ``valid`` of the shape of ``bins``; empty slots give the
     slot's integer bin (never read: the detection is invalid)."""

@@ -1,5 +1,5 @@
 """How far a drive's chirp is from the ideal linear chirp: the linearization health check's measure
-(issue 13; dissertation §2.2, Fig. 2-3/2-4).
+(dissertation §2.2, Fig. 2-3/2-4).
 
 One measurement of the ILC (:mod:`lidard.dsp.ilcmeasure`), without learning: the monitor-MZI records
 of the drive in use are demodulated into the drive-frame optical frequency, and each ramp is compared
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ilc import _directions
+from .ilcmeasure import _directions
 from .ilcmeasure import _Analyzer
 from .instfreq import check_finite_array, check_positive
 

@@ -1,4 +1,4 @@
-"""The held segment's frequency drift, measured once and taken out of the CW beat (issue 14; §2.2).
+"""The held segment's frequency drift, measured once and taken out of the CW beat (§2.2).
 
 The three-segment chirp's constant-frequency (CW) segment is held, not linearized: a DFB's thermal
 terms keep relaxing after the drive stops, so the optical frequency drifts by some 650 MHz over the
@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class HoldProfile:
         object.__setattr__(self, "nu_hz", tuple(float(v) for v in nu))
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "HoldProfile | None":
+    def from_dict(cls, d: dict[str, Any] | None) -> HoldProfile | None:
         if not d:
             return None
         try:
@@ -74,7 +75,7 @@ class HoldProfile:
         except (KeyError, TypeError) as exc:
             raise ValueError(f"hold profile: {exc} missing or malformed (need t0_s, dt_s, nu_hz)") from None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {"t0_s": self.t0_s, "dt_s": self.dt_s, "nu_hz": list(self.nu_hz)}
 
     @cached_property
@@ -151,8 +152,8 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
 
 
 # -- the frame DSP's use (lidard.dsp.threeseg.pair_frame_three) ---------------------------------------
-#: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB, as the
-#: regime search's CW_BAND_SNR)
+#: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB: an exponential
+#: noise cell passes with probability exp(-20 ln 2) ~ 1e-6)
 PEAK_SNR = 20.0
 #: a lower ramp beat this many ramp bins from DC or more is estimated without bias: the ramps range it
 RAMP_CLEAR_BINS = 4.0
@@ -240,7 +241,10 @@ def boundary_candidates(flat_f, flat_valid, pairs, cw_df_hz: float, ramp_df_hz: 
             if slots.size == 0:
                 continue
             free[r, slots[0]] = False
-            lone_r.append(r), lone_s.append(slots[0]), lone_hi.append(f[r, j]), lone_sign.append(sign)
+            lone_r.append(r)
+            lone_s.append(slots[0])
+            lone_hi.append(f[r, j])
+            lone_sign.append(sign)
             (iu if which == 0 else idn)[r, slots[0]] = j
     lo_lone = 3.0 * ramp_df_hz                     # a ramp beat closer to DC than this is not detected
     return Candidates(row=np.concatenate([r_a, np.asarray(lone_r, dtype=np.int64)]),

@@ -12,7 +12,7 @@ a = pi (N-1)/N.  The moments are one small real matrix product per batch; afterw
 and d2X/ddelta2 at any offset are polynomial evaluations, so Newton steps cost O(terms) per ramp.
 
 The product does not read the ramps against s^p itself but against the Chebyshev polynomials T_q(s)
-(issue 18): by Jacobi-Anger, exp(-j a delta s) = sum_q eps_q (-j)^q J_q(a delta) T_q(s), and J_q falls
+(fewer moments for the same accuracy): by Jacobi-Anger, exp(-j a delta s) = sum_q eps_q (-j)^q J_q(a delta) T_q(s), and J_q falls
 off like (a delta / 2)^q / q!, so Q Chebyshev moments nu_q = sum_n z[n] T_q(s) carry what ~1.4 Q power
 moments do (20 against 26 for |delta| <= 1 bin at 1e-13). mu_p follows from them exactly for p < Q
 (s^p = 2^(1-p) sum' C(p, m) T_(p-2m)(s)) and with the part of s^p beyond T_(Q-1) dropped for p >= Q,
@@ -55,28 +55,55 @@ _COSINE_SUM: dict[str, tuple[float, ...]] = {
 
 
 def _dirichlet(x_bins: np.ndarray, n: int) -> np.ndarray:
-    """sum_{t<n} exp(-j 2 pi x t / n) for x in bins of the n-point grid (-> n at x = 0 mod n)."""
-    den = np.sin(np.pi * x_bins / n)
+    """sum_{t<n} exp(-j 2 pi x t / n) for x in bins of the n-point grid (-> n at x = 0 mod n).
+
+    = exp(-j pi x (n-1)/n) sin(pi x) / sin(pi x / n). The phase factor is built from a real cosine and
+    sine (numpy's complex exp is a scalar loop, several times slower), and the limit at the grid's
+    multiples (at x = m n the sum is n exp(-j pi m (n-1)) times (-1)^(m(n-1)): n exactly) is taken
+    only where the denominator vanishes."""
+    a = np.pi * np.asarray(x_bins, dtype=np.float64)
+    den = np.sin(a / n)
     near = np.abs(den) < 1e-12
-    # at x = m n the sum is n exp(-j pi m (n-1)) times (-1)^(m(n-1)): n exactly
-    ratio = np.where(near, n * np.cos(np.pi * x_bins) / np.where(near, np.cos(np.pi * x_bins / n), 1.0),
-                     np.sin(np.pi * x_bins) / np.where(near, 1.0, den))
-    return np.exp(-1j * np.pi * x_bins * (n - 1) / n) * ratio
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.sin(a, out=np.empty(a.shape))
+        ratio /= den
+    if near.any():
+        an = a[near]
+        ratio[near] = n * np.cos(an) / np.cos(an / n)
+    b = a * (n - 1)
+    b /= n
+    out = np.empty(a.shape, dtype=np.complex128)
+    np.multiply(np.cos(b), ratio, out=out.real)
+    np.multiply(np.sin(b), ratio, out=out.imag)
+    np.negative(out.imag, out=out.imag)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _cosine_sum(window: str, n: int) -> tuple[float, ...] | None:
+    """The window's cosine-sum coefficients when get_window gives exactly that sum at this length
+    (checked once per window and length, not on every call), else None."""
+    coef = _COSINE_SUM.get(window)
+    if coef is None:
+        return None
+    t = np.arange(n)
+    w = get_window(window, n)
+    ok = np.allclose(sum(c * np.cos(2.0 * np.pi * k * t / n) for k, c in enumerate(coef)), w, rtol=0, atol=1e-12)
+    return coef if ok else None
 
 
 def _window_dtft_bins(window: str, n: int, x_bins: np.ndarray) -> np.ndarray:
     """W(x) = sum_t w[t] exp(-j 2 pi x t / n) of the periodic window, x in bins of n points."""
-    w = get_window(window, n)
-    coef = _COSINE_SUM.get(window)
-    t = np.arange(n)
-    if coef is not None and np.allclose(
-            sum(c * np.cos(2.0 * np.pi * k * t / n) for k, c in enumerate(coef)), w, rtol=0, atol=1e-12):
+    coef = _cosine_sum(window, n)
+    if coef is not None:
         x = np.asarray(x_bins, dtype=np.float64)
         out = coef[0] * _dirichlet(x, n)
         for k, c in enumerate(coef[1:], start=1):
             out = out + 0.5 * c * (_dirichlet(x - k, n) + _dirichlet(x + k, n))
         return out
     # not a known cosine sum: direct sum, chunked to bound the (points x n) temporary
+    w = get_window(window, n)
+    t = np.arange(n)
     x = np.asarray(x_bins, dtype=np.float64).ravel()
     out = np.empty(x.size, dtype=np.complex128)
     step = max(1, 4_000_000 // n)
@@ -160,7 +187,7 @@ def _small_gemm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     time of the frame DSP went there). A stacked matmul calls BLAS per block, and a block below
     OpenBLAS's multithreading threshold runs on the calling thread. OpenBLAS 0.3.2x+ (numpy's wheels)
     gives a product M*N*K / 2.6e5 threads, so blocks under 5.2e5 stay on one (measured with numpy
-    2.4's OpenBLAS 0.3.31: 1.0e6 still one thread, 1.2e6 two); 5e5 rather than 2e5 (issue 18):
+    2.4's OpenBLAS 0.3.31: 1.0e6 still one thread, 1.2e6 two); 5e5 rather than 2e5:
     at N = 2880 the old budget made single-row products, each re-reading the whole table. Same sums.
     """
     rows, n = a.shape
@@ -207,15 +234,18 @@ class _DtftNearBin:
         gt = _small_gemm_by_columns(coef_map, nu.reshape(f0.size, -1))
         self._gt = (gt[:n_terms], gt[n_terms:])
 
-    def eval(self, delta: np.ndarray, derivs: int = 0):
+    def eval(self, delta: np.ndarray, derivs: int = 0, cols: np.ndarray | None = None):
         """G, G', G'' at ``delta`` by Horner; X = exp(-j pi delta (n-1)/n) G.
 
         ``delta`` (..., m) for the m pairs: several offsets per pair in one pass (the leading axes).
         Real and imaginary parts run as separate real arrays: a complex array times a real ``delta``
         is a full complex product in numpy (four multiplications, two of them by zero); the parts
-        give the same values with half the work (issue 18).
+        give the same values with half the work. ``cols``: evaluate only these pairs
+        (``delta`` (..., len(cols))).
         """
         gr, gi = self._terms()
+        if cols is not None:        # only these pairs (an iteration's pixels still moving)
+            gr, gi = gr[:, cols], gi[:, cols]
         delta = np.asarray(delta, dtype=np.float64)
         shape = np.broadcast_shapes(delta.shape, gr.shape[1:])
         parts = [np.zeros(shape) for _ in range(2 * (derivs + 1))]      # G, G', G'' as (re, im)
@@ -245,8 +275,8 @@ class _DtftNearBin:
         """The coefficients term-major (P, m), real and imaginary parts, contiguous per term."""
         return self._gt
 
-    def dtft(self, delta: np.ndarray) -> np.ndarray:
-        G, _, _ = self.eval(delta)
+    def dtft(self, delta: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+        G, _, _ = self.eval(delta, cols=cols)
         return np.exp(-1j * np.pi * delta * (self.n - 1) / self.n) * G
 
 
@@ -297,7 +327,7 @@ def _twiddle_table(n: int) -> np.ndarray:
 
 
 def _moments_on_bins(x: np.ndarray, rows: np.ndarray | None, f0: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """The Chebyshev moments (m, 2, Q) around whole bins f0, grouped by bin (issue 18).
+    """The Chebyshev moments (m, 2, Q) around whole bins f0, grouped by bin.
 
     Around a whole bin k the demodulated basis T_q(s) exp(-j 2 pi k t / N) is the same for every ramp
     whose peak is at k, so each distinct bin costs one (N x 2Q) table and its ramps one real matrix

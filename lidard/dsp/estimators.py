@@ -25,7 +25,7 @@ i.e. ``freq_hz = result * fs / (n_samples * zero_pad)``):
                 every sub-bin offset once the post-FFT SNR is past threshold.
 
 The DTFT machinery they share (window DTFT and Jacobsen tables, X(f) near a bin through moments) is
-:mod:`lidard.dsp.dtft` (issue 12).
+:mod:`lidard.dsp.dtft`.
 
 Known limits: ``quinn2`` and ``aboutanios`` treat a real ramp's negative-frequency image as
 interference, so close to DC or Nyquist they carry a bias of order 1/(2 pi k) bins (``newton``
@@ -136,6 +136,7 @@ def _est_quinn2(b: _Batch) -> np.ndarray:
 def _near(b: _Batch, f0_bins: np.ndarray, max_abs_delta: float) -> _DtftNearBin:
     """Moment evaluator around original-grid frequencies f0 (one per (ramp, peak))."""
     k = b.pb.shape[1]
+    rows: np.ndarray | None
     if b.rows is not None:
         rows = b.rows if k == 1 else np.repeat(b.rows, k)
     else:
@@ -161,7 +162,7 @@ def _real_tone_fit(ev: _DtftNearBin, d: np.ndarray, offsets: np.ndarray) -> np.n
     For a real ramp this (not |X|^2) is the likelihood: it accounts for the tone's own
     negative-frequency image, which otherwise pulls the periodogram peak by ~1/(2 pi^2 k) bins.
     The sines and cosines are taken once at d and turned by the offsets' fixed angles (angle
-    addition): a third of the transcendental calls of evaluating each offset alone (issue 18: they
+    addition): a third of the transcendental calls of evaluating each offset alone (they
     were half the estimator's iteration time).
     """
     n = ev.n
@@ -302,7 +303,7 @@ def estimate_rows(x: np.ndarray, rows: np.ndarray, peak_bins: np.ndarray, *, met
     For the detection chain (:mod:`lidard.dsp.chain`), which refines a few slots of many ramps:
     ``x`` (M, N) ramps the chain already checked (their spectrum went through CFAR), ``spectrum``
     (M, n_bins) theirs, ``rows`` (m,) and ``peak_bins`` (m,) one peak each. Copying every refined
-    ramp and its whole spectrum cost as much as the estimator's moments (issue 18). Methods that
+    ramp and its whole spectrum cost as much as the estimator's moments. Methods that
     transform the ramps themselves, or a missing spectrum, take the copying path.
     """
     rows = np.asarray(rows, dtype=np.int64)

@@ -15,7 +15,8 @@ A segment is one triangle period captured after one trigger: the up ramp then th
    a ramp's several detections are refined jointly and every detection is tested against the fitted
    tones (:mod:`lidard.dsp.ranging`: no mutual leakage bias; ``unresolved`` by a model-order test at
    ``order_level``; a return hidden beside a stronger one is added),
-5. pairs up- and down-ramp peaks (eqs. 2-6, 2-7): range, radial velocity (positive receding),
+5. pairs up- and down-ramp peaks (eqs. 2-6, 2-7) by the likelihood of joint (range, velocity)
+   hypotheses (:mod:`lidard.dsp.ranging.assign`): range, radial velocity (positive receding),
    validity (folding, harmonic ghosts, unresolved peaks are flagged, not reported as clean points).
    With a three-segment chirp (``cw_samples`` > 0: the record holds a constant-frequency segment after
    the ramps) the CW spectrum joins the pairing and no speed prior is used (:mod:`.threeseg`).
@@ -25,23 +26,26 @@ Only paired detections become points; unpaired peaks (mostly noise) are dropped.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
 from .chain import detect_and_refine
 from .estimators import DEFAULT_METHOD
-from .gate import aliased, gate_top_hz, point_flags
+from .gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
 from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
 from .rangefft import C_M_PER_S, RangeFFT
 from .cwhold import HoldProfile
 from .threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
+from .ranging.assign import line_snr
 from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import refine_ramp
 from .scratch import scratch
-from .velocity import pair_up_down
+from .velocity import pair_up_down_matched
+from .window import WindowName
 
 
 @dataclass(frozen=True)
@@ -80,7 +84,7 @@ class FrameDsp:
     max_range_m: float
     min_range_m: float = 0.05
     max_speed_mps: float = 5.0
-    window: str = "hann"
+    window: WindowName = "hann"
     # the rate of valid false points per range cell (one ramp FFT bin of the searched band) in noise
     # alone; the per-ramp detector runs at the looser ramp_pfa (lidard.dsp.ranging.points). 1e-11: the
     # per-ramp level 1e-6 on the scan's three-segment chirp (m = 10), the operating point it was tuned at
@@ -94,7 +98,7 @@ class FrameDsp:
     cw_samples: int = 0         # samples of the constant-frequency segment after the ramps (0: triangle)
     # the held segment's measured drift (lidard.dsp.cwhold.HoldProfile.as_dict; the linearization's):
     # where the real receiver's two regimes meet, |f_D| comes from the dechirped CW segment
-    hold_profile: dict | None = None
+    hold_profile: dict[str, Any] | None = None
     # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.gate): the top of its
     # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
     alias_free_hz: float | None = None
@@ -114,6 +118,20 @@ class FrameDsp:
         if not 0.0 < self.order_level < 1.0:
             raise ValueError(f"order_level must be in (0, 1), got {self.order_level!r}")
         _ = self.ramp_pfa       # a false-point rate the per-ramp detector cannot give is refused here
+
+    def to_record(self) -> dict[str, Any]:
+        """Every field, JSON-ready: what a raw capture stores under ``dsp`` (:meth:`from_record`)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any], **overrides: Any) -> FrameDsp:
+        """The FrameDsp a capture recorded (:meth:`to_record`), ``overrides`` over it: a replay runs
+        exactly the DSP the scan built (its fields, not today's configuration, decide the points)."""
+        unknown = set(record) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"recorded dsp fields {sorted(unknown)} are not FrameDsp settings "
+                             "(written by another lidard version?)")
+        return cls(**{**record, **overrides})
 
     @property
     def n_used(self) -> int:
@@ -175,11 +193,11 @@ class FrameDsp:
         """From a pixel's first trigger (a point's ``t``) to the instant its range refers to: the two
         ramps' beats give the range at their mean centre, one ramp time after a trigger, averaged over
         the pixel's triggers ((averages - 1) / 2 periods later still). A target at 5 m/s moves 0.4 mm
-        in the 80 us of one average (issue 14's hold-out check measured this offset)."""
+        in the 80 us of one average (a hold-out check against moving targets measured this offset)."""
         period_s = (2 * self.ramp_samples + self.cw_samples) / self.fs_hz
         return self.ramp_samples / self.fs_hz + 0.5 * (int(averages) - 1) * period_s
 
-    def sidecar(self, phase_noise: bool) -> dict:
+    def sidecar(self, phase_noise: bool) -> dict[str, Any]:
         """The ``dsp`` block of a scan's sidecar (the scan loop's and a reprocessing's alike)."""
         return {"window": self.window, "estimator": self.estimator, "pfa": self.pfa,
                 "range_resolution_m": self.range_resolution_m, "use_fraction": self.use_fraction,
@@ -200,7 +218,7 @@ class FrameDsp:
         if self.iq:
             f_lo = max(f_lo, -gate_top_hz(self.fs_hz / 2, self.alias_free_hz))
             lo = int(rf.bin_to_index(int(np.floor(f_lo / df))))
-            hi = int(min(rf.bin_to_index(int(np.ceil(f_hi / df)) + 2), rf.n_fft - 1))
+            hi = min(int(rf.bin_to_index(int(np.ceil(f_hi / df)) + 2)), rf.n_fft - 1)
             return max(lo, 0), hi
         n_bins = rf.n_fft // 2 + 1
         lo = int(np.floor(max(f_lo, 0.0) / df))
@@ -241,10 +259,17 @@ class FrameDsp:
         if self.cw_samples:
             res = FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
         else:
-            res = self._pair(out_f, out_det)
+            res = self._pair(out_f, out_det, x.shape[1])
+        # a speed beyond the band the record was sized for: flagged, never valid (lidard.dsp.gate)
+        fast = out_of_band(res.present, res.velocity_mps, self.max_speed_mps,
+                           self.wavelength_m * self.fs_hz / (2 * self.n_used))
+        if fast.any():
+            flags = np.zeros(fast.shape, np.uint8) if res.flags is None else res.flags
+            res = replace(res, valid=res.valid & ~fast,
+                          flags=flags | np.where(fast, np.uint8(PointFlag.OUT_OF_BAND), np.uint8(0)))
         return keep_returns(res, self.max_returns)
 
-    def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list, list]:
+    def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list[Any], list[Any]]:
         """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT.
         ``codes``: the beat came as integer ADC codes, so its volts are finite and the range FFT's
         NaN/inf pass over every sample is skipped (volts given as floats are checked)."""
@@ -258,8 +283,12 @@ class FrameDsp:
             shape = rf.spectrum_shape(ramp.shape[:-1])
             p = scratch("frame.power", shape, np.float64)
             spec = (rf.spectrum_of if codes else rf)(ramp, scratch("frame.spec", shape, np.complex128), p)
+            def signals(idx: np.ndarray, ramp: np.ndarray = ramp,
+                        spec: np.ndarray = spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                return ramp, rf.index_to_bin(idx), spec
+
             res = detect_and_refine(
-                spec, lambda idx, ramp=ramp, spec=spec: (ramp, rf.index_to_bin(idx), spec), window=self.window,
+                spec, signals, window=self.window,
                 estimator=self.estimator, average_axis=1, method="os", pfa=self.ramp_pfa, iq=self.iq,
                 max_detections=self.candidate_slots, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
                 power=p)
@@ -269,60 +298,36 @@ class FrameDsp:
                 det = replace(det, valid=det.valid & ~img)
             # the ramp's detections refined jointly (no mutual leakage bias), and the model-order test:
             # a peak the fitted tones do not explain hides a second surface (lidard.dsp.ranging)
+            assert res.power is not None and res.frac_records is not None   # power=p was given
             frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_records, rf=rf, window=self.window,
                                     level=self.order_level, pfa=self.ramp_pfa)
             out_f.append(frac * rf.delta_f)
             out_det.append(det)
         return out_f, out_det
 
-    def _pair(self, out_f: list, out_det: list) -> FrameResult:
-        """Up/down pairing (eqs. 2-6, 2-7), validity flags and the range gate."""
+    def _pair(self, out_f: list[Any], out_det: list[Any], records: int) -> FrameResult:
+        """Up/down pairing by likelihood (eqs. 2-6, 2-7; :mod:`lidard.dsp.ranging.assign`), validity
+        flags and the range gate."""
         du, dd = out_det
         # I/Q: the band is not a prior; a target at its edge keeps its pair (two bins of search margin)
         speed = self.max_speed_mps + (self.wavelength_m * self.rfft.delta_f if self.iq else 0.0)
-        rng_m, vel, ok = pair_up_down(out_f[0], out_f[1], du.valid, dd.valid, self.chirp_rate_hz_per_s,
-                                      self.wavelength_m, iq=self.iq, max_speed_mps=speed,
-                                      strength=(du.power, dd.power) if self.iq else None)
+        rng_m, vel, ok, match = pair_up_down_matched(
+            out_f[0], out_f[1], du.valid, dd.valid, self.chirp_rate_hz_per_s, self.wavelength_m, iq=self.iq,
+            max_speed_mps=speed, snr=line_snr(du, dd), records=records, tie_level=self.order_level)
+        paired = (match >= 0) & du.valid
         # |X| = A/2 for a real tone, A for a complex one
         intensity = np.sqrt(du.power) * (1.0 if self.iq else 2.0)
         leak = du.valid & aliased(intensity, self.alias_ceiling_v)
-        if self.iq:
-            # signs measured, nothing folds: a point is a pair, and only ITS down peak's shape counts
-            # (the band is wide: "some down peak within the band" would be any noise peak of the ramp)
-            present = ok & du.valid
-            unres = du.unresolved | _paired_down_unresolved(out_f[0], out_f[1], rng_m, ok, dd, self.chirp_rate_hz_per_s)
-        else:
-            paired_any = _paired(out_f[0], out_f[1], du.valid, dd.valid, self.max_speed_mps, self.wavelength_m)
-            present = (ok | paired_any) & du.valid
-            # unresolved on either ramp: the pair's relative phase differs between up and down ramps
-            unres = du.unresolved | _near_down(out_f[0], out_f[1], du.valid, dd.valid & dd.unresolved,
-                                               self.max_speed_mps, self.wavelength_m)
+        # unresolved on either ramp's peak of the pair (the pair's relative phase differs between ramps)
+        unres = du.unresolved | (paired & np.take_along_axis(dd.unresolved, np.maximum(match, 0), axis=-1))
         flagged = du.harmonic | unres | leak
         valid = ok & ~flagged
-        # Flagged or ambiguous pairs keep a range from the up ramp alone so they can be drawn (valid=0).
+        # Pairs that fold (ambiguous) or are flagged keep a range from the up ramp alone so they can be
+        # drawn (valid=0).
         rng_fallback = C_M_PER_S * np.abs(out_f[0]) / (2 * self.chirp_rate_hz_per_s)
         rng_m = np.where(ok, rng_m, rng_fallback)
         in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
-        present &= in_gate
+        present = paired & in_gate
         flags = point_flags(unresolved=unres, leak=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
                            snr_db=du.snr_db, intensity_v=intensity, flags=flags)
-
-
-def _paired_down_unresolved(fu, fd, rng_m, ok, dd, rate_hz_per_s) -> np.ndarray:
-    """Per up slot of an accepted pair: its down peak (f_dn = 2 f_R - f_up, eq. 2-6) is unresolved."""
-    f_dn = 4.0 * rate_hz_per_s * rng_m / C_M_PER_S - fu                # (n, K) the matched down beats
-    same = np.abs(fd[:, None, :] - f_dn[:, :, None]) <= 1e-6 * np.maximum(np.abs(f_dn[:, :, None]), 1.0)
-    return ok & (same & (dd.valid & dd.unresolved)[:, None, :]).any(axis=-1)
-
-
-def _paired(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
-    """Up detections that have SOME down detection within the Doppler allowance (maybe ambiguous)."""
-    return _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m)
-
-
-def _near_down(fu, fd, vu, vd, max_speed_mps, wavelength_m) -> np.ndarray:
-    """Up detections with a down detection of ``vd`` within the Doppler allowance."""
-    tol = 4.0 * max_speed_mps / wavelength_m
-    close = np.abs(np.abs(fd)[:, None, :] - np.abs(fu)[:, :, None]) <= tol
-    return (close & vu[:, :, None] & vd[:, None, :]).any(axis=-1)

@@ -1,4 +1,4 @@
-"""The honest range gate and the per-point flags (issue 14; dissertation §2.1.1, §4.4.3).
+"""The honest range gate and the per-point flags (dissertation §2.1.1, §4.4.3).
 
 A real beat sampled at fs cannot say on which side of a multiple of fs its tone was: a target
 beyond the gate whose beat folds into it looks like one inside. Two things keep such folds out of
@@ -24,6 +24,7 @@ is not valid. Pure numpy.
 from __future__ import annotations
 
 from enum import IntFlag
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +42,7 @@ class PointFlag(IntFlag):
     HARMONIC = 4      # at 2x/3x the beat of a much stronger return (clipping)
     AMBIGUOUS = 8     # no unambiguous up/down pairing (folding through DC, speed limit)
     CLIPPED = 16      # a record of the pixel clipped (over range)
+    OUT_OF_BAND = 32  # radial speed beyond the Doppler band the digitizer was sized for (max_speed_mps)
 
 
 def gate_top_hz(nominal_hz: float, alias_free_hz: float | None) -> float:
@@ -63,7 +65,17 @@ def point_flags(*, unresolved, leak, harmonic, unpaired) -> np.ndarray:
     return f
 
 
-def decimation_gate(fs_hz: float, core_rate_hz: float, stopband_db: float, input_range_v: float) -> dict:
+def out_of_band(present: np.ndarray, velocity_mps: np.ndarray, max_speed_mps: float,
+                speed_cell_mps: float) -> np.ndarray:
+    """Points whose radial speed lies beyond the band the digitizer was sized for (its Doppler
+    allowance ``max_speed_mps``) by more than two speed cells (``speed_cell_mps`` = lambda / (2 T), the
+    ramp's Doppler resolution: a target at the band's edge measured with noise stays in). Beyond the
+    band the record's rate was not chosen to hold the beats: a point there may be a fold, so it is
+    flagged OUT_OF_BAND and never valid, whatever its pairing said."""
+    return np.asarray(present) & (np.abs(np.asarray(velocity_mps)) > float(max_speed_mps) + 2.0 * speed_cell_mps)
+
+
+def decimation_gate(fs_hz: float, core_rate_hz: float, stopband_db: float, input_range_v: float) -> dict[str, Any]:
     """FrameDsp's ``alias_free_hz`` and ``alias_ceiling_v`` for a record at ``fs_hz`` decimated from a
     core at ``core_rate_hz`` (none at the core's own rate: only the analogue front end filters)."""
     if core_rate_hz / float(fs_hz) < 2.0 - 1e-9:

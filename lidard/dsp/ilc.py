@@ -42,7 +42,7 @@ previous best drive is restored and beta halved (back off instead of diverging).
 "up" and "down" name the first and second half of the drive period (with
 ``sim_devices.world.laser.triangle_drive`` the first half is the optical up-chirp).
 
-Rooms (issue 12): the measurement (demodulation, refinement, unfolding, errors) is
+Rooms: the measurement (demodulation, refinement, unfolding, errors) is
 :mod:`lidard.dsp.ilcmeasure`; the response fit and the update law :mod:`lidard.dsp.ilcupdate`; this
 module is the iteration driver (:func:`linearize`), whose state between measurements is one explicit
 :class:`_IlcState`. :func:`linearize` is about 70 lines with its docstring: argument checks and
@@ -55,11 +55,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Callable, Literal
+from typing import Any, Literal
+from collections.abc import Callable
 
 import numpy as np
 
-from .ilcmeasure import _Analysis, _Analyzer, _directions  # noqa: F401  (_Analyzer: tests reach in)
+from .ilcmeasure import _Analysis, _Analyzer, _directions
 from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
 from .instfreq import check_finite_array, check_positive
 
@@ -105,7 +106,7 @@ class IlcResult:
     best_iteration: int
     phase_slips: int                       # total over all measurements
     stop_reason: str = ""
-    meta: dict = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
 
 
@@ -200,7 +201,7 @@ def _check_knobs(*, q_cutoff_hz, meas_cutoff_hz, beta, roi, learn, max_iter, upd
     return max_avg
 
 
-def _drive_cap(u0: np.ndarray, max_drive_factor: float, max_drive_v: float | None) -> dict:
+def _drive_cap(u0: np.ndarray, max_drive_factor: float, max_drive_v: float | None) -> dict[str, Any]:
     """The largest |drive| ever sent (relative to the plain drive, and the output stage's range) and
     how it reads in a stop reason; a plain drive already beyond ``max_drive_v`` is refused."""
     peak0 = float(np.abs(u0).max())
@@ -319,7 +320,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     default: no growth) and learning goes on. A broad-linewidth laser on a long MZI needs this: its
     averaged beat shrinks by exp(-pi linewidth tau_m) while the noise does not, and a narrow laser
     never pays for it. The default target, 4e-6 of the excursion, is what a >= 1000x reduction of a
-    ~0.7 % RMS nonlinearity needs (issue 15); the measurement itself is unchanged.
+    ~0.7 % RMS nonlinearity needs; the measurement itself is unchanged.
     """
     if not callable(measure):
         raise TypeError("measure must be callable as measure(drive_v, n_avg)")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +40,7 @@ class _Analysis:
     tuning: float
     slips: int
     err_drive: np.ndarray                  # error (Hz, drive frame) on the drive grid, tapered
-    ramps_nu: list                         # per ramp (t, drive-frame nu) as measured, for the plant fit
+    ramps_nu: list[Any]                     # per ramp (t, drive-frame nu) as measured, for the plant fit
 
 
 class _Analyzer:
@@ -168,7 +169,7 @@ class _Analyzer:
         rms, err_rms, slips = [], [], 0
         ramps_e = []
         ramps_nu = []
-        su = sv = suu = 0.0
+        su = suu = 0.0
         for r, (t, nu, s) in enumerate(full):
             slips += s
             roi = self._roi(t, r, self.roi)

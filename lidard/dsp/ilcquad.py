@@ -1,4 +1,4 @@
-"""Chirp measurement for the ILC from a quadrature monitor MZI (dissertation §2.2; issue 15).
+"""Chirp measurement for the ILC from a quadrature monitor MZI (dissertation §2.2).
 
 The real MZI beat of :mod:`lidard.dsp.ilc` is averaged coherently over records before its phase is
 taken: with a broad linewidth on a long MZI (tau_m = 2 tau_c for dfb_broad_linewidth) the averaged

@@ -1,4 +1,4 @@
-"""I/Q imbalance of a coherent receiver: its model, its correction and its estimation (issue 14 item 2).
+"""I/Q imbalance of a coherent receiver: its model, its correction and its estimation.
 
 A coherent receiver mixes the return with the local oscillator in a 90-degree optical hybrid and
 detects the in-phase and quadrature outputs on two balanced photodiodes, digitized on two channels.
@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -91,10 +92,10 @@ class ImbalanceFit:
     irr_before_db: float        # image rejection of the uncorrected receiver (the fitted imbalance)
     irr_after_db: float         # what the fit's own uncertainty leaves after correction (1 sigma)
 
-    def fitted(self) -> dict:
+    def fitted(self) -> dict[str, Any]:
         return {"gain": self.gain, "phase_rad": self.phase_rad, "phase_deg": math.degrees(self.phase_rad)}
 
-    def residuals(self) -> dict:
+    def residuals(self) -> dict[str, Any]:
         return {"gain_sem": self.gain_sem, "phase_sem_rad": self.phase_sem_rad, "tones": self.tones,
                 "image_rejection_before_db": self.irr_before_db, "image_rejection_after_db": self.irr_after_db}
 

@@ -1,5 +1,5 @@
-"""Optional compiled kernels of the detection chain (issue 18: "fused kernels are welcome, for example
-with numba, if they stay optional"); the numpy code they replace stays the reference and the fallback.
+"""Optional compiled kernels of the detection chain (numba, fused passes over the spectra, loaded only
+where numba is installed); the numpy code they replace stays the reference and the fallback.
 
 Each kernel gives the same values, bit for bit, as the numpy code it stands in for (tested in
 tests/dsp/test_dsp_jit.py): the same IEEE operations in the same order, no fast-math, and order
@@ -10,7 +10,7 @@ also checks the values and finds each ramp's strongest cell (the detector's floo
 themselves are in :mod:`lidard.dsp.jit_kernels` (which imports numba); this module holds their callers.
 
 numba is imported on first use, never at import time (``lidarctl --help`` and a scan's imports stay
-fast, issue 18), and only if it is installed (a dependency wherever numba publishes wheels: the
+fast), and only if it is installed (a dependency wherever numba publishes wheels: the
 marker in pyproject.toml); :func:`kernels` returns None otherwise and the callers take their numpy path. ``LIDARD_DSP_JIT=0`` in the environment turns
 the kernels off (for comparing the two paths; the results do not depend on it).
 

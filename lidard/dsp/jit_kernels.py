@@ -3,7 +3,7 @@ installed: importing this module compiles nothing but needs numba). The callers 
 each kernel are in :mod:`lidard.dsp.jit`; the numpy code each one stands in for is the reference
 (tests/dsp/test_dsp_jit.py, tests/dsp/test_dsp_os_screens.py compare them bit for bit).
 
-OS-CFAR (§2.4's detection at a chosen false-alarm rate; issue 18): a cell c passes when its power is
+OS-CFAR (§2.4's detection at a chosen false-alarm rate): a cell c passes when its power is
 above alpha times the k-th smallest of its reference cells. That needs at least k reference cells below
 p[c] / alpha (``thr_factor`` adds a margin of 1e-9 for the rounding of the final test), so a cell that
 fails this count cannot pass. :func:`os_scan` applies the count first to a whole block of

@@ -1,4 +1,4 @@
-"""Laser phase phi(t) reconstructed from the monitor MZI, for compensation at ANY range (§2.3, issue 15).
+"""Laser phase phi(t) reconstructed from the monitor MZI, for compensation at ANY range (§2.3).
 
 The monitor MZI (delay tau_m = D samples) gives ``delta(t) = phi(t) - phi(t - tau_m)``. Summing D-spaced
 copies (:mod:`lidard.dsp.pncomp`) compensates a target only at round trips ``M tau_m``; between two

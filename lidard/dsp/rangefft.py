@@ -68,7 +68,7 @@ def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str,
     write it into (a caller's scratch buffer); ``power_out``: the same for |X|^2 (float64), computed
     with the spectrum (:func:`lidard.dsp.jit.power`'s values).
 
-    The ramps go through in chunks of :data:`_CHUNK_BYTES` (issue 18): a chunk's windowed
+    The ramps go through in chunks of :data:`_CHUNK_BYTES`: a chunk's windowed
     product is still in cache when its FFT reads it, and its spectrum when its power is taken, where
     whole-batch passes went through memory three more times (~10 ms of ~45 per 20,000 ramps of 512).
     Every ramp is transformed alone either way: the values are those of one whole-batch call.
@@ -231,7 +231,7 @@ class RangeFFT:
     def index_to_bin(self, index: np.ndarray) -> np.ndarray:
         return np.asarray(index) - (self.n_fft // 2 if self.iq else 0)
 
-    def bin_to_index(self, bins: np.ndarray) -> np.ndarray:
+    def bin_to_index(self, bins: np.ndarray | int) -> np.ndarray:
         return np.asarray(bins) + (self.n_fft // 2 if self.iq else 0)
 
     def bin_to_range_m(self, bins: np.ndarray) -> np.ndarray:
@@ -252,7 +252,7 @@ class RangeFFT:
         ``power_out``: an array of the spectrum's shape (float64) that receives |X|^2 as well."""
         if a.dtype.kind == "c" and not self.iq:
             raise DspInputError("complex (I/Q) samples given to a RangeFFT built with iq=False; build it with iq=True")
-        # the 1 / sum(w) scale rides on the window: no pass over the spectrum (issue 18)
+        # the 1 / sum(w) scale rides on the window: no pass over the spectrum
         return windowed_fft(a, self._w_scaled, self.n_fft, "shifted" if self.iq else "real", out=out,
                             power_out=power_out)
 

@@ -1,4 +1,4 @@
-"""Per-thread scratch buffers for the DSP's hot path (issue 18: "reuse buffers").
+"""Per-thread scratch buffers for the DSP's hot path: a batch reuses the memory of the last one.
 
 A large numpy array is a fresh anonymous mapping every time it is created, and its pages fault in on
 first touch: about 3 ms per 80 MB on the 2-core benchmark machine, paid again by every batch for every

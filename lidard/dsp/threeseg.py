@@ -1,4 +1,4 @@
-"""Signed velocity with one photodiode and no speed prior: the three-segment chirp (issue 14; §2.1.2).
+"""Signed velocity with one photodiode and no speed prior: the three-segment chirp (§2.1.2).
 
 A period is an up ramp, a down ramp and a constant-frequency (CW) segment. With the range beat
 f_R = 2 kappa R / c and the return's Doppler shift f_D (``sim_devices``' convention f_D = -2 v / lambda,
@@ -18,9 +18,12 @@ is held, not linearized, so its beat also carries the laser's thermal relaxation
 (|f_D - rho f_R|, ``RHO_MAX``); it only has to tell the two regimes apart, whose |f_D| differ by lo.
 
 Evidence, not peaks: the relaxation spreads a far return's CW beat over many bins, where a CFAR would
-miss it. For each (up, down) pair and each regime the CW power spectrum is searched for a peak
-``CW_BAND_SNR`` over its median inside bands of growing width around the predicted |f_D|
-(``BAND_TIERS``); the regime explained by the narrower band wins.
+miss it. For each (up, down) pair each regime predicts the band its CW beat occupies (the measured
+drift's, or a RHO_MAX spread around |f_D|); the band's peak, over the CW spectrum's noise, is the line's
+noise-normalised power. A regime is possible when that line is detected at the per-ramp level q that
+sets the false-point rate (:mod:`lidard.dsp.ranging.points`: the chi-square(2L) law of a cell averaged
+over L records), and of two possible regimes the one whose line is stronger is taken (their likelihood
+ratio: both predict the same ramp lines, only the CW line differs).
 
 Peaks near DC: the CFAR of the ramps and this search both leave out the DC bin and its window lobe.
 A regime predicting |f_D| inside that guard (|v| within a few velocity resolutions) expects no CW beat
@@ -30,27 +33,28 @@ measured drift of the held segment (``FrameDsp.hold_profile``) :mod:`.cwhold` de
 and ranges them from R = c (hi - f_cw) / (2 kappa) (lone ramp peaks whose partner sits at DC too);
 without it they are reported present but not valid.
 
-Several returns: every (up i, down j) pair is scored; pairs are taken greedily, best tier first, each
-peak used once (after :func:`lidard.dsp.velocity.pair_up_down`'s matcher). Pure numpy.
+Several returns: every (up i, down j) pair whose regime is possible is a hypothesis, scored by the
+likelihood of its two ramp lines (:mod:`lidard.dsp.ranging.assign`), and the set of pairs of largest
+total likelihood is taken (the least motion among equally good sets). Pure numpy.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
 from .cwhold import HoldProfile, resolve_boundary
 from .gate import aliased, point_flags
 from .rangefft import C_M_PER_S, RangeFFT
+from .ranging.assign import best_matching, line_snr, pair_loglik, tie_llr
+from .ranging.order import chi2_isf
 from .ranging.order import median_last as _median_last
-
 
 #: the held segment's frequency still relaxes (the DFB's thermal terms, ~20 us): over the CW window its
 #: slope is taken to lie within RHO_MAX x the ramps' rate (the default DFB after the skip: -9 % .. -1 %,
 #: docs/physics.md), so a return's CW beat is spread over |f_D - rho f_R|, |rho| <= RHO_MAX
 RHO_MAX = 0.12
-#: a regime's CW band must peak this far above the CW spectrum's median bin (13 dB: a noise bin of an
-#: exponential power spectrum passes with probability exp(-20 ln 2) ~ 1e-6)
-CW_BAND_SNR = 20.0
 #: the CW segment starts this far in: the fastest part of the relaxation is skipped
 CW_SKIP_FRACTION = 0.25
 #: with the drift measured and taken out (lidard.dsp.cwhold) only the hold's first 1.6 us are
@@ -75,7 +79,7 @@ def _range_max_table(p: np.ndarray, top_level: int | None = None) -> list[np.nda
 
 class _RangeMax:
     """The sparse table of one CW spectrum, built once for every band query and only as deep as the
-    widest band asks (issue 18: six full tables per batch were a third of the three-segment DSP)."""
+    widest band asks (six full tables per batch were a third of the three-segment DSP)."""
 
     def __init__(self, p: np.ndarray):
         self.p = p
@@ -108,27 +112,36 @@ def cw_band_power(p_cw: np.ndarray, df_hz: float, centre_hz: np.ndarray, half_hz
     return peak, width <= 0
 
 
-#: CW bands tried per regime, narrowest first (fractions of RHO_MAX): a pair whose CW beat sits in a
-#: narrower band around its predicted |f_D| ranks before one that only a wide band explains
-BAND_TIERS = (0.25, 0.5, 1.0)
+def cw_line_threshold(cw_pfa, records: int, cells=1):
+    """The noise-normalised power the peak of ``cells`` CW cells, each averaged over ``records`` records,
+    passes with probability ``cw_pfa`` in noise alone (each cell at cw_pfa / cells: chi-square with 2L
+    degrees of freedom, over 2L)."""
+    w, inv = np.unique(np.maximum(cells, 1), return_inverse=True)   # a few widths: one quantile each
+    return (chi2_isf(cw_pfa / w, 2.0 * records) / (2.0 * records))[inv].reshape(np.shape(cells))
 
 
-def _regime_tier(p_cw, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band=None):
-    """Per candidate: len(BAND_TIERS) + 1 when the regime predicts |f_D| inside the CW's DC guard (no
-    beat can be seen there), else the number of tiers whose band peaks CW_BAND_SNR over the median.
-    ``band``: (centre, half width) of the CW beat predicted from the measured drift (:func:`drift_band`),
-    searched with 2.5-4 bins of slack per tier; without it, tiers of the RHO_MAX spread around |f_D|."""
-    table = p_cw if isinstance(p_cw, _RangeMax) else _RangeMax(p_cw)   # a built table is reused
+def cw_noise(p_cw: np.ndarray, records: int) -> np.ndarray:
+    """The CW spectrum's mean noise power per cell (n,): its median over the median of a chi-square(2L)
+    / 2L cell (ln 2 for one record)."""
+    return _median_last(p_cw) / (float(chi2_isf(0.5, 2.0 * records)) / (2.0 * records))
+
+
+def _regime_line(table, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band, records, cw_pfa):
+    """Per candidate: (the noise-normalised peak power of the CW band the regime predicts, whether it
+    is a line at ``cw_pfa`` over the band's cells). A regime that predicts |f_D| inside the CW's DC
+    guard: (+inf, True), no beat can be seen there and none is needed. ``band``: (centre, half width)
+    of the CW beat predicted from the measured drift (:func:`drift_band`), searched with 4 bins of
+    slack; None: a RHO_MAX spread around |f_D|."""
     p_cw = table.p
     n = p_cw.shape[0]
-    tier = np.zeros(f_r.reshape(n, -1).shape)
-    for frac in BAND_TIERS:
-        centre, half = (d_abs, frac * RHO_MAX * f_r + 2 * df_hz) if band is None else \
-            (band[0], band[1] + 2 * df_hz * (1 + frac))
-        pw, in_guard = cw_band_power(p_cw, df_hz, centre.reshape(n, -1), half.reshape(n, -1), guard_bins, table)
-        tier += pw >= CW_BAND_SNR * noise
-    tier = np.where(d_abs.reshape(n, -1) < guard_hz, len(BAND_TIERS) + 1, tier)
-    return tier.reshape(f_r.shape)
+    centre, half = (d_abs, RHO_MAX * f_r + 2 * df_hz) if band is None else (band[0], band[1] + 4 * df_hz)
+    centre, half = centre.reshape(n, -1), half.reshape(n, -1)
+    pw, _ = cw_band_power(p_cw, df_hz, centre, half, guard_bins, table)
+    x = pw / noise
+    cells = np.ceil(2 * half / df_hz) + 1
+    line = x >= cw_line_threshold(cw_pfa, records, cells)
+    guard = d_abs.reshape(n, -1) < guard_hz
+    return np.where(guard, np.inf, x).reshape(f_r.shape), (line | guard).reshape(f_r.shape)
 
 
 def drift_band(f_r, f_d, rho):
@@ -141,89 +154,78 @@ def drift_band(f_r, f_d, rho):
     return 0.5 * (top + bottom), 0.5 * (top - bottom)
 
 
-#: the two ramps of one return see the same target, speckle and link: their beat powers agree to a
-#: few dB (window scalloping <= 1.4 dB, noise at >= 13 dB SNR); a pair further apart than this joins a
-#: return with a noise peak (a false alarm next to a true peak, or a true peak under the other's skirt)
-PAIR_POWER_DB = 12.0
-
-
 def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz: float, rho=None,
-                power=None):
-    """Every (up i, down j) pair of every row: (tier (n, K, K), folded, f_range, f_dopp (signed), ambiguous).
+                records: int = 1, cw_pfa: float = 1e-6):
+    """Every (up i, down j) pair of every row: (possible (n, K, K), folded, f_range, f_dopp (signed),
+    ambiguous).
 
-    tier: how well the chosen regime's CW band explains the CW spectrum (0: not at all, a pair that is
-    no target; see :func:`_regime_tier`); ambiguous: both regimes' bands overlap (|f_D| ~ f_R within
-    the CW spread), which holds is not known. ``rho``: the measured drift rate's range over the CW
-    window (relative to the ramps'): each regime's band is then where its beat must lie, not a spread
-    allowed around |f_D| (a noise peak paired with a true one is no longer explained by the true
-    return's spread CW beat). ``power``: the (up, down) peak powers (n, K); pairs more than
-    PAIR_POWER_DB apart are not pairs."""
+    possible: the pair's regime predicts a CW line that is there (detected at ``cw_pfa`` over its band's
+    cells, the CW spectrum averaged over ``records`` records) or one inside the DC guard; folded: the folded regime's
+    line is the stronger; ambiguous: both regimes' bands overlap (|f_D| ~ f_R within the CW spread),
+    which holds is not known. ``rho``: the measured drift rate's range over the CW window (relative to
+    the ramps'): each regime's band is then where its beat must lie, not a spread allowed around |f_D|."""
     a, b = fu[:, :, None], fd[:, None, :]
     hi, lo = np.maximum(a, b), np.minimum(a, b)
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
-    noise = _median_last(p_cw)[:, None]
+    noise = np.maximum(cw_noise(p_cw, records), 1e-300)[:, None]
     regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
-    bands = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
-    table = _RangeMax(p_cw)                      # one table for both regimes and every tier
-    t_n, t_f = (_regime_tier(table, df_hz, f_r, d, noise, guard_bins, guard_hz, band)
-                for (f_r, d), band in zip(regimes, bands))
-    folded = t_f > t_n
+    bands: list[Any] = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
+    table = _RangeMax(p_cw)                      # one table for both regimes
+    (x_n, l_n), (x_f, l_f) = (_regime_line(table, df_hz, f_r, d, noise, guard_bins, guard_hz, band, records, cw_pfa)
+                              for (f_r, d), band in zip(regimes, bands))
+    folded = l_f & (~l_n | (x_f > x_n))
     f_r = np.where(folded, regimes[1][0], regimes[0][0])
     d_abs = np.where(folded, regimes[1][1], regimes[0][1])
-    # which regime holds is unknown when both explain the CW spectrum equally, or when the two
-    # predictions of |f_D| (lo apart) lie within half the CW spread of each other (with the measured
-    # drift: when the two bands overlap)
+    # which regime holds is unknown when the two predictions of |f_D| (lo apart) lie within half the CW
+    # spread of each other (with the measured drift: when the two bands overlap)
     if rho is None:
         close = lo < 0.5 * RHO_MAX * 0.5 * (hi + lo) + 2 * df_hz
     else:
         (c_n, h_n), (c_f, h_f) = bands
         close = np.abs(c_n - c_f) < h_n + h_f + 4 * df_hz
-    ambiguous = ((t_n == t_f) | close) & (t_n <= len(BAND_TIERS))
-    present = vu[:, :, None] & vd[:, None, :]
-    if power is not None:
-        pu, pd = (np.maximum(np.asarray(q, dtype=np.float64), 1e-300) for q in power)
-        present &= np.abs(np.log10(pu[:, :, None] / pd[:, None, :])) <= PAIR_POWER_DB / 10
-    return np.where(present, np.maximum(t_n, t_f), 0.0), folded, f_r, sign * d_abs, ambiguous
+    ambiguous = close & np.isfinite(x_n)
+    possible = vu[:, :, None] & vd[:, None, :] & (l_n | l_f)
+    return possible, folded, f_r, sign * d_abs, ambiguous
 
 
 def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float, wavelength_m: float,
-               guard_bins: int, max_targets: int, rho=None, power=None):
-    """Greedy assignment of up/down pairs per row, strongest CW evidence first (module doc).
+               guard_bins: int, max_targets: int, rho=None, snr=None, records: int = 1, cw_pfa: float = 1e-6,
+               tie_level: float = 1e-3):
+    """The assignment of up/down pairs per row of largest total likelihood (module doc).
 
     Inputs (n, K) ramp magnitudes (Hz) and masks, the CW power spectrum (n, n_bins) with bin spacing
-    ``df_hz``. Returns per row and slot (n, max_targets): range_m, velocity_mps (positive receding),
-    valid, present (valid, or a pair whose regime is ambiguous: drawn, flagged), up and down index.
+    ``df_hz``; ``snr``: the (up, down) noise-normalised line powers (n, K) (None: all alike, the least
+    motion decides). Returns per row and slot (n, max_targets): range_m, velocity_mps (positive
+    receding), valid, present (valid, or a pair whose regime is ambiguous: drawn, flagged), up and
+    down index.
     """
     fu, fd = np.abs(np.asarray(fu, dtype=np.float64)), np.abs(np.asarray(fd, dtype=np.float64))
     vu, vd = np.asarray(vu, dtype=bool), np.asarray(vd, dtype=bool)
     n, ku = fu.shape
     kd = fd.shape[1]
-    ev, folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
-                                            guard_hz=guard_bins * df_hz, rho=rho, power=power)
-    # pairs whose CW evidence ties (two static returns a few cells apart: the crossed pairs' |f_D| is in
-    # the CW's DC guard too) go smallest |f_D| first: the crossed pairs' Doppler is only the returns'
-    # separation, and both the straight and the crossed reading explain the ramps; the straight one
-    # needs no motion (a tie-break under one tier: |f_D| / (f_R + |f_D|) / 2 < 1/2)
-    prefer = 0.5 * np.abs(f_d) / np.maximum(np.abs(f_r) + np.abs(f_d), 1e-300)
-    score = np.where(ev >= 1, ev - prefer, -np.inf).reshape(n, -1)
+    ok_pair, _folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
+                                                 guard_hz=guard_bins * df_hz, rho=rho, records=records,
+                                                 cw_pfa=cw_pfa)
+    loglik = np.ones((n, ku, kd)) if snr is None else pair_loglik(snr[0], snr[1], records)
+    match = best_matching(np.where(ok_pair, loglik, -np.inf), np.abs(f_d), tie_llr(tie_level))
     out = {k: np.zeros((n, max_targets)) for k in ("range_m", "velocity_mps")}
     valid = np.zeros((n, max_targets), dtype=bool)
     present = np.zeros((n, max_targets), dtype=bool)
     iu = np.full((n, max_targets), -1, dtype=np.int64)
     idn = np.full((n, max_targets), -1, dtype=np.int64)
-    rows = np.arange(n)
-    for s in range(min(max_targets, ku, kd)):
-        k = np.argmax(score, axis=1)
-        good = score[rows, k] > -np.inf
-        r, i, j = rows[good], k[good] // kd, k[good] % kd
+    # the pairs into the first slots, strongest evidence first
+    order = np.argsort(-np.where(match >= 0, np.take_along_axis(loglik, np.maximum(match, 0)[..., None],
+                                                                axis=2)[..., 0], -np.inf), axis=1, kind="stable")
+    for s in range(min(max_targets, ku)):
+        i = order[:, s]
+        j = match[np.arange(n), i]
+        r = np.flatnonzero(j >= 0)
+        i, j = i[r], j[r]
         out["range_m"][r, s] = C_M_PER_S * f_r[r, i, j] / (2.0 * chirp_rate_hz_per_s)
         out["velocity_mps"][r, s] = -wavelength_m * f_d[r, i, j] / 2.0
         present[r, s] = True
         valid[r, s] = ~amb[r, i, j]
         iu[r, s], idn[r, s] = i, j
-        sc = score.reshape(n, ku, kd)                # a view: each peak used once
-        sc[r, i, :] = -np.inf
-        sc[r, :, j] = -np.inf
     return out["range_m"], out["velocity_mps"], valid, present, iu, idn
 
 
@@ -267,7 +269,7 @@ def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
 
 
-def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict:
+def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarray) -> dict[str, Any]:
     """The FrameResult fields (as a dict) of a three-segment frame; ``x`` the batch's records (the
     CW segments the boundary's dechirp reads)."""
     (fu, fd), (du, dd) = out_f, out_det
@@ -277,11 +279,12 @@ def pair_frame_three(dsp, out_f: list, out_det: list, cw, x: np.ndarray) -> dict
     flat = [np.abs(a).reshape(-1, a.shape[-1]) for a in (fu, fd)]
     vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
     profile = dsp.hold
-    rng, vel, ok, seen, iu, idn = pair_three(*flat, *vflat, p_cw.reshape(-1, p_cw.shape[-1]), df,
+    (flat_u, flat_d), (valid_u, valid_d) = flat, vflat
+    rng, vel, ok, seen, iu, idn = pair_three(flat_u, flat_d, valid_u, valid_d, p_cw.reshape(-1, p_cw.shape[-1]), df,
                                              chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
                                              wavelength_m=dsp.wavelength_m, guard_bins=CW_GUARD_BINS, max_targets=k,
-                                             rho=dsp.drift_rho,
-                                             power=(du.power.reshape(-1, k), dd.power.reshape(-1, k)))
+                                             rho=dsp.drift_rho, snr=[a.reshape(-1, k) for a in line_snr(du, dd)],
+                                             records=x.shape[1], cw_pfa=dsp.ramp_pfa, tie_level=dsp.order_level)
     if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
         resolve_boundary(dsp, x, profile, flat, vflat,
                          (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,

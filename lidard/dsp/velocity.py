@@ -20,16 +20,20 @@ With I/Q data (``iq=True``) beat signs are measured, nothing folds, and d, v fol
 frequencies.  Sign convention for I/Q input: pass both beats in the dissertation's convention
 (a stationary target gives POSITIVE f_up and f_down), i.e. the down-ramp spectrum conjugated.
 
-Pairing with several returns per ramp: candidate pairs are ranked by |f_down - f_up| (the pair
-whose single-ramp ranges agree best) and matched greedily, strongest agreement first; pairs whose
-Doppler would exceed the speed limit are never matched.
+Pairing with several returns per ramp: every (up, down) pair within the speed limit is a hypothesis,
+scored by its likelihood (the lines' noise-normalised powers with one amplitude,
+:mod:`lidard.dsp.ranging.assign`), and the set of pairs with the largest total likelihood is taken;
+among equally likely sets, the one needing the least motion.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from lidard.dsp.rangefft import C_M_PER_S
+from lidard.dsp.ranging.assign import best_matching, pair_loglik, tie_llr
 from lidard.dsp.window import DspInputError
 
 
@@ -40,7 +44,14 @@ def _as_2d(a: object, name: str, dtype) -> np.ndarray:
     return arr.astype(dtype, copy=False)
 
 
-def pair_up_down(
+def pair_up_down(*args: Any, **kwargs: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pair up/down-ramp peaks and solve eqs. 2-6/2-7: (range_m, velocity_mps, valid) of
+    :func:`pair_up_down_matched` (its arguments)."""
+    rng, vel, ok, _ = pair_up_down_matched(*args, **kwargs)
+    return rng, vel, ok
+
+
+def pair_up_down_matched(
     f_up_hz: object,
     f_down_hz: object,
     valid_up: object,
@@ -51,17 +62,21 @@ def pair_up_down(
     *,
     max_speed_mps: float | None = None,
     min_beat_hz: float = 0.0,
-    strength: tuple[object, object] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    snr: tuple[object, object] | None = None,
+    records: int = 1,
+    tie_level: float = 1e-3,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pair up/down-ramp peaks and solve eqs. 2-6/2-7 (velocity positive when receding).
 
     f_up_hz, f_down_hz: (..., K) beat frequencies (real: magnitudes; iq: signed, see module doc).
     valid_up, valid_down: (..., K) masks of which entries are detections.
-    Returns range_m, velocity_mps, valid, each (..., K) aligned with the UP-ramp detections;
-    range and velocity are 0.0 where ``valid`` is False.
-    ``strength``: (up, down) peak powers (..., K): pairs are then matched strongest first (the weaker
-    peak of the pair decides) instead of smallest Doppler first -- for a wide Doppler band without a
-    prior (I/Q), where "smallest Doppler" would prefer a noise peak near a return's mirror beat.
+    Returns range_m, velocity_mps, valid, each (..., K) aligned with the UP-ramp detections (range
+    and velocity are 0.0 where ``valid`` is False), and the down slot paired with each (-1: none; a
+    pair may be paired but not valid: folding, beats at DC).
+    ``snr``: (up, down) noise-normalised peak powers (..., K), each the mean of ``records`` records: the
+    pairs' likelihoods (:func:`lidard.dsp.ranging.assign.pair_loglik`); without them every pair is
+    equally likely and the least motion decides. ``tie_level``: the level at which two sets of pairs
+    are equally good fits (:func:`lidard.dsp.ranging.assign.tie_llr`).
     """
     fu = _as_2d(f_up_hz, "f_up_hz", np.float64)
     fd = _as_2d(f_down_hz, "f_down_hz", np.float64)
@@ -89,13 +104,14 @@ def pair_up_down(
         fu2, fd2 = np.abs(fu2), np.abs(fd2)
     f_dmax = np.inf if max_speed_mps is None else 2.0 * max_speed_mps / wavelength_m
 
-    if strength is not None:
-        su = np.asarray(strength[0], dtype=np.float64).reshape(-1, ku)
-        sd = np.asarray(strength[1], dtype=np.float64).reshape(-1, kd)
-        rank = -np.minimum(su[:, :, None], sd[:, None, :])
+    if snr is not None:
+        loglik = pair_loglik(np.asarray(snr[0]).reshape(-1, ku), np.asarray(snr[1]).reshape(-1, kd), records)
     else:
-        rank = None
-    match = _greedy_match(fu2, fd2, vu2, vd2, f_dmax, rank)
+        loglik = np.ones((fu2.shape[0], ku, kd))
+    # a hypothesis: both lines detected, its Doppler (half the beats' disagreement) within the limit
+    motion = np.abs(fd2[:, None, :] - fu2[:, :, None])
+    allowed = vu2[:, :, None] & vd2[:, None, :] & (motion <= 2.0 * f_dmax)
+    match = best_matching(np.where(allowed, loglik, -np.inf), motion, tie_llr(tie_level))
     paired = match >= 0
     fdn = np.take_along_axis(fd2, np.maximum(match, 0), axis=-1)
     f_range = 0.5 * (fu2 + fdn)  # 2 gamma d / c
@@ -112,24 +128,5 @@ def pair_up_down(
     # Invalid slots hold 0.0 (not NaN) so downstream arithmetic never propagates NaN; use `valid`.
     range_m = np.where(valid, range_m, 0.0)
     velocity_mps = np.where(valid, velocity_mps, 0.0)
-    return range_m.reshape(lead + (ku,)), velocity_mps.reshape(lead + (ku,)), valid.reshape(lead + (ku,))
-
-
-def _greedy_match(fu2, fd2, vu2, vd2, f_dmax, rank=None) -> np.ndarray:
-    """Per row, the down-ramp peak paired with each up-ramp peak (-1: none), cheapest pair first
-    (``rank`` [row, i, j]: the order to take allowed pairs in; default their Doppler)."""
-    ku, kd = fu2.shape[-1], fd2.shape[-1]
-    # Pair cost: disagreement of the two single-ramp beats = 2 |Doppler|.
-    cost = np.abs(fd2[:, None, :] - fu2[:, :, None])  # [row, up i, down j]
-    ok = vu2[:, :, None] & vd2[:, None, :] & (cost <= 2.0 * f_dmax)
-    cost = np.where(ok, cost if rank is None else rank, np.inf)
-    match = np.full(fu2.shape, -1, dtype=np.int64)
-    rows = np.arange(fu2.shape[0])
-    for _ in range(min(ku, kd)):
-        flat = np.argmin(cost.reshape(cost.shape[0], ku * kd), axis=-1)
-        i, j = np.divmod(flat, kd)
-        good = np.isfinite(cost[rows, i, j])
-        match[rows[good], i[good]] = j[good]
-        cost[rows[good], i[good], :] = np.inf
-        cost[rows[good], :, j[good]] = np.inf
-    return match
+    shape = lead + (ku,)
+    return range_m.reshape(shape), velocity_mps.reshape(shape), valid.reshape(shape), match.reshape(shape)

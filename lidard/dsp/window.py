@@ -59,8 +59,8 @@ def _window_cached(window: str, n: int, symmetric: bool) -> np.ndarray:
     return w
 
 
-def get_window(window: WindowName, n: int, *, symmetric: bool = False) -> np.ndarray:
-    """Periodic window of length ``n`` (read-only float64 array); ``symmetric``: the filter-design form
+def get_window(window: str, n: int, *, symmetric: bool = False) -> np.ndarray:
+    """(``window``: a :data:`WindowName`, checked here.) Periodic window of length ``n`` (read-only float64 array); ``symmetric``: the filter-design form
     (both ends equal), for windowing a segment that is not one period of a DFT."""
     check_window_name(window)
     if int(n) != n or n < 2:

@@ -49,7 +49,8 @@ _LAZY = {
     "DEVICE_NAMES": "devices",
 }
 
-__all__ = ["POINT_DTYPE", "CalibrationResult", "DeviceFault", "Instrument", "InstrumentError", "NotSimulated",
+__all__ = ["POINT_DTYPE",  # noqa: PLE0604 - *_LAZY spreads the lazily loaded names (strings)
+           "CalibrationResult", "DeviceFault", "Instrument", "InstrumentError", "NotSimulated",
            "OutputFormat", "PatternKind", "ProgressFn", "ScanCancelled", "ScanFailed", "ScanProgress",
            "ScanRequest", "ScanResult", "SceneRejected", "SegmentsLost", "SimFaultError", *_LAZY]
 

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
 from drivers.usbtmc import DeviceDisconnected, DeviceStall, DeviceTimeout as UsbTimeout, UsbDeviceError
+from drivers.retry import RetryPolicy
 
 from ..config import Config
 from ..physics.chirp import hold_segment_v, three_segment_drive_v, triangle_drive_v
@@ -69,6 +71,15 @@ class Acquisition:
     first_pixel: int = 0                 # index inside the whole scan of plan.pixels[0]
     faults: dict[str, Any] = field(default_factory=lambda: {"batch_retries": 0})
     started: bool = False
+    # the digitizer's number of this acquisition's first segment: 0, or after the segments of earlier
+    # FPGA runs on the same arm (:meth:`AcquisitionLifecycle.next_pattern`)
+    segment_base: int = 0
+    capacity: int = 0                    # segments the digitizer was armed for (0: plan.segments)
+
+    @property
+    def segments_end(self) -> int:
+        """The digitizer's number of the first segment after this acquisition's."""
+        return self.segment_base + self.plan.segments
 
     def channel_index(self, name: str) -> int:
         # the record lists channels in the digitizer's order (channel bits), not ours
@@ -82,6 +93,7 @@ class AcquisitionLifecycle:
         self.devices = devices
         self.cfg = cfg
         self._sleep = sleep
+        self._batch_retry = RetryPolicy.retries(BATCH_RETRIES, BATCH_BACKOFF_S, sleep)
 
     # -- ready ----------------------------------------------------------------------------------
     def load_drive(self, drive_v: np.ndarray) -> None:
@@ -103,8 +115,12 @@ class AcquisitionLifecycle:
             awg.output(True)
 
     def ready(self, plan: AcquisitionPlan, *, drive_v: np.ndarray | None = None, first_pixel: int = 0,
-              faults: dict[str, Any] | None = None) -> Acquisition:
-        """(Drive,) pattern and timing to the FPGA, then the digitizer configured and armed."""
+              faults: dict[str, Any] | None = None, segments: int | None = None) -> Acquisition:
+        """(Drive,) pattern and timing to the FPGA, then the digitizer configured and armed, for
+        ``segments`` (default: the plan's; more lets later FPGA runs continue on the same arm)."""
+        capacity = plan.segments if segments is None else int(segments)
+        if capacity < plan.segments:
+            raise InstrumentError(f"digitizer: {capacity} segments cannot hold the plan's {plan.segments}")
         if drive_v is not None:
             self.load_drive(drive_v)
         fpsa, dig = self.devices["fpsa"], self.devices["digitizer"]
@@ -116,12 +132,29 @@ class AcquisitionLifecycle:
         with on_device("digitizer", "configure"):
             dig.abort()   # an acquisition a failed job left armed would lock the settings
             layout = dig.configure(channels=plan.channels, sample_rate_hz=plan.fs_hz,
-                                   record_length=plan.record_length, segments=plan.segments, bits=plan.bits,
+                                   record_length=plan.record_length, segments=capacity, bits=plan.bits,
                                    input_range_v=self.cfg.adc.input_range_v,
                                    resolution_bits=self.cfg.adc.record_bits(plan.fs_hz, plan.bits),
                                    bandwidth_hz=self.cfg.adc.bandwidth_hz)
             dig.arm()
-        return Acquisition(plan, layout, first_pixel, faults if faults is not None else {"batch_retries": 0})
+        return Acquisition(plan, layout, first_pixel, faults if faults is not None else {"batch_retries": 0},
+                           capacity=capacity)
+
+    def next_pattern(self, prev: Acquisition, plan: AcquisitionPlan,
+                     faults: dict[str, Any] | None = None) -> Acquisition | None:
+        """The next FPGA run on the digitizer acquisition ``prev`` runs on: only the pixel pattern goes
+        to the FPGA (its timing stays), the digitizer stays armed and numbers the new run's segments
+        after ``prev``'s. None when that is not possible (the digitizer's room is used up, or the plan
+        records other channels, rate, length or triggers per pixel): then :meth:`ready` again."""
+        a, b = prev.plan, plan
+        same = (a.triggers_per_pixel == b.triggers_per_pixel and tuple(a.channels) == tuple(b.channels)
+                and a.fs_hz == b.fs_hz and a.record_length == b.record_length and a.bits == b.bits)
+        if not same or prev.segments_end + plan.segments > (prev.capacity or a.segments) or prev.started:
+            return None
+        with on_device("fpsa", "pattern"):
+            self.devices["fpsa"].upload_pattern(plan.pixels)
+        return Acquisition(plan, prev.layout, 0, faults if faults is not None else {"batch_retries": 0},
+                           segment_base=prev.segments_end, capacity=prev.capacity)
 
     # -- start / read / stop --------------------------------------------------------------------
     def start(self, acq: Acquisition) -> None:
@@ -136,15 +169,14 @@ class AcquisitionLifecycle:
         failures re-read the whole batch (bounded), then :class:`SegmentsLost`."""
         dig = self.devices["digitizer"]
         last: Exception | None = None
-        for attempt in range(BATCH_RETRIES + 1):
+        for attempt in self._batch_retry.tries():   # waited BATCH_BACKOFF_S (doubling) before a re-read
             if attempt:
                 acq.faults["batch_retries"] += 1
                 log.warning("digitizer: re-reading segments %d..%d (attempt %d/%d) after %s",
                             first, first + count - 1, attempt + 1, BATCH_RETRIES + 1, last)
-                self._sleep(BATCH_BACKOFF_S * 2 ** (attempt - 1))
             with on_device("digitizer", "READ_SEGMENTS"):
                 try:
-                    return dig.read_segments(first, count, acq.layout)
+                    return dig.read_segments(acq.segment_base + first, count, acq.layout)
                 except DeviceStall as exc:
                     raise SegmentsLost(f"digitizer: refused READ_SEGMENTS({first},{count}): {exc}") from exc
                 except DeviceDisconnected as exc:

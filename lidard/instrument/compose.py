@@ -68,10 +68,11 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     from drivers.digitizer import protocol as dig_p
 
     d = cfg.devices
+    ep = endpoints or {}
     on_bench = endpoints is not None and d.controller.host == "bench"
-    fpsa_url = endpoints["fpsa_url"] if endpoints and d.fpsa.url == "bench" else d.fpsa.url
-    host = endpoints["controller_host"] if on_bench else d.controller.host
-    port = endpoints["controller_port"] if on_bench else d.controller.port
+    fpsa_url = ep["fpsa_url"] if endpoints and d.fpsa.url == "bench" else d.fpsa.url
+    host = ep["controller_host"] if on_bench else d.controller.host
+    port = ep["controller_port"] if on_bench else d.controller.port
     # Backoffs go through ``sleep`` (the virtual clock on a bench) so a device that comes back after
     # some virtual time is found again without any wall-clock wait.
     fpsa = FpsaController.from_url(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
@@ -114,9 +115,10 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
 
 def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | None = None,
                    scene: dict | None = None) -> LidarInstrument:
-    from sim_devices.bench import Bench
+    from sim_devices.bench.bench import Bench
     from sim_devices.world.scene import Scene, SceneError
 
+    start_scene: Scene | None
     if scene is not None:
         start_scene = Scene.from_dict(scene, source="<scene>")
     else:
@@ -135,7 +137,7 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
 
     hooks = SimHooks(set_scene=set_scene,
                      inject_fault=lambda kind, **params: b.inject_fault(kind, **params),
-                     clear_faults=lambda kind=None: b.clear_faults(kind),
+                     clear_faults=b.clear_faults,
                      active_faults=lambda: b.active_faults(),
                      fidelity=b.fidelity.snapshot, hold_scene_clock=b.hold_scene_clock)
     # on_close is the bench's own close: tests reach the embedded bench as ``inst._on_close.__self__``
@@ -153,7 +155,7 @@ def open_split_bench(daemon_cfg: Config, bench_cfg: Config, scene: dict | None =
 
 def _start_child(cfg: Config, scene_path: str | None) -> tuple[subprocess.Popen, dict[str, Any]]:
     """Start ``lidar-sim --json`` on the same configuration file; answers the process and its endpoints."""
-    cmd = [sys.executable, "-m", "sim_devices.bench", "--json"]
+    cmd = [sys.executable, "-m", "sim_devices.bench.bench", "--json"]
     if cfg.path is not None:
         cmd += ["--config", str(cfg.path)]
     if scene_path:
@@ -162,15 +164,18 @@ def _start_child(cfg: Config, scene_path: str | None) -> tuple[subprocess.Popen,
                             env=os.environ.copy())
     stderr_tail: collections.deque[str] = collections.deque(maxlen=20)
 
+    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None   # all PIPE
+    stdout, stderr = proc.stdout, proc.stderr
+
     def forward_stderr() -> None:   # the child's complaints go to our log, the last ones into errors
-        for raw in proc.stderr:
+        for raw in stderr:
             text = raw.decode("utf-8", "replace").rstrip()
             stderr_tail.append(text)
             log.warning("%s", text if text.startswith("lidar-sim") else f"lidar-sim: {text}")
 
     reader = threading.Thread(target=forward_stderr, name="lidar-sim-stderr", daemon=True)
     reader.start()
-    line = proc.stdout.readline()
+    line = stdout.readline()
     if not line:
         proc.kill()
         reader.join(timeout=5)
@@ -180,8 +185,8 @@ def _start_child(cfg: Config, scene_path: str | None) -> tuple[subprocess.Popen,
 
 
 def _open_child(cfg: Config, scene_path: str | None) -> LidarInstrument:
-    from sim_devices.bench import BenchControlClient
-    from sim_devices.usb_backend import backend_from_url
+    from sim_devices.bench.bench import BenchControlClient
+    from sim_devices.usb.backend import backend_from_url
 
     proc, ep = _start_child(cfg, scene_path)
     ctl = BenchControlClient(ep["control_port"])
@@ -192,7 +197,8 @@ def _open_child(cfg: Config, scene_path: str | None) -> LidarInstrument:
     def stop_child() -> None:
         ctl.close()
         try:
-            proc.stdin.close()
+            if proc.stdin is not None:
+                proc.stdin.close()
             proc.wait(timeout=10)
         except Exception:
             proc.kill()
@@ -210,9 +216,12 @@ def _open_child(cfg: Config, scene_path: str | None) -> LidarInstrument:
             raise SceneRejected(str(exc)) from None
         return {"name": reply.get("name"), "targets": int(reply.get("targets", 0))}
 
+    def clear_faults(kind: str | None = None) -> int:
+        return int(call("clear_faults", kind=kind)["cleared"])
+
     hooks = SimHooks(set_scene=set_scene,
                      inject_fault=lambda kind, **params: call("inject", kind=kind, **params)["fault"],
-                     clear_faults=lambda kind=None: int(call("clear_faults", kind=kind)["cleared"]),
+                     clear_faults=clear_faults,
                      active_faults=lambda: call("faults")["faults"],
                      fidelity=lambda: call("fidelity")["fidelity"],
                      hold_scene_clock=lambda hold: call("hold_scene_clock", hold=bool(hold)))

@@ -13,7 +13,8 @@ import dataclasses
 import enum
 
 import logging
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ names are those of the bench in §4.4.1.)
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Iterator
+from collections.abc import Iterator
 
 from ..errors import LidardError
 from .types import ScanResult
@@ -58,18 +58,26 @@ class ScanFailed(InstrumentError):
 class NotSimulated(InstrumentError):
     """A simulation-only operation (scene, fault injection) was asked of real hardware."""
 
+    http_status = 409
+
 
 class SimFaultError(InstrumentError, ValueError):
     """The simulated bench refused a fault (unknown kind or bad parameter); names it."""
+
+    http_status = 422
 
 
 class SceneRejected(InstrumentError, ValueError):
     """The simulated bench refused a scene; the message names the key or target that is wrong."""
 
+    http_status = 422
+
 
 class FaultsStillOpen(InstrumentError):
     """An acknowledgement of the controller's latched faults was refused: a cause is still present.
     ``still_open`` names each (``INTERLOCK_OPEN``, ``HV_FAULT``, ...) with why."""
+
+    http_status = 409
 
     def __init__(self, still_open: list[str]):
         self.still_open = list(still_open)

@@ -6,14 +6,14 @@ from one thread; a lock keeps callers apart). It holds the rooms and delegates:
 * scans -> :mod:`.scan_loop` (plan -> acquire -> DSP -> points, §4.4.3 imaging);
 * chirp linearization and its health check before each scan -> :mod:`.calibration` (§2.2); the range
   and pointing calibrations it is handed (``use_calibrations``: effective monitor delay, zero offset,
-  pointing; issue 13) shape the linearization's target and every scan's ranges and directions;
+  pointing) shape the linearization's target and every scan's ranges and directions;
 * the switch self-test -> :mod:`.selftest` (the FPSA's row/column lines, §4.3.3);
 * interlock, faults and the outputs -> :mod:`.safety`;
 * the four devices -> :mod:`.devices` (one registry: identities, GET /devices health and reconnect);
 * simulation control (scene, bench faults) -> the :class:`SimHooks` the composition root
   (:mod:`.compose`) hands over for a simulated bench; on real hardware it raises :class:`NotSimulated`.
 
-Faults (issue 6; docs/reliability.md): drivers retry their own transfers; the acquisition re-reads a
+Faults (docs/reliability.md): drivers retry their own transfers; the acquisition re-reads a
 failed batch of segments and resumes a lost acquisition; a device that stays down fails the scan with
 :class:`ScanFailed` naming the device (the points so far ride on it); the interlock and latched faults
 are checked between reads and trip the safe state (laser and HV off first, read back).
@@ -25,7 +25,8 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
@@ -37,6 +38,7 @@ from .calibration.linearization import Linearization
 from .devices import DeviceRegistry
 from .errors import NotSimulated, SimFaultError
 from .errors import on_device
+from .frames import Frame, Planner, StreamResult
 from .safety import FaultsStillOpen, SafetyMonitor, acknowledge, latched_state
 from .scan_loop import ScanLoop
 from .selftest import run_selftest
@@ -58,7 +60,7 @@ class SimHooks:
     #: the bench's ledger of modelled / skipped effects (cumulative counts of captured batches)
     fidelity: Callable[[], dict] | None = None
     #: hold the scene's clock across runs (a stream's frames share the scene time of its first trigger)
-    hold_scene_clock: Callable[[bool], None] | None = None
+    hold_scene_clock: Callable[[bool], object] | None = None
 
 
 class LidarInstrument:
@@ -84,7 +86,7 @@ class LidarInstrument:
                                     pull_in_v=self.profile.pull_in_v, spread_v=self.profile.threshold_spread_v)
         self.acquisition = AcquisitionLifecycle(self.registry, cfg, sleep)
         self.scan_loop = ScanLoop(cfg, self.optics, self.acquisition, self.safety, simulated=simulated)
-        self.applied = AppliedCalibrations()   # range / pointing calibrations in use (issue 13)
+        self.applied = AppliedCalibrations()   # range / pointing calibrations in use
         self.registry.identify_all()
         # The HV583 registers power up with random contents (ghost beams): clear them first.
         try:
@@ -171,13 +173,15 @@ class LidarInstrument:
                      if (calibration is not None and calibration.drive_v.size) else self._plain_drive())
             before = self._fidelity()
             result = self.scan_loop.run(request, progress, cancel, drive, calibration, raw_path=raw_path)
-            if before is not None:
-                result.meta["sim"] = {"fidelity": _ledger_difference(self._fidelity(), before)}
+            after = self._fidelity()
+            if before is not None and after is not None:
+                result.meta["sim"] = {"fidelity": _ledger_difference(after, before)}
             return result
 
-    def run_stream(self, request: ScanRequest, planner, on_frame, cancel: threading.Event,
-                   calibration: CalibrationResult | None = None, *, frames: int | None = None,
-                   health_interval_s: float = 60.0, on_points=None):
+    def run_stream(self, request: ScanRequest, planner: Planner, on_frame: Callable[[Frame], None],
+                   cancel: threading.Event, calibration: CalibrationResult | None = None, *,
+                   frames: int | None = None, health_interval_s: float = 60.0,
+                   on_points: Callable[[Any], None] | None = None) -> StreamResult:
         """Frames back to back over one bring-up (:mod:`.stream`); the linearization health check is
         repeated between frames when the TEC or ``health_interval_s`` says so."""
         from .stream import StreamLoop
@@ -193,7 +197,7 @@ class LidarInstrument:
             return loop.run(request, planner, on_frame, cancel, drive, calibration, frames=frames,
                             health_interval_s=health_interval_s, on_points=on_points)
 
-    def _fidelity(self) -> dict | None:
+    def _fidelity(self) -> dict[str, Any] | None:
         """The simulated bench's ledger of modelled / skipped effects (None on real hardware)."""
         if self._sim is None or self._sim.fidelity is None:
             return None

@@ -1,4 +1,4 @@
-"""The result of a linearization health check and what a scan's sidecar says about it (issue 13).
+"""The result of a linearization health check and what a scan's sidecar says about it.
 
 Light (numpy and the standard library only) so that the job queue, which decides whether a scan
 re-linearizes first (:meth:`lidard.jobs.worker.ScanWorker.calibration_for_scan`), and the API can use
@@ -58,9 +58,9 @@ def health_record(checked: HealthCheck | None, used: HealthCheck | None, reason:
     the scan used, the threshold, whether it was re-linearized first and why. ``checked``: the check of
     the stored drive (None when there was none to check), ``used``: the check of the drive the scan ran
     with (the same check when nothing was re-linearized; None with the check off)."""
-    if checked is None and used is None:
-        return None if reason is None else {"relinearized": True, "reason": reason}
     last = used if used is not None else checked
+    if last is None:
+        return None if reason is None else {"relinearized": True, "reason": reason}
     out = {"residual_hz": last.residual_hz, "threshold_hz": last.threshold_hz, "limit_hz": last.limit_hz,
            "relinearized": reason is not None, "reason": reason, "relative": last.relative,
            "up_error_hz": last.up_error_hz, "down_error_hz": last.down_error_hz,

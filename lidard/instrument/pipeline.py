@@ -21,7 +21,8 @@ from __future__ import annotations
 import os
 import queue
 import threading
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from ..dsp.scratch import release as release_scratch
 

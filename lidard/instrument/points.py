@@ -14,6 +14,7 @@ order) and the reads go on meanwhile; the points keep the pixel order.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 import logging
 from dataclasses import dataclass
 
@@ -93,8 +94,7 @@ class PointBuffer:
         if not self._pending:
             return
         pend, self._pending, self._pending_bytes = self._pending, [], 0
-        job = RawBatch(*(None if getattr(pend[0], f.name) is None else np.concatenate([getattr(p, f.name) for p in pend])
-                         for f in dataclasses.fields(RawBatch)))
+        job = RawBatch(*(_joined(pend, f.name) for f in dataclasses.fields(RawBatch)))
         del pend
         if self._pipe is None:
             self._chunks.append(self._process(job))
@@ -155,3 +155,8 @@ def points_from(res, optics, px: np.ndarray, t_pix: np.ndarray, clipped: np.ndar
     if zero_offset_m:
         res = dataclasses.replace(res, range_m=res.range_m - zero_offset_m)
     return frame_points(res, px, t_pix, optics.directions(px[:, 0], px[:, 1]), clipped, delay_s)
+
+
+def _joined(batches: list[RawBatch], name: str) -> Any:
+    """One field over consecutive batches (None stays None)."""
+    return None if getattr(batches[0], name) is None else np.concatenate([getattr(b, name) for b in batches])

@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from collections.abc import Callable
 
 from .healthcheck import HealthCheck
 from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
 
 if TYPE_CHECKING:   # the seam stays free of the calibration rooms at run time
     from .calibration.applied import AppliedCalibrations
+    from .frames import Frame, Planner, StreamResult
 
 StageFn = Callable[[dict[str, Any]], None]
 
@@ -40,14 +42,24 @@ class Instrument(Protocol):
         the digitizer's raw segments are recorded there (lidard.raw; the job queue passes it only for
         a request with ``record_raw``)."""
 
+    def run_stream(self, request: ScanRequest, planner: Planner, on_frame: Callable[[Frame], None],
+                   cancel: threading.Event, calibration: CalibrationResult | None = None, *,
+                   frames: int | None = None, health_interval_s: float = 60.0,
+                   on_points: Callable[[Any], None] | None = None) -> StreamResult:
+        """Frames back to back over one bring-up (:mod:`lidard.instrument.stream`): ``planner(k,
+        history)`` says which pixels frame ``k`` visits, each finished (or the partial last) frame goes
+        to ``on_frame`` as soon as it is complete, until ``frames`` are done or ``cancel`` is set; the
+        linearization health check is repeated between frames when the TEC or ``health_interval_s``
+        of hardware time says so."""
+
     def linearize(self, progress: StageFn | None = None) -> CalibrationResult:
         """Run the ILC chirp linearization through the monitor MZI."""
 
     def check_linearization(self, calibration: CalibrationResult | None) -> HealthCheck | None:
         """The linearization health check of the drive a scan with ``calibration`` would use: its chirp
-        measured through the monitor MZI against the ideal (issue 13); None when the check is off."""
+        measured through the monitor MZI against the ideal; None when the check is off."""
 
-    def use_calibrations(self, applied: "AppliedCalibrations") -> None:
+    def use_calibrations(self, applied: AppliedCalibrations) -> None:
         """Use these range/pointing calibrations (effective monitor delay, zero offset, pointing) for the
         following linearizations and scans (the job worker hands the newest stored ones over)."""
 
@@ -88,7 +100,7 @@ class Instrument(Protocol):
 
 
 #: The names callers may use on an instrument (what a fake must provide; checked in the tests).
-INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "linearize", "check_linearization",
-                      "use_calibrations", "monitor_delay_s", "laser_temperature_c",
+INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "run_stream", "linearize",
+                      "check_linearization", "use_calibrations", "monitor_delay_s", "laser_temperature_c",
                       "selftest", "controller_faults", "acknowledge_faults", "set_scene", "inject_fault",
                       "clear_faults", "active_faults", "close")

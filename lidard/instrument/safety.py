@@ -1,4 +1,4 @@
-"""The safety monitor: interlock/fault check and the safe-state path (issues 6 and 11; docs/reliability.md).
+"""The safety monitor: interlock/fault check and the safe-state path (docs/reliability.md).
 
 The laser and the FPSA's high-voltage switch drive (dissertation §4.3.3: the HV583 converters behind
 the FPGA that drive the MEMS actuators) are the two outputs that must go down when
@@ -34,7 +34,8 @@ import logging
 import sys
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from drivers.controller.driver import SettleCheck
 

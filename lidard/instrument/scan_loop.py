@@ -2,7 +2,8 @@
 
 * plan (:func:`plan_scan`): the pixel pattern (:mod:`lidard.scan`), the ADC rate and record length
   from the requested maximum range and the chirp (§2.1.1: beat frequency = chirp rate x round trip),
-  the monitor MZI channel when phase-noise compensation is on (§2.3, §4.4.2), and the frame DSP;
+  the monitor MZI channel when phase-noise compensation is on (§2.3, §4.4.2), and the frame DSP, all
+  from the one constructor a design sweep also uses (:func:`.dsp_plan.plan_signal`);
 * acquire (:class:`ScanLoop`): laser and HV up, one acquisition (:mod:`.acquisition`) started, its
   segments read in batches of at most ``SAFETY_CHECK_S`` of hardware time with the safety check
   (:mod:`.safety`) after each read (the safety watch also checks on its own thread, on wall time); a lost acquisition is resumed from the first pixel not yet read
@@ -18,7 +19,6 @@ The run's state lives in one :class:`ScanRun` context passed between the stages.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,14 +27,15 @@ import numpy as np
 
 from ..config import Config
 from ..dsp.frame import FrameDsp
-from ..dsp.gate import decimation_gate
 from ..dsp.pnframe import compensator_for, gate_m_range
-from ..dsp.rangefft import C_M_PER_S
-from ..physics.chirp import adc_rate_hz
 from ..scan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
 from .calibration.applied import AppliedCalibrations
-from .errors import InstrumentError, ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
+
+# the signal path's one constructor; AdcPlan, adc_plan and speed_span_mps are re-exported (callers' path)
+from .dsp_plan import AdcPlan, DspCalibration, adc_plan, plan_signal, speed_span_mps  # noqa: F401
+from .dsp_plan import phase_noise_on as pn_rule
+from .errors import ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
 from .pipeline import dsp_workers
 from .points import PointBuffer, RawBatch
 from .safety import SafetyMonitor, describe_safe
@@ -56,14 +57,6 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class AdcPlan:
-    fs_hz: float
-    ramp_samples: int
-    record_length: int
-    bits: int
-
-
-@dataclass(frozen=True)
 class ScanPlan:
     """Everything decided before the first trigger."""
 
@@ -82,49 +75,11 @@ class ScanPlan:
         return len(self.pixels)
 
 
-def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = False,
-             mzi_delay_s: float | None = None, max_speed_mps: float | None = None) -> AdcPlan:
-    """Sample rate and record length for beats up to ``max_range_m`` plus the Doppler shift of
-    ``max_speed_mps`` (default: the configuration's scan.max_speed_mps).
-
-    ``whole_monitor_delay``: the quadrature reconstruction steps the laser phase by the monitor delay,
-    so the rate is raised to a whole number of samples per delay (lidard.dsp.pnrecon.whole_delay_samples).
-    """
-    c, a = cfg.chirp, cfg.adc
-    doppler = 2 * speed_span_mps(cfg, max_speed_mps) / c.wavelength_m
-    fs = adc_rate_hz(max_range_m, c.rate_hz_per_s, max_doppler_hz=doppler, oversample=a.oversample,
-                     max_rate_hz=a.max_sample_rate_hz, min_rate_hz=a.min_sample_rate_hz, ramp_s=c.ramp_s)
-    if whole_monitor_delay:
-        tau_m = cfg.monitor.delay_s if mzi_delay_s is None else mzi_delay_s
-        fs = math.ceil(fs * tau_m - 1e-9) / tau_m
-        if fs > a.max_sample_rate_hz:
-            raise InstrumentError(f"scan: the quadrature monitor needs a whole number of samples per monitor delay "
-                                  f"({tau_m:g} s): {fs / 1e6:.1f} MHz is above adc.max_sample_rate_hz")
-    r = int(round(fs * c.ramp_s))
-    # 16-bit records: the digitizer decimates its full-rate core on board (more bits at low rates);
-    # a three-segment record also holds the constant segment (whole samples inside its cw_s)
-    return AdcPlan(fs_hz=fs, ramp_samples=r, record_length=2 * r + int(fs * c.cw_s + 1e-9), bits=16)
-
-
-def speed_span_mps(cfg: Config, max_speed_mps: float | None = None) -> float:
-    """The Doppler the ADC band and the ramps' search cover: the scan's requested maximum speed, else
-    the configuration's scan.max_speed_mps. On the three-segment chirp and the I/Q receiver the sign is
-    measured: a band, not a prior; on a real triangle also the prior that makes a pair unambiguous."""
-    v = cfg.scan.max_speed_mps if max_speed_mps is None else float(max_speed_mps)
-    if not (math.isfinite(v) and v > 0):
-        raise InstrumentError(f"scan: max_speed_mps must be a positive speed in m/s, got {max_speed_mps!r}")
-    return v
-
-
 def phase_noise_on(cfg: Config, request: ScanRequest, mzi_delay_s: float | None = None) -> bool:
     """Resolve scan.phase_noise_compensation (or the request's override): "auto" is on when the
     round trip of max_range_m is at least twice the monitor delay (config.ScanDefaults)."""
-    mode = request.phase_noise_compensation or cfg.scan.phase_noise_compensation
-    if mode not in ("auto", "on", "off"):
-        raise InstrumentError(f"scan: phase_noise_compensation={mode!r} is not one of 'auto', 'on', 'off'")
-    if mode == "auto":
-        return 2 * float(request.max_range_m) / C_M_PER_S >= 2 * (mzi_delay_s or cfg.monitor.delay_s)
-    return mode == "on"
+    return pn_rule(request.phase_noise_compensation or cfg.scan.phase_noise_compensation,
+                   float(request.max_range_m), mzi_delay_s or cfg.monitor.delay_s)
 
 
 def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | None = None,
@@ -135,23 +90,14 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
     pixels = plan(request, optics)
     avg = int(request.averages)
     tau_m = cfg.monitor.delay_s if mzi_delay_s is None else float(mzi_delay_s)
-    pn_on = phase_noise_on(cfg, request, tau_m)
-    quad = pn_on and cfg.monitor.quadrature
-    # the MZI beat (gamma tau_m) and its demodulation band (to 1.5 gamma tau_m) must be sampled too
-    speed = speed_span_mps(cfg, request.max_speed_mps)
-    adc = adc_plan(cfg, max(request.max_range_m, 1.5 * C_M_PER_S * tau_m / 2) if pn_on else request.max_range_m,
-                   whole_monitor_delay=quad, mzi_delay_s=tau_m, max_speed_mps=speed)
+    sig = plan_signal(cfg, DspCalibration(tau_m, iq_imbalance[0], iq_imbalance[1], hold_profile),
+                      max_range_m=request.max_range_m, max_speed_mps=request.max_speed_mps,
+                      phase_noise=request.phase_noise_compensation)
+    adc, pn_on, quad = sig.adc, sig.phase_noise, sig.quadrature
     beat = ("beat_i", "beat_q") if cfg.adc.iq else ("beat",)
     channels = beat + (("mzi", "mzi_q") if quad else ("mzi",) if pn_on else ())
-    dsp = FrameDsp(ramp_samples=adc.ramp_samples, fs_hz=adc.fs_hz, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
-                   wavelength_m=cfg.chirp.wavelength_m, max_range_m=request.max_range_m,
-                   max_speed_mps=speed, window=cfg.scan.window, pfa=cfg.scan.pfa,
-                   max_returns=cfg.scan.max_returns, cw_samples=adc.record_length - 2 * adc.ramp_samples,
-                   iq=cfg.adc.iq, iq_gain=iq_imbalance[0], iq_phase_rad=iq_imbalance[1],
-                   hold_profile=hold_profile if cfg.chirp.shape == "three_segment" else None,
-                   **decimation_gate(adc.fs_hz, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db, cfg.adc.input_range_v))
     acq = AcquisitionPlan(pixels, avg, channels, adc.fs_hz, adc.record_length, adc.bits)
-    return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
+    return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, sig.dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
 
 
 def batch_pixels(cfg: Config, p: ScanPlan) -> int:
@@ -194,7 +140,7 @@ class ScanLoop:
                  simulated: bool):
         self.cfg, self.optics, self.lifecycle, self.safety = cfg, optics, lifecycle, safety
         self.simulated = simulated
-        self.applied = AppliedCalibrations()   # the facade's use_calibrations sets it (issue 13)
+        self.applied = AppliedCalibrations()   # the facade's use_calibrations sets it
 
     def run(self, request: ScanRequest, progress: ProgressFn, cancel: threading.Event, drive_v: np.ndarray,
             calibration: CalibrationResult | None = None, raw_path=None) -> ScanResult:
@@ -203,10 +149,8 @@ class ScanLoop:
                       self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
         workers = dsp_workers()
-        run = ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
-                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=dsp_batch_bytes(p, workers),
-                                     zero_offset_m=self.applied.zero_offset_m, workers=workers),
-                      calibration_id=(calibration.meta or {}).get("id") if calibration else None)
+        run = self.new_run(p, (calibration.meta or {}).get("id") if calibration else None,
+                           flush_bytes=dsp_batch_bytes(p, workers), workers=workers)
         try:
             self.safety.bring_up()
             try:
@@ -219,12 +163,12 @@ class ScanLoop:
                     if cancel.is_set():
                         run.cancelled = True
                         break
-                    acq, accepted = self._step(run, acq, min(step, p.n_pixels - run.done))
+                    acq, accepted = self.step(run, acq, min(step, p.n_pixels - run.done))
                     if accepted:
                         progress(ScanProgress(run.done, p.n_pixels, run.points.count, run.hw_last_s,
                                               new_points=run.points.take_new()))
                 if run.stop_reason is None and self.safety.tripped is not None:
-                    self._safety_stop(run)      # the wall-clock watch tripped after the last read's check
+                    self.safety_stop(run)      # the wall-clock watch tripped after the last read's check
             except ScanFailed:
                 raise
             except Exception as exc:
@@ -237,8 +181,17 @@ class ScanLoop:
         finally:
             run.points.close()      # the DSP workers end on every path (after result(): nothing left)
 
+    def new_run(self, p: ScanPlan, calibration_id: Any = None, *, flush_bytes: int, workers: int = 0) -> ScanRun:
+        """The context of one run of ``p``: its points computed with the calibrations in use."""
+        return ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
+                                      mzi_delay_s=p.mzi_delay_s, flush_bytes=flush_bytes,
+                                      zero_offset_m=self.applied.zero_offset_m, workers=workers),
+                       calibration_id=calibration_id)
+
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
-        from ..raw.record import ScanRecorder   # zarr is loaded only by scans that record
+        from ..raw.record import (
+            ScanRecorder,  # zarr is loaded only by scans that record
+        )
         p, adc = run.plan, run.plan.adc
         optics = self.applied.optics(self.optics)      # the calibrated rays, as the points use
         return ScanRecorder.start(
@@ -253,18 +206,21 @@ class ScanLoop:
             drive_v=drive_v)
 
     # -- acquire ----------------------------------------------------------------------------------
-    def _step(self, run: ScanRun, acq: Acquisition, bp: int) -> tuple[Acquisition, bool]:
+    def step(self, run: ScanRun, acq: Acquisition, bp: int) -> tuple[Acquisition, bool]:
         """Read the next ``bp`` pixels, check safety, hand them on. Answers the acquisition to go on
-        with and whether the pixels were accepted (not after a safety stop or a resume)."""
+        with and whether the pixels were accepted (not after a safety stop or a resume).
+
+        Public with :meth:`new_run` and :meth:`safety_stop`: a stream (:mod:`.stream`) runs its frames
+        on the same read / check / DSP step as a scan, only the sequencing differs."""
         avg = run.plan.averages
         try:
             headers, samples = self.lifecycle.read(acq, (run.done - acq.first_pixel) * avg, bp * avg)
         except SegmentsLost as exc:
             # before blaming the digitizer: did the interlock or a fault stop the light?
-            if self._safety_stop(run):
+            if self.safety_stop(run):
                 return acq, False
             return self._resume(run, acq, exc), False
-        if self._safety_stop(run):
+        if self.safety_stop(run):
             # Outputs first; the batch in flight is discarded (when the light went is unknown).
             run.faults["discarded_pixels"] = bp
             log.warning("scan stopped after %d of %d pixels: %s", run.done, run.plan.n_pixels, run.stop_reason)
@@ -272,7 +228,9 @@ class ScanLoop:
         self._accept(run, acq, headers, samples, bp)
         return acq, True
 
-    def _safety_stop(self, run: ScanRun) -> bool:
+    def safety_stop(self, run: ScanRun) -> bool:
+        """Trip the safe state when the safety check (or the wall-clock watch) says so; the run keeps
+        the readbacks and the reason. Answers whether it stopped."""
         reason = self.safety.check()        # the watch's reason once it tripped, else the flags
         if reason is None:
             return False
@@ -367,7 +325,7 @@ class ScanLoop:
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),
-            # issue 13: the range / pointing calibrations the ranges and directions were computed with
+            # the range / pointing calibrations the ranges and directions were computed with
             "geometry": self.applied.meta(self.cfg.monitor.delay_s, float(dsp.max_range_m)),
             "calibrated": self.applied.calibrated(run.calibration_id is not None, iq=p.dsp.iq),
         }

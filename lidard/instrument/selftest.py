@@ -9,7 +9,8 @@ proportional to the number of beams, and :func:`analyse_selftest` turns the read
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -1,12 +1,14 @@
 """A stream of frames back to back over one bring-up (dissertation §4.1 random access, §5.2.2 adaptive scanning).
 
 A scan brings laser and HV up, loads the drive, acquires one pattern and brings everything down. A
-stream does the set-up once: outputs up and the drive loaded at the start, down at the end. Between
-frames only what a new frame needs crosses the wire: its pixel pattern to the FPGA, the digitizer
-configured for its segment count and armed, the FPGA armed and started (the FPGA refuses a new
-pattern while it runs, so a frame is one acquisition). The batches of a frame are read, checked
-(safety) and turned into points by the scan loop's own step (:meth:`ScanLoop._step`); this module
-only sequences frames.
+stream does the set-up once: outputs up and the drive loaded at the start, down at the end, and one
+digitizer acquisition armed for ``ACQUISITION_SPAN_S`` of chirps that runs across frames: the
+digitizer numbers the triggers it sees whichever FPGA run fired them, so between frames only the next
+pixel pattern goes to the FPGA, which is armed and started again (it refuses a new pattern while it
+runs: a frame is one FPGA run). The digitizer is set up again only when that arm's segments are used
+up or a health check needed the digitizer. The batches of a frame are read, checked (safety) and
+turned into points by the scan loop's own step (:meth:`ScanLoop.step`); this module only sequences
+frames.
 
 Time: every point's ``t`` counts from the stream's first trigger (on a simulated bench the scene's
 motion refers to the same moment, :meth:`StreamLoop.run` pins it). A frame's record says where it
@@ -37,71 +39,40 @@ from typing import Any
 
 import numpy as np
 
+from .acquisition import Acquisition
 from .errors import describe_failure, driver_error
-from .points import PointBuffer
+from .frames import Frame, FramePlan, Planner, StreamResult, pixel_period_s
 from .scan_loop import BATCH_BYTES, ScanLoop, ScanPlan, ScanRun, batch_pixels, plan_scan
 from .types import CalibrationResult, ScanRequest
 
 log = logging.getLogger(__name__)
 
 TEC_POLL_S = 1.0     # hardware time between TEC readings (one Modbus request each) during a stream
+# Hardware time one digitizer acquisition spans in a stream: frames run on one arm until its segments are
+# used up, then the digitizer is set up again (one frame's gap). 60 s of chirps is 375,000 segments at
+# 160 us, far inside the digitizer's 2^24 segment counter (docs/protocols/digitizer.md).
+ACQUISITION_SPAN_S = 60.0
 # Hardware time of triggers per read inside a frame: a read waits for its last trigger, so the records of
 # the frame's last read are still on the bus when its triggers end, and the next frame cannot start
 # before they are read: shorter reads shorten that tail (the gap between frames) at a fixed cost per
 # read. 5 ms: the tail of a 10 Hz frame is ~2 ms on sim.toml (records 3.7 kB per pixel over 40 MB/s).
 FRAME_READ_S = 0.005
+# ... and the frame's last read is this short: only its records are left on the bus after the last
+# trigger (1 ms of triggers: ~4 pixels, 0.4 ms of read-out on sim.toml, against ~1.9 ms for a 5 ms read)
+FRAME_TAIL_S = 0.001
 
 
-@dataclass(frozen=True)
-class FramePlan:
-    """What the next frame visits, and the planner's account of the trade (the sidecar's ``plan``)."""
-
-    pixels: np.ndarray
-    trade: dict[str, Any] = field(default_factory=dict)
-
-
-#: planner(frame_index, history) -> FramePlan; history: the finished frames, oldest first
-Planner = Callable[[int, list], FramePlan]
-
-
-@dataclass
-class Frame:
-    """One finished (or partial) frame of a stream."""
-
-    index: int
-    points: np.ndarray
-    pixels: np.ndarray                 # (n, 2) the pixels planned for this frame
-    pixels_scanned: int
-    start_s: float                     # first trigger, since the stream's first trigger
-    hardware_time_s: float             # first trigger to the end of the last record read
-    setup_s: float                     # hardware gap before the first trigger since the last frame's end
-    pixel_period_s: float              # hardware time one pixel takes (triggers + settle)
-    partial: bool = False
-    stop_reason: str | None = None
-    trade: dict[str, Any] = field(default_factory=dict)
-    faults: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def coverage(self) -> float:
-        return 0.0 if len(self.pixels) == 0 else self.pixels_scanned / len(self.pixels)
-
-    def sidecar(self) -> dict[str, Any]:
-        return {"frame": self.index, "start_s": self.start_s, "hardware_time_s": self.hardware_time_s,
-                "setup_s": self.setup_s, "pixels_planned": len(self.pixels),
-                "pixels_scanned": int(self.pixels_scanned), "coverage": self.coverage,
-                "points": len(self.points), "valid_points": int(np.sum(self.points["valid"] == 1)),
-                "partial": self.partial, "stop_reason": self.stop_reason, "plan": self.trade,
-                "faults": dict(self.faults)}
-
-
-@dataclass
-class StreamResult:
-    frames: int
-    hardware_time_s: float
-    stop_reason: str | None
-    cancelled: bool
-    health: list[dict[str, Any]]
-    meta: dict[str, Any]
+def read_size(left: int, step: int, tail: int) -> int:
+    """Pixels of the next read of a frame with ``left`` pixels to go: ``step`` at a time, then halving
+    towards the last ``tail`` pixels, read on their own. A read's records cross the bus after its
+    triggers; while the bus is at least twice as fast as the records are made (40 MB/s against 15 MB/s
+    on sim.toml) each halved read is on the host before the next one's triggers end, so what is left
+    on the bus after the frame's last trigger is the tail's records only."""
+    if left <= tail:
+        return left
+    if left <= 2 * tail:
+        return left - tail
+    return min(step, -(-left // 2))
 
 
 @dataclass
@@ -114,13 +85,15 @@ class _State:
     tec_read_s: float = -math.inf
     history: list = field(default_factory=list)
     health: list = field(default_factory=list)
+    acq: Acquisition | None = None      # the last frame's acquisition, when the next may run on its arm
+    arms: int = 0                       # digitizer acquisitions set up (configure + arm) so far
 
 
 class StreamLoop:
     """Runs frames back to back on the scan loop's acquisition, safety and DSP machinery."""
 
     def __init__(self, loop: ScanLoop, *, health: Callable[[], Any] | None = None,
-                 tec: Callable[[], float] | None = None, scene_clock: Callable[[bool], None] | None = None,
+                 tec: Callable[[], float] | None = None, scene_clock: Callable[[bool], object] | None = None,
                  history_frames: int = 4, tec_poll_s: float = TEC_POLL_S):
         self.loop = loop
         self.cfg, self.lifecycle, self.safety = loop.cfg, loop.lifecycle, loop.safety
@@ -140,7 +113,7 @@ class StreamLoop:
                          (calibration.meta or {}).get("hold_profile") if calibration else None)
 
     def pixel_period_s(self, p: ScanPlan) -> float:
-        return p.averages * self.cfg.chirp.period_s + self.cfg.scan.settle_s
+        return pixel_period_s(self.cfg, p.averages)
 
     def run(self, request: ScanRequest, planner: Planner, on_frame: Callable[[Frame], None],
             cancel: threading.Event, drive_v: np.ndarray, calibration: CalibrationResult | None = None, *,
@@ -181,6 +154,9 @@ class StreamLoop:
             stop_reason = describe_failure(exc)
             log.warning("stream stopped after %d frames: %s", count, stop_reason)
         finally:
+            if st.acq is not None:      # the arm the frames ran on has room left: end it
+                self.lifecycle.abort(st.acq)
+                st.acq = None
             try:
                 if safe is not None:    # a safety stop: outputs already down (and read back)
                     self.safety.stop_watch()
@@ -193,7 +169,7 @@ class StreamLoop:
         meta = {"pixel_period_s": self.pixel_period_s(base), "calibration_id": cal_id,
                 "adc": {"sample_rate_hz": base.adc.fs_hz, "record_length": base.adc.record_length},
                 "dsp": base.dsp.sidecar(base.phase_noise), "simulated": self.loop.simulated,
-                "health_interval_s": float(health_interval_s)}
+                "health_interval_s": float(health_interval_s), "digitizer_arms": st.arms}
         if safe is not None:
             meta["safe_state"] = safe
         return StreamResult(count, hw, stop_reason, cancel.is_set(), st.health, meta)
@@ -204,30 +180,35 @@ class StreamLoop:
         px = np.asarray(fp.pixels, dtype=np.int64).reshape(-1, 2)
         p = dataclasses.replace(base, pixels=px, acquisition=dataclasses.replace(base.acquisition, pixels=px))
         loop = self.loop
-        run = ScanRun(p, PointBuffer(p.dsp, loop.applied.optics(loop.optics), lsb_v=p.lsb_v,
-                                     mzi_delay_s=p.mzi_delay_s, flush_bytes=BATCH_BYTES,
-                                     zero_offset_m=loop.applied.zero_offset_m), calibration_id=cal_id)
+        run = loop.new_run(p, cal_id, flush_bytes=BATCH_BYTES)
         if len(px):
             try:
-                acq = self.lifecycle.ready(p.acquisition, faults=run.faults)
+                acq = None if st.acq is None else self.lifecycle.next_pattern(st.acq, p.acquisition, run.faults)
+                st.acq = None
+                if acq is None:         # the first frame, or the last arm is used up: set the digitizer up
+                    acq = self.lifecycle.ready(p.acquisition, faults=run.faults, segments=self._capacity(p))
+                    st.arms += 1
                 self.lifecycle.start(acq)
                 step = min(batch_pixels(self.cfg, p), max(1, int(FRAME_READ_S / self.pixel_period_s(p))))
+                tail = min(step, max(1, int(FRAME_TAIL_S / self.pixel_period_s(p))))
                 while run.done < p.n_pixels and run.stop_reason is None:
                     if cancel.is_set():
                         run.cancelled = True
                         break
-                    acq, accepted = loop._step(run, acq, min(step, p.n_pixels - run.done))
+                    acq, accepted = loop.step(run, acq, read_size(p.n_pixels - run.done, step, tail))
                     if accepted and on_points is not None:
                         new = run.points.take_new()
                         if new is not None:
                             on_points(self._place(new, index, run, st))
                 if run.stop_reason is None and self.safety.tripped is not None:
-                    loop._safety_stop(run)
+                    loop.safety_stop(run)
                 try:
                     self.lifecycle.stop(acq)
                 finally:
                     if run.done < p.n_pixels:
                         self.lifecycle.abort(acq)
+                    else:               # the next frame may continue on this arm
+                        st.acq = acq
             except Exception as exc:     # a device that stays down: this frame is the last (partial)
                 run.stop_reason = describe_failure(exc)
                 log.warning("stream frame %d failed: %s", index, run.stop_reason, exc_info=driver_error(exc))
@@ -242,11 +223,17 @@ class StreamLoop:
         else:
             setup = 0.0
         pts = self._place(pts, index, run, st)
-        frame = Frame(index, pts, px, run.done, 0.0 if frame_t0 is None else (frame_t0 - st.t0_ns) * 1e-9,
+        frame = Frame(index, pts, px, run.done,
+                      0.0 if frame_t0 is None or st.t0_ns is None else (frame_t0 - st.t0_ns) * 1e-9,
                       run.hw_last_s, setup, self.pixel_period_s(p),
                       partial=run.done < p.n_pixels, stop_reason=run.stop_reason, trade=dict(fp.trade),
                       faults=dict(run.faults))
         return run, frame
+
+    def _capacity(self, p: ScanPlan) -> int:
+        """Segments a stream's digitizer acquisition is armed for: ACQUISITION_SPAN_S of chirps, at
+        least the frame's."""
+        return max(p.acquisition.segments, int(ACQUISITION_SPAN_S / self.cfg.chirp.period_s))
 
     @staticmethod
     def _place(pts: np.ndarray, index: int, run: ScanRun, st: _State) -> np.ndarray:
@@ -286,6 +273,11 @@ class StreamLoop:
 
     def _recheck(self, st: _State, drive_v: np.ndarray, why: str) -> str | None:
         """Run the health check between frames; answers the stop reason when the chirp is off."""
+        if self._health is None:        # no check configured: nothing is ever due (_health_due)
+            return None
+        if st.acq is not None:          # the check sets the digitizer up for itself
+            self.lifecycle.abort(st.acq)
+            st.acq = None
         check = self._health()          # its own acquisition; outputs up and down around it
         st.checked_s, st.tec_c = self._now_s(st), self._read_tec()
         if check is not None:

@@ -9,16 +9,18 @@ beam: the 3D imaging of §4.4.3); the calibration result is the chirp linearizat
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Literal
+from collections.abc import Callable
 
 import numpy as np
 
 # One record per detected return: the schema of lidard.point_schema (name, dtype, unit, meaning of each
 # field), the same in memory and in every file format.
 from ..point_schema import POINT_DTYPE  # noqa: F401  (re-exported: the seam's point record)
+from ..point_schema import PointFormat
 
 PatternKind = Literal["raster", "serpentine", "roi", "pixels", "adaptive", "track"]  # track: streams only
-OutputFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]  # lidard.pointcloud.FORMATS
+OutputFormat = PointFormat  # the one list of point-file formats (lidard.point_schema)
 
 
 

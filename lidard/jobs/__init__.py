@@ -1,6 +1,6 @@
 """The scan worker: the one thread that owns the instrument, and the FIFO queue in front of it.
 
-Rooms (issue 12): :mod:`.worker` (the queue, the thread, submit/cancel/wait, calibration reuse),
+Rooms: :mod:`.worker` (the queue, the thread, submit/cancel/wait, calibration reuse),
 :mod:`.scan_job` (one scan: run, adaptive passes, write, outcome), :mod:`.kinds` (job kinds, errors,
 request records), :mod:`.events` (subscribers and live listeners). Import from ``lidard.jobs``.
 
@@ -15,11 +15,11 @@ Policy (also in docs/api.md):
 * A scan uses the newest stored calibration of the configured laser; with none, or when the laser's
   TEC temperature is now more than ``recalibrate_delta_c`` (``scan.recalibrate_delta_c``) away from the
   calibration's, the worker runs ``instrument.linearize()`` first and stores the result. Otherwise the
-  linearization health check (``instrument.check_linearization``, issue 13) measures the stored drive's
+  linearization health check (``instrument.check_linearization``) measures the stored drive's
   chirp and a chirp error above ``scan.linearity_threshold_hz`` re-linearizes first; the scan's sidecar
   records the check as ``linearization``.
 * Before every scan and linearization the newest stored range and pointing calibrations
-  (:mod:`.calibrations`, issue 13) are handed to the instrument; a stored linearization made against
+  (:mod:`.calibrations`) are handed to the instrument; a stored linearization made against
   another monitor delay than the range calibration's is stale and redone. Only records made on the
   instrument's own set-up are handed over (``setup``, lidard.instrument.calibration.setup); the scan
   says why others were not (``uncalibrated_reason``). Calibration measurements (plates, pointing
@@ -48,11 +48,11 @@ Policy (also in docs/api.md):
 from __future__ import annotations
 
 from .events import Event, EventHub, PointListener, Subscriber
-from .kinds import (QueueFull, UnknownScan, WorkerStopped, describe_error, request_from_dict, request_to_dict,
-                    software_version)
+from .kinds import (JobFailed, QueueFull, UnknownScan, WorkerStopped, describe_error, request_from_dict,
+                    request_to_dict, software_version)
 from .scan_job import ScanJobRun
 from .worker import ScanWorker
 
-__all__ = ["Event", "EventHub", "PointListener", "QueueFull", "ScanJobRun", "ScanWorker", "Subscriber",
+__all__ = ["Event", "EventHub", "JobFailed", "PointListener", "QueueFull", "ScanJobRun", "ScanWorker", "Subscriber",
            "UnknownScan", "WorkerStopped", "describe_error", "request_from_dict", "request_to_dict",
            "software_version"]

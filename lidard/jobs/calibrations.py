@@ -1,6 +1,6 @@
 """Range, pointing and I/Q calibrations as daemon procedures: queued on the worker, recorded in the store.
 
-The steps a lab runs (issue 13 item 2; the physics is in lidard.instrument.calibration.range / .pointing):
+The steps a lab runs (the physics is in lidard.instrument.calibration.range / .pointing):
 
 * ``add_plate(known_m)``: queued behind the jobs waiting; scans the centre region against the plate
   now in front of the sensor, keeps the measurement in the store (pending, survives a restart);
@@ -23,7 +23,7 @@ import math
 from typing import Any
 
 from ..instrument.calibration.range import DEFAULT_NOISE_M, CalibrationRefused, PlateMeasurement, fit_range as _fit
-from ..store_calibrations import CalibrationRecord
+from ..store import CalibrationRecord
 
 
 def add_plate(worker, known_m: float) -> concurrent.futures.Future:
@@ -42,21 +42,21 @@ def plate_now(worker, known_m: float) -> dict[str, Any]:
     lin = worker.current_linearization()
     m = measure_plate(worker.instrument, worker.optics, float(known_m), lin, worker.applied)
     setup = worker.setup_of("range")
-    return worker.store.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
+    return worker.store.geometry.add_range_measurement({**m.as_dict(), **({"setup": setup} if setup else {})})
 
 
 def plates(store) -> list[dict[str, Any]]:
-    return store.range_measurements()
+    return store.geometry.range_measurements()
 
 
 def remove_plates(store, ids: list[str] | None = None) -> int:
-    return store.remove_range_measurements(ids)
+    return store.geometry.remove_range_measurements(ids)
 
 
 def fit_range(store, nominal_delay_s: float, setup: dict[str, Any] | None = None) -> CalibrationRecord:
     """Fit the pending plates; store and answer the record (the plates are consumed). ``setup``: the
     instrument's range set-up (``Setup.as_dict()``); plates measured on another one are refused by id."""
-    pending = store.range_measurements()
+    pending = store.geometry.range_measurements()
     if setup is not None:
         alien = [m["id"] for m in pending if (m.get("setup") or {}).get("hash") != setup["hash"]]
         if alien:
@@ -74,12 +74,12 @@ def fit_range(store, nominal_delay_s: float, setup: dict[str, Any] | None = None
             "(`lidarctl calibration range drop ID`) and measure them again")
     fit = _fit([PlateMeasurement.from_dict(m) for m in pending], nominal_delay_s)
     temps = [m["temperature_c"] for m in pending if m.get("temperature_c") is not None]
-    rec = store.save_geometry_calibration(
+    rec = store.geometry.save(
         "range", temperature_c=sum(temps) / len(temps) if temps else None,
         inputs={"measurements": pending, **({"setup": setup} if setup else {}),
                 **({"phase_noise_compensation": modes[0]} if modes else {})},
         fitted=fit.fitted(), residuals=fit.residuals())
-    store.remove_range_measurements([m["id"] for m in pending])
+    store.geometry.remove_range_measurements([m["id"] for m in pending])
     return rec
 
 
@@ -95,7 +95,7 @@ def pointing_now(worker, surfaces) -> CalibrationRecord:
     """On the worker thread: scan the known targets ``surfaces`` (parsed geometry), fit, store the record."""
     from ..instrument.calibration.procedures import measure_pointing
     applied = worker.apply_geometry()
-    rng = worker.store.get_geometry_calibration(applied.range_id) if applied.range_id else None
+    rng = worker.store.geometry.get(applied.range_id) if applied.range_id else None
     if rng is None:   # refused before any linearization or scan
         raise CalibrationRefused("pointing calibration: no range calibration yet (of this set-up); the fit places points "
                                  "with range-calibrated ranges: run `lidarctl calibrate` (or `lidarctl calibration "
@@ -104,7 +104,7 @@ def pointing_now(worker, surfaces) -> CalibrationRecord:
     # the plates' single-pixel spread: the range noise the point-to-surface residuals are judged by
     noise_m = float(rng.residuals.get("pixel_std_m") or DEFAULT_NOISE_M)
     fit, scan = measure_pointing(worker.instrument, worker.optics, surfaces, lin, noise_m)
-    return worker.store.save_geometry_calibration(
+    return worker.store.geometry.save(
         "pointing", temperature_c=worker.instrument.laser_temperature_c(),
         inputs={"geometry": [s.as_dict() for s in surfaces], "range_calibration_id": rng.id,
                 "linearization_id": lin.meta.get("id"), "noise_m": noise_m, **scan,
@@ -113,7 +113,7 @@ def pointing_now(worker, surfaces) -> CalibrationRecord:
 
 
 def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
-    """Queue an I/Q imbalance calibration on the targets in front of the sensor (issue 14 item 2); the
+    """Queue an I/Q imbalance calibration on the targets in front of the sensor; the
     future resolves to the stored record."""
     from ..instrument.calibration.iq import measure_iq, require_iq_receiver
     max_range_m = float(max_range_m)
@@ -125,7 +125,7 @@ def iq(worker, max_range_m: float = 2.0) -> concurrent.futures.Future:
         worker.apply_geometry()
         lin = worker.current_linearization()
         fit, scan = measure_iq(worker.instrument, worker.optics, lin, max_range_m=max_range_m)
-        return worker.store.save_geometry_calibration(
+        return worker.store.geometry.save(
             "iq", temperature_c=worker.instrument.laser_temperature_c(),
             inputs={"linearization_id": lin.meta.get("id"), **scan, **_setup(worker, "iq")},
             fitted=fit.fitted(), residuals=fit.residuals())
@@ -141,7 +141,7 @@ def records(store, cfg, kind: str | None = None, limit: int = 20) -> list[dict[s
     """Range, pointing and I/Q records and the chirp linearizations, newest first, as one listing."""
     out: list[dict[str, Any]] = []
     if kind in (None, "range", "pointing", "iq"):
-        out += [r.to_dict() for r in store.list_geometry_calibrations(kind, limit)]
+        out += [r.to_dict() for r in store.geometry.recent(kind, limit)]
     if kind in (None, "linearization"):
         out += [linearization_record(c) for c in store.list_calibrations(limit, cfg.laser)]
     return sorted(out, key=lambda r: r["created"] or 0.0, reverse=True)[:limit]
@@ -156,7 +156,7 @@ def linearization_record(cal) -> dict[str, Any]:
 
 
 def record(store, cal_id: str) -> dict[str, Any] | None:
-    rec = store.get_geometry_calibration(cal_id)
+    rec = store.geometry.get(cal_id)
     if rec is not None:
         return rec.to_dict()
     lin = store.get_calibration(cal_id)

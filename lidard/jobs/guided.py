@@ -30,7 +30,8 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Literal
+from collections.abc import Callable
 
 log = logging.getLogger("lidard.jobs")
 
@@ -68,11 +69,11 @@ def pending_refusal(pending: list[dict[str, Any]]) -> str:
 def resolve_pending(store, pending: Pending) -> list[dict[str, Any]]:
     """Apply the pending-plates policy; answers the plates kept."""
     from ..instrument.calibration.range import CalibrationRefused
-    waiting = store.range_measurements()
+    waiting = store.geometry.range_measurements()
     if not waiting:
         return []
     if pending == "drop":
-        store.remove_range_measurements([m["id"] for m in waiting])
+        store.geometry.remove_range_measurements([m["id"] for m in waiting])
         return []
     if pending == "keep":
         return waiting

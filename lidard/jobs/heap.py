@@ -1,37 +1,88 @@
-"""Freed heap memory goes back to the system after every job of the scan worker.
+"""The daemon's C heap: set up once at start so a process that runs for weeks does not creep up, and
+freed pages handed back after every job of the scan worker.
 
-A scan allocates and frees tens of MB of numpy temporaries and many small objects on several threads
-(the worker, the HTTP server's thread pool). glibc's allocator keeps freed memory in per-thread
-arenas and returns it to the system only from the top of each heap, so a long-running daemon's RSS
-creeps up in steps as arenas fill and fragment, although nothing is leaked (measured: ~7 MB freed by
-one ``malloc_trim(0)`` after a scan, the same 7 MB in use again ten scans later). ``malloc_trim``
-walks every arena and gives back whole free pages; it takes about a millisecond. On other C
-libraries (musl, macOS) there is no such call and nothing is done.
+A scan allocates and frees tens of MB of numpy temporaries (the DSP's batches are up to 8 MiB) and
+many small objects on several threads (the worker, the DSP pipeline's threads, the HTTP server's
+thread pool). With glibc's defaults three things let a daemon's RSS wander by tens of MB although
+nothing is leaked:
+
+* **The dynamic mmap threshold.** A block above the threshold (128 KiB at start) is its own mapping,
+  unmapped when freed; but freeing such a block raises the threshold to its size (up to 32 MiB), so
+  from then on the DSP's multi-MB arrays are carved out of the arenas' heaps, where a long-lived small
+  object above a freed array pins its pages, and glibc gives memory back only from a heap's top.
+* **Huge pages left behind.** numpy asks for transparent huge pages (``madvise``) on every array of
+  4 MiB or more. An array carved out of an arena's heap leaves that flag on the heap's range after it is
+  freed; the kernel's khugepaged then collapses those ranges back into 2 MiB pages, refilling the holes
+  ``malloc_trim`` punched (the 60-minute soak's daemon: ``AnonHugePages`` 39 -> 55 MB and back).
+* **One arena per thread**, up to 8 per core: every arena keeps its own free memory.
+
+:func:`configure` therefore fixes the mmap threshold (``M_MMAP_THRESHOLD``: setting it turns the
+dynamic adjustment off), so every large array is a mapping of its own that goes back to the system
+whole, huge-page flag and all, the moment it is freed; and it bounds the arenas (``M_ARENA_MAX``) to
+one per core the process may run on. Call it before the process starts threads. :func:`trim` after a
+job walks every arena and gives back whole free pages (about a millisecond; measured ~7 MB freed by one
+trim after a scan). On other C libraries (musl, macOS) there are no such calls and nothing is done.
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+import os
 import sys
+
+# mallopt parameters (glibc's malloc.h)
+_M_MMAP_THRESHOLD = -3
+_M_ARENA_MAX = -8
+MMAP_THRESHOLD_BYTES = 256 << 10
+"""Blocks of this size or more are mappings of their own (glibc's default starts at 128 KiB and grows
+with what is freed). 256 KiB keeps the small and mid-size objects of a scan in the arenas and puts every
+record batch, spectrum and point array (tens of kB per pixel, thousands of pixels) in its own mapping."""
 
 
 @functools.lru_cache(maxsize=1)
-def _malloc_trim():
+def _libc():
     if not sys.platform.startswith("linux"):
         return None
     try:
-        fn = ctypes.CDLL(None).malloc_trim          # the C library this process already uses
+        libc = ctypes.CDLL(None)                    # the C library this process already uses
+        trim_fn, mallopt = libc.malloc_trim, libc.mallopt
     except (OSError, AttributeError):
         return None
-    fn.argtypes, fn.restype = [ctypes.c_size_t], ctypes.c_int
-    return fn
+    trim_fn.argtypes, trim_fn.restype = [ctypes.c_size_t], ctypes.c_int
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return libc
+
+
+def arenas_for_this_process() -> int:
+    """One malloc arena per core this process may run on (its affinity), at least 2."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return max(2, cores)
+
+
+def configure(mmap_threshold: int = MMAP_THRESHOLD_BYTES, arena_max: int | None = None) -> bool:
+    """Fix glibc's mmap threshold and bound its arenas for a long-running process (see the module's
+    docstring); False where the C library has no ``mallopt`` (nothing changed)."""
+    if mmap_threshold <= 0:
+        raise ValueError(f"heap.configure: mmap_threshold must be > 0 bytes, got {mmap_threshold!r}")
+    arenas = arenas_for_this_process() if arena_max is None else arena_max
+    if arenas < 1:
+        raise ValueError(f"heap.configure: arena_max must be >= 1, got {arena_max!r}")
+    libc = _libc()
+    if libc is None:
+        return False
+    ok = libc.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
+    ok = libc.mallopt(_M_ARENA_MAX, int(arenas)) == 1 and ok
+    return ok
 
 
 def trim() -> bool:
     """Return freed heap pages to the system; False where the C library has no ``malloc_trim``."""
-    fn = _malloc_trim()
-    if fn is None:
+    libc = _libc()
+    if libc is None:
         return False
-    fn(0)
+    libc.malloc_trim(0)
     return True

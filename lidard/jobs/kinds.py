@@ -1,4 +1,4 @@
-"""The job kinds of the scan worker's queue and what a job's record holds (lidard.jobs, issue 12).
+"""The job kinds of the scan worker's queue and what a job's record holds (lidard.jobs).
 
 A scan (:class:`_ScanJob`, recorded in the store under its id), a chirp linearization (§2.2) and a
 switch self-test (both resolved through a future); the errors the queue raises; and the one-line
@@ -20,9 +20,18 @@ from ..instrument.types import ScanRequest
 class QueueFull(LidardError):
     """The job queue is at its limit; try again after the running jobs finish."""
 
+    retry_after_s = 5
+
+
+class JobFailed(LidardError):
+    """A queued job (a linearization, a self-test, a calibration) failed on the worker; the message
+    names the job and the chain of causes (503: the daemon's state, not the request's fault)."""
+
 
 class WorkerStopped(LidardError):
     """The worker is not running (daemon shutting down)."""
+
+    retry_after_s = 5
 
 
 def software_version() -> str:

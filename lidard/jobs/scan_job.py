@@ -1,4 +1,4 @@
-"""One scan job, from ``queued`` to a terminal state, on the worker thread (lidard.jobs, issue 12).
+"""One scan job, from ``queued`` to a terminal state, on the worker thread (lidard.jobs).
 
 :class:`ScanJobRun` is the explicit context of a running scan (what the worker used to keep in closures
 and ``[value]`` cells): the calibration it uses, when the store last heard its progress, and the
@@ -12,12 +12,18 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any, Protocol
 
 from ..instrument.calibration.applied import AppliedCalibrations
+from ..instrument.errors import ScanFailed
+from ..instrument.protocol import Instrument
 from ..instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
 from ..pointcloud import suffix_of, write_points
+from ..physics.optics import FpsaOptics
 from ..scan import adaptive_plans, planned_pixel_count
+from ..store import Store
+from .events import EventHub
 from .kinds import _ScanJob, describe_error, request_to_dict, software_version
 
 
@@ -29,12 +35,32 @@ def raw_path(store, scan_id: str):
 log = logging.getLogger("lidard.jobs")
 
 
+class ScanHost(Protocol):
+    """What a scan needs from the worker that runs it (:class:`lidard.jobs.worker.ScanWorker`): its
+    store, instrument and event hub, the metadata and progress interval it was given, the geometry
+    calibrations it applied, the calibration for a scan, whether it is stopping (a cancelled scan is
+    then ``interrupted``) and the end of a scan (``finish_scan``: raw size, the end event, waiters)."""
+
+    store: Store
+    instrument: Instrument
+    events: EventHub
+    base_meta: dict[str, Any]
+    progress_interval_s: float
+    optics: FpsaOptics | None
+    applied: AppliedCalibrations | None
+
+    @property
+    def stopping(self) -> bool: ...
+
+    def calibration_for_scan(self, job: _ScanJob) -> CalibrationResult: ...
+
+    def finish_scan(self, job: _ScanJob) -> None: ...
+
+
 class ScanJobRun:
     """The context of one scan on the worker thread."""
 
-    # ``worker`` is the lidard.jobs.worker.ScanWorker that runs this scan (not imported: the worker
-    # imports this module, and lidard's modules form no import cycle, see pyproject.toml)
-    def __init__(self, worker: Any, job: _ScanJob) -> None:
+    def __init__(self, worker: ScanHost, job: _ScanJob) -> None:
         self.w, self.job = worker, job
         self.store, self.instrument = worker.store, worker.instrument
         self.t0 = time.monotonic()
@@ -48,14 +74,14 @@ class ScanJobRun:
         self.t0 = time.monotonic()
         if not self.store.transition(job.id, ("queued",), state="running", stage="preparing",
                                      started=started):
-            self.w._finish(job)
+            self.w.finish_scan(job)
             return
         try:
             result = self._measure()
         except ScanCancelled:
             self.store.update_scan(job.id, state="cancelled", stage="cancelled", partial=True,
                                    finished=time.time(), wall_time_s=time.monotonic() - self.t0)
-            self.w._finish(job)
+            self.w.finish_scan(job)
             return
         except Exception as exc:
             self._failed(exc)
@@ -82,7 +108,7 @@ class ScanJobRun:
         job = self.job
         cal = self.w.calibration_for_scan(job)
         self.cal_id = cal.meta.get("id")
-        applied = self.w.applied
+        applied = self.w.applied or AppliedCalibrations()
         iq = bool(getattr(self.instrument, "iq_receiver", False))
         self.store.update_scan(job.id, stage="scanning", calibration_id=self.cal_id,
                                range_calibration_id=applied.range_id, pointing_calibration_id=applied.pointing_id,
@@ -98,7 +124,7 @@ class ScanJobRun:
     def _failed(self, exc: Exception) -> None:
         job = self.job
         log.warning("scan %s failed: %s", job.id, describe_error(exc))
-        partial_result = getattr(exc, "partial", None)
+        partial_result = exc.partial if isinstance(exc, ScanFailed) else None
         files: dict[str, str] = {}
         counts: dict[str, Any] = {}
         if isinstance(partial_result, ScanResult) and partial_result.pixels_scanned > 0:
@@ -116,7 +142,7 @@ class ScanJobRun:
         self.store.update_scan(job.id, state="failed", stage="failed", error=describe_error(exc),
                                finished=time.time(), wall_time_s=time.monotonic() - self.t0,
                                partial=bool(files), files=files, **counts)
-        self.w._finish(job)
+        self.w.finish_scan(job)
 
     def _measured(self, result: ScanResult) -> None:
         job = self.job
@@ -127,7 +153,7 @@ class ScanJobRun:
             self.store.update_scan(job.id, state="failed", stage="failed", finished=time.time(),
                                    error=f"writing the point cloud failed: {describe_error(exc)}",
                                    wall_time_s=wall)
-            self.w._finish(job)
+            self.w.finish_scan(job)
             return
         self.w.events.points_out(job.id, result.points, True)
         partial = bool(result.partial or job.cancel.is_set())
@@ -136,7 +162,7 @@ class ScanJobRun:
             state = "failed"
             log.warning("scan %s stopped: %s", job.id, stop_reason)
         elif job.cancel.is_set():
-            state = "interrupted" if self.w._stopping else "cancelled"
+            state = "interrupted" if self.w.stopping else "cancelled"
             log.info("scan %s %s: %s", job.id, state, job.cancel_reason)
         else:
             state = "done"
@@ -148,7 +174,7 @@ class ScanJobRun:
             pixels_planned=int(result.pixels_planned), hardware_time_s=float(result.hardware_time_s),
             wall_time_s=wall, progress=(result.pixels_scanned / result.pixels_planned
                                         if result.pixels_planned else 1.0))
-        self.w._finish(job)
+        self.w.finish_scan(job)
 
     def write(self, result: ScanResult, wall_s: float) -> dict[str, str]:
         """Write every requested format under ``data_dir/scans/<id>/``; return {format: relative path}."""
@@ -159,7 +185,7 @@ class ScanJobRun:
             "request": request_to_dict(job.request),
             "calibration_id": self.cal_id,
             "linearization": job.linearization,
-            # issue 13 item 4: which calibrations the points were computed with, said in every sidecar
+            # which calibrations the points were computed with, said in every sidecar
             **self._calibrated(),
             "hardware_time_s": float(result.hardware_time_s),
             "wall_time_s": float(wall_s),
@@ -172,7 +198,7 @@ class ScanJobRun:
             "stop_reason": result.stop_reason or (job.cancel_reason if job.cancel.is_set() else None),
         }
         out_dir = self.store.scan_dir(job.id)
-        files = {}
+        files: dict[str, str] = {}
         for fmt in job.request.formats:
             path = out_dir / f"scan{suffix_of(fmt)}"
             write_points(path, result.points, meta, fmt)
@@ -230,12 +256,16 @@ def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], N
                           pixels_planned=planned, hardware_time_s=offset_s + second.hardware_time_s,
                           partial=second.partial, stop_reason=second.stop_reason)
 
+    nothing = dataclasses.replace(first, points=first.points[:0], pixels_scanned=0, hardware_time_s=0.0, meta={})
     try:
         second = instrument.run_scan(as_pixels(dense), dense_progress, job.cancel, cal)
-    except Exception as exc:
+    except ScanFailed as exc:
         # the coarse pass is measured data: it rides on the failure like any partial result
-        part = getattr(exc, "partial", None)
-        exc.partial = merged(part if isinstance(part, ScanResult) else dataclasses.replace(
-            first, points=first.points[:0], pixels_scanned=0, hardware_time_s=0.0, meta={}))
+        exc.partial = merged(exc.partial if exc.partial is not None else nothing)
         raise
+    except ScanCancelled:
+        raise
+    except Exception as exc:
+        # any other failure of the dense pass: a ScanFailed, so that the coarse points have a typed home
+        raise ScanFailed(f"the dense pass of the adaptive scan failed: {exc}", partial=merged(nothing)) from exc
     return merged(second)

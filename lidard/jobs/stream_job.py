@@ -31,6 +31,9 @@ from ..instrument.types import ScanRequest
 log = logging.getLogger("lidard.jobs")
 
 STREAM_PATTERNS = ("raster", "serpentine", "roi", "pixels", "track")
+# frames whose points a stream keeps in memory for live clients (a few MB at the sizes lidard streams);
+# older frames are read back from their files
+KEEP_FRAMES = 32
 
 
 class StreamRequestError(ValueError):
@@ -44,6 +47,9 @@ class StreamSpec:
     frame_rate_hz: float | None = None    # the track pattern's pixel budget
     out: str | None = None                # a directory (frames in request.formats[0]) or a .mcap file
     health_interval_s: float = 60.0
+    # hardware time of one pixel (lidard.instrument.frames.pixel_period_s of the configuration): the
+    # unit of the track pattern's pixel budget
+    pixel_s: float | None = None
 
     def check(self) -> None:
         pat = self.request.pattern
@@ -59,17 +65,22 @@ class StreamSpec:
                                      f"a {pat!r} frame takes as long as its pixels")
         if not self.health_interval_s > 0:
             raise StreamRequestError(f"health_interval_s: {self.health_interval_s} must be > 0")
+        if pat == "track" and not (self.pixel_s is not None and self.pixel_s > 0):
+            raise StreamRequestError(f"pixel_s: the track pattern needs the hardware time of one pixel, got "
+                                     f"{self.pixel_s!r}")
 
 
-def planner_for(spec: StreamSpec, optics, cfg) -> Callable:
+def planner_for(spec: StreamSpec, optics) -> Callable:
     """The frame planner of a stream: the same pixels every frame, or the track planner."""
-    from ..instrument.stream import FramePlan
+    from ..instrument.frames import FramePlan
     from ..scan import plan
     req = spec.request
     if req.pattern == "track":
         from ..tracking import TrackParams, track_planner
-        pixel_s = req.averages * cfg.chirp.period_s + cfg.scan.settle_s
-        return track_planner(req, optics, TrackParams(frame_rate_hz=spec.frame_rate_hz or 10.0, pixel_s=pixel_s))
+        spec.check()
+        assert spec.pixel_s is not None     # check() refuses a track stream without it
+        return track_planner(req, optics, TrackParams(frame_rate_hz=spec.frame_rate_hz or 10.0,
+                                                      pixel_s=spec.pixel_s))
     px = plan(req, optics)
     trade = {"pattern": req.pattern, "pixels": len(px)}
     return lambda k, history: FramePlan(px, trade)
@@ -131,9 +142,18 @@ class StreamJob:
     linearization: dict | None = None
     started_at: float | None = None
     on_frame: Callable[[Any], None] | None = None      # live listeners (the frame object)
+    # the newest frames' points by index (the web viewer animates them; older ones are read from their
+    # files): at most ``keep_frames``
+    recent: dict[int, Any] = dataclasses.field(default_factory=dict)
+    keep_frames: int = KEEP_FRAMES
+    created_at: float = dataclasses.field(default_factory=time.time)
+
+    def frame_points(self, index: int):
+        """Frame ``index``'s points when still held in memory, else None."""
+        return self.recent.get(int(index))
 
     def status(self) -> dict[str, Any]:
-        return {"id": self.id, "state": self.state, "frames_done": len(self.frames),
+        return {"id": self.id, "state": self.state, "created_at": self.created_at, "frames_done": len(self.frames),
                 "frames_planned": self.spec.frames, "pattern": self.spec.request.pattern,
                 "frame_rate_hz": self.spec.frame_rate_hz, "out": self.spec.out, "stop_reason": self.stop_reason,
                 "error": self.error, "files": list(self.files), "linearization": self.linearization,
@@ -148,13 +168,15 @@ class StreamJob:
         try:
             cal = worker.current_linearization(phase_noise=worker.phase_noise_of(self.spec.request))
             self.linearization = worker.last_linearization
-            cfg = inst.cfg
             sink = FrameSink(self.spec.out, self.spec.request.formats[0], dict(meta or {}))
-            planner = planner_for(self.spec, inst.optics, cfg)
+            planner = planner_for(self.spec, worker.optics)
 
             def frame_done(frame) -> None:
                 sink.add(frame)
                 side = frame.sidecar()
+                self.recent[frame.index] = frame.points
+                for old in [k for k in self.recent if k <= frame.index - self.keep_frames]:
+                    del self.recent[old]
                 self.frames.append(side)
                 # live: each frame as one complete cloud (web viewer, Foxglove) and a "frame" event
                 # (Foxglove's status topic, subscribers of the stream's id)
@@ -175,9 +197,16 @@ class StreamJob:
             self.state, self.error = "failed", describe_failure(exc)
             raise
         finally:
-            if sink is not None:
-                try:
-                    sink.close()
-                finally:
-                    self.files = list(sink.written)
-            self.done.set()
+            try:
+                if sink is not None:
+                    try:
+                        sink.close()
+                    finally:
+                        self.files = list(sink.written)
+            finally:
+                events = getattr(worker, "events", None)
+                if events is not None:      # the stream's end, after its last frame event
+                    events.publish(self.id, {"event": "end", "id": self.id, "state": self.state,
+                                             "frames": len(self.frames), "stop_reason": self.stop_reason,
+                                             "error": self.error})
+                self.done.set()

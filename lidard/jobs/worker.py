@@ -15,8 +15,10 @@ import logging
 import math
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
+from ..instrument.calibration.applied import AppliedCalibrations
 from ..instrument.healthcheck import health_record
 from ..instrument.protocol import Instrument
 from ..instrument.types import CalibrationResult, ScanRequest
@@ -25,6 +27,7 @@ from ..scan import planned_pixel_count
 from ..store import ScanRecord, Store
 from . import heap
 from .events import EventHub, PointListener, Subscriber
+from .guided import FactoryCalibration
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
                     request_to_dict)
 from .scan_job import ScanJobRun, raw_path
@@ -58,13 +61,13 @@ class ScanWorker:
         self.events = EventHub()
         self._stopping = False
         self._thread: threading.Thread | None = None
-        self.applied = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
+        self.applied: AppliedCalibrations | None = None   # the AppliedCalibrations last handed to the instrument (apply_geometry)
         # the instrument's set-up (lidard.instrument.calibration.setup.CalibrationSetup): records are
         # made on it and only records made on it are applied; None (a test double): the newest record
         self.setup = setup
         # a simulated bench's factory calibration (lidard.jobs.guided.FactoryCalibration): run before the
         # first scan when no range/pointing record of this set-up is stored; None: never
-        self.factory = None
+        self.factory: FactoryCalibration | None = None
         self.sim_scene: dict[str, Any] | None = None   # the scene last placed over REST (PUT /sim/scene)
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -91,7 +94,7 @@ class ScanWorker:
             if isinstance(job, _ScanJob):
                 self.store.transition(job.id, ("queued",), state="interrupted", stage="interrupted",
                                       error="daemon stopped before the scan started", finished=time.time())
-                self._finish(job)
+                self.finish_scan(job)
             else:
                 job.future.set_exception(WorkerStopped("daemon stopped before the calibration ran"))
         if self._thread is not None:
@@ -164,7 +167,7 @@ class ScanWorker:
                 self._queue.remove(job)
                 self.store.transition(scan_id, ("queued",), state="cancelled", stage="cancelled",
                                       finished=time.time())
-                self._finish(job)
+                self.finish_scan(job)
             elif job is not None and not job.cancel.is_set():
                 job.cancel_reason = reason
                 job.cancel.set()
@@ -197,7 +200,14 @@ class ScanWorker:
         """Call ``fn(event)`` for the progress and end events of every scan (live publishers)."""
         self.events.add_event_listener(fn)
 
-    def _finish(self, job: _ScanJob) -> None:
+    @property
+    def stopping(self) -> bool:
+        """True once :meth:`stop` was called (a scan cancelled then is ``interrupted``, not ``cancelled``)."""
+        return self._stopping
+
+    def finish_scan(self, job: _ScanJob) -> None:
+        """A scan reached its terminal state: record its raw capture's size, publish its end event,
+        wake its waiters."""
         if job.request.record_raw:   # whatever the outcome: a capture (maybe a partial prefix) is on disk
             from ..raw.capture import capture_size_bytes
             size = capture_size_bytes(raw_path(self.store, job.id))
@@ -313,7 +323,8 @@ class ScanWorker:
                                          "fraction": (done / steps) if done is not None and steps else 0.0,
                                          "hardware_time_s": 0.0, "calibration": ev})
         self.store.update_scan(job.id, stage="calibrating")
-        self.factory.run_if_needed(self, stage)
+        if self.factory is not None:
+            self.factory.run_if_needed(self, stage)
 
     def phase_noise_of(self, request) -> str | None:
         """The phase-noise compensation a scan of ``request`` runs with ("on"/"off"; None for an
@@ -346,6 +357,7 @@ class ScanWorker:
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             used = self.instrument.check_linearization(cal)
         self.last_linearization = health_record(checked, used, reason)
+        assert cal is not None   # with none stored, reason was set and one was made
         return cal
 
     def apply_geometry(self, phase_noise: str | None = None):
@@ -354,11 +366,10 @@ class ScanWorker:
         why records of another set-up were left unused. Runs on the worker thread before every scan and
         linearization. ``phase_noise`` ("on"/"off"): the scan's phase-noise compensation; a range record
         measured in the other mode is left unused (None: any mode)."""
-        from ..instrument.calibration.applied import AppliedCalibrations
         from ..instrument.calibration.setup import select
         chosen, notes = {}, []
         for kind in ("range", "pointing", "iq"):
-            rec, why = select(self.store.list_geometry_calibrations(kind, limit=200),
+            rec, why = select(self.store.geometry.recent(kind, limit=200),
                               None if self.setup is None else self.setup[kind], phase_noise)
             chosen[kind] = rec
             if why is not None:

@@ -1,13 +1,14 @@
 """The Foxglove channels lidard publishes, shared by the live server and the MCAP file writer.
 
-Three topics, one per thing a robotics user looks at (issue 16 item 2):
+Three topics, one per thing a robotics user looks at:
 
 * ``/lidar/points``: ``foxglove.PointCloud`` (protobuf) in frame ``lidar`` (the sensor frame of
   §4.1.1: +z the optical axis). Every field of :data:`lidard.point_schema.POINT_FIELDS` (``valid``,
   ``flags`` and ``return_index`` included, so a viewer can filter what the DSP rejected), packed
   little-endian per point in its schema dtype (:data:`PACKED_DTYPE` is POINT_DTYPE).
-* ``/lidar/scan_status``: JSON, the worker's progress/end events (``lidard.jobs``), under the JSON
-  schema ``lidard.ScanStatus`` (:data:`SCAN_STATUS_SCHEMA`).
+* ``/lidar/scan_status``: JSON, the worker's progress/end events (``lidard.jobs``) and a stream's
+  frame events (one per finished frame, its sidecar), under the JSON schema ``lidard.ScanStatus``
+  (:data:`SCAN_STATUS_SCHEMA`).
 * ``/lidar/devices``: JSON ``{"devices": [...]}`` as ``GET /devices``, schema ``lidard.DeviceList``.
 
 A :class:`LidarChannels` lives on a ``foxglove.Context``; whatever sinks that context has (a
@@ -26,7 +27,7 @@ from foxglove.channels import PointCloudChannel
 from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud, Pose, Quaternion, \
     Timestamp, Vector3
 
-from ..point_schema import FOXGLOVE_TYPE, POINT_DTYPE, POINT_FIELDS
+from ..point_schema import FOXGLOVE_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS
 
 FRAME_ID = "lidar"
 POINTS_TOPIC, STATUS_TOPIC, DEVICES_TOPIC = "/lidar/points", "/lidar/scan_status", "/lidar/devices"
@@ -36,8 +37,15 @@ _NUMERIC = {getattr(PackedElementFieldNumericType, n).value: getattr(PackedEleme
             for n in ("Uint8", "Int8", "Uint16", "Int16", "Uint32", "Int32", "Float32", "Float64")}
 
 _STATUS_KEYS = {
-    "event": {"type": "string", "enum": ["progress", "end"], "description": "progress while a scan runs; end once"},
-    "id": {"type": "string", "description": "scan id (live server)"},
+    "event": {"type": "string", "enum": ["progress", "end", "frame"],
+              "description": "progress while a scan runs; end once; frame: a stream's frame is complete"},
+    "id": {"type": "string", "description": "scan id (live server); a stream's id on its frame and end events"},
+    "frame": {"type": "integer", "minimum": 0, "description": "frame index inside a stream (frame events)"},
+    "start_s": {"type": "number", "description": "frame: its first trigger, s since the stream's first"},
+    "setup_s": {"type": "number", "description": "frame: hardware gap before its first trigger"},
+    "valid_points": {"type": "integer", "minimum": 0, "description": "frame: points the DSP kept"},
+    "coverage": {"type": "number", "minimum": 0, "maximum": 1, "description": "frame: pixels scanned / planned"},
+    "frames": {"type": "integer", "minimum": 0, "description": "stream end: frames kept"},
     "scan_id": {"type": "string", "description": "scan id (MCAP file)"},
     "stage": {"type": "string", "description": "scan stage (linearizing, scanning, ...)"},
     "state": {"type": "string", "description": "final job state (end)"},
@@ -69,7 +77,7 @@ def json_schema(schema: dict[str, Any]) -> foxglove.Schema:
 
 
 def packed_fields() -> list[PackedElementField]:
-    return [PackedElementField(name=f.name, offset=PACKED_DTYPE.fields[f.name][1], type=_NUMERIC[FOXGLOVE_TYPE[f.dtype]])
+    return [PackedElementField(name=f.name, offset=POINT_OFFSETS[f.name], type=_NUMERIC[FOXGLOVE_TYPE[f.dtype]])
             for f in POINT_FIELDS]
 
 

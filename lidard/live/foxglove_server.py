@@ -3,7 +3,9 @@ the devices, on the Foxglove WebSocket protocol (foxglove-sdk), loopback by defa
 
 It is a listener of the scan worker (lidard.jobs): each batch of points the instrument hands over
 is one ``/lidar/points`` PointCloud message while the scan runs, and the whole cloud is one message
-when it ends (so a Foxglove panel ends on the complete frame, like Fig. 4-35); every progress/end
+when it ends (so a Foxglove panel ends on the complete frame, like Fig. 4-35); a stream's frame is
+one ``/lidar/points`` message as soon as it is complete (its points carry the frame index), followed
+by its ``frame`` event (the frame's sidecar) on ``/lidar/scan_status``; every progress/end
 event is a ``/lidar/scan_status`` message; after each scan ``/lidar/devices`` carries the device
 list (as ``GET /devices``). Topics and encodings: lidard.live.channels (the MCAP writer uses the
 same). The server has its own foxglove Context, so several daemons (tests) never share channels.

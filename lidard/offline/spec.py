@@ -5,7 +5,7 @@ with dotted keys overridden: the full factorial of ``[grid]`` (a scalar is a fix
 axis), times the explicit ``[[cases]]`` if any (each case a table of key = value). Keys are the
 configuration's own (``laser``, ``lens``, ``profile``, ``link.tx_power_w``, ``scan.averages``,
 ``scan.max_range_m``, ``detector.balanced``, ``chirp.excursion_hz``, ...) so that a key added to
-:mod:`lidard.config` (a chirp shape beyond ``chirp.shape = "triangle"``, a receiver variant such as
+:mod:`lidard.config` (a chirp shape beyond the three-segment chirp and the triangle, a receiver variant such as
 ``adc.iq``) becomes sweepable by adding it to :data:`SWEEPABLE` once the task honours it; settings
 that only the DSP has live under ``dsp.`` (``dsp.estimator``). Keys the task does not use are
 refused with the reason, never silently ignored. Example (docs/scale-out.md has the full format)::
@@ -37,7 +37,7 @@ import json
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Union
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -46,7 +46,7 @@ from lidard.config import CONFIG_DIR, Config, LaserPreset, Profile, load_config
 from lidard.dsp.estimators import DEFAULT_METHOD, EstimatorName
 from lidard.errors import ConfigError, LidardError
 
-Scalar = Union[bool, int, float, str]
+Scalar = bool | int | float | str
 
 # Configuration keys the sweep task honours (it builds the link budget, the ADC plan, the synthesis
 # and the DSP from them exactly as the daemon and the bench do). Whole sections end with ".".

@@ -12,15 +12,24 @@ simulated bench uses, called directly instead of through the byte protocols:
 * the world (``sim_devices.world.world.World``): ray cast, eq. 2-10 return with the FPSA's Table 4-4
   losses, beat amplitude G R sqrt(P_ref P_rx) (eq. 2-11), white noise of eqs. 2-16..2-18, 2-20/21;
 * the bench's digitizer model: 16-bit records, the 8-bit core's quantization noise added as white
-  noise when the record is wider than the core (``sim_devices.bench_capture``), Wiener phase noise of the
-  laser's linewidth, the monitor MZI when phase-noise compensation is on;
-* the daemon's ADC plan (``lidard.instrument.scan_loop.adc_plan``: rate from the maximum range) and its
-  DSP (``lidard.dsp.frame.FrameDsp``: range FFT, OS-CFAR, estimator, up/down pairing), unchanged.
+  noise when the record is wider than the core (``sim_devices.bench.capture``), Wiener phase noise of the
+  laser's linewidth (unless the bench's fidelity rule finds it negligible), the monitor MZI when
+  phase-noise compensation is on, and the digitizer's front end (anti-alias corner, quantizer at the
+  resolution the daemon asks: ``sim_devices.digitizer.front_end.write_samples``);
+* the daemon's signal path (``lidard.instrument.dsp_plan.plan_signal``, the one constructor the scan
+  loop calls): the ADC plan (rate from the maximum range and the Doppler band of scan.max_speed_mps,
+  the record with the chirp's constant segment), the phase-noise choice and the frame DSP
+  (``lidard.dsp.frame.FrameDsp``: range FFT, OS-CFAR, estimator, the joint ranging and pairing),
+  unchanged; the digitizer's decimation filter on the beat as the bench applies it.
 
-The chirp is the LINEARIZED one (an ideal triangle of ``chirp.excursion_hz`` over ``chirp.ramp_s``):
-the daemon linearizes before it scans (§2.2), so a sweep of scan performance starts from a converged
-linearization; laser presets differ here by their coherence time (phase noise, eq. 2-15) and RIN.
-Sweeping the linearization itself (residual nonlinearity) would be a ``chirp.shape`` variant.
+The chirp is the configured one (``chirp.shape``, the three-segment chirp by default, as scans) as the
+daemon drives the AWG (``lidard.instrument.acquisition.plain_drive``), LINEARIZED: the laser follows
+the drive exactly (an ideal FM response). The daemon linearizes before it scans (§2.2), so a sweep of
+scan performance starts from a converged linearization, and its DSP gets the held segment's drift a
+linearization measures (:func:`calibration`: here the drive's own, exact); laser presets differ here
+by their coherence time (phase noise, eq. 2-15) and RIN. Sweeping the linearization itself (residual
+nonlinearity) would be a ``chirp.shape`` variant. tests/offline/test_offline_sweep_scan.py checks that
+a task and a scan of the same pixel on the bench give the same points.
 """
 
 from __future__ import annotations
@@ -28,48 +37,56 @@ from __future__ import annotations
 import os
 import socket
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.digitizer import protocol as digitizer_protocol
 from lidard.config import Config
 from lidard.dsp.crlb import crlb_freq_var
-from lidard.dsp.frame import FrameDsp, FrameResult
-from lidard.instrument.scan_loop import adc_plan as daemon_adc_plan
+from lidard.dsp.cwhold import PROFILE_DT_S
+from lidard.dsp.frame import FrameResult
+from lidard.instrument.acquisition import AWG_RATE_HZ, plain_drive
+from lidard.instrument.dsp_plan import AdcPlan, DspCalibration, SignalPlan, plan_signal
+from lidard.instrument.dsp_plan import phase_noise_on as pn_rule
 from lidard.physics.budget import monitor_noise_asd, quantization_asd, snr_db
 from lidard.physics.constants import C_M_PER_S
+from sim_devices.digitizer.device import decimation_filter
+from sim_devices.digitizer.front_end import write_samples
+from sim_devices.world.fidelity import phase_noise_negligible
 from sim_devices.world.scene import Scene
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory_from_frequency
-from sim_devices.world.world import World
+from sim_devices.world.synth import AdcSpec, ChirpTrajectory, HitBatch, synthesize, trajectory_from_frequency
+from sim_devices.world.world import BeamHits, World
 
 from .spec import SweepTask
 
-RECORD_BITS = 16          # the daemon's record format (lidard.instrument.scan_loop.adc_plan)
-
-
-def adc_plan(cfg: Config, max_range_m: float) -> tuple[float, int]:
-    """(ADC rate, samples per ramp): the daemon's own plan for a scan to ``max_range_m``."""
-    plan = daemon_adc_plan(cfg, max_range_m)
-    return plan.fs_hz, plan.ramp_samples
+RECORD_BITS = 16          # the daemon's record format (lidard.instrument.dsp_plan.adc_plan)
 
 
 def phase_noise_on(cfg: Config, max_range_m: float) -> bool:
-    """The daemon's rule for scan.phase_noise_compensation ("auto": round trip >= 2 monitor delays).
-
-    The scan loop's version takes a whole ScanRequest; tests/offline compare the two.
-    """
-    mode = cfg.scan.phase_noise_compensation
-    if mode == "auto":
-        return 2 * max_range_m / C_M_PER_S >= 2 * cfg.monitor.delay_s
-    return mode == "on"
+    """The daemon's rule for scan.phase_noise_compensation at the nominal monitor delay."""
+    return pn_rule(cfg.scan.phase_noise_compensation, max_range_m, cfg.monitor.delay_s)
 
 
-def linear_trajectory(cfg: Config, fs_hz: float, ramp_samples: int):
-    """The linearized chirp: nu - nu0 rises by the excursion over one ramp, then falls (up ramp first)."""
-    r = ramp_samples
-    k = np.arange(2 * r, dtype=np.float64)
-    s = np.where(k <= r, k / r, (2 * r - k) / r)
-    return trajectory_from_frequency(cfg.chirp.excursion_hz * (s - 0.5), fs_hz,
-                                     nu0_hz=C_M_PER_S / cfg.chirp.wavelength_m)
+def linear_trajectory(cfg: Config) -> ChirpTrajectory:
+    """The linearized chirp: the daemon's drive for ``chirp.shape`` (at the AWG rate) through a laser
+    that follows it exactly: nu - nu0 rises by the excursion over one ramp, falls, then holds (three-
+    segment) along the drive's hold."""
+    nu = plain_drive(cfg, 1.0)          # a 1 Hz/V tuning: the drive's volts are the frequency's Hz
+    return trajectory_from_frequency(nu, AWG_RATE_HZ, nu0_hz=C_M_PER_S / cfg.chirp.wavelength_m)
+
+
+def calibration(cfg: Config, traj: ChirpTrajectory, adc: AdcPlan) -> DspCalibration:
+    """What a converged calibration of this bench gives the DSP: the nominal monitor delay (the
+    synthesis uses it), no I/Q imbalance, and on the three-segment chirp the held segment's drift
+    nu(t) - nu(t0) over the record's hold (``lidard.dsp.cwhold.HoldProfile``), exact from the chirp."""
+    hold = None
+    if cfg.chirp.shape == "three_segment" and adc.cw_samples > 1:
+        t0 = adc.ramp_samples * 2 / adc.fs_hz
+        t = t0 + PROFILE_DT_S * np.arange(int(adc.cw_samples / adc.fs_hz / PROFILE_DT_S) + 2)
+        nu = traj.frequency_at(t)
+        hold = {"t0_s": t0, "dt_s": PROFILE_DT_S, "nu_hz": (nu - nu[0]).tolist()}
+    return DspCalibration(mzi_delay_s=float(cfg.monitor.delay_s), hold_profile=hold)
 
 
 def target_pixel(task: SweepTask) -> tuple[int, int]:
@@ -87,59 +104,114 @@ def _world(task: SweepTask, row: int, col: int) -> World:
     return World(pt.cfg, pt.profile, pt.laser, Scene.from_dict({"target": [target]}, source="sweep target"))
 
 
-def _noise_asd(cfg: Config, world: World) -> float:
-    """The bench's white noise at the ADC input (sim_devices.bench_capture.BenchCapture._capture), V/sqrt(Hz)."""
-    eff = cfg.sim.effects
-    asd = world.white_noise_asd_v() if eff.noise else 0.0
-    if eff.quantization and RECORD_BITS > cfg.adc.bits:
-        q = quantization_asd(cfg.adc.input_range_v, cfg.adc.bits, cfg.adc.max_sample_rate_hz)
-        asd = float(np.hypot(asd, q))
-    return asd
+def _core_asd(cfg: Config, fs_hz: float) -> float:
+    """The converter core's quantization noise in a record decimated on board (a record resolution
+    above the core's bits, config.Adc.record_bits), as white noise: the bench's
+    (sim_devices.bench.capture.SegmentSynthesizer._core_asd), V/sqrt(Hz)."""
+    a = cfg.adc
+    if not cfg.sim.effects.quantization or a.record_bits(fs_hz, RECORD_BITS) <= a.bits:
+        return 0.0
+    return quantization_asd(a.input_range_v, a.bits, a.max_sample_rate_hz)
 
 
-def _monitor_asd(cfg: Config, rin_db_per_hz: float) -> float:
-    """The bench's white noise on the monitor-MZI channel (sim_devices.bench_capture.BenchCapture._monitor_asd), V/sqrt(Hz)."""
-    eff, mon = cfg.sim.effects, cfg.monitor
+def _noise_asd(cfg: Config, world: World, fs_hz: float) -> float:
+    """The bench's white noise at the ADC input (sim_devices.bench.capture.SegmentSynthesizer._synthesize), V/sqrt(Hz)."""
+    asd = world.white_noise_asd_v() if cfg.sim.effects.noise else 0.0
+    return float(np.hypot(asd, _core_asd(cfg, fs_hz)))
+
+
+def _monitor_asd(cfg: Config, rin_db_per_hz: float, fs_hz: float) -> float:
+    """The bench's white noise on the monitor-MZI channel (sim_devices.bench.capture.SegmentSynthesizer.monitor_asd), V/sqrt(Hz)."""
+    mon = cfg.monitor
     asd = 0.0
-    if eff.noise:
+    if cfg.sim.effects.noise:
         asd = monitor_noise_asd(mon.amplitude_v, mon.power_w, cfg.detector.responsivity_a_per_w,
                                 rin_db_per_hz)["total"]
-    if eff.quantization and RECORD_BITS > cfg.adc.bits:
-        asd = float(np.hypot(asd, quantization_asd(cfg.adc.input_range_v, cfg.adc.bits, cfg.adc.max_sample_rate_hz)))
-    return asd
+    return float(np.hypot(asd, _core_asd(cfg, fs_hz)))
 
 
-def run_task(task: SweepTask) -> dict:
-    """Synthesize and range ``task.trials`` pixels; return the task's result row (see evaluate)."""
-    t0 = time.perf_counter()
+@dataclass(frozen=True)
+class TaskFrame:
+    """A task's pixels through the scan's DSP: the frame result and what produced it."""
+
+    result: FrameResult
+    plan: SignalPlan
+    pixel: tuple[int, int]
+    world: World
+    hits: BeamHits
+    noise_asd_v_per_rthz: float
+
+
+def task_frame(task: SweepTask, rng: np.random.Generator | None = None) -> TaskFrame:
+    """Synthesize ``task.trials`` pixels (each ``scan.averages`` records) and run the scan's DSP.
+    ``rng``: the noise's generator (default: the task's own, from its seeds; tests give the bench's)."""
     pt = task.point
     cfg = pt.cfg
-    max_range = cfg.scan.max_range_m
-    pn_on = phase_noise_on(cfg, max_range)
-    fs, r = adc_plan(cfg, max(max_range, 1.5 * C_M_PER_S * cfg.monitor.delay_s / 2) if pn_on else max_range)
+    traj = linear_trajectory(cfg)
+    # the ADC plan does not depend on the calibration's values: planned once nominally for the hold's length
+    adc_only = plan_signal(cfg, DspCalibration.nominal(cfg), max_range_m=cfg.scan.max_range_m).adc
+    sig = plan_signal(cfg, calibration(cfg, traj, adc_only), max_range_m=cfg.scan.max_range_m,
+                      estimator=pt.dsp.estimator)
+    dsp, pn_on = sig.dsp, sig.phase_noise
+    fs, rl = sig.adc.fs_hz, sig.adc.record_length
     avg, n = cfg.scan.averages, task.trials
     n_seg = n * avg
     row, col = target_pixel(task)
     world = _world(task, row, col)
     bh = world.beam_hits(np.full(n_seg, row), np.full(n_seg, col), np.ones(n_seg))
-    hits = HitBatch(seg=bh.beam.astype(np.intp), tau_s=bh.tau_s, amplitude_v=bh.amplitude_v,
-                    doppler_hz=-2.0 * bh.velocity_mps / cfg.chirp.wavelength_m) if bh.beam.size else None
-    adc = AdcSpec(sample_rate_hz=fs, n_samples=2 * r, bits=RECORD_BITS, input_range_v=cfg.adc.input_range_v)
-    asd = _noise_asd(cfg, world)
+    hits = None
+    if bh.beam.size:
+        phase = None
+        if bh.speckle_phase_rad is not None:    # as the bench: speckle targets' own beat phase
+            plain = 2.0 * np.pi * np.mod(traj.nu0_hz * bh.tau_s, 1.0)
+            phase = np.where(np.isnan(bh.speckle_phase_rad), plain, bh.speckle_phase_rad)
+        hits = HitBatch(seg=bh.beam.astype(np.intp), tau_s=bh.tau_s, amplitude_v=bh.amplitude_v,
+                        doppler_hz=-2.0 * bh.velocity_mps / cfg.chirp.wavelength_m, phase_rad=phase)
+    adc = AdcSpec(sample_rate_hz=fs, n_samples=rl, bits=RECORD_BITS, input_range_v=cfg.adc.input_range_v)
+    asd = _noise_asd(cfg, world, fs)
     linewidth = pt.laser.linewidth_hz if cfg.sim.effects.phase_noise else 0.0
-    rng = np.random.default_rng([task.base_seed, task.seed, int(task.key[:12], 16)])
-    syn = synthesize(linear_trajectory(cfg, fs, r), adc, np.zeros(n_seg), hits, noise_asd_v_per_rthz=asd,
-                     linewidth_hz=linewidth, rng=rng, mzi_delay_s=cfg.monitor.delay_s if pn_on else None,
+    # as the bench: no Wiener phase noise where it cannot matter and no monitor channel needs it
+    if not pn_on and (hits is None or phase_noise_negligible(hits.tau_s, hits.amplitude_v, linewidth, asd,
+                                                             cfg.chirp.ramp_s, cfg.chirp.rate_hz_per_s)):
+        linewidth = 0.0
+    if rng is None:
+        rng = np.random.default_rng([task.base_seed, task.seed, int(task.key[:12], 16)])
+    syn = synthesize(traj, adc, np.zeros(n_seg), hits, noise_asd_v_per_rthz=asd, linewidth_hz=linewidth, rng=rng,
+                     beat_filter=decimation_filter(fs, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db),
+                     mzi_delay_s=cfg.monitor.delay_s if pn_on else None,
                      mzi_amplitude_v=cfg.monitor.amplitude_v if pn_on else None,
-                     mzi_noise_asd_v_per_rthz=_monitor_asd(cfg, pt.laser.rin_db_per_hz) if pn_on else 0.0)
-    dsp = FrameDsp(ramp_samples=r, fs_hz=fs, chirp_rate_hz_per_s=cfg.chirp.rate_hz_per_s,
-                   wavelength_m=cfg.chirp.wavelength_m, max_range_m=max_range,
-                   max_speed_mps=cfg.scan.max_speed_mps, window=cfg.scan.window, pfa=cfg.scan.pfa,
-                   max_returns=cfg.scan.max_returns, estimator=pt.dsp.estimator)
-    shape = (n, avg, 2 * r)
-    mzi = syn.mzi.reshape(shape) if pn_on else None
-    res = dsp.process(syn.beat.reshape(shape), syn.lsb_v, mzi=mzi,
+                     mzi_noise_asd_v_per_rthz=_monitor_asd(cfg, pt.laser.rin_db_per_hz, fs) if pn_on else 0.0)
+    shape = (n, avg, rl)
+    beat = _recorded(cfg, fs, syn.beat).reshape(shape)
+    mzi = _recorded(cfg, fs, syn.mzi).reshape(shape) if pn_on and syn.mzi is not None else None
+    res = dsp.process(beat, syn.lsb_v, mzi=mzi,
                       mzi_delay_s=cfg.monitor.delay_s if pn_on else None, mzi_lsb_v=syn.lsb_v)
+    return TaskFrame(result=res, plan=sig, pixel=(row, col), world=world, hits=bh, noise_asd_v_per_rthz=asd)
+
+
+def _recorded(cfg: Config, fs_hz: float, codes: np.ndarray) -> np.ndarray:
+    """The digitizer's record of a channel's synthesized codes (n_seg, n): its analogue anti-alias
+    corner and its quantizer at the resolution the daemon asks for (config.Adc.record_bits), as the
+    bench's digitizer applies them (sim_devices.digitizer.front_end.write_samples)."""
+    n_seg, n = codes.shape
+    pcfg = digitizer_protocol.Config(
+        sample_rate_hz=round(fs_hz), record_length=n, segments=n_seg, channel_mask=1, bits=RECORD_BITS,
+        input_range_mv=round(cfg.adc.input_range_v * 1000), resolution_bits=cfg.adc.record_bits(fs_hz, RECORD_BITS),
+        bandwidth_hz=round(cfg.adc.bandwidth_hz))
+    out = np.empty((n_seg, 1, n), np.int16)
+    write_samples(out, codes[:, None, :], np.zeros((n_seg, 1), bool), pcfg)
+    return out[:, 0, :]
+
+
+def run_task(task: SweepTask) -> dict:
+    """Synthesize and range ``task.trials`` pixels; return the task's result row (see evaluate)."""
+    t0 = time.perf_counter()
+    tf = task_frame(task)
+    pt, cfg, res, bh, asd = task.point, task.point.cfg, tf.result, tf.hits, tf.noise_asd_v_per_rthz
+    dsp, pn_on, world = tf.plan.dsp, tf.plan.phase_noise, tf.world
+    fs, r, rl = tf.plan.adc.fs_hz, tf.plan.adc.ramp_samples, tf.plan.adc.record_length
+    avg, n = cfg.scan.averages, task.trials
+    n_seg = n * avg
     truth_m = float(bh.range_m[0]) if bh.beam.size else task.distance_m
     amp_v = float(bh.amplitude_v[0]) if bh.beam.size else 0.0
     row_out = evaluate(res, truth_m, task.velocity_mps, tol_m=2.0 * dsp.range_resolution_m)
@@ -151,7 +223,7 @@ def run_task(task: SweepTask) -> dict:
         amplitude_v=amp_v, noise_asd_v_per_rthz=asd,
         budget_snr_db=float(snr_db(link, task.distance_m, reflectivity=task.reflectivity)),
         crlb_range_m=crlb_range_m(amp_v, asd, fs, dsp.n_used, cfg.chirp.rate_hz_per_s, avg),
-        samples=int(n_seg * 2 * r * (2 if pn_on else 1)), elapsed_s=time.perf_counter() - t0,
+        samples=int(n_seg * rl * (2 if pn_on else 1)), elapsed_s=time.perf_counter() - t0,
         worker=f"{socket.gethostname()}:{os.getpid()}")
     return row_out
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..point_schema import PCD_TYPE, POINT_DTYPE, POINT_FIELDS
+from ..point_schema import PCD_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_NAMES
 from ..pointcloud import PointCloudError, atomic_write
 
 # (field, PCD type, size) in file order
@@ -35,7 +35,7 @@ def pcd_header(n: int) -> bytes:
 
 def write_pcd(path: str | os.PathLike, points: np.ndarray) -> Path:
     out = np.zeros(len(points), PCD_DTYPE)
-    for name in PCD_DTYPE.names:
+    for name in POINT_NAMES:
         out[name] = points[name]
     with atomic_write(path) as f:
         f.write(pcd_header(len(points)))

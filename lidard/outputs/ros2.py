@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..live.channels import FRAME_ID, POINTS_TOPIC, STATUS_TOPIC
-from ..point_schema import POINT_DTYPE, POINT_FIELDS, ROS2_TYPE
+from ..point_schema import POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS, ROS2_TYPE
 from ..pointcloud import PointCloudError, atomic_write
 from .mcap import scan_status
 
@@ -92,7 +92,7 @@ def encode_point_cloud2(points: np.ndarray, time_ns: int, frame_id: str = FRAME_
     w.u32(len(POINT_FIELDS))
     for f in POINT_FIELDS:
         w.string(f.name)
-        w.u32(POINT_DTYPE.fields[f.name][1])
+        w.u32(POINT_OFFSETS[f.name])
         w.u8(ROS2_TYPE[f.dtype])
         w.u32(1)
     w.u8(0)                        # is_bigendian

@@ -30,15 +30,18 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
+from typing import Any
+from collections.abc import Callable
 
 from .constants import C_M_PER_S, E_CHARGE_C, K_BOLTZMANN_J_PER_K
 
 
-def _bisect_root(f, a: float, b: float, xtol: float) -> float:
+def _bisect_root(f: Callable[[float], float], a: float, b: float, xtol: float) -> float:
     """A root of f in [a, b] where f(a) > 0 >= f(b), to xtol (bisection: about 35 steps here).
 
     Not scipy.optimize.brentq: importing scipy.optimize costs about a second of start-up of every
-    command that needs a link budget (``lidarctl budget``, config loading; issue 18).
+    command that needs a link budget (``lidarctl budget``, config loading).
     """
     while b - a > xtol:
         m = 0.5 * (a + b)
@@ -93,7 +96,7 @@ class LinkParams:
     incidence_rad: float = 0.0
 
     @classmethod
-    def table_2_2(cls, **overrides) -> "LinkParams":
+    def table_2_2(cls, **overrides: Any) -> LinkParams:
         """Table 2-2 of the dissertation."""
         wl = 1550e-9
         p = cls(
@@ -106,10 +109,10 @@ class LinkParams:
         )
         return replace(p, **overrides)
 
-    def with_(self, **changes) -> "LinkParams":
+    def with_(self, **changes: Any) -> LinkParams:
         return replace(self, **changes)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     # -- powers and currents ----------------------------------------------------------------------
@@ -121,7 +124,8 @@ class LinkParams:
     def p_tx_w(self) -> float:
         return self.tx_fraction * self.source_power_w
 
-    def received_power_w(self, distance_m, reflectivity=None, incidence_rad=None):
+    def received_power_w(self, distance_m: ArrayLike, reflectivity: ArrayLike | None = None,
+                         incidence_rad: ArrayLike | None = None) -> np.ndarray:
         """Eq. 2-10: Lambertian return collected by an aperture d_rx at distance d."""
         rho = self.reflectivity if reflectivity is None else reflectivity
         th = self.incidence_rad if incidence_rad is None else incidence_rad
@@ -129,16 +133,17 @@ class LinkParams:
         return (self.p_tx_w * np.asarray(rho) * np.cos(th)
                 * self.rx_aperture_m**2 / (4.0 * d**2) * self.eta_rx)
 
-    def i_ac_a(self, p_rx_w):
+    def i_ac_a(self, p_rx_w: ArrayLike) -> np.ndarray:
         """Eq. 2-11: beat amplitude of the photocurrent."""
         return self.responsivity_a_per_w * np.sqrt(self.p_ref_w * np.asarray(p_rx_w))
 
-    def i_dc_a(self, p_rx_w):
+    def i_dc_a(self, p_rx_w: ArrayLike) -> np.ndarray:
         """Eq. 2-12."""
         return self.responsivity_a_per_w * (self.p_ref_w + np.asarray(p_rx_w))
 
 
-def asd_components(p: LinkParams, distance_m, *, reflectivity=None, incidence_rad=None) -> dict:
+def asd_components(p: LinkParams, distance_m: ArrayLike, *, reflectivity: ArrayLike | None = None,
+                   incidence_rad: ArrayLike | None = None) -> dict[str, np.ndarray]:
     """All ASDs (V/sqrt(Hz)) of eqs. 2-14..2-21 at the given distance(s), broadcast over arrays."""
     d = np.asarray(distance_m, dtype=np.float64)
     p_rx = p.received_power_w(d, reflectivity, incidence_rad)
@@ -169,11 +174,11 @@ def asd_components(p: LinkParams, distance_m, *, reflectivity=None, incidence_ra
             "thermal": thermal, "adc": adc, "ambient": ambient}
 
 
-def total_noise_asd(components: dict) -> np.ndarray:
+def total_noise_asd(components: dict[str, np.ndarray]) -> np.ndarray:
     return np.sqrt(sum(np.asarray(components[k]) ** 2 for k in NOISE_COMPONENTS))
 
 
-def snr_db(p: LinkParams, distance_m, **kw) -> np.ndarray:
+def snr_db(p: LinkParams, distance_m: ArrayLike, **kw: Any) -> np.ndarray:
     """Amplitude SNR of the spectral peak over the total noise floor (dB, 20 log10)."""
     c = asd_components(p, distance_m, **kw)
     return 20.0 * np.log10(c["signal"] / total_noise_asd(c))
@@ -185,7 +190,7 @@ def max_range_m(p: LinkParams, *, against: str = "total", lo_m: float = 1e-3, hi
     ``against`` = "total" (all noises, incl. the phase-noise pedestal) or one component name, e.g.
     "shot" for the crossing of Fig. 2-8.
     """
-    def margin(log_d):
+    def margin(log_d: float) -> float:
         c = asd_components(p, np.exp(log_d))
         noise = total_noise_asd(c) if against == "total" else c[against]
         # the phase-noise decay can underflow the signal to 0 at absurd ranges: clamp, stay finite
@@ -220,7 +225,7 @@ def quantization_asd(adc_range_v: float, bits: int, sample_rate_hz: float) -> fl
 
 
 def monitor_noise_asd(amplitude_v: float, power_w: float, responsivity_a_per_w: float,
-                      rin_db_per_hz: float) -> dict:
+                      rin_db_per_hz: float) -> dict[str, float]:
     """Shot and RIN ASDs (V/sqrt(Hz)) of the monitor-MZI channel (§2.2's MZI on one photodiode).
 
     One output of an MZI with full fringe visibility carries I(t) = R P_mon (1 + cos dPhi): DC and
@@ -237,7 +242,7 @@ def monitor_noise_asd(amplitude_v: float, power_w: float, responsivity_a_per_w: 
     return {"shot": shot, "rin": rin, "total": float(np.hypot(shot, rin))}
 
 
-def budget_report(p: LinkParams, distance_m: float) -> dict:
+def budget_report(p: LinkParams, distance_m: float) -> dict[str, Any]:
     """The JSON object `lidarctl budget --json` prints."""
     c = asd_components(p, distance_m)
     noise = float(total_noise_asd(c))

@@ -1,7 +1,7 @@
 """Chirp arithmetic (§2.1): chirp rate, beat frequency <-> range, triangle and three-segment drives,
 ADC plan.
 
-The three-segment waveform (issue 14) is the triangle followed by a constant-frequency segment: the
+The three-segment waveform is the triangle followed by a constant-frequency segment: the
 drive holds between the end of the down ramp and the start of the next up ramp, so the segment's beat
 is the Doppler shift alone (docs/physics.md derives the pairing).
 
@@ -13,11 +13,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .constants import C_M_PER_S
 
 
-def beat_hz(range_m, chirp_rate_hz_per_s: float):
+def beat_hz(range_m: ArrayLike, chirp_rate_hz_per_s: float) -> np.ndarray:
     """f_b = 2 gamma d / c (eq. 2-1)."""
     return 2.0 * chirp_rate_hz_per_s * np.asarray(range_m) / C_M_PER_S
 
@@ -84,7 +85,7 @@ def adc_rate_hz(max_range_m: float, chirp_rate_hz_per_s: float, *, max_doppler_h
     """
     if not (max_range_m > 0 and chirp_rate_hz_per_s > 0 and oversample >= 2):
         raise ValueError("adc_rate_hz: max_range_m > 0, chirp_rate_hz_per_s > 0, oversample >= 2 required")
-    need = oversample * (beat_hz(max_range_m, chirp_rate_hz_per_s) + abs(max_doppler_hz))
+    need = float(oversample * (beat_hz(max_range_m, chirp_rate_hz_per_s) + abs(max_doppler_hz)))
     need = max(need, min_rate_hz)
     if need > max_rate_hz:
         raise ValueError(f"max range {max_range_m} m needs an ADC rate of {need / 1e6:.1f} MHz, above the "

@@ -1,4 +1,4 @@
-"""The digitizer's decimation (anti-alias) filter, and what it means for the range gate (issue 14).
+"""The digitizer's decimation (anti-alias) filter, and what it means for the range gate.
 
 The converter core samples at ``adc.max_sample_rate_hz`` (Table 2-2: 1 GS/s, behind the analogue
 front end's ``adc.bandwidth_hz``); a record at a lower rate fs = f_core / D is decimated on board by a
@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: pass-band edge and stop-band edge, as fractions of the OUTPUT sample rate (a half-band pair)
 PASSBAND_FRACTION = 0.4
@@ -64,7 +65,7 @@ class DecimationFilter:
     def stopband_gain(self) -> float:
         return 10.0 ** (-self.stopband_db / 20.0)
 
-    def gain(self, f_hz, fs_hz: float) -> np.ndarray:
+    def gain(self, f_hz: ArrayLike, fs_hz: float) -> np.ndarray:
         """|G(f)| at beat frequencies ``f_hz`` (the sign is ignored: a real beat) for output rate fs."""
         fs = _rate(fs_hz)
         f = np.abs(np.asarray(f_hz, dtype=np.float64))

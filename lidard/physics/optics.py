@@ -23,13 +23,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
+from typing import Any
 
 GAUSSIAN_FWHM_FACTOR = float(np.sqrt(2.0 * np.log(2.0)))  # eq. 4-16, ~1.177
 
 
 @dataclass(frozen=True)
 class Pointing:
-    """Deviations of a real scanner from the nominal pointing of eq. 4-1 (issue 13).
+    """Deviations of a real scanner from the nominal pointing of eq. 4-1.
 
     An antenna at nominal chip position (x, y) (:meth:`FpsaOptics.antenna_xy_m`) sits, on the real
     die, rotated by ``rotation_rad`` about the optical axis and shifted by ``decentre_px`` (x, y) pixel
@@ -54,7 +56,7 @@ class Pointing:
         return (self.focal_scale == 1.0 and tuple(self.decentre_px) == (0.0, 0.0)
                 and self.rotation_rad == 0.0 and self.k1 == 0.0)
 
-    def image_coords(self, x_m, y_m, focal_m: float, pitch_m: float) -> tuple[np.ndarray, np.ndarray]:
+    def image_coords(self, x_m: ArrayLike, y_m: ArrayLike, focal_m: float, pitch_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Normalised image coordinates (u, v) of antennas at nominal chip positions (x, y)."""
         x = np.asarray(x_m, dtype=np.float64)
         y = np.asarray(y_m, dtype=np.float64)
@@ -68,7 +70,7 @@ class Pointing:
         g = 1.0 + self.k1 * (u * u + v * v)
         return u * g, v * g
 
-    def chip_coords(self, u, v, focal_m: float, pitch_m: float) -> tuple[np.ndarray, np.ndarray]:
+    def chip_coords(self, u: ArrayLike, v: ArrayLike, focal_m: float, pitch_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`image_coords`: nominal chip positions (x, y) of image coordinates (u, v)."""
         u = np.asarray(u, dtype=np.float64)
         v = np.asarray(v, dtype=np.float64)
@@ -85,7 +87,7 @@ class Pointing:
         c, s = np.cos(self.rotation_rad), np.sin(self.rotation_rad)
         return c * xr + s * yr, -s * xr + c * yr
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {"focal_scale": self.focal_scale, "decentre_px": list(self.decentre_px),
                 "rotation_rad": self.rotation_rad, "k1": self.k1}
 
@@ -101,10 +103,10 @@ class FpsaOptics:
     focal_m: float
     bonded_rows: tuple[int, ...] = field(default=())
     wavelength_m: float = 1.55e-6
-    #: the pointing model's deviations from the nominal design (issue 13); all zero: eq. 4-1 exactly.
+    #: the pointing model's deviations from the nominal design; all zero: eq. 4-1 exactly.
     #: The simulated bench draws hidden true values (``[sim.tolerances]``); the daemon uses the values
     #: its pointing calibration fitted. See :class:`Pointing`.
-    pointing: "Pointing" = field(default_factory=lambda: Pointing())
+    pointing: Pointing = field(default_factory=lambda: Pointing())
 
     def __post_init__(self) -> None:
         if self.rows < 1 or self.cols < 1:
@@ -125,7 +127,7 @@ class FpsaOptics:
         """Array extent (L_x, L_y) between the outermost antenna centres, eq. 4-5."""
         return ((self.cols - 1) * self.pitch_m, (self.rows - 1) * self.pitch_m)
 
-    def antenna_xy_m(self, row, col) -> tuple[np.ndarray, np.ndarray]:
+    def antenna_xy_m(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Antenna centre on the focal plane, relative to the optical axis (array centre)."""
         row = np.asarray(row, dtype=np.float64)
         col = np.asarray(col, dtype=np.float64)
@@ -133,7 +135,7 @@ class FpsaOptics:
         y = ((self.rows - 1) / 2.0 - row) * self.pitch_m
         return x, y
 
-    def pixel_from_xy(self, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
+    def pixel_from_xy(self, x_m: ArrayLike, y_m: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Nearest (row, col) to a focal-plane position; clipped to the array."""
         col = np.rint(np.asarray(x_m) / self.pitch_m + (self.cols - 1) / 2.0)
         row = np.rint((self.rows - 1) / 2.0 - np.asarray(y_m) / self.pitch_m)
@@ -141,19 +143,19 @@ class FpsaOptics:
                 np.clip(col, 0, self.cols - 1).astype(np.int64))
 
     # -- beam directions ------------------------------------------------------------------------
-    def beam_angles_rad(self, row, col) -> tuple[np.ndarray, np.ndarray]:
+    def beam_angles_rad(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Per-axis steering angles (theta_x, theta_y) of eq. 4-1."""
         x, y = self.antenna_xy_m(row, col)
         return -np.arctan(x / self.focal_m), -np.arctan(y / self.focal_m)
 
-    def directions(self, row, col) -> np.ndarray:
+    def directions(self, row: ArrayLike, col: ArrayLike) -> np.ndarray:
         """Unit beam direction vectors, shape (..., 3), in the sensor frame (with :attr:`pointing`)."""
         x, y = self.antenna_xy_m(row, col)
         u, v = self.pointing.image_coords(x, y, self.focal_m, self.pitch_m)
         d = np.stack([-u, -v, np.ones_like(u)], axis=-1)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
-    def pixel_from_direction(self, direction) -> tuple[np.ndarray, np.ndarray]:
+    def pixel_from_direction(self, direction: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`directions`: the pixel whose beam is nearest to ``direction``."""
         d = np.asarray(direction, dtype=np.float64)
         if np.any(d[..., 2] <= 0):
@@ -161,7 +163,7 @@ class FpsaOptics:
         x, y = self.pointing.chip_coords(-d[..., 0] / d[..., 2], -d[..., 1] / d[..., 2], self.focal_m, self.pitch_m)
         return self.pixel_from_xy(x, y)
 
-    def with_pointing(self, pointing: "Pointing") -> "FpsaOptics":
+    def with_pointing(self, pointing: Pointing) -> FpsaOptics:
         """The same scanner with another pointing model (a calibration's fit, or the bench's truth)."""
         return replace(self, pointing=pointing)
 
@@ -178,7 +180,7 @@ class FpsaOptics:
         r = float(np.degrees(self.pitch_m / self.focal_m))
         return (r, r)
 
-    def resolution_at_deg(self, x_m) -> np.ndarray:
+    def resolution_at_deg(self, x_m: ArrayLike) -> np.ndarray:
         """Local angular step at focal-plane offset x, eq. 4-3 (finer toward the edge)."""
         x = np.asarray(x_m, dtype=np.float64)
         return np.degrees(self.focal_m * self.pitch_m / (self.focal_m**2 + x**2))
@@ -206,7 +208,7 @@ class FpsaOptics:
         rr, cc = np.meshgrid(rows, np.arange(self.cols), indexing="ij")
         return np.stack([rr.ravel(), cc.ravel()], axis=1)
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """The figures `lidarctl optics --json` and GET /scanner report."""
         return {
             "fov_deg": list(self.fov_deg),

@@ -1,6 +1,6 @@
 """Distances from points to the surfaces of known targets: planes, spheres, boxes, planar polygons.
 
-Pure numpy. Used to score a point cloud without trusting the pointing model (issue 13 item 3: the
+Pure numpy. Used to score a point cloud without trusting the pointing model (the
 point-to-surface distance of each measured (x, y, z) to the scene's true surfaces, not only the
 range along the beam), and by calibrations that fit geometry to points on known targets (a plate
 on a rail: :func:`distance_to_plane`; reference spheres: :func:`distance_to_sphere`).
@@ -18,19 +18,20 @@ nearest face, as a LiDAR return lies on the skin of what it hits.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["distance_to_plane", "distance_to_sphere", "distance_to_box", "distance_to_polygon",
            "polygon_normal"]
 
 
-def _points(points) -> np.ndarray:
+def _points(points: ArrayLike) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64)
     if p.shape[-1:] != (3,):
         raise ValueError(f"points must have shape (n, 3) or (3,), got {p.shape}")
     return p
 
 
-def _unit(v, name: str) -> np.ndarray:
+def _unit(v: ArrayLike, name: str) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(v))
     if not (np.isfinite(n) and n > 0):
@@ -38,7 +39,7 @@ def _unit(v, name: str) -> np.ndarray:
     return v / n
 
 
-def _in_plane_axes(normal: np.ndarray, up=None) -> tuple[np.ndarray, np.ndarray]:
+def _in_plane_axes(normal: np.ndarray, up: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(u, v): v = ``up`` projected into the plane (default +y, or +z for a plane facing along y),
     u = v x n; the convention of the scene files' finite planes (sim_devices.world.targets)."""
     if up is None:
@@ -54,7 +55,8 @@ def _in_plane_axes(normal: np.ndarray, up=None) -> tuple[np.ndarray, np.ndarray]
     return u / np.linalg.norm(u), v
 
 
-def distance_to_plane(points, origin, normal, *, size=None, up=None, signed: bool = False) -> np.ndarray:
+def distance_to_plane(points: ArrayLike, origin: ArrayLike, normal: ArrayLike, *,
+                      size: tuple[float, float] | None = None, up: ArrayLike | None = None, signed: bool = False) -> np.ndarray:
     """Distance to the plane through ``origin`` with normal ``normal`` (any length).
 
     ``size = (w, h)``: only the w x h rectangle centred on ``origin`` (h along ``up`` projected into
@@ -77,7 +79,7 @@ def distance_to_plane(points, origin, normal, *, size=None, up=None, signed: boo
     return np.where(perp < 0, -d, d) if signed else d
 
 
-def distance_to_sphere(points, centre, radius: float, *, signed: bool = False) -> np.ndarray:
+def distance_to_sphere(points: ArrayLike, centre: ArrayLike, radius: float, *, signed: bool = False) -> np.ndarray:
     """Distance to a sphere's surface: | |p - c| - r | (signed: positive outside)."""
     if not (np.isfinite(radius) and radius > 0):
         raise ValueError(f"radius must be > 0, got {radius!r}")
@@ -86,7 +88,7 @@ def distance_to_sphere(points, centre, radius: float, *, signed: bool = False) -
     return d if signed else np.abs(d)
 
 
-def distance_to_box(points, centre, size, rotation=None, *, signed: bool = False) -> np.ndarray:
+def distance_to_box(points: ArrayLike, centre: ArrayLike, size: ArrayLike, rotation: ArrayLike | None = None, *, signed: bool = False) -> np.ndarray:
     """Distance to the skin of an oriented box: full edge lengths ``size`` (3,), ``rotation`` a 3x3
     matrix mapping box-local to the points' frame (None: axis-aligned). Signed: positive outside.
 
@@ -106,7 +108,7 @@ def distance_to_box(points, centre, size, rotation=None, *, signed: bool = False
     return d if signed else np.abs(d)
 
 
-def polygon_normal(vertices) -> np.ndarray:
+def polygon_normal(vertices: ArrayLike) -> np.ndarray:
     """Unit normal of a planar polygon by Newell's method (its sense follows the vertex order)."""
     vtx = np.asarray(vertices, dtype=np.float64)
     if vtx.ndim != 2 or vtx.shape[1] != 3 or len(vtx) < 3:
@@ -142,7 +144,7 @@ def _edge_distance_2d(q: np.ndarray, poly: np.ndarray, chunk: int = 4096) -> np.
     return out
 
 
-def distance_to_polygon(points, vertices, *, signed: bool = False) -> np.ndarray:
+def distance_to_polygon(points: ArrayLike, vertices: ArrayLike, *, signed: bool = False) -> np.ndarray:
     """Distance to a planar polygon (m, 3) vertices, possibly non-convex (inside: even-odd rule).
 
     A point whose projection falls inside is at its perpendicular distance; one outside at

@@ -1,4 +1,4 @@
-"""Raw digitizer captures (Zarr) and reprocessing them with the scan DSP (issue 16, items 3-4).
+"""Raw digitizer captures (Zarr) and reprocessing them with the scan DSP.
 
 :mod:`.capture` writes and reads the captures, :mod:`.points` turns DSP results into point records
 (shared with the scan loop), :mod:`.record` is the scan loop's side of a capture, :mod:`.replay`
@@ -23,7 +23,7 @@ _LAZY = {
     "reprocess_task": "replay", "task_count": "replay", "local_map": "replay",
 }
 
-__all__ = sorted(_LAZY)
+__all__ = sorted(_LAZY)  # noqa: PLE0605 - the lazily loaded names, listed once in _LAZY
 
 
 __getattr__ = lazy_getattr(__name__, _LAZY, globals())

@@ -1,4 +1,4 @@
-"""Raw digitizer captures in Zarr: write them during a scan, read them back for reprocessing (issue 16).
+"""Raw digitizer captures in Zarr: write them during a scan, read them back for reprocessing.
 
 A scan with ``record_raw`` keeps every digitizer segment exactly as read (int16 codes, every
 channel the acquisition had: the LiDAR ``beat`` and, with phase-noise compensation, the monitor
@@ -53,9 +53,13 @@ _COMPRESSOR = BloscCodec(cname="lz4", clevel=1, shuffle="shuffle")
 class RawCaptureError(LidardError):
     """A raw capture is missing, malformed, or asked for something it does not hold; names it."""
 
+    http_status = 422
+
 
 class PixelNotRecorded(RawCaptureError):
     """The capture holds no committed record of the pixel asked for."""
+
+    http_status = 404
 
 
 def _software() -> dict[str, str]:
@@ -88,7 +92,7 @@ class RawWriter:
         self.path = path
         self.chunk_pixels = chunk_pixels
         self.averages = averages
-        self.n_pixels = int(group["t_s"].shape[0])
+        self.n_pixels = int(_arr(group, "t_s").shape[0])
         self.pixels_written = 0
         self.chunks_complete = 0
         self._pending: list[tuple[np.ndarray, ...]] = []
@@ -98,7 +102,7 @@ class RawWriter:
     @classmethod
     def create(cls, path: str | Path, *, pixels: np.ndarray, directions: np.ndarray, averages: int,
                channels: tuple[str, ...] | list[str], record_length: int, chunk_pixels: int,
-               attrs: dict[str, Any], drive_v: np.ndarray | None = None) -> "RawWriter":
+               attrs: dict[str, Any], drive_v: np.ndarray | None = None) -> RawWriter:
         """A new capture for the planned ``pixels`` (in scan order); refuses an existing path.
 
         ``attrs`` must hold ``adc`` (with ``lsb_v``) and ``dsp`` (the frame DSP's fields, see
@@ -145,7 +149,7 @@ class RawWriter:
         seg = np.asarray(segments)
         t = np.asarray(t_s, dtype=np.float64)
         n_pix = len(t)
-        shape = self._g["segments"].shape
+        shape = _arr(self._g, "segments").shape
         if seg.dtype != np.int16 or seg.shape != (n_pix * self.averages,) + shape[1:]:
             raise RawCaptureError(f"raw capture {self.path}: segments must be int16 "
                                   f"{(n_pix * self.averages,) + shape[1:]}, got {seg.dtype} {seg.shape}")
@@ -174,10 +178,10 @@ class RawWriter:
         p0 = self.pixels_written
         s0, s1 = p0 * self.averages, (p0 + n_pix) * self.averages
         g = self._g
-        g["segments"][s0:s1] = seg
-        g["trigger_time_ns"][s0:s1] = tt
-        g["overrange"][s0:s1] = ov
-        g["t_s"][p0:p0 + n_pix] = t
+        _arr(g, "segments")[s0:s1] = seg
+        _arr(g, "trigger_time_ns")[s0:s1] = tt
+        _arr(g, "overrange")[s0:s1] = ov
+        _arr(g, "t_s")[p0:p0 + n_pix] = t
         # the commit: only now do readers see this chunk
         self.pixels_written += n_pix
         self.chunks_complete += 1
@@ -193,12 +197,12 @@ class RawWriter:
         n = self.pixels_written
         g = self._g
         for name in ("segments", "trigger_time_ns", "overrange"):
-            arr = g[name]
+            arr = _arr(g, name)
             arr.resize((n * self.averages,) + arr.shape[1:])
         for name in ("t_s", "pixels", "directions"):
-            arr = g[name]
+            arr = _arr(g, name)
             arr.resize((n,) + arr.shape[1:])
-        g.attrs.update({**final_attrs, "complete": True, "scan_partial": n < int(g.attrs["pixels_planned"])})
+        g.attrs.update({**final_attrs, "complete": True, "scan_partial": n < int(g.attrs["pixels_planned"])})  # type: ignore[arg-type]
         self._closed = True
 
 
@@ -224,7 +228,7 @@ class RawChunk:
     @property
     def clipped(self) -> np.ndarray:
         """Per pixel: any of its segments overranged (the scan marks its points invalid)."""
-        return self.overrange.reshape(len(self.t_s), -1).any(axis=1)
+        return np.asarray(self.overrange.reshape(len(self.t_s), -1).any(axis=1))
 
 
 class RawCapture:
@@ -259,20 +263,25 @@ class RawCapture:
         p1 = min(p0 + self.chunk_pixels, self.n_pixels)
         s0, s1 = p0 * self.averages, p1 * self.averages
         g = self._g
-        return RawChunk(index=index, segments=g["segments"][s0:s1], overrange=g["overrange"][s0:s1],
-                        trigger_time_ns=g["trigger_time_ns"][s0:s1], pixels=g["pixels"][p0:p1],
-                        directions=g["directions"][p0:p1], t_s=g["t_s"][p0:p1])
+        seg, pix = slice(s0, s1), slice(p0, p1)
+
+        def read(name: str, rows: slice) -> np.ndarray:
+            return np.asarray(_arr(g, name)[rows])
+
+        return RawChunk(index=index, segments=read("segments", seg), overrange=read("overrange", seg),
+                        trigger_time_ns=read("trigger_time_ns", seg), pixels=read("pixels", pix),
+                        directions=read("directions", pix), t_s=read("t_s", pix))
 
     def pixel_index(self, row: int, col: int) -> int:
         """Index (scan order) of the first committed record of pixel (row, col)."""
-        px = self._g["pixels"][: self.n_pixels]
+        px = np.asarray(_arr(self._g, "pixels")[: self.n_pixels])
         hit = np.flatnonzero((px[:, 0] == row) & (px[:, 1] == col))
         if not len(hit):
             raise PixelNotRecorded(f"raw capture {self.path}: pixel ({row}, {col}) was not recorded")
         return int(hit[0])
 
     def drive_v(self) -> np.ndarray | None:
-        return self._g["drive_v"][...] if "drive_v" in self._g else None
+        return np.asarray(_arr(self._g, "drive_v")[...]) if "drive_v" in self._g else None
 
 
 def capture_size_bytes(path: str | Path) -> int:
@@ -290,3 +299,11 @@ def remove_capture(path: str | Path) -> bool:
         return False
     shutil.rmtree(p)
     return True
+
+
+def _arr(group: zarr.Group, name: str) -> zarr.Array:
+    """The array ``name`` of a capture's group (a RawCaptureError if it is missing or a group)."""
+    node = group.get(name)
+    if not isinstance(node, zarr.Array):
+        raise RawCaptureError(f"raw capture: {name!r} is not an array of the capture")
+    return node

@@ -1,4 +1,4 @@
-"""Recording a scan's raw segments as it runs: the scan loop's side of a raw capture (issue 16, item 3).
+"""Recording a scan's raw segments as it runs: the scan loop's side of a raw capture.
 
 :class:`ScanRecorder` is created when an acquisition is ready (the digitizer has told its channel
 order), fed every batch of segments the scan loop accepts (the same records its DSP gets; a batch
@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -44,7 +45,7 @@ class ScanRecorder:
               channels: Sequence[str], record_length: int, dsp: FrameDsp, lsb_v: float, phase_noise: bool,
               mzi_delay_s: float, adc: dict[str, Any], chirp: dict[str, Any], calibration_id: Any,
               scan: dict[str, Any] | None = None, drive_v: np.ndarray | None = None,
-              chunk_bytes: int | None = None) -> "ScanRecorder":
+              chunk_bytes: int | None = None) -> ScanRecorder:
         """``channels``: the digitizer's order (how records arrive); ``adc``/``chirp``/``scan``:
         JSON-ready descriptions stored as attributes."""
         ch = tuple(channels)

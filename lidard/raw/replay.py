@@ -1,11 +1,13 @@
-"""Run the scan's DSP again on a raw capture, optionally with other settings (issue 16, item 4).
+"""Run the scan's DSP again on a raw capture, optionally with other settings.
 
 The scan loop turns each batch of digitizer segments into points with :class:`FrameDsp` (range FFT,
 OS-CFAR, sub-bin estimator, up/down pairing: dissertation §2.1, §4.4.3; with the monitor MZI, the
 phase-noise compensation of §2.3) and :func:`lidard.raw.points.frame_points`. Replaying a capture
-builds the same :class:`FrameDsp` from the capture's attributes and feeds it the same int16
-records, so the original settings reproduce the original points exactly (the DSP treats every
-pixel on its own: the result does not depend on how pixels are batched).
+builds the same :class:`FrameDsp` from the capture's attributes (:meth:`FrameDsp.from_record`: the
+fields the scan's one constructor, :func:`lidard.instrument.dsp_plan.plan_signal`, produced, not a
+rebuild from today's configuration) and feeds it the same int16 records, so the original settings
+reproduce the original points exactly (the DSP treats every pixel on its own: the result does not
+depend on how pixels are batched).
 
 The capture is stored in chunks of ~1 MiB (lidard.raw.record); the DSP is run on scan-sized batches
 of consecutive chunks (``TASK_BYTES``, the scan's own DSP batch): a call's fixed costs are paid per
@@ -24,7 +26,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, get_args
+from typing import Any, get_args
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -66,7 +69,7 @@ class ReprocessSettings:
 
 def frame_dsp_attrs(dsp: FrameDsp) -> dict[str, Any]:
     """Every field of a :class:`FrameDsp`, JSON-ready: what a capture stores under ``dsp``."""
-    return {f.name: getattr(dsp, f.name) for f in dataclasses.fields(FrameDsp)}
+    return dsp.to_record()
 
 
 @dataclass(frozen=True)
@@ -116,14 +119,8 @@ def replay_dsp(attrs: dict[str, Any], settings: ReprocessSettings | None = None)
     if pn_on and "mzi" not in attrs.get("channels", []):
         raise RawCaptureError("phase_noise=on: this capture has no monitor 'mzi' channel "
                               f"(recorded: {attrs.get('channels')}); reprocess with phase_noise off")
-    known = {f.name for f in dataclasses.fields(FrameDsp)}
-    unknown = set(fields_) - known
-    if unknown:
-        raise RawCaptureError(f"raw capture dsp attributes {sorted(unknown)} are not FrameDsp settings "
-                              "(written by another lidard version?)")
-    fields_.update(over)
     try:
-        dsp = FrameDsp(**fields_)
+        dsp = FrameDsp.from_record(fields_, **over)
     except (TypeError, ValueError) as exc:
         raise RawCaptureError(f"raw capture dsp settings rejected: {exc}") from None
     delay = pn.get("mzi_delay_s")
@@ -151,7 +148,9 @@ def task_count(raw_path: str | Path) -> int:
 def _joined(chunks: list[RawChunk]) -> RawChunk:
     if len(chunks) == 1:
         return chunks[0]
-    cat = (lambda name: np.concatenate([getattr(c, name) for c in chunks]))
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(c, name) for c in chunks])
+
     return RawChunk(index=chunks[0].index, segments=cat("segments"), overrange=cat("overrange"),
                     trigger_time_ns=cat("trigger_time_ns"), pixels=cat("pixels"), directions=cat("directions"),
                     t_s=cat("t_s"))

@@ -1,4 +1,4 @@
-"""Reprocessing a stored scan: a new scan record, linked to the original, from its raw capture (issue 16).
+"""Reprocessing a stored scan: a new scan record, linked to the original, from its raw capture.
 
 What ``POST /scans/{id}/reprocess`` and ``lidarctl reprocess`` do, knowing nothing about HTTP: read
 the original's raw capture (``scans/<id>/raw.zarr``), run the DSP again (:func:`lidard.raw.reprocess`,
@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -25,6 +26,8 @@ from .spectrum import PixelSpectrum, pixel_spectrum
 
 class NoRawCapture(RawCaptureError):
     """The scan was not recorded with ``record_raw`` (or its capture was removed)."""
+
+    http_status = 409
 
 
 def raw_path(store: Store, scan_id: str) -> Path:
@@ -85,7 +88,10 @@ def reprocess_scan(store: Store, scan_id: str, settings: ReprocessSettings | Non
     store.update_scan(new.id, state="done", stage="done", progress=1.0, finished=time.time(), files=files,
                       points=int(len(rep.points)), pixels_scanned=int(rep.meta["pixels"]), partial=partial,
                       hardware_time_s=orig.hardware_time_s, wall_time_s=wall)
-    return store.get_scan(new.id)
+    done = store.get_scan(new.id)
+    if done is None:   # deleted while it was written
+        raise UnknownScan(f"scan {new.id} is gone")
+    return done
 
 
 def scan_spectrum(store: Store, scan_id: str, row: int, col: int,

@@ -1,4 +1,4 @@
-"""One pixel's range spectra from a raw capture, with the CFAR threshold and the detections (issue 16).
+"""One pixel's range spectra from a raw capture, with the CFAR threshold and the detections.
 
 What the scan DSP saw for that pixel (dissertation §2.1 range FFT, §4.4.3 detection): per ramp
 (up, down) the power spectrum averaged over the pixel's segments (with phase-noise compensation,
@@ -15,11 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from ..dsp.cfar import _noise_os, cfar_detect   # the kernel cfar_detect thresholds with (no public twin)
+from ..dsp.cfar import cfar_detect
+from ..dsp.cfar_os import _noise_os   # the kernel cfar_detect thresholds with (no public twin)
 from ..dsp.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
 from ..dsp.window import get_window
 from ..instrument.types import POINT_DTYPE
+from ..point_schema import POINT_NAMES
 from .capture import PixelNotRecorded, RawCapture
 from .replay import ReplayDsp, ReprocessSettings, replay_dsp
 
@@ -48,11 +50,11 @@ class PixelSpectrum:
                 "points": [{k: p[k].item() for k in p.dtype.names} for p in self.points]}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "PixelSpectrum":
+    def from_dict(cls, d: dict[str, Any]) -> PixelSpectrum:
         """Inverse of :meth:`to_dict` (what a client gets from ``GET /scans/{id}/spectrum``)."""
         pts = np.zeros(len(d["points"]), POINT_DTYPE)
         for i, p in enumerate(d["points"]):
-            for k in POINT_DTYPE.names:
+            for k in POINT_NAMES:
                 if k in p:          # a server older than a field (e.g. ``flags``) leaves it 0
                     pts[i][k] = p[k]
         return cls(row=int(d["row"]), col=int(d["col"]), range_m=np.asarray(d["range_m"], np.float64),
@@ -68,7 +70,7 @@ def _ramp_power(replay: ReplayDsp, beat: np.ndarray, mzi: np.ndarray | None, mzi
     a, n, r = d.offset, d.n_used, d.ramp_samples
     # an I/Q capture's beat is the corrected complex I + jQ; its down ramp in the up ramp's sign
     b = ramp_volts(beat[..., start:start + r], replay.lsb_v, iq=d.iq, down=bool(start))
-    if mzi is None:
+    if mzi is None or replay.mzi_delay_s is None:
         spec = d.rfft(b[..., a:a + n])
     else:
         comp = compensator_for(d, replay.mzi_delay_s)

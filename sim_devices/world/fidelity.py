@@ -1,6 +1,6 @@
 """Model only what the scene needs: which effects a capture can skip, and the ledger of what it did.
 
-The bench decides per captured batch (issue 18, item 3). An effect is skipped only when its
+The bench decides per captured batch. An effect is skipped only when its
 contribution to the measurement is below a stated bound; the rule and its bound are here, the
 ledger goes into each scan's sidecar (``sim.fidelity``: batches modelled / skipped per effect).
 

@@ -1,4 +1,4 @@
-"""Mixed pixels: the beam footprint sampled with sub-rays where it straddles an edge (issue 15 item 5).
+"""Mixed pixels: the beam footprint sampled with sub-rays where it straddles an edge.
 
 A beam of the FPSA scanner is not a ray: behind the lens it is a Gaussian beam whose 1/e^2 radius
 grows from the waist ``lambda f / (pi W)`` (capped by the lens aperture f/N) with the geometric

@@ -1,4 +1,4 @@
-"""White Gaussian noise for the digitizer records, float32, by the Box-Muller transform (issue 18).
+"""White Gaussian noise for the digitizer records, float32, by the Box-Muller transform.
 
 The additive noise of every record (shot + RIN + thermal + ambient, dissertation §2.4 eqs.
 2-16..2-21, drawn in :mod:`sim_devices.world.synth`) is the largest single cost of a frame's

@@ -24,7 +24,7 @@ Phase noise (§2.3, eqs. 2-14/2-15): a Wiener process whose increments over dt h
 A laser with tau_c = inf has no phase noise and ``phase_noise_rad`` returns None without touching
 the random generator (switched-off effects cost nothing).
 
-Temperature (issue 13): the preset describes the laser at its reference temperature. ``retuned``
+Temperature: the preset describes the laser at its reference temperature. ``retuned``
 gives the same laser with its carrier moved and its whole FM response scaled, which is what a TEC
 temperature away from the reference does (the coefficients and their sources:
 :mod:`sim_devices.world.tec`).
@@ -43,7 +43,7 @@ from lidard.physics.constants import C_M_PER_S
 
 
 def lfilter(*args, **kwargs):
-    # imported on first use: scipy.signal costs about a second of every command's start-up (issue 18)
+    # imported on first use: scipy.signal costs about a second of every command's start-up
     from scipy.signal import lfilter as fn
     return fn(*args, **kwargs)
 
@@ -68,7 +68,7 @@ class _Section:
     b1: float
 
     @classmethod
-    def make(cls, gain: float, tau_s: float, dt_s: float) -> "_Section":
+    def make(cls, gain: float, tau_s: float, dt_s: float) -> _Section:
         x = dt_s / tau_s
         one_minus_a = -math.expm1(-x)
         a = 1.0 - one_minus_a
@@ -97,7 +97,7 @@ class DfbLaser:
         self.nu0_offset_hz = float(nu0_offset_hz)      # carrier shift from the preset's (temperature)
         self.response_scale = float(response_scale)    # FM response relative to the preset's
 
-    def retuned(self, *, nu0_offset_hz: float, response_scale: float) -> "DfbLaser":
+    def retuned(self, *, nu0_offset_hz: float, response_scale: float) -> DfbLaser:
         """This laser with its carrier moved by ``nu0_offset_hz`` and its FM response (carrier and
         thermal terms alike) scaled by ``response_scale``, both relative to the preset."""
         return DfbLaser(self.preset, nu0_offset_hz=nu0_offset_hz, response_scale=response_scale)

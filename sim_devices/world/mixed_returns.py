@@ -1,6 +1,7 @@
 """The returns of a mixed pixel from its footprint samples, and the truth its point is scored against.
 
-Issue 15 item 5 (:mod:`sim_devices.world.footprint` samples the footprint). A pixel's samples are
+A beam footprint straddling an edge sees several surfaces (:mod:`sim_devices.world.footprint`
+samples the footprint). A pixel's samples are
 grouped into returns: a new return where the target changes or the depth jumps by more than one
 range bin ``c / 2B`` (closer than that a real FMCW receiver cannot separate two tones: they blend).
 Each return's weight is its share of the samples, i.e. of the beam power (the sunflower samples

@@ -1,4 +1,4 @@
-"""Targets that move during a scan: each beam sees the scene at its own hardware time (issue 14).
+"""Targets that move during a scan: each beam sees the scene at its own hardware time.
 
 The scene file gives every target's position at scene time t = 0, the first trigger of the run (the
 scan's first measured pixel; a point's ``t`` counts from the same trigger), and a constant velocity.

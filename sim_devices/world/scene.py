@@ -367,7 +367,8 @@ class Scene:
         return cast(self, directions, max_hits=max_hits, origin=origin)
 
     def surface_distance(self, points: np.ndarray) -> np.ndarray:
-        """Distance (n,) of each point (n, 3) to the nearest true target surface (issue 13 scores;
+        """Distance (n,) of each point (n, 3) to the nearest true target surface (the scores of a
+        calibration against the truth;
         :func:`sim_devices.world.surface_truth.surface_distance`)."""
         return surface_truth.surface_distance(self.targets, points)
 

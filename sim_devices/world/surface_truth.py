@@ -1,4 +1,4 @@
-"""Scores of measured points against a scene's TRUE surfaces (issue 13 item 3).
+"""Scores of measured points against a scene's TRUE surfaces.
 
 The scan's (x, y, z) come from the daemon's pointing model; the scene knows where the surfaces
 really are. Two scores, both from the scene alone (no pointing model, no bench):

@@ -117,7 +117,7 @@ def cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = Fals
         phase *= 2.0 * np.pi
         r32 = phase.astype(np.float32)
     # the record stays float32 from here (amplitude, filter gains, noise): 7 digits against the
-    # 16-bit converter's 4.6, and half the memory traffic of float64 (issue 18)
+    # 16-bit converter's 4.6, and half the memory traffic of float64
     c = np.cos(r32, out=r32) if not want_sin else np.cos(r32)
     s = np.sin(r32, out=r32) if want_sin else None
     return c, s
@@ -184,12 +184,12 @@ def beat_chunk(tb: Tables, h: SortedHits, hs: slice, s0: int, nc: int, phi, n_pr
         sin_part += math.sin(iq_imbalance[1]) * cos_part
     cos_part *= a
     if aa is not None:
-        cos_part[aa[0]] *= aa[1]
+        cos_part[aa[0], aa[1]] *= aa[2]
     parts["beat"] = cos_part
     if adc.iq:
         sin_part *= a * iq_imbalance[0]
         if aa is not None:
-            sin_part[aa[0]] *= aa[1]
+            sin_part[aa[0], aa[1]] *= aa[2]
         parts["beat_q"] = sin_part
     return _by_rank(parts, h.rank[hs], lseg, h.max_rank, hs.stop - hs.start, nc, n)
 

@@ -1,4 +1,4 @@
-"""Fast path of the beat synthesis for static returns on a rational sample grid (issue 18).
+"""Fast path of the beat synthesis for static returns on a rational sample grid.
 
 Follows the same physics as :mod:`sim_devices.world.synth` (dissertation §2.1 eqs. 2-1..2-3): the
 deterministic beat phase of a static return delayed by tau is
@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from sim_devices.world import synth_jit
+
 #: largest denominator q of fs_awg / fs_adc taken by the fast path (q vectors per residue)
 MAX_DENOMINATOR = 16
 
@@ -57,6 +59,11 @@ def static_beat_phase(tables, b_start: float, ratio: float, pq: tuple[int, int],
     d_awg = np.asarray(d_awg, dtype=np.float64)
     neg_const = -np.asarray(const, dtype=np.float64)
     out = np.empty((d_awg.size, n))
+    kernel = synth_jit.static_fill(out.size)
+    if kernel is not None and d_awg.size:      # one compiled pass, the same values (synth_jit)
+        kernel(c0, c1, c2, float(b_start), float(ratio), int(pq[0]), int(pq[1]), int(n), d_awg,
+               np.ascontiguousarray(neg_const), out)
+        return out
     _fill(c0, c1, c2, b_start, ratio, pq, n, d_awg, neg_const[:, None], out)
     return out
 

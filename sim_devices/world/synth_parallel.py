@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import os
 import threading
+from typing import Any
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -55,15 +56,18 @@ def _part_hits(hits: HitBatch | None, a: int, b: int) -> HitBatch | None:
     sel = (seg >= a) & (seg < b)
     if not sel.any():
         return None
-    pick = (lambda v: None if v is None else np.asarray(v)[sel] if np.ndim(v) else v)
+    def pick(v: Any) -> Any:
+        return None if v is None else np.asarray(v)[sel] if np.ndim(v) else v
+
     return HitBatch(seg=seg[sel] - a, tau_s=np.asarray(hits.tau_s)[sel], amplitude_v=pick(hits.amplitude_v),
                     doppler_hz=pick(hits.doppler_hz), phase_rad=pick(hits.phase_rad))
 
 
 def _joined(parts: list[Synthesized]) -> Synthesized:
     first = parts[0]
-    cat = (lambda name: None if getattr(first, name) is None
-           else np.concatenate([getattr(p, name) for p in parts]))
+    def cat(name: str) -> np.ndarray | None:
+        return None if getattr(first, name) is None else np.concatenate([getattr(p, name) for p in parts])
+
     volts = None if first.volts is None else {c: np.concatenate([p.volts[c] for p in parts]) for c in first.volts}
     return Synthesized(beat=cat("beat"), beat_q=cat("beat_q"), mzi=cat("mzi"), overrange=cat("overrange"),
                        channels=first.channels, lsb_v=first.lsb_v, volts=volts,

@@ -62,7 +62,7 @@ class AdcSpec:
         return (1 << (self.bits - 1)) - 1
 
     @classmethod
-    def from_config(cls, adc, sample_rate_hz: float, n_samples: int, *, quantize: bool = True) -> "AdcSpec":
+    def from_config(cls, adc, sample_rate_hz: float, n_samples: int, *, quantize: bool = True) -> AdcSpec:
         """From a :class:`lidard.config.Adc` section."""
         return cls(sample_rate_hz=float(sample_rate_hz), n_samples=int(n_samples), bits=int(adc.bits),
                    input_range_v=float(adc.input_range_v), iq=bool(adc.iq), quantize=quantize)
@@ -86,12 +86,12 @@ class HitBatch:
     phase_rad: np.ndarray | None = None
 
     @classmethod
-    def empty(cls) -> "HitBatch":
+    def empty(cls) -> HitBatch:
         return cls(seg=np.zeros(0, np.intp), tau_s=np.zeros(0), amplitude_v=np.zeros(0))
 
     @classmethod
     def from_targets(cls, seg, distance_m, amplitude_v, *, radial_velocity_m_s=None,
-                     wavelength_m: float = 1.55e-6, phase_rad=None) -> "HitBatch":
+                     wavelength_m: float = 1.55e-6, phase_rad=None) -> HitBatch:
         """Convenience: distance (m) and radial velocity (m/s, positive receding) to tau and f_D."""
         d = np.asarray(distance_m, dtype=np.float64)
         dop = None

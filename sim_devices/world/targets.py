@@ -2,7 +2,7 @@
 
 The scene file loader (:mod:`sim_devices.world.scene`) builds these and the ray caster
 (:mod:`sim_devices.world.raycast`) intersects them; both import this module and neither imports
-the other's internals, so the two stay free of an import cycle (issue 12). Units: metres, m/s.
+the other's internals, so the two stay free of an import cycle. Units: metres, m/s.
 Surface properties common to every kind: ``reflectivity`` (Lambertian albedo; > 1 models the
 retro-reflective sheet of the "CAL" letters, §4.4.3), one-way power ``transmission``, ``velocity``
 and ``speckle`` (fully developed speckle on the return, see :mod:`sim_devices.world.speckle`).
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Union
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -187,4 +187,4 @@ class PolygonTarget(_TargetBase):
         return d
 
 
-Target = Union[PlaneTarget, BoxTarget, SphereTarget, PolygonTarget]
+Target = PlaneTarget | BoxTarget | SphereTarget | PolygonTarget

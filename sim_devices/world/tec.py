@@ -1,4 +1,4 @@
-"""The laser's true temperature and what it does to the chirp (issue 13; dissertation §2.1.3, §2.2).
+"""The laser's true temperature and what it does to the chirp (dissertation §2.1.3, §2.2).
 
 A DFB laser's optical frequency follows its chip temperature. The simulated bench models two effects
 of a temperature ``dT = T_true - T_ref`` away from the reference at which the laser presets

@@ -1,4 +1,4 @@
-"""The bench's hidden truths: what a real instrument has and the daemon does not know (issue 13).
+"""The bench's hidden truths: what a real instrument has and the daemon does not know.
 
 A lab's LiDAR differs from its drawings. The daemon is configured with NOMINAL values (monitor MZI
 delay ``[monitor] delay_s``, the FPSA optics of eq. 4-1 with a perfect lens) and must learn the
@@ -31,8 +31,8 @@ construction, from ``[sim.tolerances]`` (:class:`lidard.config.Tolerances`):
   gains match to.
 
 ``draw = false`` takes each bound itself (+bound; z0 = bound) instead of a draw: sensitivity
-studies. A bound of 0 switches that tolerance off; ``enabled = false`` switches all off (nominal,
-the bench of before issue 13). Each tolerance has its own random stream (seeded by
+studies. A bound of 0 switches that tolerance off; ``enabled = false`` switches all off (nominal:
+the bench is exactly its configuration). Each tolerance has its own random stream (seeded by
 ``tolerances.seed``, else ``sim.seed``), so switching one off leaves the others' draws unchanged.
 
 The laser's TEC tolerances (``tec_*``) belong to the laser model (sim_devices.world.laser); they

@@ -11,20 +11,20 @@ Round trip through the switches: the FPSA is used as transmitter and receiver (Â
 switch-path transmission T (from the MEMS dynamics) multiplies the returned power twice (out and back).
 The back-reflection LO arises at the fibre array, before the switches, so P_ref does not depend on T.
 
-Hidden truths (issue 13; :mod:`sim_devices.world.tolerances`): given a ``BenchTruth``, the beams
+Hidden truths (:mod:`sim_devices.world.tolerances`): given a ``BenchTruth``, the beams
 leave along the TRUE pointing (``optics.with_pointing(truth.pointing)``: focal scale, decentre,
 rotation, k1 bend eq. 4-1), and every hit's round trip is 2 (d + z0) / c, z0 the optical path from
 the reference reflection (the LO) to the lens, while ``range_m`` and :meth:`World.ground_truth` stay
 the geometric lens -> surface distance d along the true beam (what the scans are scored against).
 The link budget uses d too: z0 is inside the instrument, it neither spreads nor attenuates the beam.
 
-Targets move during a scan (issue 14): a beam fired at scene time t (its trigger, counted from the
+Targets move during a scan: a beam fired at scene time t (its trigger, counted from the
 run's first trigger) sees every moving target translated by v t; velocities also give the Doppler
 shifts and the within-segment range drift of the synthesis. Static targets are cast once per pixel
 and cached; moving ones are cast per beam at its time (sim_devices.world.motion). ``rays_cast``
 counts the cached casts, ``moving_rays_cast`` the per-beam ones.
 
-Mixed pixels (issue 15): on every scene that does not switch them off (``mixed_pixels = false``),
+Mixed pixels: on every scene that does not switch them off (``mixed_pixels = false``),
 pixels whose beam footprint can reach a static target's outline are re-cast with footprint sub-rays
 (``sub_rays_cast`` counts them; sim_devices.world.footprint) and, where the samples see other targets
 than the central ray, give the footprint's weighted returns instead (sim_devices.world.mixed_returns).
@@ -77,7 +77,7 @@ class World:
         self.cfg = cfg
         self.profile = profile
         self.laser = laser
-        # None: the nominal bench (what the configuration says, as before issue 13)
+        # None: the nominal bench (exactly what the configuration says, no hidden tolerance)
         self.truth = truth
         optics = profile.optics(cfg.lens, cfg.chirp.wavelength_m)
         self.optics: FpsaOptics = optics if truth is None else optics.with_pointing(truth.pointing)
@@ -121,6 +121,15 @@ class World:
         if footprint and self._mixed:
             return [self._mixed.get(int(k)) or self._cache[int(k)] for k in keys]
         return [self._cache[int(k)] for k in keys]
+
+    def precast(self, rows, cols) -> None:
+        """Cast and cache the pixels at (rows, cols) not cast yet, in one vectorized call. A scan's
+        reads hold a few tens of pixels each; casting its next pixels in one go costs a fifth of
+        casting them read by read (the per-call work is Python, held under the GIL on the bench's
+        read path). The cache is per pixel, so the answers are the same either way."""
+        rows, cols = np.asarray(rows), np.asarray(cols)
+        if rows.size:
+            self._cast_pixels(rows, cols, footprint=False)
 
     def is_mixed(self, rows, cols) -> np.ndarray:
         """(n,) True where the bench gives the pixel footprint-weighted returns (cast on demand)."""

@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 from lidard.dsp import cfar
-from lidard.dsp.chain import detect_and_refine
-from lidard.dsp.rangefft import RangeFFT, check_samples
+from lidard.dsp.rangefft import check_samples
 from lidard.dsp.window import DspInputError
 
 

@@ -13,6 +13,7 @@ import time
 
 import httpx
 import pytest
+from tests.helpers.deadlines import HTTP_S, WAIT_S
 
 from lidard.cli.lidarctl import main as lidarctl
 from lidard.config import load_config
@@ -24,13 +25,13 @@ SCAN = {"pattern": "roi", "rows": [44, 48], "cols": [60, 70], "max_range_m": 2.0
 
 
 def _ended(c: httpx.Client, sid: str) -> dict:
-    return _poll(lambda: (s := _scan(c, sid))["state"] not in ("queued", "running") and s, 120, f"scan {sid}")
+    return _poll(lambda: (s := _scan(c, sid))["state"] not in ("queued", "running") and s, WAIT_S, f"scan {sid}")
 
 
 def test_interlock_trip_latches_refuses_scans_until_acknowledged_then_scans_again(tmp_path, capsys):
     proc, url = _start_daemon(tmp_path / "data")
     try:
-        with httpx.Client(base_url=url, timeout=30.0) as c:
+        with httpx.Client(base_url=url, timeout=HTTP_S) as c:
             lease = c.post("/control", json={"client": "alice@lab"}).json()["lease"]
             c.headers["X-Lidard-Lease"] = lease
             r = c.post("/scans", json=SCAN)          # the first scan linearizes the chirp first

@@ -42,7 +42,7 @@ def rig(tmp_path_factory):
     store = Store(tmp_path_factory.mktemp("calibrated-health"))
     true_delay_s = bench.truth().mzi_delay_s
     assert true_delay_s == pytest.approx(cfg.monitor.delay_s * (1 + DELAY_REL))
-    store.save_geometry_calibration("range", temperature_c=None, inputs={},
+    store.geometry.save("range", temperature_c=None, inputs={},
                                     fitted={"delay_s": true_delay_s, "zero_offset_m": 0.0}, residuals={})
     worker = ScanWorker(inst, store, laser=cfg.laser, optics=cfg.optics(),
                         recalibrate_delta_c=cfg.scan.recalibrate_delta_c)

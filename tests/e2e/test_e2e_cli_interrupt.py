@@ -43,17 +43,26 @@ def with_default_signals(cmd: list[str]) -> list[str]:
     return [sys.executable, "-c", _DEFAULT_SIGNALS, exe, *cmd[1:]]
 
 
-@pytest.mark.slow  # a real process: bench start and chirp linearization first (~10 s on an idle machine)
+@pytest.fixture(scope="module")
+def shared_calibration_cache(tmp_path_factory):
+    """One calibration cache ($XDG_CACHE_HOME) for the three signals: the first process linearizes its
+    bench and caches the result (lidard.calcache), the next two start scanning from the cache. What is
+    tested (the signal's handling mid-scan) does not depend on who linearized."""
+    return tmp_path_factory.mktemp("xdg-cache-interrupt")
+
+
+@pytest.mark.slow  # a real process: bench start (and the first one's linearization, ~10 s idle)
 @pytest.mark.parametrize("sig, code, words", [(signal.SIGINT, 130, "interrupted by SIGINT (Ctrl-C)"),
                                               (signal.SIGTERM, 143, "interrupted by SIGTERM"),
                                               (signal.SIGHUP, 129, "interrupted by SIGHUP")])
-def test_stop_signal_after_first_progress_line_keeps_partial_points(tmp_path, sig, code, words):
+def test_stop_signal_after_first_progress_line_keeps_partial_points(tmp_path, shared_calibration_cache, sig,
+                                                                    code, words):
     out_file = tmp_path / "part.ply"
     tmp = tmp_path / "tmp"          # the child's system temp folder: where its temporary store goes
     tmp.mkdir()
     cmd = _lidarctl() + ["scan", "--sim", "--scene", str(REPO / "config/scenes/cal_letters.toml"),
                          "--rows", "0:64", "--out", str(out_file), "--progress", "lines"]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "TMPDIR": str(tmp)}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "TMPDIR": str(tmp), "XDG_CACHE_HOME": str(shared_calibration_cache)}
     env.pop("LIDARD_DEBUG", None)
     p = subprocess.Popen(with_default_signals(cmd), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          env=env, cwd=tmp_path)

@@ -16,6 +16,7 @@ import pytest
 from lidard.pointcloud import read_points, read_sidecar
 from tests.e2e.test_e2e_cli_interrupt import _lidarctl
 from tests.helpers.daemon import kill_group, start_daemon
+from tests.helpers.deadlines import WAIT_S
 
 pytestmark = pytest.mark.slow  # a real daemon and a real client
 
@@ -38,8 +39,8 @@ def test_sigterm_to_the_daemon_mid_scan_reports_the_interrupted_scan_and_exits_0
             if line.startswith("scanning"):
                 os.kill(daemon.pid, signal.SIGTERM)     # the daemon only, as systemd's stop does
                 break
-        out, rest = client.communicate(timeout=180)
-        daemon_code = daemon.wait(timeout=120)
+        out, rest = client.communicate(timeout=WAIT_S)
+        daemon_code = daemon.wait(timeout=WAIT_S)
     finally:
         for p in (client, daemon):
             if p is not None and p.poll() is None:

@@ -23,6 +23,7 @@ from lidard.instrument.types import ScanRequest
 from lidard.jobs import ScanWorker
 from lidard.store import Store
 from tests.helpers.tolerances import NOMINAL_ENV
+from tests.helpers.deadlines import WAIT_S
 
 pytestmark = pytest.mark.slow  # a linearized bench, then one scan per fault kind (~1 min)
 
@@ -43,7 +44,7 @@ def rig(tmp_path_factory):
     worker = ScanWorker(inst, store, laser=cfg.laser, optics=cfg.optics(), progress_interval_s=0.0)
     worker.start()
     # the first scan linearizes; its points are the reference for every later scan
-    ref = worker.wait(worker.submit_scan(ROI).id, timeout_s=120)
+    ref = worker.wait(worker.submit_scan(ROI).id, timeout_s=WAIT_S)
     assert ref.state == "done" and ref.points >= 0.98 * N_PIX
     yield {"inst": inst, "bench": bench, "store": store, "worker": worker, "ref_points": ref.points}
     worker.stop()
@@ -65,7 +66,7 @@ def _scan(rig, req=ROI, on_progress=None):
     rec = w.submit_scan(req)
     if on_progress is not None:
         w.subscribe(rec.id, on_progress)
-    return w.wait(rec.id, timeout_s=120)
+    return w.wait(rec.id, timeout_s=WAIT_S)
 
 
 def _assert_nothing_lost(rig, rec):
@@ -321,11 +322,11 @@ def test_hv_fault_mid_scan_takes_the_same_safe_path(r):
 # ---------------------------------------------------------------------------------------- switch
 def test_stuck_switch_is_found_by_the_selftest_job(r):
     r["inst"].inject_fault("stuck_switch", line="col", index=50, state="off")
-    report = r["worker"].submit_selftest().result(timeout=60)
+    report = r["worker"].submit_selftest().result(timeout=WAIT_S)
     assert not report["ok"]
     assert [(s["line"], s["index"], s["state"]) for s in report["stuck"]] == [("col", 50, "off")]
     r["inst"].clear_faults()
-    assert r["worker"].submit_selftest().result(timeout=60)["ok"]
+    assert r["worker"].submit_selftest().result(timeout=WAIT_S)["ok"]
 
 
 def test_digitizer_replugged_mid_scan_resumes_and_completes(r):
@@ -352,7 +353,7 @@ def test_interlock_during_linearization_fails_it_safely(r):
     inst, bench = r["inst"], r["bench"]
     inst.inject_fault("interlock_open", after_segments=40)        # inside the first ILC measurements
     with pytest.raises(Exception, match="interlock") as ei:
-        r["worker"].submit_calibration().result(timeout=60)
+        r["worker"].submit_calibration().result(timeout=WAIT_S)
     assert "read back" in str(ei.value) or "interlock" in str(ei.value)
     st = bench.controller.state
     assert not st.laser_on and not st.hv_on and st.hv_v < 0.25
@@ -409,11 +410,11 @@ def test_devices_answers_busy_from_the_last_check_while_a_job_holds_the_instrume
     def job():                                             # stands for a running scan
         with inst._lock:
             held.set()
-            release.wait(30)
+            release.wait(WAIT_S)
     t = threading.Thread(target=job)
     t.start()
     try:
-        assert held.wait(30)
+        assert held.wait(WAIT_S)
         busy = inst.devices()                              # does not wait for the job
         assert [d["name"] for d in busy] == [d["name"] for d in fresh]
         assert all(d["busy"] for d in busy)                # the last check, flagged as such

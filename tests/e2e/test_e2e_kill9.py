@@ -20,6 +20,7 @@ import pytest
 from plyfile import PlyData
 
 from tests.helpers.daemon import kill_group, poll, start_daemon
+from tests.helpers.deadlines import HTTP_S, WAIT_S
 
 pytestmark = pytest.mark.slow  # two real daemon processes
 
@@ -65,25 +66,25 @@ def test_kill_9_mid_scan_then_restart_loses_nothing(tmp_path):
     data_dir = tmp_path / "data"
     proc, url = _start_daemon(data_dir)
     try:
-        with httpx.Client(base_url=url, timeout=30.0) as c:
+        with httpx.Client(base_url=url, timeout=HTTP_S) as c:
             r = c.post("/scans", json={"pattern": "roi", "rows": [44, 48], "cols": [60, 70],
                                        "max_range_m": 2.0, "formats": ["ply", "npz"]})
             assert r.status_code == 201, r.text
             first = r.json()["id"]
-            done = _poll(lambda: (s := _scan(c, first))["state"] in ("done", "failed") and s, 120, "scan 1")
+            done = _poll(lambda: (s := _scan(c, first))["state"] in ("done", "failed") and s, WAIT_S, "scan 1")
             assert done["state"] == "done", done
             r = c.post("/scans", json={"pattern": "raster", "averages": 8, "max_range_m": 2.0,
                                        "formats": ["ply"]})
             assert r.status_code == 201, r.text
             second = r.json()["id"]
-            _poll(lambda: _scan(c, second)["progress"] > 0, 120, "scan 2 to report progress")
+            _poll(lambda: _scan(c, second)["progress"] > 0, WAIT_S, "scan 2 to report progress")
             assert _scan(c, second)["state"] == "running"
     finally:
         _kill_group(proc)                       # kill -9, mid-scan
 
     proc, url = _start_daemon(data_dir)
     try:
-        with httpx.Client(base_url=url, timeout=30.0) as c:
+        with httpx.Client(base_url=url, timeout=HTTP_S) as c:
             one = _scan(c, first)
             two = _scan(c, second)
     finally:

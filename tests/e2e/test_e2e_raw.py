@@ -13,6 +13,7 @@ import threading
 
 import numpy as np
 import pytest
+from tests.helpers.deadlines import HTTP_S
 
 from lidard.config import load_config
 from lidard.dsp.frame import FrameDsp
@@ -108,7 +109,7 @@ def test_a_daemon_killed_mid_scan_leaves_a_readable_prefix_marked_partial(tmp_pa
     data_dir = tmp_path / "data"
     proc, url = _start_daemon(data_dir)
     try:
-        with httpx.Client(base_url=url, timeout=30.0) as c:
+        with httpx.Client(base_url=url, timeout=HTTP_S) as c:
             r = c.post("/scans", json={"pattern": "raster", "averages": 8, "max_range_m": 2.0, "record_raw": True,
                                        "formats": ["npz"]})
             assert r.status_code == 201, r.text
@@ -123,7 +124,7 @@ def test_a_daemon_killed_mid_scan_leaves_a_readable_prefix_marked_partial(tmp_pa
     assert cap.complete is False and cap.n_chunks >= 1 and cap.n_pixels < cap.attrs["pixels_planned"]
     proc, url = _start_daemon(data_dir)
     try:
-        with httpx.Client(base_url=url, timeout=60.0) as c:
+        with httpx.Client(base_url=url, timeout=HTTP_S) as c:
             rec = _scan(c, sid)
             assert rec["state"] == "interrupted" and rec["raw_bytes"] > 0
             r = c.post(f"/scans/{sid}/reprocess", json={})

@@ -6,7 +6,9 @@ scan from the form, wait for the page to see the end. Then the page's own state
 (``window.viewer.pointCount``, built from the incremental ``/points/live`` fetches) must equal the
 count the API reports, and the WebGL canvas must not be blank (pixel variance of what it drew, and
 of the screenshot). Then the control lease: a reload keeps control (under a fresh lease, the old one
-void), another tab is an observer, and closing the tab releases the lock. Only Debian's /usr/bin/chromium is used; nothing is downloaded. Without that
+void), another tab is an observer, and closing the tab releases the lock. A second test follows a
+stream: the page takes the running stream's view, its frame counter advances with the frames the
+API lists, and after DELETE it replays the kept frames. Only Debian's /usr/bin/chromium is used; nothing is downloaded. Without that
 executable (or the playwright package) the test skips, saying which is missing.
 """
 
@@ -22,6 +24,7 @@ import numpy as np
 import pytest
 
 from tests.helpers.daemon import poll, start_daemon, stop_daemon
+from tests.helpers.deadlines import HTTP_S, WAIT_S
 
 pytestmark = pytest.mark.slow  # a real daemon and a browser
 
@@ -47,7 +50,7 @@ def run_scan_in_page(page, url: str, rows: tuple[int, int], cols: tuple[int, int
     page.goto(url + "/")
     page.wait_for_function("window.viewer && window.viewer.ready")
     page.click("#control-take")
-    page.wait_for_selector("#scan-start:not([disabled])", timeout=10_000)
+    page.wait_for_selector("#scan-start:not([disabled])", timeout=WAIT_S * 1000)
     page.select_option("select[name=pattern]", "roi")
     for name, value in (("row0", rows[0]), ("row1", rows[1]), ("col0", cols[0]), ("col1", cols[1])):
         page.fill(f"input[name={name}]", str(value))
@@ -64,7 +67,7 @@ def check_panels(page, api):
     """What the page says beside the cloud: a colour bar with the mode's unit and the limits the points
     are coloured with, the unbonded rows named, rows/cols inputs that follow the pattern, device and
     calibration panels with content."""
-    page.wait_for_function("window.viewer.calibrationsShown && window.viewer.scanner", timeout=30_000)
+    page.wait_for_function("window.viewer.calibrationsShown && window.viewer.scanner", timeout=WAIT_S * 1000)
     legend = page.evaluate("window.viewer.legend")
     assert legend["mode"] == "range" and legend["unit"] == "range, m"
     assert page.inner_text("#legend-unit") == "range, m"
@@ -97,7 +100,7 @@ def check_panels(page, api):
 
 
 def _control(url: str) -> dict:
-    return httpx.get(f"{url}/control", timeout=10).json()
+    return httpx.get(f"{url}/control", timeout=HTTP_S).json()
 
 
 def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
@@ -106,11 +109,11 @@ def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
     assert old and _control(url)["holder"] == "web viewer"
     page.reload()
     page.wait_for_function("window.viewer && window.viewer.ready")
-    page.wait_for_selector("#scan-start:not([disabled])", timeout=10_000)    # still in control
+    page.wait_for_selector("#scan-start:not([disabled])", timeout=WAIT_S * 1000)    # still in control
     new = page.evaluate("window.viewer.lease")
     assert new and new != old and _control(url)["holder"] == "web viewer"
     # the old page's lease is void: its late release (or anyone replaying it) frees nothing
-    r = httpx.delete(f"{url}/control", headers={"X-Lidard-Lease": old}, timeout=10)
+    r = httpx.delete(f"{url}/control", headers={"X-Lidard-Lease": old}, timeout=HTTP_S)
     assert r.status_code == 423 and _control(url)["held"] is True
     # another tab (its own sessionStorage) is an observer
     other = browser.new_page()
@@ -122,7 +125,7 @@ def check_lease_survives_reload_and_close(browser, page, url: str) -> None:
     assert _control(url)["held"] is True        # a tab without the lease releases nothing
     # closing the controlling tab releases the lock (pagehide, fetch keepalive)
     page.close(run_before_unload=True)
-    poll(lambda: not _control(url)["held"], 30, "the closed tab's release")
+    poll(lambda: not _control(url)["held"], WAIT_S, "the closed tab's release")
 
 
 def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
@@ -135,8 +138,8 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             try:
                 page = browser.new_page(viewport={"width": 1100, "height": 700})
-                sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=120)
-                api = httpx.get(f"{url}/scans/{sid}", timeout=10).json()
+                sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=WAIT_S)
+                api = httpx.get(f"{url}/scans/{sid}", timeout=HTTP_S).json()
                 assert api["state"] == "done"
                 # every planned pixel (the ROI's bonded rows) was scanned
                 assert 0 < api["counts"]["pixels_scanned"] == api["counts"]["pixels_planned"] <= 256
@@ -166,6 +169,60 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
                 assert page.evaluate("window.viewer.cloud.pick({clientX: -1e6, clientY: -1e6})") is None
                 check_panels(page, api)
                 check_lease_survives_reload_and_close(browser, page, url)
+            finally:
+                browser.close()
+    finally:
+        stop_daemon(proc)
+
+
+def test_viewer_follows_a_running_stream_and_replays_it_after_stop(tmp_path):
+    sync_playwright = _browser_or_skip()
+    proc, url = start_daemon(tmp_path / "data")
+    try:
+        r = httpx.post(url + "/streams", json={"pattern": "roi", "rows": [48, 56], "cols": [48, 64],
+                                               "max_range_m": 2.0}, timeout=10)      # until stopped
+        assert r.status_code == 201, r.text
+        sid = r.json()["id"]
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1100, "height": 700})
+                page.goto(url + "/")
+                page.wait_for_function("window.viewer && window.viewer.ready")
+                # the running stream takes the view; its first frame is drawn
+                page.wait_for_function(f"window.viewer.streamId === '{sid}' && window.viewer.frameIndex !== null",
+                                       timeout=300_000)
+                first = page.evaluate("window.viewer.frameIndex")
+                # the counter advances with the stream (the page shows each newest frame)
+                page.wait_for_function(f"window.viewer.frameIndex > {first}", timeout=300_000)
+                state = page.evaluate("""({k: window.viewer.frameIndex, n: window.viewer.pointCount,
+                    text: document.getElementById('frame-counter').textContent, hz: window.viewer.frameRateHz})""")
+                api = httpx.get(f"{url}/streams/{sid}", timeout=10).json()
+                k = state["k"]
+                assert api["state"] == "running" and api["frames_done"] > k >= 1
+                assert state["n"] == api["frames"][k]["points"] > 0          # that frame's points, all of them
+                assert state["text"].startswith(f"frame {k + 1} / ") and state["text"].endswith(" Hz")
+                assert state["hz"] is not None and state["hz"] > 0
+                assert page.evaluate("window.viewer.lastError") is None
+                stats = page.evaluate("window.viewer.cloud.pixelStats()")
+                assert stats["lit"] > 0 and stats["variance"] > 1.0, stats
+                assert httpx.delete(f"{url}/streams/{sid}", timeout=10).status_code == 200
+                page.wait_for_function("window.viewer.streamState === 'stopped'", timeout=120_000)
+                end = httpx.get(f"{url}/streams/{sid}", timeout=10).json()
+                n = end["frames_done"]
+                starts = [f["start_s"] for f in end["frames"]]
+                # stopped: the kept frames are replayed in a loop; the counter runs through all of them
+                shown = page.evaluate("window.viewer.framesShown")
+                seen = set()
+                for _ in range(2 * n):
+                    page.wait_for_function(f"window.viewer.framesShown > {shown}", timeout=30_000)
+                    shown, idx, text = page.evaluate("""[window.viewer.framesShown, window.viewer.frameIndex,
+                        document.getElementById('frame-counter').textContent]""")
+                    assert text.startswith(f"frame {idx + 1} / {n} ")
+                    seen.add(idx)
+                assert seen == set(range(n))
+                assert page.evaluate("window.viewer.frameRateHz") == pytest.approx(
+                    (n - 1) / (starts[-1] - starts[0]), rel=1e-9)
             finally:
                 browser.close()
     finally:

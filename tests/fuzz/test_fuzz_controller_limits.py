@@ -20,7 +20,8 @@ from drivers.controller.driver import LaserHvController, SettleCheck
 from drivers.controller.errors import LimitError
 from lidard.config import Config
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerSim
+from sim_devices.controller.device import ControllerSim
+from tests.helpers.deadlines import REPLY_S
 
 CFG = Config().devices.controller
 DEPLOY = p.Limits(max_laser_current_ma=CFG.max_laser_current_ma, max_hv_v=CFG.max_hv_v, tec_range_c=(15.0, 40.0))
@@ -39,7 +40,7 @@ def sim():
 
 @pytest.fixture(scope="module")
 def ctl(sim):
-    c = LaserHvController("127.0.0.1", sim.port, timeout_s=2.0, retries=0, limits=DEPLOY)
+    c = LaserHvController("127.0.0.1", sim.port, timeout_s=REPLY_S, retries=0, limits=DEPLOY)
     c.identify()  # connected: a refused write would show up as bytes
     yield c
     c.close()
@@ -47,7 +48,7 @@ def ctl(sim):
 
 @pytest.fixture(scope="module")
 def raw(sim):
-    c = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=2.0, retries=0)
+    c = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=REPLY_S, retries=0)
     yield c
     c.close()
 

@@ -2,7 +2,7 @@
 
 tests/drivers/fpsa covers COBS, the frame parser and CRC corruption; this file covers what those
 do not: every payload decoder (ACK/NAK responses, SET_PIXEL, pattern begin/chunk, pixel pairs,
-Timing/Identity/Status blocks) on arbitrary bytes, and the byte-level peer (sim_devices.fpga):
+Timing/Identity/Status blocks) on arbitrary bytes, and the byte-level peer (sim_devices.fpsa.device):
 whatever well-framed command with whatever payload the host sends, the device answers with one
 ACK or NAK frame for that sequence number and never raises (docs/protocols/fpsa.md).
 """
@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from drivers.fpsa import protocol as p
 from drivers.fpsa.errors import ProtocolError
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
 
 FUZZ = settings(max_examples=300, derandomize=True, deadline=None)
 

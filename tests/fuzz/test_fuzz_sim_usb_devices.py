@@ -1,4 +1,4 @@
-"""Fuzz the request decoders on the device side of the USB seam (sim_devices.awg, sim_devices.digitizer).
+"""Fuzz the request decoders on the device side of the USB seam (sim_devices.awg.device, sim_devices.digitizer.device).
 
 A simulated instrument is a byte-level peer: whatever the host sends, it must answer the way the
 real one would (a SCPI error in the error queue, a stalled control pipe) and stay usable, never
@@ -17,9 +17,9 @@ from hypothesis import strategies as st
 from drivers import usbtmc
 from drivers.awg import protocol as awg
 from drivers.digitizer import protocol as dig
-from sim_devices.awg import SimAwg
+from sim_devices.awg.device import SimAwg
 from sim_devices.clock import VirtualClock
-from sim_devices.digitizer import CapturedSegments, SimDigitizer
+from sim_devices.digitizer.device import CapturedSegments, SimDigitizer
 
 FUZZ = settings(max_examples=200, derandomize=True, deadline=None)
 

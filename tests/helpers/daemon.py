@@ -13,13 +13,14 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import httpx
 import pytest
 
+from tests.helpers.deadlines import STARTUP_S
+
 REPO = Path(__file__).resolve().parents[2]
-STARTUP_S = 60.0
 
 
 def start_daemon(data_dir: Path, *, env: dict[str, str] | None = None) -> tuple[subprocess.Popen, str]:

@@ -19,6 +19,7 @@ from lidard.scan import plan
 
 from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
 from lidard.instrument.errors import FaultsStillOpen
+from tests.helpers.deadlines import WAIT_S
 
 
 class DeviceFault(Exception):
@@ -131,6 +132,35 @@ class FakeInstrument:
                           pixels_scanned=done, pixels_planned=n, hardware_time_s=done * pixel_s,
                           partial=done < n)
 
+    def run_stream(self, request, planner, on_frame, cancel, calibration=None, *, frames=None,
+                   health_interval_s=60.0, on_points=None):
+        """Frames of synthetic points (range 1 m + 1 mm per column + 1 cm per frame) on the planner's
+        pixels, ``pixel_s`` apart, back to back; stops at ``frames`` or on ``cancel``."""
+        from lidard.instrument.frames import Frame, StreamResult
+
+        self.requests.append(request)
+        self.calibrations_used.append(calibration)
+        if self.fail_with is not None:
+            raise self.fail_with
+        pixel_s = 100e-6 * request.averages
+        history, k, t0 = [], 0, 0.0
+        while (frames is None or k < frames) and not cancel.is_set():
+            fp = planner(k, list(history))
+            px = np.asarray(fp.pixels, dtype=np.int64).reshape(-1, 2)
+            pts = np.zeros(len(px), dtype=POINT_DTYPE)
+            rng_m = 1.0 + 0.001 * px[:, 1] + 0.01 * k
+            xyz = self.optics.directions(px[:, 0], px[:, 1]) * rng_m[:, None]
+            pts["x"], pts["y"], pts["z"], pts["range"] = xyz[:, 0], xyz[:, 1], xyz[:, 2], rng_m
+            pts["row"], pts["col"], pts["valid"], pts["frame"] = px[:, 0], px[:, 1], 1, k
+            pts["intensity"], pts["snr_db"] = 0.1, 30.0
+            pts["t"] = t0 + np.arange(len(px)) * pixel_s
+            frame = Frame(k, pts, px, len(px), t0, len(px) * pixel_s, 0.0, pixel_s, trade=dict(fp.trade))
+            on_frame(frame)
+            history = (history + [frame])[-4:]
+            t0 += len(px) * pixel_s
+            k += 1
+        return StreamResult(k, t0, None, cancel.is_set(), [], {"fake": True})
+
     def set_scene(self, scene):
         # like the real instrument: the simulator's parser decides, a refusal is a ValueError
         from sim_devices.world.scene import Scene, SceneError
@@ -178,6 +208,6 @@ class StreamingInstrument(FakeInstrument):
         half = self.n // 2
         progress(ScanProgress(half, self.n, half, 0.1, new_points=pts[:half]))
         self.first_batch.set()
-        assert self.release.wait(20.0)
+        assert self.release.wait(WAIT_S)
         progress(ScanProgress(self.n, self.n, self.n, 0.2, new_points=pts[half:]))
         return ScanResult(points=pts, meta={}, pixels_scanned=self.n, pixels_planned=self.n, hardware_time_s=0.2)

@@ -13,7 +13,7 @@ from drivers.controller.protocol import Limits
 from drivers.fpsa.driver import FpsaController
 from lidard.config import load_config
 from lidard.physics.chirp import triangle_drive_v
-from sim_devices.bench import Bench
+from sim_devices.bench.bench import Bench
 
 SIM_TOML = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 LIMITS = Limits(max_laser_current_ma=150.0, max_hv_v=60.0, tec_range_c=(15.0, 40.0))

@@ -8,8 +8,9 @@ import pytest
 
 from tests.helpers.api import app_client
 from tests.helpers.fakes import FakeInstrument
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0
+T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20]}
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from tests.helpers.fakes import FakeInstrument
+from tests.helpers.deadlines import HTTP_S
 
 TOKEN = "s3cret-token"
 SMALL = {"pattern": "roi", "rows": [0, 3], "cols": [0, 20], "formats": ["ply", "npz", "ros2"]}
@@ -168,7 +169,7 @@ def test_openapi_python_client_generated_from_the_schema_runs_a_scan(tmp_path, m
     with live_server(app) as url:
         import httpx
         spec = tmp_path / "openapi.json"
-        spec.write_text(json.dumps(httpx.get(url + "/openapi.json", timeout=10).json()))
+        spec.write_text(json.dumps(httpx.get(url + "/openapi.json", timeout=HTTP_S).json()))
         out = tmp_path / "lidard_client"
         gen = subprocess.run([sys.executable, "-m", "openapi_python_client", "generate", "--path", str(spec),
                               "--output-path", str(out), "--meta", "none"], capture_output=True, text=True,

@@ -6,16 +6,17 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.helpers.fakes import StreamingInstrument  # noqa: E402
+from tests.helpers.fakes import StreamingInstrument
 
-from lidard.api.app import create_app  # noqa: E402
-from lidard.api.routers.viewer import STATIC_DIR  # noqa: E402
-from lidard.config import load_config  # noqa: E402
-from lidard.instrument.types import POINT_DTYPE  # noqa: E402
-from lidard.live.points import LIVE_FIELDS, LivePoints, decode_points, encode_points  # noqa: E402
-from lidard.pointcloud import read_npz  # noqa: E402
+from lidard.api.app import create_app
+from lidard.api.routers.viewer import STATIC_DIR
+from lidard.config import load_config
+from lidard.instrument.types import POINT_DTYPE
+from lidard.live.points import LIVE_FIELDS, LivePoints, decode_points, encode_points
+from lidard.pointcloud import read_npz
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0
+T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 
 
 @pytest.fixture

@@ -30,7 +30,7 @@ rx_aperture_m = 0.01
 
 
 def one_json(out):
-    lines = [l for l in out.splitlines() if l.strip()]
+    lines = [ln for ln in out.splitlines() if ln.strip()]
     assert len(lines) == 1, out
     return json.loads(lines[0])
 

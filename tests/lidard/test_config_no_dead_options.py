@@ -12,7 +12,6 @@ listed in CONSUMED_IN_CONFIG with the reason.
 from __future__ import annotations
 
 import ast
-import types
 import typing
 from pathlib import Path
 

@@ -11,6 +11,7 @@ import sys
 
 import pytest
 
+from tests.helpers.deadlines import WAIT_S
 from lidard.api.control import LEASE_HEADER
 from tests.helpers.api import live_server, make_app
 from tests.helpers.cli import run as lidarctl
@@ -68,14 +69,14 @@ def test_acquire_export_prints_one_eval_line_and_stores_nothing(live, tmp_path):
     script = (f'eval "$({lidarctl_cmd} control acquire --export --url {url} --client shell)" && '
               f'echo "lease=$LIDARD_LEASE" && {lidarctl_cmd} {" ".join(SCAN)} --url {url} >/dev/null; '
               f'echo "scan=$?"')
-    proc = subprocess.run(["bash", "-c", script], capture_output=True, text=True, env=env, timeout=120)
+    proc = subprocess.run(["bash", "-c", script], capture_output=True, text=True, env=env, timeout=WAIT_S)
     assert re.search(r"^lease=[0-9a-f]{48}$", proc.stdout, re.M), proc.stdout + proc.stderr
     assert "scan=0" in proc.stdout and len(inst.requests) == 1, proc.stdout + proc.stderr
     assert not leases.path().exists()
     # without it, the same command is refused: the lease really was what let it through
     proc = subprocess.run([sys.executable, "-c", "import sys; from lidard.cli import lidarctl_main; "
                            "sys.exit(lidarctl_main())", *SCAN, "--url", url], capture_output=True,
-                          text=True, env={k: v for k, v in env.items() if k != "LIDARD_LEASE"}, timeout=120)
+                          text=True, env={k: v for k, v in env.items() if k != "LIDARD_LEASE"}, timeout=WAIT_S)
     assert proc.returncode == 1 and "423" in proc.stderr and "shell" in proc.stderr and len(inst.requests) == 1
 
 

@@ -12,9 +12,8 @@ from lidard.instrument import ScanRequest
 from lidard.instrument.pipeline import DspPipeline
 from lidard.instrument.points import PointBuffer, RawBatch
 from lidard.instrument.scan_loop import plan_scan
+from tests.helpers.deadlines import WAIT_S  # a deadline for a hung test
 from tests.helpers.tolerances import NOMINAL_ENV
-
-WAIT_S = 60.0      # a deadline for a hung test, never the measured quantity
 
 
 def test_results_come_back_in_submission_order_when_later_jobs_finish_first():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from tests.helpers.fakes import FakeInstrument
+from tests.helpers.deadlines import WAIT_S
 from drivers.usbtmc import DeviceStall, DeviceTimeout
 from lidard.config import load_config
 from lidard.instrument import DeviceFault, InstrumentError, SegmentsLost
@@ -215,6 +216,6 @@ def test_the_api_and_the_job_queue_import_the_instrument_seam_without_the_hardwa
     code = ("import sys, lidard.jobs, lidard.api.deps, lidard.api.routers.sim; "
             "print(sorted(m for m in sys.modules if m.startswith(('drivers', 'sim_devices', 'lidard.dsp', "
             "'lidard.instrument.facade', 'lidard.instrument.compose'))))")
-    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=WAIT_S)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"

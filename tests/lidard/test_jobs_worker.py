@@ -8,8 +8,9 @@ from lidard.jobs import QueueFull, ScanWorker, UnknownScan
 from lidard.pointcloud import read_points, read_sidecar
 from lidard.store import Store
 from tests.helpers.fakes import DeviceFault, FakeInstrument
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0  # guard timeout for waits; never reached when things work
+T = WAIT_S  # guard timeout for waits; never reached when things work
 SMALL = dict(pattern="roi", rows=(0, 3), cols=(0, 20))   # 3 bonded rows x 20 = 60 pixels
 
 

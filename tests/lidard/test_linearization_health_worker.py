@@ -17,8 +17,9 @@ from lidard.pointcloud import read_sidecar
 from lidard.store import Store
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FRESH_CHIRP_ERROR_HZ, FakeInstrument
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0
+T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 SMALL = dict(pattern="roi", rows=(0, 3), cols=(0, 20), formats=("npz",))
 
 

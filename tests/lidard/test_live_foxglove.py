@@ -14,14 +14,15 @@ import pytest
 from fastapi.testclient import TestClient
 from websockets.sync.client import connect
 
-from tests.helpers.fakes import FakeInstrument  # noqa: E402
+from tests.helpers.fakes import FakeInstrument
 
-from lidard.api.app import create_app  # noqa: E402
-from lidard.config import ConfigError, load_config  # noqa: E402
-from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC  # noqa: E402
-from lidard.outputs.mcap import decode_point_cloud  # noqa: E402
+from lidard.api.app import create_app
+from lidard.config import ConfigError, load_config
+from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC
+from lidard.outputs.mcap import decode_point_cloud
+from tests.helpers.deadlines import WAIT_S
 
-T = 20.0
+T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
 
@@ -112,3 +113,47 @@ def test_foxglove_gets_each_batch_then_the_whole_cloud(tmp_path):
                 if not isinstance(frame, str):
                     sizes.append(len(decode_point_cloud(frame[13:])))
     assert sizes == [25, 25, 50]
+
+
+def test_foxglove_gets_each_stream_frame_as_it_completes_in_order(tmp_path):
+    """A 5-frame stream: 5 PointClouds, one per frame in frame order, each holding exactly that frame's
+    points (the fake's ground truth: range 1 m + 1 mm per column + 1 cm per frame), each followed by
+    the frame's status event with its index, and the stream's end event last."""
+    n = 5
+    app = create_app(_live_cfg(tmp_path, foxglove=True, foxglove_port=0), instrument=FakeInstrument(),
+                     data_dir=tmp_path / "data", progress_interval_s=0.0)
+    with TestClient(app) as c:
+        fox = app.state.foxglove
+        with connect(f"ws://127.0.0.1:{fox.port}", subprotocols=SUBPROTOCOLS, open_timeout=T) as ws:
+            channels = {ch["topic"]: ch for ch in _json_until(ws, "advertise")["channels"]}
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 1, "channelId": channels[POINTS_TOPIC]["id"]},
+                {"id": 2, "channelId": channels[STATUS_TOPIC]["id"]}]}))
+            _until(lambda: fox.channels.points.has_sinks() and fox.channels.status.has_sinks(),
+                   "the subscriptions to reach the server")
+            r = c.post("/streams", json={"pattern": "roi", "rows": [0, 3], "cols": [0, 10], "frames": n})
+            assert r.status_code == 201, r.text
+            sid = r.json()["id"]
+            seen = []          # ("cloud", points) and ("status", event) in arrival order
+            while not (seen and seen[-1][0] == "status" and seen[-1][1].get("event") == "end"
+                       and seen[-1][1].get("id") == sid):
+                msg = ws.recv(timeout=T)
+                if isinstance(msg, str):
+                    continue
+                sub, _log_time = struct.unpack_from("<IQ", msg, 1)
+                if sub == 1:
+                    seen.append(("cloud", decode_point_cloud(msg[13:])))
+                else:
+                    ev = json.loads(msg[13:])
+                    if ev.get("id") == sid:
+                        seen.append(("status", ev))
+        status = c.get(f"/streams/{sid}").json()
+    assert status["state"] == "done" and status["frames_done"] == n
+    kinds = [k for k, _ in seen]
+    assert kinds == ["cloud", "status"] * n + ["status"]
+    for k in range(n):
+        cloud, ev = seen[2 * k][1], seen[2 * k + 1][1]
+        assert ev["event"] == "frame" and ev["frame"] == k and ev["points"] == len(cloud) > 0
+        assert set(cloud["frame"].tolist()) == {k}
+        np.testing.assert_allclose(cloud["range"], 1.0 + 0.001 * cloud["col"] + 0.01 * k, rtol=1e-6)
+    assert seen[-1][1]["frames"] == n and seen[-1][1]["state"] == "done"

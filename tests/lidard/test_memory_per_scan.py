@@ -34,7 +34,7 @@ WARM, N, WINDOWS = 12, 12, 3    # warm-up scans, scans per window, windows (the 
 # The soak's target (each process within 10 MB an hour, at about 40 scans a minute) is about 4 kB a
 # scan. Measured once warm: 0.8-1.8 kB a scan (bounded caches still filling: sqlite's statements and
 # pages, re); the drive log that kept every run added 3.9 kB a scan in process (its own bound is tested
-# in tests/sim_devices/fpga/test_drive_log_compaction.py).
+# in tests/sim_devices/fpsa/test_drive_log_compaction.py).
 BUDGET_PER_SCAN = 4 << 10       # bytes a scan may leave behind once warm
 SITE_GROWTH = 16 << 10          # bytes one allocation site may gain in every window before it counts as a leak
 

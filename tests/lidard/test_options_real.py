@@ -8,7 +8,6 @@ log2(sqrt(max rate / rate)); selftest_analysis: HV below the profile's pull-in),
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np

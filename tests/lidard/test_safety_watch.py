@@ -18,10 +18,10 @@ from lidard.instrument import ScanRequest, open_instrument
 from lidard.instrument import scan_loop
 from lidard.instrument.points import PointBuffer
 from lidard.instrument.safety import SafetyMonitor, SafetyWatch
+from tests.helpers.deadlines import WAIT_S  # a deadline for a hung test
 from tests.helpers.tolerances import NOMINAL_ENV
 
 REPO = Path(__file__).resolve().parents[2]
-WAIT_S = 60.0          # a deadline for a hung test, never the measured quantity
 
 
 @pytest.fixture

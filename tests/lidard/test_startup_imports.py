@@ -12,6 +12,7 @@ import sys
 
 import pytest
 
+from tests.helpers.deadlines import WAIT_S
 HEAVY = ("scipy", "matplotlib", "foxglove", "mcap", "fastapi", "uvicorn", "tqdm")
 
 _PROBE = """
@@ -27,7 +28,7 @@ print(json.dumps(sorted({name.split(".")[0] for name in sys.modules})))
 
 
 def _loaded(*argv: str) -> set[str]:
-    out = subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, timeout=120,
+    out = subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, timeout=WAIT_S,
                          check=True).stdout
     return set(json.loads(out.strip().splitlines()[-1]))
 
@@ -43,8 +44,8 @@ def test_the_instrument_and_the_daemon_import_without_scipys_heavy_subpackages()
     # a `--sim` scan imports the composition root (bench included) and the daemon its app before any
     # work: scipy.signal, scipy.stats and scipy.optimize (~1 s together) wait for the procedures that
     # use them (the ILC's Hilbert transform, the range calibration's chi-square, the pointing fit)
-    probe = ("import json, sys, lidard.instrument.compose, lidard.api.app, sim_devices.bench\n"
+    probe = ("import json, sys, lidard.instrument.compose, lidard.api.app, sim_devices.bench.bench\n"
              "print(json.dumps(sorted(m for m in sys.modules if m.startswith('scipy.'))))")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, check=True).stdout
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=WAIT_S, check=True).stdout
     loaded = set(json.loads(out.strip().splitlines()[-1]))
     assert not loaded & {"scipy.signal", "scipy.stats", "scipy.optimize"}, sorted(loaded)

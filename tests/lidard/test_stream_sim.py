@@ -10,7 +10,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
-from lidard.instrument.stream import FRAME_READ_S, FramePlan
+from lidard.instrument.stream import FRAME_READ_S, FRAME_TAIL_S, FramePlan, read_size
 from lidard.jobs.stream_job import FrameSink
 from lidard.outputs.mcap import read_mcap
 from lidard.scan import plan
@@ -35,14 +35,28 @@ def _fixed(inst):
 
 def test_frames_to_mcap_with_one_bring_up(inst, tmp_path, monkeypatch):
     px, planner = _fixed(inst)
-    ups = []
+    ups, configures = [], []
     real = inst.safety.bring_up
     monkeypatch.setattr(inst.safety, "bring_up", lambda **kw: (ups.append(1), real(**kw))[1])
+    real_conf = inst.digitizer.configure
+    monkeypatch.setattr(inst.digitizer, "configure", lambda **kw: (configures.append(kw), real_conf(**kw))[1])
     sink = FrameSink(str(tmp_path / "s.mcap"), "ply", {})
     frames = []
     res = inst.run_stream(REQ, planner, lambda f: (frames.append(f), sink.add(f)), threading.Event(), frames=3)
     sink.close()
     assert res.frames == 3 and res.stop_reason is None and len(ups) == 1
+    # one digitizer acquisition for all frames: configured and armed once, its segments numbered on
+    assert len(configures) == 1 and res.meta["digitizer_arms"] == 1
+    assert configures[0]["segments"] >= 3 * len(px)
+    # ... and each frame's segments are its own pixels' (the static scene: the same ranges frame to frame)
+    first = lambda p: p[p["return_index"] == 0]    # noqa: E731  (unlinearized: few returns pass as valid)
+    ref = first(frames[0].points)
+    key = lambda p: p["row"].astype(np.int64) * 1000 + p["col"]   # noqa: E731
+    for f in frames[1:]:
+        v = first(f.points)
+        common, i0, i1 = np.intersect1d(key(ref), key(v), return_indices=True)
+        assert len(common) >= 0.9 * len(ref) > 100
+        assert np.median(np.abs(ref["range"][i0] - v["range"][i1])) < 0.005
     pts, statuses = read_mcap(tmp_path / "s.mcap")
     assert [s["frame"] for s in statuses] == [0, 1, 2]
     assert sorted(set(pts["frame"].tolist())) == [0, 1, 2]
@@ -58,6 +72,15 @@ def test_frames_to_mcap_with_one_bring_up(inst, tmp_path, monkeypatch):
     assert starts[0] == 0.0
 
 
+def test_a_frame_is_read_in_steps_then_halving_to_its_last_pixels():
+    sizes, left = [], 396
+    while left:
+        sizes.append(read_size(left, 20, 4))
+        left -= sizes[-1]
+    assert sizes == [20] * 18 + [18, 9, 5, 4]          # steps, then halving to the tail read
+    assert read_size(3, 20, 4) == 3 and read_size(7, 20, 4) == 3 and read_size(60, 20, 4) == 20
+
+
 def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
     px, planner = _fixed(inst)
     cancel = threading.Event()
@@ -65,7 +88,12 @@ def test_stop_keeps_finished_frames_and_the_partial_one(inst, monkeypatch):
     reads = []
     real = inst.acquisition.read
 
-    per_frame = -(-len(px) // int(FRAME_READ_S / (inst.cfg.chirp.period_s + inst.cfg.scan.settle_s)))
+    pixel_s = inst.cfg.chirp.period_s + inst.cfg.scan.settle_s
+    step, tail = int(FRAME_READ_S / pixel_s), int(FRAME_TAIL_S / pixel_s)
+    per_frame, left = 0, len(px)                       # 5 ms reads, halving to the last 1 ms
+    while left:
+        left -= read_size(left, step, tail)
+        per_frame += 1
 
     def read(acq, first, count):   # stop inside frame 1, after its first read (frame 0 takes per_frame)
         reads.append(count)
@@ -113,6 +141,7 @@ def test_health_check_repeats_after_its_hardware_time_budget(inst):
                           health_interval_s=0.001)
     assert res.frames == 3 and res.stop_reason is None
     assert len(res.health) == 2 and all("hardware time" in h["why"] for h in res.health)
+    assert res.meta["digitizer_arms"] == 3        # the check used the digitizer: each frame set it up again
     assert all(not h["exceeded"] and h["residual_hz"] < h["threshold_hz"] for h in res.health)
     assert all(len(f.points) > 0 for f in frames)
 
@@ -149,7 +178,7 @@ def test_stream_job_hands_each_frame_to_the_live_listeners(inst, tmp_path):
     from lidard.jobs.stream_job import StreamJob, StreamSpec, frame_id
 
     class Worker:                   # what StreamJob.run needs of the scan worker
-        instrument, last_linearization, events = inst, None, EventHub()
+        instrument, last_linearization, events, optics = inst, None, EventHub(), inst.optics
 
         def current_linearization(self):
             return None
@@ -163,7 +192,9 @@ def test_stream_job_hands_each_frame_to_the_live_listeners(inst, tmp_path):
     assert job.state == "done" and len(job.frames) == 2
     assert [c[0] for c in clouds] == [frame_id(job.id, 0), frame_id(job.id, 1)]
     assert all(c[2] and c[1] > 0 and c[3] == {k} for k, c in enumerate(clouds))
-    assert [(e["event"], e["frame"], e["points"]) for e in events] == [("frame", k, clouds[k][1]) for k in range(2)]
+    assert [(e["event"], e["frame"], e["points"]) for e in events[:-1]] == [("frame", k, clouds[k][1]) for k in range(2)]
+    assert events[-1] == {"event": "end", "id": job.id, "state": "done", "frames": 2, "stop_reason": None,
+                          "error": None}
     assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == [
         "frame_00000.ply", "frame_00000.ply.json", "frame_00001.ply", "frame_00001.ply.json"]
 

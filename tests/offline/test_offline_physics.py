@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from lidard.offline.spec import expand_sweep
 from lidard.offline.sweep import run_task
 
@@ -53,7 +55,9 @@ def test_detection_probability_falls_with_distance():
 
 def test_range_rmse_meets_the_cramer_rao_bound_at_high_snr():
     (r,) = _rows({"laser": "ideal", "link.tx_power_w": 10e-3}, [3.0], trials=64)
-    assert r["budget_snr_db"] > 25.0 and r["detected"] == 64
+    # a clean return is flagged unresolved by noise alone at the model-order test's level
+    # (FrameDsp.order_level = 1e-3 per ramp): ~0.13 of 64 pixels expected, 3 or more with p < 1e-3
+    assert r["budget_snr_db"] > 25.0 and r["detected"] >= 62
     fs = r["sample_rate_hz"]
     n = int(r["ramp_samples"] * 0.9) & ~1                        # FrameDsp's central 90 % of each ramp
     sigma2 = r["noise_asd_v_per_rthz"] ** 2 * fs / 2.0
@@ -65,7 +69,7 @@ def test_range_rmse_meets_the_cramer_rao_bound_at_high_snr():
     ratio = r["range_rmse_m"] / crlb
     # 64 trials estimate an RMSE to ~9 % (1 sigma); an efficient estimator sits at ratio 1
     assert 0.75 <= ratio <= 1.35, ratio
-    assert abs(r["range_err_sum_m"] / r["detected"]) < 3 * crlb / math.sqrt(64) + 1e-5   # unbiased
+    assert abs(r["range_err_sum_m"] / r["detected"]) < 3 * crlb / math.sqrt(r["detected"]) + 1e-5   # unbiased
 
 
 def test_phase_noise_compensation_on_records_the_monitor_and_still_ranges():
@@ -77,6 +81,7 @@ def test_phase_noise_compensation_on_records_the_monitor_and_still_ranges():
     assert not off["phase_noise_compensation"] and on["phase_noise_compensation"]
     assert on["sample_rate_hz"] > off["sample_rate_hz"]
     ratio = on["sample_rate_hz"] / off["sample_rate_hz"]
-    assert on["samples"] == round(2 * ratio * off["samples"])
+    # two channels of a record ratio x longer (to the constant segment's rounding to whole samples)
+    assert on["samples"] / (2 * off["samples"]) == pytest.approx(ratio, rel=1e-3)
     assert on["detected"] == off["detected"] == 8
     assert on["range_rmse_m"] < 5 * on["crlb_range_m"]

@@ -10,7 +10,7 @@ import pytest
 from lidard.config import load_laser
 from lidard.physics.constants import C_M_PER_S
 from lidard.physics.decimation import DecimationError, DecimationFilter
-from sim_devices.digitizer import decimation_filter
+from sim_devices.digitizer.device import decimation_filter
 from sim_devices.world.laser import DfbLaser, triangle_drive
 from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
 
@@ -68,7 +68,7 @@ def test_tones_are_filtered_at_their_true_beat_then_fold(traj, d_m):
 
 
 def test_the_core_clips_before_the_filter():
-    from sim_devices.bench import core_overrange
+    from sim_devices.bench.bench import core_overrange
     hits = HitBatch(seg=np.array([0, 1, 2, 2]), tau_s=np.full(4, 1e-7), amplitude_v=np.array([0.6, 0.4, 0.3, 0.3]))
     # +-0.5 V full scale: 0.6 V clips, 0.4 V does not, two returns of 0.3 V can (their peaks align)
     assert list(core_overrange(hits, 4, 1.0)) == [True, False, True, False]

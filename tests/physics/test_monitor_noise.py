@@ -11,7 +11,7 @@ import pytest
 from lidard.config import CONFIG_DIR, load_config, load_laser
 from lidard.dsp.ilc import linearize
 from lidard.physics.budget import monitor_noise_asd
-from sim_devices.bench import Bench
+from sim_devices.bench.bench import Bench
 from sim_devices.world.laser import DfbLaser, triangle_drive
 from sim_devices.world.synth import AdcSpec, synthesize, trajectory
 
@@ -40,12 +40,12 @@ def test_bench_monitor_channel_carries_shot_rin_and_core_quantization():
                                  bench.laser_preset.rin_db_per_hz)["total"]
     lsb = cfg.adc.input_range_v / 2**cfg.adc.bits
     q_core = math.sqrt(lsb**2 / 12 / (cfg.adc.max_sample_rate_hz / 2))
-    from sim_devices.digitizer import CaptureConfig
+    from sim_devices.digitizer.device import CaptureConfig
 
     def capture(resolution_bits: int) -> CaptureConfig:   # the resolution the host configured
         return CaptureConfig(10e6, 1600, ("beat", "mzi"), 16, cfg.adc.input_range_v, resolution_bits)
-    assert bench._monitor_asd(capture(16)) == pytest.approx(math.hypot(shot_rin, q_core), rel=1e-9)
-    assert bench._monitor_asd(capture(cfg.adc.bits)) == pytest.approx(shot_rin, rel=1e-9)  # record = core
+    assert bench.synthesizer.monitor_asd(capture(16)) == pytest.approx(math.hypot(shot_rin, q_core), rel=1e-9)
+    assert bench.synthesizer.monitor_asd(capture(cfg.adc.bits)) == pytest.approx(shot_rin, rel=1e-9)  # record = core
 
 
 RAMP_S, EXC_HZ, FS, TAU_M = 80e-6, 8.6e9, 100e6, 200e-9

@@ -4,7 +4,7 @@ import asyncio
 
 from fastapi import APIRouter, HTTPException, Query, status
 
-from ...jobs import describe_error
+from ...jobs import JobFailed, describe_error
 from ..deps import ConfigDep, StoreDep, WorkerDep
 from ..schemas import CalibrationOut
 
@@ -19,8 +19,7 @@ async def linearize(worker: WorkerDep) -> CalibrationOut:
     try:
         cal = await asyncio.wrap_future(future)
     except Exception as exc:  # a device fault during the ILC run: the daemon's state, not a crash
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
-                            f"linearization failed: {describe_error(exc)}") from None
+        raise JobFailed(f"linearization failed: {describe_error(exc)}") from exc
     return CalibrationOut.from_result(cal)
 
 

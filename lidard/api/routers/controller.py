@@ -1,4 +1,4 @@
-"""The laser/HV controller's latched safety faults: ``POST /controller/acknowledge`` (issue 11, item 4).
+"""The laser/HV controller's latched safety faults: ``POST /controller/acknowledge``.
 
 A latched fault (the interlock opened, an HV supply trip; docs/protocols/controller.md) keeps the laser
 and the FPSA's HV (dissertation §4.3.3) off until a person resets it, as laser safety expects. The
@@ -9,9 +9,8 @@ holder who acknowledged ("anonymous" when no lease is held), and the daemon logs
 
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException, Request, status
+from fastapi import APIRouter, Request
 
-from ...instrument.errors import FaultsStillOpen
 from ..deps import InstrumentDep
 from ..schemas import _Out
 
@@ -37,10 +36,8 @@ def acknowledged_by(request: Request) -> str:
              responses={409: {"description": "a latched fault's cause is still present (named)"}})
 def acknowledge(request: Request, instrument: InstrumentDep) -> FaultsAcknowledged:
     """Clear the controller's latched faults whose cause is gone (interlock closed, no HV fault)."""
-    try:
-        return FaultsAcknowledged(**instrument.acknowledge_faults(acknowledged_by(request)))
-    except FaultsStillOpen as exc:
-        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    # FaultsStillOpen (a cause is still present): 409
+    return FaultsAcknowledged(**instrument.acknowledge_faults(acknowledged_by(request)))
 
 
 def latched_refusal(instrument) -> str | None:

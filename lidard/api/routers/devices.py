@@ -5,14 +5,14 @@ from typing import Any
 from fastapi import APIRouter
 
 from ..deps import InstrumentDep
-from ..schemas import DeviceList
+from ..schemas import DeviceList, DeviceStatus
 
 router = APIRouter(tags=["devices"])
 
 
 @router.get("/devices", response_model=DeviceList)
 def devices(instrument: InstrumentDep) -> DeviceList:
-    return DeviceList(devices=instrument.devices())
+    return DeviceList(devices=[DeviceStatus.model_validate(d) for d in instrument.devices()])
 
 
 @router.get("/scanner")

@@ -1,4 +1,4 @@
-"""Range scale/zero, pointing and I/Q calibrations over REST (issue 13 item 2), and every calibration's record.
+"""Range scale/zero, pointing and I/Q calibrations over REST, and every calibration's record.
 
 Range: ``POST /calibration/range/plates`` measures the plate now in front of the sensor at the given
 known distance (queued like a scan; the measurement is kept in the store); ``GET`` lists the pending
@@ -26,13 +26,13 @@ from fastapi import APIRouter, HTTPException, Query, status
 from pydantic import BaseModel, ConfigDict, Field
 
 from ...instrument.calibration.range import CalibrationRefused
-from ...jobs import QueueFull, WorkerStopped, describe_error
+from ...jobs import JobFailed, describe_error
 from ...jobs import calibrations as cal
 from ..deps import ConfigDep, StoreDep, WorkerDep
 
 router = APIRouter(prefix="/calibration", tags=["calibration"])
 
-REFUSED = {422: {"description": "the calibration was refused (too few or inconsistent measurements; named)"},
+REFUSED: dict[int | str, dict[str, Any]] = {422: {"description": "the calibration was refused (too few or inconsistent measurements; named)"},
            503: {"description": "a device fault stopped the measurement, or the queue is full"}}
 
 
@@ -103,18 +103,13 @@ class Removed(BaseModel):
 
 
 async def _wait(submit) -> Any:
-    try:
-        future = submit()
-    except CalibrationRefused as exc:
-        raise HTTPException(422, str(exc)) from None
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
+    future = submit()   # CalibrationRefused: 422; QueueFull, WorkerStopped: 503 with Retry-After
     try:
         return await asyncio.wrap_future(future)
-    except CalibrationRefused as exc:
-        raise HTTPException(422, str(exc)) from None
+    except CalibrationRefused:
+        raise
     except Exception as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, f"calibration failed: {describe_error(exc)}") from None
+        raise JobFailed(f"calibration failed: {describe_error(exc)}") from exc
 
 
 def _clean(d: dict[str, Any]) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Raw captures of scans: reprocess one into a new scan, one pixel's spectra, remove a capture (issue 16).
+"""Raw captures of scans: reprocess one into a new scan, one pixel's spectra, remove a capture.
 
 The work is :mod:`lidard.raw.service`'s; here only HTTP: a scan without a capture answers 409 (it
 exists, it was not recorded), an unknown scan 404, an override the capture cannot honour 422.
@@ -11,36 +11,23 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, status
 
-from ...jobs import UnknownScan
-from ...raw import PixelNotRecorded, RawCaptureError, ReprocessSettings
-from ...raw.service import NoRawCapture, raw_path, reprocess_scan, scan_spectrum
+from ...raw import ReprocessSettings
+from ...raw.service import raw_path, reprocess_scan, scan_spectrum
 from ..deps import StoreDep
 from ..schemas import EstimatorName, ReprocessCreate, ScanOut, WindowName
 
 router = APIRouter(prefix="/scans", tags=["raw captures"])
 
-_ERRORS = {404: {"description": "no scan with this id, or the pixel was not recorded"},
+_ERRORS: dict[int | str, dict[str, Any]] = {404: {"description": "no scan with this id, or the pixel was not recorded"},
            409: {"description": "the scan has no raw capture (not scanned with record_raw)"},
            422: {"description": "an override the capture cannot honour (e.g. phase_noise on without a monitor channel)"}}
-
-
-def _http(exc: Exception, scan_id: str) -> HTTPException:
-    if isinstance(exc, UnknownScan):
-        return HTTPException(status.HTTP_404_NOT_FOUND, f"scan {scan_id!r} not found")
-    if isinstance(exc, NoRawCapture):
-        return HTTPException(status.HTTP_409_CONFLICT, str(exc))
-    if isinstance(exc, PixelNotRecorded):
-        return HTTPException(status.HTTP_404_NOT_FOUND, str(exc))
-    return HTTPException(422, str(exc))
 
 
 @router.post("/{scan_id}/reprocess", response_model=ScanOut, status_code=status.HTTP_201_CREATED, responses=_ERRORS)
 def reprocess(scan_id: str, body: ReprocessCreate, store: StoreDep) -> ScanOut:
     """Run the DSP again on the scan's raw capture; answers the new scan (``reprocessed_from``)."""
-    try:
-        rec = reprocess_scan(store, scan_id, body.settings(), formats=tuple(body.formats) if body.formats else None)
-    except (UnknownScan, RawCaptureError) as exc:
-        raise _http(exc, scan_id) from None
+    # UnknownScan (404), NoRawCapture (409), RawCaptureError (422): their own status
+    rec = reprocess_scan(store, scan_id, body.settings(), formats=tuple(body.formats) if body.formats else None)
     return ScanOut.from_record(rec)
 
 
@@ -50,12 +37,9 @@ def spectrum(scan_id: str, store: StoreDep, row: int = Query(..., ge=0), col: in
              window: WindowName | None = None,
              phase_noise: Literal["on", "off"] | None = None) -> dict[str, Any]:
     """One pixel's up/down spectra (V^2), OS-CFAR threshold, searched gate, detections and points."""
-    try:
-        settings = ReprocessSettings(estimator=estimator, pfa=pfa, window=window,
-                                     phase_noise=None if phase_noise is None else phase_noise == "on")
-        return scan_spectrum(store, scan_id, row, col, settings).to_dict()
-    except (UnknownScan, RawCaptureError) as exc:
-        raise _http(exc, scan_id) from None
+    settings = ReprocessSettings(estimator=estimator, pfa=pfa, window=window,
+                                 phase_noise=None if phase_noise is None else phase_noise == "on")
+    return scan_spectrum(store, scan_id, row, col, settings).to_dict()
 
 
 @router.delete("/{scan_id}/raw", response_model=ScanOut, responses=_ERRORS)

@@ -10,7 +10,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 
-from ...jobs import QueueFull, UnknownScan, WorkerStopped
+from ...jobs import UnknownScan
 from ...pointcloud import MEDIA_TYPE, read_sidecar, suffix_of
 from ...scan import ScanPlanError, plan
 from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
@@ -25,7 +25,7 @@ _POINTS_DOC = ("the point file: " + ", ".join(f"{fmt} {media}" for fmt, media in
                + "; `X-Lidard-Partial: true|false`")
 
 
-_404 = {404: {"description": "no scan with this id"}}
+_404: dict[int | str, dict[str, Any]] = {404: {"description": "no scan with this id"}}
 
 
 def _not_found(scan_id: str) -> HTTPException:
@@ -46,11 +46,7 @@ def create_scan(body: ScanCreate, response: Response, worker: WorkerDep, optics:
     refusal = latched_refusal(instrument)
     if refusal is not None:      # a scan would only fail at bring-up: say what to do instead
         raise HTTPException(status.HTTP_409_CONFLICT, refusal)
-    try:
-        rec = worker.submit_scan(req)
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc),
-                            headers={"Retry-After": "5"}) from None
+    rec = worker.submit_scan(req)   # QueueFull, WorkerStopped: 503 with Retry-After
     response.headers["Location"] = f"/scans/{rec.id}"
     return ScanOut.from_record(rec)
 
@@ -162,7 +158,7 @@ async def scan_events(scan_id: str, store: StoreDep, worker: WorkerDep) -> Strea
             while True:
                 try:
                     ev = await asyncio.wait_for(queue.get(), timeout=15.0)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     yield b": keep-alive\n\n"
                     continue
                 if ev["event"] == "end":

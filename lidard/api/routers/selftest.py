@@ -1,6 +1,6 @@
 """POST /selftest: toggle every FPSA row and column against the monitor tap, report stuck switches.
 
-The self-test (``LidarInstrument.selftest``, issue 6) needs the optical path, so it is queued behind
+The self-test (``LidarInstrument.selftest``) needs the optical path, so it is queued behind
 the running and waiting scans like a linearization and the request waits for its report. A device
 fault during the test answers 503 naming the cause; a stuck switch is a finding, not an error: 200
 with ``ok: false`` and the stuck lines.
@@ -9,10 +9,10 @@ with ``ok: false`` and the stuck lines.
 import asyncio
 from typing import Any, Literal
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter
 from pydantic import BaseModel
 
-from ...jobs import QueueFull, WorkerStopped, describe_error
+from ...jobs import JobFailed, describe_error
 from ..deps import WorkerDep
 
 router = APIRouter(tags=["selftest"])
@@ -43,15 +43,11 @@ class SelftestReport(BaseModel):
              responses={503: {"description": "a device fault stopped the self-test, or the queue is full"}})
 async def selftest(worker: WorkerDep) -> SelftestReport:
     """Queue a switch self-test behind the jobs already waiting and return its report."""
-    try:
-        future = worker.submit_selftest()
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
+    future = worker.submit_selftest()   # QueueFull, WorkerStopped: 503 with Retry-After
     try:
         report: dict[str, Any] = await asyncio.wrap_future(future)
     except Exception as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
-                            f"self-test failed: {describe_error(exc)}") from None
+        raise JobFailed(f"self-test failed: {describe_error(exc)}") from exc
     v1 = report.get("single_beam_v")
     clean = {**report, "single_beam_v": v1 if isinstance(v1, float) and v1 == v1 else None}
     return SelftestReport.model_validate(clean)

@@ -1,5 +1,5 @@
 """Simulation only: PUT /sim/scene replaces the bench's scene; /sim/faults injects, lists and clears
-bench faults (issue 6: the catalogue and parameters are those of ``sim_devices.faults``).
+bench faults (the catalogue and parameters are those of ``sim_devices.faults``).
 
 On a real instrument every endpoint here answers 409 (the request is fine, the daemon's state, real
 hardware, does not allow it): the instrument says so (``simulated`` false, or ``NotSimulated`` from

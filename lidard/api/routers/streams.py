@@ -14,10 +14,11 @@ from fastapi import APIRouter, HTTPException, Request, Response, status
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
+from ...instrument.frames import pixel_period_s
 from ...instrument.types import ScanRequest
-from ...jobs import QueueFull, WorkerStopped
 from ...jobs.stream_job import StreamJob, StreamRequestError, StreamSpec
-from ...pointcloud import MEDIA_TYPE, suffix_of
+from ...live.points import LIVE_FIELDS, encode_points
+from ...pointcloud import MEDIA_TYPE, read_points, suffix_of
 from ...scan import ScanPlanError, plan
 from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
 from .controller import latched_refusal
@@ -72,7 +73,8 @@ def create_stream(body: StreamCreate, request: Request, response: Response, work
     try:
         plan(req if body.pattern != "track" else ScanRequest(pattern="raster", rows=body.rows, cols=body.cols),
              optics)
-        spec = StreamSpec(req, frames=body.frames, frame_rate_hz=frame_rate, health_interval_s=body.health_interval_s)
+        spec = StreamSpec(req, frames=body.frames, frame_rate_hz=frame_rate, health_interval_s=body.health_interval_s,
+                          pixel_s=pixel_period_s(cfg, req.averages))
         spec.check()
     except (ScanPlanError, StreamRequestError) as exc:
         raise HTTPException(422, [{"loc": ["body", str(exc).split(":", 1)[0]], "msg": str(exc),
@@ -84,16 +86,21 @@ def create_stream(body: StreamCreate, request: Request, response: Response, work
     out = stream_dir(store, job.id)
     spec.out = str(out / "stream.mcap") if body.format == "mcap" else str(out)
     meta = dict(getattr(worker, "base_meta", {}) or {})
-    try:
-        worker.submit_task(lambda: job.run(worker, meta))
-    except (QueueFull, WorkerStopped) as exc:
-        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc), headers={"Retry-After": "5"}) from None
+    worker.submit_task(lambda: job.run(worker, meta))   # QueueFull, WorkerStopped: 503 with Retry-After
     _streams(request)[job.id] = job
     response.headers["Location"] = f"/streams/{job.id}"
     return job.status()
 
 
-_404 = {404: {"description": "no stream with this id"}}
+_404: dict[int | str, dict[str, Any]] = {404: {"description": "no stream with this id"}}
+
+
+@router.get("")
+def list_streams(request: Request) -> dict[str, Any]:
+    """The streams of this daemon run, newest first (what the web viewer offers to show)."""
+    jobs = sorted(_streams(request).values(), key=lambda j: j.created_at, reverse=True)
+    running = next((j.id for j in jobs if j.state in ("queued", "running")), None)
+    return {"streams": [j.status() for j in jobs], "running": running}
 
 
 @router.get("/{stream_id}", responses=_404)
@@ -120,6 +127,30 @@ def frame_points(stream_id: str, index: int, request: Request, store: StoreDep):
     if not path.exists():
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"stream {stream_id!r} has no frame {index} (yet)")
     return FileResponse(path, media_type=MEDIA_TYPE[fmt])
+
+
+@router.get("/{stream_id}/frames/{index}/live", response_class=Response,
+            responses={200: {"content": {"application/octet-stream": {}},
+                             "description": "float32 little-endian, fields in X-Lidard-Fields order"},
+                       404: {"description": "no such stream or frame"}})
+def frame_live(stream_id: str, index: int, request: Request, store: StoreDep) -> Response:
+    """Frame ``index``'s points in the viewer's layout (GET /scans/{id}/points/live): from memory for
+    the newest frames, else from the frame's file."""
+    job = _job(request, stream_id)
+    if not 0 <= index < len(job.frames):
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"stream {stream_id!r} has no frame {index} (frames done: {len(job.frames)})")
+    pts = job.frame_points(index)
+    if pts is None:
+        fmt = job.spec.request.formats[0]
+        path = stream_dir(store, stream_id) / f"frame_{index:05d}{suffix_of(fmt)}"
+        if fmt == "mcap" or not path.exists():
+            raise HTTPException(status.HTTP_404_NOT_FOUND,
+                                f"stream {stream_id!r}: frame {index} is no longer held and has no point file")
+        pts = read_points(path)
+    return Response(encode_points(pts), media_type="application/octet-stream", headers={
+        "X-Lidard-Frame": str(index), "X-Lidard-Count": str(len(pts)), "X-Lidard-Total": str(len(pts)),
+        "X-Lidard-Complete": "true", "X-Lidard-Fields": ",".join(LIVE_FIELDS), "Cache-Control": "no-cache"})
 
 
 @router.get("/{stream_id}/mcap", responses={404: {"description": "no such stream, or not an MCAP stream, or running"}})

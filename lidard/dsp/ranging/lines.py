@@ -30,7 +30,7 @@ class Lines:
     down_hz: np.ndarray
     hold_hz: np.ndarray
 
-    def observed(self, iq: bool) -> "Lines":
+    def observed(self, iq: bool) -> Lines:
         """What the receiver sees: the signed lines (I/Q) or their magnitudes (real)."""
         if iq:
             return self

@@ -38,11 +38,11 @@ from ..dtft import _window_dtft_bins
 from ..window import get_window
 
 
-def chi2_isf(p, dof):
+def chi2_isf(p: float | np.ndarray, dof: float | np.ndarray) -> np.ndarray:
     """The chi-square quantile exceeded with probability ``p`` at ``dof`` degrees of freedom
     (scipy.stats.chi2.isf through the inverse regularized gamma function: scipy.stats costs ~0.5 s of
     start-up on every scan, scipy.special is already loaded)."""
-    return 2.0 * gammainccinv(np.asarray(dof, dtype=float) / 2.0, p)
+    return np.asarray(2.0 * gammainccinv(np.asarray(dof, dtype=float) / 2.0, p), dtype=np.float64)
 
 #: cells on each side of a detection that the test reads (the Hann main lobe is +-2 bins: a second
 #: tone hidden under the peak leaves its misfit inside +-3)
@@ -166,13 +166,9 @@ def cell_noise(power: np.ndarray) -> np.ndarray:
     return (median_last(p) / np.log(2.0)).mean(axis=-1)
 
 
-def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid: np.ndarray, *, half: int,
-                  window: str, n_samples: int, zero_pad: int = 1, iq: bool = False,
-                  rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(cells (P, 2 half + 1), their power less the fitted tones', averaged over the records): the
-    windowed spectrum around ``centre`` (P,) cells with every valid tone of ``frac`` (P, L, K) fitted
-    by least squares (amplitude per record) and taken out. Where a strong return's skirt hides a weak
-    one from the detector, the weak one stands out here. ``rows``: as for :func:`order_statistic`."""
+def _fit_near(spec, centre, frac, valid, *, half, window, n_samples, zero_pad, iq, rows):
+    """The least-squares fit of the valid tones ``frac`` (P, L, K) to the cells around ``centre`` (P,):
+    (cells (P, m), their values (P, L, m), the tones' columns (P, L, K, m), amplitudes (P, L, K))."""
     _, l_n, n_bins = spec.shape
     p_n = centre.shape[0]
     rows = np.arange(p_n) if rows is None else np.asarray(rows)
@@ -188,6 +184,37 @@ def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid:
     on = valid[:, None, :, None] & valid[:, None, None, :]
     g = np.where(on, g, np.eye(k)[None, None]) + 1e-12 * np.eye(k)[None, None] * np.abs(g).max()
     rhs = np.einsum("plki,pli->plk", np.conj(cols), x)
-    amp = np.linalg.solve(g, rhs[..., None])[..., 0]
+    return cells, x, cols, np.linalg.solve(g, rhs[..., None])[..., 0]
+
+
+def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid: np.ndarray, *, half: int,
+                  window: str, n_samples: int, zero_pad: int = 1, iq: bool = False,
+                  rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(cells (P, 2 half + 1), their power less the fitted tones', averaged over the records): the
+    windowed spectrum around ``centre`` (P,) cells with every valid tone of ``frac`` (P, L, K) fitted
+    by least squares (amplitude per record) and taken out. Where a strong return's skirt hides a weak
+    one from the detector, the weak one stands out here. ``rows``: as for :func:`order_statistic`."""
+    cells, x, cols, amp = _fit_near(spec, centre, frac, valid, half=half, window=window, n_samples=n_samples,
+                                    zero_pad=zero_pad, iq=iq, rows=rows)
     r = x - np.einsum("plk,plki->pli", amp, cols)
     return cells, (r.real ** 2 + r.imag ** 2).mean(axis=1)
+
+
+def fitted_power(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid: np.ndarray, *, window: str,
+                 n_samples: int, zero_pad: int = 1, iq: bool = False,
+                 rows: np.ndarray | None = None) -> np.ndarray:
+    """Each valid tone's peak power (P, K) in ``spec``'s units, averaged over the records, from the joint
+    least-squares fit of all of a ramp's tones (``frac`` (P, L, K), signed bins of the spectrum grid) to
+    the cells around it: without the scalloping of its peak cell and without the neighbours' leakage,
+    which moves a peak cell's power by several dB when two returns are a few cells apart."""
+    peak = abs(complex(_window_dtft_bins(window, n_samples, np.zeros(1))[0])) ** 2
+    out = np.zeros(index.shape)
+    for k in range(index.shape[-1]):
+        sel = valid[:, k]
+        if not sel.any():
+            continue
+        r = np.flatnonzero(sel)
+        amp = _fit_near(spec, index[r, k], frac[r], valid[r], half=HALF_BINS, window=window, n_samples=n_samples,
+                        zero_pad=zero_pad, iq=iq, rows=r if rows is None else np.asarray(rows)[r])[3]
+        out[r, k] = peak * (amp[..., k].real ** 2 + amp[..., k].imag ** 2).mean(axis=1)
+    return out

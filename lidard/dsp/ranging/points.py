@@ -21,7 +21,8 @@ benchmarks/resolution_table.py (docs/measured/25_joint_model.md).
 * three-segment (no prior): a pair needs the CW segment's beat at the |f_D| it predicts, except where
   that |f_D| lies inside the CW spectrum's DC guard (no beat can be seen there, none is needed): the
   static hypotheses, |f_up - f_dn| < 2 x guard, m = 2 x 2 guard / df. Pairs that need a CW beat also
-  need a noise CW peak CW_BAND_SNR over the median (~1e-6 per CW cell): they are left out of m.
+  need a noise CW line in the band their regime predicts, tested at q over the band's cells
+  (lidard.dsp.threeseg): their rate, at most 2 x band cells x q^3, is left out of m.
 
 Pure python.
 """

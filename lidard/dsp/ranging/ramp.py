@@ -22,12 +22,13 @@ grown model to pass: the rate is below ``level``. Pure numpy.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
 from ..cfar import Detections
 from ..rangefft import RangeFFT, windowed_fft
-from .order import HALF_BINS, MODEL_ERROR, cell_noise, chi2_isf, residual_near, unresolved
+from .order import HALF_BINS, MODEL_ERROR, cell_noise, chi2_isf, fitted_power, residual_near, unresolved
 from .tones import ITERATIONS, refine_joint, subtract_tones
 
 #: how far (bins) from a peak the fitted tones do not explain a hidden return is looked for: the
@@ -101,6 +102,16 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
             c2 = cells[np.arange(pix.size), best][hit]
             out, det = _grow(ramp, spec, power, det, out, pix[hit], nz[hit], c2, zp, np.zeros(hit.sum(), np.int64),
                              rf=rf, window=window, test=test, pfa=pfa)
+    # a ramp with several tones: their powers from the joint fit, not their peak cells (each other's
+    # leakage moves a cell by dB): the pair likelihood compares the two ramps' amplitudes
+    several = np.flatnonzero(np.count_nonzero(det.valid, axis=-1) >= 2)
+    if several.size:
+        pw = fitted_power(spec, det.index[several], out[several], det.valid[several], window=window, n_samples=n,
+                          zero_pad=zp, iq=rf.iq, rows=several)
+        power_all = det.power.copy()
+        power_all[several] = np.where(det.valid[several], pw, det.power[several])
+        det = replace(det, power=power_all, snr_db=10 * np.log10(np.maximum(power_all, 1e-300)
+                                                                 / np.maximum(det.noise, 1e-300)))
     return out.mean(axis=1), det
 
 
@@ -127,7 +138,7 @@ def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def _grow(ramp, spec, power, det: Detections, frac, pix, noise, centre, half, slot, *, rf: RangeFFT, window: str,
-          test: dict, pfa: float):
+          test: dict[str, Any], pfa: float):
     """Step 3 of the module doc on the pixels ``pix`` (each has a free slot): a tone searched within
     ``half`` cells of ``centre`` in the records less the fitted tones; ``slot`` the detection whose
     noise estimate it takes; ``frac`` (P, L, K) per record."""

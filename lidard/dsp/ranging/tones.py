@@ -38,6 +38,9 @@ ITERATIONS = 4
 #: the refinement moves each tone at most this far (bins) from its start: the one-tone estimates it
 #: starts from are off by the other tone's leakage (~0.1 bin at two cells), never by a bin
 REACH_BINS = 1.0
+#: a pixel whose Newton step moves no tone by more than this (bins) has converged and leaves the
+#: iterations (the next step would move it by about its square: ~1e-8 bin, far under any CRLB here)
+CONVERGED_BINS = 1e-4
 #: finite-difference step of J's derivatives (bins)
 _H = 1e-3
 
@@ -60,6 +63,20 @@ def _stencil(k: int) -> np.ndarray:
     return np.array(pts)
 
 
+def _gram(f: np.ndarray, n: int) -> np.ndarray:
+    """G_ij = D(f_i - f_j) of the tones ``f`` (..., M), D the Dirichlet kernel: Hermitian with n on the
+    diagonal, so the kernel is evaluated on the pairs above it only (M (M - 1) / 2 of M^2)."""
+    m = f.shape[-1]
+    i, j = np.triu_indices(m, 1)
+    upper = _dirichlet(f[..., i] - f[..., j], n)
+    g = np.empty(f.shape + (m,), dtype=np.complex128)
+    g[..., i, j] = upper
+    g[..., j, i] = np.conj(upper)
+    d = np.arange(m)
+    g[..., d, d] = n
+    return g
+
+
 def joint_energy(b: np.ndarray, f: np.ndarray, active: np.ndarray, n: int, real: bool) -> np.ndarray:
     """J per pixel and stencil point: ``b`` (P, S, L, K) the records' DTFT at the tones, ``f`` (P, S, K)
     the tones (bins of the n-point grid), ``active`` (P, K) the tones in the model (an inactive tone's
@@ -68,7 +85,7 @@ def joint_energy(b: np.ndarray, f: np.ndarray, active: np.ndarray, n: int, real:
         b = np.concatenate([b, np.conj(b)], axis=-1)
         f = np.concatenate([f, -f], axis=-1)
         active = np.concatenate([active, active], axis=-1)
-    g = _dirichlet(f[..., :, None] - f[..., None, :], n)                 # (P, S, M, M)  G_ij = <e_i, e_j>
+    g = _gram(f, n)                                                      # (P, S, M, M)  G_ij = <e_i, e_j>
     on = active[:, None, :, None] & active[:, None, None, :]
     eye = np.eye(f.shape[-1], dtype=bool)
     g = np.where(on, g, np.where(eye, 1.0 + 0j, 0j))
@@ -99,23 +116,32 @@ def refine_joint(x: np.ndarray, f0: np.ndarray, active: np.ndarray, *, iteration
     sten = _stencil(k) * _H                                              # (S, K)
     d = start - np.rint(start)                                           # (P, K) offset from the centres
     d0 = d.copy()
+    cent = np.rint(start)
+    live = np.arange(p_n)                                                # pixels still moving
+    s_n = sten.shape[0]
     for _ in range(iterations):
-        dd = d[:, None, :] + sten[None, :, :]                            # (P, S, K)
+        if live.size == 0:
+            break
+        m, act = live.size, active[live]
+        dd = d[live][:, None, :] + sten[None, :, :]                      # (m, S, K)
         # X(centre + dd) per record: the evaluator holds (P, L, K) pairs, offsets per stencil point
-        delta = np.broadcast_to(dd[:, :, None, :], (p_n, sten.shape[0], l_n, k))
-        xs = ev.dtft(np.moveaxis(delta, 1, 0).reshape(sten.shape[0], -1))   # (S, P*L*K)
-        b = np.moveaxis(xs.reshape(sten.shape[0], p_n, l_n, k), 0, 1)      # (P, S, L, K)
-        j = joint_energy(b, np.rint(start)[:, None, :] + dd, active, n, real)
-        step = _newton_step(j, k, active)
-        step = np.where(active, np.clip(step, -0.25, 0.25), 0.0)
-        d = np.clip(d + step, d0 - reach, d0 + reach)
+        delta = np.broadcast_to(dd[:, :, None, :], (m, s_n, l_n, k))
+        cols = None if m == p_n else (live[:, None] * (l_n * k) + np.arange(l_n * k)).reshape(-1)
+        xs = ev.dtft(np.moveaxis(delta, 1, 0).reshape(s_n, -1), cols=cols)   # (S, m*L*K)
+        b = np.moveaxis(xs.reshape(s_n, m, l_n, k), 0, 1)                  # (m, S, L, K)
+        j = joint_energy(b, cent[live][:, None, :] + dd, act, n, real)
+        step, newton = _newton_step(j, k, act)
+        step = np.where(act, np.clip(step, -0.25, 0.25), 0.0)
+        d[live] = np.clip(d[live] + step, d0[live] - reach, d0[live] + reach)
+        # a Newton step this small has converged (the next moves by its square): the pixel is done
+        live = live[~(newton & (np.abs(step).max(axis=1, initial=0.0) < CONVERGED_BINS))]
     return np.where(active, np.rint(start) + d, f0)
 
 
-def _newton_step(j: np.ndarray, k: int, active: np.ndarray) -> np.ndarray:
+def _newton_step(j: np.ndarray, k: int, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The ascent step (P, K) from J on :func:`_stencil`'s points (P, S): Newton where the Hessian is
     negative definite, else a small step up the gradient (an inactive tone's row: a unit curvature of
-    the active ones' scale, no step)."""
+    the active ones' scale, no step); and where it was Newton (P,)."""
     g = np.stack([(j[:, 1 + 2 * i] - j[:, 2 + 2 * i]) / (2 * _H) for i in range(k)], axis=-1)
     hess = np.zeros(j.shape[:1] + (k, k))
     for i in range(k):
@@ -141,7 +167,7 @@ def _newton_step(j: np.ndarray, k: int, active: np.ndarray) -> np.ndarray:
     # not concave here (a start off the lobe's top): a gradient step scaled by one tone's curvature
     # near its peak, -d2J/df2 ~ (2 pi)^2 / 12 J per bin^2 (a step of the right size on the flank)
     uphill = g / np.maximum((2 * np.pi) ** 2 / 12 * j[:, :1], 1e-300)
-    return np.where(ok[:, None], newton, uphill)
+    return np.where(ok[:, None], newton, uphill), ok
 
 
 def subtract_tones(x: np.ndarray, f: np.ndarray, active: np.ndarray) -> np.ndarray:

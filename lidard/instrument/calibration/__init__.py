@@ -1,6 +1,6 @@
 """Calibrations the instrument learns through its own channels (the bench's truths stay hidden).
 
-One module per calibration (issue 13 item 2):
+One module per calibration:
 
 * :mod:`.linearization` -- the laser chirp's iterative learning pre-distortion through the monitor
   MZI (dissertation §2.2);
@@ -10,7 +10,7 @@ One module per calibration (issue 13 item 2):
   eq. 4-1) from targets of known geometry;
 * :mod:`.applied` -- what an instrument applies of the last two; :mod:`.procedures` -- the measuring
   procedures over an instrument (and the benchmarks' entry points).
-* :mod:`.health` -- the linearization health check before each scan (issue 13).
+* :mod:`.health` -- the linearization health check before each scan.
 
 Names are imported on first use (PEP 562): the API and the job queue load the light modules
 (``applied``, ``range``) without the DSP that the linearization pulls in.

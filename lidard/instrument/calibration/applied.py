@@ -1,4 +1,4 @@
-"""The geometric calibrations an instrument applies to its linearizations and scans (issue 13 item 2).
+"""The geometric calibrations an instrument applies to its linearizations and scans.
 
 * range scale and zero (:mod:`.range`): the effective monitor MZI delay replaces the configuration's
   nominal ``monitor.delay_s`` as the ILC's target (§2.2) and in the phase-noise compensation (§2.3), so
@@ -40,8 +40,8 @@ class AppliedCalibrations:
 
     @classmethod
     def from_records(cls, range_rec: Any = None, pointing_rec: Any = None, iq_rec: Any = None,
-                     notes: tuple[str, ...] = ()) -> "AppliedCalibrations":
-        """From stored records (``.id``, ``.fitted``; lidard.store_calibrations.CalibrationRecord)."""
+                     notes: tuple[str, ...] = ()) -> AppliedCalibrations:
+        """From stored records (``.id``, ``.fitted``; lidard.store.CalibrationRecord)."""
         kw: dict[str, Any] = {"notes": tuple(notes)}
         if iq_rec is not None:
             kw.update(iq_id=iq_rec.id, iq_imbalance=(float(iq_rec.fitted["gain"]), float(iq_rec.fitted["phase_rad"])))

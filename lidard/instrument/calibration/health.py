@@ -1,5 +1,5 @@
 """Linearization health: is the stored chirp linearization still right for the laser as it is now?
-(issue 13; dissertation §2.2, the monitor MZI of §4.4.2)
+(dissertation §2.2, the monitor MZI of §4.4.2)
 
 A learned pre-distortion is only right for the laser it was learned on. The laser's tuning moves
 with its chip temperature, and the TEC's readback does not show all of it (the thermistor is not the

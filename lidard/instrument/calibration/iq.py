@@ -1,4 +1,4 @@
-"""The coherent receiver's I/Q imbalance, measured on whatever is in front of the sensor (issue 14 item 2).
+"""The coherent receiver's I/Q imbalance, measured on whatever is in front of the sensor.
 
 With ``adc.iq`` the beat arrives on two digitizer channels from a 90-degree hybrid whose quadrature is
 not exactly 90 degrees and whose two photodiode chains differ in gain (lidard.dsp.iqbalance). Each

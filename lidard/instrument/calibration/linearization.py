@@ -7,9 +7,9 @@ MZI channel, and the safety monitor is checked before the samples are trusted. T
 the MZI beat (chirp rate x MZI delay), not by the scan range. With a quadrature monitor
 (``[monitor] quadrature``: channels ``mzi`` and ``mzi_q``) each record is the complex I + jQ and the ILC
 averages per-record phases (:mod:`lidard.dsp.ilcquad`), which reaches >= 1000x on the broad-linewidth
-laser where the averaged real fringe fades (issue 15).
+laser where the averaged real fringe fades.
 
-Three-segment chirp (issue 14): the ILC learns the two ramps as before, but each measurement plays the
+Three-segment chirp: the ILC learns the two ramps as before, but each measurement plays the
 whole period, the ramps followed by the held constant segment (:func:`drive_for_chirp`), so the ramps
 are learned under the thermal history they will see in a scan; the record stops after the down ramp.
 The constant segment is held, not learned: the laser's thermal terms keep drifting there (some
@@ -31,7 +31,8 @@ error that no scale and offset absorb (docs/measured/26_range_linearity.md).
 from __future__ import annotations
 
 import logging
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
@@ -118,8 +119,8 @@ class Linearization:
             res = ilc_linearize(self.measure, plain_drive_v, fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self.fs_hz,
                                 ramp_s=c.ramp_s, excursion_hz=c.excursion_hz, mzi_delay_s=self.mzi_delay_s,
                                 averages=32, max_averages=MAX_AVERAGES, max_drive_v=self.cfg.devices.awg.max_output_v,
-                                # a slow thermal term needs ~19 steps to its noise floor (issue 15;
-                                # the default DFB stops at ~8 by itself)
+                                # a slow thermal term needs ~19 steps to its noise floor (measured on the
+                                # bench; the default DFB stops at ~8 by itself)
                                 max_iter=MAX_ITERATIONS, roi=RANGE_WINDOW_FRACTION,
                                 learn=min(1.0, RANGE_WINDOW_FRACTION + LEARN_MARGIN))
             hold = self.measure_hold(res.drive_v) if c.shape == "three_segment" else None

@@ -1,4 +1,4 @@
-"""Pointing calibration: fit the scanner's pointing model to a known target geometry (issue 13 item 2).
+"""Pointing calibration: fit the scanner's pointing model to a known target geometry.
 
 The nominal pointing is eq. 4-1 of the dissertation (§4.1.1: theta = -arctan(x / f)); a real scanner
 deviates by a focal-length error, a decentred and rotated array and the lens's radial distortion
@@ -70,7 +70,7 @@ def _vec(where: str, v: Any) -> tuple[float, float, float]:
         out = ()
     if len(out) != 3 or not all(math.isfinite(x) for x in out):
         raise CalibrationRefused(f"pointing geometry: {where} must be three finite numbers [x, y, z], got {v!r}")
-    return out  # type: ignore[return-value]
+    return out[0], out[1], out[2]
 
 
 def parse_geometry(d: dict[str, Any], source: str = "<geometry>") -> list[Surface]:
@@ -213,18 +213,20 @@ def fit_pointing(optics: FpsaOptics, rows, cols, range_m, surfaces: list[Surface
     for _ in range(3):   # assign under the current model, fit, tighten the gate, again
         idx = _assign(_points(optics, x, rows, cols, range_m), surfaces, gate)
         use = idx >= 0
-        first = np.bincount(idx[use], minlength=len(surfaces)) if first is None else first
+        if first is None:
+            first = np.bincount(idx[use], minlength=len(surfaces))
         missing = [s.name for j, s in enumerate(surfaces) if not np.any(idx == j)]
         if use.sum() < min_points or missing:
             raise CalibrationRefused(
                 f"pointing calibration: {int(use.sum())} points lie within {gate * 1e3:.1f} mm of the known surfaces "
                 f"(need {min_points})" + (f"; no points on {', '.join(missing)}: is the geometry right?" if missing else ""))
         fn = _residual_fn(optics, surfaces, rows[use], cols[use], range_m[use], idx[use])
-        from scipy.optimize import least_squares   # on first use: start-up time (issue 18)
+        from scipy.optimize import least_squares   # on first use: start-up time
         sol = least_squares(fn, x, loss="soft_l1", f_scale=2.0 * noise_m, x_scale=_X_SCALE, method="trf",
                             bounds=(_LOWER, _UPPER))
         x = sol.x
         gate = max(10.0 * noise_m, 1e-4)   # wider than the refusal limit: the RMS test sees the tails
+    assert first is not None   # the loop ran
     _check_kept(surfaces, first, np.bincount(idx[use], minlength=len(surfaces)), gate)
     return _summarise(optics, x, sol, rows[use], cols[use], range_m[use], idx[use], surfaces, noise_m,
                       n_out=int((~use).sum()))

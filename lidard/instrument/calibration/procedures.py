@@ -1,4 +1,4 @@
-"""The calibration procedures over an instrument: measure plates, scan known targets, fit (issue 13 item 2).
+"""The calibration procedures over an instrument: measure plates, scan known targets, fit.
 
 These run on whatever owns the instrument (the job worker's thread in the daemon, see
 :mod:`lidard.jobs.calibrations`; a benchmark directly on an embedded bench). They take only the known
@@ -16,7 +16,8 @@ import dataclasses
 import logging
 import threading
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
+from collections.abc import Callable, Sequence
 
 import numpy as np
 

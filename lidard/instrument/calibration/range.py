@@ -1,4 +1,4 @@
-"""Range scale and zero calibration from a flat plate at known distances (issue 13 item 2).
+"""Range scale and zero calibration from a flat plate at known distances.
 
 Physics (dissertation §2.1.1, eq. 2-3: R = c f_b / (2 kappa); §2.2: the ILC locks the chirp to the
 monitor MZI). The ILC makes the MZI beat equal ``kappa_nom * tau_used`` measured through the TRUE MZI
@@ -29,7 +29,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -45,6 +46,8 @@ ROI_HALF = 3            # centre region: up to 2*ROI_HALF bonded rows x 2*ROI_HA
 
 class CalibrationRefused(InstrumentError):
     """A calibration's measurements do not support a fit (too few, inconsistent); the message says why."""
+
+    http_status = 422
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,7 @@ class PlateMeasurement:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "PlateMeasurement":
+    def from_dict(cls, d: dict[str, Any]) -> PlateMeasurement:
         names = cls.__dataclass_fields__
         return cls(**{k: v for k, v in d.items() if k in names})
 
@@ -109,7 +112,7 @@ class RangeFit:
 
 
 def _chi2_sf(x, dof):
-    # imported on first use: scipy.stats costs ~0.3 s of every command's start-up (issue 18)
+    # imported on first use: scipy.stats costs ~0.3 s of every command's start-up
     from scipy import stats
     return stats.chi2.sf(x, dof)
 

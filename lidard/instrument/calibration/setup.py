@@ -71,7 +71,7 @@ class CalibrationSetup:
 
     @property
     def hash(self) -> str:
-        """One key for all kinds (the user cache of factory calibrations, lidard.calcache)."""
+        """One key for all kinds (the user cache of factory calibrations, lidard.store.calcache)."""
         return _digest({k: s.hash for k, s in sorted(self.kinds.items())})
 
 

@@ -5,8 +5,8 @@ import usb.core
 
 from drivers.awg import protocol as p
 from drivers.awg.driver import AwgDriver
-from sim_devices.awg import SimAwg
-from sim_devices.usb_backend import RemoteUsbBackend, SimUsbBackend, UsbBridgeServer
+from sim_devices.awg.device import SimAwg
+from sim_devices.usb.backend import RemoteUsbBackend, SimUsbBackend, UsbBridgeServer
 
 
 @pytest.fixture(params=["inproc", "bridge"])

@@ -26,10 +26,8 @@ from drivers.controller.errors import (
     SettleError,
 )
 
-# Same values as conftest.py (ranges asserted in messages below).
-LIMITS = p.Limits(max_laser_current_ma=200.0, max_hv_v=60.0, tec_range_c=(18.0, 35.0))
-TIMEOUT_S = 2.0
-FAST_TIMEOUT_S = 0.25
+# LIMITS' ranges are asserted in messages below.
+from .conftest import FAST_TIMEOUT_S, LIMITS, TIMEOUT_S
 
 
 # --- round trips ----------------------------------------------------------------------------------
@@ -39,7 +37,7 @@ def test_identify(ctl):
 
 
 def test_identify_refuses_another_map_version(clock):
-    from sim_devices.controller import ControllerSim
+    from sim_devices.controller.device import ControllerSim
 
     with ControllerSim(clock, map_version=2, model="NEWER", firmware=(2, 7)) as newer:
         with LaserHvController("127.0.0.1", newer.port, timeout_s=TIMEOUT_S, limits=LIMITS) as c:
@@ -270,7 +268,7 @@ def test_bring_up_waits_for_tec_and_names_it_when_it_does_not_settle(ctl, sim, c
 
 
 def test_bring_up_hv_not_settling_names_hv_and_switches_outputs_off(clock):
-    from sim_devices.controller import ControllerSim, Dynamics
+    from sim_devices.controller.device import ControllerSim, Dynamics
 
     with ControllerSim(clock, dynamics=Dynamics(hv_tau_s=100.0)) as slow:
         sc = SettleCheck(sleep=clock.advance, timeout_s=0.5, poll_s=0.05)
@@ -289,7 +287,7 @@ def test_timeouts_retry_bounded_then_device_timeout(fast, sim):
     sim.inject_timeout(3)  # retries=2 -> 3 attempts, all unanswered
     with pytest.raises(DeviceTimeout) as ei:
         ctl.status()
-    assert ei.value.device == "controller" and ei.value.operation == "read status"
+    assert ei.value.device == "controller" and ei.value.command == "read status"
     assert ei.value.attempts == 3
     assert sim.requests_received - received == 3 and sim.responses_dropped == 3
     assert "controller" in str(ei.value) and "read status" in str(ei.value)

@@ -24,6 +24,7 @@ from pymodbus.pdu.register_message import (
 )
 
 from drivers.controller import protocol as p
+from tests.helpers.deadlines import REPLY_S
 
 DOC = Path(__file__).resolve().parents[3] / "docs" / "protocols" / "controller.md"
 
@@ -109,7 +110,7 @@ def test_g5_identity_client_side():
 
 # --- server side (simulated device over a raw socket) ---------------------------------------------
 def _exchange(port: int, request: bytes, expected_len: int) -> bytes:
-    with socket.create_connection(("127.0.0.1", port), timeout=2.0) as s:
+    with socket.create_connection(("127.0.0.1", port), timeout=REPLY_S) as s:
         s.sendall(request)
         data = b""
         while len(data) < expected_len:
@@ -122,7 +123,7 @@ def _exchange(port: int, request: bytes, expected_len: int) -> bytes:
 
 def test_server_answers_golden_requests_with_golden_responses():
     from sim_devices.clock import VirtualClock
-    from sim_devices.controller import ControllerSim
+    from sim_devices.controller.device import ControllerSim
 
     clock = VirtualClock()
     with ControllerSim(clock) as sim:

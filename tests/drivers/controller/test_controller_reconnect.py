@@ -5,7 +5,7 @@ import pytest
 from drivers.controller.driver import LaserHvController
 from drivers.controller.errors import DeviceBusy, DeviceUnreachable
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerSim
+from sim_devices.controller.device import ControllerSim
 
 from .conftest import LIMITS, TIMEOUT_S
 

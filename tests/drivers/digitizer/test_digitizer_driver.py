@@ -24,7 +24,7 @@ def test_identify_and_config_readback(dig_rig):
 
 def test_read_segments_int16_two_channels_match_source(dig_rig):
     drv, sim, src, clock = dig_rig
-    cfg = _configure(drv)
+    _configure(drv)
     drv.arm()
     assert drv.status().state == p.State.ARMED
     headers, s = drv.read_segments(3, 10)

@@ -16,8 +16,8 @@ from drivers.digitizer import protocol as p
 from drivers.digitizer.driver import DigitizerDriver, DigitizerError
 from drivers.usbtmc import InvalidArgument
 from sim_devices.clock import VirtualClock
-from sim_devices.digitizer import CapturedSegments, SimDigitizer
-from sim_devices.usb_backend import SimUsbBackend
+from sim_devices.digitizer.device import CapturedSegments, SimDigitizer
+from sim_devices.usb.backend import SimUsbBackend
 
 FS = 100e6
 N = 4000  # 40 us: every tone below has a whole number of cycles

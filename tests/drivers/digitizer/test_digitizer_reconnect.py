@@ -9,10 +9,10 @@ from drivers.awg.driver import AwgDriver
 from drivers.digitizer import protocol as p
 from drivers.digitizer.driver import DigitizerDriver
 from drivers.usbtmc import DeviceDisconnected
-from sim_devices.awg import SimAwg
+from sim_devices.awg.device import SimAwg
 from sim_devices.clock import VirtualClock
-from sim_devices.digitizer import SimDigitizer
-from sim_devices.usb_backend import SimUsbBackend
+from sim_devices.digitizer.device import SimDigitizer
+from sim_devices.usb.backend import SimUsbBackend
 
 from .conftest import ToneSource
 

@@ -11,7 +11,8 @@ from drivers.fpsa.errors import NakError, PatternError
 from drivers.errors import DeviceGone, TransportError
 from drivers.transport import DeviceTimeout
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
+from tests.helpers.deadlines import REPLY_S
 
 BONDED = tuple(r for r in range(128) if r % 4 != 3)
 
@@ -79,7 +80,7 @@ def test_every_command_over_a_real_pty():
     clock = VirtualClock()
     sim = FpgaSim(clock, FpgaConfig(seed=3))
     with sim.serve_pty() as server:
-        with FpsaController.from_url(server.path, timeout_s=2.0, retries=1) as drv:
+        with FpsaController.from_url(server.path, timeout_s=REPLY_S, retries=1) as drv:
             exercise_every_command(drv, sim, clock)
 
 
@@ -87,7 +88,7 @@ def test_full_12288_pixel_pattern_over_pty_and_run_completes():
     clock = VirtualClock()
     sim = FpgaSim(clock)
     pattern = full_raster()
-    with sim.serve_pty() as server, FpsaController.from_url(server.path, timeout_s=2.0) as drv:
+    with sim.serve_pty() as server, FpsaController.from_url(server.path, timeout_s=REPLY_S) as drv:
         drv.reset()
         assert drv.upload_pattern(pattern) == 12
         drv.set_timing(settle_ns=8000, trigger_period_ns=10_000)
@@ -131,7 +132,7 @@ def test_fpga_naks_unbonded_row_when_driver_check_is_bypassed():
     pattern = np.array([[0, 0], [1, 1], [2, 2], [3, 3]])
     with pytest.raises(NakError) as ei:
         liar.upload_pattern(pattern)
-    assert ei.value.code == p.NakCode.BAD_ROW_UNBONDED and ei.value.detail == 3
+    assert ei.value.code == p.NakCode.BAD_ROW_UNBONDED and ei.value.nak_detail == 3
     assert ei.value.command == "PATTERN_CHUNK" and "fpsa" in str(ei.value)
     with pytest.raises(NakError) as ei:
         liar.set_pixel(7, 0)
@@ -141,7 +142,7 @@ def test_fpga_naks_unbonded_row_when_driver_check_is_bypassed():
     liar2.reset()
     with pytest.raises(NakError) as ei:
         liar2.upload_pattern(np.array([[0, 0], [0, 99], [0, 100]]))
-    assert ei.value.code == p.NakCode.OUT_OF_RANGE and ei.value.detail == 2
+    assert ei.value.code == p.NakCode.OUT_OF_RANGE and ei.value.nak_detail == 2
 
 
 class CorruptWrites:

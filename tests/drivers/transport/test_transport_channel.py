@@ -19,6 +19,7 @@ from drivers.transport import (
     hexdump,
     open_channel,
 )
+from tests.helpers.deadlines import REPLY_S
 
 
 def test_loop_url_echoes_bytes():
@@ -63,7 +64,7 @@ def test_socket_url_reaches_a_tcp_peer():
 
     th = threading.Thread(target=serve, daemon=True)
     th.start()
-    ch = open_channel(f"socket://127.0.0.1:{port}", timeout_s=2.0)
+    ch = open_channel(f"socket://127.0.0.1:{port}", timeout_s=REPLY_S)
     try:
         ch.write(b"\x10\x20\x30")
         assert ch.read(3) == b"\x30\x20\x10"

@@ -61,7 +61,7 @@ def test_a_new_range_calibration_makes_the_stored_linearization_stale(tmp_path):
         assert inst.linearize_calls == 1
         assert w.wait(w.submit_scan(req).id).state == "done"
         assert inst.linearize_calls == 1                        # reused
-        rec = store.save_geometry_calibration("range", temperature_c=25.0, inputs={}, residuals={},
+        rec = store.geometry.save("range", temperature_c=25.0, inputs={}, residuals={},
                                               fitted={"delay_s": 200.9e-9, "zero_offset_m": 0.01})
         done = w.wait(w.submit_scan(req).id)
         assert inst.linearize_calls == 2                        # the ILC's target moved: linearized again
@@ -76,19 +76,19 @@ def test_a_new_range_calibration_makes_the_stored_linearization_stale(tmp_path):
 
 def test_records_survive_a_reopened_store_and_nan_becomes_null(tmp_path):
     st = Store(tmp_path / "d")
-    m = st.add_range_measurement({"known_m": 1.0, "temperature_c": float("nan"), "sem_m": 1e-5})
-    rec = st.save_geometry_calibration("range", temperature_c=float("nan"), inputs={"x": [1.0]},
+    m = st.geometry.add_range_measurement({"known_m": 1.0, "temperature_c": float("nan"), "sem_m": 1e-5})
+    rec = st.geometry.save("range", temperature_c=float("nan"), inputs={"x": [1.0]},
                                        fitted={"delay_s": 2e-7, "zero_offset_m": 0.0}, residuals={"p_value": float("nan")})
     st.close()
     st = Store(tmp_path / "d")      # a daemon restart between `range add` and `range fit` loses nothing
     try:
-        assert [x["id"] for x in st.range_measurements()] == [m["id"]]
-        assert st.range_measurements()[0]["temperature_c"] is None
-        got = st.get_geometry_calibration(rec.id)
+        assert [x["id"] for x in st.geometry.range_measurements()] == [m["id"]]
+        assert st.geometry.range_measurements()[0]["temperature_c"] is None
+        got = st.geometry.get(rec.id)
         assert got.residuals == {"p_value": None} and got.temperature_c is None
-        assert st.latest_geometry_calibration("range").id == rec.id and st.latest_geometry_calibration("pointing") is None
-        assert st.remove_range_measurements() == 1 and st.range_measurements() == []
+        assert st.geometry.latest("range").id == rec.id and st.geometry.latest("pointing") is None
+        assert st.geometry.remove_range_measurements() == 1 and st.geometry.range_measurements() == []
         with pytest.raises(ValueError, match="calibration kind 'plate'"):
-            st.save_geometry_calibration("plate", temperature_c=None, inputs={}, fitted={}, residuals={})
+            st.geometry.save("plate", temperature_c=None, inputs={}, fitted={}, residuals={})
     finally:
         st.close()

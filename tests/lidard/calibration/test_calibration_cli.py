@@ -128,9 +128,9 @@ def test_sim_scan_says_uncalibrated_without_a_store_and_uses_the_stored_calibrat
     data = tmp_path / "data"
     st = Store(data)
     setup = calibration_setup(load_config(CONFIG_DIR / "sim.toml"))   # what the --sim scans run on
-    rng = st.save_geometry_calibration("range", temperature_c=25.0, inputs={"setup": setup["range"].as_dict()},
+    rng = st.geometry.save("range", temperature_c=25.0, inputs={"setup": setup["range"].as_dict()},
                                        residuals={}, fitted={"delay_s": 201.2e-9, "zero_offset_m": 0.02})
-    pnt = st.save_geometry_calibration("pointing", temperature_c=25.0, inputs={"setup": setup["pointing"].as_dict()},
+    pnt = st.geometry.save("pointing", temperature_c=25.0, inputs={"setup": setup["pointing"].as_dict()},
                                        residuals={},
                                        fitted={"focal_scale": 1.01, "decentre_px": [0.5, -0.2],
                                                "rotation_rad": 0.004, "k1": 0.1})
@@ -163,7 +163,7 @@ def test_sim_scan_says_uncalibrated_without_a_store_and_uses_the_stored_calibrat
     assert inst.applied.delay_s is None and inst.applied.pointing is not None
     # a record that names no set-up (an older data directory) is not trusted either
     st = Store(data)
-    st.save_geometry_calibration("range", temperature_c=25.0, inputs={}, residuals={},
+    st.geometry.save("range", temperature_c=25.0, inputs={}, residuals={},
                                  fitted={"delay_s": 201.2e-9, "zero_offset_m": 0.02})
     st.close()
     code, out, err = run(capsys, "scan", "--sim", "--data-dir", str(data), "--rows", "2:4", "--json")

@@ -17,7 +17,7 @@ from lidard.instrument.calibration.setup import calibration_setup, mode_differs,
 from lidard.instrument.types import ScanRequest
 from lidard.jobs.calibrations import fit_range
 from lidard.store import Store
-from lidard.store_calibrations import CalibrationRecord
+from lidard.store import CalibrationRecord
 from tests.helpers.cli import run
 from tests.helpers.fakes import FakeInstrument
 
@@ -58,11 +58,11 @@ def _plate(known_m, mode):
 def test_a_fit_of_plates_in_both_modes_is_refused_naming_them(tmp_path):
     st = Store(tmp_path / "data")
     try:
-        ids = [st.add_range_measurement(_plate(d, m))["id"] for d, m in ((0.8, "off"), (5.0, "off"), (45.0, "on"))]
+        ids = [st.geometry.add_range_measurement(_plate(d, m))["id"] for d, m in ((0.8, "off"), (5.0, "off"), (45.0, "on"))]
         with pytest.raises(CalibrationRefused, match=f"both phase-noise compensation modes.*on: {ids[2]} \\(45 m\\)"):
             fit_range(st, 200e-9)
-        st.remove_range_measurements([ids[2]])
-        st.add_range_measurement(_plate(20.0, "off"))
+        st.geometry.remove_range_measurements([ids[2]])
+        st.geometry.add_range_measurement(_plate(20.0, "off"))
         rec = fit_range(st, 200e-9)
         assert rec.inputs["phase_noise_compensation"] == "off"
         assert rec.fitted["delay_s"] == pytest.approx(200e-9 / 1.001, rel=1e-7)
@@ -78,7 +78,7 @@ def test_a_scan_in_the_other_mode_is_not_range_calibrated(capsys, monkeypatch, t
     data = tmp_path / "data"
     st = Store(data)
     setup = calibration_setup(load_config(SIM))
-    rng = st.save_geometry_calibration("range", temperature_c=25.0,
+    rng = st.geometry.save("range", temperature_c=25.0,
                                        inputs={"setup": setup["range"].as_dict(), "phase_noise_compensation": "off"},
                                        residuals={}, fitted={"delay_s": 201.2e-9, "zero_offset_m": 0.02})
     st.close()

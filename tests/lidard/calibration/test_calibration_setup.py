@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument.calibration.setup import calibration_setup, select
-from lidard.store_calibrations import CalibrationRecord
+from lidard.store import CalibrationRecord
 
 SIM = CONFIG_DIR / "sim.toml"
 

@@ -18,6 +18,7 @@ import pytest
 from lidard.config import CONFIG_DIR, load_config
 from tests.helpers.api import make_app
 from tests.helpers.cli import run
+from tests.helpers.deadlines import WAIT_S
 from tests.lidard.calibration.test_calibration_cli import S_TRUE, Z0_TRUE, PlateFake
 
 
@@ -40,7 +41,7 @@ def test_a_daemon_on_a_simulated_bench_calibrates_at_its_first_scan(tmp_path, mo
     with TestClient(make_app(tmp_path / "data", inst, cfg, progress_interval_s=0.0,
                              factory_calibration=True)) as c:
         sid = c.post("/scans", json={"pattern": "roi", "rows": [60, 62], "cols": [60, 62]}).json()["id"]
-        c.app.state.worker.wait(sid, timeout_s=60)
+        c.app.state.worker.wait(sid, timeout_s=WAIT_S)
         rec = c.get(f"/scans/{sid}").json()
         assert rec["state"] == "done"
         assert rec["calibrated"]["range"] is True and rec["calibrated"]["pointing"] is False
@@ -56,7 +57,7 @@ def test_a_daemon_on_a_simulated_bench_calibrates_at_its_first_scan(tmp_path, mo
         # tried once: the next scan does not run it again
         placed = len(inst.scenes)
         sid = c.post("/scans", json={"pattern": "roi", "rows": [60, 62], "cols": [60, 62]}).json()["id"]
-        c.app.state.worker.wait(sid, timeout_s=60)
+        c.app.state.worker.wait(sid, timeout_s=WAIT_S)
         assert len(inst.scenes) == placed
 
 

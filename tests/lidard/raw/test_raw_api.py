@@ -10,6 +10,7 @@ import pytest
 from lidard.raw import reprocess
 from lidard.raw.capture import capture_size_bytes
 from tests.helpers.raw_capture import RecordingFake
+from tests.helpers.deadlines import WAIT_S
 
 
 def _points(client, scan_id):
@@ -26,7 +27,7 @@ def recorded(make_client):
                                "formats": ["npz"]})
     assert r.status_code == 201, r.text
     sid = r.json()["id"]
-    c.app.state.worker.wait(sid, timeout_s=60)
+    c.app.state.worker.wait(sid, timeout_s=WAIT_S)
     return c, sid, inst
 
 
@@ -38,7 +39,7 @@ def test_a_recorded_scan_reports_its_capture_size(recorded):
     assert inst.raw_paths == [raw]
     assert rec["raw_bytes"] == capture_size_bytes(raw) > 24 * 2 * 1024 * 2 // 4   # int16 noise compresses < 4x
     plain = c.post("/scans", json={"pattern": "roi", "rows": [0, 1], "cols": [0, 4]}).json()["id"]
-    c.app.state.worker.wait(plain, timeout_s=60)
+    c.app.state.worker.wait(plain, timeout_s=WAIT_S)
     assert c.get(f"/scans/{plain}").json()["raw_bytes"] is None and inst.raw_paths[-1] is None
 
 

@@ -116,7 +116,7 @@ def test_dask_and_workers_start_a_local_cluster_of_processes(capsys, data, monke
     from lidard.offline import cluster
     sid = _record(capsys, data)
     asked, real = [], cluster.open_client
-    def fake_open_client(scheduler=None, **kw):     # noqa: E306 - records the request, runs in threads
+    def fake_open_client(scheduler=None, **kw):
         asked.append((scheduler, kw["n_workers"], kw["processes"]))
         return real(n_workers=kw["n_workers"], processes=False)
     monkeypatch.setattr(cluster, "open_client", fake_open_client)

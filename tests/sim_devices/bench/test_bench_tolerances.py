@@ -18,8 +18,8 @@ from scipy.signal import hilbert
 
 from lidard.config import load_config
 from lidard.physics.constants import C_M_PER_S
-from sim_devices.bench import Bench, BenchControlClient
-from sim_devices.digitizer import CaptureConfig
+from sim_devices.bench.bench import Bench, BenchControlClient
+from sim_devices.digitizer.device import CaptureConfig
 from sim_devices.world.scene import Scene
 from tests.helpers.sim_bench import SIM_TOML, lit_bench
 from tests.helpers.tolerances import NOMINAL_ENV
@@ -70,7 +70,7 @@ def test_monitor_fringes_follow_the_true_mzi_delay():
     assert f_true / f_nom == pytest.approx(1.02, abs=2e-4)
     # and it is kappa x the true delay, kappa the laser's true chirp rate over the same window
     # (the slope of nu(t) of the bench's laser under this drive; a plain triangle, not linearized)
-    traj = b._trajectory()
+    traj = b.synthesizer.trajectory()
     t = np.arange(traj.nu_hz.size) / traj.fs_hz
     win = (t >= 10e-6) & (t < 70e-6)
     kappa = np.polyfit(t[win], traj.nu_hz[win], 1)[0]

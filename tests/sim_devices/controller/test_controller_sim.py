@@ -12,7 +12,8 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.controller import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerModel, ControllerSim, Dynamics
+from sim_devices.controller.device import ControllerModel, ControllerSim, Dynamics
+from tests.helpers.deadlines import REPLY_S
 
 EC = p.ExceptionCode
 
@@ -149,7 +150,7 @@ def test_start_stop_leaves_no_thread_and_frees_the_port(clock):
     assert port == sim.port and port > 0
     with pytest.raises(RuntimeError, match="already started"):
         sim.start()
-    c = ModbusTcpClient("127.0.0.1", port=port, timeout=2.0, retries=0)
+    c = ModbusTcpClient("127.0.0.1", port=port, timeout=REPLY_S, retries=0)
     assert not c.read_discrete_inputs(0, count=1, device_id=1).isError()
     sim.stop()
     c.close()
@@ -177,7 +178,7 @@ def test_start_async_inside_a_running_loop(clock):
         limits = p.Limits(max_laser_current_ma=200.0, max_hv_v=60.0, tec_range_c=(18.0, 35.0))
 
         def use() -> tuple[str, bool]:
-            with LaserHvController("127.0.0.1", port, timeout_s=2.0, limits=limits) as c:
+            with LaserHvController("127.0.0.1", port, timeout_s=REPLY_S, limits=limits) as c:
                 c.set_hv_v(50.0)
                 c.hv_enable(True)
                 return c.identify().model, c.hv_is_on()
@@ -192,7 +193,7 @@ def test_start_async_inside_a_running_loop(clock):
 
 def test_injected_exception_affects_exactly_n_requests(clock):
     with ControllerSim(clock) as sim:
-        c = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=2.0, retries=0)
+        c = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=REPLY_S, retries=0)
         try:
             sim.inject_exception(6, n=2)
             r1 = c.write_register(p.HV_SETPOINT.address, 1000, device_id=1)
@@ -210,7 +211,7 @@ def test_injected_exception_affects_exactly_n_requests(clock):
 
 def test_heartbeat_counts_requests(clock):
     with ControllerSim(clock) as sim:
-        c = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=2.0, retries=0)
+        c = ModbusTcpClient("127.0.0.1", port=sim.port, timeout=REPLY_S, retries=0)
         try:
             beats = [c.read_input_registers(p.HEARTBEAT.address, count=1, device_id=1).registers[0]
                      for _ in range(3)]

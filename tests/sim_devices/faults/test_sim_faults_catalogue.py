@@ -9,7 +9,7 @@ import pytest
 
 from lidard.config import load_config
 from lidard.errors import ConfigError
-from sim_devices.bench import Bench, BenchControlClient
+from sim_devices.bench.bench import Bench, BenchControlClient
 from sim_devices.clock import VirtualClock
 from sim_devices.faults import FAULT_KINDS, SerialLineNoise, validate_fault
 from tests.helpers.sim_bench import SIM_TOML

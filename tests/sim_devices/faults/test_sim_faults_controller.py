@@ -16,7 +16,8 @@ from drivers.controller.errors import (
 from drivers.controller.protocol import Fault
 from drivers.digitizer import protocol as dig_p
 from drivers.digitizer.driver import DigitizerDriver
-from sim_devices.digitizer import CaptureConfig
+from sim_devices.digitizer.device import CaptureConfig
+from tests.helpers.deadlines import REPLY_S
 from tests.helpers.sim_bench import controller, fpsa, power_up, run_pattern
 
 PIXELS = [[0, c] for c in range(10)]   # row 0 is bonded; one trigger per pixel
@@ -46,19 +47,21 @@ def test_modbus_exception_until_cleared(bench):
 
 
 def test_modbus_timeout_loses_replies_but_requests_execute(bench):
-    ctl = controller(bench, timeout_s=0.1, retries=0)
+    ctl = controller(bench, timeout_s=0.1, retries=0)           # each lost reply waits this long
+    patient = controller(bench, timeout_s=REPLY_S, retries=0)  # the checks: a late reply is no loss
     bench.inject_fault("modbus_timeout", n=1)
     with pytest.raises(DeviceTimeout):
         ctl.set_tec_c(30.0)
     assert bench.controller.state.tec_setpoint_c == 30.0   # executed, only the reply was lost
-    assert ctl.tec_setpoint_c() == pytest.approx(30.0)
+    assert patient.tec_setpoint_c() == pytest.approx(30.0)
     bench.inject_fault("modbus_timeout")                     # until cleared
     for _ in range(2):
         with pytest.raises(DeviceTimeout):
             ctl.heartbeat()
     bench.clear_faults("modbus_timeout")
-    assert ctl.heartbeat() > 0
+    assert patient.heartbeat() > 0
     ctl.close()
+    patient.close()
 
 
 def test_hv_fault_trips_to_zero_volts_and_stays_latched_until_cleared(bench):

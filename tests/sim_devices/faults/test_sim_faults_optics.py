@@ -8,7 +8,7 @@ import usb.core
 
 from drivers.digitizer import protocol as dig_p
 from drivers.digitizer.driver import DigitizerDriver
-from sim_devices.digitizer import CaptureConfig
+from sim_devices.digitizer.device import CaptureConfig
 from tests.helpers.sim_bench import chirp_on, fpsa, power_up, restart, run_pattern
 
 TAP = CaptureConfig(10e6, 200, ("tap",), 16, 1.0)

@@ -8,8 +8,8 @@ import usb.core
 
 from drivers.digitizer import protocol as dig_p
 from lidard.config import load_config
-from sim_devices.bench import Bench
-from sim_devices.usb_backend import backend_from_url
+from sim_devices.bench.bench import Bench
+from sim_devices.usb.backend import backend_from_url
 from tests.helpers.sim_bench import SIM_TOML
 
 

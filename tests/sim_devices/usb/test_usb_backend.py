@@ -11,10 +11,10 @@ import usb.util
 
 from drivers.awg import protocol as awgp
 from drivers.digitizer import protocol as dp
-from sim_devices.awg import SimAwg
+from sim_devices.awg.device import SimAwg
 from sim_devices.clock import VirtualClock
-from sim_devices.digitizer import CapturedSegments, SimDigitizer
-from sim_devices.usb_backend import (
+from sim_devices.digitizer.device import CapturedSegments, SimDigitizer
+from sim_devices.usb.backend import (
     RemoteUsbBackend,
     SimUsbBackend,
     UsbBridgeServer,

@@ -13,10 +13,10 @@ from drivers.awg.driver import AwgDriver
 from drivers.digitizer import protocol as dp
 from drivers.digitizer.driver import DigitizerDriver
 from drivers.usbtmc import DeviceDisconnected
-from sim_devices.awg import SimAwg
+from sim_devices.awg.device import SimAwg
 from sim_devices.clock import VirtualClock
-from sim_devices.digitizer import CapturedSegments, SimDigitizer
-from sim_devices.usb_backend import RemoteUsbBackend, SimUsbBackend, UsbBridgeServer
+from sim_devices.digitizer.device import CapturedSegments, SimDigitizer
+from sim_devices.usb.backend import RemoteUsbBackend, SimUsbBackend, UsbBridgeServer
 
 D4 = bytes.fromhex("44 47 53 47 01 10 01 00 05 00 00 00 02 00 00 00"
                    "E8 03 00 00 00 00 00 00 C7 9B C5 3E 72 41 12 F3"

@@ -13,7 +13,7 @@ import pytest
 
 from drivers.fpsa import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.fpga import FpgaConfig, FpgaSim
+from sim_devices.fpsa.device import FpgaConfig, FpgaSim
 from sim_devices.world.mems import COLUMN_SWITCH, ROW_SWITCH, SwitchBank, mean_path_transmission
 
 
@@ -138,9 +138,9 @@ def _send(sim, seq, cmd, payload=b""):
 
 def _reference_beams(sim, t0, t1):
     """Every (window, row, col) path above the floor, by looping over windows and switches."""
-    rows_bank, cols_bank = sim._switch_banks()
+    rows_bank, cols_bank = sim.optics.switch_banks()
     floor = sim.config.beam_floor
-    cand_rows = sim._candidate_rows()
+    cand_rows = sim.optics.candidate_rows()
     out = []
     for k in range(t0.size):
         a, b = t0[k:k + 1], t1[k:k + 1]
@@ -160,7 +160,7 @@ def test_fpga_beams_with_stuck_switches_match_the_loop_reference(seed):
     rng = np.random.default_rng(100 + seed)
     clock = VirtualClock()
     sim = FpgaSim(clock, FpgaConfig())
-    rows = np.asarray(sim._bonded)
+    rows = np.asarray(sim.board.bonded)
     pattern = np.stack([rng.choice(rows, 24), rng.integers(0, sim.config.cols, 24)], 1)
     px = p.pack_pixels(pattern)
     _send(sim, 1, p.Cmd.RESET)
@@ -175,7 +175,7 @@ def test_fpga_beams_with_stuck_switches_match_the_loop_reference(seed):
     _send(sim, 7, p.Cmd.START)
     start = sim.run_start_s
     # a column stuck on for part of the run, a bonded row stuck off, an unbonded row stuck on
-    unbonded = sorted(set(range(sim.config.rows)) - set(sim._bonded))
+    unbonded = sorted(set(range(sim.config.rows)) - set(sim.board.bonded))
     sim.stick_switch("col", int(pattern[3, 1]), True, t_s=start + 50e-6)
     sim.release_switch("col", int(pattern[3, 1]), t_s=start + 300e-6)
     sim.stick_switch("row", int(pattern[10, 0]), False, t_s=start + 100e-6)

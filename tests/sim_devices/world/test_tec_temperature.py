@@ -11,9 +11,9 @@ import pytest
 
 from drivers.controller import protocol as p
 from lidard.config import CONFIG_DIR, load_config, load_laser
-from sim_devices.bench import Bench
+from sim_devices.bench.bench import Bench
 from sim_devices.clock import VirtualClock
-from sim_devices.controller import ControllerModel
+from sim_devices.controller.device import ControllerModel
 from sim_devices.faults import validate_fault
 from sim_devices.world.laser import DfbLaser, triangle_drive
 from sim_devices.world.synth import trajectory
@@ -104,18 +104,18 @@ def test_a_tec_offset_step_reaches_the_benchs_chirp_and_the_cache_keys_on_temper
     bench = Bench(load_config(CONFIG_DIR / "sim.toml"))
     chirp_on(bench)
     bench.controller.model.tec_drift = None                  # only the step, for an exact comparison
-    before = bench._trajectory()
-    assert bench._trajectory() is before                     # same drive, same temperature: cached
+    before = bench.synthesizer.trajectory()
+    assert bench.synthesizer.trajectory() is before                     # same drive, same temperature: cached
     bench.inject_fault("tec_offset", offset_c=0.25)
-    after = bench._trajectory()
+    after = bench.synthesizer.trajectory()
     tol = bench.cfg.sim.tolerances
     assert after.nu0_hz - before.nu0_hz == pytest.approx(tol.tec_tuning_hz_per_c * 0.25, rel=1e-6)
     np.testing.assert_allclose(after.nu_hz, before.nu_hz * (1 + tol.tec_response_per_c * 0.25), rtol=1e-12,
                                atol=1e-6 * EXCURSION_HZ)
     bench.inject_fault("tec_offset", offset_c=0.25 + 0.3 * QUANTUM_C)     # below the 1 mK grid: reused
-    assert bench._trajectory() is after
+    assert bench.synthesizer.trajectory() is after
     assert bench.clear_faults("tec_offset") == 1
-    np.testing.assert_allclose(bench._trajectory().nu_hz, before.nu_hz, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(bench.synthesizer.trajectory().nu_hz, before.nu_hz, rtol=0, atol=1e-6)
 
 
 def test_tec_offset_fault_parameters_are_checked():

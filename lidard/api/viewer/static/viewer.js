@@ -3,6 +3,7 @@
 // window.viewer exposes the page's state (scanId, pointCount, complete, ...) for tests and the console.
 import { Cloud, colorOf } from "/viewer/cloud.js";
 import * as panels from "/viewer/panels.js";
+import { StreamPlayer, renderStreams } from "/viewer/stream.js";
 
 const FIELDS = ["x", "y", "z", "range", "velocity", "intensity", "snr_db", "row", "col", "t", "valid"];
 const $ = (id) => document.getElementById(id);
@@ -10,6 +11,7 @@ const $ = (id) => document.getElementById(id);
 const viewer = window.viewer = {
   lease: null, holder: null, simulated: false,
   scanId: null, pointCount: 0, complete: false, scanState: null, lastError: null,
+  streamId: null, frameIndex: null, framesShown: 0, frameRateHz: null, streamState: null,
   cloud: new Cloud($("cloud"), FIELDS),
 };
 
@@ -56,6 +58,7 @@ async function pullPoints() {
 
 function showScan(id) {
   if (events) { events.close(); events = null; }
+  player.stop();
   viewer.scanId = id; viewer.pointCount = 0; viewer.complete = false; viewer.scanState = null;
   viewer.cloud.clear();
   $("scan-label").textContent = `scan ${id}`;
@@ -70,6 +73,21 @@ function showScan(id) {
     refresh();
   });
   pullPoints();
+}
+
+// ---- a stream: its frames one cloud at a time (stream.js) ----------------------------------------
+const player = new StreamPlayer(viewer, (path) => api(path), {
+  label: $("scan-label"), counter: $("frame-counter"), points: $("point-count"), onDrawn: () => drawLegend(),
+});
+const autoShown = new Set();   // running streams shown once on their own; the user may switch away
+
+function showStream(id) {
+  if (events) { events.close(); events = null; }
+  viewer.scanId = null; viewer.scanState = null; viewer.pointCount = 0; viewer.complete = false;
+  viewer.cloud.clear();
+  $("picked").textContent = "click a point to see its fields";
+  autoShown.add(id);
+  player.show(id);
 }
 
 // ---- control lease --------------------------------------------------------------------------
@@ -155,13 +173,16 @@ function showControl(control) {
 let calTick = 0;
 async function refresh() {
   try {
-    const [health, control, list] = await Promise.all([getJSON("/health"), getJSON("/control"), getJSON("/scans?limit=12")]);
+    const [health, control, list, streams] = await Promise.all([getJSON("/health"), getJSON("/control"),
+      getJSON("/scans?limit=12"), getJSON("/streams")]);
     viewer.simulated = health.simulated;
     $("health").textContent = `${health.version} · ${health.simulated ? "simulated bench" : "hardware"} · ${health.status}`;
     $("linearization").textContent = panels.linearizationLine(health.linearization);
     const mine = showControl(control);
     panels.renderQueue($("queue"), list.scans, { canAct: mine, onCancel: cancelScan, onShow: showScan, shownId: viewer.scanId });
-    if (!viewer.scanId && list.scans.length) showScan(list.running || list.scans[0].id);
+    renderStreams($("streams"), streams.streams.slice(0, 8), { onShow: showStream, shownId: viewer.streamId });
+    if (streams.running && !autoShown.has(streams.running)) showStream(streams.running);
+    else if (!viewer.scanId && !viewer.streamId && list.scans.length) showScan(list.running || list.scans[0].id);
     refreshSlow(health.simulated, calTick++ % 5 === 0 || !!list.running);
   } catch (e) {
     $("health").textContent = `daemon unreachable (${e})`;
@@ -226,6 +247,7 @@ $("scan-form").addEventListener("submit", startScan);
 $("scan-form").elements.pattern.addEventListener("change", followPattern);
 followPattern();
 viewer.showScan = showScan;
+viewer.showStream = showStream;
 restoreControl().finally(() => {
   viewer.ready = true;
   refresh();

@@ -1,0 +1,52 @@
+"""The compiled static beat phase (sim_devices.world.synth_jit) against the numpy path it stands in for
+(synth_grid._fill): the same float64 operations in the same order, so the same values bit for bit, on
+the bench's own chirp tables at the sample-rate ratios a scan uses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_devices.world import synth_grid, synth_jit
+
+pytest.importorskip("numba")
+
+
+def _tables(rng, length):
+    # a chirp phase in cycles: large, smooth c0 and its per-interval slopes, as ChirpTrajectory tiles them
+    c1 = 1e3 + 50.0 * np.sin(np.arange(length) / 97.0) + rng.normal(0, 1e-3, length)
+    c2 = rng.normal(0, 1e-2, length)
+    c0 = np.concatenate([[0.0], np.cumsum(c1[:-1] + c2[:-1])])
+    return c0, c1, c2
+
+
+@pytest.mark.parametrize("ratio", [20.0, 2.5, 100.0 / 15.0, 1.25])
+def test_kernel_gives_the_numpy_fill_bit_for_bit(ratio):
+    rng = np.random.default_rng(7)
+    pq = synth_grid.rational_ratio(ratio)
+    assert pq is not None
+    n = 1190
+    c0, c1, c2 = _tables(rng, int(n * ratio) + 4000)
+    d_awg = rng.uniform(0.0, 900.0, 37)            # delays of a scene's hits, AWG samples
+    d_awg[:5] = np.rint(d_awg[:5])                 # whole-sample delays too
+    const = rng.uniform(-5e3, 5e3, d_awg.size)
+    b_start = 1000.0 + 0.375
+    want = np.empty((d_awg.size, n))
+    synth_grid._fill(c0, c1, c2, b_start, ratio, pq, n, d_awg, -const[:, None], want)
+    kernel = synth_jit._compiled()
+    got = np.empty_like(want)
+    kernel(c0, c1, c2, b_start, ratio, pq[0], pq[1], n, d_awg, -const, got)
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def test_kernel_waits_until_loading_numba_pays(monkeypatch):
+    monkeypatch.setattr(synth_jit, "_asked", [0])
+    monkeypatch.setattr(synth_jit, "_numba_loaded", lambda: False)     # a process that has not loaded it
+    synth_jit._compiled.cache_clear()
+    try:
+        assert synth_jit.static_fill(1000) is None                          # a small scan: numpy
+        assert synth_jit.static_fill(synth_jit.LOAD_AFTER_SAMPLES) is not None   # past the break-even
+        monkeypatch.setenv("LIDARD_DSP_JIT", "0")
+        assert synth_jit.static_fill(1) is None
+    finally:
+        synth_jit._compiled.cache_clear()
