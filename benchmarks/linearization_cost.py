@@ -13,7 +13,10 @@ Variants (``--variant``):
   a second ILC run from its drive over the range window (ROI 0.9, learning 0.95) with few averages
   (``--edge-averages``, no growth) and at most ``--edge-steps`` steps at gain ``--edge-beta``: the
   cheap way to learn the window's edges, measured here (it does not converge: see
-  docs/measured/26_range_linearity.md).
+  docs/measured/26_range_linearity.md);
+* ``edges-first``: the reverse order: the range window and its margin first (ROI 0.9, learning 0.95,
+  ``--edge-averages`` periods, no growth, ``--edge-steps`` steps), then the ILC as on main (ROI 0.8,
+  learning 0.92, main's averaging schedule) from that drive.
 
 Run: PYTHONPATH=<tree> python benchmarks/linearization_cost.py --config config/sim_far.toml [--variant edges-after-centre]
      [--max-averages N]
@@ -40,7 +43,7 @@ def _print_run(res: Any) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default="config/sim_far.toml")
-    ap.add_argument("--variant", choices=("shipped", "edges-after-centre"), default="shipped")
+    ap.add_argument("--variant", choices=("shipped", "edges-after-centre", "edges-first"), default="shipped")
     ap.add_argument("--max-averages", type=int, default=None,
                     help="override the linearization's MAX_AVERAGES (averaging growth cap)")
     ap.add_argument("--edge-averages", type=int, default=32)
@@ -63,6 +66,13 @@ def main(argv: list[str] | None = None) -> int:
             kw_e = {**kw_c, "averages": args.edge_averages, "max_averages": args.edge_averages,
                     "max_iter": args.edge_steps, "beta": args.edge_beta, "roi": 0.9, "learn": 0.95}
             res = orig(measure, centre.drive_v, **kw_e)
+        elif args.variant == "edges-first":
+            kw_c = {k: v for k, v in kw.items() if k not in ("roi", "learn")}
+            kw_e = {**kw_c, "averages": args.edge_averages, "max_averages": args.edge_averages,
+                    "max_iter": args.edge_steps, "beta": args.edge_beta, "roi": 0.9, "learn": 0.95}
+            edges = orig(measure, drive0, **kw_e)
+            _print_run(edges)
+            res = orig(measure, edges.drive_v, **kw_c)
         else:
             res = orig(measure, drive0, **kw)
         _print_run(res)
