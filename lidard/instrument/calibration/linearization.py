@@ -56,7 +56,7 @@ MAX_AVERAGES = 2048
 #: the laser's phase noise and the monitor's noise average out (61 ms of hardware time at 238 us)
 HOLD_AVERAGES = 256
 #: the ILC's region of interest: the fraction of each ramp the scan's range estimator uses
-RANGE_WINDOW_FRACTION: float = FrameDsp.__dataclass_fields__["use_fraction"].default  # type: ignore[assignment]  # a field default (typed with MISSING)
+RANGE_WINDOW_FRACTION = FrameDsp.__dataclass_fields__["use_fraction"].default
 #: the learning region reaches this far (fraction of a ramp) beyond the ROI, so the turnaround's
 #: transient, which the learned drive can only shorten, settles before the range window opens
 LEARN_MARGIN = 0.05
