@@ -43,3 +43,22 @@ def test_each_beam_gets_its_own_pixels_hits_in_order():
 def test_no_beams_no_hits():
     cat, beam = _world()._hits(np.zeros(0, np.int64), np.zeros(0, np.int64), None)
     assert beam.size == 0 and all(c.size == 0 for c in cat)
+
+
+# The bench's look-ahead cast (World.precast): casting a run's next pixels in one call gives each
+# pixel the hits it gets when cast read by read, mixed (footprint-weighted) edge pixels included.
+
+def test_precast_pixels_get_the_hits_of_a_read_by_read_cast():
+    rows = np.repeat(np.arange(56, 72), 24)
+    cols = np.tile(np.arange(50, 74), 16)
+    by_read, ahead = _world(), _world()
+    want = [e for i in range(0, rows.size, 20) for e in by_read._cast_pixels(rows[i:i + 20], cols[i:i + 20])]
+    ahead.precast(rows, cols)
+    assert ahead.rays_cast == rows.size             # every pixel cast by the look-ahead, once
+    got = ahead._cast_pixels(rows, cols)
+    assert ahead.rays_cast == rows.size             # ... and not again when the reads come
+    assert len(ahead._mixed) == len(by_read._mixed) > 0
+    for g, w in zip(got, want):
+        assert len(g) == len(w)
+        for a, b in zip(g, w):
+            assert np.array_equal(a, b)
