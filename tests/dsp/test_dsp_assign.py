@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.gate import PointFlag
+from lidard.dsp.detect.gate import PointFlag
 from lidard.dsp.ranging.assign import best_matching, pair_loglik, tie_llr
 from lidard.dsp.ranging.lines import lines, render
 

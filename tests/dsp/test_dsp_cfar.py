@@ -5,9 +5,9 @@ import warnings
 import numpy as np
 import pytest
 
-from lidard.dsp.cfar import ca_cfar_alpha, cfar_detect, os_cfar_alpha, os_cfar_pfa
-from lidard.dsp.rangefft import RangeFFT
-from lidard.dsp.window import DspInputError
+from lidard.dsp.detect.cfar import ca_cfar_alpha, cfar_detect, os_cfar_alpha, os_cfar_pfa
+from lidard.dsp.spectrum.rangefft import RangeFFT
+from lidard.dsp.spectrum.window import DspInputError
 
 N = 512
 

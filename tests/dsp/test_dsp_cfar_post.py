@@ -1,10 +1,10 @@
-"""The detector's post-processing on the list of detections (lidard.dsp.cfar_post, issue 18) against
+"""The detector's post-processing on the list of detections (lidard.dsp.detect._post, issue 18) against
 the dense (ramps x slots x slots) forms it replaced: the same flags and ranks, bit for bit."""
 
 import numpy as np
 import pytest
 
-from lidard.dsp import cfar
+from lidard.dsp.detect import cfar
 
 
 def _harmonic_dense(idx, pk, valid, *, n_bins, iq, zero_pad, harmonic_ratio_db):

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidard.dsp import cfar
-from lidard.dsp.window import WINDOW_NAMES, get_window, window_info
+from lidard.dsp.detect import cfar
+from lidard.dsp.spectrum.window import WINDOW_NAMES, get_window, window_info
 
 
 def _spectra(rng, rows, n, window, zero_pad):

@@ -1,4 +1,4 @@
-"""The health check's measure (lidard.dsp.chirpcheck): the RMS error of a chirp against the ideal one,
+"""The health check's measure (lidard.dsp.linearize.chirpcheck): the RMS error of a chirp against the ideal one,
 from monitor-MZI records. A chirp whose slope is off by a relative eps has, over the ROI (0.8 of each
 ramp, offset free), an RMS error eps x excursion x 0.8 / sqrt(12), and no nonlinearity at all."""
 
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from lidard.dsp.chirpcheck import chirp_residual
+from lidard.dsp.linearize.chirpcheck import chirp_residual
 
 EXCURSION_HZ, RAMP_S, TAU_S = 8.6e9, 80e-6, 200e-9
 FS_ADC, FS_DRIVE = 250e6, 100e6

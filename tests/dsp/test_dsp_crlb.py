@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from lidard.dsp.crlb import crlb_freq_var, crlb_freq_var_post_fft, post_fft_snr
-from lidard.dsp.window import DspInputError
+from lidard.dsp.ranging.crlb import crlb_freq_var, crlb_freq_var_post_fft, post_fft_snr
+from lidard.dsp.spectrum.window import DspInputError
 
 
 def test_complex_bound_closed_form():

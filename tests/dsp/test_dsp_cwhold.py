@@ -1,4 +1,4 @@
-"""The held segment's drift (lidard.dsp.cwhold): measured from a monitor-MZI fringe, taken out of the CW
+"""The held segment's drift (lidard.dsp.ranging.cwhold): measured from a monitor-MZI fringe, taken out of the CW
 beat, and the three-segment frame where the real receiver's two regimes meet (|f_D| = f_R).
 
 Signals are built from the physics: the MZI fringe cos(2 pi int_{t - tau_m}^t nu + phase noise), a
@@ -9,10 +9,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lidard.dsp.cwhold import HoldProfile, dechirp_peak, hold_profile
+from lidard.dsp.ranging.cwhold import HoldProfile, dechirp_peak, hold_profile
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.rangefft import C_M_PER_S
-from lidard.dsp.window import get_window
+from lidard.dsp.spectrum.rangefft import C_M_PER_S
+from lidard.dsp.spectrum.window import get_window
 
 WL = 1.55e-6
 KAPPA = 8.6e9 / 80e-6
@@ -114,7 +114,7 @@ def test_dechirped_cw_beat_is_one_sharp_tone_at_the_doppler_shift(range_m, v_mps
     assert abs(f[0] - abs(f_d)) < 0.03 * bin_hz                          # ~0.5 kHz: 0.4 mm/s
     assert p[0] > 100 * noise[0]
     # without the drift taken out, the beat's peak sits tau nu' off |f_D| (several mm of range): the
-    # error the regime search's bands allow for (lidard.dsp.threeseg.RHO_MAX)
+    # error the regime search's bands allow for (lidard.dsp.ranging.threeseg.RHO_MAX)
     flat = HoldProfile(0.0, 1e-7, tuple(np.zeros(len(_profile().nu_hz))))
     f0, _, _ = dechirp_peak(cw, t, flat, tau, FS, band, side, w)
     assert abs(f0[0] - abs(f_d)) > 0.3 * bin_hz
@@ -182,7 +182,7 @@ def test_hold_profile_does_not_add_points_to_a_static_target():
 
 def test_candidates_in_several_passes_give_the_same_points(monkeypatch):
     # three pixels where the regimes meet, one batch; memory-bounded passes of one candidate each
-    import lidard.dsp.cwhold as cwhold
+    import lidard.dsp.ranging.cwhold as cwhold
     rng = np.random.default_rng(2)
     dsp = _frame_dsp()
     dsp = _with_drift(dsp)

@@ -1,4 +1,4 @@
-"""The DTFT near a peak from Chebyshev moments (lidard.dsp.dtft, issue 18) against the direct sum.
+"""The DTFT near a peak from Chebyshev moments (lidard.dsp.spectrum.dtft, issue 18) against the direct sum.
 
 X(f) = sum_n x[n] exp(-j 2 pi f n / N) is evaluated here term by term (the definition); the moment
 evaluator must give it, and its first two derivatives, to ~1e-12 of sum |x| everywhere the estimators
@@ -13,7 +13,7 @@ from math import comb
 import numpy as np
 import pytest
 
-from lidard.dsp.dtft import _DtftNearBin, _moment_basis, _reach_of_terms, _terms_for
+from lidard.dsp.spectrum.dtft import _DtftNearBin, _moment_basis, _reach_of_terms, _terms_for
 
 
 def _direct(x: np.ndarray, f: np.ndarray, n: int, deriv: int = 0) -> np.ndarray:
@@ -87,7 +87,7 @@ def test_fewer_columns_than_the_power_basis():
 def test_real_tone_energy_is_the_least_squares_fit_at_each_offset(k):
     """_real_tone_fit (the likelihood the default estimator climbs, with its sines turned by the offsets)
     against the energy of the best a cos(wn) + b sin(wn) from a plain least-squares solve."""
-    from lidard.dsp.estimators import _real_tone_fit
+    from lidard.dsp.ranging.estimators import _real_tone_fit
 
     n = 256
     rng = np.random.default_rng(7)

@@ -5,10 +5,10 @@ import warnings
 import numpy as np
 import pytest
 
-from lidard.dsp.crlb import crlb_freq_var_post_fft
-from lidard.dsp.estimators import DEFAULT_METHOD, ESTIMATOR_NAMES, ESTIMATORS, estimate
-from lidard.dsp.rangefft import RangeFFT
-from lidard.dsp.window import DspInputError
+from lidard.dsp.ranging.crlb import crlb_freq_var_post_fft
+from lidard.dsp.ranging.estimators import DEFAULT_METHOD, ESTIMATOR_NAMES, ESTIMATORS, estimate
+from lidard.dsp.spectrum.rangefft import RangeFFT
+from lidard.dsp.spectrum.window import DspInputError
 
 N = 512
 

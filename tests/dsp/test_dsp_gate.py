@@ -1,4 +1,4 @@
-"""The honest range gate (lidard.dsp.gate): the gate ends at the top of the decimation filter's
+"""The honest range gate (lidard.dsp.detect.gate): the gate ends at the top of the decimation filter's
 alias-free band (fs - 0.6 fs = 0.4 fs), and a detection no stronger than a fold can be is ALIASED."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.gate import ALIAS_MARGIN, PointFlag, aliased, decimation_gate, gate_top_hz, point_flags
+from lidard.dsp.detect.gate import ALIAS_MARGIN, PointFlag, aliased, decimation_gate, gate_top_hz, point_flags
 
 GAMMA = 8.6e9 / 80e-6
 

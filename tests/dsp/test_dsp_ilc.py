@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from lidard.config import load_laser
-from lidard.dsp.ilc import linearize
-from lidard.dsp.instfreq import best_fit_residual, fft_filter, ramp_frequency
+from lidard.dsp.linearize.ilc import linearize
+from lidard.dsp.spectrum.instfreq import best_fit_residual, fft_filter, ramp_frequency
 from sim_devices.world.laser import DfbLaser, ramp_nonlinearity_hz, triangle_drive
 
 RAMP_S = 80e-6
@@ -330,7 +330,7 @@ def test_fold_after_a_late_optical_turn_is_unfolded():
     """dfb_slow_thermal with a plain triangle: the optical chirp keeps going the old way for ~3.5 us
     after the drive turns; the real beat folds that part over. Compared with the laser model's nu
     (drive frame = -nu, the tuning is negative) over the first 8 us of each ramp."""
-    from lidard.dsp import ilc as ilc_mod
+    from lidard.dsp.linearize import ilc as ilc_mod
     tau_m = 200e-9
     b = Bench("dfb_slow_thermal", tau_m=tau_m, linewidth=0.0)
     u = b.drive0()
@@ -380,7 +380,7 @@ def test_slow_thermal_needs_the_inverse_response_update():
 def test_fitted_fm_response_tracks_the_laser_at_low_frequency():
     """fit_fm_response from one triangle measurement vs the laser model's H(f) (drive frame: -H,
     the DFB tunes negatively): within 10 % at the drive fundamental, falling with frequency, lagging."""
-    from lidard.dsp import ilc as ilc_mod
+    from lidard.dsp.linearize import ilc as ilc_mod
     tau_m = 200e-9
     for preset in ("dfb_default", "dfb_slow_thermal"):
         b = Bench(preset, tau_m=tau_m, linewidth=0.0)
@@ -404,7 +404,7 @@ def test_error_on_the_drive_grid_is_defined_at_every_sample(monkeypatch):
     between the interpolation mask and the turning-point gap and kept what ``np.empty`` left there:
     garbage that changed with the process's allocation history (a 103 V drive once, under load).
     Uninitialised memory is poisoned with NaN here so the hole shows every time."""
-    from lidard.dsp import ilc as ilc_mod
+    from lidard.dsp.linearize import ilc as ilc_mod
     monkeypatch.setattr(np, "empty", lambda *a, **k: np.full(*a, np.nan, **k))
     tau_m = 200e-9
     b = Bench("dfb_default", tau_m=tau_m, linewidth=0.0)

@@ -1,10 +1,10 @@
-"""ILC measurement from a quadrature monitor (lidard.dsp.ilcquad; §2.2, issue 15): per-record phases
+"""ILC measurement from a quadrature monitor (lidard.dsp.linearize.quadrature; §2.2, issue 15): per-record phases
 averaged, nu = theta / (2 pi tau_m) in the drive frame. Records built here from the definition
 theta(t) = 2 pi int_{t - tau_m}^{t} nu, with random per-record fringe phases and white phase noise."""
 
 import numpy as np
 
-from lidard.dsp.ilcquad import quadrature_ramp_nu
+from lidard.dsp.linearize.quadrature import quadrature_ramp_nu
 
 FS, T, TAU = 100e6, 80e-6, 200e-9
 SLOPE = 8.6e9 / 80e-6

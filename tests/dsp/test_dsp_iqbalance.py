@@ -1,4 +1,4 @@
-"""The coherent receiver's I/Q imbalance (lidard.dsp.iqbalance) and the frame DSP's I/Q path (issue 14 item 2).
+"""The coherent receiver's I/Q imbalance (lidard.dsp.ranging.iqbalance) and the frame DSP's I/Q path (issue 14 item 2).
 
 Physics checked against formulas: a hybrid with gain ratio g and quadrature error eps puts an image
 of every tone at the mirror frequency with power |1 - c|^2 / |1 + c|^2 (c = g e^{j eps}) of the tone;
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.iqbalance import correct, estimate_imbalance, image_rejection_db, mirror_images
-from lidard.dsp.window import DspInputError
+from lidard.dsp.ranging.iqbalance import correct, estimate_imbalance, image_rejection_db, mirror_images
+from lidard.dsp.spectrum.window import DspInputError
 
 C = 299_792_458.0
 GAMMA, FS, R, LAM = 1.075e14, 40e6, 4000, 1.55e-6

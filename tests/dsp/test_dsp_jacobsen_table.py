@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidard.dsp import estimators as est
+from lidard.dsp.ranging import estimators as est
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.window import WINDOW_NAMES, get_window
+from lidard.dsp.spectrum.window import WINDOW_NAMES, get_window
 
 
 def _direct_r(window: str, n: int, zero_pad: int, delta: np.ndarray) -> np.ndarray:

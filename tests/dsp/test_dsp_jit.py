@@ -1,11 +1,12 @@
-"""The optional compiled kernels (lidard.dsp.jit, issue 18) give the numpy path's results bit for bit."""
+"""The optional compiled kernels (lidard.dsp.spectrum.jit, issue 18) give the numpy path's results bit for bit."""
 
 import numpy as np
 import pytest
 
-from lidard.dsp import cfar, jit
+from lidard.dsp.detect import cfar
+from lidard.dsp.spectrum import jit
 from lidard.dsp.chain import measure_peaks
-from lidard.dsp.rangefft import RangeFFT
+from lidard.dsp.spectrum.rangefft import RangeFFT
 
 pytestmark = pytest.mark.skipif(jit._compiled() is None, reason="numba is not installed")
 

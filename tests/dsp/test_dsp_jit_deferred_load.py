@@ -1,4 +1,4 @@
-"""numba is loaded only once the DSP has asked for LOAD_AFTER_CELLS spectrum cells (lidard.dsp.jit):
+"""numba is loaded only once the DSP has asked for LOAD_AFTER_CELLS spectrum cells (lidard.dsp.spectrum.jit):
 a small job keeps the numpy path (the same values, tests/dsp/test_dsp_jit.py) and never pays the load."""
 
 import json
@@ -10,8 +10,8 @@ import pytest
 _PROBE = """
 import json, sys
 import numpy as np
-from lidard.dsp import jit
-from lidard.dsp.cfar import cfar_detect
+from lidard.dsp.spectrum import jit
+from lidard.dsp.detect.cfar import cfar_detect
 p = np.random.default_rng(1).exponential(size=(64, 512))
 p[:, 100] += 1e3
 small = cfar_detect(p, method="os", pfa=1e-6)          # 32 k cells: numpy

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import scipy.signal as ss
 
-from lidard.dsp.instfreq import hilbert
-from lidard.dsp.window import DspInputError, get_window
+from lidard.dsp.spectrum.instfreq import hilbert
+from lidard.dsp.spectrum.window import DspInputError, get_window
 
 SCIPY = {"rectangular": "boxcar", "hann": "hann", "blackmanharris": "blackmanharris"}
 

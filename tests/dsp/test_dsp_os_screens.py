@@ -1,5 +1,5 @@
 """OS-CFAR's screens (issue 18) are necessary conditions of the exact test: the detector's cells, with
-the compiled block screen (lidard.dsp.jit_kernels) and with the numpy screens (cfar_os._os_screened),
+the compiled block screen (lidard.dsp.spectrum._kernels) and with the numpy screens (os_cfar._os_screened),
 are those of a brute-force OS-CFAR that sorts every cell's reference cells (§2.4: the k-th smallest
 of N, alpha for the design Pfa), on spectra made to trip a screen that dropped a passing cell:
 targets at the edges and at every offset within a block, next to strong clutter, equal powers,
@@ -8,7 +8,9 @@ all-zero and constant rows, a spectrum full of peaks, tiny and huge powers."""
 import numpy as np
 import pytest
 
-from lidard.dsp import cfar, cfar_os, jit
+from lidard.dsp.detect import cfar
+from lidard.dsp.detect import os_cfar
+from lidard.dsp.spectrum import jit
 
 _needs_numba = pytest.mark.skipif(jit._compiled() is None, reason="numba is not installed")
 
@@ -16,7 +18,7 @@ _needs_numba = pytest.mark.skipif(jit._compiled() is None, reason="numba is not 
 def _brute_force(p, n_side, guard, pfa, rank, floor_factor=1e-20):
     """(rows, bins, noise) of the local maxima above alpha x the k-th smallest of their 2 n_side
     reference cells (guards skipped, numpy's "reflect" at the edges) and above the floor."""
-    k, mean_kth, scaled_alpha, _ = cfar_os._os_constants(n_side, pfa, rank)
+    k, mean_kth, scaled_alpha, _ = os_cfar._os_constants(n_side, pfa, rank)
     reach = guard + n_side
     pp = np.pad(p, [(0, 0), (reach, reach)], mode="reflect")
     win = np.lib.stride_tricks.sliding_window_view(pp, 2 * reach + 1, axis=-1)
@@ -67,7 +69,7 @@ CASES = ["noise", "targets at every offset", "edges", "next to clutter", "equal 
 
 @pytest.fixture(params=[False, pytest.param(True, marks=_needs_numba)], ids=["numpy", "compiled"])
 def kern(request, monkeypatch):
-    """The compiled kernels, or None with them turned off (the numpy screens, cfar_os._os_screened)."""
+    """The compiled kernels, or None with them turned off (the numpy screens, os_cfar._os_screened)."""
     if not request.param:
         monkeypatch.setenv("LIDARD_DSP_JIT", "0")
     return jit.kernels()
@@ -92,7 +94,7 @@ def test_the_screens_keep_cells_just_over_the_threshold_and_the_floor(kern):
     # k-th smallest reference (a flat floor), or a hair above 1e-20 of the row's strongest cell
     n = 70
     for n_side, guard, rank, pfa in ((8, 2, None, 1e-6), (4, 1, 6, 1e-3)):
-        k, mean_kth, scaled_alpha, _ = cfar_os._os_constants(n_side, pfa, rank)
+        k, mean_kth, scaled_alpha, _ = os_cfar._os_constants(n_side, pfa, rank)
         rows = []
         for f in (1 - 1e-7, 1 - 1e-15, 1 + 1e-15, 1 + 1e-7):
             flat = np.full((n, n), f * mean_kth / scaled_alpha)     # alpha x floor = f x the target

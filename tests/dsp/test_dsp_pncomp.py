@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from lidard.dsp.pncomp import compensated_spectrum, mzi_phase_noise
+from lidard.dsp.phasenoise.compensate import compensated_spectrum, mzi_phase_noise
 
 FS = 1e9
 RAMP_S = 20e-6

@@ -1,4 +1,4 @@
-"""Phase-noise compensation at any range from a quadrature monitor MZI (lidard.dsp.pnrecon; §2.3, issue 15).
+"""Phase-noise compensation at any range from a quadrature monitor MZI (lidard.dsp.phasenoise.reconstruct; §2.3, issue 15).
 
 Signals built here from the definitions (a Wiener laser phase with Var[phi(t) - phi(t - tau)] = 2 pi
 linewidth tau, eq. 2-9; a beat at the TRUE, fractional round trip; the monitor's I = cos and Q = sin of
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.pncomp import compensated_spectrum
-from lidard.dsp.pnrecon import quadrature_delta, reconstruct_phase, whole_delay_samples
-from lidard.dsp.window import DspInputError
+from lidard.dsp.phasenoise.compensate import compensated_spectrum
+from lidard.dsp.phasenoise.reconstruct import quadrature_delta, reconstruct_phase, whole_delay_samples
+from lidard.dsp.spectrum.window import DspInputError
 
 C = 299_792_458.0
 FS = 1e9

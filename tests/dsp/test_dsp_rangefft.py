@@ -5,8 +5,8 @@ import warnings
 import numpy as np
 import pytest
 
-from lidard.dsp.rangefft import C_M_PER_S, RangeFFT, check_samples
-from lidard.dsp.window import DspInputError
+from lidard.dsp.spectrum.rangefft import C_M_PER_S, RangeFFT, check_samples
+from lidard.dsp.spectrum.window import DspInputError
 
 # Table 2-2: 10 GHz excursion in 80 us -> gamma = 1.25e14 Hz/s; a 50 m target beats at 41.7 MHz.
 GAMMA = 10e9 / 80e-6

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from lidard.dsp.crlb import crlb_freq_var, crlb_tones_freq_var
-from lidard.dsp.estimators import estimate
+from lidard.dsp.ranging.crlb import crlb_freq_var, crlb_tones_freq_var
+from lidard.dsp.ranging.estimators import estimate
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.gate import PointFlag
-from lidard.dsp.rangefft import C_M_PER_S, RangeFFT
+from lidard.dsp.detect.gate import PointFlag
+from lidard.dsp.spectrum.rangefft import C_M_PER_S, RangeFFT
 from lidard.dsp.ranging.lines import lines, render
 from lidard.dsp.ranging.order import cell_noise, median_last, order_statistic, unresolved
 from lidard.dsp.ranging.tones import refine_joint

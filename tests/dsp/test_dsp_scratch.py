@@ -1,4 +1,4 @@
-"""Per-thread scratch buffers (lidard.dsp.scratch) and the DSP paths that write into them."""
+"""Per-thread scratch buffers (lidard.dsp.spectrum.scratch) and the DSP paths that write into them."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import threading
 import numpy as np
 import pytest
 
-from lidard.dsp import rangefft
-from lidard.dsp import scratch as scratch_mod
+from lidard.dsp.spectrum import rangefft
+from lidard.dsp.spectrum import scratch as scratch_mod
 from lidard.dsp.chain import measure_peaks
-from lidard.dsp.rangefft import RangeFFT
-from lidard.dsp.scratch import scratch
-from lidard.dsp.window import DspInputError
+from lidard.dsp.spectrum.rangefft import RangeFFT
+from lidard.dsp.spectrum.scratch import scratch
+from lidard.dsp.spectrum.window import DspInputError
 
 
 def test_same_tag_reuses_memory_other_tags_and_threads_do_not():

@@ -1,12 +1,12 @@
-"""Three-segment pairing (lidard.dsp.threeseg): real-receiver magnitudes built from the physics
+"""Three-segment pairing (lidard.dsp.ranging.threeseg): real-receiver magnitudes built from the physics
 (up |f_R - f_D|, down |f_R + f_D|, CW |f_D|, f_D = -2 v / lambda), both regimes, several returns."""
 
 import numpy as np
 import pytest
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.rangefft import C_M_PER_S
-from lidard.dsp.threeseg import pair_three
+from lidard.dsp.spectrum.rangefft import C_M_PER_S
+from lidard.dsp.ranging.threeseg import pair_three
 
 WL = 1.55e-6
 KAPPA = 8.6e9 / 80e-6
@@ -113,7 +113,7 @@ def test_frame_dsp_three_segment_sub_bin(range_m, v):
 
 def test_cw_window_is_fft_friendly_and_ends_with_the_record():
     # the CW FFT's length: the largest even 2-3-5-smooth size that skips at least the first quarter
-    from lidard.dsp.threeseg import CW_SKIP_FRACTION, _smooth_at_most, cw_window
+    from lidard.dsp.ranging.threeseg import CW_SKIP_FRACTION, _smooth_at_most, cw_window
 
     def smooth(m):
         for p in (2, 3, 5):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lidard.dsp.threeseg import _RangeMax, _range_max_table, cw_band_power
+from lidard.dsp.ranging.threeseg import _RangeMax, _range_max_table, cw_band_power
 
 
 def test_shared_table_levels_are_the_full_tables_levels():

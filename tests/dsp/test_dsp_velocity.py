@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from lidard.dsp.estimators import estimate
-from lidard.dsp.rangefft import C_M_PER_S, RangeFFT
-from lidard.dsp.velocity import pair_up_down
-from lidard.dsp.window import DspInputError
+from lidard.dsp.ranging.estimators import estimate
+from lidard.dsp.spectrum.rangefft import C_M_PER_S, RangeFFT
+from lidard.dsp.ranging.velocity import pair_up_down
+from lidard.dsp.spectrum.window import DspInputError
 
 GAMMA = 1.25e14  # Table 2-2: 10 GHz in 80 us
 LAM = 1550e-9

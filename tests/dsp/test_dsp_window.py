@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lidard.dsp.window import DspInputError, get_window, window_info
+from lidard.dsp.spectrum.window import DspInputError, get_window, window_info
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,4 @@
-"""What the CFAR detector does with its detections, split from :mod:`lidard.dsp.cfar` (which re-exports
+"""What the CFAR detector does with its detections, split from :mod:`lidard.dsp.detect.cfar` (which re-exports
 these names): the strongest ``max_detections`` per ramp, their -6 dB widths (the resolution test of
 §2.4: two targets closer than the window's main lobe merge into one wider peak) and the harmonic
 ghosts of clipping (a detection at ~2x/3x the frequency of a much stronger one).
@@ -15,8 +15,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from lidard.dsp import jit
-from lidard.dsp.window import get_window
+from lidard.dsp.spectrum import jit
+from lidard.dsp.spectrum.window import get_window
 
 
 def _width_6db(p: np.ndarray, idx: np.ndarray, max_half: int, rows: np.ndarray | None = None,
@@ -41,7 +41,7 @@ def _widths_flat(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, m
 
     Step by step outwards, only for the peaks whose side has not crossed yet (most cross within two
     or three bins): the same values as reading all ``max_half`` offsets of every peak at once. With
-    the compiled kernels (:mod:`lidard.dsp.jit`) peak by peak, the same operations in the same order."""
+    the compiled kernels (:mod:`lidard.dsp.spectrum.jit`) peak by peak, the same operations in the same order."""
     kern = jit.kernels(col.size)
     if kern is not None:
         return jit.widths_6db(flat, start, col, n, max_half, kern)

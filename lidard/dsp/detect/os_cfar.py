@@ -1,4 +1,4 @@
-"""OS-CFAR's noise statistic, split from :mod:`lidard.dsp.cfar` (which re-exports these names).
+"""OS-CFAR's noise statistic, split from :mod:`lidard.dsp.detect.cfar` (which re-exports these names).
 
 Ordered statistic (Rohling 1983): the noise of a cell is the k-th smallest of its N reference cells;
 alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential noise (§2.4: detection
@@ -7,7 +7,7 @@ that could pass the threshold (:func:`_os_screened`: screens that are necessary 
 the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
 every bin (exactly, or a lower bound where nothing can pass). Pure numpy;
 :func:`_os_detected`, the detector's entry, takes the compiled pass instead when numba is installed
-(:mod:`lidard.dsp.jit`: the same cells, bit for bit, with the value check and the threshold test in it).
+(:mod:`lidard.dsp.spectrum.jit`: the same cells, bit for bit, with the value check and the threshold test in it).
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from lidard.dsp import jit
-from lidard.dsp.window import DspInputError
+from lidard.dsp.spectrum import jit
+from lidard.dsp.spectrum.window import DspInputError
 
 
 def os_cfar_pfa(alpha: float, n_ref: int, k: int) -> float:
@@ -112,7 +112,7 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
         raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
     k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank)
     kern = jit.kernels(p.size)
-    if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.jit)
+    if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.spectrum.jit)
         return jit.os_screen(p, n_ref_side, n_guard, k, thr_factor, mean_kth, kern) + (scaled_alpha,)
     n_blocks = -(-n // _OS_BLOCK)
     pp = _mirror_padded(p, reach, n_blocks * _OS_BLOCK - n + reach)
@@ -154,7 +154,7 @@ def _os_detected(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
     """(r, c, noise) of the cells of ``p`` (rows, n) OS-CFAR detects, row-major: the local maxima with
     p > scaled_alpha * noise, noise > 0 and p > ``floor_factor`` times the row's largest cell.
 
-    ``kern`` (:func:`lidard.dsp.jit.kernels`): in one compiled pass that also checks the values (None
+    ``kern`` (:func:`lidard.dsp.spectrum.jit.kernels`): in one compiled pass that also checks the values (None
     if one is NaN, infinite or negative); None: :func:`_os_screened` and the test in numpy."""
     if kern is not None:
         if p.shape[-1] <= n_guard + n_ref_side:

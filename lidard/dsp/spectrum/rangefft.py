@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lidard.dsp.jit import power
-from lidard.dsp.scratch import scratch
-from lidard.dsp.window import DspInputError, WindowInfo, WindowName, check_window_name, get_window, window_info
+from lidard.dsp.spectrum.jit import power
+from lidard.dsp.spectrum.scratch import scratch
+from lidard.dsp.spectrum.window import DspInputError, WindowInfo, WindowName, check_window_name, get_window, window_info
 
 C_M_PER_S = 299_792_458.0
 
@@ -66,7 +66,7 @@ def windowed_fft(x: np.ndarray, window: np.ndarray, n_fft: int, layout: str,
     positive bins 0..n_fft/2 only: the rfft grid). Unscaled: the callers own the amplitude convention
     (a window may carry the scale). ``out``: a C-contiguous complex128 array of the spectrum's shape to
     write it into (a caller's scratch buffer); ``power_out``: the same for |X|^2 (float64), computed
-    with the spectrum (:func:`lidard.dsp.jit.power`'s values).
+    with the spectrum (:func:`lidard.dsp.spectrum.jit.power`'s values).
 
     The ramps go through in chunks of :data:`_CHUNK_BYTES`: a chunk's windowed
     product is still in cache when its FFT reads it, and its spectrum when its power is taken, where
@@ -243,7 +243,7 @@ class RangeFFT:
         """Complex spectrum of a batch of ramps ``x[..., n_samples]`` (layout: module docstring).
 
         ``out``: a C-contiguous complex128 array of the spectrum's shape to write it into (a caller's
-        scratch buffer, :mod:`lidard.dsp.scratch`)."""
+        scratch buffer, :mod:`lidard.dsp.spectrum.scratch`)."""
         return self.spectrum_of(check_samples(x, self.n_samples), out, power_out)
 
     def spectrum_of(self, a: np.ndarray, out: np.ndarray | None = None,

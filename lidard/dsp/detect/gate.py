@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from ..physics.decimation import DecimationFilter
+from ...physics.decimation import DecimationFilter
 
 #: an alias's measured amplitude may exceed the ceiling by the noise on it: 6 dB of margin
 ALIAS_MARGIN = 2.0

@@ -32,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from lidard.dsp.rangefft import C_M_PER_S
+from lidard.dsp.spectrum.rangefft import C_M_PER_S
 from lidard.dsp.ranging.assign import best_matching, pair_loglik, tie_llr
-from lidard.dsp.window import DspInputError
+from lidard.dsp.spectrum.window import DspInputError
 
 
 def _as_2d(a: object, name: str, dtype) -> np.ndarray:

@@ -26,7 +26,7 @@ from math import comb, factorial
 
 import numpy as np
 
-from lidard.dsp.window import get_window
+from lidard.dsp.spectrum.window import get_window
 
 _CHUNK_ROWS = 4096  # bounds the (rows x N) temporaries of the moment computation
 _GEMM_BLOCK_MNK = 500_000   # rows x columns x inner length of one BLAS call of _small_gemm (below)

@@ -1,11 +1,11 @@
 """ILC measurement: one averaged monitor-MZI record turned into chirp errors (dissertation §2.2, Fig. 2-3).
 
-The measurement half of :mod:`lidard.dsp.ilc`: band-pass and Hilbert-demodulate each ramp of the
-averaged beat into the drive-frame optical frequency (:mod:`lidard.dsp.instfreq`), refine it
+The measurement half of :mod:`lidard.dsp.linearize.ilc`: band-pass and Hilbert-demodulate each ramp of the
+averaged beat into the drive-frame optical frequency (:mod:`lidard.dsp.spectrum.instfreq`), refine it
 narrow-band (short-time-spectrum ridge + complex low pass), undo the fold a late optical turning point
 leaves in a real beat, and compare with the ideal linear chirp over the region of interest: RMS
 nonlinearity, RMS error, the model-free noise floor (two halves of the averages), the tuning magnitude
-and the error resampled onto the drive grid for the update (:mod:`lidard.dsp.ilcupdate`).
+and the error resampled onto the drive grid for the update (:mod:`lidard.dsp.linearize._update`).
 
 Pure numpy/scipy: no I/O, no clock, no logging.
 """
@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from .ilcquad import quadrature_ramp_nu
-from .instfreq import best_fit_residual, fft_filter, hilbert, lowpass_padded, ramp_frequency
+from .quadrature import quadrature_ramp_nu
+from ..spectrum.instfreq import best_fit_residual, fft_filter, hilbert, lowpass_padded, ramp_frequency
 
 # narrow-band refinement of the MZI phase (see _Analyzer._refine)
 _RIDGE_WINDOW_S = 2e-6
@@ -148,7 +148,7 @@ class _Analyzer:
     def _records_nu(self, y: np.ndarray):
         """Per ramp (t, drive-frame nu, slips) of a set of records: a real fringe is averaged coherently
         then demodulated; a quadrature one (complex I + jQ) is demodulated per record and its phases
-        averaged (:mod:`lidard.dsp.ilcquad`)."""
+        averaged (:mod:`lidard.dsp.linearize.quadrature`)."""
         if np.iscomplexobj(y):
             return quadrature_ramp_nu(y, fs_hz=self.fs_a, ramp_s=self.T, mzi_delay_s=self.tau_m,
                                       edge_s=self.edge_s, directions=self.directions,

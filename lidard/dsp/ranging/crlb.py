@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidard.dsp.window import DspInputError
+from lidard.dsp.spectrum.window import DspInputError
 
 
 def _check(snr: object, n: int, name: str) -> np.ndarray:

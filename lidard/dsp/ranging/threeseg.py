@@ -45,11 +45,11 @@ from typing import Any
 import numpy as np
 
 from .cwhold import HoldProfile, resolve_boundary
-from .gate import aliased, point_flags
-from .rangefft import C_M_PER_S, RangeFFT
-from .ranging.assign import best_matching, line_snr, pair_loglik, tie_llr
-from .ranging.order import chi2_isf
-from .ranging.order import median_last as _median_last
+from ..detect.gate import aliased, point_flags
+from ..spectrum.rangefft import C_M_PER_S, RangeFFT
+from .assign import best_matching, line_snr, pair_loglik, tie_llr
+from .order import chi2_isf
+from .order import median_last as _median_last
 
 #: the held segment's frequency still relaxes (the DFB's thermal terms, ~20 us): over the CW window its
 #: slope is taken to lie within RHO_MAX x the ramps' rate (the default DFB after the skip: -9 % .. -1 %,
@@ -57,7 +57,7 @@ from .ranging.order import median_last as _median_last
 RHO_MAX = 0.12
 #: the CW segment starts this far in: the fastest part of the relaxation is skipped
 CW_SKIP_FRACTION = 0.25
-#: with the drift measured and taken out (lidard.dsp.cwhold) only the hold's first 1.6 us are
+#: with the drift measured and taken out (lidard.dsp.ranging.cwhold) only the hold's first 1.6 us are
 #: skipped (the AWG's settling into the hold): a longer window, a finer |f_D| (~T^-1.5)
 DECHIRP_SKIP_FRACTION = 0.02
 
@@ -147,7 +147,7 @@ def _regime_line(table, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band, re
 def drift_band(f_r, f_d, rho):
     """(centre, half width) of |f_R rho(t) - f_D| over the CW window: the band a return's CW beat
     occupies when the held segment's drift rate, relative to the ramps', spans ``rho`` = (lo, hi)
-    (measured: lidard.dsp.cwhold; f_D signed, the bench's convention)."""
+    (measured: lidard.dsp.ranging.cwhold; f_D signed, the bench's convention)."""
     e1, e2 = f_r * rho[0] - f_d, f_r * rho[1] - f_d
     top = np.maximum(np.abs(e1), np.abs(e2))
     bottom = np.where(e1 * e2 > 0, np.minimum(np.abs(e1), np.abs(e2)), 0.0)
@@ -285,7 +285,7 @@ def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarra
                                              wavelength_m=dsp.wavelength_m, guard_bins=CW_GUARD_BINS, max_targets=k,
                                              rho=dsp.drift_rho, snr=[a.reshape(-1, k) for a in line_snr(du, dd)],
                                              records=x.shape[1], cw_pfa=dsp.ramp_pfa, tie_level=dsp.order_level)
-    if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
+    if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.ranging.cwhold)
         resolve_boundary(dsp, x, profile, flat, vflat,
                          (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,
                          cw_window=cw_window(dsp, DECHIRP_SKIP_FRACTION))
@@ -300,7 +300,7 @@ def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarra
     unres = ((np.take_along_axis(du.unresolved.reshape(-1, k), np.maximum(iu, 0), axis=1) & (iu >= 0))
              | (np.take_along_axis(dd.unresolved.reshape(-1, k), np.maximum(idn, 0), axis=1) & (idn >= 0)))
     intensity = 2.0 * np.sqrt(pick(du.power, dd.power))
-    # no stronger than what the decimation filter lets through from beyond the gate (lidard.dsp.gate)
+    # no stronger than what the decimation filter lets through from beyond the gate (lidard.dsp.detect.gate)
     leak = seen & aliased(intensity, dsp.alias_ceiling_v)
     flagged = harmonic | unres | leak
     in_gate = (rng >= dsp.min_range_m) & (rng <= dsp.max_range_m * 1.05)

@@ -38,14 +38,14 @@ from typing import Literal, get_args
 
 import numpy as np
 
-from lidard.dsp import jit
-from lidard.dsp.cfar_os import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
+from lidard.dsp.spectrum import jit
+from lidard.dsp.detect.os_cfar import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
     _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, os_cfar_alpha, os_cfar_pfa,
 )
-from lidard.dsp.cfar_post import (  # noqa: F401  (re-exported: tests' reach)
+from lidard.dsp.detect._post import (  # noqa: F401  (re-exported: tests' reach)
     _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db,
 )
-from lidard.dsp.window import DspInputError, WindowName, check_window_name, window_info
+from lidard.dsp.spectrum.window import DspInputError, WindowName, check_window_name, window_info
 
 
 CfarMethod = Literal["ca", "os"]
@@ -257,7 +257,7 @@ def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_p
                 sidelobe_margin_db, kern) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate:
     (rows, bins, noise) of each, row-major (a few per ramp: the detector never builds a dense map).
-    ``kern``: the compiled kernels for OS-CFAR (:mod:`lidard.dsp.jit`), or None (numpy)."""
+    ``kern``: the compiled kernels for OS-CFAR (:mod:`lidard.dsp.spectrum.jit`), or None (numpy)."""
     n_bins = p2.shape[-1]
     if method == "ca":
         floor = _FLOOR * p2.max(axis=-1)
@@ -270,7 +270,7 @@ def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_p
         cand[:, :-1] &= p2[:, :-1] > p2[:, 1:]
         r, c = np.nonzero(cand)
         nz = noise[r, c]
-    else:   # OS: only the local maxima that may pass were given the exact statistic (cfar_os)
+    else:   # OS: only the local maxima that may pass were given the exact statistic (os_cfar)
         found = _os_detected(p2, n_ref_side, n_guard, pfa, os_rank, _FLOOR, kern)
         if found is None:   # the compiled pass met a NaN, infinite or negative value: name it
             _check_power_values(p2)

@@ -1,7 +1,7 @@
 """Laser phase phi(t) reconstructed from the monitor MZI, for compensation at ANY range (§2.3).
 
 The monitor MZI (delay tau_m = D samples) gives ``delta(t) = phi(t) - phi(t - tau_m)``. Summing D-spaced
-copies (:mod:`lidard.dsp.pncomp`) compensates a target only at round trips ``M tau_m``; between two
+copies (:mod:`lidard.dsp.phasenoise.compensate`) compensates a target only at round trips ``M tau_m``; between two
 multiples the residual ``phi(t - M tau_m) - phi(t - tau)`` stays (5.7 dB mean loss at 200 m for
 tau_c = 0.1 us). Here phi itself is rebuilt on the sample grid, so that any round trip tau is
 compensated by ``phi(t) - phi(t - tau)`` (one delayed copy, linear interpolation between samples):
@@ -32,12 +32,12 @@ import math
 
 import numpy as np
 
-from .window import DspInputError
+from ..spectrum.window import DspInputError
 
 
 def quadrature_delta(mzi_i: np.ndarray, mzi_q: np.ndarray, *, fs_hz: float, beat_hz: float) -> np.ndarray:
     """delta(t) (rad, unwrapped, last axis) of a quadrature monitor: angle of (I + jQ) mixed down by the
-    nominal fringe frequency ``beat_hz`` = gamma tau_m (the known chirp rate, see pncomp for why not a
+    nominal fringe frequency ``beat_hz`` = gamma tau_m (the known chirp rate, see compensate for why not a
     measured one). No filter: every sample is one phase measurement."""
     i = np.asarray(mzi_i, dtype=np.float64)
     q = np.asarray(mzi_q, dtype=np.float64)

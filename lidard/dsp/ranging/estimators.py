@@ -39,11 +39,11 @@ from typing import Literal, get_args
 
 import numpy as np
 
-from lidard.dsp.dtft import (  # noqa: F401  (_dirichlet, _small_gemm: tests reach in)
+from lidard.dsp.spectrum.dtft import (  # noqa: F401  (_dirichlet, _small_gemm: tests reach in)
     _DtftNearBin, _dirichlet, _jacobsen_ratio, _jacobsen_table, _safe_ratio, _small_gemm, _terms_for,
 )
-from lidard.dsp.rangefft import check_samples, gather_bins, windowed_fft
-from lidard.dsp.window import DspInputError, WindowName, check_window_name, get_window
+from lidard.dsp.spectrum.rangefft import check_samples, gather_bins, windowed_fft
+from lidard.dsp.spectrum.window import DspInputError, WindowName, check_window_name, get_window
 
 EstimatorName = Literal["argmax", "parabolic", "jacobsen", "quinn2", "aboutanios", "newton"]
 ESTIMATOR_NAMES: tuple[str, ...] = get_args(EstimatorName)

@@ -4,7 +4,7 @@
 iteration by :func:`fit_fm_response` (a generic bank of first-order low passes, no laser model), or
 ``u_k + beta e_k / K`` (``update="scalar"``); Q is a zero-phase FFT low pass over the periodic drive.
 :func:`propose_drive` also enforces the peak-drive cap: a step beyond it is retried once at half the
-gain with the scalar law and otherwise never sent. Used by :func:`lidard.dsp.ilc.linearize`.
+gain with the scalar law and otherwise never sent. Used by :func:`lidard.dsp.linearize.ilc.linearize`.
 
 Pure numpy: no I/O, no clock, no logging.
 """
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .instfreq import fft_filter
+from ..spectrum.instfreq import fft_filter
 
 # inverse-response update (see fit_fm_response): a generic first-order basis, log-spaced
 _BASIS_TAUS_S = (10e-9, 30e-9, 100e-9, 300e-9, 1e-6, 3e-6, 10e-6, 30e-6, 100e-6, 300e-6, 1e-3, 3e-3)

@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .instfreq import check_finite_array, check_positive, hilbert
-from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
-from .window import get_window
+from ..spectrum.instfreq import check_finite_array, check_positive, hilbert
+from .reconstruct import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
+from ..spectrum.window import get_window
 
 
 
@@ -169,7 +169,7 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
     """Phase-noise compensated spectrum of one ramp of a LiDAR beat (real, 1-D) using the monitor MZI.
 
     ``mzi_q``: the quadrature output of the same MZI (sin where ``mzi`` is cos): the laser phase is then
-    rebuilt sample by sample (:mod:`lidard.dsp.pnrecon`) and every bin is compensated at its own round
+    rebuilt sample by sample (:mod:`lidard.dsp.phasenoise.reconstruct`) and every bin is compensated at its own round
     trip, rounded to ``tau_step_s`` (default tau_m / 16); ``m_of_bin`` then counts steps, not tau_m.
     Needs ``chirp_rate_hz_per_s``. Without ``mzi_q``: the nearest multiple M of tau_m (exact only there).
 

@@ -1,7 +1,7 @@
 """Chirp linearization by iterative learning pre-distortion of the laser drive (dissertation §2.2).
 
 Procedure (Fig. 2-3): send a drive period, record the monitor-MZI beat, turn it into the optical
-frequency (Hilbert transform, :mod:`lidard.dsp.instfreq`), compare with the *ideal* linear chirp
+frequency (Hilbert transform, :mod:`lidard.dsp.spectrum.instfreq`), compare with the *ideal* linear chirp
 (target slope excursion / ramp and free offset) over the learning region of each ramp, and update
 
     u_{k+1} = Q[ u_k + beta F^-1{ E_k(f) / H(f) } ]
@@ -23,7 +23,7 @@ beyond ``max_drive_v`` (the AWG's output range, given by the instrument), is nev
 
 Model-free: the learner only sees the drive it sends and the MZI samples it gets back, through
 ``measure(drive_v, n_avg) -> (n_avg, n)``; it never touches a laser model. It needs no sign of the
-tuning either: the frequency is estimated in the drive frame (see :mod:`lidard.dsp.instfreq`), in
+tuning either: the frequency is estimated in the drive frame (see :mod:`lidard.dsp.spectrum.instfreq`), in
 which the plant gain is positive on both ramps, so ``K`` (returned as ``tuning_hz_per_v``) is the
 *magnitude* of the tuning slope; an intensity MZI cannot observe its sign.
 
@@ -43,7 +43,7 @@ previous best drive is restored and beta halved (back off instead of diverging).
 ``sim_devices.world.laser.triangle_drive`` the first half is the optical up-chirp).
 
 Rooms: the measurement (demodulation, refinement, unfolding, errors) is
-:mod:`lidard.dsp.ilcmeasure`; the response fit and the update law :mod:`lidard.dsp.ilcupdate`; this
+:mod:`lidard.dsp.linearize._measure`; the response fit and the update law :mod:`lidard.dsp.linearize._update`; this
 module is the iteration driver (:func:`linearize`), whose state between measurements is one explicit
 :class:`_IlcState`. :func:`linearize` is about 70 lines with its docstring: argument checks and
 the loop (judge, record, converged?, step, measure), each step a function below.
@@ -60,9 +60,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .ilcmeasure import _Analysis, _Analyzer, _directions
-from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
-from .instfreq import check_finite_array, check_positive
+from ._measure import _Analysis, _Analyzer, _directions
+from ._update import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
+from ..spectrum.instfreq import check_finite_array, check_positive
 
 
 MeasureFn = Callable[[np.ndarray, int], np.ndarray]
@@ -311,7 +311,7 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
     returns ``n_avg`` recorded periods of the monitor-MZI beat, shape ``(n_avg, 2 ramp_s fs_adc_hz)``,
     each aligned with the start of the drive period: real (one photodiode), or complex I + jQ for a
-    quadrature monitor (``[monitor] quadrature``; phases averaged, see :mod:`lidard.dsp.ilcquad`). Stops when the nonlinearity reaches twice the
+    quadrature monitor (``[monitor] quadrature``; phases averaged, see :mod:`lidard.dsp.linearize.quadrature`). Stops when the nonlinearity reaches twice the
     measured noise floor or stops improving by ``rel_tol``; a step whose error grows by more than
     ``grow_tol`` is rolled back and beta halved. Returns the best drive seen.
 

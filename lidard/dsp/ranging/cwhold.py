@@ -3,7 +3,7 @@
 The three-segment chirp's constant-frequency (CW) segment is held, not linearized: a DFB's thermal
 terms keep relaxing after the drive stops, so the optical frequency drifts by some 650 MHz over the
 hold (the sim's default laser). A return of round trip tau then beats at |tau nu'(t) - f_D| there,
-spread over many bins (lidard.dsp.threeseg), which is enough to choose between the two regimes of a
+spread over many bins (lidard.dsp.ranging.threeseg), which is enough to choose between the two regimes of a
 real receiver except where they meet (|f_D| ~ f_R), where their predictions of |f_D| differ by less
 than the spread. There one ramp beat sits near DC and both readings agree on the sign; what is missing
 is |f_D| precisely, for R = c (max(f_up, f_dn) - f_cw) / (2 kappa).
@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from .instfreq import analytic_phase
-from .rangefft import C_M_PER_S
-from .window import get_window
+from ..spectrum.instfreq import analytic_phase
+from ..spectrum.rangefft import C_M_PER_S
+from ..spectrum.window import get_window
 
 #: the stored profile's sample spacing (its drift is smooth: thermal time constants of >= ~5 us)
 PROFILE_DT_S = 1e-7
@@ -151,7 +151,7 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
     return best_f, np.maximum(best_p, 0.0), np.median(p, axis=1)
 
 
-# -- the frame DSP's use (lidard.dsp.threeseg.pair_frame_three) ---------------------------------------
+# -- the frame DSP's use (lidard.dsp.ranging.threeseg.pair_frame_three) ---------------------------------------
 #: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB: an exponential
 #: noise cell passes with probability exp(-20 ln 2) ~ 1e-6)
 PEAK_SNR = 20.0

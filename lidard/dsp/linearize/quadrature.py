@@ -1,16 +1,16 @@
 """Chirp measurement for the ILC from a quadrature monitor MZI (dissertation §2.2).
 
-The real MZI beat of :mod:`lidard.dsp.ilc` is averaged coherently over records before its phase is
+The real MZI beat of :mod:`lidard.dsp.linearize.ilc` is averaged coherently over records before its phase is
 taken: with a broad linewidth on a long MZI (tau_m = 2 tau_c for dfb_broad_linewidth) the averaged
 fringe shrinks by exp(-pi linewidth tau_m) (x0.14) while the noise does not, which sets the noise
 floor that stopped linearization at ~400x. A quadrature monitor (I + jQ, the same MZI read through a
-90-degree hybrid or 3x3 coupler, :mod:`lidard.dsp.pnrecon`) gives every record's phase directly:
+90-degree hybrid or 3x3 coupler, :mod:`lidard.dsp.phasenoise.reconstruct`) gives every record's phase directly:
 here the phases are averaged, not the fringes, so nothing shrinks and the laser's frequency noise
 falls as 1 / sqrt(records). The phase's sign is physical (no Hilbert fold at the turning points).
 
 The MZI phase is theta(t) = 2 pi int_{t - tau_m}^{t} nu = 2 pi tau_m nu(t) + const for the slow
 chirp nonlinearity the ILC learns, so nu = theta / (2 pi tau_m), expressed in the drive frame of
-:mod:`lidard.dsp.ilc` (multiplied by the sign of the tuning, so that the plant gain is positive).
+:mod:`lidard.dsp.linearize.ilc` (multiplied by the sign of the tuning, so that the plant gain is positive).
 
 Pure numpy: no I/O, no clock, no logging.
 """
@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from .instfreq import lowpass_padded
+from ..spectrum.instfreq import lowpass_padded
 
 
 def quadrature_ramp_nu(y: np.ndarray, *, fs_hz: float, ramp_s: float, mzi_delay_s: float, edge_s: float,

@@ -1,6 +1,6 @@
-"""The compiled kernels of :mod:`lidard.dsp.jit` (numba; imported by it on first use, only if numba is
+"""The compiled kernels of :mod:`lidard.dsp.spectrum.jit` (numba; imported by it on first use, only if numba is
 installed: importing this module compiles nothing but needs numba). The callers and the contract of
-each kernel are in :mod:`lidard.dsp.jit`; the numpy code each one stands in for is the reference
+each kernel are in :mod:`lidard.dsp.spectrum.jit`; the numpy code each one stands in for is the reference
 (tests/dsp/test_dsp_jit.py, tests/dsp/test_dsp_os_screens.py compare them bit for bit).
 
 OS-CFAR (§2.4's detection at a chosen false-alarm rate): a cell c passes when its power is
@@ -11,7 +11,7 @@ fails this count cannot pass. :func:`os_scan` applies the count first to a whole
 every window of the block): a necessary condition that most blocks of noise fail in about
 (OS_BLOCK + 2 reach) / OS_BLOCK compares per cell, where the per-cell count costs n_ref per local
 maximum. Only the local maxima of the blocks left are counted, and only those passing get the exact
-order statistic. Edges are mirrored (numpy's "reflect"), as in :func:`lidard.dsp.cfar_os._mirror_padded`.
+order statistic. Edges are mirrored (numpy's "reflect"), as in :func:`lidard.dsp.detect.os_cfar._mirror_padded`.
 """
 
 from __future__ import annotations
@@ -170,8 +170,8 @@ def _pass_cells(r, buf, q, maxima, plain, floor, cfg, out_r, out_c, out_noise, m
 @_jit
 def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor_factor, exact,
             out_r, out_c, out_noise):  # pragma: no cover
-    """OS-CFAR over the rows of ``p`` (``bits``: the same memory as int64), see :func:`lidard.dsp.jit.os_detect`
-    (``exact``) and :func:`lidard.dsp.jit.os_screen`. Returns the number of cells written, -1 if
+    """OS-CFAR over the rows of ``p`` (``bits``: the same memory as int64), see :func:`lidard.dsp.spectrum.jit.os_detect`
+    (``exact``) and :func:`lidard.dsp.spectrum.jit.os_screen`. Returns the number of cells written, -1 if
     they do not fit, -2 (``exact`` only) if ``p`` holds a NaN, an infinite or a negative value."""
     rows, n = p.shape
     reach = guard + n_side
@@ -205,7 +205,7 @@ def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor
 @_jit
 def widths_6db(flat, start, col, n, max_half, out):  # pragma: no cover
     """-6 dB full widths of the peaks at flat[start + col] (rows of ``n`` cells from ``start``), as
-    lidard.dsp.cfar_post._widths_flat computes them: per side the first of ``max_half`` cells out
+    lidard.dsp.detect._post._widths_flat computes them: per side the first of ``max_half`` cells out
     (the edge cell repeating) below a quarter of the peak, interpolated with the cell before it."""
     for i in range(col.size):
         peak = flat[start[i] + col[i]]

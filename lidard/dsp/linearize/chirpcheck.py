@@ -1,7 +1,7 @@
 """How far a drive's chirp is from the ideal linear chirp: the linearization health check's measure
 (dissertation §2.2, Fig. 2-3/2-4).
 
-One measurement of the ILC (:mod:`lidard.dsp.ilcmeasure`), without learning: the monitor-MZI records
+One measurement of the ILC (:mod:`lidard.dsp.linearize._measure`), without learning: the monitor-MZI records
 of the drive in use are demodulated into the drive-frame optical frequency, and each ramp is compared
 with the ideal chirp the ILC learns towards (slope ``excursion_hz / ramp_s``, free offset) over the
 region of interest. The RMS of that error is what the ILC drives down, so a freshly linearized drive
@@ -9,7 +9,7 @@ shows the ILC's final error (its measurement noise), and a laser whose response 
 (a TEC temperature step scales the FM response, a drift bends it) shows more. Besides the error, the
 nonlinearity (best-fit line removed, what Fig. 2-4 plots) separates a slope change from a shape change.
 
-Same analysis parameters as :func:`lidard.dsp.ilc.linearize` by default (ROI 0.8, learning region 0.92,
+Same analysis parameters as :func:`lidard.dsp.linearize.ilc.linearize` by default (ROI 0.8, learning region 0.92,
 400 kHz measurement low pass), so the figures compare with its iterations. Pure numpy/scipy.
 """
 
@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ilcmeasure import _directions
-from .ilcmeasure import _Analyzer
-from .instfreq import check_finite_array, check_positive
+from ._measure import _directions
+from ._measure import _Analyzer
+from ..spectrum.instfreq import check_finite_array, check_positive
 
 
 @dataclass(frozen=True)

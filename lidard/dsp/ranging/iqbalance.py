@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from .window import DspInputError, get_window
+from ..spectrum.window import DspInputError, get_window
 
 #: a tone must stand this far above its record's median bin power to enter the estimate (30 dB)
 MIN_TONE_SNR = 1e3
@@ -154,7 +154,7 @@ def estimate_imbalance(i: np.ndarray, q: np.ndarray, *, window: str = "hann",
 def ramp_volts(seg: np.ndarray, lsb_v: float, *, iq: bool, down: bool) -> np.ndarray:
     """One ramp's samples as the DSP takes them: float64 volts of a real beat; for an I/Q beat (the
     corrected complex I + jQ) complex volts, a down ramp conjugated so that it puts a static target at
-    the up ramp's +f_R (the sign convention of lidard.dsp.velocity)."""
+    the up ramp's +f_R (the sign convention of lidard.dsp.ranging.velocity)."""
     if not iq:
         return np.multiply(seg, lsb_v, dtype=np.float64)
     z = seg * lsb_v

@@ -5,9 +5,9 @@ Each kernel gives the same values, bit for bit, as the numpy code it stands in f
 tests/dsp/test_dsp_jit.py): the same IEEE operations in the same order, no fast-math, and order
 statistics are selections (the k-th smallest of a set is one of its elements whatever the method).
 They exist because numpy makes one pass over the whole array per operation: the OS-CFAR screen of
-:mod:`lidard.dsp.cfar_os` took about a dozen passes over every spectrum cell, here it is one, which
+:mod:`lidard.dsp.detect.os_cfar` took about a dozen passes over every spectrum cell, here it is one, which
 also checks the values and finds each ramp's strongest cell (the detector's floor). The kernels
-themselves are in :mod:`lidard.dsp.jit_kernels` (which imports numba); this module holds their callers.
+themselves are in :mod:`lidard.dsp.spectrum._kernels` (which imports numba); this module holds their callers.
 
 numba is imported on first use, never at import time (``lidarctl --help`` and a scan's imports stay
 fast), and only if it is installed (a dependency wherever numba publishes wheels: the
@@ -40,7 +40,7 @@ _asked = [0]        # cells asked for so far in this process (a count; races onl
 @lru_cache(maxsize=1)
 def _compiled() -> SimpleNamespace | None:
     try:
-        from lidard.dsp import jit_kernels     # needs numba
+        from lidard.dsp.spectrum import _kernels as jit_kernels  # needs numba
     except ImportError:
         return None
     return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db)
@@ -77,7 +77,7 @@ def power(spec: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
 
 def widths_6db(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, max_half: int,
                kern: SimpleNamespace) -> np.ndarray:
-    """lidard.dsp.cfar_post._widths_flat's -6 dB widths, one peak after another (no pass per offset)."""
+    """lidard.dsp.detect._post._widths_flat's -6 dB widths, one peak after another (no pass per offset)."""
     out = np.empty(col.shape)
     kern.widths_6db(np.ascontiguousarray(flat, dtype=np.float64), np.ascontiguousarray(start, dtype=np.int64),
                     np.ascontiguousarray(col, dtype=np.int64), n, max_half, out)
@@ -90,7 +90,7 @@ def os_screen(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_fac
     exact statistic (k-th smallest of the reference cells, mirrored at the edges, / ``mean_kth``).
 
     A local maximum c is kept when at least ``k_rank`` of its reference cells lie below
-    p[c] * ``thr_factor`` (a necessary condition of the detector's test, see cfar_os._os_screened)."""
+    p[c] * ``thr_factor`` (a necessary condition of the detector's test, see os_cfar._os_screened)."""
     return _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, 0.0, 0.0, False)
 
 
@@ -100,8 +100,8 @@ def os_detect(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_fac
     """(rows, bins, noise) of the cells of ``p`` (rows, n) that OS-CFAR detects, row-major: the local
     maxima with p > ``scaled_alpha`` * noise, noise > 0 and p > ``floor_factor`` times the row's
     largest cell, noise as in :func:`os_screen`; None if ``p`` holds a NaN, an infinite or a negative
-    value (the caller names it). cfar_os._os_screened's decisions and the detector's test in one pass
-    over the spectra, with a screen per block of cells first (lidard.dsp.jit_kernels)."""
+    value (the caller names it). os_cfar._os_screened's decisions and the detector's test in one pass
+    over the spectra, with a screen per block of cells first (lidard.dsp.spectrum._kernels)."""
     return _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, scaled_alpha, floor_factor, True)
 
 
