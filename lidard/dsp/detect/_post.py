@@ -6,7 +6,7 @@ ghosts of clipping (a detection at ~2x/3x the frequency of a much stronger one).
 Detections are few (about one per ramp in a frame), so each step works on the list of detected cells,
 not on (ramps x slots) arrays: a per-ramp sort only where a ramp has several, the width search only
 for the peaks whose crossing is not yet found, the harmonic test only on pairs of valid detections
-(the results are those of the dense forms, bit for bit, tested in tests/dsp/test_dsp_cfar_post.py).
+(the results are those of the dense forms, bit for bit, tested in tests/dsp/detect/test_dsp_cfar_post.py).
 """
 
 from __future__ import annotations

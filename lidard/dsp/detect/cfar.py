@@ -23,7 +23,7 @@ A detection is a cell above threshold that is also a local maximum.  Then:
 
 The default is OS-CFAR: CA-CFAR's mean is inflated by a second target a few bins away, which
 masks both (two targets 3 bins apart vanish under CA with 2 guard cells).  The design Pfa assumes
-independent cells (verified on independent exponential cells in tests/dsp/test_dsp_cfar.py); a
+independent cells (verified on independent exponential cells in tests/dsp/detect/test_dsp_cfar.py); a
 Hann window correlates neighbouring bins and raised the realised rate about 1.8x in a check on
 white noise (N = 512, Pfa = 1e-3), so configure Pfa with that margin.
 

@@ -1,7 +1,7 @@
 """The compiled kernels of :mod:`lidard.dsp.spectrum.jit` (numba; imported by it on first use, only if numba is
 installed: importing this module compiles nothing but needs numba). The callers and the contract of
 each kernel are in :mod:`lidard.dsp.spectrum.jit`; the numpy code each one stands in for is the reference
-(tests/dsp/test_dsp_jit.py, tests/dsp/test_dsp_os_screens.py compare them bit for bit).
+(tests/dsp/spectrum/test_dsp_jit.py, tests/dsp/detect/test_dsp_os_screens.py compare them bit for bit).
 
 OS-CFAR (§2.4's detection at a chosen false-alarm rate): a cell c passes when its power is
 above alpha times the k-th smallest of its reference cells. That needs at least k reference cells below

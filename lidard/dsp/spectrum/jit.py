@@ -2,7 +2,7 @@
 where numba is installed); the numpy code they replace stays the reference and the fallback.
 
 Each kernel gives the same values, bit for bit, as the numpy code it stands in for (tested in
-tests/dsp/test_dsp_jit.py): the same IEEE operations in the same order, no fast-math, and order
+tests/dsp/spectrum/test_dsp_jit.py): the same IEEE operations in the same order, no fast-math, and order
 statistics are selections (the k-th smallest of a set is one of its elements whatever the method).
 They exist because numpy makes one pass over the whole array per operation: the OS-CFAR screen of
 :mod:`lidard.dsp.detect.os_cfar` took about a dozen passes over every spectrum cell, here it is one, which

@@ -1,5 +1,5 @@
 """numba is loaded only once the DSP has asked for LOAD_AFTER_CELLS spectrum cells (lidard.dsp.spectrum.jit):
-a small job keeps the numpy path (the same values, tests/dsp/test_dsp_jit.py) and never pays the load."""
+a small job keeps the numpy path (the same values, tests/dsp/spectrum/test_dsp_jit.py) and never pays the load."""
 
 import json
 import subprocess
