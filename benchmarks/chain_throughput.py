@@ -25,8 +25,8 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lidard.dsp.chain import measure_peaks  # noqa: E402
-from lidard.dsp.estimators import DEFAULT_METHOD  # noqa: E402
-from lidard.dsp.rangefft import RangeFFT  # noqa: E402
+from lidard.dsp.ranging.estimators import DEFAULT_METHOD  # noqa: E402
+from lidard.dsp.spectrum.rangefft import RangeFFT  # noqa: E402
 
 FS_HZ = 5e6
 CHIRP_RATE_HZ_PER_S = 1.075e14   # 8.6 GHz in 80 us (config/sim.toml)
@@ -75,9 +75,9 @@ def run_chain_throughput(n: int = 512, batch: int = 20_000, repeats: int = 5) ->
 
 def _stages_ms(rf: RangeFFT, x: np.ndarray, repeats: int) -> dict:
     """The chain's stages timed one by one on the same ramps (ms, best of ``repeats``): where it goes."""
-    from lidard.dsp.cfar import cfar_detect
+    from lidard.dsp.detect.cfar import cfar_detect
     from lidard.dsp.chain import _refine_valid
-    from lidard.dsp.jit import power
+    from lidard.dsp.spectrum.jit import power
 
     spec = rf(x)
     p = power(spec)
@@ -85,9 +85,9 @@ def _stages_ms(rf: RangeFFT, x: np.ndarray, repeats: int) -> dict:
     kw = dict(pfa=1e-6, max_detections=2, bin_range=(int(gate[0]), int(gate[-1])), window=rf.window)
     det = cfar_detect(p, **kw)
     idx = rf.index_to_bin(np.where(det.valid, det.index, 1))
-    from lidard.dsp.rangefft import check_samples
+    from lidard.dsp.spectrum.rangefft import check_samples
 
-    # the chain writes its spectrum and power into scratch buffers (lidard.dsp.scratch), chunk by chunk
+    # the chain writes its spectrum and power into scratch buffers (lidard.dsp.spectrum.scratch), chunk by chunk
     buf, pbuf = np.empty_like(spec), np.empty_like(p)
     return {"fft_and_power": 1e3 * best_cpu_s(
                 lambda: rf.spectrum_of(check_samples(x, rf.n_samples), out=buf, power_out=pbuf), repeats),

@@ -27,7 +27,7 @@ import numpy as np
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
-from lidard.dsp.gate import PointFlag
+from lidard.dsp.detect.gate import PointFlag
 from lidard.instrument.frames import FramePlan
 from lidard.scan import plan
 from lidard.tracking import TrackParams, track_planner

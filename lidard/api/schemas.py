@@ -255,7 +255,7 @@ class ControlStatus(_Out):
     ttl_s: float
 
 
-# The DSP's names (lidard.dsp.estimators.EstimatorName, lidard.dsp.window.WindowName), spelled out
+# The DSP's names (lidard.dsp.ranging.estimators.EstimatorName, lidard.dsp.spectrum.window.WindowName), spelled out
 # so that the API imports no numerical core; tests/lidard/raw/test_raw_cli.py keeps them equal.
 EstimatorName = Literal["argmax", "parabolic", "jacobsen", "quinn2", "aboutanios", "newton"]
 WindowName = Literal["rectangular", "hann", "blackmanharris"]

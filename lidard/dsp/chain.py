@@ -17,12 +17,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .cfar import Detections, cfar_detect
-from .jit import power as power_of
-from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
-from .rangefft import RangeFFT, check_samples
-from .scratch import scratch
-from .window import DspInputError, WindowName
+from .detect.cfar import Detections, cfar_detect
+from .spectrum.jit import power as power_of
+from .ranging.estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
+from .spectrum.rangefft import RangeFFT, check_samples
+from .spectrum.scratch import scratch
+from .spectrum.window import DspInputError, WindowName
 
 # (indices of the detections (..., K) with invalid slots at a harmless bin) -> (signals, signed peak
 # bins for the estimator, precomputed spectrum or None)

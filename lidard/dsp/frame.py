@@ -33,19 +33,19 @@ from typing import Any
 import numpy as np
 
 from .chain import detect_and_refine
-from .estimators import DEFAULT_METHOD
-from .gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
-from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
+from .ranging.estimators import DEFAULT_METHOD
+from .detect.gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
+from .ranging.iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
-from .rangefft import C_M_PER_S, RangeFFT
-from .cwhold import HoldProfile
-from .threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
+from .spectrum.rangefft import C_M_PER_S, RangeFFT
+from .ranging.cwhold import HoldProfile
+from .ranging.threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
 from .ranging.assign import line_snr
 from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import refine_ramp
-from .scratch import scratch
-from .velocity import pair_up_down_matched
-from .window import WindowName
+from .spectrum.scratch import scratch
+from .ranging.velocity import pair_up_down_matched
+from .spectrum.window import WindowName
 
 
 @dataclass(frozen=True)

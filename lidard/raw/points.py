@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dsp.frame import FrameResult
-from ..dsp.gate import PointFlag
+from ..dsp.detect.gate import PointFlag
 from ..instrument.types import POINT_DTYPE
 
 

@@ -34,7 +34,7 @@ from itertools import combinations, permutations
 
 import numpy as np
 
-from ..cfar import Detections
+from ..detect.cfar import Detections
 from .order import chi2_isf
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rangefft import C_M_PER_S
+from ..spectrum.rangefft import C_M_PER_S
 
 
 @dataclass(frozen=True)

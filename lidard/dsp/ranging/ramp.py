@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from ..cfar import Detections
-from ..rangefft import RangeFFT, windowed_fft
+from ..detect.cfar import Detections
+from ..spectrum.rangefft import RangeFFT, windowed_fft
 from .order import HALF_BINS, MODEL_ERROR, cell_noise, chi2_isf, fitted_power, residual_near, unresolved
 from .tones import ITERATIONS, refine_joint, subtract_tones
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dtft import _DtftNearBin, _dirichlet, _terms_for
+from ..spectrum.dtft import _DtftNearBin, _dirichlet, _terms_for
 
 #: Newton iterations of the joint refinement (each a 3^K-point stencil of J; from a start within
 #: ~0.2 bin it converges in two or three)

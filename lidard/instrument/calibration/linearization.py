@@ -1,12 +1,12 @@
 """Chirp linearization by iterative learning pre-distortion (dissertation §2.2; §4.4.2's monitor MZI).
 
-The ILC itself (:func:`lidard.dsp.ilc.linearize`) is pure: it asks for measurements of a drive
+The ILC itself (:func:`lidard.dsp.linearize.ilc.linearize`) is pure: it asks for measurements of a drive
 waveform and learns the pre-distortion. Here each measurement is one acquisition on the centre pixel:
 the drive is loaded into the AWG, the FPGA fires ``n_avg`` chirps, the digitizer records the monitor
 MZI channel, and the safety monitor is checked before the samples are trusted. The ADC rate is set by
 the MZI beat (chirp rate x MZI delay), not by the scan range. With a quadrature monitor
 (``[monitor] quadrature``: channels ``mzi`` and ``mzi_q``) each record is the complex I + jQ and the ILC
-averages per-record phases (:mod:`lidard.dsp.ilcquad`), which reaches >= 1000x on the broad-linewidth
+averages per-record phases (:mod:`lidard.dsp.linearize.quadrature`), which reaches >= 1000x on the broad-linewidth
 laser where the averaged real fringe fades.
 
 Three-segment chirp: the ILC learns the two ramps as before, but each measurement plays the
@@ -15,9 +15,9 @@ are learned under the thermal history they will see in a scan; the record stops 
 The constant segment is held, not learned: the laser's thermal terms keep drifting there (some
 650 MHz over the hold on the sim's default DFB). Once the ramps are learned, one more acquisition of
 ``HOLD_AVERAGES`` whole periods measures that drift from the MZI fringe over the hold
-(:func:`lidard.dsp.cwhold.hold_profile`); it is stored with the linearization (``meta["hold_profile"]``)
+(:func:`lidard.dsp.ranging.cwhold.hold_profile`); it is stored with the linearization (``meta["hold_profile"]``)
 and the DSP takes it out of the CW beat where the real receiver's two regimes meet (|f_D| ~ f_R,
-lidard.dsp.threeseg).
+lidard.dsp.ranging.threeseg).
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from collections.abc import Callable
 import numpy as np
 
 from ...config import Config
-from ...dsp.cwhold import hold_profile
-from ...dsp.ilc import linearize as ilc_linearize
+from ...dsp.ranging.cwhold import hold_profile
+from ...dsp.linearize.ilc import linearize as ilc_linearize
 from ...physics.chirp import adc_rate_hz
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan, drive_for_chirp
 from ..errors import InstrumentError
