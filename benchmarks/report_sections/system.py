@@ -200,7 +200,7 @@ def sec_kernels(quick: bool, img: Path, log) -> Section:
                      f"{q['msamples_per_s']:.1f} M samples/s per core", ""])
     rows.append([f"estimator chain (Hann FFT + OS-CFAR + {ch['estimator']}) against a plain Hann rFFT + argmax, "
                  f"N = 512, one core", f"{ch['chain_ramps_per_s']:,.0f} against {ch['plain_ramps_per_s']:,.0f} ramps/s: "
-                 f"{ch['ratio']:.2f}", ">= 0.5 (issue 18)"])
+                 f"{ch['ratio']:.2f} (median of 7 alternated pairs)", ">= 0.6"])
     rows += [["digitizer through the simulated USB path, in-process", f"{usb['inproc_mb_s']:.0f} MB/s", ">= 200 MB/s"],
              ["same, USB bridge (server thread)", f"{usb['bridge_thread_mb_s']:.0f} MB/s", ""],
              ["same, bench in a subprocess (TCP)", f"{usb['bridge_subprocess_mb_s']:.0f} MB/s", ""],
@@ -211,7 +211,7 @@ def sec_kernels(quick: bool, img: Path, log) -> Section:
     s.data = {"raycast": rc, "synthesis": sy, "usb": usb, "upload": up, "chain": ch}
     s.headline = [("digitizer transfer through the simulated USB path (in-process)", f"{usb['inproc_mb_s']:.0f} MB/s",
                    ">= 200 MB/s"),
-                  ("estimator chain / plain FFT + argmax throughput, N = 512", f"{ch['ratio']:.2f}", ">= 0.5")]
+                  ("estimator chain / plain FFT + argmax throughput, N = 512", f"{ch['ratio']:.2f}", ">= 0.6")]
     s.markdown = ("`benchmarks/raycast.py`, `synthesis.py` (median CPU time), `chain_throughput.py` (CPU, median of 7 "
                   "alternated pairs), `usb_throughput.py`, `pattern_upload.py`.\n\n" + table(["what", "figure", "target"], rows))
     return s
