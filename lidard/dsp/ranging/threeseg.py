@@ -67,10 +67,12 @@ DECHIRP_SKIP_FRACTION = 0.02
 CW_GUARD_BINS = 2
 
 
-def _range_max_table(p: np.ndarray, top_level: int | None = None) -> list[np.ndarray]:
+def _range_max_table(p: np.ndarray, top_level: int | None = None,
+                     levels: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """Sparse table: level k holds the max of p over [i, i + 2**k) for every i (range-max queries);
-    levels up to ``top_level`` (default: all), or more already built in a ``_RangeMax``."""
-    levels = [p]
+    levels up to ``top_level`` (default: all); ``levels``: the first levels already built (extended
+    in place, not rebuilt)."""
+    levels = [p] if levels is None else levels
     while 2 ** len(levels) <= p.shape[-1] and (top_level is None or len(levels) <= top_level):
         prev, w = levels[-1], 2 ** (len(levels) - 1)
         levels.append(np.maximum(prev[..., :-w], prev[..., w:]))
@@ -87,7 +89,7 @@ class _RangeMax:
 
     def __getitem__(self, level: int) -> np.ndarray:
         if level >= len(self.levels):
-            self.levels = _range_max_table(self.p, level)
+            _range_max_table(self.p, level, self.levels)     # the levels asked for so far stay
         return self.levels[level]
 
 

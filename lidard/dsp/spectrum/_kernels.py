@@ -224,3 +224,118 @@ def widths_6db(flat, start, col, n, max_half, out):  # pragma: no cover
                 prev = v
             width += half
         out[i] = width
+
+
+@_jit
+def bin_table(tw, basis, k, out):  # pragma: no cover
+    """lidard.dsp.dtft._moments_on_bins's table of bin ``k``: out[t, c, q] = tw[(k t) mod n, c] * basis[t, q]
+    (the demodulated Chebyshev basis, cos and sin parts), the same products without the gathered copy."""
+    n, q_terms = basis.shape
+    for t in range(n):
+        j = (k * t) % n
+        c = tw[j, 0]
+        s = tw[j, 1]
+        for q in range(q_terms):
+            out[t, 0, q] = c * basis[t, q]
+            out[t, 1, q] = s * basis[t, q]
+
+
+@_jit
+def _safe_div(num, den):  # pragma: no cover
+    return num / den if abs(den) > 0 else 0.0
+
+
+@_jit
+def newton_real_step(gr, gi, d, d0, offsets, cos_phi, sin_phi, cos_w, sin_w, cos_w1, sin_w1, turn, n,
+                     det_floor, reach, h2, hh):  # pragma: no cover
+    """One Newton step of lidard.dsp.estimators._est_newton on real ramps, in place on ``d`` (m,):
+    the real-tone likelihood at d + each of the three ``offsets`` (_real_tone_fit: Horner on the Taylor
+    coefficients gr, gi (P, m), the turned angles, the two-column least squares), its finite-difference
+    derivatives and the clipped step; the same IEEE operations in the same order as numpy. The
+    transcendentals come from numpy (its own vectorised cos and sin): ``cos_phi`` ... ``sin_w1`` (m,) of
+    the angles pi d (n-1)/n, w = 2 pi (f0 + d)/n and w (n-1); ``turn`` (6, 3): cos and sin of the
+    offsets' angles pi o (n-1)/n, 2 pi o/n and 2 pi o (n-1)/n."""
+    p_terms, m = gr.shape
+    nf = float(n)
+    j = np.empty(3)
+    delta = np.empty((3, _STEP_BLOCK))
+    acc_re = np.empty((3, _STEP_BLOCK))
+    acc_im = np.empty((3, _STEP_BLOCK))
+    for i0 in range(0, m, _STEP_BLOCK):
+        nb = min(_STEP_BLOCK, m - i0)
+        for r in range(3):
+            for b in range(nb):
+                delta[r, b] = d[i0 + b] + offsets[r]
+                acc_re[r, b] = 0.0
+                acc_im[r, b] = 0.0
+        # Horner over the terms, a block of pairs at a time (the terms are term-major: rows of gr)
+        for p in range(p_terms - 1, -1, -1):
+            for b in range(nb):
+                g_re = gr[p, i0 + b]
+                g_im = gi[p, i0 + b]
+                for r in range(3):
+                    acc_re[r, b] = acc_re[r, b] * delta[r, b] + g_re
+                    acc_im[r, b] = acc_im[r, b] * delta[r, b] + g_im
+        for b in range(nb):
+            _newton_pair(i0 + b, acc_re[:, b], acc_im[:, b], j, d, d0, cos_phi, sin_phi, cos_w, sin_w, cos_w1,
+                         sin_w1, turn, nf, det_floor, reach, h2, hh)
+
+
+#: pairs per block of newton_real_step's Horner pass: the block's accumulators (6 x 64 doubles) stay in L1 while
+#: the pass reads each term's row of coefficients once (a cache-blocking size, not a model parameter)
+_STEP_BLOCK = 64
+
+
+@_jit
+def _newton_pair(i, a_res, a_ims, j, d, d0, cos_phi, sin_phi, cos_w, sin_w, cos_w1, sin_w1, turn, nf, det_floor,
+                 reach, h2, hh):  # pragma: no cover
+    """The rest of newton_real_step for pair ``i``, from G at its three offsets (a_res, a_ims)."""
+    di = d[i]
+    for r in range(3):
+        a_re = a_res[r]
+        a_im = a_ims[r]
+        cp = cos_phi[i] * turn[0, r] - sin_phi[i] * turn[1, r]
+        sp = sin_phi[i] * turn[0, r] + cos_phi[i] * turn[1, r]
+        c = cp * a_re + sp * a_im
+        s = sp * a_re - cp * a_im
+        cw = cos_w[i] * turn[2, r] - sin_w[i] * turn[3, r]
+        sw = sin_w[i] * turn[2, r] + cos_w[i] * turn[3, r]
+        cos_n1 = cos_w1[i] * turn[4, r] - sin_w1[i] * turn[5, r]
+        sin_n1 = sin_w1[i] * turn[4, r] + cos_w1[i] * turn[5, r]
+        sin_nw = sin_n1 * cw + cos_n1 * sw
+        if abs(sw) < 1e-12:
+            dirichlet = nf * cos_n1
+        else:
+            dirichlet = sin_nw / sw
+        scc = 0.5 * (nf + cos_n1 * dirichlet)
+        sss = 0.5 * (nf - cos_n1 * dirichlet)
+        scs = 0.5 * sin_n1 * dirichlet
+        det = scc * sss - scs * scs
+        if det > det_floor:
+            j[r] = _safe_div(sss * c * c - 2.0 * scs * c * s + scc * s * s, det)
+        else:
+            j[r] = _safe_div(c * c, scc)
+    dp = (j[2] - j[0]) / h2
+    dpp = (j[2] - 2.0 * j[1] + j[0]) / hh
+    if dpp < 0:
+        step = -_safe_div(dp, dpp)
+    elif dp > 0:
+        step = 0.05
+    elif dp < 0:
+        step = -0.05
+    elif dp == 0:
+        step = 0.0
+    else:
+        step = np.nan
+    if step < -0.25:
+        step = -0.25
+    elif step > 0.25:
+        step = 0.25
+    v = di + step
+    lo = d0[i] - reach
+    hi = d0[i] + reach
+    if v < lo:
+        v = lo
+    elif v > hi:
+        v = hi
+    d[i] = v

@@ -1,4 +1,4 @@
-"""The DTFT near a spectral peak, shared by the sub-bin estimators (:mod:`lidard.dsp.estimators`; §2.1).
+"""The DTFT near a spectral peak, shared by the sub-bin estimators (:mod:`lidard.dsp.ranging.estimators`; §2.1).
 
 Two tools: the noise-free Jacobsen ratio r(delta) of a window, length and zero-padding, built from the
 window's DTFT (a sum of shifted Dirichlet kernels for the cosine-sum windows), and X(f0 + delta) with
@@ -26,6 +26,7 @@ from math import comb, factorial
 
 import numpy as np
 
+from lidard.dsp.spectrum import jit
 from lidard.dsp.spectrum.window import get_window
 
 _CHUNK_ROWS = 4096  # bounds the (rows x N) temporaries of the moment computation
@@ -344,10 +345,14 @@ def _moments_on_bins(x: np.ndarray, rows: np.ndarray | None, f0: np.ndarray, bas
     tw = _twiddle_table(n)
     is_complex = x.dtype.kind == "c"
     table = np.empty((n, 2, q_terms))
+    kern = jit.kernels(0)       # the compiled table once the DSP has loaded its kernels (the same products)
     for a, b in zip(cuts[:-1], cuts[1:]):
         idx = order[a:b]
         # (N, 2Q) real: cos and sin of the twiddle times the basis (the parts of exp(j phi) T_q)
-        np.multiply(tw[(ks[a] * t) % n][:, :, None], basis[:, None, :], out=table)
+        if kern is not None:
+            kern.bin_table(tw, basis, int(ks[a]), table)
+        else:
+            np.multiply(tw[(ks[a] * t) % n][:, :, None], basis[:, None, :], out=table)
         xs = x[idx] if rows is None else x[rows[idx]]
         tab = table.reshape(n, 2 * q_terms)
         if is_complex:   # (xr + j xi)(Br + j Bi)

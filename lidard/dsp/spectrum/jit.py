@@ -43,7 +43,8 @@ def _compiled() -> SimpleNamespace | None:
         from lidard.dsp.spectrum import _kernels as jit_kernels  # needs numba
     except ImportError:
         return None
-    return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db)
+    return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db,
+                           bin_table=jit_kernels.bin_table, newton_real_step=jit_kernels.newton_real_step)
 
 
 def kernels(cells: int | None = None) -> SimpleNamespace | None:

@@ -118,3 +118,45 @@ def test_widths_are_the_same_with_and_without_the_kernels(monkeypatch, max_half)
     got, want = _both(monkeypatch, lambda: cfar._width_6db(p, None, max_half, rows=rows, cols=cols))
     np.testing.assert_array_equal(got, want)
     assert np.unique(want).size > 50 if max_half else not want.any()     # max_half 0: no bin looked at
+
+
+@pytest.mark.parametrize("n, zero_pad", [(512, 1), (64, 2), (1000, 1)])
+def test_newton_on_real_ramps_is_the_same_with_and_without_the_kernels(monkeypatch, n, zero_pad):
+    """The compiled Newton step (jit_kernels.newton_real_step) and the compiled moment tables
+    (jit_kernels.bin_table) against the numpy path: tones at every sub-bin offset, low and high SNR
+    (Newton's uphill branch), all-zero ramps (the zero-denominator guards), peaks at DC and Nyquist
+    (the one-column fit) and two peaks per ramp."""
+    from lidard.dsp.ranging.estimators import estimate
+
+    rng = np.random.default_rng(n)
+    m = 600
+    t = np.arange(n)
+    f = rng.uniform(0, n / 2, (m, 1))
+    sigma = rng.uniform(0.01, 1.0, (m, 1))
+    x = np.cos(2 * np.pi * f * t / n + rng.uniform(0, 6.3, (m, 1))) + sigma * rng.standard_normal((m, n))
+    x[:5] = 0.0
+    pb = np.stack([np.rint(f[:, 0] * zero_pad), rng.integers(-n * zero_pad // 2 + 1, n * zero_pad // 2, m)], -1)
+    pb = pb.astype(np.int64)
+    pb[5:10, 0], pb[10:15, 0] = 0, n * zero_pad // 2
+    got, want = _both(monkeypatch, lambda: estimate(x, pb, "newton", zero_pad=zero_pad))
+    assert jit.kernels() is not None
+    np.testing.assert_array_equal(got, want)
+    # and it is the estimator: near the truth where the tone is clear of DC, Nyquist and the noise
+    clear = (sigma[:, 0] < 0.2) & (f[:, 0] > 2) & (f[:, 0] < n / 2 - 2)
+    clear[:20] = False
+    assert np.all(np.abs(want[clear, 0] / zero_pad - f[clear, 0]) < 0.05)
+
+
+@pytest.mark.parametrize("kind", ["real", "complex"])
+def test_moment_tables_are_the_same_with_and_without_the_kernels(monkeypatch, kind):
+    from lidard.dsp.spectrum.dtft import _moment_basis, _moments_on_bins
+
+    rng = np.random.default_rng(7)
+    n = 300
+    x = rng.standard_normal((50, n))
+    if kind == "complex":
+        x = x + 1j * rng.standard_normal((50, n))
+    rows, f0 = rng.integers(0, 50, 200), rng.integers(-n // 2, n // 2, 200).astype(float)
+    basis, _ = _moment_basis(n, 26)
+    got, want = _both(monkeypatch, lambda: _moments_on_bins(x, rows, f0, basis))
+    np.testing.assert_array_equal(got, want)
