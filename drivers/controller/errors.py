@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from drivers import errors as _e
 
 if TYPE_CHECKING:
-    from drivers.controller.protocol import Fault
+    from drivers.controller.protocol_map import Fault
 
 DEVICE = "controller"
 

@@ -11,6 +11,7 @@ refused a command and said why).
 from __future__ import annotations
 
 from drivers import errors as _e
+from drivers.fpsa.protocol_codes import Cmd
 
 DEVICE = "fpsa"
 
@@ -19,7 +20,6 @@ def _cmd_name(cmd: int | None) -> str:
     if cmd is None:
         return "codec"
     try:
-        from drivers.fpsa.protocol import Cmd  # local: protocol imports this module
         return Cmd(cmd).name
     except ValueError:
         return f"cmd 0x{cmd:02X}"

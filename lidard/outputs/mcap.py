@@ -27,7 +27,7 @@ import foxglove
 from mcap.reader import make_reader
 
 from ..live.channels import POINTS_TOPIC, STATUS_TOPIC, LidarChannels
-from ..pointcloud import PointCloudError, atomic_write
+from .files import PointCloudError, atomic_write
 
 _NUMPY_OF_FOXGLOVE = {1: "<u1", 2: "<i1", 3: "<u2", 4: "<i2", 5: "<u4", 6: "<i4", 7: "<f4", 8: "<f8"}
 

@@ -17,9 +17,7 @@ import foxglove
 import numpy as np
 
 from ..live.channels import LidarChannels
-from .mcap import (
-    atomic_write,  # (lidard.pointcloud's, through the one ignored import of the format package)
-)
+from .files import atomic_write
 
 
 class McapFrameWriter:

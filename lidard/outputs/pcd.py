@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..point_schema import PCD_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_NAMES
-from ..pointcloud import PointCloudError, atomic_write
+from .files import PointCloudError, atomic_write
 
 # (field, PCD type, size) in file order
 _LAYOUT = tuple((f.name, *PCD_TYPE[f.dtype]) for f in POINT_FIELDS)

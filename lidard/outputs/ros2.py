@@ -30,7 +30,7 @@ import numpy as np
 
 from ..live.channels import FRAME_ID, POINTS_TOPIC, STATUS_TOPIC
 from ..point_schema import POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS, ROS2_TYPE
-from ..pointcloud import PointCloudError, atomic_write
+from .files import PointCloudError, atomic_write
 from .mcap import scan_status
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"

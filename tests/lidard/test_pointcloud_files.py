@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from lidard import pointcloud as pc
+from lidard.outputs import files
 from lidard.instrument import POINT_DTYPE
 
 
@@ -115,7 +116,7 @@ def test_unknown_extension_is_named(tmp_path):
 def test_atomic_write_leaves_no_partial_file_on_failure(tmp_path):
     target = tmp_path / "x.ply"
     with pytest.raises(RuntimeError):
-        with pc.atomic_write(target) as f:
+        with files.atomic_write(target) as f:
             f.write(b"half a file")
             raise RuntimeError("writer died")
     assert os.listdir(tmp_path) == []
@@ -143,13 +144,13 @@ def test_wrong_dtype_rejected(tmp_path):
 
 
 def test_written_files_get_ordinary_permissions_not_mkstemps_0600(tmp_path, monkeypatch):
-    monkeypatch.setattr(pc, "_UMASK", 0o022)
+    monkeypatch.setattr(files, "_UMASK", 0o022)
     target = tmp_path / "perm.bin"
-    with pc.atomic_write(target) as f:
+    with files.atomic_write(target) as f:
         f.write(b"x")
     assert (target.stat().st_mode & 0o777) == 0o644
-    monkeypatch.setattr(pc, "_UMASK", 0o077)
-    with pc.atomic_write(target) as f:
+    monkeypatch.setattr(files, "_UMASK", 0o077)
+    with files.atomic_write(target) as f:
         f.write(b"y")
     assert (target.stat().st_mode & 0o777) == 0o600
 
