@@ -47,7 +47,7 @@ def run(rows, cols, repeat: int) -> dict:
     from lidard.cli.embedded import embedded
     from lidard.config import load_config
     from lidard.offline.cluster import mapper, open_client
-    from lidard.pointcloud import read_points
+    from lidard.outputs import read_points
     from lidard.raw import chunk_count
     from lidard.raw.capture import RAW_NAME
     from lidard.raw.replay import reprocess_chunk

@@ -203,7 +203,7 @@ def _progress_fn(bar: Progress, sid: str, n_pixels: int):
 
 def _reprocess_offline(args, fmt: str | None) -> list[dict[str, Any]]:
     from ..offline.cluster import TasksFailed, mapper
-    from ..pointcloud import sidecar_path
+    from ..outputs import sidecar_path
     from ..raw.capture import RawCapture
     from ..raw.service import raw_path, reprocess_scan
     store = _offline_store(args)
@@ -235,7 +235,7 @@ def _reprocess_offline(args, fmt: str | None) -> list[dict[str, Any]]:
 
 
 def _reprocess_daemon(args, body: dict[str, Any], fmt: str | None) -> list[dict[str, Any]]:
-    from ..pointcloud import sidecar_path
+    from ..outputs import sidecar_path
     out = []
     with client(args) as c:
         for sid in args.id:
@@ -253,7 +253,7 @@ def _reprocess_daemon(args, body: dict[str, Any], fmt: str | None) -> list[dict[
 
 
 def cmd_reprocess(args) -> int:
-    from ..pointcloud import format_of
+    from ..outputs import format_of
     _check_flags(args)
     fmt = format_of(args.out) if args.out else None
     base.check_out(args.out)

@@ -39,7 +39,7 @@ Policy (also in docs/api.md):
   database writes) and is published to subscribers (the SSE endpoint, the CLI's progress bar). The
   last event of a scan is ``{"event": "end", ...}``.
 * Adaptive scans (when the worker knows the optics) run as two ``pixels`` requests: the coarse pass
-  of :func:`lidard.scan.adaptive_plans`, whose points are fed back, then the dense pass; the points
+  of :func:`lidard.instrument.plan.adaptive_plans`, whose points are fed back, then the dense pass; the points
   are merged (``t`` of the second pass offset by the first pass's hardware time). The instrument
   therefore never sees ``pattern="adaptive"``.
 * Output: ``data_dir/scans/<id>/scan.<fmt>`` and ``scan.<fmt>.json`` per requested format.

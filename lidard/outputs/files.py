@@ -18,7 +18,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from ..point_schema import POINT_DTYPE, POINT_NAMES
+from .schema import POINT_DTYPE, POINT_NAMES
 
 __all__ = ["PointCloudError", "as_points", "atomic_write", "dumps_meta"]
 

@@ -16,7 +16,7 @@ from typing import Any
 import foxglove
 import numpy as np
 
-from ..live.channels import LidarChannels
+from .channels import LidarChannels
 from .files import atomic_write
 
 

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from ..errors import UnknownScan
-from ..pointcloud import read_sidecar, suffix_of, write_points
+from ..outputs import read_sidecar, suffix_of, write_points
 from ..store import ScanRecord, Store
 from .capture import RAW_NAME, RawCapture, RawCaptureError, capture_size_bytes
 from .replay import ReprocessSettings, replay_dsp, reprocess
