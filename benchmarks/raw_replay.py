@@ -58,7 +58,7 @@ def run(rows: list[int], cols: list[int], averages: int, workers: int, repeat: i
     from lidard.outputs import read_points
     from lidard.raw import chunk_count
     from lidard.raw.capture import RAW_NAME
-    from lidard.raw.service import reprocess_scan
+    from lidard.jobs.reprocess import reprocess_scan
 
     cfg = load_config(str(REPO / "config" / "sim.toml"))
     scene = str(REPO / "config" / "scenes" / "cal_letters.toml")

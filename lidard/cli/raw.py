@@ -151,7 +151,7 @@ def _check_flags(args) -> None:
 def _total_chunks(store, ids) -> int:
     from ..errors import LidardError
     from ..raw.replay import chunk_count
-    from ..raw.service import raw_path
+    from ..jobs.reprocess import raw_path
     total = 0
     for sid in ids:
         try:
@@ -205,7 +205,7 @@ def _reprocess_offline(args, fmt: str | None) -> list[dict[str, Any]]:
     from ..offline.cluster import TasksFailed, mapper
     from ..outputs import sidecar_path
     from ..raw.capture import RawCapture
-    from ..raw.service import raw_path, reprocess_scan
+    from ..jobs.reprocess import raw_path, reprocess_scan
     store = _offline_store(args)
     settings = _settings(args)
     out = []
@@ -297,7 +297,7 @@ def cmd_spectrum(args) -> int:
     row, col = _pixel(args.pixel)
     body = _body(args)
     if args.data_dir is not None:
-        from ..raw.service import scan_spectrum
+        from ..jobs.reprocess import scan_spectrum
         store = _offline_store(args)
         try:
             spec = scan_spectrum(store, args.id, row, col, _settings(args))

@@ -2,7 +2,9 @@
 
 Rooms: :mod:`.worker` (the queue, the thread, submit/cancel/wait, calibration reuse),
 :mod:`.scan_job` (one scan: run, adaptive passes, write, outcome), :mod:`.kinds` (job kinds, errors,
-request records), :mod:`.events` (subscribers and live listeners). Import from ``lidard.jobs``.
+request records), :mod:`.events` (subscribers and live listeners), :mod:`.reprocess` (a stored scan's
+raw capture through the DSP again, as a new linked scan: above both the store and lidard.raw, which
+the instrument records through). Import from ``lidard.jobs``.
 
 The FPSA, the AWG, the digitizer and the laser/HV controller form one optical path (§4.4, Fig. 4-33),
 so only one job can use them at a time. Every job (a scan or a chirp linearization, §2.2) goes through

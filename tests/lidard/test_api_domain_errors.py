@@ -24,7 +24,7 @@ from lidard.instrument.calibration.range import CalibrationRefused
 from lidard.instrument.errors import DeviceFault, FaultsStillOpen, NotSimulated, SceneRejected
 from lidard.jobs import JobFailed, QueueFull, WorkerStopped
 from lidard.raw import PixelNotRecorded, RawCaptureError
-from lidard.raw.service import NoRawCapture
+from lidard.jobs.reprocess import NoRawCapture
 
 CASES = [
     (UnknownScan("scan 'x' not found"), 404, None),
