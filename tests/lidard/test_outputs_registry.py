@@ -58,3 +58,20 @@ def test_lidarctl_offers_the_registry():
     parser = build_parser()
     assert _choices(parser, "stream", "--format") == list(FRAME_FORMATS)
     assert _choices(parser, "scans", "--format") == list(FORMATS)
+
+
+def test_the_registry_loads_a_writer_library_only_when_its_format_is_used(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys, lidard.outputs, lidard.api.schemas; "
+            "libs = ('plyfile', 'laspy', 'foxglove', 'mcap'); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in libs)); "
+            "import numpy as np; from lidard.outputs import POINT_DTYPE, write_points; "
+            f"write_points({str(tmp_path / 'a.ply')!r}, np.zeros(2, POINT_DTYPE), {{}}); "
+            "print(sorted({m.split('.')[0] for m in sys.modules if m.split('.')[0] in libs}))")
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[:2] == ["[]", "['plyfile']"]
