@@ -22,7 +22,7 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, Literal, cast, get_args
 
 import numpy as np
 
@@ -107,7 +107,8 @@ REGISTRY: dict[str, FormatSpec] = {f.name: f for f in (
 )}
 
 FORMATS: tuple[PointFormat, ...] = tuple(f.name for f in REGISTRY.values())
-STREAM_FORMATS: tuple[StreamFormat, ...] = tuple(f.name for f in REGISTRY.values() if f.stream)  # type: ignore[misc]
+# (the cast is checked at import by _check_literals)
+STREAM_FORMATS = cast("tuple[StreamFormat, ...]", tuple(f.name for f in REGISTRY.values() if f.stream))
 FRAME_FORMATS: tuple[str, ...] = tuple(f.name for f in REGISTRY.values() if f.stream == "frames")
 MEDIA_TYPE: dict[str, str] = {f.name: f.media_type for f in REGISTRY.values()}
 
