@@ -71,7 +71,7 @@ def test_the_registry_loads_a_writer_library_only_when_its_format_is_used(tmp_pa
             "import numpy as np; from lidard.outputs import POINT_DTYPE, write_points; "
             f"write_points({str(tmp_path / 'a.ply')!r}, np.zeros(2, POINT_DTYPE), {{}}); "
             "print(sorted({m.split('.')[0] for m in sys.modules if m.split('.')[0] in libs}))")
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[3]
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[:2] == ["[]", "['plyfile']"]
