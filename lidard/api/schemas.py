@@ -13,9 +13,9 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 from ..config import ScanDefaults
 from ..errors import describe_validation
 from ..instrument.types import PatternKind, ScanRequest
-from ..point_schema import POINT_FORMATS, PointFormat
+from ..outputs.registry import FORMATS as POINT_FORMATS, PointFormat
 
-# the one list of point-file formats (lidard.point_schema)
+# the one list of point-file formats (lidard.outputs.registry)
 FileFormat = PointFormat
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..dsp.frame import FrameResult
 from ..dsp.detect.gate import PointFlag
-from ..instrument.types import POINT_DTYPE
+from ..outputs.schema import POINT_DTYPE
 
 
 def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directions: np.ndarray,

@@ -35,7 +35,7 @@ from ..dsp.ranging.estimators import EstimatorName
 from ..dsp.frame import FrameDsp
 from ..dsp.spectrum.scratch import release as release_scratch
 from ..dsp.spectrum.window import WINDOW_NAMES
-from ..instrument.types import POINT_DTYPE
+from ..outputs.schema import POINT_DTYPE
 from .capture import RawCapture, RawCaptureError, RawChunk
 from .points import frame_points
 

@@ -20,8 +20,7 @@ from ..dsp.detect.os_cfar import _noise_os   # the kernel cfar_detect thresholds
 from ..dsp.ranging.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
 from ..dsp.spectrum.window import get_window
-from ..instrument.types import POINT_DTYPE
-from ..point_schema import POINT_NAMES
+from ..outputs.schema import POINT_DTYPE, POINT_NAMES
 from .capture import PixelNotRecorded, RawCapture
 from .replay import ReplayDsp, ReprocessSettings, replay_dsp
 

@@ -228,7 +228,7 @@ def widths_6db(flat, start, col, n, max_half, out):  # pragma: no cover
 
 @_jit
 def bin_table(tw, basis, k, out):  # pragma: no cover
-    """lidard.dsp.dtft._moments_on_bins's table of bin ``k``: out[t, c, q] = tw[(k t) mod n, c] * basis[t, q]
+    """lidard.dsp.spectrum.dtft._moments_on_bins's table of bin ``k``: out[t, c, q] = tw[(k t) mod n, c] * basis[t, q]
     (the demodulated Chebyshev basis, cos and sin parts), the same products without the gathered copy."""
     n, q_terms = basis.shape
     for t in range(n):
@@ -248,7 +248,7 @@ def _safe_div(num, den):  # pragma: no cover
 @_jit
 def newton_real_step(gr, gi, d, d0, offsets, cos_phi, sin_phi, cos_w, sin_w, cos_w1, sin_w1, turn, n,
                      det_floor, reach, h2, hh):  # pragma: no cover
-    """One Newton step of lidard.dsp.estimators._est_newton on real ramps, in place on ``d`` (m,):
+    """One Newton step of lidard.dsp.ranging.estimators._est_newton on real ramps, in place on ``d`` (m,):
     the real-tone likelihood at d + each of the three ``offsets`` (_real_tone_fit: Horner on the Taylor
     coefficients gr, gi (P, m), the turned angles, the two-column least squares), its finite-difference
     derivatives and the clipped step; the same IEEE operations in the same order as numpy. The

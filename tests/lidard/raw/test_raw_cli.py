@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidard.cli import base as cli_base
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 from lidard.raw import ReprocessSettings, reprocess
 from tests.helpers.api import live_server, make_app
 from tests.helpers.raw_capture import RecordingFake

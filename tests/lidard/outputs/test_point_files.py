@@ -6,7 +6,11 @@ import os
 import numpy as np
 import pytest
 
-from lidard import pointcloud as pc
+from lidard import outputs
+from lidard.outputs import las as las_file
+from lidard.outputs import npz as npz_file
+from lidard.outputs import ply as ply_file
+from lidard.outputs import files
 from lidard.instrument import POINT_DTYPE
 
 
@@ -30,12 +34,12 @@ def make_points(n=200, seed=7):
 
 def test_ply_round_trip_exact(tmp_path):
     pts = make_points()
-    path = pc.write_ply(tmp_path / "a.ply", pts)
+    path = ply_file.write_ply(tmp_path / "a.ply", pts)
     from plyfile import PlyData
     ply = PlyData.read(str(path))
     assert ply.byte_order == "<" and not ply.text
     assert set(ply["vertex"].data.dtype.names) == set(POINT_DTYPE.names)
-    back = pc.read_ply(path)
+    back = ply_file.read_ply(path)
     assert back.dtype == POINT_DTYPE
     for name in POINT_DTYPE.names:
         assert np.array_equal(back[name], pts[name]), name
@@ -47,7 +51,7 @@ def test_ply_pixel_indices_are_int32_that_point_cloud_tools_keep(tmp_path):
     # reader independent of the writer's dtype handling, and its declared types are checked.
     pts = make_points(50)
     pts["row"][0], pts["col"][0] = 127, 65535  # the largest index a uint16 could hold survives
-    path = pc.write_ply(tmp_path / "rc.ply", pts)
+    path = ply_file.write_ply(tmp_path / "rc.ply", pts)
     header = path.read_bytes().split(b"end_header")[0].decode("ascii")
     assert "property int row" in header and "property int col" in header and "ushort" not in header
     from plyfile import PlyData
@@ -59,7 +63,7 @@ def test_ply_pixel_indices_are_int32_that_point_cloud_tools_keep(tmp_path):
 def test_las_round_trip_extra_bytes_and_scale(tmp_path):
     import laspy
     pts = make_points()
-    path = pc.write_las(tmp_path / "a.las", pts)
+    path = las_file.write_las(tmp_path / "a.las", pts)
     las = laspy.read(str(path))
     assert str(las.header.version) == "1.4"
     assert las.header.point_format.id in (6, 7)
@@ -69,7 +73,7 @@ def test_las_round_trip_extra_bytes_and_scale(tmp_path):
     for axis in "xyz":
         err = np.abs(np.asarray(getattr(las, axis)) - pts[axis].astype(np.float64))
         assert err.max() <= las.header.scales[0] / 2 + 1e-12
-    back = pc.read_las(path)
+    back = las_file.read_las(path)
     for name in ("range", "velocity", "snr_db", "intensity", "row", "col", "valid", "return_index", "t"):
         assert np.array_equal(back[name], pts[name]), name
     # number_of_returns counts the returns of the same pixel
@@ -81,18 +85,18 @@ def test_las_round_trip_extra_bytes_and_scale(tmp_path):
 def test_npz_round_trip_with_meta(tmp_path):
     pts = make_points()
     meta = {"profile": "fpsa128", "simulated": True, "coverage": 0.5}
-    path = pc.write_npz(tmp_path / "a.npz", pts, meta)
-    back, m = pc.read_npz(path)
+    path = npz_file.write_npz(tmp_path / "a.npz", pts, meta)
+    back, m = npz_file.read_npz(path)
     assert back.dtype == POINT_DTYPE
     assert np.array_equal(back, pts)
     assert m == meta
 
 
-@pytest.mark.parametrize("fmt", pc.FORMATS)
+@pytest.mark.parametrize("fmt", outputs.FORMATS)
 def test_empty_cloud_round_trips(tmp_path, fmt):
     pts = np.zeros(0, dtype=POINT_DTYPE)
-    files = pc.write_points(tmp_path / f"e{pc.suffix_of(fmt)}", pts, {"partial": True})
-    back = pc.read_points(files[0])
+    files = outputs.write_points(tmp_path / f"e{outputs.suffix_of(fmt)}", pts, {"partial": True})
+    back = outputs.read_points(files[0])
     assert len(back) == 0 and back.dtype == POINT_DTYPE
     assert json.loads(files[1].read_text())["points"] == 0
 
@@ -100,22 +104,22 @@ def test_empty_cloud_round_trips(tmp_path, fmt):
 def test_write_points_writes_sidecar(tmp_path):
     pts = make_points(10)
     meta = {"profile": "fpsa20", "simulated": False, "partial": False, "chirp": {"ramp_s": 80e-6}}
-    files = pc.write_points(tmp_path / "s.ply", pts, meta)
+    files = outputs.write_points(tmp_path / "s.ply", pts, meta)
     assert files[1].name == "s.ply.json"
-    side = pc.read_sidecar(files[0])
+    side = outputs.read_sidecar(files[0])
     assert side["profile"] == "fpsa20" and side["simulated"] is False
     assert side["chirp"]["ramp_s"] == 80e-6 and side["points"] == 10 and side["format"] == "ply"
 
 
 def test_unknown_extension_is_named(tmp_path):
-    with pytest.raises(pc.PointCloudError, match="xyz"):
-        pc.write_points(tmp_path / "a.xyz", make_points(3), {})
+    with pytest.raises(outputs.PointCloudError, match="xyz"):
+        outputs.write_points(tmp_path / "a.xyz", make_points(3), {})
 
 
 def test_atomic_write_leaves_no_partial_file_on_failure(tmp_path):
     target = tmp_path / "x.ply"
     with pytest.raises(RuntimeError):
-        with pc.atomic_write(target) as f:
+        with files.atomic_write(target) as f:
             f.write(b"half a file")
             raise RuntimeError("writer died")
     assert os.listdir(tmp_path) == []
@@ -123,7 +127,7 @@ def test_atomic_write_leaves_no_partial_file_on_failure(tmp_path):
 
 def test_atomic_write_failure_keeps_previous_version(tmp_path, monkeypatch):
     target = tmp_path / "x.ply"
-    pc.write_ply(target, make_points(5))
+    ply_file.write_ply(target, make_points(5))
     before = target.read_bytes()
     from plyfile import PlyData
 
@@ -132,38 +136,38 @@ def test_atomic_write_failure_keeps_previous_version(tmp_path, monkeypatch):
         raise OSError("disk full")
     monkeypatch.setattr(PlyData, "write", boom)
     with pytest.raises(OSError, match="disk full"):
-        pc.write_ply(target, make_points(50))
+        ply_file.write_ply(target, make_points(50))
     assert target.read_bytes() == before
     assert os.listdir(tmp_path) == ["x.ply"]
 
 
 def test_wrong_dtype_rejected(tmp_path):
-    with pytest.raises(pc.PointCloudError, match="POINT_DTYPE"):
-        pc.write_ply(tmp_path / "a.ply", np.zeros(3))
+    with pytest.raises(outputs.PointCloudError, match="POINT_DTYPE"):
+        ply_file.write_ply(tmp_path / "a.ply", np.zeros(3))
 
 
 def test_written_files_get_ordinary_permissions_not_mkstemps_0600(tmp_path, monkeypatch):
-    monkeypatch.setattr(pc, "_UMASK", 0o022)
+    monkeypatch.setattr(files, "_UMASK", 0o022)
     target = tmp_path / "perm.bin"
-    with pc.atomic_write(target) as f:
+    with files.atomic_write(target) as f:
         f.write(b"x")
     assert (target.stat().st_mode & 0o777) == 0o644
-    monkeypatch.setattr(pc, "_UMASK", 0o077)
-    with pc.atomic_write(target) as f:
+    monkeypatch.setattr(files, "_UMASK", 0o077)
+    with files.atomic_write(target) as f:
         f.write(b"y")
     assert (target.stat().st_mode & 0o777) == 0o600
 
 
-@pytest.mark.parametrize("fmt", pc.FORMATS)
+@pytest.mark.parametrize("fmt", outputs.FORMATS)
 def test_every_format_gives_back_every_field_through_the_dispatch(tmp_path, fmt):
     pts = make_points(64)
     pts["flags"] = np.where(pts["valid"] == 0, 4, 0)
-    files = pc.write_points(tmp_path / f"r{pc.suffix_of(fmt)}", pts, {"scan_id": "S"})
-    assert pc.format_of(files[0]) == fmt and pc.read_sidecar(files[0])["format"] == fmt
-    back = pc.read_points(files[0])
+    files = outputs.write_points(tmp_path / f"r{outputs.suffix_of(fmt)}", pts, {"scan_id": "S"})
+    assert outputs.format_of(files[0]) == fmt and outputs.read_sidecar(files[0])["format"] == fmt
+    back = outputs.read_points(files[0])
     assert back.dtype == POINT_DTYPE and back.flags.writeable
     for name in POINT_DTYPE.names:
         if fmt == "las" and name in "xyz":      # LAS keeps x, y, z as 0.1 mm integers
-            assert np.abs(back[name] - pts[name]).max() <= pc.LAS_SCALE_M / 2 + 1e-6
+            assert np.abs(back[name] - pts[name]).max() <= las_file.LAS_SCALE_M / 2 + 1e-6
         else:
             np.testing.assert_array_equal(back[name], pts[name], err_msg=f"{fmt} {name}")

@@ -7,10 +7,10 @@ import pytest
 from mcap.reader import make_reader
 
 from lidard.instrument.types import POINT_DTYPE
-from lidard.live.channels import DEVICES_TOPIC, PACKED_DTYPE, POINTS_TOPIC, STATUS_TOPIC
+from lidard.outputs.channels import DEVICES_TOPIC, PACKED_DTYPE, POINTS_TOPIC, STATUS_TOPIC
 from lidard.outputs.mcap import read_mcap, write_mcap
 from lidard.outputs.pcd import read_pcd, write_pcd
-from lidard.pointcloud import FORMATS, format_of, read_points, write_points
+from lidard.outputs import FORMATS, format_of, read_points, write_points
 
 
 def cloud(n=257, seed=3):

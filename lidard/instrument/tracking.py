@@ -15,7 +15,7 @@ the chirp's ``pixel_s`` before). The budget is split:
   to where it will be at the middle of the next frame, widened by the motion over one frame, and
   scaled by the range change its radial velocity predicts (an approaching object grows). Every
   bonded pixel of the boxes is scanned (or every ``stride``-th when the boxes exceed their share);
-* **survey**: the adaptive pattern's coarse grid (:func:`lidard.scan.coarse_plan`, shared with
+* **survey**: the adaptive pattern's coarse grid (:func:`lidard.instrument.plan.coarse_plan`, shared with
   ``adaptive``), visited in a low-discrepancy order, a slice per frame continuing where the last
   frame's stopped, so the whole field is revisited every ``revisit`` frames and a new object is
   found within one revisit time.
@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from .instrument.frames import FramePlan
-from .instrument.types import ScanRequest
-from .physics.optics import FpsaOptics
-from .scan import ADAPTIVE_STEP, coarse_plan, selected_cols, selected_rows
+from .frames import FramePlan
+from .types import ScanRequest
+from ..physics.optics import FpsaOptics
+from .plan import ADAPTIVE_STEP, coarse_plan, selected_cols, selected_rows
 
 GOLDEN = 0.6180339887498949   # the survey's visiting order: i x golden mod 1 spreads any slice over the field
 

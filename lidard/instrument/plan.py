@@ -28,8 +28,8 @@ from collections.abc import Generator
 
 import numpy as np
 
-from .instrument.types import ScanRequest
-from .physics.optics import FpsaOptics
+from .types import ScanRequest
+from ..physics.optics import FpsaOptics
 
 ADAPTIVE_STEP = 4
 

@@ -17,11 +17,11 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from ..errors import UnknownScan
-from ..pointcloud import read_sidecar, suffix_of, write_points
+from ..outputs import read_sidecar, suffix_of, write_points
 from ..store import ScanRecord, Store
-from .capture import RAW_NAME, RawCapture, RawCaptureError, capture_size_bytes
-from .replay import ReprocessSettings, replay_dsp, reprocess
-from .spectrum import PixelSpectrum, pixel_spectrum
+from ..raw.capture import RAW_NAME, RawCapture, RawCaptureError, capture_size_bytes
+from ..raw.replay import ReprocessSettings, replay_dsp, reprocess
+from ..raw.spectrum import PixelSpectrum, pixel_spectrum
 
 
 class NoRawCapture(RawCaptureError):

@@ -1,14 +1,17 @@
 """Every point file read back with a reader lidard did not write (plyfile, laspy, mcap + protobuf from the
 file's own descriptor set, rosbags, a PCD header parse), each field and its type checked against the
-one schema, lidard.point_schema."""
+one schema, lidard.outputs.schema."""
 
 import json
 
 import numpy as np
 import pytest
 
-from lidard import pointcloud as pc
-from lidard.point_schema import (FOXGLOVE_TYPE, LAS_EXTRA_FIELDS, PCD_TYPE, POINT_DTYPE, POINT_FIELDS, ROS2_TYPE,
+from lidard import outputs
+from lidard.outputs import las as las_file
+from lidard.outputs import npz as npz_file
+from lidard.outputs import ply as ply_file
+from lidard.outputs.schema import (FOXGLOVE_TYPE, LAS_EXTRA_FIELDS, PCD_TYPE, POINT_DTYPE, POINT_FIELDS, ROS2_TYPE,
                                  las_extra_name)
 
 T_NS = 1_700_000_000_123_456_789
@@ -49,7 +52,7 @@ def test_schema_is_the_in_memory_record_and_row_col_are_int32():
 def test_ply_plyfile(tmp_path):
     from plyfile import PlyData
     pts = cloud()
-    path = pc.write_ply(tmp_path / "a.ply", pts)
+    path = ply_file.write_ply(tmp_path / "a.ply", pts)
     header = path.read_bytes().split(b"end_header")[0].decode("ascii").splitlines()
     assert "format binary_little_endian 1.0" in header
     props = [ln.split()[1:] for ln in header if ln.startswith("property ")]
@@ -75,7 +78,7 @@ def test_pcd_header_and_records(tmp_path):
 def test_las_laspy_noise_withheld_intensity_and_extra_bytes(tmp_path):
     import laspy
     pts = cloud()
-    path = pc.write_las(tmp_path / "a.las", pts)
+    path = las_file.write_las(tmp_path / "a.las", pts)
     las = laspy.read(str(path))
     invalid = pts["valid"] == 0
     assert invalid.any() and (~invalid).any()
@@ -106,7 +109,7 @@ def test_las_laspy_noise_withheld_intensity_and_extra_bytes(tmp_path):
 
 def test_npz_numpy(tmp_path):
     pts = cloud()
-    path = pc.write_npz(tmp_path / "a.npz", pts, {"k": 1})
+    path = npz_file.write_npz(tmp_path / "a.npz", pts, {"k": 1})
     with np.load(path, allow_pickle=False) as z:
         assert_fields_exact(z["points"], pts)
 
@@ -158,7 +161,7 @@ def test_ros2_mcap_rosbags(tmp_path):
     from lidard.outputs.ros2 import write_ros2_mcap
     pts = cloud()
     files = [write_ros2_mcap(tmp_path / "a.ros2.mcap", pts, {"scan_id": "S", "partial": True}, time_ns=T_NS)]
-    assert pc.format_of(files[0]) == "ros2" and pc.suffix_of("ros2") == ".ros2.mcap"
+    assert outputs.format_of(files[0]) == "ros2" and outputs.suffix_of("ros2") == ".ros2.mcap"
     store = get_typestore(Stores.EMPTY)
     with Reader(files[0]) as reader:
         conns = {c.topic: c for c in reader.connections}
@@ -182,14 +185,14 @@ def test_ros2_mcap_rosbags(tmp_path):
     status = json.loads(got["/lidar/scan_status"][1].data)
     assert status["event"] == "end" and status["scan_id"] == "S" and status["points"] == len(pts)
     # lidard's own reader agrees, through the format dispatch, which writes the sidecar too
-    files = pc.write_points(tmp_path / "b.ros2.mcap", pts, {"scan_id": "S"})
-    assert files[1].name == "b.ros2.mcap.json" and pc.read_sidecar(files[0])["format"] == "ros2"
-    assert_fields_exact(pc.read_points(files[0]), pts)
+    files = outputs.write_points(tmp_path / "b.ros2.mcap", pts, {"scan_id": "S"})
+    assert files[1].name == "b.ros2.mcap.json" and outputs.read_sidecar(files[0])["format"] == "ros2"
+    assert_fields_exact(outputs.read_points(files[0]), pts)
 
 
 def test_foxglove_mcap_is_not_taken_for_ros2(tmp_path):
     from lidard.outputs.ros2 import read_ros2_mcap
     pts = cloud(5)
-    pc.write_points(tmp_path / "f.mcap", pts, {})
-    with pytest.raises(pc.PointCloudError, match="profile is not ros2"):
+    outputs.write_points(tmp_path / "f.mcap", pts, {})
+    with pytest.raises(outputs.PointCloudError, match="profile is not ros2"):
         read_ros2_mcap(tmp_path / "f.mcap")

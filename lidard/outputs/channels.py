@@ -3,7 +3,7 @@
 Three topics, one per thing a robotics user looks at:
 
 * ``/lidar/points``: ``foxglove.PointCloud`` (protobuf) in frame ``lidar`` (the sensor frame of
-  §4.1.1: +z the optical axis). Every field of :data:`lidard.point_schema.POINT_FIELDS` (``valid``,
+  §4.1.1: +z the optical axis). Every field of :data:`lidard.outputs.schema.POINT_FIELDS` (``valid``,
   ``flags`` and ``return_index`` included, so a viewer can filter what the DSP rejected), packed
   little-endian per point in its schema dtype (:data:`PACKED_DTYPE` is POINT_DTYPE).
 * ``/lidar/scan_status``: JSON, the worker's progress/end events (``lidard.jobs``) and a stream's
@@ -27,7 +27,7 @@ from foxglove.channels import PointCloudChannel
 from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud, Pose, Quaternion, \
     Timestamp, Vector3
 
-from ..point_schema import FOXGLOVE_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS
+from .schema import FOXGLOVE_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS
 
 FRAME_ID = "lidar"
 POINTS_TOPIC, STATUS_TOPIC, DEVICES_TOPIC = "/lidar/points", "/lidar/scan_status", "/lidar/devices"

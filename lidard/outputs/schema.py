@@ -25,17 +25,8 @@ Pure: numpy only, no I/O.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, get_args
 
 import numpy as np
-
-# The point-file formats, the one list: the scan request's ``formats`` (lidard.instrument.types),
-# the API's ``FileFormat`` and the writers' dispatch (lidard.pointcloud) all take it from here.
-# "mcap" is the Foxglove flavour (foxglove.PointCloud, protobuf), "ros2" the rosbag2 flavour
-# (sensor_msgs/msg/PointCloud2, CDR); both are MCAP files, told apart by the suffix ``.ros2.mcap``.
-PointFormat = Literal["ply", "las", "npz", "pcd", "mcap", "ros2"]
-POINT_FORMATS: tuple[PointFormat, ...] = get_args(PointFormat)
-
 
 @dataclass(frozen=True)
 class PointField:
