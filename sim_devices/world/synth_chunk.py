@@ -42,7 +42,7 @@ class Tables:
     u_start: np.ndarray
     u_inv: np.ndarray
     single_start: bool
-    grid: object
+    grid: tuple[int, int] | None
     mean_w: float
     aa_rate: float
     base: np.ndarray | None
@@ -149,7 +149,9 @@ def _beat_phase(tb: Tables, h: SortedHits, hs: slice, fast: bool, phi_on: bool):
         x += (tb.u_start[useg] + off - tau[hs] * traj.fs_hz)[:, None]
         dphi = traj._phase_nonneg(x, periods)
         del x
-        np.subtract(tb.base[0] if tb.single_start else tb.base[useg], dphi, out=dphi)
+        base = tb.base
+        assert base is not None         # computed whenever there are hits (synth._tables)
+        np.subtract(base[0] if tb.single_start else base[useg], dphi, out=dphi)
         if moving:
             lin = np.multiply.outer(slope, k)
             lin += const[:, None]
@@ -224,6 +226,8 @@ def mzi_chunk(tb: Tables, s0: int, s1: int, phi, n_pre: int, m_mzi, w_mzi, var_s
     single_start, mzi_det = tb.single_start, tb.mzi_det
     acc = {}
     ub = tb.u_inv[s0:s1]
+    # the tables hold the MZI's phase and fringes whenever an MZI is synthesized (synth._tables)
+    assert mzi_det is not None and tb.mzi_clean is not None
     if phi is not None:
         mphi = mzi_det[0] + phi[:, n_pre:] if single_start else mzi_det[ub] + phi[:, n_pre:]
         mphi -= delayed_noise(phi, np.arange(nc), n_pre, n, np.full(nc, m_mzi[0]),
@@ -236,6 +240,7 @@ def mzi_chunk(tb: Tables, s0: int, s1: int, phi, n_pre: int, m_mzi, w_mzi, var_s
     else:
         acc["mzi"] = np.repeat(tb.mzi_clean, nc, axis=0) if single_start else tb.mzi_clean[ub]
         if quadrature:
+            assert tb.mzi_clean_q is not None
             acc["mzi_q"] = np.repeat(tb.mzi_clean_q, nc, axis=0) if single_start else tb.mzi_clean_q[ub]
     return acc
 
@@ -269,6 +274,8 @@ def digitize_chunk(acc: dict, channels: list[str], adc: AdcSpec, s0: int, s1: in
         if volts is not None:
             volts[c][s0:s1] = v
         j = channels.index(c)
+        lo: float
+        hi: float
         if adc.quantize:
             v *= 1.0 / adc.lsb_v
             np.rint(v, out=v)
