@@ -34,6 +34,7 @@ Up to ``max_detections`` per ramp, STRONGEST FIRST, in fixed-shape (batch, K) ar
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Literal, get_args
 
 import numpy as np
@@ -88,7 +89,7 @@ def _sliding_sum(p: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarra
     return cs[..., b] - cs[..., a], (b - a).astype(np.float64)
 
 
-def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float):
+def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float) -> tuple[np.ndarray, np.ndarray | float]:
     lag_s, lag_n = _sliding_sum(p, -n_guard - n_ref_side, -n_guard - 1)
     lead_s, lead_n = _sliding_sum(p, n_guard + 1, n_guard + n_ref_side)
     count = lag_n + lead_n
@@ -220,7 +221,8 @@ def cfar_detect(
     )
 
 
-def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa) -> np.ndarray:
+def _checked_power(power: np.ndarray, *, method: str, window: str, n_ref: int, n_guard: int, max_detections: int,
+                   pfa: float) -> np.ndarray:
     """``power`` as float64 after checking its type and the detector's knobs (a DspInputError names the
     bad one); its values are checked next (:func:`_check_power_values`, or in the compiled pass)."""
     p = np.asarray(power)
@@ -253,8 +255,9 @@ def _check_power_values(p: np.ndarray) -> None:
         raise DspInputError("power contains negative values; pass |X|^2")
 
 
-def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_pad, iq, bin_range, dc_guard_bins,
-                sidelobe_margin_db, kern) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _candidates(p2: np.ndarray, *, method: str, n_ref_side: int, n_guard: int, pfa: float, os_rank: int | None,
+                window: str, zero_pad: int, iq: bool, bin_range: tuple[int, int] | None, dc_guard_bins: int | None,
+                sidelobe_margin_db: float, kern: SimpleNamespace | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate:
     (rows, bins, noise) of each, row-major (a few per ramp: the detector never builds a dense map).
     ``kern``: the compiled kernels for OS-CFAR (:mod:`lidard.dsp.jit`), or None (numpy)."""

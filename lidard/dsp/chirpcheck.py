@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .ilcmeasure import _directions
 from .ilcmeasure import _Analyzer
@@ -48,7 +49,7 @@ class ChirpResidual:
         return self.error_hz / self.excursion_hz
 
 
-def chirp_residual(records, drive_v, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
+def chirp_residual(records: ArrayLike, drive_v: ArrayLike, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
                    excursion_hz: float, mzi_delay_s: float, roi: float = 0.8, learn: float = 0.92,
                    meas_cutoff_hz: float = 400e3) -> ChirpResidual:
     """The error of the chirp that ``drive_v`` produced, from monitor records of it.

@@ -59,6 +59,7 @@ from typing import Any, Literal
 from collections.abc import Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .ilcmeasure import _Analysis, _Analyzer, _directions
 from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
@@ -92,7 +93,7 @@ class IlcIteration:
     accepted: bool
     averages: int = 0          # periods averaged for this measurement
 
-    def __getitem__(self, key: str):  # allow it["up_rms_hz"] as in the task's dict notation
+    def __getitem__(self, key: str) -> Any:  # allow it["up_rms_hz"] as in the task's dict notation
         return getattr(self, key)
 
 
@@ -174,8 +175,9 @@ def _norm(pair: tuple[float, float]) -> float:
     return math.hypot(pair[0], pair[1])
 
 
-def _check_knobs(*, q_cutoff_hz, meas_cutoff_hz, beta, roi, learn, max_iter, update, max_drive_factor,
-                 max_drive_v, averages, max_averages, target_frac) -> int:
+def _check_knobs(*, q_cutoff_hz: float, meas_cutoff_hz: float, beta: float, roi: float, learn: float, max_iter: int,
+                 update: str, max_drive_factor: float, max_drive_v: float | None, averages: int,
+                 max_averages: int | None, target_frac: float) -> int:
     """Raise a ValueError naming the first bad argument; return the largest average count allowed."""
     check_positive("q_cutoff_hz", q_cutoff_hz)
     check_positive("meas_cutoff_hz", meas_cutoff_hz)
@@ -297,7 +299,7 @@ def _record(st: _IlcState, accepted: bool) -> None:
                                  beta=st.beta, phase_slips=a.slips, accepted=accepted, averages=st.n_avg))
 
 
-def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
+def linearize(measure: MeasureFn, drive0_v: ArrayLike, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
               excursion_hz: float, mzi_delay_s: float, beta: float = 0.8, max_iter: int = 14,
               roi: float = 0.8, averages: int = 128, learn: float = 0.92,
               q_cutoff_hz: float = 1.0e6, meas_cutoff_hz: float = 400e3,

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .ilcquad import quadrature_ramp_nu
-from .instfreq import best_fit_residual, fft_filter, hilbert, lowpass_padded, ramp_frequency
+from .instfreq import RampFrequency, best_fit_residual, fft_filter, hilbert, lowpass_padded, ramp_frequency
 
 # narrow-band refinement of the MZI phase (see _Analyzer._refine)
 _RIDGE_WINDOW_S = 2e-6
@@ -46,8 +46,9 @@ class _Analysis:
 class _Analyzer:
     """Everything about turning one averaged MZI record into errors; fixed geometry per run."""
 
-    def __init__(self, *, fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s, roi, learn,
-                 meas_cutoff_hz, directions, refine=True):
+    def __init__(self, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float, excursion_hz: float,
+                 mzi_delay_s: float, roi: float, learn: float, meas_cutoff_hz: float, directions: tuple[int, int],
+                 refine: bool = True) -> None:
         self.fs_d, self.fs_a, self.T = fs_drive_hz, fs_adc_hz, ramp_s
         self.tau_m, self.roi, self.learn = mzi_delay_s, roi, learn
         self.slope = excursion_hz / ramp_s
@@ -61,7 +62,7 @@ class _Analyzer:
         # Hilbert transients and turning points: a few beat periods, but never into the learn region
         self.edge_s = min(3.0 / self.f_beat, 0.5 * (1 - learn) * ramp_s)
 
-    def _ramp_nu(self, x_avg: np.ndarray):
+    def _ramp_nu(self, x_avg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, int]]:
         """Band-pass the averaged period, then per ramp: drive-frame nu (low-passed) on its time axis."""
         lo = 0.25 * self.f_beat
         hi = max(4.0 * self.f_beat, 4.0 * self.meas_cutoff)
@@ -78,7 +79,7 @@ class _Analyzer:
             out.append((t, self._unfold(nu, self.directions[r]), rf.phase_slips))
         return out
 
-    def _refine(self, seg: np.ndarray, rf) -> np.ndarray:
+    def _refine(self, seg: np.ndarray, rf: RampFrequency) -> np.ndarray:
         """Narrow-band re-estimate of one ramp's drive-frame nu (valid samples).
 
         The Hilbert phase of the averaged beat takes the whole pass band's noise non-linearly. With a
@@ -145,7 +146,7 @@ class _Analyzer:
         tr = t - r * self.T
         return (tr >= 0.5 * (1 - frac) * self.T) & (tr <= 0.5 * (1 + frac) * self.T)
 
-    def _records_nu(self, y: np.ndarray):
+    def _records_nu(self, y: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, int]]:
         """Per ramp (t, drive-frame nu, slips) of a set of records: a real fringe is averaged coherently
         then demodulated; a quadrature one (complex I + jQ) is demodulated per record and its phases
         averaged (:mod:`lidard.dsp.ilcquad`)."""

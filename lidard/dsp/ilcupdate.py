@@ -11,9 +11,11 @@ Pure numpy: no I/O, no clock, no logging.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .instfreq import fft_filter
 
@@ -24,7 +26,7 @@ _BASIS_DECIMATE = 4
 _INVERSE_FLOOR = 0.1
 
 
-def fit_fm_response(drive_v, ramps_nu, *, fs_drive_hz: float, ramp_s: float, learn: float,
+def fit_fm_response(drive_v: ArrayLike, ramps_nu: Sequence[tuple[np.ndarray, np.ndarray]], *, fs_drive_hz: float, ramp_s: float, learn: float,
                     floor_hz_per_v: float) -> np.ndarray:
     """Model-free estimate of the FM response H(f) (Hz/V, drive frame) on the drive's rfft grid.
 
@@ -79,7 +81,7 @@ class Proposal:
     reason: str = ""
 
 
-def propose_drive(cur_u: np.ndarray, err_drive: np.ndarray, ramps_nu, *, tuning_hz_per_v: float,
+def propose_drive(cur_u: np.ndarray, err_drive: np.ndarray, ramps_nu: Sequence[tuple[np.ndarray, np.ndarray]], *, tuning_hz_per_v: float,
                   beta: float, update: str, fs_drive_hz: float, ramp_s: float, learn: float,
                   q_cutoff_hz: float, cap_v: float, min_beta: float, cap_text: str) -> Proposal:
     """One learning step from ``cur_u`` with error ``err_drive`` (Hz, drive grid), low-passed by Q.

@@ -16,10 +16,14 @@ order statistic. Edges are mirrored (numpy's "reflect"), as in :func:`lidard.dsp
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numba
 import numpy as np
 
-_jit = numba.njit(cache=True, nogil=True)
+# numba carries no type information: the compiled functions are typed Any to their (few) callers
+_jit: Callable[[Callable[..., Any]], Any] = numba.njit(cache=True, nogil=True)
 
 OS_BLOCK = 16       # cells per block of the OS-CFAR screen
 _HOOD = 48          # block neighbourhoods up to this many cells are counted in one fixed-length loop
@@ -27,13 +31,14 @@ _INF_BITS = 0x7FF0000000000000     # bit patterns of non-negative finite doubles
 
 
 @_jit
-def power(z, out):  # pragma: no cover (compiled; checked against numpy in the tests)
+def power(z: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover (compiled; checked against numpy in the tests)
     for i in range(z.size):
         out[i] = z[i].real * z[i].real + z[i].imag * z[i].imag
 
 
 @_jit
-def _block_tops(row, bits, top, buf, reach):  # pragma: no cover
+def _block_tops(row: np.ndarray, bits: np.ndarray, top: np.ndarray, buf: np.ndarray,
+                reach: int) -> tuple[float, bool]:  # pragma: no cover
     """Largest cell of each block of ``row`` into ``top``, and the row into buf[reach:] (the same
     pass over memory); returns (row max, plain): plain when every cell is a non-negative finite
     number and not -0.0, read from the int64 bit patterns ``bits`` (whose order is then the cells'
@@ -69,7 +74,7 @@ def _block_tops(row, bits, top, buf, reach):  # pragma: no cover
 
 
 @_jit
-def _has_bad(row):  # pragma: no cover
+def _has_bad(row: np.ndarray) -> bool:  # pragma: no cover
     bad = False
     for x in row:
         bad |= not ((x >= 0.0) & (x <= 1.7976931348623157e308))      # NaN, negative or infinite
@@ -77,7 +82,7 @@ def _has_bad(row):  # pragma: no cover
 
 
 @_jit
-def _fill_mirrored(row, reach, buf):  # pragma: no cover
+def _fill_mirrored(row: np.ndarray, reach: int, buf: np.ndarray) -> None:  # pragma: no cover
     """The ``reach`` mirrored cells on each side of buf[reach + j] = row[j] (the edge cell not repeated)."""
     n = row.size
     for i in range(reach):
@@ -86,7 +91,7 @@ def _fill_mirrored(row, reach, buf):  # pragma: no cover
 
 
 @_jit
-def _count_below(buf, lo, length, t):  # pragma: no cover
+def _count_below(buf: np.ndarray, lo: int, length: int, t: float) -> int:  # pragma: no cover
     """How many of buf[lo : lo + length] are not >= t (NaN counts, as in the per-cell count)."""
     below = 0
     for s in range(0, length, _HOOD):   # fixed-length masked chunks: vectorised (buf has _HOOD spare cells)
@@ -98,7 +103,7 @@ def _count_below(buf, lo, length, t):  # pragma: no cover
 
 
 @_jit
-def _kth(ref, k, plain):  # pragma: no cover
+def _kth(ref: np.ndarray, k: int, plain: bool) -> float:  # pragma: no cover
     """The k-th smallest of ``ref`` (as ``np.sort(ref)[k - 1]``: the same element, NaN last)."""
     if not plain:
         ref.sort()
@@ -115,7 +120,7 @@ def _kth(ref, k, plain):  # pragma: no cover
 
 
 @_jit
-def _local_maxima(buf, reach, lo, hi, n, maxima):  # pragma: no cover
+def _local_maxima(buf: np.ndarray, reach: int, lo: int, hi: int, n: int, maxima: np.ndarray) -> int:  # pragma: no cover
     """The local maxima among cells lo..hi-1 into ``maxima`` (beyond either edge is -inf); returns
     their number. Listed without a branch per cell; the mirrored cell at the first edge gives the
     edge's own test (x > p[1]), the last cell is tested apart (x >= p[n - 2])."""
@@ -133,7 +138,9 @@ def _local_maxima(buf, reach, lo, hi, n, maxima):  # pragma: no cover
 
 
 @_jit
-def _pass_cells(r, buf, q, maxima, plain, floor, cfg, out_r, out_c, out_noise, m):  # pragma: no cover
+def _pass_cells(r: int, buf: np.ndarray, q: int, maxima: np.ndarray, plain: bool, floor: float,
+                cfg: tuple[int, int, int, float, float, float, bool], out_r: np.ndarray, out_c: np.ndarray,
+                out_noise: np.ndarray, m: int) -> int:  # pragma: no cover
     """The per-cell count, then the exact statistic, for the local maxima listed; appends the cells
     kept (all that pass the count, or with ``exact`` those that pass the detector's test) at ``m``;
     returns the new count, or -1 when the output is full."""
@@ -168,8 +175,9 @@ def _pass_cells(r, buf, q, maxima, plain, floor, cfg, out_r, out_c, out_noise, m
 
 
 @_jit
-def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor_factor, exact,
-            out_r, out_c, out_noise):  # pragma: no cover
+def os_scan(p: np.ndarray, bits: np.ndarray, n_side: int, guard: int, k: int, thr_factor: float, mean_kth: float,
+            scaled_alpha: float, floor_factor: float, exact: bool, out_r: np.ndarray, out_c: np.ndarray,
+            out_noise: np.ndarray) -> int:  # pragma: no cover
     """OS-CFAR over the rows of ``p`` (``bits``: the same memory as int64), see :func:`lidard.dsp.jit.os_detect`
     (``exact``) and :func:`lidard.dsp.jit.os_screen`. Returns the number of cells written, -1 if
     they do not fit, -2 (``exact`` only) if ``p`` holds a NaN, an infinite or a negative value."""
@@ -203,7 +211,8 @@ def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor
 
 
 @_jit
-def widths_6db(flat, start, col, n, max_half, out):  # pragma: no cover
+def widths_6db(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, max_half: int,
+               out: np.ndarray) -> None:  # pragma: no cover
     """-6 dB full widths of the peaks at flat[start + col] (rows of ``n`` cells from ``start``), as
     lidard.dsp.cfar_post._widths_flat computes them: per side the first of ``max_half`` cells out
     (the edge cell repeating) below a quarter of the peak, interpolated with the cell before it."""

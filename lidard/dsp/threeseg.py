@@ -40,11 +40,13 @@ total likelihood is taken (the least motion among equally good sets). Pure numpy
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from .cwhold import HoldProfile, resolve_boundary
+from .cwhold import HoldProfile, PairSlots, resolve_boundary
 from .gate import aliased, point_flags
 from .rangefft import C_M_PER_S, RangeFFT
 from .ranging.assign import best_matching, line_snr, pair_loglik, tie_llr
@@ -112,7 +114,7 @@ def cw_band_power(p_cw: np.ndarray, df_hz: float, centre_hz: np.ndarray, half_hz
     return peak, width <= 0
 
 
-def cw_line_threshold(cw_pfa, records: int, cells=1):
+def cw_line_threshold(cw_pfa: float, records: int, cells: ArrayLike = 1) -> np.ndarray:
     """The noise-normalised power the peak of ``cells`` CW cells, each averaged over ``records`` records,
     passes with probability ``cw_pfa`` in noise alone (each cell at cw_pfa / cells: chi-square with 2L
     degrees of freedom, over 2L)."""
@@ -126,7 +128,9 @@ def cw_noise(p_cw: np.ndarray, records: int) -> np.ndarray:
     return _median_last(p_cw) / (float(chi2_isf(0.5, 2.0 * records)) / (2.0 * records))
 
 
-def _regime_line(table, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band, records, cw_pfa):
+def _regime_line(table: _RangeMax, df_hz: float, f_r: np.ndarray, d_abs: np.ndarray, noise: np.ndarray,
+                 guard_bins: int, guard_hz: float, band: tuple[np.ndarray, np.ndarray] | None, records: int,
+                 cw_pfa: float) -> tuple[np.ndarray, np.ndarray]:
     """Per candidate: (the noise-normalised peak power of the CW band the regime predicts, whether it
     is a line at ``cw_pfa`` over the band's cells). A regime that predicts |f_D| inside the CW's DC
     guard: (+inf, True), no beat can be seen there and none is needed. ``band``: (centre, half width)
@@ -144,7 +148,7 @@ def _regime_line(table, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band, re
     return np.where(guard, np.inf, x).reshape(f_r.shape), (line | guard).reshape(f_r.shape)
 
 
-def drift_band(f_r, f_d, rho):
+def drift_band(f_r: np.ndarray, f_d: np.ndarray, rho: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """(centre, half width) of |f_R rho(t) - f_D| over the CW window: the band a return's CW beat
     occupies when the held segment's drift rate, relative to the ramps', spans ``rho`` = (lo, hi)
     (measured: lidard.dsp.cwhold; f_D signed, the bench's convention)."""
@@ -154,8 +158,9 @@ def drift_band(f_r, f_d, rho):
     return 0.5 * (top + bottom), 0.5 * (top - bottom)
 
 
-def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz: float, rho=None,
-                records: int = 1, cw_pfa: float = 1e-6):
+def score_pairs(fu: np.ndarray, fd: np.ndarray, vu: np.ndarray, vd: np.ndarray, p_cw: np.ndarray, df_hz: float, *,
+                guard_bins: int, guard_hz: float, rho: tuple[float, float] | None = None, records: int = 1,
+                cw_pfa: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every (up i, down j) pair of every row: (possible (n, K, K), folded, f_range, f_dopp (signed),
     ambiguous).
 
@@ -188,9 +193,10 @@ def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz
     return possible, folded, f_r, sign * d_abs, ambiguous
 
 
-def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float, wavelength_m: float,
-               guard_bins: int, max_targets: int, rho=None, snr=None, records: int = 1, cw_pfa: float = 1e-6,
-               tie_level: float = 1e-3):
+def pair_three(fu: ArrayLike, fd: ArrayLike, vu: ArrayLike, vd: ArrayLike, p_cw: np.ndarray, df_hz: float, *,
+               chirp_rate_hz_per_s: float, wavelength_m: float, guard_bins: int, max_targets: int,
+               rho: tuple[float, float] | None = None, snr: Sequence[np.ndarray] | None = None, records: int = 1,
+               cw_pfa: float = 1e-6, tie_level: float = 1e-3) -> PairSlots:
     """The assignment of up/down pairs per row of largest total likelihood (module doc).
 
     Inputs (n, K) ramp magnitudes (Hz) and masks, the CW power spectrum (n, n_bins) with bin spacing
@@ -243,14 +249,14 @@ def _smooth_at_most(n: int) -> int:
     return 2
 
 
-def cw_window(dsp, skip_fraction: float = CW_SKIP_FRACTION) -> tuple[int, int]:
+def cw_window(dsp: Any, skip_fraction: float = CW_SKIP_FRACTION) -> tuple[int, int]:
     """(first sample, samples used) of the CW segment in a record (after the two ramps): at least the
     first ``skip_fraction`` skipped, an FFT-friendly length ending with the record."""
     n = _smooth_at_most(dsp.cw_samples - int(dsp.cw_samples * skip_fraction))
     return 2 * dsp.ramp_samples + dsp.cw_samples - n, n
 
 
-def drift_rho(dsp, profile: HoldProfile) -> tuple[float, float]:
+def drift_rho(dsp: Any, profile: HoldProfile) -> tuple[float, float]:
     """The measured drift rate's range over the CW window, relative to the ramps' chirp rate (1st to
     99th percentile: the profile's Hilbert edge at the hold's end is not the laser)."""
     a, n = cw_window(dsp)
@@ -260,7 +266,7 @@ def drift_rho(dsp, profile: HoldProfile) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
+def cw_front_end(dsp: Any, x: np.ndarray, lsb_v: float) -> tuple[np.ndarray, float]:
     """The CW segment's power spectrum (n_pix, n_bins), averaged over the pixel's records, and its
     bin spacing (Hz)."""
     a, n = cw_window(dsp)
@@ -269,7 +275,8 @@ def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
 
 
-def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarray) -> dict[str, Any]:
+def pair_frame_three(dsp: Any, out_f: list[Any], out_det: list[Any], cw: tuple[np.ndarray, float],
+                     x: np.ndarray) -> dict[str, Any]:
     """The FrameResult fields (as a dict) of a three-segment frame; ``x`` the batch's records (the
     CW segments the boundary's dechirp reads)."""
     (fu, fd), (du, dd) = out_f, out_det
@@ -290,7 +297,7 @@ def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarra
                          (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,
                          cw_window=cw_window(dsp, DECHIRP_SKIP_FRACTION))
 
-    def pick(field_up, field_dn):
+    def pick(field_up: np.ndarray, field_dn: np.ndarray) -> np.ndarray:
         a = np.take_along_axis(field_up.reshape(-1, k), np.maximum(iu, 0), axis=1)
         b = np.take_along_axis(field_dn.reshape(-1, k), np.maximum(idn, 0), axis=1)
         return np.where(iu >= 0, a, b)
