@@ -61,7 +61,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .ilcmeasure import _Analysis, _Analyzer, _directions
+from .ilcmeasure import ChirpGeometry, _Analysis, _Analyzer, _directions
 from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
 from .instfreq import check_finite_array, check_positive
 
@@ -109,6 +109,42 @@ class IlcResult:
     stop_reason: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 
+
+
+@dataclass(frozen=True)
+class IlcSettings:
+    """The knobs of one :func:`linearize` run (checked when it starts; a ValueError names a bad one).
+
+    ``beta``: the learning gain (0, 10]; ``max_iter``: updates at most (14, the dissertation's count);
+    ``roi``/``learn``: the fractions of each ramp where the nonlinearity is reported and where the error
+    is learned (0 < roi < learn <= 1); ``averages``: periods averaged per measurement, growing up to
+    ``max_averages`` (default: no growth) while the noise floor stops learning above ``target_frac`` of
+    the excursion; ``q_cutoff_hz``: the Q filter's low pass on the drive; ``meas_cutoff_hz``: the
+    frequency estimate's low pass; ``rel_tol``: an improvement below it twice running stops learning;
+    ``grow_tol``: an error growing by more is rolled back and beta halved, down to ``min_beta``;
+    ``abs_tol_frac``: a nonlinearity below this fraction of the excursion is done; ``refine``: the
+    narrow-band re-estimate of the frequency; ``update``: the inverse-model law or the scalar one;
+    ``max_drive_factor``/``max_drive_v``: no drive beyond that multiple of the initial peak, or beyond
+    that voltage (the output stage's range), is ever sent.
+    """
+
+    beta: float = 0.8
+    max_iter: int = 14
+    roi: float = 0.8
+    averages: int = 128
+    learn: float = 0.92
+    q_cutoff_hz: float = 1.0e6
+    meas_cutoff_hz: float = 400e3
+    rel_tol: float = 0.02
+    grow_tol: float = 0.2
+    min_beta: float = 0.05
+    abs_tol_frac: float = 1e-6
+    refine: bool = True
+    update: Literal["inverse", "scalar"] = "inverse"
+    max_drive_factor: float = 4.0
+    max_drive_v: float | None = None
+    max_averages: int | None = None
+    target_frac: float = 4e-6
 
 
 @dataclass(frozen=True)
@@ -175,10 +211,11 @@ def _norm(pair: tuple[float, float]) -> float:
     return math.hypot(pair[0], pair[1])
 
 
-def _check_knobs(*, q_cutoff_hz: float, meas_cutoff_hz: float, beta: float, roi: float, learn: float, max_iter: int,
-                 update: str, max_drive_factor: float, max_drive_v: float | None, averages: int,
-                 max_averages: int | None, target_frac: float) -> int:
-    """Raise a ValueError naming the first bad argument; return the largest average count allowed."""
+def _check_knobs(s: IlcSettings) -> int:
+    """Raise a ValueError naming the first bad setting; return the largest average count allowed."""
+    q_cutoff_hz, meas_cutoff_hz, beta, roi, learn = s.q_cutoff_hz, s.meas_cutoff_hz, s.beta, s.roi, s.learn
+    max_iter, update, max_drive_factor, max_drive_v = s.max_iter, s.update, s.max_drive_factor, s.max_drive_v
+    averages, max_averages, target_frac = s.averages, s.max_averages, s.target_frac
     check_positive("q_cutoff_hz", q_cutoff_hz)
     check_positive("meas_cutoff_hz", meas_cutoff_hz)
     if not (math.isfinite(beta) and 0 < beta <= 10):
@@ -299,21 +336,16 @@ def _record(st: _IlcState, accepted: bool) -> None:
                                  beta=st.beta, phase_slips=a.slips, accepted=accepted, averages=st.n_avg))
 
 
-def linearize(measure: MeasureFn, drive0_v: ArrayLike, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
-              excursion_hz: float, mzi_delay_s: float, beta: float = 0.8, max_iter: int = 14,
-              roi: float = 0.8, averages: int = 128, learn: float = 0.92,
-              q_cutoff_hz: float = 1.0e6, meas_cutoff_hz: float = 400e3,
-              rel_tol: float = 0.02, grow_tol: float = 0.2, min_beta: float = 0.05,
-              abs_tol_frac: float = 1e-6, refine: bool = True,
-              update: Literal["inverse", "scalar"] = "inverse", max_drive_factor: float = 4.0,
-              max_drive_v: float | None = None, max_averages: int | None = None,
-              target_frac: float = 4e-6) -> IlcResult:
+def linearize(measure: MeasureFn, drive0_v: ArrayLike, chirp: ChirpGeometry,
+              settings: IlcSettings | None = None) -> IlcResult:
     """Iteratively pre-distort ``drive0_v`` so that the MZI-measured chirp becomes linear (§2.2).
 
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
     returns ``n_avg`` recorded periods of the monitor-MZI beat, shape ``(n_avg, 2 ramp_s fs_adc_hz)``,
     each aligned with the start of the drive period: real (one photodiode), or complex I + jQ for a
-    quadrature monitor (``[monitor] quadrature``; phases averaged, see :mod:`lidard.dsp.ilcquad`). Stops when the nonlinearity reaches twice the
+    quadrature monitor (``[monitor] quadrature``; phases averaged, see :mod:`lidard.dsp.ilcquad`).
+    ``chirp``: the rates, ramp, excursion and monitor delay; ``settings``: the learner's knobs
+    (:class:`IlcSettings`; its defaults when None). Stops when the nonlinearity reaches twice the
     measured noise floor or stops improving by ``rel_tol``; a step whose error grows by more than
     ``grow_tol`` is rolled back and beta halved. Returns the best drive seen.
 
@@ -324,32 +356,27 @@ def linearize(measure: MeasureFn, drive0_v: ArrayLike, *, fs_drive_hz: float, fs
     never pays for it. The default target, 4e-6 of the excursion, is what a >= 1000x reduction of a
     ~0.7 % RMS nonlinearity needs; the measurement itself is unchanged.
     """
+    s = IlcSettings() if settings is None else settings
     if not callable(measure):
         raise TypeError("measure must be callable as measure(drive_v, n_avg)")
     u0 = check_finite_array("drive0_v", drive0_v, ndim=(1,)).copy()
-    fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s = (check_positive(name, v) for name, v in (
-        ("fs_drive_hz", fs_drive_hz), ("fs_adc_hz", fs_adc_hz), ("ramp_s", ramp_s),
-        ("excursion_hz", excursion_hz), ("mzi_delay_s", mzi_delay_s)))
-    max_avg = _check_knobs(q_cutoff_hz=q_cutoff_hz, meas_cutoff_hz=meas_cutoff_hz, beta=beta, roi=roi,
-                           learn=learn, max_iter=max_iter, update=update,
-                           max_drive_factor=max_drive_factor, max_drive_v=max_drive_v, averages=averages,
-                           max_averages=max_averages, target_frac=target_frac)
-    n_drive = 2 * ramp_s * fs_drive_hz
+    g = chirp.checked()
+    max_avg = _check_knobs(s)
+    n_drive = 2 * g.ramp_s * g.fs_drive_hz
     if abs(n_drive - u0.size) > 0.5:
         raise ValueError(f"drive0_v has {u0.size} samples; one period 2 ramp_s fs_drive_hz is {n_drive:g}")
-    an = _Analyzer(fs_drive_hz=fs_drive_hz, fs_adc_hz=fs_adc_hz, ramp_s=ramp_s, excursion_hz=excursion_hz,
-                   mzi_delay_s=mzi_delay_s, roi=roi, learn=learn, meas_cutoff_hz=meas_cutoff_hz,
-                   directions=_directions(u0), refine=bool(refine))
-    if an.f_beat * ramp_s < 10:
+    an = _Analyzer(g, roi=s.roi, learn=s.learn, meas_cutoff_hz=s.meas_cutoff_hz, directions=_directions(u0),
+                   refine=bool(s.refine))
+    if an.f_beat * g.ramp_s < 10:
         raise ValueError(f"MZI beat {an.f_beat:g} Hz gives < 10 fringes per ramp: mzi_delay_s too short")
-    o = _IlcOptions(excursion_hz=excursion_hz, fs_drive_hz=fs_drive_hz, ramp_s=ramp_s, learn=learn,
-                    q_cutoff_hz=q_cutoff_hz, update=update, max_iter=max_iter, rel_tol=rel_tol,
-                    grow_tol=grow_tol, min_beta=min_beta, abs_tol_frac=abs_tol_frac, target_frac=target_frac,
-                    max_avg=max_avg, **_drive_cap(u0, max_drive_factor, max_drive_v))
+    o = _IlcOptions(excursion_hz=g.excursion_hz, fs_drive_hz=g.fs_drive_hz, ramp_s=g.ramp_s, learn=s.learn,
+                    q_cutoff_hz=s.q_cutoff_hz, update=s.update, max_iter=s.max_iter, rel_tol=s.rel_tol,
+                    grow_tol=s.grow_tol, min_beta=s.min_beta, abs_tol_frac=s.abs_tol_frac, target_frac=s.target_frac,
+                    max_avg=max_avg, **_drive_cap(u0, s.max_drive_factor, s.max_drive_v))
     plant = _Plant(measure, an)
-    a = plant.run(u0, int(averages))
-    st = _IlcState(u=u0, a=a, first=a, cur_u=u0, cur_a=a, best_u=u0, best_a=a, best_k=0, beta=float(beta),
-                   n_avg=int(averages), slips=a.slips)
+    a = plant.run(u0, int(s.averages))
+    st = _IlcState(u=u0, a=a, first=a, cur_u=u0, cur_a=a, best_u=u0, best_a=a, best_k=0, beta=float(s.beta),
+                   n_avg=int(s.averages), slips=a.slips)
     while True:
         accepted = _judge(st, o)
         _record(st, accepted)
@@ -369,5 +396,5 @@ def linearize(measure: MeasureFn, drive0_v: ArrayLike, *, fs_drive_hz: float, fs
     return IlcResult(drive_v=st.best_u, iterations=st.iters, reduction=red, converged=st.converged,
                      tuning_hz_per_v=best_a.tuning, best_iteration=st.best_k, phase_slips=st.slips,
                      stop_reason=st.reason,
-                     meta={"meas_cutoff_hz": meas_cutoff_hz, "q_cutoff_hz": q_cutoff_hz, "averages": st.n_avg,
-                           "roi": roi, "learn": learn, "mzi_beat_hz": an.f_beat})
+                     meta={"meas_cutoff_hz": s.meas_cutoff_hz, "q_cutoff_hz": s.q_cutoff_hz, "averages": st.n_avg,
+                           "roi": s.roi, "learn": s.learn, "mzi_beat_hz": an.f_beat})

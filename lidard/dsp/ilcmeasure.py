@@ -13,13 +13,21 @@ Pure numpy/scipy: no I/O, no clock, no logging.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from .ilcquad import quadrature_ramp_nu
-from .instfreq import RampFrequency, best_fit_residual, fft_filter, hilbert, lowpass_padded, ramp_frequency
+from .instfreq import (
+    RampFrequency,
+    best_fit_residual,
+    check_positive,
+    fft_filter,
+    hilbert,
+    lowpass_padded,
+    ramp_frequency,
+)
 
 # narrow-band refinement of the MZI phase (see _Analyzer._refine)
 _RIDGE_WINDOW_S = 2e-6
@@ -30,6 +38,24 @@ _FOLD_SEARCH = 0.1
 _FOLD_SLOPE = 0.3
 # the correction across a turning-point gap switches sides within this time (see _to_drive)
 _GAP_SWITCH_S = 1e-6
+
+
+@dataclass(frozen=True)
+class ChirpGeometry:
+    """The chirp a linearization learns and the monitor that sees it (what :func:`lidard.dsp.ilc.linearize`
+    and :func:`lidard.dsp.chirpcheck.chirp_residual` share): the drive's sample rate (Hz), the digitizer's
+    (Hz), the duration of one ramp (two per drive period, s), the optical excursion of a ramp (Hz) and
+    the monitor MZI's delay (s)."""
+
+    fs_drive_hz: float
+    fs_adc_hz: float
+    ramp_s: float
+    excursion_hz: float
+    mzi_delay_s: float
+
+    def checked(self) -> ChirpGeometry:
+        """The same values as floats; a ValueError names the first that is not positive and finite."""
+        return ChirpGeometry(*(check_positive(f.name, getattr(self, f.name)) for f in fields(self)))
 
 
 @dataclass
@@ -46,9 +72,10 @@ class _Analysis:
 class _Analyzer:
     """Everything about turning one averaged MZI record into errors; fixed geometry per run."""
 
-    def __init__(self, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float, excursion_hz: float,
-                 mzi_delay_s: float, roi: float, learn: float, meas_cutoff_hz: float, directions: tuple[int, int],
-                 refine: bool = True) -> None:
+    def __init__(self, chirp: ChirpGeometry, *, roi: float, learn: float, meas_cutoff_hz: float,
+                 directions: tuple[int, int], refine: bool = True) -> None:
+        fs_drive_hz, fs_adc_hz, ramp_s = chirp.fs_drive_hz, chirp.fs_adc_hz, chirp.ramp_s
+        excursion_hz, mzi_delay_s = chirp.excursion_hz, chirp.mzi_delay_s
         self.fs_d, self.fs_a, self.T = fs_drive_hz, fs_adc_hz, ramp_s
         self.tau_m, self.roi, self.learn = mzi_delay_s, roi, learn
         self.slope = excursion_hz / ramp_s
