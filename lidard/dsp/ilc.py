@@ -62,7 +62,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .ilcmeasure import ChirpGeometry, _Analysis, _Analyzer, _directions
-from .ilcupdate import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
+from .ilcupdate import UpdateLaw, fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
 from .instfreq import check_finite_array, check_positive
 
 
@@ -152,11 +152,7 @@ class _IlcOptions:
     """The validated knobs of one :func:`linearize` run."""
 
     excursion_hz: float
-    fs_drive_hz: float
-    ramp_s: float
-    learn: float
-    q_cutoff_hz: float
-    update: str
+    law: UpdateLaw                         # how each step is made (and the drive cap)
     max_iter: int
     rel_tol: float
     grow_tol: float
@@ -164,8 +160,6 @@ class _IlcOptions:
     abs_tol_frac: float
     target_frac: float
     max_avg: int
-    cap_v: float                           # the largest |drive| ever sent
-    cap_text: str                          # how the cap reads in a stop reason
 
 
 @dataclass
@@ -317,9 +311,7 @@ def _step(st: _IlcState, o: _IlcOptions) -> str:
     if not (math.isfinite(K) and K > 0):
         return "tuning slope not measurable"
     st.k += 1
-    prop = propose_drive(st.cur_u, st.cur_a.err_drive, st.cur_a.ramps_nu, tuning_hz_per_v=K, beta=st.beta,
-                         update=o.update, fs_drive_hz=o.fs_drive_hz, ramp_s=o.ramp_s, learn=o.learn,
-                         q_cutoff_hz=o.q_cutoff_hz, cap_v=o.cap_v, min_beta=o.min_beta, cap_text=o.cap_text)
+    prop = propose_drive(st.cur_u, st.cur_a.err_drive, st.cur_a.ramps_nu, o.law, tuning_hz_per_v=K, beta=st.beta)
     if prop.beta != st.beta:               # the cap halved the gain: the record says so
         st.beta = prop.beta
         st.iters[-1] = replace(st.iters[-1], beta=st.beta)
@@ -369,10 +361,11 @@ def linearize(measure: MeasureFn, drive0_v: ArrayLike, chirp: ChirpGeometry,
                    refine=bool(s.refine))
     if an.f_beat * g.ramp_s < 10:
         raise ValueError(f"MZI beat {an.f_beat:g} Hz gives < 10 fringes per ramp: mzi_delay_s too short")
-    o = _IlcOptions(excursion_hz=g.excursion_hz, fs_drive_hz=g.fs_drive_hz, ramp_s=g.ramp_s, learn=s.learn,
-                    q_cutoff_hz=s.q_cutoff_hz, update=s.update, max_iter=s.max_iter, rel_tol=s.rel_tol,
+    law = UpdateLaw(update=s.update, fs_drive_hz=g.fs_drive_hz, ramp_s=g.ramp_s, learn=s.learn,
+                    q_cutoff_hz=s.q_cutoff_hz, min_beta=s.min_beta, **_drive_cap(u0, s.max_drive_factor, s.max_drive_v))
+    o = _IlcOptions(excursion_hz=g.excursion_hz, law=law, max_iter=s.max_iter, rel_tol=s.rel_tol,
                     grow_tol=s.grow_tol, min_beta=s.min_beta, abs_tol_frac=s.abs_tol_frac, target_frac=s.target_frac,
-                    max_avg=max_avg, **_drive_cap(u0, s.max_drive_factor, s.max_drive_v))
+                    max_avg=max_avg)
     plant = _Plant(measure, an)
     a = plant.run(u0, int(s.averages))
     st = _IlcState(u=u0, a=a, first=a, cur_u=u0, cur_a=a, best_u=u0, best_a=a, best_k=0, beta=float(s.beta),
