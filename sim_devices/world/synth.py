@@ -69,6 +69,7 @@ from sim_devices.world import antialias
 from sim_devices.world.laser import wiener_phase
 from sim_devices.world.synth_chirp import ChirpTrajectory, trajectory, trajectory_from_frequency
 from sim_devices.world.synth_chunk import (
+    ChunkRun,
     SortedHits,
     Tables,
     beat_chunk,
@@ -226,6 +227,9 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     chunk = max(1, _CHUNK_ELEMENTS // max(n, 1))
     seg_bounds = np.searchsorted(h.seg, np.arange(0, n_seg + chunk, chunk))
     noise_std = asd * math.sqrt(fs / 2.0)
+    run = ChunkRun(tb=tb, adc=adc, fast=fast, rng=rng, var_step=var_step, n_pre=n_pre, iq_imbalance=iq_imbalance,
+                   beat_filter=beat_filter, quadrature=mzi_quadrature, mzi_amplitude_v=mzi_amplitude_v, m_mzi=m_mzi,
+                   w_mzi=w_mzi, dc_v=dc_v, noise_std=noise_std, mzi_noise_asd_v_per_rthz=mzi_noise_asd_v_per_rthz)
     for ci, s0 in enumerate(range(0, n_seg, chunk)):
         s1 = min(n_seg, s0 + chunk)
         nc = s1 - s0
@@ -235,17 +239,13 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
             pn_all[s0:s1] = phi
         acc = {}
         if h1 > h0:
-            acc = beat_chunk(tb, h, slice(h0, h1), s0, nc, phi, n_pre, var_step, rng, fast, adc,
-                             iq_imbalance, beat_filter)
+            acc = beat_chunk(run, h, slice(h0, h1), s0, nc, phi)
         for c in channels:
             if c not in ("mzi", "mzi_q") and c not in acc:
                 acc[c] = np.zeros((nc, n), dtype=np.float32 if fast else np.float64)
         if want_mzi:
-            assert mzi_amplitude_v is not None       # _validated: given with mzi_delay_s
-            acc.update(mzi_chunk(tb, s0, s1, phi, n_pre, m_mzi, w_mzi, var_step, rng, fast,
-                                 mzi_quadrature, mzi_amplitude_v))
-        digitize_chunk(acc, channels, adc, s0, s1, dc_v, noise_std, mzi_noise_asd_v_per_rthz, rng,
-                       outs, overrange, volts)
+            acc.update(mzi_chunk(run, s0, s1, phi))
+        digitize_chunk(run, acc, channels, s0, s1, outs, overrange, volts)
 
     return Synthesized(beat=outs["beat"], beat_q=outs.get("beat_q"), mzi=outs.get("mzi"),
                        overrange=overrange, channels=tuple(channels), lsb_v=adc.lsb_v, volts=volts,
