@@ -62,3 +62,34 @@ def test_mypy_is_strict_where_the_project_says():
                    "lidard.dsp.*.dtft"}, lax
     # no module of the project is silenced wholesale
     assert not any(f.get("ignore_errors") for m, f in flags.items() if m.startswith(("lidard", "drivers")))
+
+
+# Signatures past MAX_PARAMS parameters want a parameter object (a frozen dataclass of settings, as
+# lidard.dsp.ilc.IlcSettings, lidard.dsp.cfar.CfarSettings). A ratchet: the count may fall, never rise,
+# and none may grow longer than the longest today (synthesize, 17). `python benchmarks/static_checks.py
+# --long` lists them.
+LONG_SIGNATURES_AT_MOST = 37
+LONGEST_SIGNATURE = 17
+
+
+def test_long_signatures_do_not_grow():
+    from benchmarks.static_checks import MAX_PARAMS, long_signatures
+    long = long_signatures(ROOT)
+    listing = "\n".join(f"{n:3d} {where}" for n, where in long)
+    assert len(long) <= LONG_SIGNATURES_AT_MOST, f"more functions take > {MAX_PARAMS} parameters:\n{listing}"
+    assert all(n <= LONGEST_SIGNATURE for n, _ in long), listing
+
+
+def test_the_signature_count_sees_every_kind_of_parameter(tmp_path):
+    # positional-only, keyword-only, *args and **kwargs count; self does not; nested functions count
+    from benchmarks.static_checks import long_signatures
+    pkg = tmp_path / "lidard"
+    pkg.mkdir()
+    (tmp_path / "drivers").mkdir()
+    (tmp_path / "sim_devices").mkdir()
+    (pkg / "m.py").write_text(
+        "def short(a, b, c, d, e, f, g, h):\n    pass\n\n\n"
+        "def nine(a, /, b, c, *args, d, e, f, g, **kw):\n    pass\n\n\n"
+        "class C:\n    def method(self, a, b, c, d, e, f, g, h):\n        def inner(a, b, c, d, e, f, g, h, i):\n"
+        "            pass\n")
+    assert sorted(long_signatures(tmp_path)) == [(9, "lidard/m.py:11 inner"), (9, "lidard/m.py:5 nine")]
