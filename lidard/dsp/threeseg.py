@@ -41,6 +41,7 @@ total likelihood is taken (the least motion among equally good sets). Pure numpy
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -158,9 +159,25 @@ def drift_band(f_r: np.ndarray, f_d: np.ndarray, rho: tuple[float, float]) -> tu
     return 0.5 * (top + bottom), 0.5 * (top - bottom)
 
 
-def score_pairs(fu: np.ndarray, fd: np.ndarray, vu: np.ndarray, vd: np.ndarray, p_cw: np.ndarray, df_hz: float, *,
-                guard_bins: int, guard_hz: float, rho: tuple[float, float] | None = None, records: int = 1,
-                cw_pfa: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class PairingSettings:
+    """What the three-segment pairing of one frame holds fixed: the ramps' chirp rate (Hz/s) and the
+    wavelength (m), the CW spectrum's DC guard (bins), the slots per pixel (``max_targets``), the records
+    the CW spectrum averages, the false-alarm rate of a CW line (``cw_pfa``) and the likelihood level
+    under which two assignments tie (``tie_level``, :func:`lidard.dsp.ranging.assign.tie_llr`)."""
+
+    chirp_rate_hz_per_s: float
+    wavelength_m: float
+    guard_bins: int
+    max_targets: int
+    records: int = 1
+    cw_pfa: float = 1e-6
+    tie_level: float = 1e-3
+
+
+def score_pairs(fu: np.ndarray, fd: np.ndarray, vu: np.ndarray, vd: np.ndarray, p_cw: np.ndarray, df_hz: float,
+                s: PairingSettings, *,
+                rho: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every (up i, down j) pair of every row: (possible (n, K, K), folded, f_range, f_dopp (signed),
     ambiguous).
 
@@ -169,6 +186,7 @@ def score_pairs(fu: np.ndarray, fd: np.ndarray, vu: np.ndarray, vd: np.ndarray, 
     line is the stronger; ambiguous: both regimes' bands overlap (|f_D| ~ f_R within the CW spread),
     which holds is not known. ``rho``: the measured drift rate's range over the CW window (relative to
     the ramps'): each regime's band is then where its beat must lie, not a spread allowed around |f_D|."""
+    guard_bins, guard_hz, records, cw_pfa = s.guard_bins, s.guard_bins * df_hz, s.records, s.cw_pfa
     a, b = fu[:, :, None], fd[:, None, :]
     hi, lo = np.maximum(a, b), np.minimum(a, b)
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
@@ -193,25 +211,24 @@ def score_pairs(fu: np.ndarray, fd: np.ndarray, vu: np.ndarray, vd: np.ndarray, 
     return possible, folded, f_r, sign * d_abs, ambiguous
 
 
-def pair_three(fu: ArrayLike, fd: ArrayLike, vu: ArrayLike, vd: ArrayLike, p_cw: np.ndarray, df_hz: float, *,
-               chirp_rate_hz_per_s: float, wavelength_m: float, guard_bins: int, max_targets: int,
-               rho: tuple[float, float] | None = None, snr: Sequence[np.ndarray] | None = None, records: int = 1,
-               cw_pfa: float = 1e-6, tie_level: float = 1e-3) -> PairSlots:
+def pair_three(ramp_hz: Sequence[ArrayLike], masks: Sequence[ArrayLike], p_cw: np.ndarray, df_hz: float,
+               settings: PairingSettings, *, rho: tuple[float, float] | None = None,
+               snr: Sequence[np.ndarray] | None = None) -> PairSlots:
     """The assignment of up/down pairs per row of largest total likelihood (module doc).
 
-    Inputs (n, K) ramp magnitudes (Hz) and masks, the CW power spectrum (n, n_bins) with bin spacing
-    ``df_hz``; ``snr``: the (up, down) noise-normalised line powers (n, K) (None: all alike, the least
-    motion decides). Returns per row and slot (n, max_targets): range_m, velocity_mps (positive
-    receding), valid, present (valid, or a pair whose regime is ambiguous: drawn, flagged), up and
-    down index.
+    Inputs (up, down) ramp magnitudes (Hz) and (up, down) masks, (n, K) each, the CW power spectrum
+    (n, n_bins) with bin spacing ``df_hz``; ``snr``: the (up, down) noise-normalised line powers (n, K)
+    (None: all alike, the least motion decides). Returns per row and slot (n, max_targets): range_m, velocity_mps
+    (positive receding), valid, present (valid, or a pair whose regime is ambiguous: drawn, flagged),
+    up and down index.
     """
-    fu, fd = np.abs(np.asarray(fu, dtype=np.float64)), np.abs(np.asarray(fd, dtype=np.float64))
-    vu, vd = np.asarray(vu, dtype=bool), np.asarray(vd, dtype=bool)
+    fu, fd = (np.abs(np.asarray(f, dtype=np.float64)) for f in ramp_hz)
+    vu, vd = (np.asarray(v, dtype=bool) for v in masks)
+    chirp_rate_hz_per_s, wavelength_m = settings.chirp_rate_hz_per_s, settings.wavelength_m
+    max_targets, records, tie_level = settings.max_targets, settings.records, settings.tie_level
     n, ku = fu.shape
     kd = fd.shape[1]
-    ok_pair, _folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
-                                                 guard_hz=guard_bins * df_hz, rho=rho, records=records,
-                                                 cw_pfa=cw_pfa)
+    ok_pair, _folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, settings, rho=rho)
     loglik = np.ones((n, ku, kd)) if snr is None else pair_loglik(snr[0], snr[1], records)
     match = best_matching(np.where(ok_pair, loglik, -np.inf), np.abs(f_d), tie_llr(tie_level))
     out = {k: np.zeros((n, max_targets)) for k in ("range_m", "velocity_mps")}
@@ -287,11 +304,12 @@ def pair_frame_three(dsp: Any, out_f: list[Any], out_det: list[Any], cw: tuple[n
     vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
     profile = dsp.hold
     (flat_u, flat_d), (valid_u, valid_d) = flat, vflat
-    rng, vel, ok, seen, iu, idn = pair_three(flat_u, flat_d, valid_u, valid_d, p_cw.reshape(-1, p_cw.shape[-1]), df,
-                                             chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
-                                             wavelength_m=dsp.wavelength_m, guard_bins=CW_GUARD_BINS, max_targets=k,
-                                             rho=dsp.drift_rho, snr=[a.reshape(-1, k) for a in line_snr(du, dd)],
-                                             records=x.shape[1], cw_pfa=dsp.ramp_pfa, tie_level=dsp.order_level)
+    pairing = PairingSettings(chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s, wavelength_m=dsp.wavelength_m,
+                              guard_bins=CW_GUARD_BINS, max_targets=k, records=x.shape[1], cw_pfa=dsp.ramp_pfa,
+                              tie_level=dsp.order_level)
+    rng, vel, ok, seen, iu, idn = pair_three((flat_u, flat_d), (valid_u, valid_d), p_cw.reshape(-1, p_cw.shape[-1]),
+                                             df, pairing, rho=dsp.drift_rho,
+                                             snr=[a.reshape(-1, k) for a in line_snr(du, dd)])
     if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.cwhold)
         resolve_boundary(dsp, x, profile, flat, vflat,
                          (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,
