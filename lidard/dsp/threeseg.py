@@ -130,13 +130,13 @@ def cw_noise(p_cw: np.ndarray, records: int) -> np.ndarray:
 
 
 def _regime_line(table: _RangeMax, df_hz: float, f_r: np.ndarray, d_abs: np.ndarray, noise: np.ndarray,
-                 guard_bins: int, guard_hz: float, band: tuple[np.ndarray, np.ndarray] | None, records: int,
-                 cw_pfa: float) -> tuple[np.ndarray, np.ndarray]:
+                 band: tuple[np.ndarray, np.ndarray] | None, s: PairingSettings) -> tuple[np.ndarray, np.ndarray]:
     """Per candidate: (the noise-normalised peak power of the CW band the regime predicts, whether it
     is a line at ``cw_pfa`` over the band's cells). A regime that predicts |f_D| inside the CW's DC
     guard: (+inf, True), no beat can be seen there and none is needed. ``band``: (centre, half width)
     of the CW beat predicted from the measured drift (:func:`drift_band`), searched with 4 bins of
-    slack; None: a RHO_MAX spread around |f_D|."""
+    slack; None: a RHO_MAX spread around |f_D|. ``s``: the DC guard, the records, ``cw_pfa``."""
+    guard_bins, guard_hz, records, cw_pfa = s.guard_bins, s.guard_bins * df_hz, s.records, s.cw_pfa
     p_cw = table.p
     n = p_cw.shape[0]
     centre, half = (d_abs, RHO_MAX * f_r + 2 * df_hz) if band is None else (band[0], band[1] + 4 * df_hz)
@@ -186,15 +186,14 @@ def score_pairs(fu: np.ndarray, fd: np.ndarray, vu: np.ndarray, vd: np.ndarray, 
     line is the stronger; ambiguous: both regimes' bands overlap (|f_D| ~ f_R within the CW spread),
     which holds is not known. ``rho``: the measured drift rate's range over the CW window (relative to
     the ramps'): each regime's band is then where its beat must lie, not a spread allowed around |f_D|."""
-    guard_bins, guard_hz, records, cw_pfa = s.guard_bins, s.guard_bins * df_hz, s.records, s.cw_pfa
     a, b = fu[:, :, None], fd[:, None, :]
     hi, lo = np.maximum(a, b), np.minimum(a, b)
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
-    noise = np.maximum(cw_noise(p_cw, records), 1e-300)[:, None]
+    noise = np.maximum(cw_noise(p_cw, s.records), 1e-300)[:, None]
     regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
     bands: list[Any] = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
     table = _RangeMax(p_cw)                      # one table for both regimes
-    (x_n, l_n), (x_f, l_f) = (_regime_line(table, df_hz, f_r, d, noise, guard_bins, guard_hz, band, records, cw_pfa)
+    (x_n, l_n), (x_f, l_f) = (_regime_line(table, df_hz, f_r, d, noise, band, s)
                               for (f_r, d), band in zip(regimes, bands))
     folded = l_f & (~l_n | (x_f > x_n))
     f_r = np.where(folded, regimes[1][0], regimes[0][0])
