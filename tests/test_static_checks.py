@@ -69,7 +69,7 @@ def test_mypy_is_strict_where_the_project_says():
 # lidard.dsp.ilc.IlcSettings, lidard.dsp.cfar.CfarSettings). A ratchet: the count may fall, never rise,
 # and none may grow longer than the longest today (synthesize, 17). `python benchmarks/static_checks.py
 # --long` lists them.
-LONG_SIGNATURES_AT_MOST = 34
+LONG_SIGNATURES_AT_MOST = 33
 LONGEST_SIGNATURE = 17
 
 

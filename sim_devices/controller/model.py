@@ -39,6 +39,19 @@ class Dynamics:
                 raise ValueError(f"Dynamics.{name} must be finite and > 0, got {v!r}")
 
 
+@dataclass(frozen=True)
+class ControllerSpec:
+    """What a simulated controller is: its output ``dynamics``, the hardware limits it enforces on a
+    write, and the identity it reports (``model`` name, ``firmware`` (major, minor), register-map
+    version; another map version lets tests play an incompatible device)."""
+
+    dynamics: Dynamics = field(default_factory=Dynamics)
+    hw_limits: p.Limits = p.HARDWARE_LIMITS
+    model: str = "LHV-1550"
+    firmware: tuple[int, int] = (1, 0)
+    map_version: int = p.MAP_VERSION
+
+
 @dataclass
 class ControllerState:
     """Plain state the bench reads (outputs are the ACTUAL values, not setpoints)."""
@@ -77,13 +90,13 @@ class ControllerModel:
         self,
         clock: VirtualClock,
         *,
-        dynamics: Dynamics = Dynamics(),
-        hw_limits: p.Limits = p.HARDWARE_LIMITS,
-        model: str = "LHV-1550",
-        firmware: tuple[int, int] = (1, 0),
-        map_version: int = p.MAP_VERSION,
+        spec: ControllerSpec | None = None,
         tec_drift=None,
     ) -> None:
+        """``spec``: the device simulated (default: the LHV-1550 of the register map); ``tec_drift``:
+        anything with ``.at(t_s)`` -> the TEC's true temperature drift (C), or None."""
+        s = ControllerSpec() if spec is None else spec
+        dynamics, hw_limits, model, firmware, map_version = s.dynamics, s.hw_limits, s.model, s.firmware, s.map_version
         self.clock = clock
         self.tec_drift = tec_drift       # anything with .at(t_s) -> C, or None
         self.tec_offset_c = 0.0          # an injected step of the true temperature (fault tec_offset)
