@@ -25,7 +25,7 @@ from __future__ import annotations
 import functools
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -129,7 +129,6 @@ class ResolvedConfig:
     profile: Profile
     laser: LaserPreset
     optics: FpsaOptics
-    profile_path: Path = field(repr=False)
 
 
 def resolve(cfg: Config) -> ResolvedConfig:
@@ -147,9 +146,8 @@ def resolve(cfg: Config) -> ResolvedConfig:
     if cfg.lens is not None and cfg.lens not in profile.lenses:
         raise ConfigError(f"{cfg.source}: lens: {cfg.lens!r} is not a lens of profile {profile.name}; "
                           f"allowed: {', '.join(sorted(profile.lenses))}")
-    return ResolvedConfig(profile=profile, laser=laser, optics=_optics(path, _stamp(path), cfg.lens,
-                                                                         cfg.chirp.wavelength_m),
-                          profile_path=path)
+    return ResolvedConfig(profile=profile, laser=laser,
+                          optics=_optics(path, _stamp(path), cfg.lens, cfg.chirp.wavelength_m))
 
 
 def link_params(cfg: Config, profile: Profile, laser: LaserPreset) -> LinkParams:
