@@ -30,7 +30,9 @@ import numpy as np
 
 from ...config import Config
 from ...dsp.ranging.cwhold import hold_profile
+from ...dsp.linearize.ilc import IlcSettings
 from ...dsp.linearize.ilc import linearize as ilc_linearize
+from ...dsp.linearize.ilc import ChirpGeometry
 from ...physics.chirp import adc_rate_hz
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan, drive_for_chirp
 from ..errors import InstrumentError
@@ -96,18 +98,24 @@ class Linearization:
             return i
         return i + 1j * samples[:, acq.channel_index("mzi_q"), :]
 
+    def geometry(self) -> ChirpGeometry:
+        """The chirp the linearization learns and its monitor, as the ILC and the health check see them."""
+        c = self.cfg.chirp
+        return ChirpGeometry(fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self.fs_hz, ramp_s=c.ramp_s,
+                             excursion_hz=c.excursion_hz, mzi_delay_s=self.mzi_delay_s)
+
     def run(self, plain_drive_v: np.ndarray, laser: str) -> CalibrationResult:
         c = self.cfg.chirp
         # the ILC learns one triangle period (the ramps); the constant segment is appended per play
         plain_drive_v = np.asarray(plain_drive_v)[:int(round(2 * c.ramp_s * AWG_RATE_HZ))]
         self.safety.bring_up()
         try:
-            res = ilc_linearize(self.measure, plain_drive_v, fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self.fs_hz,
-                                ramp_s=c.ramp_s, excursion_hz=c.excursion_hz, mzi_delay_s=self.mzi_delay_s,
-                                averages=32, max_averages=MAX_AVERAGES, max_drive_v=self.cfg.devices.awg.max_output_v,
-                                # a slow thermal term needs ~19 steps to its noise floor (measured on the
-                                # bench; the default DFB stops at ~8 by itself)
-                                max_iter=MAX_ITERATIONS)
+            res = ilc_linearize(self.measure, plain_drive_v, self.geometry(),
+                                IlcSettings(averages=32, max_averages=MAX_AVERAGES,
+                                            max_drive_v=self.cfg.devices.awg.max_output_v,
+                                            # a slow thermal term needs ~19 steps to its noise floor (measured
+                                            # on the bench; the default DFB stops at ~8 by itself)
+                                            max_iter=MAX_ITERATIONS))
             hold = self.measure_hold(res.drive_v) if c.shape == "three_segment" else None
         finally:
             self.safety.bring_down()
