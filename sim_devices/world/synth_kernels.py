@@ -9,31 +9,55 @@ import numpy as np
 
 @numba.njit(cache=True, nogil=True)
 def static_fill(c0, c1, c2, b_start, ratio, p, q, n, d_awg, neg_const, out):  # pragma: no cover (compiled)
-    """:func:`sim_devices.world.synth_grid._fill` into ``out`` (n_hits, n), hit by hit in sample order."""
+    """:func:`sim_devices.world.synth_grid._fill` into ``out`` (n_hits, n).
+
+    As the numpy path does, per residue j the hits are grouped by their integer offset delta from the
+    record's grid: G and the delayed H1, H2 (strided gathers from the chirp tables, a cache line each
+    at the large ratios of a decimated record) are built once per group, and each hit of the group
+    costs four operations per sample on contiguous vectors. A scene's hits fall in a few groups (their
+    delays differ by a few AWG samples), so the gathers are done a few times per batch, not per hit."""
     qn = min(q, n)
-    ib = np.empty(qn, np.int64)
-    fb = np.empty(qn)
-    ih = np.empty(qn, np.int64)
-    fh = np.empty(qn)
+    nh = d_awg.size
+    delta = np.empty(nh, np.int64)
+    fh = np.empty(nh)
+    length_max = (n + q - 1) // q
+    g = np.empty(length_max)
+    h1 = np.empty(length_max)
+    h2 = np.empty(length_max)
     for j in range(qn):
         b = b_start + j * ratio
-        ib[j] = int(b)                       # b >= 0: truncation is floor
-        fb[j] = b - ib[j]
-    for h in range(d_awg.size):
-        for j in range(qn):
-            x = (b_start + j * ratio) - d_awg[h]
-            ih[j] = int(x)
-            fh[j] = x - ih[j]
-        nc = neg_const[h]
-        for m in range((n + q - 1) // q):          # sample k = m q + j: residue j, step m
-            for j in range(min(q, n - m * q)):
-                ia = ib[j] + p * m
-                ix = ih[j] + p * m
-                f = fh[j]
-                g = c0[ia] - c0[ix]
-                g += fb[j] * (c1[ia] + fb[j] * c2[ia])
-                o = c2[ix] * f
-                o += c1[ix]
-                o *= f
-                o += nc
-                out[h, m * q + j] = g - o
+        ib = int(b)                          # b >= 0: truncation is floor
+        fb = b - ib
+        length = (n - j + q - 1) // q        # samples k = j + m q < n
+        for h in range(nh):
+            x = b - d_awg[h]
+            ih = int(x)
+            fh[h] = x - ih
+            delta[h] = ib - ih
+        order = np.argsort(delta)
+        s = 0
+        while s < nh:
+            dv = delta[order[s]]
+            e = s
+            while e < nh and delta[order[e]] == dv:
+                e += 1
+            i0 = ib - dv
+            for m in range(length):
+                ia = ib + p * m
+                ix = i0 + p * m
+                gm = c0[ia] - c0[ix]
+                gm += fb * (c1[ia] + fb * c2[ia])
+                g[m] = gm
+                h1[m] = c1[ix]
+                h2[m] = c2[ix]
+            for t in range(s, e):
+                hh = order[t]
+                f = fh[hh]
+                nc = neg_const[hh]
+                for m in range(length):
+                    o = h2[m] * f
+                    o += h1[m]
+                    o *= f
+                    o += nc
+                    out[hh, j + m * q] = g[m] - o
+            s = e

@@ -21,13 +21,16 @@ def _tables(rng, length):
 
 
 @pytest.mark.parametrize("ratio", [20.0, 2.5, 100.0 / 15.0, 1.25])
-def test_kernel_gives_the_numpy_fill_bit_for_bit(ratio):
+@pytest.mark.parametrize("spread", [900.0, 3.0])
+def test_kernel_gives_the_numpy_fill_bit_for_bit(ratio, spread):
     rng = np.random.default_rng(7)
     pq = synth_grid.rational_ratio(ratio)
     assert pq is not None
     n = 1190
     c0, c1, c2 = _tables(rng, int(n * ratio) + 4000)
-    d_awg = rng.uniform(0.0, 900.0, 37)            # delays of a scene's hits, AWG samples
+    # delays of a scene's hits, AWG samples: spread over the range gate, or a few samples apart (a
+    # surface at one distance: many hits share their integer offset from the grid)
+    d_awg = rng.uniform(0.0, spread, 37) + 1.0
     d_awg[:5] = np.rint(d_awg[:5])                 # whole-sample delays too
     const = rng.uniform(-5e3, 5e3, d_awg.size)
     b_start = 1000.0 + 0.375
