@@ -61,3 +61,27 @@ def static_fill(c0, c1, c2, b_start, ratio, p, q, n, d_awg, neg_const, out):  # 
                     o += nc
                     out[hh, j + m * q] = g[m] - o
             s = e
+
+
+@numba.njit(cache=True, nogil=True)
+def quantize_rows(v, noise, has_noise, scale, lo, hi, out, over):  # pragma: no cover (compiled)
+    """:func:`sim_devices.world.synth_chunk.digitize_chunk`'s quantizer in one pass: per sample of the
+    float32 ``v`` (rows, n), ``(v + noise) * scale`` rounded half to even, clipped to [lo, hi] into the
+    int16 ``out``; ``over[r]``: a sample of row r was outside [lo, hi] before the clip. The float32
+    operations of the numpy passes in their order (``scale``, ``lo``, ``hi`` are float32)."""
+    rows, n = v.shape
+    for r in range(rows):
+        clipped = 0
+        if has_noise:
+            for k in range(n):
+                x = np.rint((v[r, k] + noise[r, k]) * scale)
+                y = min(max(x, lo), hi)          # branch-free: the loop vectorizes
+                clipped += y != x
+                out[r, k] = np.int16(y)
+        else:
+            for k in range(n):
+                x = np.rint(v[r, k] * scale)
+                y = min(max(x, lo), hi)
+                clipped += y != x
+                out[r, k] = np.int16(y)
+        over[r] = clipped > 0

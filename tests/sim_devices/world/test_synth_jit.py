@@ -53,3 +53,31 @@ def test_kernel_waits_until_loading_numba_pays(monkeypatch):
         assert synth_jit.static_fill(1) is None
     finally:
         synth_jit._compiled.cache_clear()
+
+
+@pytest.mark.parametrize("bits", [16, 12, 8])
+def test_quantizer_kernel_gives_the_numpy_passes_codes_and_flags(monkeypatch, bits):
+    from sim_devices.world import synth_chunk
+    from sim_devices.world.synth_types import AdcSpec
+    adc = AdcSpec(sample_rate_hz=5e6, n_samples=1190, bits=bits, input_range_v=1.0)
+    nc, channels = 24, ["beat", "mzi"]
+    rng = np.random.default_rng(3)
+    beat = (rng.normal(0, 0.05, (nc, adc.n_samples)) * np.linspace(0.1, 12.0, nc)[:, None]).astype(np.float32)
+    beat[:, 7] = 0.5 * adc.lsb_v + np.float32(0.25) * adc.lsb_v * np.arange(nc)   # ties and near-ties of rint
+    std = np.concatenate([np.full(12, 3e-3), np.full(12, 4e-2)])[:nc]      # two noise levels: the per-row scale
+
+    def run(kernel):
+        monkeypatch.setattr(synth_jit, "quantize_rows", lambda samples: kernel)
+        acc = {"beat": beat.copy(), "mzi": np.zeros((nc, adc.n_samples), np.float32)}
+        outs = {c: np.empty((nc, adc.n_samples), np.int16) for c in channels}
+        over = np.zeros((nc, 2), bool)
+        synth_chunk.digitize_chunk(acc, channels, adc, 0, nc, 0.0, std, 0.0, np.random.default_rng(11), outs,
+                                   over, None)
+        return outs, over
+
+    want_codes, want_over = run(None)
+    got_codes, got_over = run(synth_jit._quantizer())
+    assert want_over[:, 0].any() and not want_over[:, 0].all()      # some rows clip, some do not
+    assert np.array_equal(got_over, want_over)
+    for c in channels:
+        assert np.array_equal(got_codes[c], want_codes[c])
