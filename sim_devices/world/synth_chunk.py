@@ -106,7 +106,11 @@ def cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = Fals
     if not fast:
         s = np.sin(phase) if want_sin else None
         return np.cos(phase, out=phase), s
-    if in_turns:
+    reduce = synth_jit.turns_to_radians_f32(phase.size) if in_turns and phase.flags.c_contiguous else None
+    if reduce is not None:          # the three passes below in one compiled pass, the same values
+        r32 = np.empty(phase.shape, np.float32)
+        reduce(phase.reshape(-1), r32.reshape(-1))
+    elif in_turns:
         r32 = np.rint(phase, out=np.empty(phase.shape, np.float32), casting="same_kind")
         phase -= r32
         np.multiply(phase, 2.0 * np.pi, out=r32, casting="same_kind")   # float64 product, stored float32

@@ -85,3 +85,14 @@ def quantize_rows(v, noise, has_noise, scale, lo, hi, out, over):  # pragma: no 
                 clipped += y != x
                 out[r, k] = np.int16(y)
         over[r] = clipped > 0
+
+
+@numba.njit(cache=True, nogil=True)
+def turns_to_radians_f32(turns, out):  # pragma: no cover (compiled)
+    """:func:`sim_devices.world.synth_chunk.cos_sin`'s range reduction of a phase in cycles (1-D float64,
+    |phase| < 2**24) into ``out`` (float32 radians in [-pi, pi]) in one pass: the whole cycles (exact),
+    the fraction in float64, times 2 pi, rounded to float32 -- the numpy passes' operations."""
+    two_pi = 2.0 * np.pi
+    for i in range(turns.size):
+        t = turns[i]
+        out[i] = np.float32((t - np.rint(t)) * two_pi)

@@ -81,3 +81,16 @@ def test_quantizer_kernel_gives_the_numpy_passes_codes_and_flags(monkeypatch, bi
     assert np.array_equal(got_over, want_over)
     for c in channels:
         assert np.array_equal(got_codes[c], want_codes[c])
+
+
+def test_range_reduction_kernel_gives_the_numpy_passes_values(monkeypatch):
+    from sim_devices.world import synth_chunk
+    rng = np.random.default_rng(5)
+    turns = rng.uniform(-4000.0, 4000.0, (13, 1190))          # a static beat phase in cycles
+    turns[0, :6] = [0.5, -0.5, 1.5, 2.5, -2.5, 1e6 + 0.25]    # half-cycle ties and a large phase
+    monkeypatch.setattr(synth_jit, "turns_to_radians_f32", lambda samples: None)      # the numpy passes
+    want = synth_chunk.cos_sin(turns.copy(), False, True, in_turns=True)[0]
+    monkeypatch.setattr(synth_jit, "turns_to_radians_f32", lambda samples: synth_jit._reducer())
+    got = synth_chunk.cos_sin(turns.copy(), False, True, in_turns=True)[0]
+    assert got.dtype == want.dtype == np.float32
+    assert np.array_equal(got.view(np.int32), want.view(np.int32))
