@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from drivers.digitizer.protocol_headers import header_column
+
 from ..config import Config
 from ..dsp.frame import FrameDsp
 from ..dsp.pnframe import compensator_for, gate_m_range
@@ -258,7 +260,7 @@ class ScanLoop:
     def _accept(self, run: ScanRun, acq: Acquisition, headers: list, samples: np.ndarray, bp: int) -> None:
         p = run.plan
         avg, rl = p.averages, p.adc.record_length
-        t_ns = np.array([h.trigger_time_ns for h in headers], dtype=np.float64)
+        t_ns = header_column(headers, "trigger_time_ns").astype(np.float64)
         if run.hw_t0_ns is None:
             # after a resume the new run's clock continues where the last pixel read ended
             run.hw_t0_ns = t_ns[0] - run.t_shift_s * 1e9
@@ -268,7 +270,7 @@ class ScanLoop:
         mzi = samples[:, acq.channel_index("mzi"), :].reshape(bp, avg, rl) if p.phase_noise else None
         mzi_q = samples[:, acq.channel_index("mzi_q"), :].reshape(bp, avg, rl) if p.quadrature else None
         # a clipped beat puts harmonics and a wrong amplitude into the spectrum
-        over = np.array([h.overrange for h in headers], dtype=np.int64).reshape(bp, avg) != 0
+        over = header_column(headers, "overrange").reshape(bp, avg) != 0
         clipped = over.any(axis=1)
         run.faults["overrange_segments"] += int(over.sum())
         run.faults["overrange_pixels"] += int(clipped.sum())

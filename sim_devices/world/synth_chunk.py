@@ -17,13 +17,14 @@ from typing import Any
 
 import numpy as np
 
-from sim_devices.world import antialias
+from sim_devices.world import antialias, synth_jit
 from sim_devices.world.gauss import standard_normal_f32
 from sim_devices.world.synth_chirp import ChirpTrajectory
 from sim_devices.world.synth_grid import static_beat_phase
 from sim_devices.world.synth_types import AdcSpec
 
 _INTEGER_DELAY_TOL = 1e-6      # in ADC samples: a delay this close to m / fs is treated as exact
+_NO_NOISE = np.zeros((1, 1), np.float32)    # the quantizer kernel's noise argument when there is none
 
 
 @dataclass
@@ -106,7 +107,11 @@ def cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = Fals
     if not fast:
         s = np.sin(phase) if want_sin else None
         return np.cos(phase, out=phase), s
-    if in_turns:
+    reduce = synth_jit.turns_to_radians_f32(phase.size) if in_turns and phase.flags.c_contiguous else None
+    if reduce is not None:          # the three passes below in one compiled pass, the same values
+        r32 = np.empty(phase.shape, np.float32)
+        reduce(phase.reshape(-1), r32.reshape(-1))
+    elif in_turns:
         r32 = np.rint(phase, out=np.empty(phase.shape, np.float32), casting="same_kind")
         phase -= r32
         np.multiply(phase, 2.0 * np.pi, out=r32, casting="same_kind")   # float64 product, stored float32
@@ -284,11 +289,10 @@ def digitize_chunk(run: ChunkRun, acc: dict, channels: list[str], s0: int, s1: i
     nc, n, fs = s1 - s0, int(adc.n_samples), float(adc.sample_rate_hz)
     for c in channels:
         v = acc[c]
+        noise = None
         if c in ("mzi", "mzi_q"):
             if mzi_noise_asd_v_per_rthz > 0:
                 noise = standard_normal_f32(rng, (nc, n), mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
-                v += noise
-                del noise
         else:
             if dc_v:
                 v += dc_v
@@ -300,11 +304,21 @@ def digitize_chunk(run: ChunkRun, acc: dict, channels: list[str], s0: int, s1: i
                 else:
                     noise = standard_normal_f32(rng, (nc, n))
                     noise *= std[:, None].astype(np.float32)
-                v += noise
-                del noise
+        j = channels.index(c)
+        kernel = None
+        if adc.quantize and volts is None and v.dtype == np.float32 and outs[c].dtype == np.int16:
+            kernel = synth_jit.quantize_rows(v.size)
+        if kernel is not None:      # noise, scale, rounding, flags and clip in one compiled pass
+            over = np.empty(nc, dtype=bool)
+            kernel(v, _NO_NOISE if noise is None else noise, noise is not None, np.float32(1.0 / adc.lsb_v),
+                   np.float32(adc.code_min), np.float32(adc.code_max), outs[c][s0:s1], over)
+            overrange[s0:s1, j] = over
+            continue
+        if noise is not None:
+            v += noise
+            del noise
         if volts is not None:
             volts[c][s0:s1] = v
-        j = channels.index(c)
         lo: float
         hi: float
         if adc.quantize:
