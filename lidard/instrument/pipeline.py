@@ -18,13 +18,19 @@ its synthesis) proceeds while a batch is in the DSP.
 
 from __future__ import annotations
 
+import logging
 import os
 import queue
 import threading
 from typing import Any
 from collections.abc import Callable
 
+import numpy as np
+
 from ..dsp.scratch import release as release_scratch
+from .dsp_pool import DspPool, DspWorkerLost, Slot, dsp_pool
+
+log = logging.getLogger(__name__)
 
 _STOP = object()
 
@@ -119,3 +125,122 @@ class DspPipeline:
             self._q.put(_STOP)
         for t in threads:
             t.join()
+
+
+class ProcessDspPipeline:
+    """The same contract as :class:`DspPipeline` (bounded, in order, errors in place) on the process's
+    DSP pool (:mod:`.dsp_pool`): a batch's samples go to a worker through a shared-memory slot, its
+    frame result comes back and ``finish(result, meta)`` turns it into the caller's value here.
+
+    At most ``2 x workers`` batches are in the workers (one running and one waiting each) and each
+    holds a slot, so the raw samples held stay bounded however far the DSP falls behind; the slots
+    are freed when the pipeline closes. The pool is leased for the pipeline's life (a second user at
+    the same time, e.g. a replay during a scan, gets None from :meth:`open` and uses threads)."""
+
+    def __init__(self, pool: DspPool, dsp, *, lsb_v: float, mzi_delay_s: float,
+                 finish: Callable[[Any, Any], Any]):
+        self._pool, self._finish = pool, finish
+        self._record = dsp.to_record()
+        self._token = object()
+        self._lsb_v, self._mzi_delay_s = lsb_v, mzi_delay_s
+        self._free: list[Slot] = []
+        self._busy: dict[int, tuple[Slot, Any]] = {}      # seq -> (its slot, its meta)
+        self._results: dict[int, tuple[bool, Any]] = {}
+        self._submitted = 0
+        self._out = 0
+        self._error: BaseException | None = None
+        self._closed = False
+        self._capacity = 2 * len(pool.workers)
+
+    @classmethod
+    def open(cls, dsp, **kw) -> ProcessDspPipeline | None:
+        pool = dsp_pool()
+        if pool is None or not pool.lease():
+            return None
+        return cls(pool, dsp, **kw)
+
+    @property
+    def in_flight(self) -> int:
+        return self._submitted - self._out
+
+    def _take(self, timeout: float | None) -> None:
+        for seq, ok, value in self._pool.receive(timeout):
+            slot, meta = self._busy.pop(seq)
+            self._free.append(slot)
+            self._results[seq] = (ok, (value, meta) if ok else value)
+
+    def submit(self, fields: dict[str, list[np.ndarray]], meta: Any) -> None:
+        """Join ``fields`` (the batch's sample arrays, in parts) into a free slot and hand it to the
+        least busy worker; blocks while every slot is in a worker (back-pressure)."""
+        if self._closed:
+            raise RuntimeError("ProcessDspPipeline: submit after close")
+        self._take(0)
+        while len(self._busy) >= self._capacity:
+            self._take(None)
+        need = Slot.size_of(fields)
+        slot = next((s for s in self._free if s.nbytes >= need), None)
+        if slot is None:
+            if len(self._free) + len(self._busy) >= self._capacity and self._free:
+                self._free.pop(0).free()        # too small for this batch: replaced, not added
+            slot = Slot(need)
+        else:
+            self._free.remove(slot)
+        layout = slot.write(fields)
+        seq = self._submitted
+        w = min(self._pool.workers, key=lambda w: len(w.outstanding))
+        try:
+            if w.scan_token is not self._token:
+                self._pool.send(w, ("dsp", self._record))
+                w.scan_token = self._token
+            self._pool.send(w, ("batch", seq, slot.name, layout, self._lsb_v, self._mzi_delay_s))
+        except BaseException:
+            self._free.append(slot)
+            raise
+        w.outstanding.add(seq)
+        self._busy[seq] = (slot, meta)
+        self._submitted += 1
+
+    def ready(self, wait: bool = False) -> list[Any]:
+        """As :meth:`DspPipeline.ready`: the finished results in order, an error at its place."""
+        if self._error is not None:
+            exc, self._error = self._error, None
+            raise exc
+        if not self._closed:      # once closed every answer is in (and the pool may be another's)
+            self._take(0)
+        out: list[Any] = []
+        while self._out < self._submitted:
+            if self._out not in self._results:
+                if not wait or self._closed:
+                    break
+                self._take(None)
+                continue
+            ok, value = self._results.pop(self._out)
+            self._out += 1
+            if not ok:
+                if out:
+                    self._error = value
+                    return out
+                raise value
+            out.append(self._finish(*value))
+        return out
+
+    def close(self) -> None:
+        """No more batches; once none is in a worker, the slots are freed, the workers drop the scan's
+        scratch buffers and the pool is free for the next user (the results stay to be taken)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            while self._busy:
+                self._take(None)
+            for w in self._pool.workers:
+                if w.scan_token is self._token:
+                    self._pool.send(w, ("release",))
+                    w.scan_token = None
+        except DspWorkerLost as exc:
+            log.warning("%s", exc)
+        finally:
+            for s in self._free:
+                s.free()
+            self._free = []
+            self._pool.unlease()
