@@ -10,7 +10,7 @@
   CPU over wall of each run (its utilisation: the cores it kept busy) and the CPU per thread group.
 * ``dsp``: the frame DSP alone on records of a 10 m/s scan (bench-synthesized plane at 1.2 m): the
   samples it processes per second serially (one core's worth), on the pipeline's worker threads and on
-  the DSP's worker processes (lidard.instrument.dsp_pool), against the digitizer's data rate (the
+  the DSP's worker processes (lidard.dsp_pool), against the digitizer's data rate (the
   sample rate of that band); CPU includes the worker processes', and the points' digest shows the three
   give the same bytes.
 * ``replay``: the DSP alone on a recorded capture (a 10 m/s region scan recorded raw, lidard.raw):
@@ -25,7 +25,7 @@ scheduler autogroup of its own at nice -20. With autogroups (``/proc/sys/kernel/
 a nice value ranks a process only within its session, every other session's work still gets an
 equal share of the cores (``nice -n -20`` alone left a CPU-bound loop 17 % of a core at load 15); a
 session of its own at autogroup nice -20 gets ~98 % of them, so wall times mean something.
-Scans time the DSP's worker processes (lidard.instrument.dsp_pool) started, as a daemon has them.
+Scans time the DSP's worker processes (lidard.dsp_pool) started, as a daemon has them.
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def scan_figures(req_kw: dict) -> dict:
     """One scan on a fresh embedded bench: wall, CPU, hardware time and the ADC plan."""
     from lidard.config import load_config
     from lidard.instrument import ScanRequest
-    from lidard.instrument import dsp_pool
+    from lidard import dsp_pool
     cfg = load_config(REPO / "config" / "sim.toml")
     inst, cal = _instrument(cfg)
     dsp_pool.warm()      # as the daemon has it: its DSP worker processes started before its first scan
@@ -221,7 +221,7 @@ def dsp(quick: bool, repeats: int = 1) -> dict:
     pixels = np.stack([np.zeros(n_pix, int), np.arange(n_pix) % 128], axis=1)
     samples = beat.size
     out = {"fs_hz": p.adc.fs_hz, "record_length": p.adc.record_length, "pixels": n_pix, "averages": p.averages}
-    from lidard.instrument import dsp_pool
+    from lidard import dsp_pool
     pool = dsp_pool.dsp_pool()          # started before the clock, as a daemon has it
     pids = pool.pids if pool is not None else []
     modes = {"serial": {"workers": 0}, "threads": {"workers": dsp_workers()},
@@ -255,7 +255,8 @@ def replay(quick: bool, repeats: int = 1) -> dict:
     import tempfile
     import numpy as np
     from lidard.config import load_config
-    from lidard.instrument import ScanRequest, dsp_pool
+    from lidard import dsp_pool
+    from lidard.instrument import ScanRequest
     from lidard.raw.capture import RawCapture
     from lidard.raw.replay import reprocess
     cfg = load_config(REPO / "config" / "sim.toml")

@@ -28,7 +28,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..dsp.scratch import release as release_scratch
-from .dsp_pool import DspPool, DspWorkerLost, Slot, dsp_pool
+from ..dsp_pool import DspPool, DspWorkerLost, Slot, dsp_pool
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +129,7 @@ class DspPipeline:
 
 class ProcessDspPipeline:
     """The same contract as :class:`DspPipeline` (bounded, in order, errors in place) on the process's
-    DSP pool (:mod:`.dsp_pool`): a batch's samples go to a worker through a shared-memory slot, its
+    DSP pool (:mod:`lidard.dsp_pool`): a batch's samples go to a worker through a shared-memory slot, its
     frame result comes back and ``finish(result, meta)`` turns it into the caller's value here.
 
     At most ``2 x workers`` batches are in the workers (one running and one waiting each) and each

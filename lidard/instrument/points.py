@@ -8,7 +8,7 @@ The digitizer is read in short batches (the safety check wants short reads), but
 ones (its per-call set-up costs as much as many pixels), so :class:`PointBuffer` holds raw batches
 until ``flush_bytes`` are together: memory stays bounded by one buffer, never a frame of raw samples.
 With ``processes`` the batches go to the process's DSP worker processes (:class:`.pipeline.ProcessDspPipeline`,
-:mod:`.dsp_pool`), with ``workers`` (or when no pool is to be had) to DSP worker threads
+:mod:`lidard.dsp_pool`), with ``workers`` (or when no pool is to be had) to DSP worker threads
 (:class:`.pipeline.DspPipeline`); either is bounded and in order, and the reads go on meanwhile; the
 points keep the pixel order and are the serial DSP's bit for bit.
 """

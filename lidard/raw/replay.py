@@ -159,10 +159,10 @@ def reprocess_task(raw_path: str | Path, task_index: int, settings: ReprocessSet
 
 
 def local_map(fn, *iterables):
-    """``map`` on the process's DSP worker processes (:mod:`lidard.instrument.dsp_pool`: one per core
+    """``map`` on the process's DSP worker processes (:mod:`lidard.dsp_pool`: one per core
     this process may use, started once and reused; ``fn`` must be importable by name), results in
     order; on one thread per core when there is no pool to be had (one core, or it is busy with a scan)."""
-    from ..instrument.dsp_pool import dsp_pool
+    from ..dsp_pool import dsp_pool
     args = list(zip(*iterables))
     pool = dsp_pool() if len(args) > 1 else None
     if pool is not None and pool.lease():

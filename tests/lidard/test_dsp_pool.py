@@ -1,4 +1,4 @@
-"""The DSP's worker processes (lidard.instrument.dsp_pool, ProcessDspPipeline): the serial DSP's points
+"""The DSP's worker processes (lidard.dsp_pool, ProcessDspPipeline): the serial DSP's points
 bit for bit and in pixel order, a batch's error at its place, the samples held bounded by the slots,
 one pool per process reused scan after scan (no thread or process per scan), a dead worker replaced,
 Ctrl-C left to the acquiring process, and a second user at the same time sent to threads."""
@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from lidard.config import load_config
-from lidard.instrument import ScanRequest, dsp_pool
+from lidard import dsp_pool
+from lidard.instrument import ScanRequest
 from lidard.instrument.pipeline import DspPipeline, ProcessDspPipeline
 from lidard.instrument.points import PointBuffer, RawBatch
 from lidard.instrument.scan_loop import plan_scan

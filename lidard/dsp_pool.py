@@ -20,7 +20,9 @@ cores cost ~35 % more CPU than on one. A worker process has a GIL of its own.
 * A worker that dies (killed, out of memory) fails the batches it held with :class:`DspWorkerLost`;
   the pool is started afresh for the next user.
 
-:class:`.pipeline.ProcessDspPipeline` is the per-scan side (order, back-pressure, slots).
+:class:`lidard.instrument.pipeline.ProcessDspPipeline` is the per-scan side (order, back-pressure,
+slots); :func:`lidard.raw.replay.local_map` maps a replay's tasks on the same workers. A module of
+its own (not of lidard.instrument): the scan's pipeline and the replay both use it.
 """
 
 from __future__ import annotations
@@ -29,19 +31,19 @@ import atexit
 import logging
 import os
 import signal
-import sys
 import threading
 from multiprocessing import connection, get_context, shared_memory
 from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
 log = logging.getLogger(__name__)
 
-#: modules the forkserver imports once, so that a worker starts with the frame DSP loaded; with the
-#: compiled kernels (lidard.dsp.jit_kernels, skipped where numba is missing): numba's ~0.9 s load is
-#: paid once by the forkserver, not by every worker of every pool (a large scan's DSP uses them)
-PRELOAD = ["numpy", "lidard.dsp.frame", "lidard.instrument.dsp_pool", "lidard.dsp.jit_kernels"]
+#: modules the forkserver imports once, so that a worker starts with the frame DSP loaded and warm
+#: (:mod:`lidard.dsp_pool_preload`: the compiled kernels loaded, numba's ~0.9 s paid once by the server, not by
+#: every worker of every pool)
+PRELOAD = ["numpy", "lidard.dsp.frame", "lidard.dsp_pool", "lidard.dsp_pool_preload"]
 
 
 class DspWorkerLost(RuntimeError):
@@ -73,11 +75,8 @@ def _serve(conn: connection.Connection) -> None:
     mzi_delay_s) answers (seq, ok, FrameResult or exception), ("call", seq, fn, args) answers fn(*args),
     ("release",) drops the DSP's scratch buffers, ("stop",) or a closed pipe ends it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # Ctrl-C is the acquiring process's to handle
-    from ..dsp.frame import FrameDsp
-    from ..dsp.scratch import release as release_scratch
-    if "lidard.dsp.jit_kernels" in sys.modules:   # preloaded: the kernels' load is paid, use them now
-        from ..dsp.jit import kernels
-        kernels()
+    from .dsp.frame import FrameDsp
+    from .dsp.scratch import release as release_scratch
     dsp = None
     built: dict[str, Any] = {}     # FrameDsp by its record: the next scan with the same DSP finds its tables
     while True:
@@ -107,7 +106,7 @@ def _serve(conn: connection.Connection) -> None:
             out = (seq, False, exc)
         try:
             conn.send(out)
-        except Exception as exc:     # noqa: BLE001 - the exception itself did not pickle
+        except Exception as exc:     # the exception itself did not pickle
             conn.send((seq, False, RuntimeError(f"{type(out[2]).__name__}: {out[2]} ({exc})")))
 
 
@@ -150,7 +149,9 @@ class Slot:
 
 
 class Worker:
-    def __init__(self, ctx):
+    """One DSP process and the parent's end of its pipe."""
+
+    def __init__(self, ctx: Any):
         self.conn, child = ctx.Pipe(duplex=True)
         self.proc = ctx.Process(target=_serve, args=(child,), name="lidard-dsp-worker", daemon=True)
         self.proc.start()
@@ -199,10 +200,10 @@ class DspPool:
             w = next(w for w in self.workers if w.conn is c)
             try:
                 while True:
-                    seq, ok, value = c.recv()
+                    seq, ok, value = w.conn.recv()
                     w.outstanding.discard(seq)
                     out.append((seq, ok, value))
-                    if not c.poll():
+                    if not w.conn.poll():
                         break
             except (EOFError, OSError):
                 self.broken = True
@@ -212,7 +213,7 @@ class DspPool:
                 w.outstanding.clear()
         return out
 
-    def map(self, fn, args: list[tuple]) -> list[Any]:
+    def map(self, fn: Callable[..., Any], args: list[tuple]) -> list[Any]:
         """``fn(*a)`` for every ``a`` on the workers, results in order (the first error raised after
         every call has ended); ``fn`` must be importable by name (picklable)."""
         results: dict[int, tuple[bool, Any]] = {}
