@@ -1,6 +1,6 @@
 """What a scan pays for its Doppler band, and whether it uses every core (docs/measured/27_band_and_cores.md).
 
-    nice python benchmarks/band_and_cores.py [frame] [taskset] [dsp] [replay] [startup] [--quick] [--json] [--priority]
+    nice python benchmarks/band_and_cores.py [frame] [taskset] [dsp] [replay] [threads] [startup] [--quick] [--json] [--priority]
 
 * ``frame``: a full CAL frame (every bonded pixel, 10 averages, cal_letters scene, embedded bench) at
   the default band (config/sim.toml's scan.max_speed_mps) and at 10 m/s: hardware time over wall time
@@ -15,6 +15,8 @@
   give the same bytes.
 * ``replay``: the DSP alone on a recorded capture (a 10 m/s region scan recorded raw, lidard.raw):
   reprocessed on one thread and on the DSP's worker processes, alternated, against the digitizer's rate.
+* ``threads``: the threads each of three region scans in one process starts (by name), and the live
+  threads and child processes after each (the DSP's pool is started once, not per scan).
 * ``startup``: CPU time (user + sys, children) of a 16-pixel one-shot ``lidarctl scan --sim`` with a
   warm calibration cache, and of ``lidarctl --help``; byte-compiled (a pycache under /tmp, as an
   installed package has) -- the CPU the command costs, not the wall time a loaded machine stretches.
@@ -290,6 +292,36 @@ def replay(quick: bool, repeats: int = 1) -> dict:
     return out
 
 
+def threads_per_scan(repeats: int) -> dict:
+    """Threads started by each of ``repeats`` region scans in one process (``threading.Thread.start``
+    counted by name), the live threads and child processes after each: a daemon's scans must not add any."""
+    import collections
+    import multiprocessing
+    from lidard.config import load_config
+    from lidard.instrument import ScanRequest
+    started: collections.Counter = collections.Counter()
+    start = threading.Thread.start
+
+    def counting(self):
+        started[self.name.rstrip("0123456789_-")] += 1
+        return start(self)
+
+    cfg = load_config(REPO / "config" / "sim.toml")
+    inst, cal = _instrument(cfg)
+    out = []
+    threading.Thread.start = counting      # type: ignore[method-assign]
+    try:
+        for _ in range(max(2, repeats)):
+            started.clear()
+            inst.run_scan(ScanRequest(**{**REGION, "rows": (40, 44)}), lambda p: None, threading.Event(), cal)
+            out.append({"started": dict(started), "alive_after": threading.active_count(),
+                        "child_processes": len(multiprocessing.active_children())})
+    finally:
+        threading.Thread.start = start      # type: ignore[method-assign]
+        inst.close()
+    return {"scans": out}
+
+
 def _child_cpu(argv: list[str], env: dict) -> float:
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     subprocess.run(argv, capture_output=True, check=True, env=env)
@@ -325,7 +357,7 @@ def _high_priority() -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sections", nargs="*", default=["frame", "taskset", "dsp", "startup"],
-                    choices=["frame", "taskset", "dsp", "replay", "startup"])
+                    choices=["frame", "taskset", "dsp", "replay", "threads", "startup"])
     ap.add_argument("--quick", action="store_true", help="a region instead of the full frame; one taskset pair")
     ap.add_argument("--repeats", type=int, default=3, help="taskset pairs, dsp rounds and start-up runs (alternated)")
     ap.add_argument("--json", action="store_true")
@@ -338,7 +370,8 @@ def main(argv: list[str] | None = None) -> None:
     for s in a.sections:
         out[s] = {"frame": lambda: frame(a.quick), "taskset": lambda: taskset(1 if a.quick else a.repeats),
                   "dsp": lambda: dsp(a.quick, 1 if a.quick else a.repeats),
-                  "replay": lambda: replay(a.quick, 1 if a.quick else a.repeats), "startup": lambda: startup(a.repeats)}[s]()
+                  "replay": lambda: replay(a.quick, 1 if a.quick else a.repeats),
+                  "threads": lambda: threads_per_scan(a.repeats), "startup": lambda: startup(a.repeats)}[s]()
         if not a.json:
             print(s, json.dumps(out[s], indent=1, default=float), flush=True)
     if a.json:

@@ -1,10 +1,18 @@
-"""Hand batches to DSP worker threads through a bounded queue; take the results back in order.
+"""Hand batches to DSP workers through a bounded queue; take the results back in order.
 
 The acquisition loop (:mod:`.scan_loop`) reads the digitizer, the frame DSP turns the records into
 points. Done in series on one thread, a scan uses one core while the other idles (the simulated
-bench's synthesis, the transport and the DSP take turns). Here the DSP runs on ``workers`` threads:
-numpy's FFTs, ufuncs and random fills release the GIL, so the next read (and, on the simulated bench,
-its synthesis) proceeds while a batch is in the DSP.
+bench's synthesis, the transport and the DSP take turns). Two ways to run the DSP beside the reads:
+
+* :class:`ProcessDspPipeline`: on the process's DSP worker processes (:mod:`lidard.dsp_pool`), what a
+  scan of several batches uses on two cores or more. The DSP's Python parts hold the GIL for about a
+  quarter of its CPU; in worker threads they contend with the read loop, the transport and the
+  bench's synthesis (a scan on two cores cost ~35 % more CPU than on one), in a process they do not.
+* :class:`DspPipeline`: on ``workers`` threads (numpy's FFTs and ufuncs release the GIL), what a
+  process limited to one core uses (a worker process there would only add its start-up), or a second
+  user while the pool is leased.
+
+Both have the same contract:
 
 * Bounded: :meth:`DspPipeline.submit` blocks while ``depth`` batches wait for a worker, so the raw
   samples held are at most ``depth + workers`` batches however far the DSP falls behind
@@ -13,7 +21,7 @@ its synthesis) proceeds while a batch is in the DSP.
   so points are merged in pixel order.
 * Errors: a batch whose processing raised gives its exception at its place in the order (the
   results before it first), on the acquisition thread, as a synchronous DSP would have.
-* Each worker drops its per-thread DSP scratch buffers (lidard.dsp.scratch) when it ends.
+* Each worker drops its DSP scratch buffers (lidard.dsp.scratch) when the scan's pipeline closes.
 """
 
 from __future__ import annotations

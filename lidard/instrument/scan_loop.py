@@ -9,9 +9,10 @@
   (:mod:`.safety`) after each read (the safety watch also checks on its own thread, on wall time); a lost acquisition is resumed from the first pixel not yet read
   (at most ``RESUMES`` times); a device that stays down fails the scan with :class:`ScanFailed`
   carrying the points so far;
-* DSP -> points (:mod:`.points`): batches collected up to :func:`dsp_batch_bytes`, handed to DSP worker
-  threads through a bounded queue (:mod:`.pipeline`; the next read goes on meanwhile), kept as points
-  in pixel order.
+* DSP -> points (:mod:`.points`): batches collected up to :func:`dsp_batch_bytes`, handed to the DSP's
+  worker processes (:mod:`lidard.dsp_pool`, one pool per process reused by every scan; threads on one
+  core) through a bounded queue (:mod:`.pipeline`; the next read goes on meanwhile), kept as points in
+  pixel order.
 
 The run's state lives in one :class:`ScanRun` context passed between the stages.
 """
