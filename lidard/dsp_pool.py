@@ -166,7 +166,13 @@ class DspPool:
     def __init__(self, workers: int):
         ctx = get_context("forkserver")
         ctx.set_forkserver_preload(PRELOAD)
-        self.workers = [Worker(ctx) for _ in range(workers)]
+        self.workers: list[Worker] = []
+        try:
+            for _ in range(workers):
+                self.workers.append(Worker(ctx))
+        except BaseException:
+            self.close()          # the ones that did start
+            raise
         self._lease = threading.Lock()
         self.broken = False
 
@@ -278,8 +284,9 @@ def dsp_pool() -> DspPool | None:
         _POOL = None
         try:
             _POOL, _POOL_PID = DspPool(n), os.getpid()
-        except (OSError, ValueError, RuntimeError) as exc:
-            log.warning("DSP worker processes unavailable (%s): the DSP runs on threads", exc)
+        except Exception as exc:      # no processes here (no /dev/shm, a sandbox, ...): threads do the work
+            log.warning("DSP worker processes unavailable (%s: %s): the DSP runs on threads",
+                        type(exc).__name__, exc)
             return None
         return _POOL
 

@@ -2,7 +2,8 @@
 scan: the frame DSP run on a small made-up batch, so that every worker forked from the server starts with
 the compiled kernels loaded (numba loads a kernel from its cache on the kernel's first call: ~0.35 s in
 every worker otherwise, measured) and the DSP's per-process tables built. Where numba is missing the
-numpy path is warmed alone. The values computed here are thrown away.
+numpy path is warmed alone. The values computed here are thrown away; a failure here only leaves
+the workers cold (an exception would stop the forkserver, and with it the pool).
 """
 
 from __future__ import annotations
@@ -23,4 +24,7 @@ def _warm() -> None:
     dsp.process(beat, 1e-4)
 
 
-_warm()
+try:
+    _warm()
+except Exception:      # a warm-up only: the workers then warm on their first batches
+    pass
