@@ -28,6 +28,7 @@ its own (not of lidard.instrument): the scan's pipeline and the replay both use 
 from __future__ import annotations
 
 import atexit
+import itertools
 import logging
 import os
 import signal
@@ -206,17 +207,20 @@ class DspPool:
             w = next(w for w in self.workers if w.conn is c)
             try:
                 while True:
-                    seq, ok, value = w.conn.recv()
-                    w.outstanding.discard(seq)
-                    out.append((seq, ok, value))
+                    mid, ok, value = w.conn.recv()
+                    w.outstanding.discard(mid)
+                    out.append((mid, ok, value))
                     if not w.conn.poll():
                         break
             except (EOFError, OSError):
                 self.broken = True
                 lost = DspWorkerLost(f"DSP worker {w.proc.pid} ended (exit code {w.proc.exitcode}) "
                                      "holding batches")
-                out.extend((seq, False, lost) for seq in sorted(w.outstanding))
+                out.extend((mid, False, lost) for mid in sorted(w.outstanding))
                 w.outstanding.clear()
+            except BaseException:      # a Ctrl-C inside a read: the pipe may be out of step
+                self.broken = True
+                raise
         return out
 
     def map(self, fn: Callable[..., Any], args: list[tuple]) -> list[Any]:
@@ -224,14 +228,22 @@ class DspPool:
         every call has ended); ``fn`` must be importable by name (picklable)."""
         results: dict[int, tuple[bool, Any]] = {}
         todo = list(enumerate(args))
+        order: dict[int, int] = {}        # message id -> index of the call
         while todo or any(w.outstanding for w in self.workers):
             for w in self.workers:
                 if todo and len(w.outstanding) < 2:
-                    seq, a = todo.pop(0)
-                    self.send(w, ("call", seq, fn, tuple(a)))
-                    w.outstanding.add(seq)
-            for seq, ok, value in self.receive(None):
-                results[seq] = (ok, value)
+                    i, a = todo.pop(0)
+                    mid = message_id()
+                    try:
+                        self.send(w, ("call", mid, fn, tuple(a)))
+                    except BaseException:
+                        self.broken = True
+                        raise
+                    w.outstanding.add(mid)
+                    order[mid] = i
+            for mid, ok, value in self.receive(None):
+                if mid in order:
+                    results[order.pop(mid)] = (ok, value)
         for w in self.workers:          # their scratch buffers go: an idle daemon holds none
             self.send(w, ("release",))
             w.scan_token = None
@@ -252,6 +264,14 @@ class DspPool:
                 w.proc.kill()
                 w.proc.join(1.0)
             w.conn.close()
+
+
+_IDS = itertools.count()
+
+
+def message_id() -> int:
+    """A number no other message of this process's pools carries (an answer names its message)."""
+    return next(_IDS)
 
 
 _POOL: DspPool | None = None

@@ -36,7 +36,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..dsp.scratch import release as release_scratch
-from ..dsp_pool import DspPool, DspWorkerLost, Slot, dsp_pool
+from ..dsp_pool import DspPool, DspWorkerLost, Slot, dsp_pool, message_id
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +152,7 @@ class ProcessDspPipeline:
         self._token = object()
         self._lsb_v, self._mzi_delay_s = lsb_v, mzi_delay_s
         self._free: list[Slot] = []
-        self._busy: dict[int, tuple[Slot, Any]] = {}      # seq -> (its slot, its meta)
+        self._busy: dict[int, tuple[int, Slot, Any]] = {}      # message id -> (seq, its slot, its meta)
         self._results: dict[int, tuple[bool, Any]] = {}
         self._submitted = 0
         self._out = 0
@@ -172,8 +172,11 @@ class ProcessDspPipeline:
         return self._submitted - self._out
 
     def _take(self, timeout: float | None) -> None:
-        for seq, ok, value in self._pool.receive(timeout):
-            slot, meta = self._busy.pop(seq)
+        for mid, ok, value in self._pool.receive(timeout):
+            entry = self._busy.pop(mid, None)
+            if entry is None:        # the answer to a message whose sending was interrupted: not ours
+                continue
+            seq, slot, meta = entry
             self._free.append(slot)
             self._results[seq] = (ok, (value, meta) if ok else value)
 
@@ -194,18 +197,21 @@ class ProcessDspPipeline:
         else:
             self._free.remove(slot)
         layout = slot.write(fields)
-        seq = self._submitted
+        mid = message_id()
         w = min(self._pool.workers, key=lambda w: len(w.outstanding))
         try:
             if w.scan_token is not self._token:
                 self._pool.send(w, ("dsp", self._record))
                 w.scan_token = self._token
-            self._pool.send(w, ("batch", seq, slot.name, layout, self._lsb_v, self._mzi_delay_s))
+            self._pool.send(w, ("batch", mid, slot.name, layout, self._lsb_v, self._mzi_delay_s))
         except BaseException:
-            self._free.append(slot)
+            # not sent, or half sent (a Ctrl-C inside the write): the slot is never reused, and the
+            # pool, whose pipe may now be out of step, is replaced before its next user
+            slot.free()
+            self._pool.broken = True
             raise
-        w.outstanding.add(seq)
-        self._busy[seq] = (slot, meta)
+        w.outstanding.add(mid)
+        self._busy[mid] = (self._submitted, slot, meta)
         self._submitted += 1
 
     def ready(self, wait: bool = False) -> list[Any]:
@@ -239,9 +245,13 @@ class ProcessDspPipeline:
             return
         self._closed = True
         try:
-            while self._busy:
+            while self._busy and not self._pool.broken:
                 self._take(None)
-            for w in self._pool.workers:
+            for seq, slot, _ in self._busy.values():    # a broken pool: what it held is lost
+                self._results[seq] = (False, DspWorkerLost("the DSP worker pool broke while it held this batch"))
+                self._free.append(slot)
+            self._busy.clear()
+            for w in self._pool.workers if not self._pool.broken else ():
                 if w.scan_token is self._token:
                     self._pool.send(w, ("release",))
                     w.scan_token = None

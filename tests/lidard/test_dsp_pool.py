@@ -163,3 +163,30 @@ def test_scans_in_one_process_reuse_one_pool_and_start_no_thread():
     assert pids[0] == pids[1] == pids[2]
     assert [(r.partial, r.pixels_scanned, r.pixels_planned) for r in res] == [(False, 384, 384)] * 3     # the bonded pixels of 4 rows
     assert all(len(r.points) >= 192 for r in res)
+
+
+def test_a_ctrl_c_while_a_batch_is_sent_loses_no_earlier_batch_and_replaces_the_pool(plan, monkeypatch):
+    # the earlier batches' points are kept in order; the interrupted one's slot is never reused and the
+    # pool, whose pipe may be out of step, is not handed to the next user
+    _, _, p = plan
+    batches = _batches(p, 4, 24, np.random.default_rng(4))
+    pb = _buffer(plan, workers=2, processes=True)
+    pipe, pool = pb._pipe, dsp_pool.dsp_pool()
+    for b in batches[:3]:
+        pb._pending.append(b)
+        pb.flush()
+    real_send = pool.send
+
+    def interrupted(w, msg):
+        if msg[0] == "batch":
+            raise KeyboardInterrupt
+        return real_send(w, msg)
+
+    monkeypatch.setattr(pool, "send", interrupted)
+    pb._pending.append(batches[3])
+    with pytest.raises(KeyboardInterrupt):
+        pb.flush()
+    monkeypatch.setattr(pool, "send", real_send)
+    pts = pb.points()
+    assert sorted(np.unique(pts["row"])) == [40, 41, 42] and pipe.in_flight == 0
+    assert pool.broken and dsp_pool.dsp_pool() is not pool
