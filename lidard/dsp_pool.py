@@ -19,6 +19,9 @@ cores cost ~35 % more CPU than on one. A worker process has a GIL of its own.
   holds none.
 * A worker that dies (killed, out of memory) fails the batches it held with :class:`DspWorkerLost`;
   the pool is started afresh for the next user.
+* As with any multiprocessing start other than fork, a worker imports the parent's main script (not a
+  ``-m`` module): a script that scans must keep its work under ``if __name__ == "__main__"`` (lidarctl,
+  ``python -m lidard`` and the benchmarks do).
 
 :class:`lidard.instrument.pipeline.ProcessDspPipeline` is the per-scan side (order, back-pressure,
 slots); :func:`lidard.raw.replay.local_map` maps a replay's tasks on the same workers. A module of
