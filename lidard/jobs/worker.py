@@ -310,7 +310,7 @@ class ScanWorker:
                                    "fraction": 0.0, "hardware_time_s": 0.0, **(step or {})})
         if self.factory is not None and not self.factory.tried:
             self._factory_calibration(job)
-        cal = self.current_linearization(announce, phase_noise=self.phase_noise_of(job.request))
+        cal = self.current_linearization(announce, request=job.request)
         job.linearization = self.last_linearization
         return cal
 
@@ -337,12 +337,13 @@ class ScanWorker:
         return scan_phase_noise(cfg, request, delay() if callable(delay) else cfg.monitor.delay_s)
 
     def current_linearization(self, announce: Callable[..., None] | None = None,
-                              phase_noise: str | None = None) -> CalibrationResult:
+                              request=None) -> CalibrationResult:
         """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
         linearization if it is fresh (temperature rule, monitor delay) and passes the health check,
         else a new one (``announce()`` first). ``self.last_linearization`` records the check.
-        ``phase_noise``: the scan's phase-noise compensation, which the range record must share."""
-        self.apply_geometry(phase_noise)
+        ``request``: the scan (or stream) this is for; a range record must have been measured in its
+        phase-noise compensation mode (None: a record of either mode, e.g. for a calibration's own scans)."""
+        self.apply_geometry(None if request is None else self.phase_noise_of(request))
         cal = self.store.latest_calibration(self.laser)
         reason = "no calibration stored" if cal is None else self._stale_reason(cal)
         checked = self.instrument.check_linearization(cal) if reason is None else None

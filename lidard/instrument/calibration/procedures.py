@@ -21,7 +21,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..scan_loop import phase_noise_on
+from ..dsp_plan import phase_noise_on
 from ..types import CalibrationResult, ScanRequest
 from .applied import AppliedCalibrations
 from .iq import measure_iq, require_iq_receiver
@@ -40,8 +40,9 @@ def _scan(instrument, request: ScanRequest, linearization: CalibrationResult) ->
 
 def scan_phase_noise(cfg, request: ScanRequest, mzi_delay_s: float) -> str:
     """The phase-noise compensation a scan of ``request`` runs with, "on" or "off" (the scan's own rule,
-    :func:`lidard.instrument.scan_loop.phase_noise_on`, with the monitor delay it is planned with)."""
-    return "on" if phase_noise_on(cfg, request, mzi_delay_s) else "off"
+    :func:`lidard.instrument.dsp_plan.phase_noise_on`, with the monitor delay it is planned with)."""
+    mode = request.phase_noise_compensation or cfg.scan.phase_noise_compensation
+    return "on" if phase_noise_on(mode, float(request.max_range_m), mzi_delay_s) else "off"
 
 
 def measure_plate(instrument, optics, known_m: float, linearization: CalibrationResult,
