@@ -20,8 +20,8 @@ and the DSP takes it out of the CW beat where the real receiver's two regimes me
 lidard.dsp.threeseg).
 
 Region of interest: the chirp is linearized over the part of each ramp the range estimator uses
-(:attr:`lidard.dsp.frame.FrameDsp.use_fraction`, the ROI), learning a margin beyond it. The range scale
-of a scan is the chirp's mean slope over that window, weighted about uniformly by the estimator. With
+(:data:`lidard.dsp.frame.RANGE_WINDOW_FRACTION`, ``FrameDsp.use_fraction``'s default: the ROI),
+learning a margin beyond it. The range scale of a scan is the chirp's mean slope over that window, weighted about uniformly by the estimator. With
 the ILC's own defaults (ROI 0.8, learning 0.92 of a 0.9 window) the learned drive left the turnaround
 transient's tail, MHz-sized at 4-6 % from a ramp end, inside the window: a range scale of about -2.2e-5
 at short range and less at long range (the beat averages the tail over its round trip), i.e. a range
@@ -38,7 +38,7 @@ import numpy as np
 
 from ...config import Config
 from ...dsp.cwhold import hold_profile
-from ...dsp.frame import FrameDsp
+from ...dsp.frame import RANGE_WINDOW_FRACTION
 from ...dsp.ilc import linearize as ilc_linearize
 from ...physics.chirp import adc_rate_hz
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan, drive_for_chirp
@@ -55,8 +55,6 @@ MAX_AVERAGES = 2048
 #: periods averaged for the held segment's drift (three-segment chirp): the repeatable fringe stays,
 #: the laser's phase noise and the monitor's noise average out (61 ms of hardware time at 238 us)
 HOLD_AVERAGES = 256
-#: the ILC's region of interest: the fraction of each ramp the scan's range estimator uses
-RANGE_WINDOW_FRACTION = FrameDsp.__dataclass_fields__["use_fraction"].default
 #: the learning region reaches this far (fraction of a ramp) beyond the ROI, so the turnaround's
 #: transient, which the learned drive can only shorten, settles before the range window opens
 LEARN_MARGIN = 0.05
