@@ -19,7 +19,7 @@ Variants (``--variant``):
   learning 0.92, main's averaging schedule) from that drive.
 
 Run: PYTHONPATH=<tree> python benchmarks/linearization_cost.py --config config/sim_far.toml [--variant edges-after-centre]
-     [--max-averages N]
+     [--max-averages N] [--scene config/scenes/cal_letters.toml]
 """
 
 from __future__ import annotations
@@ -49,6 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--edge-averages", type=int, default=32)
     ap.add_argument("--edge-steps", type=int, default=4)
     ap.add_argument("--edge-beta", type=float, default=0.8)
+    ap.add_argument("--scene", default="config/scenes/empty.toml",
+                    help="the bench's scene: it sets nothing the MZI sees, but its loading draws from the "
+                         "bench's generator, so the linearization's noise draw differs per scene")
     args = ap.parse_args(argv)
 
     import lidard
@@ -83,8 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         lin_mod.MAX_AVERAGES = int(args.max_averages)
     tree = Path(lidard.__file__).resolve().parents[1]      # the tree on PYTHONPATH: its own config
     cfg = load_config(str(tree / args.config))
-    inst = open_instrument(cfg, scene_path=str(tree / "config/scenes/empty.toml"), bench="embedded")
-    print(f"tree {tree}, config {args.config}, variant {args.variant}"
+    inst = open_instrument(cfg, scene_path=str(tree / args.scene), bench="embedded")
+    print(f"tree {tree}, config {args.config}, scene {args.scene}, variant {args.variant}"
           + ("" if args.max_averages is None else f", MAX_AVERAGES {args.max_averages}"))
     t0 = time.process_time()
     inst.linearize()
