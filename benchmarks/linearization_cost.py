@@ -50,8 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--edge-steps", type=int, default=4)
     ap.add_argument("--edge-beta", type=float, default=0.8)
     ap.add_argument("--scene", default="config/scenes/empty.toml",
-                    help="the bench's scene: it sets nothing the MZI sees, but its loading draws from the "
-                         "bench's generator, so the linearization's noise draw differs per scene")
+                    help="the bench's scene; the linearization's course differs with it (config/sim.toml on "
+                         "this tree: 12 measurements with empty.toml, 19 with cal_letters.toml)")
     args = ap.parse_args(argv)
 
     import lidard
