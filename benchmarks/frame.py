@@ -97,7 +97,7 @@ def _stages(acc: dict, points_s: tuple[float, float]) -> dict:
 
 
 def _write_ply_timed(pts) -> tuple[float, float]:
-    from lidard.pointcloud import write_ply
+    from lidard.outputs.ply import write_ply
     with tempfile.TemporaryDirectory(prefix="frame-") as d:
         t, c = time.perf_counter(), time.thread_time()
         write_ply(os.path.join(d, "frame.ply"), pts)

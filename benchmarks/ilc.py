@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidard.config import Monitor, load_laser, load_lasers
-from lidard.dsp.ilc import linearize
+from lidard.dsp.linearize.ilc import linearize
 from lidard.instrument.calibration.linearization import MAX_AVERAGES, MAX_ITERATIONS   # the instrument's policy
 from sim_devices.world.laser import DfbLaser, ramp_nonlinearity_hz, triangle_drive
 from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory

@@ -55,7 +55,7 @@ def run_job(cache: Path, out: Path, *extra: str) -> dict:
 def score(ply: Path) -> dict:
     from lidard.config import CONFIG_DIR, load_config
     from lidard.instrument import open_instrument
-    from lidard.pointcloud import read_points, read_sidecar
+    from lidard.outputs import read_points, read_sidecar
     env = {k: v for k, v in os.environ.items() if not k.startswith("LIDARD__")}
     inst = open_instrument(load_config(CONFIG_DIR / "sim.toml", environ=env), scene_path=str(REPO / SCENE),
                            bench="embedded")

@@ -49,7 +49,7 @@ except ImportError:       # run as a script: python benchmarks/motion_holdout.py
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
 from lidard.physics.constants import C_M_PER_S
-from lidard.scan import plan
+from lidard.instrument.plan import plan
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE_DIR = ROOT / "config" / "scenes" / "holdout"

@@ -13,7 +13,7 @@ fractional-sample delay), the monitor channel with its own noise (shot + RIN lum
 then the 8-bit ADC's quantization), mean and worst peak loss against a zero-linewidth laser for
 three monitor set-ups: ``grid`` (one real MZI of 200 ns, the dissertation's: nearest multiple M),
 ``short`` (one real MZI of 20 ns << tau_c, summed the same way: option "short MZI"), ``quadrature``
-(the 200 ns MZI read in quadrature, laser phase rebuilt per sample, lidard.dsp.pnrecon).
+(the 200 ns MZI read in quadrature, laser phase rebuilt per sample, lidard.dsp.phasenoise.reconstruct).
 Run: python benchmarks/phase_noise.py [--sweep]
 """
 
@@ -25,8 +25,8 @@ import numpy as np
 from scipy.signal import get_window, hilbert
 
 from lidard.config import Monitor
-from lidard.dsp.pncomp import compensated_spectrum
-from lidard.dsp.pnrecon import delayed, quadrature_delta, reconstruct_phase
+from lidard.dsp.phasenoise.compensate import compensated_spectrum
+from lidard.dsp.phasenoise.reconstruct import delayed, quadrature_delta, reconstruct_phase
 from lidard.physics.budget import LinkParams, snr_db
 
 FS, RAMP_S, GAMMA = 1e9, 20e-6, 8.6e9 / 80e-6

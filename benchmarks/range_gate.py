@@ -25,7 +25,7 @@ import numpy as np
 from lidard.config import load_config
 from lidard.dsp import frame
 from lidard.dsp.ranging import ramp as ramp_model
-from lidard.dsp.gate import PointFlag
+from lidard.dsp.detect.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
 
 MAX_RANGE_M = 2.0

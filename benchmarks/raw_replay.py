@@ -55,10 +55,10 @@ def _machine() -> str:
 def run(rows: list[int], cols: list[int], averages: int, workers: int, repeat: int, phase_noise: str) -> dict:
     from lidard.cli.embedded import embedded
     from lidard.config import load_config
-    from lidard.pointcloud import read_points
+    from lidard.outputs import read_points
     from lidard.raw import chunk_count
     from lidard.raw.capture import RAW_NAME
-    from lidard.raw.service import reprocess_scan
+    from lidard.jobs.reprocess import reprocess_scan
 
     cfg = load_config(str(REPO / "config" / "sim.toml"))
     scene = str(REPO / "config" / "scenes" / "cal_letters.toml")

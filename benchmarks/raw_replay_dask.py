@@ -1,7 +1,7 @@
 """Benchmark: reprocessing a recorded scan on Dask, 1 and 2 worker processes vs in process (issue 17).
 
 Records one ROI on the embedded simulated bench (CAL-letters scene, as benchmarks/raw_replay.py), then
-reprocesses its raw capture (lidard.raw.service.reprocess_scan, one Zarr chunk per task) in this
+reprocesses its raw capture (lidard.jobs.reprocess.reprocess_scan, one Zarr chunk per task) in this
 process and on a LocalCluster of 1 and 2 worker processes (lidard.offline.cluster.mapper). Measures
 the pure DSP time per chunk (reprocess_chunk in process), the client's serial part (reading nothing,
 merging, writing the cloud and sidecar: in-process wall minus the chunks' DSP), the scheduling
@@ -47,11 +47,11 @@ def run(rows, cols, repeat: int) -> dict:
     from lidard.cli.embedded import embedded
     from lidard.config import load_config
     from lidard.offline.cluster import mapper, open_client
-    from lidard.pointcloud import read_points
+    from lidard.outputs import read_points
     from lidard.raw import chunk_count
     from lidard.raw.capture import RAW_NAME
     from lidard.raw.replay import reprocess_chunk
-    from lidard.raw.service import reprocess_scan
+    from lidard.jobs.reprocess import reprocess_scan
 
     cfg = load_config(str(REPO / "config" / "sim.toml"))
     scene = str(REPO / "config" / "scenes" / "cal_letters.toml")

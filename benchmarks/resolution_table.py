@@ -5,10 +5,10 @@ the near one at 5 m and the far one 0.5-6 range cells (c / 2B = 17.4 mm) behind 
 random phase per segment, in white noise, on the scan's default chirp (the three-segment chirp of
 config/sim.toml at a 10 m gate: 40 MS/s, 3200-sample ramps, one record per pixel) and the scan's
 FrameDsp. SNR: the stronger return's post-FFT SNR of one ramp (rectangular window, on-bin: N A^2 /
-(4 sigma^2), lidard.dsp.crlb); "unequal": the near return 10 dB under the far one (a pane in front
+(4 sigma^2), lidard.dsp.ranging.crlb); "unequal": the near return 10 dB under the far one (a pane in front
 of a wall); "moving": the far return recedes at 1 m/s. Per cell: the fraction of pixels with BOTH
 returns valid (each within half a cell of its truth), the range RMSE and bias of those points, and
-the two-tone Cramer-Rao bound on the range (lidard.dsp.crlb.crlb_tones_freq_var on each ramp, the
+the two-tone Cramer-Rao bound on the range (lidard.dsp.ranging.crlb.crlb_tones_freq_var on each ramp, the
 range being the mean of the two ramps' beats).
 
 Then the noise-only check: pixels of white noise, every gate cell of every pixel a place where a
@@ -25,10 +25,10 @@ import time
 
 import numpy as np
 
-from lidard.dsp.crlb import crlb_tones_freq_var
+from lidard.dsp.ranging.crlb import crlb_tones_freq_var
 from lidard.dsp.frame import FrameDsp
 from lidard.dsp.ranging.lines import lines, render
-from lidard.dsp.rangefft import C_M_PER_S
+from lidard.dsp.spectrum.rangefft import C_M_PER_S
 
 FS_HZ, RAMP, CW = 40e6, 3200, 3120
 #: the two false-point rates checked on noise-only pixels
@@ -50,7 +50,7 @@ one record per pixel) through the scan's FrameDsp: two returns, the near one at 
 0.5-6 cells (c / 2B = 17.4 mm) behind; SNR = the stronger return's post-FFT SNR of one ramp
 (rectangular, on-bin); "near -10 dB": the near return 10 dB under the far one; "far 1 m/s": the far
 return recedes at 1 m/s. Both valid = each return has a valid point within half a cell of its truth.
-RMSE and bias over those points; the two-tone CRLB from lidard.dsp.crlb.crlb_tones_freq_var (both
+RMSE and bias over those points; the two-tone CRLB from lidard.dsp.ranging.crlb.crlb_tones_freq_var (both
 ramps); RMSE / CRLB the larger of the two returns'. 200 pixels per row."""
 
 FP_TEXT = """### Noise-only pixels: the false-point rate that `scan.pfa` states
@@ -64,7 +64,7 @@ OS-CFAR runs at q = sqrt(pfa / m) (m = 10 here), keeping max_returns candidate p
 the median count of noise alarms q lets through the band (FrameDsp.candidate_slots; none at these two
 settings nor at the default 1e-11; the points are cut back to max_returns). Enough pixels for ~25 expected false points and
 >= 1e6 cells. The detector's alarms per ramp cell exceed its level (a Hann window correlates
-neighbouring cells, lidard/dsp/cfar.py); the pairing's own tests (CW evidence, the pair's power
+neighbouring cells, lidard/dsp/detect/cfar.py); the pairing's own tests (CW evidence, the pair's power
 balance) take about as many back."""
 
 SCENES_TEXT = """### The issue's scenes on the simulated bench

@@ -1,4 +1,4 @@
-"""Speed versus error of every sub-bin estimator in lidard.dsp.estimators (dissertation eq. 2-1:
+"""Speed versus error of every sub-bin estimator in lidard.dsp.ranging.estimators (dissertation eq. 2-1:
 range error = c * frequency error / (2 gamma)).
 
 What is measured
@@ -8,7 +8,7 @@ What is measured
 * Post-FFT SNR (the swept quantity): peak-bin power over the mean noise power of one bin, for an
   on-bin tone with a RECTANGULAR window and no zero-padding: rho = N A^2 / (4 sigma^2).  (With the
   Hann window used for detection the displayed peak is 10 log10(1.5) = 1.76 dB lower.)
-* Reference: Rife-Boorstyn CRLB, var = 6 N^2 / ((2 pi)^2 rho (N^2 - 1)) bins^2 (lidard/dsp/crlb.py).
+* Reference: Rife-Boorstyn CRLB, var = 6 N^2 / ((2 pi)^2 rho (N^2 - 1)) bins^2 (lidard/dsp/ranging/crlb.py).
 * Peak picking: argmax of the Hann-windowed power spectrum over bins 3 .. N/2 (so noise can win
   at low SNR).  Outlier: |error| > 0.5 bin.  RMSE and bias are computed over inliers;
   "RMSE/CRLB" is RMSE / sqrt(CRLB) (a standard-deviation ratio; the target is <= 1.1 at >= 20 dB
@@ -37,9 +37,9 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from lidard.dsp.crlb import crlb_freq_var_post_fft  # noqa: E402
-from lidard.dsp.estimators import DEFAULT_METHOD, ESTIMATOR_NAMES, estimate  # noqa: E402
-from lidard.dsp.window import get_window  # noqa: E402
+from lidard.dsp.ranging.crlb import crlb_freq_var_post_fft  # noqa: E402
+from lidard.dsp.ranging.estimators import DEFAULT_METHOD, ESTIMATOR_NAMES, estimate  # noqa: E402
+from lidard.dsp.spectrum.window import get_window  # noqa: E402
 
 SNRS_DB = (10, 20, 30)
 OUT = pathlib.Path(__file__).resolve().parent / "out" / "speed_vs_error.png"

@@ -27,10 +27,10 @@ import numpy as np
 
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
-from lidard.dsp.gate import PointFlag
+from lidard.dsp.detect.gate import PointFlag
 from lidard.instrument.frames import FramePlan
-from lidard.scan import plan
-from lidard.tracking import TrackParams, track_planner
+from lidard.instrument.plan import plan
+from lidard.instrument.tracking import TrackParams, track_planner
 
 ROI = ScanRequest(pattern="roi", rows=(16, 112), cols=(16, 112), max_range_m=3.0)
 WALL = {"kind": "plane", "point": [0.0, 0.0, 2.5], "normal": [0.0, 0.0, -1.0], "reflectivity": 0.9}

@@ -15,8 +15,14 @@ No caller needs to parse a message or guess the device from a module name.
     |   |                            (ENODEV), a vanished serial port, a refused TCP connection
     |   |                            (also a ConnectionError)
     |   +-- usbtmc.DeviceIOError     any other USB failure (errno in the detail)
-    +-- ProtocolError                bytes that do not follow the wire protocol (codec errors,
-    |                                a corrupted segment stream, a link that stays garbled)
+    +-- ProtocolError                bytes that do not follow the wire protocol: the one codec
+    |   |                            error of every device (device as data, ``DEVICE`` per codec)
+    |   +-- FramingError             the bytes form no frame (COBS broken, frame too long)
+    |   +-- CrcError                 a frame's checksum does not match; seq, cmd as received
+    |   +-- LengthError              a length that disagrees with the header or the layout
+    |   +-- PayloadError             a well-framed payload with impossible values (an unknown
+    |   |                            enum, a register word the map forbids)
+    |   +-- LinkError                answers corrupted through every retry
     +-- CommandRefused               the device answered "no": FPGA NAK, USB STALL, a SCPI error,
     |                                a Modbus exception response
     +-- DeviceFaulted                latched faults or an open interlock block the command
@@ -25,25 +31,25 @@ No caller needs to parse a message or guess the device from a module name.
     |                                argument or driver configuration (also a ValueError)
     +-- SettleError                  a readback did not reach its setpoint in time
 
-Per-device names stay importable and are subclasses of these (so ``except DeviceTimeout`` from
-this module catches a timeout of any device, and old ``except`` clauses keep working). A timeout is
-one class whatever the device (``drivers.usbtmc.DeviceTimeout`` and
-``drivers.controller.errors.DeviceTimeout`` are the name ``DeviceTimeout`` of this module, the
-device named by ``exc.device``):
+A device-specific class exists only where a caller tells it apart (a codec's own ``DEVICE``, a NAK
+with its code, a Modbus exception code, a pattern's pixel); each sits in this tree, so
+``except ProtocolError`` catches a codec error of any device and ``except DeviceTimeout`` a timeout
+of any device (``drivers.usbtmc.DeviceTimeout`` and ``drivers.controller.errors.DeviceTimeout`` are
+this module's class, the device named by ``exc.device``):
 
-    drivers.transport.errors   TransportError, DeviceTimeout            (the classes above)
-    drivers.usbtmc             UsbDeviceError, DeviceTimeout, DeviceStall (CommandRefused),
-                               DeviceDisconnected (DeviceGone), DeviceIOError,
-                               ProtocolError, UsbtmcProtocolError, InvalidArgument (InvalidValue)
-    drivers.fpsa.errors        FpsaError, ProtocolError, FramingError, CrcError, LengthError,
-                               LinkError, PayloadError, PatternError (InvalidValue),
-                               NakError (CommandRefused)
-    drivers.controller.errors  ControllerError, LimitError, ConfigError, ProtocolError,
-                               DeviceTimeout, DeviceUnreachable (DeviceGone),
-                               ModbusExceptionError (CommandRefused) and its code classes,
-                               InterlockOpen and DeviceFaulted (DeviceFaulted), SettleError
-    drivers.awg                AwgProtocolError, ScpiSyntaxError, BlockError, AwgError
-    drivers.digitizer          DigitizerProtocolError, DigitizerError (STALL),
+    drivers.transport.errors   TransportError, DeviceTimeout, DeviceGone  (the classes above)
+    drivers.usbtmc             UsbDeviceError, DeviceStall (CommandRefused), DeviceDisconnected
+                               (DeviceGone), DeviceIOError, UsbtmcProtocolError (ProtocolError),
+                               InvalidArgument (InvalidValue)
+    drivers.fpsa.errors        FpsaError, PatternError (InvalidValue), NakError (CommandRefused);
+                               its codec raises this module's FramingError ... LinkError
+    drivers.controller.errors  ControllerError, LimitError and ConfigError (InvalidValue),
+                               DeviceUnreachable (DeviceGone), ModbusExceptionError
+                               (CommandRefused) and its code classes, InterlockOpen and
+                               DeviceFaulted (DeviceFaulted), SettleError; a register value the
+                               map forbids is this module's PayloadError (``bad_value``)
+    drivers.awg                AwgProtocolError, ScpiSyntaxError, BlockError (ProtocolError), AwgError
+    drivers.digitizer          DigitizerProtocolError (ProtocolError), DigitizerError (STALL),
                                DigitizerDataError (ProtocolError)
 
 Pure module: no I/O, importable by codecs, drivers and simulators alike.
@@ -51,13 +57,20 @@ Pure module: no I/O, importable by codecs, drivers and simulators alike.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 __all__ = [
     "CommandRefused",
+    "CrcError",
     "DeviceError",
     "DeviceFaulted",
     "DeviceGone",
     "DeviceTimeout",
+    "FramingError",
     "InvalidValue",
+    "LengthError",
+    "LinkError",
+    "PayloadError",
     "ProtocolError",
     "SettleError",
     "TransportError",
@@ -131,7 +144,51 @@ class DeviceGone(TransportError, ConnectionError):
 
 
 class ProtocolError(DeviceError):
-    """Bytes that do not follow the device's wire protocol."""
+    """Bytes that do not follow the device's wire protocol: the one codec error of every device.
+
+    A codec raises it with the message: ``device`` is given or the class's :attr:`DEVICE` (a codec's
+    own subclass sets it), ``command`` the command being decoded (``"decode"`` when the bytes did
+    not get far enough to say).
+    """
+
+    DEVICE: ClassVar[str] = "device"
+
+    def __init__(self, message: str, *, device: str | None = None, command: str = "decode") -> None:
+        super().__init__(device or self.DEVICE, command, message, message=message)
+
+
+class FramingError(ProtocolError):
+    """The bytes do not form a frame: the framing (COBS) is broken or a frame overran its maximum."""
+
+
+class CrcError(ProtocolError):
+    """A frame's checksum does not match its bytes; ``seq``/``cmd`` as received (unreliable, may be None)."""
+
+    def __init__(self, message: str, *, device: str | None = None, command: str = "decode",
+                 seq: int | None = None, cmd: int | None = None) -> None:
+        self.seq = seq
+        self.cmd = cmd
+        super().__init__(message, device=device, command=command)
+
+
+class LengthError(ProtocolError):
+    """A frame or payload length inconsistent with its header or with the command's layout;
+    ``seq``/``cmd`` of the frame when its header was read."""
+
+    def __init__(self, message: str, *, device: str | None = None, command: str = "decode",
+                 seq: int | None = None, cmd: int | None = None) -> None:
+        self.seq = seq
+        self.cmd = cmd
+        super().__init__(message, device=device, command=command)
+
+
+class PayloadError(ProtocolError):
+    """A well-framed payload whose values are impossible: an unknown enum value, a register word
+    the register map does not allow, a field out of its range."""
+
+
+class LinkError(ProtocolError):
+    """Answers kept arriving corrupted (bad CRC either way) through every retry."""
 
 
 class CommandRefused(DeviceError):

@@ -17,7 +17,8 @@ USBTMC (USB Test & Measurement Class, rev 1.0, USB488 subclass): every bulk tran
 
 followed (MSG_OUT, MSG_IN) by TransferSize message bytes padded with zeros to a multiple of 4.
 
-This module is PURE (no I/O). Decoders raise only ``UsbtmcProtocolError`` (a ``ProtocolError``).
+This module is PURE (no I/O). Decoders raise only ``UsbtmcProtocolError`` (a
+:class:`drivers.errors.ProtocolError`).
 Golden byte vectors are in docs/protocols/awg.md.
 
 The typed USB driver errors (``DeviceTimeout`` etc.) live here too because both USB drivers raise
@@ -38,20 +39,7 @@ from drivers import errors as _e
 # ----------------------------------------------------------------------------------------- errors
 
 
-class ProtocolError(_e.ProtocolError):
-    """Bytes that do not follow a USB wire protocol (base class of the USB codecs' errors).
-
-    Codecs raise it with the message only; ``device`` is the class's ``DEVICE`` and ``command``
-    is ``"decode"`` unless given.
-    """
-
-    DEVICE = "usb"
-
-    def __init__(self, message: str, *, device: str | None = None, command: str = "decode") -> None:
-        super().__init__(device or self.DEVICE, command, message, message=message)
-
-
-class UsbtmcProtocolError(ProtocolError):
+class UsbtmcProtocolError(_e.ProtocolError):
     """A USBTMC header or message that cannot be decoded (the AWG is the USBTMC device)."""
 
     DEVICE = "awg"

@@ -8,7 +8,7 @@ import inspect
 import pytest
 
 PACKAGES = ["sim_devices.awg", "sim_devices.bench", "sim_devices.controller", "sim_devices.digitizer",
-            "sim_devices.fpsa", "sim_devices.usb", "lidard.store"]
+            "sim_devices.fpsa", "sim_devices.usb", "lidard.store", "lidard.outputs"]
 
 
 @pytest.mark.parametrize("name", PACKAGES)

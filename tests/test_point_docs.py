@@ -1,4 +1,4 @@
-"""The point-field tables of README.md and docs/api.md are generated from lidard.point_schema and fail
+"""The point-field tables of README.md and docs/api.md are generated from lidard.outputs.schema and fail
 here when they drift (regenerate with ``python tools/gen_point_docs.py``)."""
 
 import importlib.util
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from lidard.point_schema import POINT_FIELDS
+from lidard.outputs.schema import POINT_FIELDS
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -18,12 +18,12 @@ def _gen():
     return mod
 
 
-@pytest.mark.parametrize("rel, names", [("README.md", {"fields"}), ("docs/api.md", {"formats"})])
+@pytest.mark.parametrize("rel, names", [("README.md", {"fields"}), ("docs/api.md", {"formats", "registry"})])
 def test_docs_tables_are_the_generated_ones(rel, names):
     gen = _gen()
     text = (ROOT / rel).read_text(encoding="utf-8")
     assert set(gen.blocks(text)) == names
-    assert gen.render(text) == text, f"{rel} drifted from lidard/point_schema.py: python tools/gen_point_docs.py"
+    assert gen.render(text) == text, f"{rel} drifted from lidard/outputs/schema.py: python tools/gen_point_docs.py"
 
 
 def test_every_field_is_in_the_tables_with_its_unit():

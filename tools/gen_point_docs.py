@@ -1,8 +1,8 @@
-"""Regenerate the point-field tables of README.md and docs/api.md from lidard.point_schema.
+"""Regenerate the point-field tables of README.md and docs/api.md from lidard.outputs.schema.
 
 ``python tools/gen_point_docs.py`` rewrites every block between ``<!-- point-schema:NAME -->`` and
 ``<!-- /point-schema:NAME -->`` (NAME ``fields``: the schema; ``formats``: each field's type per file
-format); ``--check`` only reports the files whose tables drifted (exit status 1).
+format; ``registry``: the formats themselves, lidard.outputs.registry); ``--check`` only reports the files whose tables drifted (exit status 1).
 tests/test_point_docs.py runs the check.
 """
 
@@ -15,10 +15,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lidard.point_schema import fields_table, formats_table  # noqa: E402
+from lidard.outputs.registry import registry_table  # noqa: E402
+from lidard.outputs.schema import fields_table, formats_table  # noqa: E402
 
 FILES = ("README.md", "docs/api.md")
-BLOCKS = {"fields": fields_table, "formats": formats_table}
+BLOCKS = {"fields": fields_table, "formats": formats_table, "registry": registry_table}
 _BLOCK = re.compile(r"(<!-- point-schema:(\w+) -->\n)(.*?)(<!-- /point-schema:\2 -->)", re.S)
 
 
@@ -48,7 +49,7 @@ def main(argv: list[str]) -> int:
             if not check:
                 path.write_text(new, encoding="utf-8")
     if drifted:
-        print(("drifted from lidard/point_schema.py (run python tools/gen_point_docs.py): " if check
+        print(("drifted from lidard/outputs/schema.py or registry.py (run python tools/gen_point_docs.py): " if check
                else "rewrote: ") + ", ".join(drifted))
     return 1 if (check and drifted) else 0
 

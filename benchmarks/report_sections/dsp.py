@@ -118,7 +118,7 @@ def sec_ilc(quick: bool, img: Path, log) -> Section:
         "32 averaged periods per measurement, doubled (up to 2048, the instrument's MAX_AVERAGES) when the "
         "noise floor stops learning above 4e-6 of the excursion, as the instrument does. Monitor `real`: one photodiode (the dissertation's); "
         "`quadrature`: the same MZI read as I + jQ (`[monitor] quadrature`), each record's phase demodulated and "
-        "the phases averaged (lidard.dsp.ilcquad).\n\n"
+        "the phases averaged (lidard.dsp.linearize.quadrature).\n\n"
         + table(["preset", "monitor", "plain triangle RMS / swing", "reduction up", "reduction down", "iterations",
                  "true residual up", "true residual down", "converged", "stop"], rows)
         + f"| dissertation §2.2 (Fig. 2-4) | real | | {ILC_PAPER['up']:.0f}x | {ILC_PAPER['down']:.0f}x | "

@@ -120,7 +120,7 @@ def _any_range_markdown(quick: bool, img: Path, s: Section) -> str:
         f"{r['short_delay_s'] * 1e9:.0f} ns << tau_c summed the same way: its fringe (2 MHz) is too slow to "
         f"demodulate the laser's phase noise, which spreads far wider. `quadrature`: the "
         f"{r['mzi_delay_s'] * 1e9:.0f} ns MZI read in quadrature (`[monitor] quadrature = true`, a second "
-        f"digitizer channel): the laser phase rebuilt per sample (lidard.dsp.pnrecon), every bin compensated at "
+        f"digitizer channel): the laser phase rebuilt per sample (lidard.dsp.phasenoise.reconstruct), every bin compensated at "
         f"its own round trip.\n\n"
         + table(["tau_c (us)", "monitor", "worst mean loss (dB)", "at (m)", "mean over ranges (dB)",
                  "worst single trial (dB)", "<= 3 dB everywhere"], rows)

@@ -188,7 +188,7 @@ def sec_kernels(quick: bool, img: Path, log) -> Section:
     sy = run_synthesis(repeats=1 if quick else 5, quick=quick)
     usb = run_usb(segments=100 if quick else 2000, per_read=64 if quick else 256)
     up = run_upload(repeat=1 if quick else 3)
-    ch = run_chain_throughput(n=512, batch=4000 if quick else 20_000, repeats=2 if quick else 5)
+    ch = run_chain_throughput(n=512, batch=4000 if quick else 20_000, repeats=7)
     rows = [["ray casting, 16,384 rays x 20 mixed targets", f"{rc['mixed20']['rays_per_s'] / 1e6:.3f} M rays/s", ""],
             ["ray casting, CAL letters 128 x 96", f"{rc['cal_letters']['rays_per_s'] / 1e6:.3f} M rays/s", ""]]
     for q in sy["rows"]:
@@ -200,7 +200,7 @@ def sec_kernels(quick: bool, img: Path, log) -> Section:
                      f"{q['msamples_per_s']:.1f} M samples/s per core", ""])
     rows.append([f"estimator chain (Hann FFT + OS-CFAR + {ch['estimator']}) against a plain Hann rFFT + argmax, "
                  f"N = 512, one core", f"{ch['chain_ramps_per_s']:,.0f} against {ch['plain_ramps_per_s']:,.0f} ramps/s: "
-                 f"{ch['ratio']:.2f}", ">= 0.5 (issue 18)"])
+                 f"{ch['ratio']:.2f} (median of 7 alternated pairs)", ">= 0.6"])
     rows += [["digitizer through the simulated USB path, in-process", f"{usb['inproc_mb_s']:.0f} MB/s", ">= 200 MB/s"],
              ["same, USB bridge (server thread)", f"{usb['bridge_thread_mb_s']:.0f} MB/s", ""],
              ["same, bench in a subprocess (TCP)", f"{usb['bridge_subprocess_mb_s']:.0f} MB/s", ""],
@@ -211,9 +211,9 @@ def sec_kernels(quick: bool, img: Path, log) -> Section:
     s.data = {"raycast": rc, "synthesis": sy, "usb": usb, "upload": up, "chain": ch}
     s.headline = [("digitizer transfer through the simulated USB path (in-process)", f"{usb['inproc_mb_s']:.0f} MB/s",
                    ">= 200 MB/s"),
-                  ("estimator chain / plain FFT + argmax throughput, N = 512", f"{ch['ratio']:.2f}", ">= 0.5")]
-    s.markdown = ("`benchmarks/raycast.py`, `synthesis.py` (median CPU time), `chain_throughput.py` (CPU, best of "
-                  "repeats), `usb_throughput.py`, `pattern_upload.py`.\n\n" + table(["what", "figure", "target"], rows))
+                  ("estimator chain / plain FFT + argmax throughput, N = 512", f"{ch['ratio']:.2f}", ">= 0.6")]
+    s.markdown = ("`benchmarks/raycast.py`, `synthesis.py` (median CPU time), `chain_throughput.py` (CPU, median of 7 "
+                  "alternated pairs), `usb_throughput.py`, `pattern_upload.py`.\n\n" + table(["what", "figure", "target"], rows))
     return s
 
 

@@ -31,14 +31,13 @@ import usb.core
 
 from drivers import usbtmc
 from drivers.awg import protocol as p
-from drivers.errors import CommandRefused
+from drivers.errors import CommandRefused, ProtocolError
 from drivers.retry import RetryPolicy
 from drivers.usb_refind import refind_device
 from drivers.usbtmc import (
     DeviceDisconnected,
     DeviceTimeout,
     InvalidArgument,
-    ProtocolError,
     UsbDeviceError,
     classify_usb_error,
 )

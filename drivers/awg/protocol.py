@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.usbtmc import InvalidArgument, ProtocolError
+from drivers.errors import ProtocolError
+from drivers.usbtmc import InvalidArgument
 
 #: USB IDs of the simulated AWG (pid.codes test VID). The lab configuration names the real ones.
 AWG_VID = 0x1209

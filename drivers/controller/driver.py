@@ -51,7 +51,7 @@ from drivers.controller.errors import (
     DeviceTimeout,
     DeviceUnreachable,
     InterlockOpen,
-    ProtocolError,
+    bad_value,
     modbus_exception,
 )
 from drivers.controller.sequences import PowerSequences, SettleCheck
@@ -186,7 +186,7 @@ class LaserHvController:
             if rsp.isError():
                 code = getattr(rsp, "exception_code", None)
                 if not isinstance(code, int):
-                    raise ProtocolError(f"{operation} reply", rsp, "error response without an exception code")
+                    raise bad_value(f"{operation} reply", rsp, "error response without an exception code")
                 if code in _TRANSIENT_CODES and busy + 1 < self._busy.attempts:
                     # ACKNOWLEDGE / SERVER DEVICE BUSY mean "try again later": back off and repeat
                     busy += 1
@@ -210,7 +210,7 @@ class LaserHvController:
         rsp = self._call(operation, register, None, fn, register.address, count=count)
         words = list(rsp.registers)
         if len(words) != count:
-            raise ProtocolError(f"{register.name} reply length", len(words), f"expected {count} words")
+            raise bad_value(f"{register.name} reply length", len(words), f"expected {count} words")
         return words
 
     def _read_bits(self, operation: str, register: p.Register, count: int) -> list[bool]:
@@ -219,7 +219,7 @@ class LaserHvController:
         rsp = self._call(operation, register, None, fn, register.address, count=count)
         bits = list(rsp.bits)
         if len(bits) < count:
-            raise ProtocolError(f"{register.name} reply length", len(bits), f"expected {count} bits")
+            raise bad_value(f"{register.name} reply length", len(bits), f"expected {count} bits")
         return [bool(b) for b in bits[:count]]
 
     def _read(self, operation: str, register: p.Register) -> float | int | bool | str:
@@ -239,10 +239,10 @@ class LaserHvController:
 
     # -- identity / status ------------------------------------------------------------------
     def identify(self) -> p.Identity:
-        """Model, firmware and map version; ProtocolError if the device serves another map."""
+        """Model, firmware and map version; a PayloadError (ProtocolError) if the device serves another map."""
         ident = p.decode_identity(self._read_words("identify", p.MODEL, p.IDENTITY_BLOCK[1]))
         if ident.map_version != p.MAP_VERSION:
-            raise ProtocolError("MAP_VERSION", ident.map_version,
+            raise bad_value("MAP_VERSION", ident.map_version,
                                 f"driver understands register map version {p.MAP_VERSION}")
         return ident
 

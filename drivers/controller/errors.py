@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from drivers import errors as _e
 
 if TYPE_CHECKING:
-    from drivers.controller.protocol import Fault
+    from drivers.controller.protocol_map import Fault
 
 DEVICE = "controller"
 
@@ -47,14 +47,10 @@ class ConfigError(ControllerError, _e.InvalidValue):
     """Driver configuration (limits, tolerances) is inconsistent."""
 
 
-class ProtocolError(ControllerError, _e.ProtocolError):
-    """A reply or register value that the register map does not allow."""
-
-    def __init__(self, what: str, value: object, reason: str) -> None:
-        self.what = what
-        self.value = value
-        self.reason = reason
-        super().__init__(f"{DEVICE}: bad {what} = {value!r}: {reason}", command=f"decode {what}")
+def bad_value(what: str, value: object, reason: str) -> _e.PayloadError:
+    """A reply or register value that the register map does not allow: the shared
+    :class:`drivers.errors.PayloadError` (a ProtocolError) naming the register, the value and why."""
+    return _e.PayloadError(f"{DEVICE}: bad {what} = {value!r}: {reason}", device=DEVICE, command=f"decode {what}")
 
 
 #: No reply after the bounded number of attempts: the one timeout of every device

@@ -26,7 +26,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from drivers.controller.errors import ConfigError, LimitError, ProtocolError
+from drivers.controller.errors import ConfigError, LimitError, bad_value
 from drivers.controller.protocol_map import (
     COMMAND,
     DEFINED_FAULT_MASK,
@@ -117,7 +117,7 @@ HARDWARE_LIMITS = Limits(max_laser_current_ma=250.0, max_hv_v=100.0, tec_range_c
 # --- scaling ------------------------------------------------------------------------------------
 def _check_word(reg: Register, word: object) -> int:
     if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
-        raise ProtocolError(f"{reg.name} word", word, "a register word must be an int in 0..65535")
+        raise bad_value(f"{reg.name} word", word, "a register word must be an int in 0..65535")
     return word
 
 
@@ -144,10 +144,10 @@ def encode_value(reg: Register, value: float | int | bool | str) -> list[int]:
         return [1 if value else 0]
     if reg.kind is Kind.ASCII8:
         if not isinstance(value, str):
-            raise ProtocolError(reg.name, value, "expected a str")
+            raise bad_value(reg.name, value, "expected a str")
         data = value.encode("ascii", errors="strict") if value.isascii() else None
         if data is None or len(data) > 8 or not all(0x20 <= b <= 0x7E for b in data):
-            raise ProtocolError(reg.name, value, "expected <= 8 printable ASCII characters")
+            raise bad_value(reg.name, value, "expected <= 8 printable ASCII characters")
         data = data.ljust(8, b"\x00")
         return [int.from_bytes(data[i:i + 2], "big") for i in range(0, 8, 2)]
     raw = to_raw(reg, value)  # type: ignore[arg-type]
@@ -159,19 +159,19 @@ def encode_value(reg: Register, value: float | int | bool | str) -> list[int]:
 
 
 def decode_value(reg: Register, words: Sequence[int]) -> float | int | bool | str:
-    """Wire words -> engineering value. Raises ProtocolError (only) on words the map forbids."""
+    """Wire words -> engineering value. Raises a PayloadError (only) on words the map forbids."""
     if len(words) != reg.words:
-        raise ProtocolError(f"{reg.name} length", len(words), f"expected {reg.words} word(s)")
+        raise bad_value(f"{reg.name} length", len(words), f"expected {reg.words} word(s)")
     ws = [_check_word(reg, w) for w in words]
     if reg.kind is Kind.BOOL:
         if ws[0] not in (0, 1):
-            raise ProtocolError(reg.name, ws[0], "a bit must be 0 or 1")
+            raise bad_value(reg.name, ws[0], "a bit must be 0 or 1")
         return bool(ws[0])
     if reg.kind is Kind.ASCII8:
         data = b"".join(w.to_bytes(2, "big") for w in ws)
         text = data.rstrip(b"\x00")
         if not all(0x20 <= b <= 0x7E for b in text):
-            raise ProtocolError(reg.name, data, "model name must be printable ASCII, NUL padded")
+            raise bad_value(reg.name, data, "model name must be printable ASCII, NUL padded")
         return text.decode("ascii")
     if reg.kind is Kind.S16:
         raw = ws[0] - 0x10000 if ws[0] & 0x8000 else ws[0]
@@ -192,11 +192,11 @@ def encode_faults(faults: frozenset[Fault] | set[Fault]) -> int:
 
 
 def decode_faults(word: int) -> frozenset[Fault]:
-    """FAULTS word -> set of Fault. Undefined bits are a ProtocolError: a safety word we cannot
+    """FAULTS word -> set of Fault. Undefined bits are a PayloadError: a safety word we cannot
     fully interpret must not be read as 'no fault'."""
     _check_word(FAULTS, word)
     if word & ~DEFINED_FAULT_MASK:
-        raise ProtocolError("FAULTS", word, f"undefined fault bits 0x{word & ~DEFINED_FAULT_MASK:04X}")
+        raise bad_value("FAULTS", word, f"undefined fault bits 0x{word & ~DEFINED_FAULT_MASK:04X}")
     return frozenset(f for f in Fault if word & f.mask)
 
 
@@ -234,7 +234,7 @@ def _slice(words: Sequence[int], block: tuple[int, int], reg: Register) -> Seque
 
 def decode_identity(words: Sequence[int]) -> Identity:
     if len(words) != IDENTITY_BLOCK[1]:
-        raise ProtocolError("identity block length", len(words), f"expected {IDENTITY_BLOCK[1]} words")
+        raise bad_value("identity block length", len(words), f"expected {IDENTITY_BLOCK[1]} words")
     fw = _check_word(FIRMWARE, words[FIRMWARE.address - IDENTITY_BLOCK[0]])
     return Identity(
         model=str(decode_value(MODEL, _slice(words, IDENTITY_BLOCK, MODEL))),
@@ -245,13 +245,13 @@ def decode_identity(words: Sequence[int]) -> Identity:
 
 def encode_firmware(major: int, minor: int) -> int:
     if not (0 <= major <= 255 and 0 <= minor <= 255):
-        raise ProtocolError("FIRMWARE", (major, minor), "major and minor must be in 0..255")
+        raise bad_value("FIRMWARE", (major, minor), "major and minor must be in 0..255")
     return (major << 8) | minor
 
 
 def decode_status(words: Sequence[int]) -> Status:
     if len(words) != STATUS_BLOCK[1]:
-        raise ProtocolError("status block length", len(words), f"expected {STATUS_BLOCK[1]} words")
+        raise bad_value("status block length", len(words), f"expected {STATUS_BLOCK[1]} words")
 
     def val(reg: Register) -> float | int | bool | str:
         return decode_value(reg, _slice(words, STATUS_BLOCK, reg))
@@ -268,7 +268,7 @@ def decode_status(words: Sequence[int]) -> Status:
 
 def decode_flags(bits: Sequence[bool | int]) -> Flags:
     if len(bits) < FLAGS_BLOCK[1]:
-        raise ProtocolError("flags block length", len(bits), f"expected {FLAGS_BLOCK[1]} bits")
+        raise bad_value("flags block length", len(bits), f"expected {FLAGS_BLOCK[1]} bits")
     b = [bool(x) for x in bits[:FLAGS_BLOCK[1]]]
     return Flags(
         interlock_closed=b[INTERLOCK_CLOSED.address],

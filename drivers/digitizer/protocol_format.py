@@ -13,7 +13,7 @@ import struct
 
 import numpy as np
 
-from drivers.usbtmc import ProtocolError
+from drivers.errors import ProtocolError
 
 
 DIGITIZER_VID = 0x1209

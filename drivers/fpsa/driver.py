@@ -43,12 +43,12 @@ from typing import Any
 import numpy as np
 import serial
 
-from drivers.errors import DeviceGone, InvalidValue
+from drivers.errors import DeviceGone, InvalidValue, LinkError, ProtocolError
 from drivers.retry import RetryPolicy
 from drivers.transport import ByteChannel, DeviceTimeout, TracedChannel, TransportError, open_channel
 
 from . import protocol as p
-from .errors import LinkError, NakError, ProtocolError
+from .errors import NakError
 from .patterns import validate_pixels
 
 log = logging.getLogger(__name__)

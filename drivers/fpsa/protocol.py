@@ -34,7 +34,9 @@ from dataclasses import dataclass, field
 
 from cobs import cobs as _cobs
 
-from .errors import CrcError, FramingError, LengthError, PayloadError, ProtocolError
+from drivers.errors import CrcError, FramingError, LengthError, PayloadError, ProtocolError
+
+from .errors import DEVICE, error_command
 from .protocol_codes import (
     BITS_PER_BYTE_ON_WIRE,
     CHUNK_HEADER_LEN,
@@ -84,7 +86,7 @@ def cobs_decode(enc: bytes) -> bytes:
     try:
         return _cobs.decode(bytes(enc))
     except _cobs.DecodeError as exc:
-        raise FramingError(f"COBS: {exc}") from None
+        raise FramingError(f"COBS: {exc}", device=DEVICE) from None
 
 
 # --- frames -----------------------------------------------------------------------------------
@@ -108,12 +110,12 @@ def cmd_name(cmd: int) -> str:
 
 def encode_inner(seq: int, cmd: int, payload: bytes = b"") -> bytes:
     if not 0 <= seq <= 0xFF:
-        raise PayloadError(f"seq must be 0..255, got {seq!r}")
+        raise PayloadError(f"seq must be 0..255, got {seq!r}", device=DEVICE)
     if not 0 <= cmd <= 0xFF:
-        raise PayloadError(f"cmd must be 0..255, got {cmd!r}")
+        raise PayloadError(f"cmd must be 0..255, got {cmd!r}", device=DEVICE)
     if len(payload) > MAX_PAYLOAD:
         raise LengthError(f"payload of {len(payload)} B exceeds MAX_PAYLOAD {MAX_PAYLOAD} B",
-                          seq=seq, cmd=cmd)
+                          seq=seq, cmd=cmd, device=DEVICE, command=error_command(cmd))
     body = struct.pack("<BBH", seq, cmd, len(payload)) + bytes(payload)
     return body + struct.pack("<H", crc16_ccitt_false(body))
 
@@ -128,16 +130,16 @@ def decode_inner(inner: bytes) -> Frame:
     n = len(inner)
     if n < MIN_INNER_LEN:
         # too short to carry a CRC: nothing in it (not even seq) can be trusted or answered
-        raise LengthError(f"frame of {n} B is shorter than the minimum {MIN_INNER_LEN} B")
+        raise LengthError(f"frame of {n} B is shorter than the minimum {MIN_INNER_LEN} B", device=DEVICE)
     body, (crc_rx,) = inner[:-CRC_LEN], struct.unpack("<H", inner[-CRC_LEN:])
     crc_calc = crc16_ccitt_false(body)
     if crc_rx != crc_calc:
         raise CrcError(f"frame CRC 0x{crc_rx:04X} != computed 0x{crc_calc:04X}",
-                       seq=inner[0], cmd=inner[1])
+                       seq=inner[0], cmd=inner[1], device=DEVICE, command=error_command(inner[1]))
     (length,) = struct.unpack("<H", body[2:4])
     if length != n - MIN_INNER_LEN:
         raise LengthError(f"header length {length} B but {n - MIN_INNER_LEN} B of payload",
-                          seq=inner[0], cmd=inner[1])
+                          seq=inner[0], cmd=inner[1], device=DEVICE, command=error_command(inner[1]))
     return Frame(seq=body[0], cmd=body[1], payload=bytes(body[HEADER_LEN:]))
 
 
@@ -146,7 +148,7 @@ def decode_frame(wire: bytes) -> Frame:
     if wire.endswith(b"\x00"):
         wire = wire[:-1]
     if b"\x00" in wire:
-        raise FramingError("more than one frame (a 0x00 inside)")
+        raise FramingError("more than one frame (a 0x00 inside)", device=DEVICE)
     return decode_inner(cobs_decode(wire))
 
 
@@ -173,7 +175,7 @@ class FrameParser:
             if end < 0:
                 if len(self._buf) > self.max_encoded_len and not self._discarding:
                     out.append(FramingError(
-                        f"no delimiter within {self.max_encoded_len} B: discarding until next 0x00"))
+                        f"no delimiter within {self.max_encoded_len} B: discarding until next 0x00", device=DEVICE))
                     self._discarding = True
                 if self._discarding:
                     self._buf.clear()
@@ -231,19 +233,20 @@ class Response:
 def decode_response(frame: Frame) -> Response:
     if frame.cmd == Cmd.ACK:
         if len(frame.payload) < 1:
-            raise LengthError("ACK without the echoed request command", seq=frame.seq, cmd=frame.cmd)
+            raise LengthError("ACK without the echoed request command", seq=frame.seq, cmd=frame.cmd,
+                              device=DEVICE, command=error_command(frame.cmd))
         return Response(frame.seq, frame.payload[0], True, bytes(frame.payload[1:]))
     if frame.cmd == Cmd.NAK:
         if len(frame.payload) != 6:
             raise LengthError(f"NAK payload of {len(frame.payload)} B, expected 6",
-                              seq=frame.seq, cmd=frame.cmd)
+                              seq=frame.seq, cmd=frame.cmd, device=DEVICE, command=error_command(frame.cmd))
         req, code, detail = struct.unpack("<BBI", frame.payload)
         try:
             nak = NakCode(code)
         except ValueError as exc:
-            raise PayloadError(f"NAK with unknown code 0x{code:02X}") from exc
+            raise PayloadError(f"NAK with unknown code 0x{code:02X}", device=DEVICE) from exc
         return Response(frame.seq, req, False, b"", nak, None if detail == NO_DETAIL else detail)
-    raise PayloadError(f"expected ACK or NAK, got command {cmd_name(frame.cmd)}")
+    raise PayloadError(f"expected ACK or NAK, got command {cmd_name(frame.cmd)}", device=DEVICE)
 
 
 def wire_time_s(n_bytes: int, baudrate: float) -> float:

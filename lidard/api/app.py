@@ -27,7 +27,7 @@ from ..config import Config
 from ..instrument.protocol import Instrument
 from ..instrument.calibration.setup import instrument_setup
 from ..jobs import ScanWorker, software_version
-from ..pointcloud import scene_identity
+from ..outputs import scene_identity
 from ..store import Store
 from . import control, problems
 from .control import BodySizeLimit, ControlLock, LockHeld

@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from ..errors import LidardError
+from ..instrument.errors import DeviceFault
 from .schemas import describe_errors
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
@@ -87,13 +88,39 @@ def install(app: FastAPI) -> None:
     async def domain_error(request: Request, exc: LidardError) -> JSONResponse:
         return domain_problem(exc)
 
+    from drivers.errors import DeviceError   # pure: the device error tree, no driver
+
+    @app.exception_handler(DeviceError)
+    async def device_error(request: Request, exc: DeviceError) -> JSONResponse:
+        return _answer(device_status(exc) or 503, exc, None)
+
+
+def device_status(exc: BaseException) -> int | None:
+    """The answer to a device's error by its place in the tree of :mod:`drivers.errors` (None for an
+    error outside it): refused on the host before anything was sent (``InvalidValue``: a setpoint
+    beyond its limits, a pattern the chip cannot show) is the request's fault, 422; the device said
+    no (``CommandRefused``) or latched faults block it (``DeviceFaulted``), 409, as the daemon's own
+    ``FaultsStillOpen``; a link, codec or settling failure is the instrument's state, 503."""
+    from drivers import errors as de
+
+    statuses: dict[type[BaseException], int] = {de.InvalidValue: 422, de.CommandRefused: 409,
+                                                de.DeviceFaulted: 409, de.DeviceError: 503}
+    return next((statuses[c] for c in type(exc).__mro__ if c in statuses), None)
+
 
 def domain_problem(exc: LidardError) -> JSONResponse:
-    """The problem answering a domain error: its class's ``http_status`` (and ``Retry-After``). A
-    refusal of the request (4xx) or a busy queue says its own message; the daemon's state (a
-    device fault, 503) is named with its type."""
+    """The problem answering a domain error: its class's ``http_status`` (and ``Retry-After``); a
+    :class:`DeviceFault` is answered by the tree of the driver error it wraps (:func:`device_status`)."""
     status = exc.http_status
-    headers = None if exc.retry_after_s is None else {"Retry-After": str(exc.retry_after_s)}
+    if isinstance(exc, DeviceFault):
+        status = device_status(exc.cause) or status
+    return _answer(status, exc, exc.retry_after_s)
+
+
+def _answer(status: int, exc: BaseException, retry_after_s: int | None) -> JSONResponse:
+    # A refusal of the request (4xx) or a busy queue says its own message; the daemon's state
+    # (a device fault, 503) is named with its type.
+    headers = None if retry_after_s is None else {"Retry-After": str(retry_after_s)}
     detail = str(exc) if status < 500 or headers else f"{type(exc).__name__}: {exc}"
     return problem(status, detail, headers=headers)
 

@@ -13,9 +13,9 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, field_validator, m
 from ..config import ScanDefaults
 from ..errors import describe_validation
 from ..instrument.types import PatternKind, ScanRequest
-from ..point_schema import POINT_FORMATS, PointFormat
+from ..outputs.registry import FORMATS as POINT_FORMATS, PointFormat
 
-# the one list of point-file formats (lidard.point_schema)
+# the one list of point-file formats (lidard.outputs.registry)
 FileFormat = PointFormat
 
 
@@ -255,7 +255,7 @@ class ControlStatus(_Out):
     ttl_s: float
 
 
-# The DSP's names (lidard.dsp.estimators.EstimatorName, lidard.dsp.window.WindowName), spelled out
+# The DSP's names (lidard.dsp.ranging.estimators.EstimatorName, lidard.dsp.spectrum.window.WindowName), spelled out
 # so that the API imports no numerical core; tests/lidard/raw/test_raw_cli.py keeps them equal.
 EstimatorName = Literal["argmax", "parabolic", "jacobsen", "quinn2", "aboutanios", "newton"]
 WindowName = Literal["rectangular", "hann", "blackmanharris"]

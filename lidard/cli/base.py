@@ -139,13 +139,13 @@ def check_out(path: str | Path | None, flag: str = "--out") -> None:
 
 
 def write_bytes_atomic(path: str | Path, data: bytes) -> None:
-    from ..pointcloud import atomic_write
+    from ..outputs import atomic_write
     with atomic_write(path) as f:
         f.write(data)
 
 
 def copy_atomic(src: Path, dst: str | Path) -> None:
-    from ..pointcloud import atomic_write
+    from ..outputs import atomic_write
     with open(src, "rb") as fin, atomic_write(dst) as fout:
         shutil.copyfileobj(fin, fout)
 

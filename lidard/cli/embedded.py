@@ -36,7 +36,7 @@ def sim_config(args):
 
 def run_meta(cfg, scene_path: str | None) -> dict:
     """The sidecar's run description: what the daemon's app records, plus the scene on a bench."""
-    from ..pointcloud import scene_identity
+    from ..outputs import scene_identity
     profile = cfg.load_profile()
     scene = scene_path or str(cfg.resolve_path(cfg.sim.scene))
     return {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,

@@ -151,7 +151,7 @@ def _check_flags(args) -> None:
 def _total_chunks(store, ids) -> int:
     from ..errors import LidardError
     from ..raw.replay import chunk_count
-    from ..raw.service import raw_path
+    from ..jobs.reprocess import raw_path
     total = 0
     for sid in ids:
         try:
@@ -203,9 +203,9 @@ def _progress_fn(bar: Progress, sid: str, n_pixels: int):
 
 def _reprocess_offline(args, fmt: str | None) -> list[dict[str, Any]]:
     from ..offline.cluster import TasksFailed, mapper
-    from ..pointcloud import sidecar_path
+    from ..outputs import sidecar_path
     from ..raw.capture import RawCapture
-    from ..raw.service import raw_path, reprocess_scan
+    from ..jobs.reprocess import raw_path, reprocess_scan
     store = _offline_store(args)
     settings = _settings(args)
     out = []
@@ -235,7 +235,7 @@ def _reprocess_offline(args, fmt: str | None) -> list[dict[str, Any]]:
 
 
 def _reprocess_daemon(args, body: dict[str, Any], fmt: str | None) -> list[dict[str, Any]]:
-    from ..pointcloud import sidecar_path
+    from ..outputs import sidecar_path
     out = []
     with client(args) as c:
         for sid in args.id:
@@ -253,7 +253,7 @@ def _reprocess_daemon(args, body: dict[str, Any], fmt: str | None) -> list[dict[
 
 
 def cmd_reprocess(args) -> int:
-    from ..pointcloud import format_of
+    from ..outputs import format_of
     _check_flags(args)
     fmt = format_of(args.out) if args.out else None
     base.check_out(args.out)
@@ -297,7 +297,7 @@ def cmd_spectrum(args) -> int:
     row, col = _pixel(args.pixel)
     body = _body(args)
     if args.data_dir is not None:
-        from ..raw.service import scan_spectrum
+        from ..jobs.reprocess import scan_spectrum
         store = _offline_store(args)
         try:
             spec = scan_spectrum(store, args.id, row, col, _settings(args))

@@ -1,7 +1,7 @@
 """``lidarctl scan``: one scan on a running daemon, or with ``--sim`` on an embedded simulated bench.
 
 The request is checked with the daemon's own schema (lidard.api.schemas.ScanCreate) and the scan
-planner (lidard.scan.plan: bonded rows, array bounds) before any bench starts or any request is sent,
+planner (lidard.instrument.plan.plan: bonded rows, array bounds) before any bench starts or any request is sent,
 so ``--averages 0`` is refused here with the words the daemon would use. Ctrl-C, SIGTERM and SIGHUP
 cancel the scan, keep the points measured so far (written to ``--out`` with a partial sidecar whose
 ``stop_reason`` names the signal) and exit 128 + the signal's number (130, 143, 129; lidard.cli.base).
@@ -169,7 +169,7 @@ def sim_request(body: dict[str, Any], cfg):
 
 def check_plan(req, optics) -> None:
     """The planner's check (bonded rows, array bounds) on this device, before the bench starts."""
-    from ..scan import ScanPlanError, plan
+    from ..instrument.plan import ScanPlanError, plan
     try:
         plan(req, optics)
     except ScanPlanError as exc:
@@ -190,7 +190,7 @@ def summary(rec: dict[str, Any], out: str | None, simulated: bool | None) -> dic
 
 
 def cmd_scan(args) -> int:
-    from ..pointcloud import format_of
+    from ..outputs import format_of
     refuse_sim_only(args, "--scene", "--profile", "--config", "--data-dir", "--no-cal-cache", "--uncalibrated")
     fmt = format_of(args.out) if args.out else "ply"
     base.check_out(args.out)
@@ -236,7 +236,7 @@ def _flat(rec: dict[str, Any]) -> dict[str, Any]:
 
 
 def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[int | None]) -> dict[str, Any]:
-    from ..pointcloud import sidecar_path
+    from ..outputs import sidecar_path
     with client(args) as c:
         sid = c.request("POST", "/scans", json=body).json()["id"]
         try:
@@ -272,7 +272,7 @@ def _scan_daemon(args, body: dict[str, Any], bar, interrupted: list[int | None])
 
 
 def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[int | None]) -> dict[str, Any]:
-    from ..pointcloud import sidecar_path
+    from ..outputs import sidecar_path
     from .embedded import embedded, resolve, sim_config
     cfg = sim_config(args)
     req = sim_request(body, cfg)

@@ -6,7 +6,7 @@ from typing import Any
 
 from . import base, output
 from .base import CliError
-from ..pointcloud import FORMATS
+from ..outputs import FORMATS
 from .client import client, daemon_opts
 
 
@@ -100,7 +100,7 @@ def cmd_scans(args) -> int:
 
 
 def _fetch(c, args) -> None:
-    from ..pointcloud import format_of
+    from ..outputs import format_of
     if not args.id or not args.out:
         raise CliError("scans fetch: give a scan ID and --out FILE")
     fmt = args.format or format_of(args.out)

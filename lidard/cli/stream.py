@@ -4,7 +4,7 @@ simulated bench (lidard.jobs.stream_job).
 ``--frames N`` or until stopped: Ctrl-C or SIGTERM ends the frame in progress, keeps it (partial)
 and every finished frame, and exits 130. ``--out DIR/`` writes one file per frame (``--format``) with
 its JSON sidecar; ``--out FILE.mcap`` one message per frame. ``--pattern track --frame-rate HZ``
-plans each frame from the last ones (lidard.tracking).
+plans each frame from the last ones (lidard.instrument.tracking).
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import sys
 import threading
 
+from ..outputs.registry import FRAME_FORMATS
 from . import base, output
 from .base import CliError, Interrupted, signal_of
 from .client import daemon_opts, refuse_sim_only
@@ -37,7 +38,7 @@ def add_parser(sub) -> None:
     sp.add_argument("--max-speed", type=float, default=None, metavar="M/S",
                     help="fastest radial speed to measure, sizes the ADC's Doppler band (default: scan.max_speed_mps)")
     sp.add_argument("--averages", type=int, default=None, metavar="N", help="chirps averaged per pixel")
-    sp.add_argument("--format", default="ply", choices=("ply", "las", "npz", "pcd"),
+    sp.add_argument("--format", default="ply", choices=FRAME_FORMATS,
                     help="per-frame file format of --out DIR/ (default ply)")
     sp.add_argument("--out", default=None, metavar="DIR/|FILE.mcap",
                     help="a directory: one file per frame with its .json sidecar; FILE.mcap: one message per frame")
@@ -156,7 +157,7 @@ def _stream_daemon(args) -> int:
             else:
                 out = Path(args.out)
                 out.mkdir(parents=True, exist_ok=True)
-                from ..pointcloud import sidecar_path, suffix_of
+                from ..outputs import sidecar_path, suffix_of
                 for f in st["frames"]:
                     path = out / f"frame_{f['frame']:05d}{suffix_of(body['format'])}"
                     base.write_bytes_atomic(path, c.request("GET", f"/streams/{sid}/frames/{f['frame']}").content)

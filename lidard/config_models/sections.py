@@ -20,7 +20,7 @@ class Chirp(_Model):
     excursion_hz: PosFloat = 8.6e9
     ramp_s: PosFloat = 80e-6
     # "three_segment" (default): up ramp, down ramp, then a constant-frequency segment whose beat is the
-    # Doppler shift alone: signed velocity with one photodiode and no speed prior (lidard.dsp.threeseg).
+    # Doppler shift alone: signed velocity with one photodiode and no speed prior (lidard.dsp.ranging.threeseg).
     # "triangle": up + down only; a real beat then needs scan.max_speed_mps as a prior (static scenes).
     shape: Literal["triangle", "three_segment"] = "three_segment"
     # three_segment: the constant segment lasts lambda / (2 velocity_resolution_mps) (its Doppler bin)
@@ -94,7 +94,7 @@ class Adc(_Model):
     stopband_db: float = Field(default=100.0, gt=0, le=200)
     # false: one photodiode, the real beat (channel "beat"); true: a coherent receiver (90-degree hybrid,
     # two photodiodes, channels "beat_i" and "beat_q"; the monitor MZI stays on its own channel), whose
-    # two-sided spectrum gives the beat's sign on the triangle alone (lidard.dsp.iqbalance)
+    # two-sided spectrum gives the beat's sign on the triangle alone (lidard.dsp.ranging.iqbalance)
     iq: bool = False
 
     def record_bits(self, sample_rate_hz: float, format_bits: int = 16) -> int:
@@ -138,7 +138,7 @@ class Monitor(_Model):
     power_w: PosFloat = 100e-6
     # The MZI is also read in quadrature (a 90-degree hybrid or 3x3 coupler and a second digitizer
     # channel, ``mzi_q``): the laser phase is then rebuilt per sample and phase-noise compensation holds
-    # at EVERY range (lidard.dsp.pnrecon). False is the dissertation's single real MZI: the
+    # at EVERY range (lidard.dsp.phasenoise.reconstruct). False is the dissertation's single real MZI: the
     # compensation is exact only where the round trip is a whole multiple of delay_s (docs/benchmarks.md).
     quadrature: bool = False
 
@@ -238,7 +238,7 @@ class Tolerances(_Model):
     decentre_px: float = Field(default=1.0, ge=0, le=10.0)          # per axis, in pixel pitches
     rotation_deg: float = Field(default=0.5, ge=0, le=5.0)          # array about the optical axis
     k1: float = Field(default=0.1, ge=0, le=1.0)                    # radial distortion (see Pointing)
-    # the coherent receiver's 90-degree hybrid and photodiode pair (adc.iq; lidard.dsp.iqbalance)
+    # the coherent receiver's 90-degree hybrid and photodiode pair (adc.iq; lidard.dsp.ranging.iqbalance)
     hybrid_gain_db: float = Field(default=0.5, ge=0, le=3.0)        # Q / I gain ratio, dB
     hybrid_phase_deg: float = Field(default=5.0, ge=0, le=20.0)     # quadrature phase error
     # the TEC coefficients are the laser's physics, taken as given (not drawn); the drift of the chip's

@@ -1,16 +1,21 @@
 """Pure DSP core of lidard: range FFT, sub-bin estimators, CFAR, up/down-ramp velocity (§2.1, §2.4).
 
-numpy/scipy only: no I/O, no logging, no clock.
+numpy/scipy only: no I/O, no logging, no clock. The rooms by concern, each floor importing only those
+below it (the layers contract in pyproject.toml): :mod:`.spectrum` (windows, range FFT, DTFT,
+instantaneous frequency, compiled passes) at the ground; :mod:`.detect` (CFAR, range gate),
+:mod:`.phasenoise` (laser phase rebuilt and compensated) and :mod:`.linearize` (the chirp's ILC) on it;
+:mod:`.ranging` (estimators, the tones' model, pairings) on detection; :mod:`.chain` the detection
+chain; :mod:`.pnframe` and :mod:`.frame` the front ends the scan engine runs.
 """
 
-from lidard.dsp.cfar import CfarMethod, Detections, ca_cfar_alpha, cfar_detect
-from lidard.dsp.cfar_os import os_cfar_alpha
-from lidard.dsp.crlb import crlb_freq_var, crlb_freq_var_post_fft, post_fft_snr
+from lidard.dsp.detect.cfar import CfarMethod, Detections, ca_cfar_alpha, cfar_detect
+from lidard.dsp.detect.os_cfar import os_cfar_alpha
+from lidard.dsp.ranging.crlb import crlb_freq_var, crlb_freq_var_post_fft, post_fft_snr
 from lidard.dsp.chain import PeakMeasurements, measure_peaks
-from lidard.dsp.estimators import DEFAULT_METHOD, ESTIMATORS, EstimatorName, estimate
-from lidard.dsp.rangefft import C_M_PER_S, RangeFFT
-from lidard.dsp.velocity import pair_up_down
-from lidard.dsp.window import DspInputError, WindowInfo, WindowName, get_window, window_info
+from lidard.dsp.ranging.estimators import DEFAULT_METHOD, ESTIMATORS, EstimatorName, estimate
+from lidard.dsp.spectrum.rangefft import C_M_PER_S, RangeFFT
+from lidard.dsp.ranging.velocity import pair_up_down
+from lidard.dsp.spectrum.window import DspInputError, WindowInfo, WindowName, get_window, window_info
 
 __all__ = [
     "C_M_PER_S",

@@ -17,12 +17,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .cfar import Detections, cfar_detect
-from .jit import power as power_of
-from .estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
-from .rangefft import RangeFFT, check_samples
-from .scratch import scratch
-from .window import DspInputError, WindowName
+from .detect.cfar import Detections, cfar_detect
+from .spectrum.jit import power as power_of
+from .ranging.estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
+from .spectrum.rangefft import RangeFFT, check_samples
+from .spectrum.scratch import scratch
+from .spectrum.window import DspInputError, WindowName
 
 # (indices of the detections (..., K) with invalid slots at a harmless bin) -> (signals, signed peak
 # bins for the estimator, precomputed spectrum or None)
@@ -52,7 +52,7 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: Window
     detection may sit on (a |range| gate on a two-sided spectrum); ``idle_index``: the spectrum index
     given to the estimator for empty detection slots (their result is ignored); ``power``: |spec|^2 when
     the caller has it already (computed with the spectrum, :meth:`RangeFFT.spectrum_of`);
-    ``cfar_kwargs``: pfa, max_detections, bin_range, ... of :func:`lidard.dsp.cfar.cfar_detect`.
+    ``cfar_kwargs``: pfa, max_detections, bin_range, ... of :func:`lidard.dsp.detect.cfar.cfar_detect`.
     """
     p_ramps = p = power_of(spec) if power is None else power
     if average_axis is not None:
@@ -114,7 +114,7 @@ class PeakMeasurements:
 
 def measure_peaks(rf: RangeFFT, x: object, *, method: EstimatorName = DEFAULT_METHOD,
                   **cfar_kwargs) -> PeakMeasurements:
-    """Range FFT, CFAR (``cfar_kwargs`` go to :func:`lidard.dsp.cfar.cfar_detect`; window,
+    """Range FFT, CFAR (``cfar_kwargs`` go to :func:`lidard.dsp.detect.cfar.cfar_detect`; window,
     zero_pad and iq are taken from ``rf``; the range gate of ``rf`` limits the search) and sub-bin
     refinement of every detection with ``method``: the chain on one batch, no averaging."""
     a = check_samples(x, rf.n_samples)

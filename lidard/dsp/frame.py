@@ -33,19 +33,19 @@ from typing import Any
 import numpy as np
 
 from .chain import detect_and_refine
-from .estimators import DEFAULT_METHOD
-from .gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
-from .iqbalance import check_imbalance, correct, mirror_images, ramp_volts
+from .ranging.estimators import DEFAULT_METHOD
+from .detect.gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
+from .ranging.iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
-from .rangefft import C_M_PER_S, RangeFFT
-from .cwhold import HoldProfile
-from .threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
+from .spectrum.rangefft import C_M_PER_S, RangeFFT
+from .ranging.cwhold import HoldProfile
+from .ranging.threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
 from .ranging.assign import line_snr
 from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import refine_ramp
-from .scratch import scratch
-from .velocity import pair_up_down_matched
-from .window import WindowName
+from .spectrum.scratch import scratch
+from .ranging.velocity import pair_up_down_matched
+from .spectrum.window import WindowName
 
 #: the range window: the central fraction of each ramp the range estimator keeps (step 1 above). The
 #: chirp's pre-distortion linearizes over the same window (its region of interest): the range scale of
@@ -64,7 +64,7 @@ class FrameResult:
     velocity_mps: np.ndarray
     snr_db: np.ndarray
     intensity_v: np.ndarray
-    flags: np.ndarray | None = None     # uint8 lidard.dsp.gate.PointFlag bits (why not valid)
+    flags: np.ndarray | None = None     # uint8 lidard.dsp.detect.gate.PointFlag bits (why not valid)
 
 
 def keep_returns(res: FrameResult, k: int) -> FrameResult:
@@ -99,13 +99,13 @@ class FrameDsp:
     use_fraction: float = RANGE_WINDOW_FRACTION
     estimator: str = DEFAULT_METHOD
     iq: bool = False            # I/Q receiver: process() takes beat (I) and beat_q (Q), two-sided spectra
-    iq_gain: float = 1.0        # its calibrated imbalance (lidard.dsp.iqbalance): Q / I gain ratio ...
+    iq_gain: float = 1.0        # its calibrated imbalance (lidard.dsp.ranging.iqbalance): Q / I gain ratio ...
     iq_phase_rad: float = 0.0   # ... and quadrature phase error, removed before the FFT
     cw_samples: int = 0         # samples of the constant-frequency segment after the ramps (0: triangle)
-    # the held segment's measured drift (lidard.dsp.cwhold.HoldProfile.as_dict; the linearization's):
+    # the held segment's measured drift (lidard.dsp.ranging.cwhold.HoldProfile.as_dict; the linearization's):
     # where the real receiver's two regimes meet, |f_D| comes from the dechirped CW segment
     hold_profile: dict[str, Any] | None = None
-    # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.gate): the top of its
+    # the digitizer's decimation filter (lidard.physics.decimation, lidard.dsp.detect.gate): the top of its
     # alias-free band caps the gate; a detection no stronger than the alias ceiling (V) is flagged
     alias_free_hz: float | None = None
     alias_ceiling_v: float = 0.0
@@ -161,7 +161,7 @@ class FrameDsp:
 
     @cached_property
     def drift_rho(self) -> tuple[float, float] | None:
-        """The measured drift rate's range over the CW window (:func:`lidard.dsp.threeseg.drift_rho`)."""
+        """The measured drift rate's range over the CW window (:func:`lidard.dsp.ranging.threeseg.drift_rho`)."""
         return None if self.hold is None else drift_rho(self, self.hold)
 
     @cached_property
@@ -266,7 +266,7 @@ class FrameDsp:
             res = FrameResult(**pair_frame_three(self, out_f, out_det, cw_front_end(self, x, lsb_v), x))
         else:
             res = self._pair(out_f, out_det, x.shape[1])
-        # a speed beyond the band the record was sized for: flagged, never valid (lidard.dsp.gate)
+        # a speed beyond the band the record was sized for: flagged, never valid (lidard.dsp.detect.gate)
         fast = out_of_band(res.present, res.velocity_mps, self.max_speed_mps,
                            self.wavelength_m * self.fs_hz / (2 * self.n_used))
         if fast.any():

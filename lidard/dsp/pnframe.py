@@ -1,11 +1,11 @@
 """Batched laser phase-noise compensation in the scan DSP (dissertation §2.3, Fig. 2-6, Fig. 2-7).
 
-:mod:`lidard.dsp.pncomp` compensates one record; this module does the same for a whole batch of
+:mod:`lidard.dsp.phasenoise.compensate` compensates one record; this module does the same for a whole batch of
 pixels x averages x ramps at once, and feeds the result to the frame DSP's detection chain:
 
 1. per ramp (up and down separately: the MZI beat passes through zero at the turning points) the
    monitor-MZI beat is complex-demodulated at its *nominal* beat ``gamma tau_m`` and low-passed
-   (:func:`mzi_phase_noise_batch`, the batched form of :func:`pncomp.mzi_phase_noise` with a known
+   (:func:`mzi_phase_noise_batch`, the batched form of :func:`lidard.dsp.phasenoise.compensate.mzi_phase_noise` with a known
    beat): ``delta(t)`` = phase noise + residual chirp nonlinearity seen through the delay tau_m;
 2. the cumulative sums ``S_M(t) = sum_{m<M} delta(t - m tau_m)`` for M = 0..M_max are built once
    (M_max = ceil(max round trip / tau_m));
@@ -37,12 +37,12 @@ from typing import Any, Protocol
 import numpy as np
 
 from .chain import detect_and_refine
-from .iqbalance import mirror_images, ramp_volts
-from .instfreq import check_positive, hilbert
-from .pncomp import demodulated_phase
-from .pnrecon import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
-from .rangefft import C_M_PER_S, RangeFFT, windowed_fft
-from .window import DspInputError, WindowName, get_window
+from .ranging.iqbalance import mirror_images, ramp_volts
+from .spectrum.instfreq import check_positive, hilbert
+from .phasenoise.compensate import demodulated_phase
+from .phasenoise.reconstruct import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
+from .spectrum.rangefft import C_M_PER_S, RangeFFT, windowed_fft
+from .spectrum.window import DspInputError, WindowName, get_window
 
 
 def mzi_phase_noise_batch(mzi: np.ndarray, *, fs_hz: float, edge_s: float, beat_hz: float,
@@ -50,7 +50,7 @@ def mzi_phase_noise_batch(mzi: np.ndarray, *, fs_hz: float, edge_s: float, beat_
     """``delta`` (rad, float64, shape of ``mzi``) and the valid-sample mask (last axis) of ramps of MZI beat.
 
     Batched over leading axes; one ramp per row on the last axis. Same algorithm as
-    :func:`lidard.dsp.pncomp.mzi_phase_noise` with ``beat_hz`` given: remove the mean, mix down by
+    :func:`lidard.dsp.phasenoise.compensate.mzi_phase_noise` with ``beat_hz`` given: remove the mean, mix down by
     ``beat_hz``, Gaussian low-pass (-3 dB at ``bandwidth_hz``, default beat/2) as a complex signal,
     angle about its circular mean, unwrapped; samples within ``edge_s`` of either end are zero.
     """
@@ -121,7 +121,7 @@ class PhaseNoiseCompensator:
 
     ``max_delay_s``: the largest round trip to compensate (2 max_range / c); M runs 0..ceil(max/tau_m).
     ``edge_s``: samples at each end of a ramp whose MZI phase is not trusted (filter transients);
-    default max(20 samples, 1 us) as in :func:`pncomp.compensated_spectrum`.
+    default max(20 samples, 1 us) as in :func:`lidard.dsp.phasenoise.compensate.compensated_spectrum`.
     """
 
     fs_hz: float
@@ -183,7 +183,7 @@ class PhaseNoiseCompensator:
         complex ``beat`` is an I/Q receiver's (already analytic: no Hilbert transform; a conjugated down
         ramp carries the negated phase noise, as the down ramp's demodulated MZI does).
         ``mzi_q``: the quadrature output of the same MZI (a second monitor channel): the laser phase is
-        rebuilt per sample (:mod:`lidard.dsp.pnrecon`) and every bin is compensated at its own round
+        rebuilt per sample (:mod:`lidard.dsp.phasenoise.reconstruct`) and every bin is compensated at its own round
         trip (to ``tau_step_s``) instead of the nearest multiple of tau_m.
         """
         b = np.asarray(beat)
@@ -271,7 +271,7 @@ class CompensatedRamps:
             freq = (np.arange(n_fft) - n_fft // 2) * (self.comp.fs_hz / n_fft)
             layout, scale = "shifted", 1.0 / np.sum(window)
         else:
-            # fftfreq's arithmetic, so that ties (bins exactly half-way between two M) break as in pncomp
+            # fftfreq's arithmetic, so that ties (bins exactly half-way between two M) break as in compensate
             freq = np.arange(n_fft // 2 + 1) * (1.0 / (n_fft * (1.0 / self.comp.fs_hz)))
             layout, scale = "analytic", 1.0 / (2.0 * np.sum(window))
         m_of_bin = self.index_of_freq(np.abs(freq))

@@ -8,10 +8,13 @@ Rooms (one responsibility each; the dissertation part each follows is in its doc
 ``errors``             InstrumentError and its tree; :func:`on_device` names the device of a failure
 ``devices``            the registry of the four devices (fpsa, awg, digitizer, controller), §4.4.1
 ``acquisition``        one acquisition lifecycle ready -> start -> read -> stop, with its context
+``plan``               scan plans: which pixels, in which order (raster, serpentine, ROI, pixels, adaptive)
+``tracking``           a stream's frame planner: survey, then track what moved (pure)
 ``scan_loop``          a scan as stages: plan -> acquire -> DSP -> points (§4.4.1, §4.4.3)
 ``points``             DSP results -> point records, batches buffered to bounded memory
 ``calibration/``       chirp linearization (§2.2), range scale/zero (§2.1.1) and pointing (§4.1.1)
 ``selftest``           the FPSA row/column switch self-test against the monitor tap (§4.3.3)
+``selftest_analysis``  pure checks of the HV readback against the switches' pull-in (§4.2.6)
 ``safety``             interlock/fault check and the safe-state path (laser and HV off first)
 ``facade``             :class:`LidarInstrument`, what callers hold
 ``compose``            the composition root: config -> drivers (+ the simulated bench); the only
@@ -20,8 +23,7 @@ Rooms (one responsibility each; the dissertation part each follows is in its doc
 
 The light names (types, protocol, errors) are imported at once; the ones that pull in drivers and the
 DSP (``open_instrument``, ``LidarInstrument``, ...) on first use, so the API and the job queue can
-import the types without loading the hardware stack (and :mod:`lidard.scan`, which the scan loop
-imports, can import the types without a cycle).
+import the types without loading the hardware stack.
 """
 
 from __future__ import annotations

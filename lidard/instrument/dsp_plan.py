@@ -22,10 +22,10 @@ import math
 from dataclasses import dataclass
 
 from ..config import Config
-from ..dsp.estimators import DEFAULT_METHOD
+from ..dsp.ranging.estimators import DEFAULT_METHOD
 from ..dsp.frame import FrameDsp
-from ..dsp.gate import decimation_gate
-from ..dsp.rangefft import C_M_PER_S
+from ..dsp.detect.gate import decimation_gate
+from ..dsp.spectrum.rangefft import C_M_PER_S
 from ..physics.chirp import adc_rate_hz
 from .errors import InstrumentError
 
@@ -49,7 +49,7 @@ class DspCalibration:
 
     ``mzi_delay_s``: the monitor MZI's effective delay (range calibration); ``iq_gain`` /
     ``iq_phase_rad``: the coherent receiver's imbalance (I/Q calibration); ``hold_profile``: the held
-    segment's measured drift (:class:`lidard.dsp.cwhold.HoldProfile` as a dict; linearization)."""
+    segment's measured drift (:class:`lidard.dsp.ranging.cwhold.HoldProfile` as a dict; linearization)."""
 
     mzi_delay_s: float
     iq_gain: float = 1.0
@@ -88,7 +88,7 @@ def adc_plan(cfg: Config, max_range_m: float, *, whole_monitor_delay: bool = Fal
     ``max_speed_mps`` (default: the configuration's scan.max_speed_mps).
 
     ``whole_monitor_delay``: the quadrature reconstruction steps the laser phase by the monitor delay,
-    so the rate is raised to a whole number of samples per delay (lidard.dsp.pnrecon.whole_delay_samples).
+    so the rate is raised to a whole number of samples per delay (lidard.dsp.phasenoise.reconstruct.whole_delay_samples).
     """
     c, a = cfg.chirp, cfg.adc
     doppler = 2 * speed_span_mps(cfg, max_speed_mps) / c.wavelength_m

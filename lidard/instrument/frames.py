@@ -1,6 +1,6 @@
 """The data of a stream: what a planner asks of the next frame, a finished frame, a stream's result.
 
-Kept apart from the frame loop (:mod:`.stream`) so that the planners (:mod:`lidard.tracking`, pure
+Kept apart from the frame loop (:mod:`.stream`) so that the planners (:mod:`lidard.instrument.tracking`, pure
 functions of the last frames), the :class:`~lidard.instrument.protocol.Instrument` protocol and the
 job layer use these types without importing the acquisition and DSP machinery.
 """

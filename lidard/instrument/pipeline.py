@@ -13,7 +13,7 @@ its synthesis) proceeds while a batch is in the DSP.
   so points are merged in pixel order.
 * Errors: a batch whose processing raised gives its exception at its place in the order (the
   results before it first), on the acquisition thread, as a synchronous DSP would have.
-* Each worker drops its per-thread DSP scratch buffers (lidard.dsp.scratch) when it ends.
+* Each worker drops its per-thread DSP scratch buffers (lidard.dsp.spectrum.scratch) when it ends.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import threading
 from typing import Any
 from collections.abc import Callable
 
-from ..dsp.scratch import release as release_scratch
+from ..dsp.spectrum.scratch import release as release_scratch
 
 _STOP = object()
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.frame import FrameDsp
-from ..dsp.scratch import release as release_scratch
+from ..dsp.spectrum.scratch import release as release_scratch
 from ..raw.points import frame_points
 from .pipeline import DspPipeline
 from .types import POINT_DTYPE
@@ -127,7 +127,7 @@ class PointBuffer:
             log.warning("processing the last batch failed: %s", exc)
         finally:
             self.close()
-            release_scratch()     # the DSP's per-thread buffers (lidard.dsp.scratch): an idle daemon holds none
+            release_scratch()     # the DSP's per-thread buffers (lidard.dsp.spectrum.scratch): an idle daemon holds none
         return np.concatenate(self._chunks) if self._chunks else np.zeros(0, POINT_DTYPE)
 
     def close(self) -> None:

@@ -39,7 +39,7 @@ from collections.abc import Callable
 
 from drivers.controller.driver import SettleCheck
 
-from ..selftest_analysis import hv_margin_problem
+from .selftest_analysis import hv_margin_problem
 from .errors import FaultsStillOpen, InstrumentError
 
 log = logging.getLogger(__name__)

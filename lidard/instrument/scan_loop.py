@@ -1,6 +1,6 @@
 """One scan, as stages: plan -> acquire -> DSP -> points (dissertation §4.4.1 setup, §4.4.3 imaging).
 
-* plan (:func:`plan_scan`): the pixel pattern (:mod:`lidard.scan`), the ADC rate and record length
+* plan (:func:`plan_scan`): the pixel pattern (:mod:`lidard.instrument.plan`), the ADC rate and record length
   from the requested maximum range and the chirp (§2.1.1: beat frequency = chirp rate x round trip),
   the monitor MZI channel when phase-noise compensation is on (§2.3, §4.4.2), and the frame DSP, all
   from the one constructor a design sweep also uses (:func:`.dsp_plan.plan_signal`);
@@ -28,7 +28,7 @@ import numpy as np
 from ..config import Config
 from ..dsp.frame import FrameDsp
 from ..dsp.pnframe import compensator_for, gate_m_range
-from ..scan import plan
+from .plan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
 from .calibration.applied import AppliedCalibrations
 

@@ -15,7 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..config import Config
-from ..selftest_analysis import hv_pull_in_problem
+from .selftest_analysis import hv_pull_in_problem
 from .acquisition import AcquisitionLifecycle, AcquisitionPlan
 from .errors import InstrumentError
 from .safety import SafetyMonitor

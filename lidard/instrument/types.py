@@ -14,13 +14,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-# One record per detected return: the schema of lidard.point_schema (name, dtype, unit, meaning of each
+# One record per detected return: the schema of lidard.outputs.schema (name, dtype, unit, meaning of each
 # field), the same in memory and in every file format.
-from ..point_schema import POINT_DTYPE  # noqa: F401  (re-exported: the seam's point record)
-from ..point_schema import PointFormat
+from ..outputs.schema import POINT_DTYPE  # noqa: F401  (re-exported: the seam's point record)
+from ..outputs.registry import PointFormat
 
 PatternKind = Literal["raster", "serpentine", "roi", "pixels", "adaptive", "track"]  # track: streams only
-OutputFormat = PointFormat  # the one list of point-file formats (lidard.point_schema)
+OutputFormat = PointFormat  # the one list of point-file formats (lidard.outputs.registry)
 
 
 

@@ -2,7 +2,9 @@
 
 Rooms: :mod:`.worker` (the queue, the thread, submit/cancel/wait, calibration reuse),
 :mod:`.scan_job` (one scan: run, adaptive passes, write, outcome), :mod:`.kinds` (job kinds, errors,
-request records), :mod:`.events` (subscribers and live listeners). Import from ``lidard.jobs``.
+request records), :mod:`.events` (subscribers and live listeners), :mod:`.reprocess` (a stored scan's
+raw capture through the DSP again, as a new linked scan: above both the store and lidard.raw, which
+the instrument records through). Import from ``lidard.jobs``.
 
 The FPSA, the AWG, the digitizer and the laser/HV controller form one optical path (§4.4, Fig. 4-33),
 so only one job can use them at a time. Every job (a scan or a chirp linearization, §2.2) goes through
@@ -39,7 +41,7 @@ Policy (also in docs/api.md):
   database writes) and is published to subscribers (the SSE endpoint, the CLI's progress bar). The
   last event of a scan is ``{"event": "end", ...}``.
 * Adaptive scans (when the worker knows the optics) run as two ``pixels`` requests: the coarse pass
-  of :func:`lidard.scan.adaptive_plans`, whose points are fed back, then the dense pass; the points
+  of :func:`lidard.instrument.plan.adaptive_plans`, whose points are fed back, then the dense pass; the points
   are merged (``t`` of the second pass offset by the first pass's hardware time). The instrument
   therefore never sees ``pattern="adaptive"``.
 * Output: ``data_dir/scans/<id>/scan.<fmt>`` and ``scan.<fmt>.json`` per requested format.

@@ -19,9 +19,9 @@ from ..instrument.calibration.applied import AppliedCalibrations
 from ..instrument.errors import ScanFailed
 from ..instrument.protocol import Instrument
 from ..instrument.types import CalibrationResult, ScanCancelled, ScanProgress, ScanRequest, ScanResult
-from ..pointcloud import suffix_of, write_points
+from ..outputs import suffix_of, write_points
 from ..physics.optics import FpsaOptics
-from ..scan import adaptive_plans, planned_pixel_count
+from ..instrument.plan import adaptive_plans, planned_pixel_count
 from ..store import Store
 from .events import EventHub
 from .kinds import _ScanJob, describe_error, request_to_dict, software_version
@@ -217,7 +217,7 @@ class ScanJobRun:
 def run_adaptive(instrument, job: _ScanJob, progress: Callable[[ScanProgress], None],
                  cal: CalibrationResult, optics) -> ScanResult:
     """An adaptive scan as two ``pixels`` scans: the coarse pass, then the dense pass its points ask
-    for (:func:`lidard.scan.adaptive_plans`), merged (the second pass's ``t`` offset by the first's
+    for (:func:`lidard.instrument.plan.adaptive_plans`), merged (the second pass's ``t`` offset by the first's
     hardware time). A failure of the dense pass carries the coarse points as its partial result."""
     import numpy as np
     req = job.request

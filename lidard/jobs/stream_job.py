@@ -73,10 +73,10 @@ class StreamSpec:
 def planner_for(spec: StreamSpec, optics) -> Callable:
     """The frame planner of a stream: the same pixels every frame, or the track planner."""
     from ..instrument.frames import FramePlan
-    from ..scan import plan
+    from ..instrument.plan import plan
     req = spec.request
     if req.pattern == "track":
-        from ..tracking import TrackParams, track_planner
+        from ..instrument.tracking import TrackParams, track_planner
         spec.check()
         assert spec.pixel_s is not None     # check() refuses a track stream without it
         return track_planner(req, optics, TrackParams(frame_rate_hz=spec.frame_rate_hz or 10.0,
@@ -115,7 +115,7 @@ class FrameSink:
         if self._mcap is not None:
             self._mcap.add(frame.points, side)
         elif self._dir is not None:
-            from ..pointcloud import suffix_of, write_points
+            from ..outputs import suffix_of, write_points
             path = self._dir / f"frame_{frame.index:05d}{suffix_of(self.fmt)}"
             write_points(path, frame.points, {**self.meta, **side}, self.fmt)
             self.written.append(str(path))

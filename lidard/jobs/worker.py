@@ -23,7 +23,7 @@ from ..instrument.healthcheck import health_record
 from ..instrument.protocol import Instrument
 from ..instrument.types import CalibrationResult, ScanRequest
 from ..physics.optics import FpsaOptics
-from ..scan import planned_pixel_count
+from ..instrument.plan import planned_pixel_count
 from ..store import ScanRecord, Store
 from . import heap
 from .events import EventHub, PointListener, Subscriber

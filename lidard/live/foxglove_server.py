@@ -7,7 +7,7 @@ when it ends (so a Foxglove panel ends on the complete frame, like Fig. 4-35); a
 one ``/lidar/points`` message as soon as it is complete (its points carry the frame index), followed
 by its ``frame`` event (the frame's sidecar) on ``/lidar/scan_status``; every progress/end
 event is a ``/lidar/scan_status`` message; after each scan ``/lidar/devices`` carries the device
-list (as ``GET /devices``). Topics and encodings: lidard.live.channels (the MCAP writer uses the
+list (as ``GET /devices``). Topics and encodings: lidard.outputs.channels (the MCAP writer uses the
 same). The server has its own foxglove Context, so several daemons (tests) never share channels.
 """
 
@@ -22,7 +22,7 @@ import numpy as np
 
 import foxglove
 
-from .channels import LidarChannels
+from ..outputs.channels import LidarChannels
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """Plots of a sweep summary: detection probability, range RMSE and velocity RMSE against distance.
 
 One line per configuration (colour by the first swept key that varies, line style by the second);
-the range panel also draws each configuration's Cramer-Rao bound (lidard.dsp.crlb, dotted) so that
+the range panel also draws each configuration's Cramer-Rao bound (lidard.dsp.ranging.crlb, dotted) so that
 the gap between the estimator and the bound is visible where the SNR is high. Errors are drawn only
 where the detection probability is at least MIN_PD: below it an RMSE rests on a few detections. Uses the Agg backend:
 no display needed on a cluster's login node.

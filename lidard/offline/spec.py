@@ -43,7 +43,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from lidard.config import CONFIG_DIR, Config, LaserPreset, Profile, load_config
-from lidard.dsp.estimators import DEFAULT_METHOD, EstimatorName
+from lidard.dsp.ranging.estimators import DEFAULT_METHOD, EstimatorName
 from lidard.errors import ConfigError, LidardError
 
 Scalar = bool | int | float | str

@@ -43,8 +43,8 @@ import numpy as np
 
 from drivers.digitizer import protocol as digitizer_protocol
 from lidard.config import Config
-from lidard.dsp.crlb import crlb_freq_var
-from lidard.dsp.cwhold import PROFILE_DT_S
+from lidard.dsp.ranging.crlb import crlb_freq_var
+from lidard.dsp.ranging.cwhold import PROFILE_DT_S
 from lidard.dsp.frame import FrameResult
 from lidard.instrument.acquisition import AWG_RATE_HZ, plain_drive
 from lidard.instrument.dsp_plan import AdcPlan, DspCalibration, SignalPlan, plan_signal
@@ -79,7 +79,7 @@ def linear_trajectory(cfg: Config) -> ChirpTrajectory:
 def calibration(cfg: Config, traj: ChirpTrajectory, adc: AdcPlan) -> DspCalibration:
     """What a converged calibration of this bench gives the DSP: the nominal monitor delay (the
     synthesis uses it), no I/Q imbalance, and on the three-segment chirp the held segment's drift
-    nu(t) - nu(t0) over the record's hold (``lidard.dsp.cwhold.HoldProfile``), exact from the chirp."""
+    nu(t) - nu(t0) over the record's hold (``lidard.dsp.ranging.cwhold.HoldProfile``), exact from the chirp."""
     hold = None
     if cfg.chirp.shape == "three_segment" and adc.cw_samples > 1:
         t0 = adc.ramp_samples * 2 / adc.fs_hz

@@ -1,4 +1,4 @@
-"""MCAP output, Foxglove flavour: a scan as the Foxglove topics of lidard.live.channels, in one file
+"""MCAP output, Foxglove flavour: a scan as the Foxglove topics of lidard.outputs.channels, in one file
 that Foxglove and Lichtblick open (profile none, ``foxglove.PointCloud`` in protobuf, JSON status under
 named JSON schemas). ROS 2 tools (``ros2 bag``, rosbags) need the ``ros2`` format instead
 (lidard.outputs.ros2: ``sensor_msgs/msg/PointCloud2`` in CDR).
@@ -6,7 +6,7 @@ named JSON schemas). ROS 2 tools (``ros2 bag``, rosbags) need the ``ros2`` forma
 ``write_mcap`` logs the whole cloud as one ``/lidar/points`` PointCloud (every point; ``t`` keeps
 the per-pixel hardware time of §4.4's scan), one ``/lidar/scan_status`` JSON summary and, when the
 metadata carries them, ``/lidar/devices``. It goes through foxglove-sdk's MCAP writer on a private
-context (nothing leaks to a live server) into lidard.pointcloud's atomic temp-file-then-rename.
+context (nothing leaks to a live server) into lidard.outputs.files' atomic temp-file-then-rename.
 
 ``read_mcap`` reads it back with the ``mcap`` package's reader and decodes the PointCloud's
 protobuf by hand (no protobuf runtime needed), honouring the field table in the file; tests decode
@@ -26,8 +26,8 @@ import numpy as np
 import foxglove
 from mcap.reader import make_reader
 
-from ..live.channels import POINTS_TOPIC, STATUS_TOPIC, LidarChannels
-from ..pointcloud import PointCloudError, atomic_write
+from .channels import POINTS_TOPIC, STATUS_TOPIC, LidarChannels
+from .files import PointCloudError, atomic_write
 
 _NUMPY_OF_FOXGLOVE = {1: "<u1", 2: "<i1", 3: "<u2", 4: "<i2", 5: "<u4", 6: "<i4", 7: "<f4", 8: "<f8"}
 

@@ -16,10 +16,8 @@ from typing import Any
 import foxglove
 import numpy as np
 
-from ..live.channels import LidarChannels
-from .mcap import (
-    atomic_write,  # (lidard.pointcloud's, through the one ignored import of the format package)
-)
+from .channels import LidarChannels
+from .files import atomic_write
 
 
 class McapFrameWriter:

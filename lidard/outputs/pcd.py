@@ -2,8 +2,8 @@
 
 Header then the points as packed little-endian records, one per detected return (unorganized:
 ``WIDTH`` = number of points, ``HEIGHT`` = 1, since a pixel may have several returns or none, §4.4).
-Every field of :data:`lidard.point_schema.POINT_FIELDS` is kept in its schema dtype (``TYPE``/``SIZE``
-from :data:`lidard.point_schema.PCD_TYPE`): the records are POINT_DTYPE's bytes as they are.
+Every field of :data:`lidard.outputs.schema.POINT_FIELDS` is kept in its schema dtype (``TYPE``/``SIZE``
+from :data:`lidard.outputs.schema.PCD_TYPE`): the records are POINT_DTYPE's bytes as they are.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..point_schema import PCD_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_NAMES
-from ..pointcloud import PointCloudError, atomic_write
+from .schema import PCD_TYPE, POINT_DTYPE, POINT_FIELDS, POINT_NAMES
+from .files import PointCloudError, atomic_write
 
 # (field, PCD type, size) in file order
 _LAYOUT = tuple((f.name, *PCD_TYPE[f.dtype]) for f in POINT_FIELDS)

@@ -7,11 +7,11 @@ this one: the MCAP profile ``ros2``, schemas in ``ros2msg`` text and messages in
 Topics (frame ``lidar``, the sensor frame of §4.1.1, +z the optical axis):
 
 * ``/lidar/points``: one ``sensor_msgs/msg/PointCloud2`` holding the whole scan, unorganized
-  (``height`` 1, ``width`` = points), every field of :data:`lidard.point_schema.POINT_FIELDS` as a
+  (``height`` 1, ``width`` = points), every field of :data:`lidard.outputs.schema.POINT_FIELDS` as a
   ``PointField`` of its schema dtype, little-endian, ``point_step`` = POINT_DTYPE's itemsize, the data
   POINT_DTYPE's bytes; ``is_dense`` says whether every point is valid.
 * ``/lidar/scan_status``: ``std_msgs/msg/String`` holding the JSON summary of lidard.outputs.mcap
-  (schema ``lidard.ScanStatus``, lidard.live.channels).
+  (schema ``lidard.ScanStatus``, lidard.outputs.channels).
 
 The CDR encoder and decoder below cover exactly these two message types (XCDR1, little-endian, the
 encoding rmw implementations write); tests read the file back with ``rosbags``.
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from ..live.channels import FRAME_ID, POINTS_TOPIC, STATUS_TOPIC
-from ..point_schema import POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS, ROS2_TYPE
-from ..pointcloud import PointCloudError, atomic_write
+from .channels import FRAME_ID, POINTS_TOPIC, STATUS_TOPIC
+from .schema import POINT_DTYPE, POINT_FIELDS, POINT_OFFSETS, ROS2_TYPE
+from .files import PointCloudError, atomic_write
 from .mcap import scan_status
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"

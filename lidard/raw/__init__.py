@@ -3,7 +3,7 @@
 :mod:`.capture` writes and reads the captures, :mod:`.points` turns DSP results into point records
 (shared with the scan loop), :mod:`.record` is the scan loop's side of a capture, :mod:`.replay`
 replays the DSP per chunk, :mod:`.spectrum` shows one pixel's spectra with the CFAR threshold,
-:mod:`.service` reprocesses a stored scan into a new linked one.
+a stored scan is reprocessed into a new linked one by :mod:`lidard.jobs.reprocess`.
 
 Names are imported on first use (PEP 562), so that the job queue can reach :mod:`.capture` without
 loading the DSP (the API and the queue import no numerical core; tests/lidard/test_instrument_rooms.py).

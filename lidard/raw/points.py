@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..dsp.frame import FrameResult
-from ..dsp.gate import PointFlag
-from ..instrument.types import POINT_DTYPE
+from ..dsp.detect.gate import PointFlag
+from ..outputs.schema import POINT_DTYPE
 
 
 def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directions: np.ndarray,

@@ -31,11 +31,11 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from ..dsp.estimators import EstimatorName
+from ..dsp.ranging.estimators import EstimatorName
 from ..dsp.frame import FrameDsp
-from ..dsp.scratch import release as release_scratch
-from ..dsp.window import WINDOW_NAMES
-from ..instrument.types import POINT_DTYPE
+from ..dsp.spectrum.scratch import release as release_scratch
+from ..dsp.spectrum.window import WINDOW_NAMES
+from ..outputs.schema import POINT_DTYPE
 from .capture import RawCapture, RawCaptureError, RawChunk
 from .points import frame_points
 
@@ -210,7 +210,7 @@ def reprocess(raw_path: str | Path, settings: ReprocessSettings | None = None, *
     try:
         parts = list((map_fn or local_map)(reprocess_task, [str(cap.path)] * n, range(n), [settings] * n))
     finally:
-        release_scratch()   # the DSP's per-thread buffers (lidard.dsp.scratch) of a local map: none held idle
+        release_scratch()   # the DSP's per-thread buffers (lidard.dsp.spectrum.scratch) of a local map: none held idle
     points = np.concatenate(parts) if parts else np.zeros(0, POINT_DTYPE)
     meta = {"dsp": replay.meta(), "overrides": (settings or ReprocessSettings()).overrides(),
             "chunks": cap.n_chunks, "tasks": n, "pixels": cap.n_pixels, "raw_complete": cap.complete,

@@ -15,13 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from ..dsp.cfar import cfar_detect
-from ..dsp.cfar_os import _noise_os   # the kernel cfar_detect thresholds with (no public twin)
-from ..dsp.iqbalance import correct, ramp_volts
+from ..dsp.detect.cfar import cfar_detect
+from ..dsp.detect.os_cfar import _noise_os   # the kernel cfar_detect thresholds with (no public twin)
+from ..dsp.ranging.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
-from ..dsp.window import get_window
-from ..instrument.types import POINT_DTYPE
-from ..point_schema import POINT_NAMES
+from ..dsp.spectrum.window import get_window
+from ..outputs.schema import POINT_DTYPE, POINT_NAMES
 from .capture import PixelNotRecorded, RawCapture
 from .replay import ReplayDsp, ReprocessSettings, replay_dsp
 
@@ -96,7 +95,7 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
                               trigger_time_ns=chunk.trigger_time_ns[s0:s1], pixels=chunk.pixels[k:k + 1],
                               directions=chunk.directions[k:k + 1], t_s=chunk.t_s[k:k + 1])
     d = replay.dsp
-    if d.iq:    # the coherent receiver: I and Q, the recorded imbalance removed (lidard.dsp.iqbalance)
+    if d.iq:    # the coherent receiver: I and Q, the recorded imbalance removed (lidard.dsp.ranging.iqbalance)
         beat = correct(one.channel("beat_i", cap.channels, cap.averages),
                        one.channel("beat_q", cap.channels, cap.averages), d.iq_gain, d.iq_phase_rad)
     else:

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import LidardError
 from ..instrument.types import CalibrationResult
-from ..pointcloud import atomic_write
+from ..outputs import atomic_write
 from .geometry import GEOMETRY_SCHEMA, GeometryCalibrations
 
 SCAN_STATES = ("queued", "running", "done", "failed", "cancelled", "interrupted")

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from drivers.controller import protocol as p
+from drivers.errors import ProtocolError
 from sim_devices.clock import VirtualClock
 
 
@@ -236,7 +237,7 @@ class ControllerModel:
                     value = p.Command(int(value))   # a U16 at scale 1: already an int
                 else:
                     self.hw_limits.check(reg, float(value))
-            except (p.ProtocolError, p.LimitError, ValueError):
+            except (ProtocolError, p.LimitError, ValueError):
                 return p.ExceptionCode.ILLEGAL_DATA_VALUE
             updates.append((reg, value))
         for reg, value in updates:

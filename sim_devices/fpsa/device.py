@@ -45,7 +45,7 @@ from collections.abc import Callable
 import numpy as np
 
 from drivers.fpsa import protocol as p
-from drivers.fpsa.errors import ProtocolError
+from drivers.errors import CrcError, ProtocolError
 from sim_devices.clock import VirtualClock
 from sim_devices.faults import SerialLineNoise
 from sim_devices.fpsa.beams import ChipOptics
@@ -142,7 +142,7 @@ class FpgaSim:
             self.firmware.faults |= p.FaultFlag.LINK_ERRORS
             seq = getattr(item, "seq", None)
             cmd = getattr(item, "cmd", None)
-            code = p.NakCode.BAD_CRC if isinstance(item, p.CrcError) else p.NakCode.BAD_LENGTH
+            code = p.NakCode.BAD_CRC if isinstance(item, CrcError) else p.NakCode.BAD_LENGTH
             if seq is None:
                 return b""  # not even a seq: nothing to answer to
             return p.encode_nak(seq, cmd if cmd is not None else 0, code)

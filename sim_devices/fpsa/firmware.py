@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.fpsa import protocol as p
-from drivers.fpsa.errors import LengthError, PayloadError
+from drivers.errors import LengthError, PayloadError
 from sim_devices.fpsa.board import FpsaBoard
 from sim_devices.fpsa.drive_log import COL, ROW, compact
 from sim_devices.fpsa.hv583 import HV583

@@ -195,7 +195,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     ``beat_filter``: the digitizer's anti-alias filter at each return's true beat frequency
     (:mod:`sim_devices.world.antialias`); None: an ideal one (nothing beyond fs/2 is synthesized).
     ``iq_imbalance``: (g, eps) of the coherent receiver's 90-degree hybrid and photodiode pair: the Q
-    channel is g A sin(dPhi + eps) (lidard.dsp.iqbalance); (1, 0) is an ideal hybrid. Each channel
+    channel is g A sin(dPhi + eps) (lidard.dsp.ranging.iqbalance); (1, 0) is an ideal hybrid. Each channel
     draws its own white noise (two photodiodes, two digitizer channels).
     """
     fast = adc.quantize if fast_trig is None else bool(fast_trig)

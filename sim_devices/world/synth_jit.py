@@ -13,7 +13,7 @@ the noise and the quantization in the same pass would be slower, not faster.
 
 Loading numba costs ~0.9 s of CPU once per process and the kernel saves ~5 ns a sample, so it is used
 only when numba is already loaded in the process (the host's DSP loads it for large scans,
-lidard.dsp.jit) or once this process has asked for ``LOAD_AFTER_SAMPLES`` samples (the break-even of
+lidard.dsp.spectrum.jit) or once this process has asked for ``LOAD_AFTER_SAMPLES`` samples (the break-even of
 that model); until then, and without numba, the numpy path runs. ``LIDARD_DSP_JIT=0`` turns the
 kernel off as it does the DSP's.
 """

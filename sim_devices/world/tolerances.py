@@ -26,7 +26,7 @@ construction, from ``[sim.tolerances]`` (:class:`lidard.config.Tolerances`):
 
 * the coherent receiver (``adc.iq``): the 90-degree hybrid's quadrature error eps ~ U(-hybrid_phase_deg,
   +hybrid_phase_deg) and the Q/I gain ratio g = 10^(U(-hybrid_gain_db, +hybrid_gain_db) / 20) of its
-  two photodiode chains (Q = g A sin(dPhi + eps), lidard.dsp.iqbalance). The bounds, 5 deg and 0.5 dB:
+  two photodiode chains (Q = g A sin(dPhi + eps), lidard.dsp.ranging.iqbalance). The bounds, 5 deg and 0.5 dB:
   what fibre 90-degree hybrids are specified to (+-5 deg) and two photodiodes' responsivities and TIA
   gains match to.
 

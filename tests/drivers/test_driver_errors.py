@@ -12,6 +12,7 @@ import drivers
 from drivers import errors as e
 from drivers.controller import errors as ce
 from drivers.controller import protocol as cp
+from drivers.digitizer import protocol as dp
 from drivers.fpsa import errors as fe
 from drivers.fpsa import protocol as fp
 from drivers.transport import errors as te
@@ -40,23 +41,38 @@ def test_there_is_one_device_timeout_whose_device_is_data():
         ["fpsa", "digitizer", "controller"]
 
 
-@pytest.mark.parametrize("cls", [fe.ProtocolError, usbtmc.ProtocolError, ce.ProtocolError])
-def test_the_three_protocol_errors_are_one_family(cls):
-    assert issubclass(cls, e.ProtocolError)
+def test_there_is_one_protocol_error_whose_device_is_data():
+    named = {obj for mod in _driver_modules() for name, obj in vars(mod).items()
+             if name == "ProtocolError" and inspect.isclass(obj)}
+    assert named == {e.ProtocolError}
+    assert not hasattr(fe, "ProtocolError") and not hasattr(usbtmc, "ProtocolError") \
+        and not hasattr(ce, "ProtocolError")
+    # each device's codec raises it (or a subclass), naming the device
+    cases = {"fpsa": lambda: fp.decode_frame(b"\x05\x01\x00"),
+             "awg": lambda: usbtmc.decode_header(b"\x00" * 3),
+             "digitizer": lambda: dp.decode_segment_header(b"\x00" * 5),
+             "controller": lambda: cp.decode_faults(0x20)}
+    for device, bad in cases.items():
+        with pytest.raises(e.ProtocolError) as ei:
+            bad()
+        assert ei.value.device == device
 
 
 def test_codec_errors_name_device_and_command():
-    with pytest.raises(e.ProtocolError) as ei:
+    with pytest.raises(e.FramingError) as ei:
         fp.decode_frame(b"\x05\x01\x00")  # COBS block overruns the frame
-    assert (ei.value.device, ei.value.command) == ("fpsa", "codec")
+    assert (ei.value.device, ei.value.command) == ("fpsa", "decode")
     bad_crc = bytearray(fp.encode_inner(7, fp.Cmd.ARM))
     bad_crc[-1] ^= 0xFF
-    with pytest.raises(fe.CrcError) as ei:
+    with pytest.raises(e.CrcError) as ei:
         fp.decode_inner(bytes(bad_crc))
-    assert (ei.value.device, ei.value.command) == ("fpsa", "ARM")
+    assert (ei.value.device, ei.value.command, ei.value.seq, ei.value.cmd) == ("fpsa", "ARM", 7, fp.Cmd.ARM)
     with pytest.raises(e.ProtocolError) as ei:
         usbtmc.decode_header(b"\x00" * 3)
-    assert ei.value.device == "awg"
+    assert (ei.value.device, ei.value.command) == ("awg", "decode")
+    with pytest.raises(e.PayloadError) as ei:
+        cp.decode_faults(0x20)
+    assert (ei.value.device, ei.value.command) == ("controller", "decode FAULTS")
 
 
 def test_controller_refusals_sit_in_the_shared_tree():

@@ -4,8 +4,8 @@ fewer estimator rows."""
 import numpy as np
 
 import lidard.dsp.chain as chain
-from lidard.dsp.estimators import estimate
-from lidard.dsp.rangefft import RangeFFT
+from lidard.dsp.ranging.estimators import estimate
+from lidard.dsp.spectrum.rangefft import RangeFFT
 
 
 def _ramps(seed=3, n_pix=40, n_avg=3, n=360):
@@ -41,8 +41,8 @@ def test_valid_slots_match_a_refinement_of_every_slot_and_empty_slots_are_skippe
 
 
 def test_estimate_rows_reads_the_rows_in_place_with_the_same_answers():
-    from lidard.dsp.estimators import ESTIMATOR_NAMES, estimate_rows
-    from lidard.dsp.window import DspInputError
+    from lidard.dsp.ranging.estimators import ESTIMATOR_NAMES, estimate_rows
+    from lidard.dsp.spectrum.window import DspInputError
     import pytest
 
     x = _ramps(n_pix=30, n_avg=1)[:, 0]

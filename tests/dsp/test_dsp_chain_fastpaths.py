@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from lidard.dsp import cfar
-from lidard.dsp.rangefft import check_samples
-from lidard.dsp.window import DspInputError
+from lidard.dsp.detect import cfar
+from lidard.dsp.spectrum.rangefft import check_samples
+from lidard.dsp.spectrum.window import DspInputError
 
 
 def _width_by_hand(row, i, max_half):

@@ -3,7 +3,7 @@
 import numpy as np
 
 from lidard.dsp.chain import measure_peaks
-from lidard.dsp.rangefft import C_M_PER_S, RangeFFT
+from lidard.dsp.spectrum.rangefft import C_M_PER_S, RangeFFT
 
 GAMMA = 1.25e14
 FS = 250e6

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.pncomp import compensated_spectrum
+from lidard.dsp.phasenoise.compensate import compensated_spectrum
 from lidard.dsp.pnframe import (PhaseNoiseCompensator, mzi_phase_noise_batch, process_compensated)
-from lidard.dsp.window import DspInputError
+from lidard.dsp.spectrum.window import DspInputError
 
 C = 299_792_458.0
 FS = 250e6
@@ -49,7 +49,7 @@ def _dsp(max_range_m):
 
 
 def test_batched_mzi_phase_equals_the_single_record_estimate():
-    from lidard.dsp.pncomp import mzi_phase_noise
+    from lidard.dsp.phasenoise.compensate import mzi_phase_noise
     rng = np.random.default_rng(3)
     _, mzi = _ramps((3,), 0.6e-6, 1 / (math.pi * 0.1e-6), rng, 0.0)
     delta, valid = mzi_phase_noise_batch(mzi, fs_hz=FS, edge_s=1e-6, beat_hz=GAMMA * TAU_M)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 
 pytestmark = pytest.mark.slow  # real lidarctl processes, each starting and linearizing a bench
 

@@ -13,7 +13,7 @@ import subprocess
 
 import pytest
 
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 from tests.e2e.test_e2e_cli_interrupt import _lidarctl
 from tests.helpers.daemon import kill_group, start_daemon
 from tests.helpers.deadlines import WAIT_S

@@ -20,7 +20,7 @@ import pytest
 from lidard.config import load_config
 from lidard.instrument import ScanRequest, open_instrument
 from lidard.jobs import ScanWorker
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 from lidard.store import Store
 from sim_devices.world.scene import Scene
 

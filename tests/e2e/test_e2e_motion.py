@@ -84,7 +84,7 @@ def test_linearization_measures_the_held_segments_drift(motion):
     # the DFB's thermal terms drift through the hold by hundreds of MHz (the bench's laser model,
     # measured independently here from its periodic steady state under the learned drive)
     from lidard.instrument.acquisition import AWG_RATE_HZ
-    from lidard.dsp.cwhold import HoldProfile
+    from lidard.dsp.ranging.cwhold import HoldProfile
     inst, bench, cal = motion
     prof = HoldProfile.from_dict(cal.meta["hold_profile"])
     nu = bench.laser.frequency_hz(cal.drive_v, AWG_RATE_HZ)
@@ -92,7 +92,7 @@ def test_linearization_measures_the_held_segments_drift(motion):
     truth = np.interp(t, np.arange(nu.size) / AWG_RATE_HZ, nu)
     truth -= truth[0]
     assert np.ptp(truth) > 100e6                          # a drift the CW beat cannot ignore
-    # signed: the real fringe's drift is taken to continue the down ramp (lidard.dsp.cwhold), and the
+    # signed: the real fringe's drift is taken to continue the down ramp (lidard.dsp.ranging.cwhold), and the
     # bench's laser (its up ramp raises nu) drifts that way
     nu_up = bench.laser.frequency_hz(cal.drive_v, AWG_RATE_HZ)[:int(80e-6 * AWG_RATE_HZ)]
     assert nu_up[-1] > nu_up[0]

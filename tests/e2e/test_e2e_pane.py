@@ -11,7 +11,7 @@ import threading
 import numpy as np
 import pytest
 
-from lidard.dsp.crlb import crlb_freq_var_post_fft
+from lidard.dsp.ranging.crlb import crlb_freq_var_post_fft
 from lidard.instrument import ScanRequest
 from tests.helpers.sim_bench import linearized_embedded_instrument, pane_before_wall
 

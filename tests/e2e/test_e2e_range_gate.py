@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lidard.config import load_config
-from lidard.dsp.gate import PointFlag
+from lidard.dsp.detect.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
 from tests.helpers.tolerances import NOMINAL_ENV
 from tests.helpers.tone_test import tone_test_drawn_max

@@ -1,7 +1,7 @@
 """A one-shot ``lidarctl scan --sim`` (linearization, health check, scan, DSP, writing) loads none of
 scipy's heavy subpackages: the windows and the analytic signal are numpy's, the OS-CFAR factor is a
 bisection (each import costs 0.3-1 s of every scan's start-up), and a scan this small does not load
-numba (lidard.dsp.jit.LOAD_AFTER_CELLS: its load costs more than its kernels would save). The probe asserts which modules are
+numba (lidard.dsp.spectrum.jit.LOAD_AFTER_CELLS: its load costs more than its kernels would save). The probe asserts which modules are
 loaded, never a time (the CPU figures: benchmarks/band_and_cores.py, docs/measured/27_band_and_cores.md)."""
 
 import json

@@ -86,7 +86,7 @@ def test_the_same_targets_asked_with_a_wider_band_are_ranged(rig, z_m, v_mps):
 def test_a_target_at_three_times_the_band_is_flagged_out_of_band_where_it_is_drawn(rig, v_mps):
     # 0.12 m: both ramp beats (f_R + 3 x the band's Doppler) still lie inside the searched band, so the
     # target is measured, and drawn at its range; its speed is 3x what the record was sized for: flagged
-    from lidard.dsp.gate import PointFlag
+    from lidard.dsp.detect.gate import PointFlag
     res, pts, dr, dv = _scan(rig, 0.12, v_mps)
     assert res.meta["adc"]["max_speed_mps"] == 0.4
     assert not pts["valid"].any()

@@ -118,7 +118,7 @@ def test_foxglove_client_gets_each_frame_live_from_a_real_daemon(tmp_path):
 
     from websockets.sync.client import connect
 
-    from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC
+    from lidard.outputs.channels import POINTS_TOPIC, STATUS_TOPIC
     from lidard.outputs.mcap import decode_point_cloud
 
     with socket.socket() as s:          # a free loopback port for the live server

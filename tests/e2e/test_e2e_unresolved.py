@@ -10,7 +10,7 @@ import threading
 import numpy as np
 import pytest
 
-from lidard.dsp.gate import PointFlag
+from lidard.dsp.detect.gate import PointFlag
 from lidard.instrument import ScanRequest
 from tests.helpers.sim_bench import linearized_embedded_instrument, pane_before_wall
 

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.fpsa import protocol as p
-from drivers.fpsa.errors import ProtocolError
+from drivers.errors import ProtocolError
 from sim_devices.clock import VirtualClock
 from sim_devices.fpsa.device import FpgaConfig, FpgaSim
 

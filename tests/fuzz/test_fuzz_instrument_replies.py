@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from drivers import usbtmc
 from drivers.awg import protocol as awg
 from drivers.controller import protocol as ctl
-from drivers.controller.errors import ProtocolError as ControllerProtocolError
 from drivers.digitizer import protocol as dig
+from drivers.errors import ProtocolError
 
 FUZZ = settings(max_examples=300, derandomize=True, deadline=None)
 
@@ -27,7 +27,7 @@ def test_awg_reply_parsers_raise_only_protocol_errors(data):
     for fn in (awg.parse_error, awg.parse_int, awg.decode_codes):
         try:
             fn(data)
-        except usbtmc.ProtocolError as exc:
+        except ProtocolError as exc:
             assert exc.device == "awg" and exc.command == "decode"
 
 
@@ -87,8 +87,8 @@ def test_digitizer_stream_parser_finds_a_good_segment_after_noise(index, t_ns, b
 def test_controller_flags_decode(bits):
     try:
         f = ctl.decode_flags(bits)
-    except ControllerProtocolError:
-        assert len(bits) < ctl.FLAGS_BLOCK[1]
+    except ProtocolError as exc:
+        assert exc.device == "controller" and len(bits) < ctl.FLAGS_BLOCK[1]
         return
     assert f.interlock_closed == bool(bits[ctl.INTERLOCK_CLOSED.address])
     assert f.hv_on == bool(bits[ctl.HV_ON.address])
@@ -99,7 +99,8 @@ def test_controller_flags_decode(bits):
 def test_controller_fault_word_decodes_or_protocol_error(word):
     try:
         faults = ctl.decode_faults(word)
-    except ControllerProtocolError:
+    except ProtocolError as exc:
+        assert exc.device == "controller"
         # an undefined bit or a non-word is never read as "no fault"
         return
     assert ctl.encode_faults(faults) == word

@@ -15,7 +15,7 @@ import numpy as np
 from lidard.config import load_profile
 from lidard.instrument.healthcheck import HealthCheck
 from lidard.instrument.types import POINT_DTYPE, CalibrationResult, ScanProgress, ScanResult
-from lidard.scan import plan
+from lidard.instrument.plan import plan
 
 from lidard.instrument import NotSimulated  # what the simulation methods raise without a bench
 from lidard.instrument.errors import FaultsStillOpen

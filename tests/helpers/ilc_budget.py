@@ -6,7 +6,7 @@ laser it doubles all the way, and the 1024- and 2048-record steps are most of a 
 (116 s of the 132 s of CPU of tests/e2e/test_e2e_quadrature_far_wall.py). A far-wall test asserts
 what the scan ranges with the learned chirp, not how far the ILC got, and at 256 the learned chirp
 still ranges every pixel of those tests (a >= 200x reduction; measured in docs/measured/28_suite_cpu.md).
-Tests that grade the ILC itself (tests/dsp/test_dsp_ilc.py) keep their own ceilings.
+Tests that grade the ILC itself (tests/dsp/linearize/test_dsp_ilc.py) keep their own ceilings.
 
 Use ``with capped_ilc_averages(256): cal = inst.linearize()`` (module-scoped fixtures cannot take the
 function-scoped ``monkeypatch``). The attribute must exist: a renamed constant fails here, loudly.

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.rangefft import C_M_PER_S
+from lidard.dsp.spectrum.rangefft import C_M_PER_S
 from lidard.instrument import ScanResult
 from lidard.raw import RawWriter, frame_dsp_attrs, reprocess
-from lidard.scan import plan
+from lidard.instrument.plan import plan
 from tests.helpers.fakes import FakeInstrument
 
 FS_HZ = 10e6

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.stats import binom
 
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.gate import PointFlag
+from lidard.dsp.detect.gate import PointFlag
 
 ORDER_LEVEL = next(f.default for f in dataclasses.fields(FrameDsp) if f.name == "order_level")
 

@@ -1,7 +1,8 @@
 """Each domain error carries its HTTP status, and one exception handler answers it as a problem.
 
 No router maps an error to a status: the class says it (``http_status``, ``retry_after_s``), and
-``lidard.api.problems.install`` answers every LidardError with it as an RFC 9457 problem.
+``lidard.api.problems.install`` answers every LidardError with it as an RFC 9457 problem; a device's
+error (bare, or wrapped in a DeviceFault) by its place in the tree of drivers.errors.
 """
 
 from __future__ import annotations
@@ -12,6 +13,10 @@ from fastapi.testclient import TestClient
 from pydantic import BaseModel, ConfigDict, ValidationError
 from typing import Literal
 
+from drivers import errors as de
+from drivers.controller.errors import InterlockOpen, LimitError
+from drivers.fpsa.errors import NakError, PatternError
+from drivers.fpsa.protocol_codes import NakCode
 from lidard.api import problems
 from lidard.api.control import NotHeld
 from lidard.errors import ConfigError, LidardError, UnknownScan, describe_validation
@@ -19,7 +24,7 @@ from lidard.instrument.calibration.range import CalibrationRefused
 from lidard.instrument.errors import DeviceFault, FaultsStillOpen, NotSimulated, SceneRejected
 from lidard.jobs import JobFailed, QueueFull, WorkerStopped
 from lidard.raw import PixelNotRecorded, RawCaptureError
-from lidard.raw.service import NoRawCapture
+from lidard.jobs.reprocess import NoRawCapture
 
 CASES = [
     (UnknownScan("scan 'x' not found"), 404, None),
@@ -36,6 +41,16 @@ CASES = [
     (DeviceFault("digitizer", "ARM", TimeoutError("no answer")), 503, None),
     (ConfigError("lab.toml: adc.bits: must be 8"), 503, None),
     (JobFailed("linearization failed: DeviceFault: awg: timeout"), 503, None),
+    # a device's error is answered by its place in drivers.errors' tree, wrapped or bare
+    (DeviceFault("controller", "write LASER_CURRENT", LimitError("LASER_CURRENT", 900.0, 0.0, 250.0, "mA")),
+     422, None),
+    (DeviceFault("fpsa", "ARM", NakError("fpsa", "ARM", NakCode.BAD_STATE, None)), 409, None),
+    (DeviceFault("controller", "HV on", InterlockOpen("HV on")), 409, None),
+    (DeviceFault("fpsa", "ARM", de.CrcError("frame CRC mismatch", device="fpsa", command="ARM")), 503, None),
+    (DeviceFault("digitizer", "ARM", de.DeviceTimeout("digitizer", "ARM", attempts=3)), 503, None),
+    (InterlockOpen("laser on"), 409, None),
+    (PatternError("pixel (3, 4): row 3 is not bonded", index=0, row=3), 422, None),
+    (de.DeviceGone("awg", "open", "unplugged"), 503, None),
 ]
 
 
@@ -69,7 +84,7 @@ def test_a_domain_error_is_answered_with_its_own_status(client, i):
 
 def test_only_the_daemons_state_defaults_to_503():
     assert LidardError.http_status == 503
-    assert all(isinstance(exc, LidardError) for exc, _, _ in CASES)
+    assert all(isinstance(exc, (LidardError, de.DeviceError)) for exc, _, _ in CASES)
 
 
 class _Req(BaseModel):

@@ -13,7 +13,7 @@ from lidard.api.routers.viewer import STATIC_DIR
 from lidard.config import load_config
 from lidard.instrument.types import POINT_DTYPE
 from lidard.live.points import LIVE_FIELDS, LivePoints, decode_points, encode_points
-from lidard.pointcloud import read_npz
+from lidard.outputs.npz import read_npz
 from tests.helpers.deadlines import WAIT_S
 
 T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)

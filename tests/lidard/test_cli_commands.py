@@ -8,7 +8,7 @@ import pytest
 from lidard import cli
 from lidard.cli import base as cli_base
 from lidard.cli.progress import Progress
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FakeInstrument
 from tests.helpers.cli import run

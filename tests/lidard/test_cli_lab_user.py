@@ -14,7 +14,7 @@ from lidard.cli import base as cli_base
 from lidard.cli import faults as cli_faults
 from lidard.cli.progress import Progress
 from lidard.config import CONFIG_DIR, load_config
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FakeInstrument
 from tests.helpers.cli import run

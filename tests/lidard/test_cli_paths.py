@@ -4,7 +4,7 @@
 import pytest
 
 from lidard.errors import ConfigError
-from lidard.pointcloud import scene_identity
+from lidard.outputs import scene_identity
 from tests.helpers.cli import run
 
 

@@ -5,7 +5,7 @@ import pytest
 
 from lidard.instrument.types import ScanRequest
 from lidard.jobs import QueueFull, ScanWorker, UnknownScan
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 from lidard.store import Store
 from tests.helpers.fakes import DeviceFault, FakeInstrument
 from tests.helpers.deadlines import WAIT_S

@@ -13,7 +13,7 @@ from lidard.cli.lidarctl import main as lidarctl
 from lidard.instrument.healthcheck import NOISE_GUARD, HealthCheck, health_record
 from lidard.instrument.types import ScanRequest
 from lidard.jobs import ScanWorker
-from lidard.pointcloud import read_sidecar
+from lidard.outputs import read_sidecar
 from lidard.store import Store
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FRESH_CHIRP_ERROR_HZ, FakeInstrument

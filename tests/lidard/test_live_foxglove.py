@@ -18,7 +18,7 @@ from tests.helpers.fakes import FakeInstrument
 
 from lidard.api.app import create_app
 from lidard.config import ConfigError, load_config
-from lidard.live.channels import POINTS_TOPIC, STATUS_TOPIC
+from lidard.outputs.channels import POINTS_TOPIC, STATUS_TOPIC
 from lidard.outputs.mcap import decode_point_cloud
 from tests.helpers.deadlines import WAIT_S
 

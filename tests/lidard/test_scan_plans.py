@@ -5,7 +5,7 @@ import pytest
 
 from lidard.config import load_profile
 from lidard.instrument import POINT_DTYPE, ScanRequest
-from lidard.scan import ScanPlanError, adaptive_plans, plan, planned_pixel_count
+from lidard.instrument.plan import ScanPlanError, adaptive_plans, plan, planned_pixel_count
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from lidard.instrument import ScanRequest, open_instrument
 from lidard.instrument.stream import FRAME_READ_S, FRAME_TAIL_S, FramePlan, read_size
 from lidard.jobs.stream_job import FrameSink
 from lidard.outputs.mcap import read_mcap
-from lidard.scan import plan
+from lidard.instrument.plan import plan
 
 pytestmark = pytest.mark.slow
 

@@ -8,8 +8,8 @@ import pytest
 from lidard.config import load_config
 from lidard.instrument.stream import Frame
 from lidard.instrument.types import POINT_DTYPE, ScanRequest
-from lidard.scan import ScanPlanError, plan
-from lidard.tracking import TrackParams, plan_track, survey_order
+from lidard.instrument.plan import ScanPlanError, plan
+from lidard.instrument.tracking import TrackParams, plan_track, survey_order
 
 REQ = ScanRequest(pattern="track", rows=(16, 112), cols=(16, 112), max_range_m=3.0)
 PIXEL_S = 243e-6

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lidard.config import CONFIG_DIR, load_config, load_laser
-from lidard.dsp.ilc import linearize
+from lidard.dsp.linearize.ilc import linearize
 from lidard.physics.budget import monitor_noise_asd
 from sim_devices.bench.bench import Bench
 from sim_devices.world.laser import DfbLaser, triangle_drive

@@ -1,6 +1,6 @@
 """Raw captures of scans: reprocess one into a new scan, one pixel's spectra, remove a capture.
 
-The work is :mod:`lidard.raw.service`'s; here only HTTP: a scan without a capture answers 409 (it
+The work is :mod:`lidard.jobs.reprocess`'s; here only HTTP: a scan without a capture answers 409 (it
 exists, it was not recorded), an unknown scan 404, an override the capture cannot honour 422.
 Reprocessing runs in the request's worker thread, not in the scan queue: it needs no hardware.
 """
@@ -12,7 +12,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, HTTPException, Query, status
 
 from ...raw import ReprocessSettings
-from ...raw.service import raw_path, reprocess_scan, scan_spectrum
+from ...jobs.reprocess import raw_path, reprocess_scan, scan_spectrum
 from ..deps import StoreDep
 from ..schemas import EstimatorName, ReprocessCreate, ScanOut, WindowName
 

@@ -11,8 +11,8 @@ from fastapi import APIRouter, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 
 from ...jobs import UnknownScan
-from ...pointcloud import MEDIA_TYPE, read_sidecar, suffix_of
-from ...scan import ScanPlanError, plan
+from ...outputs import MEDIA_TYPE, read_sidecar, suffix_of
+from ...instrument.plan import ScanPlanError, plan
 from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
 from ..schemas import FileFormat, ScanCreate, ScanList, ScanOut
 from .controller import latched_refusal

@@ -18,8 +18,8 @@ from ...instrument.frames import pixel_period_s
 from ...instrument.types import ScanRequest
 from ...jobs.stream_job import StreamJob, StreamRequestError, StreamSpec
 from ...live.points import LIVE_FIELDS, encode_points
-from ...pointcloud import MEDIA_TYPE, read_points, suffix_of
-from ...scan import ScanPlanError, plan
+from ...instrument.plan import ScanPlanError, plan
+from ...outputs import MEDIA_TYPE, StreamFormat, read_points, suffix_of
 from ..deps import ConfigDep, InstrumentDep, OpticsDep, StoreDep, WorkerDep
 from .controller import latched_refusal
 
@@ -39,7 +39,7 @@ class StreamCreate(BaseModel):
     max_speed_mps: float | None = Field(default=None, gt=0, le=100, allow_inf_nan=False, strict=True)
     frames: StrictInt | None = Field(default=None, ge=1, le=1_000_000)
     frame_rate_hz: float | None = Field(default=None, gt=0, le=10_000, allow_inf_nan=False)
-    format: Literal["ply", "las", "npz", "pcd", "mcap"] = "ply"
+    format: StreamFormat = "ply"
     health_interval_s: float = Field(default=60.0, gt=0, le=86_400)
 
 

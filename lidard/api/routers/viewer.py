@@ -18,7 +18,7 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from fastapi.responses import FileResponse
 
 from ...live.points import LIVE_FIELDS, LivePoints, LiveSlice, encode_points
-from ...pointcloud import read_points
+from ...outputs import read_points
 from ..deps import StoreDep
 
 STATIC_DIR = Path(__file__).resolve().parent.parent / "viewer" / "static"

@@ -12,7 +12,7 @@ the sum of the noise-normalised powers at the predicted lines (the detector's st
 deviance of the common amplitude. A true peak's own partner explains it better than a noise peak or
 another return's peak does: no power-agreement rule is needed. Which hypotheses may be points at all is
 the chirp's business (the speed prior of a triangle, the hold's line of a three-segment chirp:
-:mod:`lidard.dsp.velocity`, :mod:`lidard.dsp.threeseg`), each peak at most one return's.
+:mod:`lidard.dsp.ranging.velocity`, :mod:`lidard.dsp.ranging.threeseg`), each peak at most one return's.
 
 The assignment maximises the total log-likelihood over every set of hypotheses that uses each peak at
 most once (:func:`best_matching`, exhaustive over the few peaks a ramp keeps), not greedily first-come.
@@ -34,7 +34,7 @@ from itertools import combinations, permutations
 
 import numpy as np
 
-from ..cfar import Detections
+from ..detect.cfar import Detections
 from .order import chi2_isf
 
 
@@ -105,7 +105,7 @@ def best_matching(score: np.ndarray, motion: np.ndarray, tie: float) -> np.ndarr
 
 
 def line_snr(du: Detections, dd: Detections) -> tuple[np.ndarray, np.ndarray]:
-    """Two ramps' detections (:class:`lidard.dsp.cfar.Detections`, (..., K)) as the pair likelihood's
+    """Two ramps' detections (:class:`lidard.dsp.detect.cfar.Detections`, (..., K)) as the pair likelihood's
     noise-normalised powers x (0 where no detection), over one noise level per pixel: the receiver's
     noise is the same on both ramps, and a per-detection local estimate (the CFAR's reference cells, a
     neighbour's skirt in them) would move one line's x against the other's by tens of percent."""

@@ -8,7 +8,7 @@ f_R = 2 kappa R / c shifted by its Doppler f_D = -2 v / lambda (the bench's sign
 A real (single-photodiode) receiver sees the magnitudes; an I/Q receiver the signed frequencies
 (the DSP conjugates the down ramp so that a static return sits at +f_R on both ramps: the down
 ramp's line is then at f_R + f_D as well). The frame DSP pairs the ramps' detections by these
-relations (:mod:`lidard.dsp.velocity`, :mod:`lidard.dsp.threeseg`); :func:`render` gives the
+relations (:mod:`lidard.dsp.ranging.velocity`, :mod:`lidard.dsp.ranging.threeseg`); :func:`render` gives the
 noise-free records of a set of returns (the model's expectation: the benchmarks and tests draw their
 pixels from it, benchmarks/resolution_table.py). Pure numpy.
 """
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rangefft import C_M_PER_S
+from ..spectrum.rangefft import C_M_PER_S
 
 
 @dataclass(frozen=True)

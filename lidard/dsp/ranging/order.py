@@ -34,8 +34,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import gammainccinv
 
-from ..dtft import _window_dtft_bins
-from ..window import get_window
+from ..spectrum.dtft import _window_dtft_bins
+from ..spectrum.window import get_window
 
 
 def chi2_isf(p: float | np.ndarray, dof: float | np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ benchmarks/resolution_table.py (docs/measured/25_joint_model.md).
   that |f_D| lies inside the CW spectrum's DC guard (no beat can be seen there, none is needed): the
   static hypotheses, |f_up - f_dn| < 2 x guard, m = 2 x 2 guard / df. Pairs that need a CW beat also
   need a noise CW line in the band their regime predicts, tested at q over the band's cells
-  (lidard.dsp.threeseg): their rate, at most 2 x band cells x q^3, is left out of m.
+  (lidard.dsp.ranging.threeseg): their rate, at most 2 x band cells x q^3, is left out of m.
 
 Pure python.
 """
@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 
 #: the per-ramp detector's level is kept below this (OS-CFAR's threshold factor is tabulated for
-#: pfa < 0.1, lidard.dsp.cfar): a point rate so high that the ramps would need more is refused
+#: pfa < 0.1, lidard.dsp.detect.cfar): a point rate so high that the ramps would need more is refused
 MAX_RAMP_PFA = 0.05
 
 

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from ..cfar import Detections
-from ..rangefft import RangeFFT, windowed_fft
+from ..detect.cfar import Detections
+from ..spectrum.rangefft import RangeFFT, windowed_fft
 from .order import HALF_BINS, MODEL_ERROR, cell_noise, chi2_isf, fitted_power, residual_near, unresolved
 from .tones import ITERATIONS, refine_joint, subtract_tones
 
@@ -36,7 +36,7 @@ from .tones import ITERATIONS, refine_joint, subtract_tones
 SEARCH_BINS = HALF_BINS + 1
 #: two tones closer than this (bins of the ramp's own grid, c / (2 gamma T) each) are one unresolved
 #: peak. The two-tone Cramer-Rao bound on each frequency, against one tone's (averaged over their
-#: relative phase; lidard.dsp.crlb.crlb_tones_freq_var): 1.02x at 3 bins, 1.1x at 1.5, 1.3x at 1.25,
+#: relative phase; lidard.dsp.ranging.crlb.crlb_tones_freq_var): 1.02x at 3 bins, 1.1x at 1.5, 1.3x at 1.25,
 #: 1.7x at 1, 2.4x at 0.75, 4.3x at 0.5: from here on down the pair's ranges are no longer points of
 #: the instrument's precision
 RESOLUTION_BINS = 1.25

@@ -1,7 +1,7 @@
 """Joint maximum-likelihood refinement of the K tones of one ramp (dissertation §2.1, eq. 2-1).
 
 Two surfaces a few range cells apart give two tones whose lobes overlap: a one-tone estimator
-(:mod:`lidard.dsp.estimators`' ``newton``) refines each one as if it were alone, and the other's
+(:mod:`lidard.dsp.ranging.estimators`' ``newton``) refines each one as if it were alone, and the other's
 leakage pulls it (about +0.1 bin, +2 mm, two returns four cells apart). The likelihood of a pixel's
 ramps under the model "K tones in white Gaussian noise" has no such bias:
 
@@ -15,13 +15,13 @@ records in the span of the tones' columns (variable projection):
     J(w) = sum_a  b_a^H G(w)^-1 b_a,      b_a = E(w)^H x_a,   G = E^H E,
 
 E the (N, K) or, real, (N, 2K) matrix of the complex exponentials. b_a holds the DTFT of the raw
-(unwindowed) record at +-w_k (read from the moments of :class:`lidard.dsp.dtft._DtftNearBin`: no
+(unwindowed) record at +-w_k (read from the moments of :class:`lidard.dsp.spectrum.dtft._DtftNearBin`: no
 pass over the samples per step) and G the Dirichlet kernel at the pairwise differences, in closed
 form. J is maximised by Newton steps on its finite-difference gradient and Hessian in all K
 frequencies at once; a real ramp's negative-frequency images are part of the model, as in the
 one-tone ``newton``. At K = 1 this is that estimator (averaged over the records by likelihood
 instead of by the mean of the per-record estimates); it reaches the K-tone Cramer-Rao bound once
-the tones are apart by more than about one bin (tests/dsp/test_dsp_ranging.py).
+the tones are apart by more than about one bin (tests/dsp/ranging/test_dsp_ranging.py).
 
 Pure numpy.
 """
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dtft import _DtftNearBin, _dirichlet, _terms_for
+from ..spectrum.dtft import _DtftNearBin, _dirichlet, _terms_for
 
 #: Newton iterations of the joint refinement (each a 3^K-point stencil of J; from a start within
 #: ~0.2 bin it converges in two or three)

@@ -6,7 +6,7 @@
 * pointing (:mod:`.pointing`): beam directions come from ``optics.with_pointing(fit)`` (eq. 4-1 with
   the fitted deviations);
 * I/Q imbalance (:mod:`.iq`, only with ``adc.iq``): the DSP removes the fitted gain ratio and phase
-  error of the coherent receiver before its two-sided spectrum (lidard.dsp.iqbalance).
+  error of the coherent receiver before its two-sided spectrum (lidard.dsp.ranging.iqbalance).
 
 The job worker loads the newest stored record of each kind made on the instrument's own set-up
 (:mod:`.setup`) and hands them over before every scan and linearization; an instrument with none

@@ -7,7 +7,7 @@ chip: a gradient drifts with the ambient), so a rule on the readback temperature
 (``scan.recalibrate_delta_c``) misses what matters. The check measures it instead: before a scan,
 ``scan.linearity_check_records`` periods of the drive in use are recorded on the monitor MZI (the
 same measurement as one ILC iteration, :class:`.linearization.Linearization`), and their RMS error
-against the ideal chirp (:func:`lidard.dsp.chirpcheck.chirp_residual`: slope excursion / ramp, free
+against the ideal chirp (:func:`lidard.dsp.linearize.chirpcheck.chirp_residual`: slope excursion / ramp, free
 offset) is compared with ``scan.linearity_threshold_hz``. Above it the chirp is re-linearized before
 the scan (the job worker decides, :meth:`lidard.jobs.worker.ScanWorker.calibration_for_scan`).
 
@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from ...config import Config
-from ...dsp.chirpcheck import chirp_residual
+from ...dsp.linearize.chirpcheck import chirp_residual
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle
 from ..healthcheck import HealthCheck
 from ..safety import SafetyMonitor

@@ -1,7 +1,7 @@
 """The coherent receiver's I/Q imbalance, measured on whatever is in front of the sensor.
 
 With ``adc.iq`` the beat arrives on two digitizer channels from a 90-degree hybrid whose quadrature is
-not exactly 90 degrees and whose two photodiode chains differ in gain (lidard.dsp.iqbalance). Each
+not exactly 90 degrees and whose two photodiode chains differ in gain (lidard.dsp.ranging.iqbalance). Each
 target's beat tone, seen on both channels, tells the gain ratio and the phase error directly (the
 ratio of the two channels' spectra at the tone), so the procedure needs no known geometry: scan the
 centre region with the raw records kept (lidard.raw), take every ramp with a tone 30 dB above its
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...dsp.iqbalance import ImbalanceFit, estimate_imbalance
-from ...dsp.window import DspInputError
+from ...dsp.ranging.iqbalance import ImbalanceFit, estimate_imbalance
+from ...dsp.spectrum.window import DspInputError
 from ..types import CalibrationResult, ScanRequest
 from .range import CalibrationRefused, centre_request
 

@@ -1,12 +1,12 @@
 """Chirp linearization by iterative learning pre-distortion (dissertation §2.2; §4.4.2's monitor MZI).
 
-The ILC itself (:func:`lidard.dsp.ilc.linearize`) is pure: it asks for measurements of a drive
+The ILC itself (:func:`lidard.dsp.linearize.ilc.linearize`) is pure: it asks for measurements of a drive
 waveform and learns the pre-distortion. Here each measurement is one acquisition on the centre pixel:
 the drive is loaded into the AWG, the FPGA fires ``n_avg`` chirps, the digitizer records the monitor
 MZI channel, and the safety monitor is checked before the samples are trusted. The ADC rate is set by
 the MZI beat (chirp rate x MZI delay), not by the scan range. With a quadrature monitor
 (``[monitor] quadrature``: channels ``mzi`` and ``mzi_q``) each record is the complex I + jQ and the ILC
-averages per-record phases (:mod:`lidard.dsp.ilcquad`), which reaches >= 1000x on the broad-linewidth
+averages per-record phases (:mod:`lidard.dsp.linearize.quadrature`), which reaches >= 1000x on the broad-linewidth
 laser where the averaged real fringe fades.
 
 Three-segment chirp: the ILC learns the two ramps as before, but each measurement plays the
@@ -15,17 +15,18 @@ are learned under the thermal history they will see in a scan; the record stops 
 The constant segment is held, not learned: the laser's thermal terms keep drifting there (some
 650 MHz over the hold on the sim's default DFB). Once the ramps are learned, one more acquisition of
 ``HOLD_AVERAGES`` whole periods measures that drift from the MZI fringe over the hold
-(:func:`lidard.dsp.cwhold.hold_profile`); it is stored with the linearization (``meta["hold_profile"]``)
+(:func:`lidard.dsp.ranging.cwhold.hold_profile`); it is stored with the linearization (``meta["hold_profile"]``)
 and the DSP takes it out of the CW beat where the real receiver's two regimes meet (|f_D| ~ f_R,
-lidard.dsp.threeseg).
+lidard.dsp.ranging.threeseg).
 
 Region of interest: the chirp is linearized over the part of each ramp the range estimator uses
 (:data:`lidard.dsp.frame.RANGE_WINDOW_FRACTION`, ``FrameDsp.use_fraction``'s default: the ROI),
-learning a margin beyond it. The range scale of a scan is the chirp's mean slope over that window, weighted about uniformly by the estimator. With
-the ILC's own defaults (ROI 0.8, learning 0.92 of a 0.9 window) the learned drive left the turnaround
-transient's tail, MHz-sized at 4-6 % from a ramp end, inside the window: a range scale of about -2.2e-5
-at short range and less at long range (the beat averages the tail over its round trip), i.e. a range
-error that no scale and offset absorb (docs/measured/26_range_linearity.md).
+learning a margin beyond it. The range scale of a scan is the chirp's mean slope over that window,
+weighted about uniformly by the estimator. With the ILC's own defaults (ROI 0.8, learning 0.92 of a 0.9
+window) the learned drive left the turnaround transient's tail, MHz-sized at 4-6 % from a ramp end,
+inside the window: a range scale of about -2.2e-5 at short range and less at long range (the beat
+averages the tail over its round trip), i.e. a range error that no scale and offset absorb
+(docs/measured/26_range_linearity.md).
 """
 
 from __future__ import annotations
@@ -37,9 +38,9 @@ from collections.abc import Callable
 import numpy as np
 
 from ...config import Config
-from ...dsp.cwhold import hold_profile
 from ...dsp.frame import RANGE_WINDOW_FRACTION
-from ...dsp.ilc import linearize as ilc_linearize
+from ...dsp.linearize.ilc import linearize as ilc_linearize
+from ...dsp.ranging.cwhold import hold_profile
 from ...physics.chirp import adc_rate_hz
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan, drive_for_chirp
 from ..errors import InstrumentError

@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 from drivers import usbtmc
 from drivers.awg import protocol as p
+from drivers.errors import ProtocolError
 
 G1 = bytes.fromhex("01 01 FE 00 06 00 00 00 01 00 00 00 2A 49 44 4E 3F 0A 00 00")
 G2 = bytes.fromhex("02 02 FD 00 00 00 01 00 00 00 00 00")
@@ -105,7 +106,7 @@ def test_block_and_header_decoders_raise_only_protocol_errors(data):
                lambda: p.parse_float(data)):
         try:
             fn()
-        except usbtmc.ProtocolError as exc:
+        except ProtocolError as exc:
             assert exc.device == "awg" and exc.command == "decode"
 
 

@@ -10,6 +10,7 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.controller import protocol as p
 from drivers.controller.driver import LaserHvController, SettleCheck
+from drivers.errors import ProtocolError
 from drivers.controller.errors import (
     ConfigError,
     DeviceBusy,
@@ -41,7 +42,7 @@ def test_identify_refuses_another_map_version(clock):
 
     with ControllerSim(clock, map_version=2, model="NEWER", firmware=(2, 7)) as newer:
         with LaserHvController("127.0.0.1", newer.port, timeout_s=TIMEOUT_S, limits=LIMITS) as c:
-            with pytest.raises(p.ProtocolError, match="MAP_VERSION = 2"):
+            with pytest.raises(ProtocolError, match="MAP_VERSION = 2"):
                 c.identify()
 
 

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.controller import protocol as p
-from drivers.controller.errors import ConfigError, LimitError, ProtocolError
+from drivers.controller.errors import ConfigError, LimitError
+from drivers.errors import ProtocolError
 
 SCALED = [p.LASER_CURRENT_SETPOINT, p.TEC_SETPOINT, p.HV_SETPOINT,
           p.LASER_CURRENT, p.TEC_TEMPERATURE, p.HV_VOLTAGE]

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.fpsa import protocol as p
-from drivers.fpsa.errors import CrcError, FramingError, LengthError, PayloadError, ProtocolError
+from drivers.errors import CrcError, FramingError, LengthError, PayloadError, ProtocolError
 
 DOC = Path(__file__).resolve().parents[3] / "docs" / "protocols" / "fpsa.md"
 

@@ -10,7 +10,7 @@ import pytest
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument.calibration.setup import calibration_setup
 from lidard.instrument.types import POINT_DTYPE, ScanProgress, ScanResult
-from lidard.scan import plan
+from lidard.instrument.plan import plan
 from tests.helpers.api import live_server, make_app
 from tests.helpers.fakes import FakeInstrument
 from tests.helpers.cli import run
@@ -113,7 +113,7 @@ def test_pointing_through_lidarctl_refuses_what_does_not_fit(capsys, live, tmp_p
 def test_sim_scan_says_uncalibrated_without_a_store_and_uses_the_stored_calibrations_with_one(
         capsys, monkeypatch, tmp_path):
     from lidard.cli import base as cli_base
-    from lidard.pointcloud import read_sidecar
+    from lidard.outputs import read_sidecar
     from lidard.store import Store
     inst = FakeInstrument()
     monkeypatch.setattr(cli_base, "open_instrument", lambda cfg, **kw: inst)

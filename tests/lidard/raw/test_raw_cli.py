@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lidard.cli import base as cli_base
-from lidard.pointcloud import read_points, read_sidecar
+from lidard.outputs import read_points, read_sidecar
 from lidard.raw import ReprocessSettings, reprocess
 from tests.helpers.api import live_server, make_app
 from tests.helpers.raw_capture import RecordingFake
@@ -105,7 +105,7 @@ def test_the_cli_and_the_api_offer_exactly_the_dsps_estimators_and_windows():
 
     from lidard.api import schemas
     from lidard.cli import raw as cli_raw
-    from lidard.dsp.estimators import EstimatorName
-    from lidard.dsp.window import WindowName
+    from lidard.dsp.ranging.estimators import EstimatorName
+    from lidard.dsp.spectrum.window import WindowName
     assert cli_raw.ESTIMATORS == get_args(EstimatorName) == get_args(schemas.EstimatorName)
     assert cli_raw.WINDOWS == get_args(WindowName) == get_args(schemas.WindowName)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from lidard.cli import base as cli_base
-from lidard.pointcloud import read_points
+from lidard.outputs import read_points
 from lidard.raw import ReprocessSettings, reprocess
 from lidard.raw.replay import chunk_count
 from tests.helpers.raw_capture import RecordingFake

@@ -116,7 +116,7 @@ def test_a_recorded_quadrature_monitor_is_replayed_with_it(make_capture):
                        syn.dsp.measurement_delay_s(syn.channel("beat").shape[1]))
     assert len(ref) >= 5 and np.array_equal(out.points, ref)
     # without the quadrature channel this monitor (beat above Nyquist) could not be used at all
-    from lidard.dsp.window import DspInputError
+    from lidard.dsp.spectrum.window import DspInputError
     with pytest.raises(DspInputError, match="above Nyquist"):
         syn.dsp.process(syn.channel("beat"), lsb, mzi=syn.channel("mzi"), mzi_delay_s=100e-9, mzi_lsb_v=lsb)
 
@@ -138,9 +138,9 @@ def test_frame_points_move_each_range_back_to_its_t():
 
 
 def test_reprocessing_leaves_no_dsp_buffers_held_by_the_thread(capture):
-    """The frame DSP writes its spectra into per-thread scratch buffers (lidard.dsp.scratch); a
+    """The frame DSP writes its spectra into per-thread scratch buffers (lidard.dsp.spectrum.scratch); a
     reprocessing run in this thread hands them back when it ends, as a scan does."""
-    from lidard.dsp import scratch as scratch_mod
+    from lidard.dsp.spectrum import scratch as scratch_mod
 
     reprocess(capture.path)
     assert getattr(scratch_mod._LOCAL, "bufs", None) is None

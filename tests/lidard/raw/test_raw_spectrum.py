@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from lidard.dsp.cfar import os_cfar_alpha
+from lidard.dsp.detect.cfar import os_cfar_alpha
 from lidard.raw import RawCaptureError, ReprocessSettings, reprocess
 from lidard.raw.spectrum import PixelSpectrum, pixel_spectrum, plot_pixel_spectrum
 

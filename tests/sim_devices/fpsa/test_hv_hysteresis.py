@@ -12,7 +12,7 @@ import pytest
 from drivers.controller import protocol as ctl_p
 from drivers.fpsa import protocol as p
 from lidard.config import CONFIG_DIR, load_config
-from lidard.selftest_analysis import hv_margin_problem, hv_pull_in_problem
+from lidard.instrument.selftest_analysis import hv_margin_problem, hv_pull_in_problem
 from sim_devices.bench.bench import Bench
 from sim_devices.clock import VirtualClock
 from sim_devices.fpsa.device import FpgaConfig, FpgaSim

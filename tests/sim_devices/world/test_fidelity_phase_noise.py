@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lidard.config import load_laser
-from lidard.dsp.estimators import estimate
+from lidard.dsp.ranging.estimators import estimate
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import fidelity as fid
 from sim_devices.world.laser import DfbLaser, triangle_drive

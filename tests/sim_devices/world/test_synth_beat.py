@@ -211,7 +211,7 @@ def test_dc_offset_and_codes_match_the_analog_volts_within_half_an_lsb(ideal_tra
 
 
 def test_hybrid_imbalance_puts_g_sin_of_the_phase_plus_eps_on_q(ideal_traj):
-    """Q = g A sin(dPhi + eps) (lidard.dsp.iqbalance's model), I unchanged, the same hits and phase."""
+    """Q = g A sin(dPhi + eps) (lidard.dsp.ranging.iqbalance's model), I unchanged, the same hits and phase."""
     fs, n = 20e6, 1600
     adc = AdcSpec(fs, n, bits=12, input_range_v=2.0, iq=True, quantize=False)
     hits = HitBatch.from_targets([0, 1, 1], [3.0, 7.5, 22.0], [0.2, 0.15, 0.1], radial_velocity_m_s=[0.5, -2.0, 0.0])
