@@ -5,7 +5,7 @@ protocols, DSP) and prints the real-time factor (hardware frame time / wall time
 The hardware time is the digitizer's trigger clock (virtual clock of the FPGA model, §4.3.3
 settle + triggers per pixel), so it is what the real instrument would take for the same frame.
 
-    python benchmarks/frame.py [--averages 10] [--rows 0:128] [--max-range 2] [--scene ...] [--json]
+    python benchmarks/frame.py [--averages 10] [--rows 0:128] [--max-range 2] [--max-speed M] [--scene ...] [--json]
 
 ``run_frame(...)`` returns the figures as a dict (used by ``python -m benchmarks``). With
 ``limit=True`` it also runs the limit kernel of the same scan (benchmarks/limit.py) in the same
@@ -105,17 +105,20 @@ def _write_ply_timed(pts) -> tuple[float, float]:
 
 
 def run_frame(averages: int = 10, rows: tuple[int, int] = (0, 128), cols: tuple[int, int] = (0, 128),
-              max_range_m: float = 2.0, scene: str = DEFAULT_SCENE, limit: bool = False) -> dict:
+              max_range_m: float = 2.0, scene: str = DEFAULT_SCENE, limit: bool = False,
+              max_speed_mps: float | None = None) -> dict:
     """One linearization and one ROI scan on a fresh embedded bench; wall and hardware times, the
-    stage times, and (``limit``) the limit kernel of the same scan with scan/limit ratios."""
+    stage times, and (``limit``) the limit kernel of the same scan with scan/limit ratios.
+    ``max_speed_mps``: the scan's Doppler band (None: the configuration's ``scan.max_speed_mps``)."""
     cfg = load_config(CONFIG_DIR / "sim.toml")
     inst = open_instrument(cfg, scene_path=scene, bench="embedded")
     try:
         t = time.perf_counter()
         cal = inst.linearize()
         t_cal = time.perf_counter() - t
+        band = {} if max_speed_mps is None else {"max_speed_mps": float(max_speed_mps)}
         req = ScanRequest(pattern="roi", rows=tuple(rows), cols=tuple(cols), averages=averages,
-                          max_range_m=max_range_m)
+                          max_range_m=max_range_m, **band)
         with stage_timers() as acc:
             t, c = time.perf_counter(), time.process_time()
             res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
@@ -159,13 +162,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rows", default="0:128")
     ap.add_argument("--cols", default="0:128")
     ap.add_argument("--max-range", type=float, default=2.0)
+    ap.add_argument("--max-speed", type=float, default=None,
+                    help="the scan's Doppler band in m/s (default: the configuration's scan.max_speed_mps)")
     ap.add_argument("--scene", default=DEFAULT_SCENE)
     ap.add_argument("--limit", action="store_true", help="also run the limit kernel of the same scan, "
                     "then print scan/limit ratios per stage")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     args = ap.parse_args(argv)
     r = run_frame(args.averages, tuple(map(int, args.rows.split(":"))), tuple(map(int, args.cols.split(":"))),
-                  args.max_range, args.scene, limit=args.limit)
+                  args.max_range, args.scene, limit=args.limit, max_speed_mps=args.max_speed)
     if args.json:
         print(json.dumps(r))
         return

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from lidard.config import Monitor, load_laser, load_lasers
-from lidard.dsp.linearize.ilc import linearize
+from lidard.dsp.linearize.ilc import IlcSettings, linearize
+from lidard.dsp.linearize.ilc import ChirpGeometry
 from lidard.instrument.calibration.linearization import MAX_AVERAGES, MAX_ITERATIONS   # the instrument's policy
 from sim_devices.world.laser import DfbLaser, ramp_nonlinearity_hz, triangle_drive
 from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
@@ -39,9 +40,10 @@ def _run(preset, seed=1, averages=32, max_iter=MAX_ITERATIONS, max_averages=MAX_
         return i + 1j * out.mzi_q.astype(np.float64) * adc.lsb_v if quadrature else i
 
     u0 = triangle_drive(EXC_HZ, RAMP_S, FS, laser.static_tuning_hz_per_v)
-    res = linearize(measure, u0, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                    mzi_delay_s=TAU_M, averages=averages, max_iter=max_iter,
-                    max_averages=max_averages, **ilc_kw)   # the instrument's averaging policy
+    res = linearize(measure, u0, ChirpGeometry(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
+                                               mzi_delay_s=TAU_M),
+                    IlcSettings(averages=averages, max_iter=max_iter,
+                                max_averages=max_averages, **ilc_kw))   # the instrument's averaging policy
     return laser, u0, res
 
 

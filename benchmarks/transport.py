@@ -9,12 +9,13 @@ the int16 records out of a byte buffer.
 Here the segment source returns precomputed codes (the world model is not measured) and the
 records have the frame benchmark's geometry (CAL letters at 2 m, one beat channel, 16-bit format,
 anti-alias corner 500 MHz: no filtering; triangle 5 MS/s x 800 samples at 16-bit resolution, or
-``--chirp three_segment`` 40 MS/s x 9,520 samples at 14 bits),
+``--chirp three_segment`` 40 MS/s x 9,520 samples at 14 bits, or ``--chirp default_band`` the
+three-segment chirp at the default 0.4 m/s band: 5 MS/s x 1,190 samples at 16 bits, read 200 at a time),
 read ``per_read`` segments at a time as the scan reads them (its 50 ms safety-check batches:
 31 pixels x 10 averages, or 303 pixels x 1). Prints CPU seconds of the reads and of the limit's
 copy, and their ratio (one process, so the ratio does not move with the machine's load).
 
-    python benchmarks/transport.py [--chirp triangle|three_segment] [--segments 122880] [--per-read 310] [--json]
+    python benchmarks/transport.py [--chirp triangle|three_segment|default_band] [--segments 122880] [--per-read 310] [--json]
 """
 
 from __future__ import annotations
@@ -35,7 +36,10 @@ from sim_devices.usb.backend import SimUsbBackend
 PERIOD_S = 160e-6
 #: record geometries of the frame benchmark's chirps (CAL letters, 2 m): rate, samples per record,
 #: the record resolution the configuration gives at that rate (lidard.config ADC.record_bits)
-GEOMETRIES = {"triangle": (5e6, 800, 16), "three_segment": (40e6, 9520, 14)}
+GEOMETRIES = {"triangle": (5e6, 800, 16), "three_segment": (40e6, 9520, 14),
+              # the default band of config/sim.toml (scan.max_speed_mps 0.4): 5 MS/s x 1,190 samples,
+              # read 20 pixels x 10 averages at a time (50 ms of hardware time)
+              "default_band": (5e6, 1190, 16)}
 
 
 class CodesSource:

@@ -8,7 +8,9 @@ simulation settings.
 
 Rooms: the section models live in :mod:`lidard.config_models.sections`, the profile and
 laser preset models in :mod:`lidard.config_models.presets`; this module composes them into
-:class:`Config`, loads files and applies environment overrides, and re-exports every model.
+:class:`Config`, loads files and applies environment overrides (in :func:`load_config` only), resolves
+the presets a configuration names once into an immutable :class:`ResolvedConfig` (``cfg.resolved``),
+and re-exports every model.
 
 Environment overrides: ``LIDARD__SECTION__KEY=value`` sets ``[section] key`` (value parsed as a TOML
 literal when it parses, else taken as a string), e.g. ``LIDARD__ADC__BITS=12``.
@@ -23,10 +25,11 @@ from __future__ import annotations
 import functools
 import os
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from .config_models.base import Fraction, NonNegFloat, PosFloat, _Model  # noqa: F401  (re-exported)
 from .config_models.presets import (  # noqa: F401  (re-exported: lidard.config is the public path)
@@ -68,6 +71,8 @@ class Config(_Model):
     # too. Kept by model_dump so a config re-validated with an override still names its file.
     path: str | None = None
     base_dir: str = Field(default=str(CONFIG_DIR), exclude=True)
+    # the presets this configuration names, resolved on first use (see resolved)
+    _resolved: tuple[tuple[Any, ...], ResolvedConfig] | None = PrivateAttr(default=None)
 
     @field_validator("profile", "laser")
     @classmethod
@@ -88,18 +93,61 @@ class Config(_Model):
         p = Path(path).expanduser()
         return p if p.is_absolute() else Path(self.base_dir) / p
 
+    @property
+    def resolved(self) -> ResolvedConfig:
+        """The profile, laser preset and optics this configuration names (:func:`resolve`), read and
+        checked once per configuration: every later use is the same immutable object, with no file
+        access. A copy with other presets (``model_copy(update=...)``) resolves its own."""
+        key = (self.base_dir, self.profile, self.lens, self.laser, self.chirp.wavelength_m,
+               self.devices.controller.laser_current_ma)
+        cached = self._resolved
+        if cached is None or cached[0] != key:
+            cached = (key, resolve(self))
+            self._resolved = cached
+        return cached[1]
+
+    # views of ``resolved`` under their older names (no file is read again)
     def load_profile(self) -> Profile:
-        return load_profile(self.profile, Path(self.base_dir) / "profiles")
+        return self.resolved.profile
 
     def load_laser(self) -> LaserPreset:
-        return load_laser(self.laser, Path(self.base_dir) / "profiles")
+        return self.resolved.laser
 
     def optics(self) -> FpsaOptics:
-        path = _profile_path(self.profile, Path(self.base_dir) / "profiles")
-        return _optics(path, _stamp(path), self.lens, self.chirp.wavelength_m)
+        return self.resolved.optics
 
     def link_params(self, profile: Profile | None = None, laser: LaserPreset | None = None) -> LinkParams:
-        return link_params(self, profile or self.load_profile(), laser or self.load_laser())
+        return link_params(self, profile or self.resolved.profile, laser or self.resolved.laser)
+
+
+@dataclass(frozen=True)
+class ResolvedConfig:
+    """What a configuration's names stand for: its scanner ``profile`` (config/profiles/<name>.toml),
+    its ``laser`` preset (config/profiles/lasers.toml) and the FPSA ``optics`` of its lens at its
+    wavelength. Built by :func:`resolve`; a configuration hands out one (:attr:`Config.resolved`)."""
+
+    profile: Profile
+    laser: LaserPreset
+    optics: FpsaOptics
+
+
+def resolve(cfg: Config) -> ResolvedConfig:
+    """Read (once per file version, shared by every configuration) and validate the presets ``cfg``
+    names, and check the file's keys that depend on them: the laser current against the preset's
+    maximum, the lens against the profile's lenses. A ConfigError names the file and the key."""
+    profiles_dir = Path(cfg.base_dir) / "profiles"
+    path = _profile_path(cfg.profile, profiles_dir)
+    profile = _profile_file(path, _stamp(path))
+    laser = load_laser(cfg.laser, profiles_dir)
+    current = cfg.devices.controller.laser_current_ma
+    if current > laser.max_current_ma:
+        raise ConfigError(f"{cfg.source}: devices.controller.laser_current_ma: {current:g} mA is above the maximum "
+                          f"current {laser.max_current_ma:g} mA of laser preset {cfg.laser!r} (max_current_ma)")
+    if cfg.lens is not None and cfg.lens not in profile.lenses:
+        raise ConfigError(f"{cfg.source}: lens: {cfg.lens!r} is not a lens of profile {profile.name}; "
+                          f"allowed: {', '.join(sorted(profile.lenses))}")
+    return ResolvedConfig(profile=profile, laser=laser,
+                          optics=_optics(path, _stamp(path), cfg.lens, cfg.chirp.wavelength_m))
 
 
 def link_params(cfg: Config, profile: Profile, laser: LaserPreset) -> LinkParams:
@@ -214,15 +262,7 @@ def load_config(path: str | os.PathLike | None = None, *, environ: dict[str, str
     except ValidationError as exc:
         raise ConfigError(_format_validation(source, exc)) from None
     if check_presets:
-        profile = cfg.load_profile()
-        laser = cfg.load_laser()
-        if cfg.devices.controller.laser_current_ma > laser.max_current_ma:
-            raise ConfigError(f"{source}: devices.controller.laser_current_ma: "
-                              f"{cfg.devices.controller.laser_current_ma:g} mA is above the maximum current "
-                              f"{laser.max_current_ma:g} mA of laser preset {cfg.laser!r} (max_current_ma)")
-        if cfg.lens is not None and cfg.lens not in profile.lenses:
-            raise ConfigError(f"{source}: lens: {cfg.lens!r} is not a lens of profile {profile.name}; "
-                              f"allowed: {', '.join(sorted(profile.lenses))}")
+        _ = cfg.resolved      # resolved now: a typo in a preset name fails here
     return cfg
 
 
@@ -230,9 +270,9 @@ def available_profiles(profiles_dir: Path = CONFIG_DIR / "profiles") -> list[str
     return sorted(p.stem for p in profiles_dir.glob("*.toml") if p.stem != "lasers")
 
 
-# The presets are read once: every view of a configuration (cfg.load_profile(), cfg.optics(),
-# cfg.load_laser(), from the API, the CLI, the instrument and the bench alike) shares the one parsed,
-# validated (frozen) model of a file, re-read only when the file itself changes (its mtime and size).
+# The preset files are read once: every configuration that names one (resolve, from the API, the CLI,
+# the instrument and the bench alike) shares the one parsed, validated (frozen) model of a file; a
+# configuration resolved after the file changed (its mtime and size) reads the new version.
 def _stamp(path: Path) -> tuple[int, int]:
     st = path.stat()
     return st.st_mtime_ns, st.st_size

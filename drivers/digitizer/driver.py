@@ -7,7 +7,8 @@ configuration); it does not know whether the bus is real or simulated.
 
 Bulk data is read in large transfers (1 MiB by default) into kept transfer buffers and parsed with
 a numpy record dtype (``np.frombuffer``; a read that one transfer fills is parsed in that buffer, and
-the samples are copied out): per-segment work is two crc32 calls, per-sample work is none in Python. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
+the samples are copied out): per-segment work is two crc32 calls, per-sample work is none in Python,
+and the headers come back as columns (``SegmentHeaders``), not one object per segment. A refused control request (STALL) becomes ``DigitizerError`` naming the request;
 timeouts are retried a bounded number of times then ``DeviceTimeout("digitizer", command)``.
 
 Reconnect: with a ``finder`` (``usb.core.find`` for the digitizer's VID:PID again), a transfer that
@@ -22,7 +23,6 @@ from __future__ import annotations
 import array
 import logging
 import time
-import zlib
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -214,12 +214,14 @@ class DigitizerDriver:
         return p.decode_status(self._in(p.Req.GET_STATUS, 16))
 
     def read_segments(self, first: int, count: int,
-                      cfg: p.Config | None = None) -> tuple[list[p.SegmentHeader], np.ndarray]:
+                      cfg: p.Config | None = None) -> tuple[p.SegmentHeaders, np.ndarray]:
         """Read segments ``first .. first+count-1`` of the current acquisition.
 
         Returns (headers, samples) with samples shaped (count, n_channels, record_length), dtype
-        int16 or int8 following the configured format. ``cfg`` (from ``config()``) saves a control
-        round trip when the caller already has it.
+        int16 or int8 following the configured format; ``headers`` is a sequence of
+        ``SegmentHeader`` that also holds each field as an array (``headers.trigger_time_ns``,
+        ``headers.overrange``). ``cfg`` (from ``config()``) saves a control round trip when the
+        caller already has it.
         """
         if count < 1 or first < 0:
             raise InvalidArgument(DEVICE, "read_segments", f"digitizer read_segments(first={first}, count={count}) invalid")
@@ -233,9 +235,7 @@ class DigitizerDriver:
         raw = self._read_stream(rec.itemsize * count, command)
         recs = raw.view(rec)
         self._validate(recs, raw, first, count, cfg, command)
-        cols = [recs[f].tolist() for f in ("index", "trigger_time_ns", "n_samples", "mask", "bits",
-                                            "overrange", "payload_crc32")]
-        headers = [p.SegmentHeader(*vals) for vals in zip(*cols)]
+        headers = p.SegmentHeaders.from_records(recs)   # columns, copied: ``raw`` may be a reused buffer
         samples = np.array(recs["data"], copy=True)     # a copy: ``raw`` may be a reused transfer buffer
         if cfg.bits == 16:
             samples = samples.astype(np.int16, copy=False)
@@ -293,16 +293,13 @@ class DigitizerDriver:
         if not (np.all(recs["n_samples"] == cfg.record_length) and np.all(recs["mask"] == cfg.channel_mask)
                 and np.all(recs["bits"] == cfg.bits)):
             raise DigitizerDataError(DEVICE, command, "segment header does not match configuration")
-        mv = raw.data
-        size = recs.dtype.itemsize
-        crc = zlib.crc32
-        # the expected values as Python ints once (indexing a numpy field per segment cost more
-        # than the crc32 of its payload)
-        header_crc, payload_crc = recs["header_crc32"].tolist(), recs["payload_crc32"].tolist()
-        for i, (hc, pc) in enumerate(zip(header_crc, payload_crc)):
-            o = i * size
-            if crc(mv[o:o + 28]) != hc:
-                raise DigitizerDataError(DEVICE, command, f"segment {first + i} header crc32 mismatch")
-            if crc(mv[o + p.HEADER_LEN:o + size]) != pc:
-                raise DigitizerDataError(DEVICE, command, f"segment {first + i} payload crc32 mismatch")
+        mv, size = raw.data, recs.dtype.itemsize
+        # every segment's two crc32s, then one comparison per field; the first segment that fails
+        # (header before payload, as a segment at a time would find it) names the error
+        bad_header = np.flatnonzero(np.asarray(p.header_crc32s(mv, size, count), np.uint32) != recs["header_crc32"])
+        bad_payload = np.flatnonzero(np.asarray(p.payload_crc32s(mv, size, count), np.uint32) != recs["payload_crc32"])
+        if bad_header.size or bad_payload.size:
+            i = min(bad_header[:1].tolist() + bad_payload[:1].tolist())
+            what = "header" if i in bad_header[:1] else "payload"
+            raise DigitizerDataError(DEVICE, command, f"segment {first + i} {what} crc32 mismatch")
 

@@ -30,8 +30,9 @@ MZI's quadrature output (a 90-degree hybrid or 3x3 coupler): only together with 
 
 All integers little endian. This module is PURE; parsers raise only ``DigitizerProtocolError``.
 Golden bytes: docs/protocols/digitizer.md. Parts: the ids, request codes, channel bits and sample
-formats are ``protocol_format.py`` (re-exported here); this module holds the control payloads and
-the segment stream.
+formats are ``protocol_format.py``, the segment headers one by one and a read's worth as columns, and
+the crc32 fields of a batch, ``protocol_headers.py`` (both re-exported here); this module holds the
+control payloads and the segment stream.
 """
 
 from __future__ import annotations
@@ -65,6 +66,14 @@ from drivers.digitizer.protocol_format import (
     segment_bytes,
     segment_dtype,
     validate_mask,
+)
+from drivers.digitizer.protocol_headers import (
+    HEADER_CRC_SPAN,
+    SegmentHeader,
+    SegmentHeaders,
+    header_column,
+    header_crc32s,
+    payload_crc32s,
 )
 
 
@@ -195,29 +204,6 @@ def decode_config(data: bytes) -> Config:
 # ------------------------------------------------------------------------- segment header
 
 
-@dataclass(frozen=True)
-class SegmentHeader:
-    index: int
-    trigger_time_ns: int
-    n_samples: int
-    channel_mask: int
-    bits: int
-    overrange: int          # bit i = i-th present channel over range
-    payload_crc32: int
-
-    @property
-    def n_channels(self) -> int:
-        return bin(self.channel_mask).count("1")
-
-    @property
-    def payload_len(self) -> int:
-        return self.n_channels * self.n_samples * bytes_per_sample(self.bits)
-
-    @property
-    def trigger_time_s(self) -> float:
-        return self.trigger_time_ns * 1e-9
-
-
 def encode_segment_header(h: SegmentHeader) -> bytes:
     validate_mask(h.channel_mask)
     bytes_per_sample(h.bits)
@@ -326,10 +312,12 @@ class SegmentStreamParser:
 
 
 __all__ = ["ALL_CHANNELS_MASK", "CHANNEL_BITS", "CONFIG_LEN", "Config", "DIGITIZER_PID", "DIGITIZER_VID",
-           "DigitizerProtocolError", "EP_DATA_IN", "HEADER", "HEADER_LEN", "MAGIC", "MAX_BANDWIDTH_HZ",
-           "MIN_RESOLUTION_BITS", "REQTYPE_IN", "REQTYPE_OUT", "Req", "SegmentHeader", "SegmentStreamParser",
+           "DigitizerProtocolError", "EP_DATA_IN", "HEADER", "HEADER_CRC_SPAN", "HEADER_LEN", "MAGIC", "MAX_BANDWIDTH_HZ",
+           "MIN_RESOLUTION_BITS", "REQTYPE_IN", "REQTYPE_OUT", "Req", "SegmentHeader", "SegmentHeaders",
+           "SegmentStreamParser",
            "State", "Status", "VERSION", "bytes_per_sample", "channel_mask", "channels_of",
            "check_resolution", "dec_read_segments", "dec_u32", "dec_u64", "decode_config", "decode_segment",
            "decode_segment_header", "decode_status", "enc_read_segments", "enc_u32", "enc_u64",
-           "encode_config", "encode_segment", "encode_segment_header", "encode_status", "overrange_flags",
+           "encode_config", "encode_segment", "encode_segment_header", "encode_status", "header_column",
+           "header_crc32s", "overrange_flags", "payload_crc32s",
            "sample_dtype", "segment_bytes", "segment_dtype", "validate_mask"]

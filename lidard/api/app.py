@@ -75,7 +75,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
                 raise
         if st.recovered:
             log.warning("%d scan(s) from a previous run marked interrupted", st.recovered)
-        optics = cfg.optics()
+        optics = cfg.resolved.optics
         worker = ScanWorker(inst, st, laser=cfg.laser, max_queue=max_queue,
                             progress_interval_s=progress_interval_s, meta=_scan_meta(cfg, inst),
                             optics=optics, recalibrate_delta_c=cfg.scan.recalibrate_delta_c,
@@ -128,7 +128,7 @@ def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str 
 
 def _scan_meta(cfg: Config, inst: Instrument) -> dict:
     """What every scan's sidecar records about the set-up it was measured with."""
-    profile = cfg.load_profile()
+    profile = cfg.resolved.profile
     meta = {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
             "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
             "detector": cfg.detector.model_dump(), "config": cfg.source}

@@ -123,7 +123,7 @@ def load_config(path: str | None, profile: str | None = None):
         data = cfg.model_dump()
         data.update(profile=profile, lens=None, source=cfg.source, base_dir=cfg.base_dir)
         cfg = Config.model_validate(data)
-        cfg.load_profile()
+        _ = cfg.resolved      # the swapped-in profile resolved (and checked) now
     return cfg
 
 

@@ -37,7 +37,7 @@ def sim_config(args):
 def run_meta(cfg, scene_path: str | None) -> dict:
     """The sidecar's run description: what the daemon's app records, plus the scene on a bench."""
     from ..outputs import scene_identity
-    profile = cfg.load_profile()
+    profile = cfg.resolved.profile
     scene = scene_path or str(cfg.resolve_path(cfg.sim.scene))
     return {"profile": profile.name, "lens": cfg.lens or profile.default_lens, "laser": cfg.laser,
             "chirp": cfg.chirp.model_dump(), "adc": cfg.adc.model_dump(),
@@ -80,7 +80,7 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
         setup = instrument_setup(cfg, inst)
         if use_cache and factory:
             _seed_records(setup, store)
-        worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1, optics=cfg.optics(),
+        worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1, optics=cfg.resolved.optics,
                             recalibrate_delta_c=cfg.scan.recalibrate_delta_c, setup=setup)
         if factory and cfg.sim.factory_calibration and inst.simulated:
             worker.factory = _factory(cfg, scene_path, "the user's cache" if use_cache else

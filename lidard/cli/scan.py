@@ -276,7 +276,7 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[int | None]) ->
     from .embedded import embedded, resolve, sim_config
     cfg = sim_config(args)
     req = sim_request(body, cfg)
-    check_plan(req, cfg.optics())  # before the bench starts
+    check_plan(req, cfg.resolved.optics)  # before the bench starts
     with embedded(args, cfg, scene_path=resolve(args.scene), factory=not args.uncalibrated) as (worker, store, inst):
         rec = worker.submit_scan(req)
         worker.subscribe(rec.id, bar)

@@ -384,7 +384,7 @@ class _FrameProcess(FrameGeometry, Protocol):
 
 
 def process_compensated(dsp: _FrameProcess, beat: np.ndarray, mzi: np.ndarray, lsb_v: float = 1.0, *,
-                        mzi_delay_s: float, mzi_lsb_v: float = 1.0):
+                        mzi_delay_s: float, mzi_lsb_v: float = 1.0) -> tuple[Any, CompensatedFrameInfo]:
     """``dsp.process(beat, lsb_v, mzi=mzi, ...)`` (a FrameResult) and which M the gate used
     (a :class:`CompensatedFrameInfo`)."""
     res = dsp.process(beat, lsb_v, mzi=mzi, mzi_delay_s=mzi_delay_s, mzi_lsb_v=mzi_lsb_v)

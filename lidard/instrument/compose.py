@@ -79,7 +79,7 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     ctrl = LaserHvController(host, port, device_id=d.controller.device_id, timeout_s=d.controller.timeout_s,
                              # the laser preset's absolute maximum caps the controller's limit too
                              limits=Limits(max_laser_current_ma=min(d.controller.max_laser_current_ma,
-                                                                    cfg.load_laser().max_current_ma),
+                                                                    cfg.resolved.laser.max_current_ma),
                                            max_hv_v=d.controller.max_hv_v, tec_range_c=(15.0, 40.0)),
                              sleep=sleep, busy_retries=3)
     awg_ids = _usb_ids(d.awg.usb, (awg_p.AWG_VID, awg_p.AWG_PID), "awg")

@@ -70,8 +70,8 @@ class LidarInstrument:
                  sleep: Callable[[float], object] = time.sleep, on_close: Callable[[], None] | None = None,
                  now: Callable[[], float] = time.monotonic, sim: SimHooks | None = None):
         self.cfg = cfg
-        self.profile = cfg.load_profile()
-        self.laser = cfg.load_laser()
+        self.profile = cfg.resolved.profile
+        self.laser = cfg.resolved.laser
         self.optics = self.profile.optics(cfg.lens, cfg.chirp.wavelength_m)
         self.registry = DeviceRegistry(fpsa=fpsa, awg=awg, digitizer=digitizer, controller=controller)
         self.simulated = simulated

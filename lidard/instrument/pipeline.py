@@ -1,10 +1,18 @@
-"""Hand batches to DSP worker threads through a bounded queue; take the results back in order.
+"""Hand batches to DSP workers through a bounded queue; take the results back in order.
 
 The acquisition loop (:mod:`.scan_loop`) reads the digitizer, the frame DSP turns the records into
 points. Done in series on one thread, a scan uses one core while the other idles (the simulated
-bench's synthesis, the transport and the DSP take turns). Here the DSP runs on ``workers`` threads:
-numpy's FFTs, ufuncs and random fills release the GIL, so the next read (and, on the simulated bench,
-its synthesis) proceeds while a batch is in the DSP.
+bench's synthesis, the transport and the DSP take turns). Two ways to run the DSP beside the reads:
+
+* :class:`ProcessDspPipeline`: on the process's DSP worker processes (:mod:`lidard.dsp_pool`), what a
+  scan of several batches uses on two cores or more. The DSP's Python parts hold the GIL for about a
+  quarter of its CPU; in worker threads they contend with the read loop, the transport and the
+  bench's synthesis (a scan on two cores cost ~35 % more CPU than on one), in a process they do not.
+* :class:`DspPipeline`: on ``workers`` threads (numpy's FFTs and ufuncs release the GIL), what a
+  process limited to one core uses (a worker process there would only add its start-up), or a second
+  user while the pool is leased.
+
+Both have the same contract:
 
 * Bounded: :meth:`DspPipeline.submit` blocks while ``depth`` batches wait for a worker, so the raw
   samples held are at most ``depth + workers`` batches however far the DSP falls behind
@@ -13,18 +21,24 @@ its synthesis) proceeds while a batch is in the DSP.
   so points are merged in pixel order.
 * Errors: a batch whose processing raised gives its exception at its place in the order (the
   results before it first), on the acquisition thread, as a synchronous DSP would have.
-* Each worker drops its per-thread DSP scratch buffers (lidard.dsp.spectrum.scratch) when it ends.
+* Each worker drops its DSP scratch buffers (lidard.dsp.spectrum.scratch) when the scan's pipeline closes.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import queue
 import threading
 from typing import Any
 from collections.abc import Callable
 
+import numpy as np
+
 from ..dsp.spectrum.scratch import release as release_scratch
+from ..dsp_pool import DspPool, DspWorkerLost, Slot, dsp_pool, message_id
+
+log = logging.getLogger(__name__)
 
 _STOP = object()
 
@@ -119,3 +133,132 @@ class DspPipeline:
             self._q.put(_STOP)
         for t in threads:
             t.join()
+
+
+class ProcessDspPipeline:
+    """The same contract as :class:`DspPipeline` (bounded, in order, errors in place) on the process's
+    DSP pool (:mod:`lidard.dsp_pool`): a batch's samples go to a worker through a shared-memory slot, its
+    frame result comes back and ``finish(result, meta)`` turns it into the caller's value here.
+
+    At most ``2 x workers`` batches are in the workers (one running and one waiting each) and each
+    holds a slot, so the raw samples held stay bounded however far the DSP falls behind; the slots
+    are freed when the pipeline closes. The pool is leased for the pipeline's life (a second user at
+    the same time, e.g. a replay during a scan, gets None from :meth:`open` and uses threads)."""
+
+    def __init__(self, pool: DspPool, dsp, *, lsb_v: float, mzi_delay_s: float,
+                 finish: Callable[[Any, Any], Any]):
+        self._pool, self._finish = pool, finish
+        self._record = dsp.to_record()
+        self._token = object()
+        self._lsb_v, self._mzi_delay_s = lsb_v, mzi_delay_s
+        self._free: list[Slot] = []
+        self._busy: dict[int, tuple[int, Slot, Any]] = {}      # message id -> (seq, its slot, its meta)
+        self._results: dict[int, tuple[bool, Any]] = {}
+        self._submitted = 0
+        self._out = 0
+        self._error: BaseException | None = None
+        self._closed = False
+        self._capacity = 2 * len(pool.workers)
+
+    @classmethod
+    def open(cls, dsp, **kw) -> ProcessDspPipeline | None:
+        pool = dsp_pool()
+        if pool is None or not pool.lease():
+            return None
+        return cls(pool, dsp, **kw)
+
+    @property
+    def in_flight(self) -> int:
+        return self._submitted - self._out
+
+    def _take(self, timeout: float | None) -> None:
+        for mid, ok, value in self._pool.receive(timeout):
+            entry = self._busy.pop(mid, None)
+            if entry is None:        # the answer to a message whose sending was interrupted: not ours
+                continue
+            seq, slot, meta = entry
+            self._free.append(slot)
+            self._results[seq] = (ok, (value, meta) if ok else value)
+
+    def submit(self, fields: dict[str, list[np.ndarray]], meta: Any) -> None:
+        """Join ``fields`` (the batch's sample arrays, in parts) into a free slot and hand it to the
+        least busy worker; blocks while every slot is in a worker (back-pressure)."""
+        if self._closed:
+            raise RuntimeError("ProcessDspPipeline: submit after close")
+        self._take(0)
+        while len(self._busy) >= self._capacity:
+            self._take(None)
+        need = Slot.size_of(fields)
+        slot = next((s for s in self._free if s.nbytes >= need), None)
+        if slot is None:
+            if len(self._free) + len(self._busy) >= self._capacity and self._free:
+                self._free.pop(0).free()        # too small for this batch: replaced, not added
+            slot = Slot(need)
+        else:
+            self._free.remove(slot)
+        layout = slot.write(fields)
+        mid = message_id()
+        w = min(self._pool.workers, key=lambda w: len(w.outstanding))
+        try:
+            if w.scan_token is not self._token:
+                self._pool.send(w, ("dsp", self._record))
+                w.scan_token = self._token
+            self._pool.send(w, ("batch", mid, slot.name, layout, self._lsb_v, self._mzi_delay_s))
+        except BaseException:
+            # not sent, or half sent (a Ctrl-C inside the write): the slot is never reused, and the
+            # pool, whose pipe may now be out of step, is replaced before its next user
+            slot.free()
+            self._pool.broken = True
+            raise
+        w.outstanding.add(mid)
+        self._busy[mid] = (self._submitted, slot, meta)
+        self._submitted += 1
+
+    def ready(self, wait: bool = False) -> list[Any]:
+        """As :meth:`DspPipeline.ready`: the finished results in order, an error at its place."""
+        if self._error is not None:
+            exc, self._error = self._error, None
+            raise exc
+        if not self._closed:      # once closed every answer is in (and the pool may be another's)
+            self._take(0)
+        out: list[Any] = []
+        while self._out < self._submitted:
+            if self._out not in self._results:
+                if not wait or self._closed:
+                    break
+                self._take(None)
+                continue
+            ok, value = self._results.pop(self._out)
+            self._out += 1
+            if not ok:
+                if out:
+                    self._error = value
+                    return out
+                raise value
+            out.append(self._finish(*value))
+        return out
+
+    def close(self) -> None:
+        """No more batches; once none is in a worker, the slots are freed, the workers drop the scan's
+        scratch buffers and the pool is free for the next user (the results stay to be taken)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            while self._busy and not self._pool.broken:
+                self._take(None)
+            for seq, slot, _ in self._busy.values():    # a broken pool: what it held is lost
+                self._results[seq] = (False, DspWorkerLost("the DSP worker pool broke while it held this batch"))
+                self._free.append(slot)
+            self._busy.clear()
+            for w in self._pool.workers if not self._pool.broken else ():
+                if w.scan_token is self._token:
+                    self._pool.send(w, ("release",))
+                    w.scan_token = None
+        except DspWorkerLost as exc:
+            log.warning("%s", exc)
+        finally:
+            for s in self._free:
+                s.free()
+            self._free = []
+            self._pool.unlease()

@@ -7,8 +7,10 @@ each pixel's beam direction (the FPSA optics of §4.3.4 map row/column to a dire
 The digitizer is read in short batches (the safety check wants short reads), but the DSP wants long
 ones (its per-call set-up costs as much as many pixels), so :class:`PointBuffer` holds raw batches
 until ``flush_bytes`` are together: memory stays bounded by one buffer, never a frame of raw samples.
-With ``workers`` the batches go to DSP worker threads (:class:`.pipeline.DspPipeline`: bounded, in
-order) and the reads go on meanwhile; the points keep the pixel order.
+With ``processes`` the batches go to the process's DSP worker processes (:class:`.pipeline.ProcessDspPipeline`,
+:mod:`lidard.dsp_pool`), with ``workers`` (or when no pool is to be had) to DSP worker threads
+(:class:`.pipeline.DspPipeline`); either is bounded and in order, and the reads go on meanwhile; the
+points keep the pixel order and are the serial DSP's bit for bit.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 from ..dsp.frame import FrameDsp
 from ..dsp.spectrum.scratch import release as release_scratch
 from ..raw.points import frame_points
-from .pipeline import DspPipeline
+from .pipeline import DspPipeline, ProcessDspPipeline
 from .types import POINT_DTYPE
 
 log = logging.getLogger(__name__)
@@ -50,8 +52,9 @@ class PointBuffer:
     """Collects raw batches, runs the DSP once ``flush_bytes`` are together, keeps the points."""
 
     def __init__(self, dsp: FrameDsp, optics, *, lsb_v: float, mzi_delay_s: float, flush_bytes: int,
-                 zero_offset_m: float = 0.0, workers: int = 0):
-        """``workers``: DSP threads (0: the DSP runs in :meth:`flush`, on the caller's thread)."""
+                 zero_offset_m: float = 0.0, workers: int = 0, processes: bool = False):
+        """``workers``: DSP threads (0: the DSP runs in :meth:`flush`, on the caller's thread);
+        ``processes``: the process's DSP pool instead, when it has one free (else ``workers`` threads)."""
         self.dsp = dsp
         self.zero_offset_m = zero_offset_m
         self.optics = optics
@@ -62,7 +65,11 @@ class PointBuffer:
         self._pending_bytes = 0
         self._chunks: list[np.ndarray] = []
         self._handed_over = 0
-        self._pipe = DspPipeline(self._process, workers) if workers > 0 else None
+        self._pipe: DspPipeline | ProcessDspPipeline | None = None
+        if processes:
+            self._pipe = ProcessDspPipeline.open(dsp, lsb_v=lsb_v, mzi_delay_s=mzi_delay_s, finish=self._finish)
+        if self._pipe is None and workers > 0:
+            self._pipe = DspPipeline(self._process, workers)
 
     def _collect(self, wait: bool = False) -> None:
         """Move the DSP workers' finished batches (in order) to the points; a worker's error is raised."""
@@ -94,6 +101,12 @@ class PointBuffer:
         if not self._pending:
             return
         pend, self._pending, self._pending_bytes = self._pending, [], 0
+        if isinstance(self._pipe, ProcessDspPipeline):     # joined straight into the worker's slot
+            big = {f: [getattr(b, f) for b in pend] for f in ("beat", "mzi", "mzi_q", "beat_q")
+                   if getattr(pend[0], f) is not None}
+            meta = tuple(_joined(pend, f) for f in ("pixels", "t_pix_s", "clipped")) + (pend[0].beat.shape[1],)
+            self._pipe.submit(big, meta)
+            return
         job = RawBatch(*(_joined(pend, f.name) for f in dataclasses.fields(RawBatch)))
         del pend
         if self._pipe is None:
@@ -107,6 +120,12 @@ class PointBuffer:
                                mzi_q=b.mzi_q, beat_q=b.beat_q)
         return points_from(res, self.optics, b.pixels, b.t_pix_s, b.clipped, self.zero_offset_m,
                            delay_s=self.dsp.measurement_delay_s(b.beat.shape[1]))
+
+    def _finish(self, res, meta: tuple) -> np.ndarray:
+        """A worker process's frame result into point records (as :meth:`_process` does)."""
+        pixels, t_pix, clipped, averages = meta
+        return points_from(res, self.optics, pixels, t_pix, clipped, self.zero_offset_m,
+                           delay_s=self.dsp.measurement_delay_s(averages))
 
     def drain(self) -> None:
         """Wait for the batches in the DSP workers (their points join; an error is raised)."""

@@ -9,9 +9,10 @@
   (:mod:`.safety`) after each read (the safety watch also checks on its own thread, on wall time); a lost acquisition is resumed from the first pixel not yet read
   (at most ``RESUMES`` times); a device that stays down fails the scan with :class:`ScanFailed`
   carrying the points so far;
-* DSP -> points (:mod:`.points`): batches collected up to :func:`dsp_batch_bytes`, handed to DSP worker
-  threads through a bounded queue (:mod:`.pipeline`; the next read goes on meanwhile), kept as points
-  in pixel order.
+* DSP -> points (:mod:`.points`): batches collected up to :func:`dsp_batch_bytes`, handed to the DSP's
+  worker processes (:mod:`lidard.dsp_pool`, one pool per process reused by every scan; threads on one
+  core) through a bounded queue (:mod:`.pipeline`; the next read goes on meanwhile), kept as points in
+  pixel order.
 
 The run's state lives in one :class:`ScanRun` context passed between the stages.
 """
@@ -24,6 +25,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from drivers.digitizer.protocol_headers import header_column
 
 from ..config import Config
 from ..dsp.frame import FrameDsp
@@ -100,9 +103,14 @@ def plan_scan(cfg: Config, optics, request: ScanRequest, mzi_delay_s: float | No
     return ScanPlan(pixels, avg, pn_on, tau_m, adc, acq, sig.dsp, cfg.adc.input_range_v / 2 ** adc.bits, quad)
 
 
+def pixel_bytes(p: ScanPlan) -> int:
+    """Raw bytes a pixel's segments take (every channel)."""
+    return p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
+
+
 def batch_pixels(cfg: Config, p: ScanPlan) -> int:
     """Pixels per read: bounded by BATCH_BYTES of raw samples and SAFETY_CHECK_S of hardware time."""
-    bytes_per_pix = p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
+    bytes_per_pix = pixel_bytes(p)
     pixel_s = p.averages * cfg.chirp.period_s + cfg.scan.settle_s
     return max(1, min(p.n_pixels, BATCH_BYTES // max(1, bytes_per_pix), int(SAFETY_CHECK_S / pixel_s)))
 
@@ -110,8 +118,7 @@ def batch_pixels(cfg: Config, p: ScanPlan) -> int:
 def dsp_batch_bytes(p: ScanPlan, workers: int) -> int:
     """Raw bytes per DSP batch: a few batches per worker over the scan, so that reads and DSP overlap
     from the start, within [DSP_MIN_BYTES, BATCH_BYTES]."""
-    bytes_per_pix = p.averages * p.adc.record_length * (1 if p.adc.bits == 8 else 2) * len(p.acquisition.channels)
-    return int(min(BATCH_BYTES, max(DSP_MIN_BYTES, p.n_pixels * bytes_per_pix // (2 * workers + 2))))
+    return int(min(BATCH_BYTES, max(DSP_MIN_BYTES, p.n_pixels * pixel_bytes(p) // (2 * workers + 2))))
 
 
 @dataclass
@@ -149,8 +156,10 @@ class ScanLoop:
                       self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
         workers = dsp_workers()
+        flush = dsp_batch_bytes(p, workers)
+        # the DSP pool's processes for a scan of more than one batch (one batch: nothing to overlap)
         run = self.new_run(p, (calibration.meta or {}).get("id") if calibration else None,
-                           flush_bytes=dsp_batch_bytes(p, workers), workers=workers)
+                           flush_bytes=flush, workers=workers, processes=p.n_pixels * pixel_bytes(p) > flush)
         try:
             self.safety.bring_up()
             try:
@@ -181,11 +190,13 @@ class ScanLoop:
         finally:
             run.points.close()      # the DSP workers end on every path (after result(): nothing left)
 
-    def new_run(self, p: ScanPlan, calibration_id: Any = None, *, flush_bytes: int, workers: int = 0) -> ScanRun:
+    def new_run(self, p: ScanPlan, calibration_id: Any = None, *, flush_bytes: int, workers: int = 0,
+                processes: bool = False) -> ScanRun:
         """The context of one run of ``p``: its points computed with the calibrations in use."""
         return ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
                                       mzi_delay_s=p.mzi_delay_s, flush_bytes=flush_bytes,
-                                      zero_offset_m=self.applied.zero_offset_m, workers=workers),
+                                      zero_offset_m=self.applied.zero_offset_m, workers=workers,
+                                      processes=processes),
                        calibration_id=calibration_id)
 
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
@@ -258,7 +269,7 @@ class ScanLoop:
     def _accept(self, run: ScanRun, acq: Acquisition, headers: list, samples: np.ndarray, bp: int) -> None:
         p = run.plan
         avg, rl = p.averages, p.adc.record_length
-        t_ns = np.array([h.trigger_time_ns for h in headers], dtype=np.float64)
+        t_ns = header_column(headers, "trigger_time_ns").astype(np.float64)
         if run.hw_t0_ns is None:
             # after a resume the new run's clock continues where the last pixel read ended
             run.hw_t0_ns = t_ns[0] - run.t_shift_s * 1e9
@@ -268,7 +279,7 @@ class ScanLoop:
         mzi = samples[:, acq.channel_index("mzi"), :].reshape(bp, avg, rl) if p.phase_noise else None
         mzi_q = samples[:, acq.channel_index("mzi_q"), :].reshape(bp, avg, rl) if p.quadrature else None
         # a clipped beat puts harmonics and a wrong amplitude into the spectrum
-        over = np.array([h.overrange for h in headers], dtype=np.int64).reshape(bp, avg) != 0
+        over = header_column(headers, "overrange").reshape(bp, avg) != 0
         clipped = over.any(axis=1)
         run.faults["overrange_segments"] += int(over.sum())
         run.faults["overrange_pixels"] += int(clipped.sum())

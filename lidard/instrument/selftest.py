@@ -58,7 +58,7 @@ def run_selftest(cfg: Config, optics, lifecycle: AcquisitionLifecycle, safety: S
         finally:
             safety.bring_down()
     report = analyse_selftest(volts[:len(bonded)], volts[len(bonded):], bonded, cols, r0, c0)
-    return with_hv_check(report, volts, hv_v, cfg.load_profile(), lsb)
+    return with_hv_check(report, volts, hv_v, cfg.resolved.profile, lsb)
 
 
 def with_hv_check(report: dict[str, Any], tap_v: np.ndarray, hv_v: float, profile, lsb_v: float) -> dict[str, Any]:

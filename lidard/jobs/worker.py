@@ -19,6 +19,7 @@ from typing import Any
 from collections.abc import Callable
 
 from ..instrument.calibration.applied import AppliedCalibrations
+from ..dsp_pool import warm as warm_dsp_pool
 from ..instrument.healthcheck import health_record
 from ..instrument.protocol import Instrument
 from ..instrument.types import CalibrationResult, ScanRequest
@@ -221,6 +222,8 @@ class ScanWorker:
 
     # -- the worker ----------------------------------------------------------------------------
     def _run(self) -> None:
+        if self.setup is not None:      # a real instrument (not a test double): its first scan finds the
+            warm_dsp_pool()             # DSP worker processes started (lidard.dsp_pool)
         while True:
             with self._cv:
                 while not self._queue and not self._stopping:

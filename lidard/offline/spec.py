@@ -216,12 +216,9 @@ def _point(source: str, base: Config, overrides: dict[str, Scalar], where: str) 
         msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
         raise SweepSpecError(f"{source}: {where}.{loc}: {msg} (got {e.get('input')!r}; in {shown})") from None
     try:
-        profile, laser = cfg.load_profile(), cfg.load_laser()
-        if cfg.lens is not None and cfg.lens not in profile.lenses:
-            raise ConfigError(f"lens: {cfg.lens!r} is not a lens of profile {profile.name}; "
-                              f"allowed: {', '.join(sorted(profile.lenses))}")
-    except ConfigError as exc:
-        raise SweepSpecError(f"{source}: {where}: {exc} (in {shown})") from None
+        profile, laser = cfg.resolved.profile, cfg.resolved.laser
+    except ConfigError as exc:    # named by key: the point's source is said once, here
+        raise SweepSpecError(f"{source}: {where}: {str(exc).removeprefix(cfg.source + ': ')} (in {shown})") from None
     # the configuration's content, not where its file lies: a sweep's tasks (and their seeds) are the
     # same in any checkout or data directory
     blob = json.dumps({"config": cfg.model_dump(mode="json", exclude={"path"}), "profile": profile.model_dump(mode="json"),

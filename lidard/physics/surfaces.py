@@ -56,7 +56,7 @@ def _in_plane_axes(normal: np.ndarray, up: ArrayLike | None = None) -> tuple[np.
 
 
 def distance_to_plane(points: ArrayLike, origin: ArrayLike, normal: ArrayLike, *,
-                      size: tuple[float, float] | None = None, up: ArrayLike | None = None, signed: bool = False) -> np.ndarray:
+                      size: tuple[float, float] | np.ndarray | None = None, up: ArrayLike | None = None, signed: bool = False) -> np.ndarray:
     """Distance to the plane through ``origin`` with normal ``normal`` (any length).
 
     ``size = (w, h)``: only the w x h rectangle centred on ``origin`` (h along ``up`` projected into

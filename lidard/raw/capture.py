@@ -254,21 +254,31 @@ class RawCapture:
         # a chunk without a written pixel is not committed data
         self.n_chunks = min(int(self.attrs["chunks_complete"]), -(-self.n_pixels // max(self.chunk_pixels, 1)))
         self.complete = bool(self.attrs["complete"])
+        self._arrays: dict[str, zarr.Array] = {}    # opened once: a lookup reads the array's metadata
+
+    def _array(self, name: str) -> zarr.Array:
+        a = self._arrays.get(name)
+        if a is None:
+            a = self._arrays[name] = _arr(self._g, name)
+        return a
 
     def chunk(self, index: int) -> RawChunk:
-        if not 0 <= index < self.n_chunks:
-            raise RawCaptureError(f"raw capture {self.path}: chunk {index} out of range "
-                                  f"(0..{self.n_chunks - 1} committed)")
-        p0 = index * self.chunk_pixels
-        p1 = min(p0 + self.chunk_pixels, self.n_pixels)
+        return self.chunks(index, index + 1)
+
+    def chunks(self, first: int, stop: int) -> RawChunk:
+        """Chunks ``first`` .. ``stop - 1`` as one (a replay task's: one read per array, not per chunk)."""
+        if not 0 <= first < stop <= self.n_chunks:
+            raise RawCaptureError(f"raw capture {self.path}: chunk {first if first < 0 or first >= self.n_chunks else stop - 1} "
+                                  f"out of range (0..{self.n_chunks - 1} committed)")
+        p0 = first * self.chunk_pixels
+        p1 = min(stop * self.chunk_pixels, self.n_pixels)
         s0, s1 = p0 * self.averages, p1 * self.averages
-        g = self._g
         seg, pix = slice(s0, s1), slice(p0, p1)
 
         def read(name: str, rows: slice) -> np.ndarray:
-            return np.asarray(_arr(g, name)[rows])
+            return np.asarray(self._array(name)[rows])
 
-        return RawChunk(index=index, segments=read("segments", seg), overrange=read("overrange", seg),
+        return RawChunk(index=first, segments=read("segments", seg), overrange=read("overrange", seg),
                         trigger_time_ns=read("trigger_time_ns", seg), pixels=read("pixels", pix),
                         directions=read("directions", pix), t_s=read("t_s", pix))
 

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from drivers.digitizer.protocol_headers import header_column
+
 from ..dsp.frame import FrameDsp
 from .capture import RawWriter, chunk_pixels_for
 from .replay import frame_dsp_attrs
@@ -80,8 +82,8 @@ class ScanRecorder:
                 s = s[:, [order.index(c) for c in self.channels], :]
             if s.dtype != np.int16 and s.dtype.kind == "i" and s.dtype.itemsize < 2:
                 s = s.astype(np.int16)   # 8-bit records: widened without change
-            tt = np.array([int(h.trigger_time_ns) for h in headers], dtype=np.int64)
-            ov = np.array([bool(h.overrange) for h in headers], dtype=np.uint8)
+            tt = header_column(headers, "trigger_time_ns")
+            ov = (header_column(headers, "overrange") != 0).astype(np.uint8)
             self.writer.append(s, tt, ov, t_pix_s)
             self.pixels_recorded += len(t_pix_s)
         except Exception as exc:

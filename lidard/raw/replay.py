@@ -145,36 +145,35 @@ def task_count(raw_path: str | Path) -> int:
     return -(-cap.n_chunks // _chunks_per_task(cap))
 
 
-def _joined(chunks: list[RawChunk]) -> RawChunk:
-    if len(chunks) == 1:
-        return chunks[0]
-    def cat(name: str) -> np.ndarray:
-        return np.concatenate([getattr(c, name) for c in chunks])
-
-    return RawChunk(index=chunks[0].index, segments=cat("segments"), overrange=cat("overrange"),
-                    trigger_time_ns=cat("trigger_time_ns"), pixels=cat("pixels"), directions=cat("directions"),
-                    t_s=cat("t_s"))
-
-
-def reprocess_task(raw_path: str | Path, task_index: int, settings: ReprocessSettings | None = None) -> np.ndarray:
-    """Points (POINT_DTYPE) of one task (its chunks in one DSP call). Picklable arguments."""
+def reprocess_task(raw_path: str | Path, task_index: int, settings: ReprocessSettings | None = None,
+                   chunks_per_task: int | None = None) -> np.ndarray:
+    """Points (POINT_DTYPE) of one task (its chunks in one DSP call). Picklable arguments;
+    ``chunks_per_task``: the tasks' cut as the caller counted them (default: from TASK_BYTES here)."""
     cap = RawCapture(raw_path)
-    k = _chunks_per_task(cap)
+    k = int(chunks_per_task) if chunks_per_task else _chunks_per_task(cap)
     first = int(task_index) * k
-    chunks = [cap.chunk(i) for i in range(first, min(first + k, cap.n_chunks))]
-    if not chunks:
+    if not 0 <= first < cap.n_chunks:
         raise RawCaptureError(f"raw capture {cap.path}: task {task_index} out of range")
-    return replay_dsp(cap.attrs, settings).points(_joined(chunks), cap.channels, cap.averages)
+    return replay_dsp(cap.attrs, settings).points(cap.chunks(first, min(first + k, cap.n_chunks)), cap.channels,
+                                                  cap.averages)
 
 
 def local_map(fn, *iterables):
-    """``map`` on one thread per core this process may use (the DSP releases the GIL in its numpy
-    kernels), results in order."""
+    """``map`` on the process's DSP worker processes (:mod:`lidard.dsp_pool`: one per core
+    this process may use, started once and reused; ``fn`` must be importable by name), results in
+    order; on one thread per core when there is no pool to be had (one core, or it is busy with a scan)."""
+    from ..dsp_pool import dsp_pool
+    args = list(zip(*iterables))
+    pool = dsp_pool() if len(args) > 1 else None
+    if pool is not None and pool.lease():
+        try:
+            return pool.map(fn, args)
+        finally:
+            pool.unlease()
     try:
         workers = max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
         workers = os.cpu_count() or 1
-    args = list(zip(*iterables))
     if workers == 1 or len(args) < 2:
         return [fn(*a) for a in args]
     # the pool's threads end with the map, and their scratch buffers (thread-local) with them
@@ -206,9 +205,10 @@ def reprocess(raw_path: str | Path, settings: ReprocessSettings | None = None, *
     t0 = time.perf_counter()
     cap = RawCapture(raw_path)
     replay = replay_dsp(cap.attrs, settings)       # validate before any task runs
-    n = -(-cap.n_chunks // _chunks_per_task(cap))
+    k = _chunks_per_task(cap)         # cut here and passed on: a worker process has its own TASK_BYTES
+    n = -(-cap.n_chunks // k)
     try:
-        parts = list((map_fn or local_map)(reprocess_task, [str(cap.path)] * n, range(n), [settings] * n))
+        parts = list((map_fn or local_map)(reprocess_task, [str(cap.path)] * n, range(n), [settings] * n, [k] * n))
     finally:
         release_scratch()   # the DSP's per-thread buffers (lidard.dsp.spectrum.scratch) of a local map: none held idle
     points = np.concatenate(parts) if parts else np.zeros(0, POINT_DTYPE)

@@ -49,7 +49,7 @@ def config_key(cfg) -> str:
     for k in _NOT_IN_KEY:
         data.pop(k, None)
     data.get("sim", {}).pop("scene", None)
-    data["laser_preset"] = cfg.load_laser().model_dump(mode="json")
+    data["laser_preset"] = cfg.resolved.laser.model_dump(mode="json")
     data["cache_format"] = FORMAT_VERSION
     blob = json.dumps(data, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:32]

@@ -155,8 +155,8 @@ class Bench:
                 validate_fault(entry.get("kind"), params)
             except ValueError as exc:
                 raise ConfigError(f"{cfg.source}: sim.faults: entry {i}: {exc}") from None
-        self.profile = cfg.load_profile()
-        self.laser_preset = cfg.load_laser()
+        self.profile = cfg.resolved.profile
+        self.laser_preset = cfg.resolved.laser
         if scene is None:
             scene = Scene.from_toml(cfg.resolve_path(cfg.sim.scene))
         self.seed = cfg.sim.seed if seed is None else int(seed)

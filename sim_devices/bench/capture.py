@@ -20,7 +20,6 @@ white detector noise.
 
 from __future__ import annotations
 
-import hashlib
 import threading
 from dataclasses import dataclass
 
@@ -114,7 +113,8 @@ class SegmentSynthesizer:
         self._truth = truth
         #: guards the world and the synthesis state: a capture against a scene change
         self.lock = threading.RLock()
-        self._traj_key: bytes | None = None
+        self._traj_key: tuple | None = None
+        self._traj_codes: np.ndarray | None = None
         self._traj: ChirpTrajectory | None = None
         self._scene_hold = False                 # hold_scene_clock
         self._scene_epoch_s: float | None = None
@@ -147,18 +147,22 @@ class SegmentSynthesizer:
     def trajectory(self) -> ChirpTrajectory:
         """The laser's frequency trajectory for the AWG's waveform at the laser's true temperature
         (cached per waveform and 1 mK of temperature)."""
-        drive, fs = self.awg.drive_volts()
-        if not self.awg.output_on:
-            drive = np.zeros_like(drive)
-        laser, temp_c = self.laser, None
+        awg, temp_c = self.awg, None
         if self.tec_tuning is not None:   # keyed on the 1 mK grid: not recomputed every batch
             temp_c = self.tec_tuning.quantise(self.controller.model.laser_temperature_c())
-            laser = self.tec_tuning.laser_at(self.laser, temp_c)
-        key = hashlib.sha1(np.ascontiguousarray(drive).tobytes() + repr((float(fs), temp_c)).encode()).digest()
-        if key != self._traj_key:
+        # what the drive in volts is made of, compared by value (a read costs a compare of the AWG's
+        # int16 codes against a kept copy, not a hash of the float64 drive)
+        key = (float(awg.amplitude_v), float(awg.offset_v), float(awg.sample_rate_hz), bool(awg.output_on), temp_c)
+        if self._traj is None or self._traj_codes is None or key != self._traj_key \
+                or not np.array_equal(awg.codes, self._traj_codes):
+            drive, fs = awg.drive_volts()
+            if not awg.output_on:
+                drive = np.zeros_like(drive)
+            laser = self.laser
+            if self.tec_tuning is not None and temp_c is not None:
+                laser = self.tec_tuning.laser_at(self.laser, temp_c)
             self._traj = trajectory(laser, drive, fs)
-            self._traj_key = key
-        assert self._traj is not None
+            self._traj_key, self._traj_codes = key, np.array(awg.codes, copy=True)
         return self._traj
 
     def _tap_codes(self, path_sum: np.ndarray, adc: AdcSpec, first: int):

@@ -44,6 +44,7 @@ from drivers.controller import protocol as p
 from sim_devices.clock import VirtualClock
 from sim_devices.controller.model import (
     ControllerModel,
+    ControllerSpec,
     ControllerState,
     Dynamics,
     _bits_to_words,
@@ -64,16 +65,12 @@ class ControllerSim:
         host: str = "127.0.0.1",
         port: int = 0,
         device_id: int = 1,
-        dynamics: Dynamics = Dynamics(),
-        hw_limits: p.Limits = p.HARDWARE_LIMITS,
-        model: str = "LHV-1550",
-        firmware: tuple[int, int] = (1, 0),
-        map_version: int = p.MAP_VERSION,
+        spec: ControllerSpec | None = None,
         tec_drift=None,
     ) -> None:
+        """``spec`` and ``tec_drift``: the device simulated (:class:`ControllerModel`)."""
         self.clock = clock if clock is not None else VirtualClock()
-        self.model = ControllerModel(self.clock, dynamics=dynamics, hw_limits=hw_limits, model=model,
-                                     firmware=firmware, map_version=map_version, tec_drift=tec_drift)
+        self.model = ControllerModel(self.clock, spec=spec, tec_drift=tec_drift)
         self.host = host
         self.device_id = device_id
         self._requested_port = port

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from drivers.controller import protocol as p
+from drivers.controller.errors import LimitError
 from drivers.errors import ProtocolError
 from sim_devices.clock import VirtualClock
 
@@ -37,6 +38,19 @@ class Dynamics:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"Dynamics.{name} must be finite and > 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """What a simulated controller is: its output ``dynamics``, the hardware limits it enforces on a
+    write, and the identity it reports (``model`` name, ``firmware`` (major, minor), register-map
+    version; another map version lets tests play an incompatible device)."""
+
+    dynamics: Dynamics = field(default_factory=Dynamics)
+    hw_limits: p.Limits = p.HARDWARE_LIMITS
+    model: str = "LHV-1550"
+    firmware: tuple[int, int] = (1, 0)
+    map_version: int = p.MAP_VERSION
 
 
 @dataclass
@@ -77,13 +91,13 @@ class ControllerModel:
         self,
         clock: VirtualClock,
         *,
-        dynamics: Dynamics = Dynamics(),
-        hw_limits: p.Limits = p.HARDWARE_LIMITS,
-        model: str = "LHV-1550",
-        firmware: tuple[int, int] = (1, 0),
-        map_version: int = p.MAP_VERSION,
+        spec: ControllerSpec | None = None,
         tec_drift=None,
     ) -> None:
+        """``spec``: the device simulated (default: the LHV-1550 of the register map); ``tec_drift``:
+        anything with ``.at(t_s)`` -> the TEC's true temperature drift (C), or None."""
+        s = ControllerSpec() if spec is None else spec
+        dynamics, hw_limits, model, firmware, map_version = s.dynamics, s.hw_limits, s.model, s.firmware, s.map_version
         self.clock = clock
         self.tec_drift = tec_drift       # anything with .at(t_s) -> C, or None
         self.tec_offset_c = 0.0          # an injected step of the true temperature (fault tec_offset)
@@ -237,7 +251,7 @@ class ControllerModel:
                     value = p.Command(int(value))   # a U16 at scale 1: already an int
                 else:
                     self.hw_limits.check(reg, float(value))
-            except (ProtocolError, p.LimitError, ValueError):
+            except (ProtocolError, LimitError, ValueError):
                 return p.ExceptionCode.ILLEGAL_DATA_VALUE
             updates.append((reg, value))
         for reg, value in updates:

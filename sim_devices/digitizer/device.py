@@ -37,7 +37,6 @@ Wire format: drivers/digitizer/protocol.py and docs/protocols/digitizer.md.
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -239,13 +238,10 @@ class SimDigitizer(SimUsbDevice):
         recs["n_samples"] = cfg.record_length
         t_s = np.asarray(cap.trigger_time_s, dtype=np.float64)
         recs["trigger_time_ns"] = np.rint(t_s * 1e9).astype(np.uint64)
-        raw = recs.view(np.uint8)
-        mv = raw.data   # the records' bytes, no copy
-        size = rec.itemsize
-        crc = zlib.crc32
+        mv = recs.view(np.uint8).data   # the records' bytes, no copy
         # payloads first: the header's crc covers the payload crc's field (bytes 24..27)
-        recs["payload_crc32"] = [crc(mv[o + p.HEADER_LEN:o + size]) for o in range(0, count * size, size)]
-        recs["header_crc32"] = [crc(mv[o:o + 28]) for o in range(0, count * size, size)]
+        recs["payload_crc32"] = p.payload_crc32s(mv, rec.itemsize, count)
+        recs["header_crc32"] = p.header_crc32s(mv, rec.itemsize, count)
         # the capture of the batch's last segment must be over before it can be served
         record_s = cfg.record_length / cfg.sample_rate_hz
         self.clock.advance_to(float(t_s.max()) + record_s)

@@ -57,6 +57,17 @@ class TriggerBatch:
         m = self.beam_trigger == i
         return self.beam_row[m], self.beam_col[m], self.beam_transmission[m]
 
+    def window(self, a: int, b: int) -> TriggerBatch:
+        """Triggers ``a .. b-1`` of this batch (positions in it) with their beams, re-indexed to the
+        new batch (copies: the batch may be kept and sliced again). The beams are in trigger order."""
+        lo, hi = (int(x) for x in np.searchsorted(self.beam_trigger, [a, b]))
+        return TriggerBatch(
+            index=self.index[a:b].copy(), t_s=self.t_s[a:b].copy(), pixel_index=self.pixel_index[a:b].copy(),
+            row=self.row[a:b].copy(), col=self.col[a:b].copy(),
+            beam_trigger=(self.beam_trigger[lo:hi] - a).astype(self.beam_trigger.dtype),
+            beam_row=self.beam_row[lo:hi].copy(), beam_col=self.beam_col[lo:hi].copy(),
+            beam_transmission=self.beam_transmission[lo:hi].copy(), capture_s=self.capture_s)
+
     @classmethod
     def empty(cls, capture_s: float = 0.0) -> TriggerBatch:
         z = np.zeros(0)

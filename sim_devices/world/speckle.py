@@ -46,7 +46,7 @@ def speckle_factors(seed: int, row: np.ndarray, col: np.ndarray, target: np.ndar
     ``chirp`` is the chirp (trigger) index for moving surfaces and 0 for static ones.
     """
     with np.errstate(over="ignore"):
-        key = np.uint64(seed & 0xFFFFFFFFFFFFFFFF)
+        key: np.ndarray = np.asarray(np.uint64(seed & 0xFFFFFFFFFFFFFFFF))
         for part, bits in ((row, 12), (col, 12), (target, 16), (chirp, 40)):
             key = _splitmix64(key ^ (np.asarray(part).astype(np.uint64) & np.uint64((1 << bits) - 1)))
         key = np.asarray(key, np.uint64)

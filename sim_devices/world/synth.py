@@ -69,6 +69,7 @@ from sim_devices.world import antialias
 from sim_devices.world.laser import wiener_phase
 from sim_devices.world.synth_chirp import ChirpTrajectory, trajectory, trajectory_from_frequency
 from sim_devices.world.synth_chunk import (
+    ChunkRun,
     SortedHits,
     Tables,
     beat_chunk,
@@ -98,7 +99,8 @@ def _per_segment(name: str, v, n_seg: int) -> np.ndarray:
 
 def _validated(t_start_s, hits: HitBatch | None, noise_asd_v_per_rthz, linewidth_hz: float, rng,
                mzi_delay_s: float | None, mzi_amplitude_v: float | None, mzi_noise_asd_v_per_rthz: float,
-               dc_v: float):
+               dc_v: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None],
+                                     np.ndarray]:
     """The arguments of :func:`synthesize` checked (a SynthError names the first bad one):
     (t_start_s, (seg, tau, amp, dop, phase) of the hits, per-segment noise ASD)."""
     t0 = np.asarray(t_start_s, dtype=np.float64)
@@ -111,7 +113,7 @@ def _validated(t_start_s, hits: HitBatch | None, noise_asd_v_per_rthz, linewidth
     if not (math.isfinite(linewidth_hz) and linewidth_hz >= 0):
         raise SynthError(f"synthesize: linewidth_hz must be >= 0 and finite, got {linewidth_hz!r}")
     want_mzi = mzi_delay_s is not None
-    if want_mzi:
+    if mzi_delay_s is not None:
         if not (math.isfinite(mzi_delay_s) and mzi_delay_s > 0):
             raise SynthError(f"synthesize: mzi_delay_s must be positive and finite, got {mzi_delay_s!r}")
         if mzi_amplitude_v is None or not (math.isfinite(mzi_amplitude_v) and mzi_amplitude_v >= 0):
@@ -210,8 +212,9 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     # -- phase-noise geometry ----------------------------------------------------------------------
     pn_on = linewidth_hz > 0 and (h.seg.size > 0 or want_mzi)
     var_step = 2.0 * np.pi * linewidth_hz / fs
+    pn_rng = rng if pn_on else None      # _validated requires an rng when phase noise is on
     m_mzi, w_mzi = delay_split(np.array([mzi_delay_s]), fs) if want_mzi else (None, None)
-    n_pre = max(int(h.m.max(initial=0)), int(m_mzi[0]) if want_mzi else 0) + 1
+    n_pre = max(int(h.m.max(initial=0)), int(m_mzi[0]) if m_mzi is not None else 0) + 1
 
     channels = ["beat"] + (["beat_q"] if adc.iq else []) + (["mzi"] if want_mzi else []) \
         + (["mzi_q"] if want_mzi and mzi_quadrature else [])
@@ -224,25 +227,25 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     chunk = max(1, _CHUNK_ELEMENTS // max(n, 1))
     seg_bounds = np.searchsorted(h.seg, np.arange(0, n_seg + chunk, chunk))
     noise_std = asd * math.sqrt(fs / 2.0)
+    run = ChunkRun(tb=tb, adc=adc, fast=fast, rng=rng, var_step=var_step, n_pre=n_pre, iq_imbalance=iq_imbalance,
+                   beat_filter=beat_filter, quadrature=mzi_quadrature, mzi_amplitude_v=mzi_amplitude_v, m_mzi=m_mzi,
+                   w_mzi=w_mzi, dc_v=dc_v, noise_std=noise_std, mzi_noise_asd_v_per_rthz=mzi_noise_asd_v_per_rthz)
     for ci, s0 in enumerate(range(0, n_seg, chunk)):
         s1 = min(n_seg, s0 + chunk)
         nc = s1 - s0
         h0, h1 = int(seg_bounds[ci]), int(seg_bounds[ci + 1])
-        phi = wiener_phase(linewidth_hz, n_pre + n, 1.0 / fs, rng, shape=(nc,)) if pn_on else None
+        phi = wiener_phase(linewidth_hz, n_pre + n, 1.0 / fs, pn_rng, shape=(nc,)) if pn_rng is not None else None
         if pn_all is not None:
             pn_all[s0:s1] = phi
         acc = {}
         if h1 > h0:
-            acc = beat_chunk(tb, h, slice(h0, h1), s0, nc, phi, n_pre, var_step, rng, fast, adc,
-                             iq_imbalance, beat_filter)
+            acc = beat_chunk(run, h, slice(h0, h1), s0, nc, phi)
         for c in channels:
             if c not in ("mzi", "mzi_q") and c not in acc:
                 acc[c] = np.zeros((nc, n), dtype=np.float32 if fast else np.float64)
         if want_mzi:
-            acc.update(mzi_chunk(tb, s0, s1, phi, n_pre, m_mzi, w_mzi, var_step, rng, fast,
-                                 mzi_quadrature, mzi_amplitude_v))
-        digitize_chunk(acc, channels, adc, s0, s1, dc_v, noise_std, mzi_noise_asd_v_per_rthz, rng,
-                       outs, overrange, volts)
+            acc.update(mzi_chunk(run, s0, s1, phi))
+        digitize_chunk(run, acc, channels, s0, s1, outs, overrange, volts)
 
     return Synthesized(beat=outs["beat"], beat_q=outs.get("beat_q"), mzi=outs.get("mzi"),
                        overrange=overrange, channels=tuple(channels), lsb_v=adc.lsb_v, volts=volts,

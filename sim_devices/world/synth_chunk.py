@@ -13,16 +13,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from sim_devices.world import antialias
+from sim_devices.world import antialias, synth_jit
 from sim_devices.world.gauss import standard_normal_f32
 from sim_devices.world.synth_chirp import ChirpTrajectory
 from sim_devices.world.synth_grid import static_beat_phase
 from sim_devices.world.synth_types import AdcSpec
 
 _INTEGER_DELAY_TOL = 1e-6      # in ADC samples: a delay this close to m / fs is treated as exact
+_NO_NOISE = np.zeros((1, 1), np.float32)    # the quantizer kernel's noise argument when there is none
 
 
 @dataclass
@@ -42,7 +44,7 @@ class Tables:
     u_start: np.ndarray
     u_inv: np.ndarray
     single_start: bool
-    grid: object
+    grid: tuple[int, int] | None
     mean_w: float
     aa_rate: float
     base: np.ndarray | None
@@ -105,7 +107,11 @@ def cos_sin(phase: np.ndarray, want_sin: bool, fast: bool, in_turns: bool = Fals
     if not fast:
         s = np.sin(phase) if want_sin else None
         return np.cos(phase, out=phase), s
-    if in_turns:
+    reduce = synth_jit.turns_to_radians_f32(phase.size) if in_turns and phase.flags.c_contiguous else None
+    if reduce is not None:          # the three passes below in one compiled pass, the same values
+        r32 = np.empty(phase.shape, np.float32)
+        reduce(phase.reshape(-1), r32.reshape(-1))
+    elif in_turns:
         r32 = np.rint(phase, out=np.empty(phase.shape, np.float32), casting="same_kind")
         phase -= r32
         np.multiply(phase, 2.0 * np.pi, out=r32, casting="same_kind")   # float64 product, stored float32
@@ -149,7 +155,9 @@ def _beat_phase(tb: Tables, h: SortedHits, hs: slice, fast: bool, phi_on: bool):
         x += (tb.u_start[useg] + off - tau[hs] * traj.fs_hz)[:, None]
         dphi = traj._phase_nonneg(x, periods)
         del x
-        np.subtract(tb.base[0] if tb.single_start else tb.base[useg], dphi, out=dphi)
+        base = tb.base
+        assert base is not None         # computed whenever there are hits (synth._tables)
+        np.subtract(base[0] if tb.single_start else base[useg], dphi, out=dphi)
         if moving:
             lin = np.multiply.outer(slope, k)
             lin += const[:, None]
@@ -160,11 +168,36 @@ def _beat_phase(tb: Tables, h: SortedHits, hs: slice, fast: bool, phi_on: bool):
     return dphi, in_turns
 
 
-def beat_chunk(tb: Tables, h: SortedHits, hs: slice, s0: int, nc: int, phi, n_pre: int,
-               var_step: float, rng, fast: bool, adc: AdcSpec, iq_imbalance: tuple[float, float],
-               beat_filter: antialias.BeatFilter | None) -> dict:
+@dataclass(frozen=True)
+class ChunkRun:
+    """What every chunk of one synthesis shares: the tables, the ADC, the float32 trig path (``fast``),
+    the random stream, the phase noise's variance per sample (``var_step``) and pre-roll (``n_pre``
+    samples), the receiver (``iq_imbalance`` (g, eps), the anti-alias ``beat_filter``), the monitor MZI
+    (``quadrature`` output, ``mzi_amplitude_v``, its delay split ``m_mzi``/``w_mzi``; None without an
+    MZI), the beat channels' ``dc_v``, the beat's white-noise std per segment and the MZI's noise ASD."""
+
+    tb: Tables
+    adc: AdcSpec
+    fast: bool
+    rng: np.random.Generator | None
+    var_step: float
+    n_pre: int
+    iq_imbalance: tuple[float, float]
+    beat_filter: antialias.BeatFilter | None
+    quadrature: bool
+    mzi_amplitude_v: float | None
+    m_mzi: np.ndarray | None
+    w_mzi: np.ndarray | None
+    dc_v: float
+    noise_std: np.ndarray
+    mzi_noise_asd_v_per_rthz: float
+
+
+def beat_chunk(run: ChunkRun, h: SortedHits, hs: slice, s0: int, nc: int, phi: np.ndarray | None) -> dict:
     """The beat channels ("beat", and "beat_q" for I/Q) of the ``nc`` segments from ``s0``, from
     the hits ``hs`` (all in those segments): one tone per hit, summed per segment by rank."""
+    tb, n_pre, var_step, rng, fast, adc = run.tb, run.n_pre, run.var_step, run.rng, run.fast, run.adc
+    iq_imbalance, beat_filter = run.iq_imbalance, run.beat_filter
     n, fs = tb.n, tb.fs
     lseg = h.seg[hs] - s0
     dphi, in_turns = _beat_phase(tb, h, hs, fast, phi is not None)
@@ -215,15 +248,20 @@ def _by_rank(parts: dict, rk: np.ndarray, lseg: np.ndarray, max_rank: int, nh: i
     return acc
 
 
-def mzi_chunk(tb: Tables, s0: int, s1: int, phi, n_pre: int, m_mzi, w_mzi, var_step: float, rng,
-              fast: bool, quadrature: bool, amplitude_v: float) -> dict:
+def mzi_chunk(run: ChunkRun, s0: int, s1: int, phi: np.ndarray | None) -> dict:
     """The monitor MZI ("mzi", and "mzi_q" with the quadrature output) of segments s0..s1-1: the
     clean fringes, or with phase noise the same Wiener realization as the beat's, delayed by the
     MZI's delay."""
+    tb, n_pre, var_step, rng, fast, quadrature = run.tb, run.n_pre, run.var_step, run.rng, run.fast, run.quadrature
+    amplitude_v, m_mzi, w_mzi = run.mzi_amplitude_v, run.m_mzi, run.w_mzi
+    # given whenever an MZI is synthesized (synth._validated)
+    assert amplitude_v is not None and m_mzi is not None and w_mzi is not None
     nc, n = s1 - s0, tb.n
     single_start, mzi_det = tb.single_start, tb.mzi_det
     acc = {}
     ub = tb.u_inv[s0:s1]
+    # the tables hold the MZI's phase and fringes whenever an MZI is synthesized (synth._tables)
+    assert mzi_det is not None and tb.mzi_clean is not None
     if phi is not None:
         mphi = mzi_det[0] + phi[:, n_pre:] if single_start else mzi_det[ub] + phi[:, n_pre:]
         mphi -= delayed_noise(phi, np.arange(nc), n_pre, n, np.full(nc, m_mzi[0]),
@@ -236,23 +274,25 @@ def mzi_chunk(tb: Tables, s0: int, s1: int, phi, n_pre: int, m_mzi, w_mzi, var_s
     else:
         acc["mzi"] = np.repeat(tb.mzi_clean, nc, axis=0) if single_start else tb.mzi_clean[ub]
         if quadrature:
+            assert tb.mzi_clean_q is not None
             acc["mzi_q"] = np.repeat(tb.mzi_clean_q, nc, axis=0) if single_start else tb.mzi_clean_q[ub]
     return acc
 
 
-def digitize_chunk(acc: dict, channels: list[str], adc: AdcSpec, s0: int, s1: int, dc_v: float,
-                   noise_std: np.ndarray, mzi_noise_asd_v_per_rthz: float, rng, outs: dict,
+def digitize_chunk(run: ChunkRun, acc: dict, channels: list[str], s0: int, s1: int, outs: dict,
                    overrange: np.ndarray, volts: dict | None) -> None:
     """Add white noise (and ``dc_v`` on the beat channels) to each channel of segments s0..s1-1,
     then quantize (or keep volts), flag overrange and clip into ``outs``/``overrange``/``volts``."""
+    adc, dc_v, noise_std = run.adc, run.dc_v, run.noise_std
+    mzi_noise_asd_v_per_rthz = run.mzi_noise_asd_v_per_rthz
+    rng: Any = run.rng            # a Generator whenever a noise is on (synth._validated requires one)
     nc, n, fs = s1 - s0, int(adc.n_samples), float(adc.sample_rate_hz)
     for c in channels:
         v = acc[c]
+        noise = None
         if c in ("mzi", "mzi_q"):
             if mzi_noise_asd_v_per_rthz > 0:
                 noise = standard_normal_f32(rng, (nc, n), mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
-                v += noise
-                del noise
         else:
             if dc_v:
                 v += dc_v
@@ -264,11 +304,23 @@ def digitize_chunk(acc: dict, channels: list[str], adc: AdcSpec, s0: int, s1: in
                 else:
                     noise = standard_normal_f32(rng, (nc, n))
                     noise *= std[:, None].astype(np.float32)
-                v += noise
-                del noise
+        j = channels.index(c)
+        kernel = None
+        if adc.quantize and volts is None and v.dtype == np.float32 and outs[c].dtype == np.int16:
+            kernel = synth_jit.quantize_rows(v.size)
+        if kernel is not None:      # noise, scale, rounding, flags and clip in one compiled pass
+            over = np.empty(nc, dtype=bool)
+            kernel(v, _NO_NOISE if noise is None else noise, noise is not None, np.float32(1.0 / adc.lsb_v),
+                   np.float32(adc.code_min), np.float32(adc.code_max), outs[c][s0:s1], over)
+            overrange[s0:s1, j] = over
+            continue
+        if noise is not None:
+            v += noise
+            del noise
         if volts is not None:
             volts[c][s0:s1] = v
-        j = channels.index(c)
+        lo: float
+        hi: float
         if adc.quantize:
             v *= 1.0 / adc.lsb_v
             np.rint(v, out=v)

@@ -7,6 +7,12 @@ fast-math: no reassociation, no fused multiply-add), so it gives the numpy path'
 (tests/sim_devices/world/test_synth_jit.py), and it runs without the GIL: the bench's synthesis
 threads and the host's DSP threads proceed side by side.
 
+The digitizer's quantizer (add the noise, scale to codes, round, flag and clip, store int16: six numpy
+passes over the float32 record) is a second kernel, :func:`quantize_rows`, with the same float32
+operations in the same order (the same codes and flags; tests/sim_devices/world/test_synth_jit.py), and
+the float32 cosine's range reduction of a phase in cycles (three numpy passes) a third,
+:func:`turns_to_radians_f32`.
+
 The trigonometry stays in numpy: its float32 cosine is a SIMD loop (~0.7 ns a sample here) where a
 compiled scalar cosine costs ~9 ns (measured on this 2-core EPYC), so a kernel running the cosine,
 the noise and the quantization in the same pass would be slower, not faster.
@@ -45,13 +51,51 @@ def _numba_loaded() -> bool:
     return "numba" in sys.modules
 
 
-def static_fill(samples: int) -> Callable[..., Any] | None:
-    """The compiled kernel, or None (numba missing, LIDARD_DSP_JIT=0, or not worth loading yet:
-    module docstring; ``samples``: how many this call is about to fill)."""
-    if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
+@lru_cache(maxsize=1)
+def _quantizer() -> Callable[..., Any] | None:
+    try:
+        from sim_devices.world import synth_kernels  # needs numba
+    except ImportError:
         return None
+    return synth_kernels.quantize_rows
+
+
+def _worth_it(samples: int) -> bool:
+    """Whether the kernels run for a call about to process ``samples`` (module docstring)."""
+    if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
+        return False
     if _compiled.cache_info().currsize == 0 and not _numba_loaded():
         _asked[0] += int(samples)
         if _asked[0] < LOAD_AFTER_SAMPLES:
-            return None
-    return _compiled()
+            return False
+    return True
+
+
+def static_fill(samples: int) -> Callable[..., Any] | None:
+    """The compiled kernel, or None (numba missing, LIDARD_DSP_JIT=0, or not worth loading yet:
+    module docstring; ``samples``: how many this call is about to fill)."""
+    return _compiled() if _worth_it(samples) else None
+
+
+def turns_to_radians_f32(samples: int) -> Callable[..., Any] | None:
+    """The compiled range reduction of a phase in cycles (synth_kernels.turns_to_radians_f32), or None,
+    by the same rule."""
+    if not _worth_it(samples) or _compiled() is None:
+        return None
+    return _reducer()
+
+
+@lru_cache(maxsize=1)
+def _reducer() -> Callable[..., Any] | None:
+    try:
+        from sim_devices.world import synth_kernels  # needs numba
+    except ImportError:
+        return None
+    return synth_kernels.turns_to_radians_f32
+
+
+def quantize_rows(samples: int) -> Callable[..., Any] | None:
+    """The compiled noise + quantizer pass (synth_kernels.quantize_rows), or None, by the same rule."""
+    if not _worth_it(samples) or _compiled() is None:
+        return None
+    return _quantizer()

@@ -65,14 +65,19 @@ def _part_hits(hits: HitBatch | None, a: int, b: int) -> HitBatch | None:
 
 def _joined(parts: list[Synthesized]) -> Synthesized:
     first = parts[0]
-    def cat(name: str) -> np.ndarray | None:
-        return None if getattr(first, name) is None else np.concatenate([getattr(p, name) for p in parts])
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts])
 
-    volts = None if first.volts is None else {c: np.concatenate([p.volts[c] for p in parts]) for c in first.volts}
-    return Synthesized(beat=cat("beat"), beat_q=cat("beat_q"), mzi=cat("mzi"), overrange=cat("overrange"),
+    def cat_opt(name: str) -> np.ndarray | None:
+        return None if getattr(first, name) is None else cat(name)
+
+    # every part was synthesized with the same settings: all hold volts, or none
+    volts = None if first.volts is None else {c: np.concatenate([(p.volts or {})[c] for p in parts])
+                                              for c in first.volts}
+    return Synthesized(beat=cat("beat"), beat_q=cat_opt("beat_q"), mzi=cat_opt("mzi"), overrange=cat("overrange"),
                        channels=first.channels, lsb_v=first.lsb_v, volts=volts,
-                       phase_noise_rad=cat("phase_noise_rad"), phase_noise_pre=first.phase_noise_pre,
-                       mzi_q=cat("mzi_q"))
+                       phase_noise_rad=cat_opt("phase_noise_rad"), phase_noise_pre=first.phase_noise_pre,
+                       mzi_q=cat_opt("mzi_q"))
 
 
 def synthesize_read(traj, adc, t_start_s, hits: HitBatch | None, rng_for: Callable[[int], np.random.Generator],

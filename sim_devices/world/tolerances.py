@@ -98,8 +98,9 @@ class BenchTruth:
     @classmethod
     def from_dict(cls, d: dict) -> BenchTruth:
         p = d["pointing"]
+        dx, dy = (float(x) for x in p["decentre_px"])
         return cls(float(d["mzi_delay_s"]), float(d["zero_offset_m"]),
-                   Pointing(float(p["focal_scale"]), tuple(float(x) for x in p["decentre_px"]),
+                   Pointing(float(p["focal_scale"]), (dx, dy),
                             float(p["rotation_rad"]), float(p["k1"])),
                    d.get("nominal_mzi_delay_s"), float(d.get("iq_gain", 1.0)), float(d.get("iq_phase_rad", 0.0)))
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from lidard.config import CONFIG_DIR, load_config, load_laser
-from lidard.dsp.linearize.ilc import linearize
+from lidard.dsp.linearize.ilc import IlcSettings, linearize
+from lidard.dsp.linearize.ilc import ChirpGeometry
 from lidard.physics.budget import monitor_noise_asd
 from sim_devices.bench.bench import Bench
 from sim_devices.world.laser import DfbLaser, triangle_drive
@@ -66,8 +67,7 @@ def _ilc_floor(noise_asd: float, seed: int = 5) -> float:
         return out.mzi.astype(np.float64) * adc.lsb_v
 
     u0 = triangle_drive(EXC_HZ, RAMP_S, FS, laser.static_tuning_hz_per_v)
-    res = linearize(measure, u0, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                    mzi_delay_s=TAU_M, averages=8, max_iter=0)
+    res = linearize(measure, u0, ChirpGeometry(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ, mzi_delay_s=TAU_M), IlcSettings(averages=8, max_iter=0))
     return float(res.iterations[0].noise_floor_hz)
 
 

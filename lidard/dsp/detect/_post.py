@@ -18,6 +18,9 @@ import numpy as np
 from lidard.dsp.spectrum import jit
 from lidard.dsp.spectrum.window import get_window
 
+# (k, index, valid, power, noise, snr_db) of the strongest candidates per ramp (_strongest_cells)
+_Strongest = tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
 
 def _width_6db(p: np.ndarray, idx: np.ndarray, max_half: int, rows: np.ndarray | None = None,
                cols: np.ndarray | None = None) -> np.ndarray:
@@ -87,13 +90,14 @@ def _single_tone_width(window: str, zero_pad: int) -> float:
     return widest
 
 
-def _strongest(p2, noise, cand, max_detections):
+def _strongest(p2: np.ndarray, noise: np.ndarray, cand: np.ndarray, max_detections: int) -> _Strongest:
     """:func:`_strongest_cells` of a dense candidate map (and a dense noise array)."""
     rows, cols = np.nonzero(cand)
     return _strongest_cells(p2, rows, cols, noise[rows, cols], max_detections)
 
 
-def _strongest_cells(p2, rows, cols, noise, max_detections):
+def _strongest_cells(p2: np.ndarray, rows: np.ndarray, cols: np.ndarray, noise: np.ndarray,
+                     max_detections: int) -> _Strongest:
     """The ``k`` strongest candidates (cells with their noise; the detector lists them row-major) per
     ramp, strongest first: (k, index, valid, power, noise, snr_db), (n_rows, k) each."""
     n_rows, n_bins = p2.shape
@@ -127,7 +131,8 @@ def _strongest_cells(p2, rows, cols, noise, max_detections):
     return k, idx, valid, pk, nz, snr_db
 
 
-def _harmonic_ghosts(idx, pk, valid, *, n_bins, iq, zero_pad, harmonic_ratio_db) -> np.ndarray:
+def _harmonic_ghosts(idx: np.ndarray, pk: np.ndarray, valid: np.ndarray, *, n_bins: int, iq: bool, zero_pad: int,
+                     harmonic_ratio_db: float) -> np.ndarray:
     """Detections at the 2nd/3rd harmonic (aliased) of a much stronger one in the same ramp.
 
     Tested on the pairs (strong j, weak i) of valid slots of a ramp only, and the frequencies only

@@ -34,6 +34,7 @@ Up to ``max_detections`` per ramp, STRONGEST FIRST, in fixed-shape (batch, K) ar
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Literal, get_args
 
 import numpy as np
@@ -88,7 +89,7 @@ def _sliding_sum(p: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarra
     return cs[..., b] - cs[..., a], (b - a).astype(np.float64)
 
 
-def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float):
+def _noise_ca(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float) -> tuple[np.ndarray, np.ndarray | float]:
     lag_s, lag_n = _sliding_sum(p, -n_guard - n_ref_side, -n_guard - 1)
     lead_s, lead_n = _sliding_sum(p, n_guard + 1, n_guard + n_ref_side)
     count = lag_n + lead_n
@@ -154,6 +155,27 @@ def _not_sidelobes(p2: np.ndarray, rows: np.ndarray, idx: np.ndarray, env: np.nd
     return pc > leak * margin
 
 
+@dataclass(frozen=True)
+class CfarSettings:
+    """The detector's knobs (what :func:`cfar_detect` takes by name; their meaning: its docstring),
+    checked when a detection runs (a DspInputError names a bad one)."""
+
+    method: CfarMethod = "os"
+    pfa: float = 1e-5
+    n_ref: int = 16
+    n_guard: int = 2
+    os_rank: int | None = None
+    max_detections: int = 4
+    window: WindowName = "hann"
+    zero_pad: int = 1
+    iq: bool = False
+    bin_range: tuple[int, int] | None = None
+    dc_guard_bins: int | None = None
+    sidelobe_margin_db: float = 6.0
+    harmonic_ratio_db: float = 15.0
+    unresolved_factor: float = 1.12
+
+
 def cfar_detect(
     power: np.ndarray,
     *,
@@ -180,31 +202,41 @@ def cfar_detect(
     bin_range: (first, last) spectrum indices searched (e.g. a range gate).
     dc_guard_bins: bins with |frequency bin| < dc_guard_bins are never reported (default: the
         window's main-lobe half-width, so DC and its lobe are excluded).
+
+    The knobs by name, as the configuration's [dsp] keys and the detection chain pass them; the same
+    detection with the knobs held in one object is :func:`cfar_detect_with`.
     """
-    p = _checked_power(power, method=method, window=window, n_ref=n_ref, n_guard=n_guard,
-                       max_detections=max_detections, pfa=pfa)
+    return cfar_detect_with(power, CfarSettings(
+        method=method, pfa=pfa, n_ref=n_ref, n_guard=n_guard, os_rank=os_rank, max_detections=max_detections,
+        window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range, dc_guard_bins=dc_guard_bins,
+        sidelobe_margin_db=sidelobe_margin_db, harmonic_ratio_db=harmonic_ratio_db,
+        unresolved_factor=unresolved_factor))
+
+
+def cfar_detect_with(power: np.ndarray, s: CfarSettings) -> Detections:
+    """:func:`cfar_detect` with its knobs in ``s``."""
+    p = _checked_power(power, s)
     lead = p.shape[:-1]
     p2 = p.reshape(-1, p.shape[-1])
     n_bins = p2.shape[-1]
     # the compiled OS-CFAR checks the values in its own pass over the spectra; else they are checked here
-    kern = jit.kernels(p2.size) if method == "os" and n_bins > max(2, n_guard + n_ref // 2) else None
+    kern = jit.kernels(p2.size) if s.method == "os" and n_bins > max(2, s.n_guard + s.n_ref // 2) else None
     if kern is None:
         _check_power_values(p2)
     if n_bins < 3:
         raise DspInputError(f"power has {n_bins} bins; at least 3 are needed")
 
-    rows, cols, nz = _candidates(p2, method=method, n_ref_side=n_ref // 2, n_guard=n_guard, pfa=pfa,
-                                 os_rank=os_rank, window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range,
-                                 dc_guard_bins=dc_guard_bins, sidelobe_margin_db=sidelobe_margin_db, kern=kern)
-    k, idx, valid, pk, nz, snr_db = _strongest_cells(p2, rows, cols, nz, max_detections)
+    rows, cols, nz = _candidates(p2, s, kern)
+    k, idx, valid, pk, nz, snr_db = _strongest_cells(p2, rows, cols, nz, s.max_detections)
 
     # Resolution: the merged lobe of two close targets is wider than one tone's main lobe.
+    window, zero_pad = s.window, s.zero_pad
     lobe = _single_tone_width(window, zero_pad)
     width = np.zeros(idx.shape)
     width[valid] = _width_6db(p2, idx, int(np.ceil(4 * lobe)) + 2, rows=np.nonzero(valid)[0], cols=idx[valid])
-    unresolved = valid & (width > unresolved_factor * lobe)
-    harm = _harmonic_ghosts(idx, pk, valid, n_bins=n_bins, iq=iq, zero_pad=zero_pad,
-                            harmonic_ratio_db=harmonic_ratio_db)
+    unresolved = valid & (width > s.unresolved_factor * lobe)
+    harm = _harmonic_ghosts(idx, pk, valid, n_bins=n_bins, iq=s.iq, zero_pad=zero_pad,
+                            harmonic_ratio_db=s.harmonic_ratio_db)
 
     idx = np.where(valid, idx, -1)
     shape = lead + (k,)
@@ -220,9 +252,10 @@ def cfar_detect(
     )
 
 
-def _checked_power(power, *, method, window, n_ref, n_guard, max_detections, pfa) -> np.ndarray:
+def _checked_power(power: np.ndarray, s: CfarSettings) -> np.ndarray:
     """``power`` as float64 after checking its type and the detector's knobs (a DspInputError names the
     bad one); its values are checked next (:func:`_check_power_values`, or in the compiled pass)."""
+    method, window, n_ref, n_guard, max_detections, pfa = s.method, s.window, s.n_ref, s.n_guard, s.max_detections, s.pfa
     p = np.asarray(power)
     if p.dtype.kind not in "fiu" or p.ndim < 1:
         raise DspInputError(f"power must be a real array (..., n_bins), got dtype {p.dtype} ndim {p.ndim}")
@@ -253,11 +286,14 @@ def _check_power_values(p: np.ndarray) -> None:
         raise DspInputError("power contains negative values; pass |X|^2")
 
 
-def _candidates(p2, *, method, n_ref_side, n_guard, pfa, os_rank, window, zero_pad, iq, bin_range, dc_guard_bins,
-                sidelobe_margin_db, kern) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _candidates(p2: np.ndarray, s: CfarSettings,
+                kern: SimpleNamespace | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local maxima above the CFAR threshold that are not side-lobes, the DC lobe or outside the gate:
     (rows, bins, noise) of each, row-major (a few per ramp: the detector never builds a dense map).
     ``kern``: the compiled kernels for OS-CFAR (:mod:`lidard.dsp.spectrum.jit`), or None (numpy)."""
+    method, n_ref_side, n_guard, pfa, os_rank = s.method, s.n_ref // 2, s.n_guard, s.pfa, s.os_rank
+    window, zero_pad, iq, bin_range, dc_guard_bins = s.window, s.zero_pad, s.iq, s.bin_range, s.dc_guard_bins
+    sidelobe_margin_db = s.sidelobe_margin_db
     n_bins = p2.shape[-1]
     if method == "ca":
         floor = _FLOOR * p2.max(axis=-1)

@@ -27,6 +27,7 @@ from enum import IntFlag
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ...physics.decimation import DecimationFilter
 
@@ -56,7 +57,7 @@ def aliased(intensity_v: np.ndarray, ceiling_v: float) -> np.ndarray:
     return np.asarray(intensity_v) <= ALIAS_MARGIN * float(ceiling_v)
 
 
-def point_flags(*, unresolved, leak, harmonic, unpaired) -> np.ndarray:
+def point_flags(*, unresolved: ArrayLike, leak: ArrayLike, harmonic: ArrayLike, unpaired: ArrayLike) -> np.ndarray:
     """The uint8 flags of (pixel, return) slots from the DSP's boolean verdicts (``leak``: aliased)."""
     f = np.zeros(np.shape(unresolved), np.uint8)
     for mask, bit in ((unresolved, PointFlag.UNRESOLVED), (leak, PointFlag.ALIASED),

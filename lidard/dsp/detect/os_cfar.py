@@ -13,6 +13,7 @@ every bin (exactly, or a lower bound where nothing can pass). Pure numpy;
 from __future__ import annotations
 
 from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -48,7 +49,8 @@ def _check_pfa(pfa: float) -> None:
         raise DspInputError(f"pfa={pfa!r} must lie strictly between 0 and 1")
 
 
-def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, exact: bool = False):
+def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None,
+              exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """OS-CFAR noise per bin, exact wherever the threshold test can pass.
 
     The k-th smallest of a set is never below the k-th smallest of a superset, so the k-th smallest
@@ -93,7 +95,8 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
     return noise.reshape(lead + (n,)), scaled_alpha * np.ones(n)
 
 
-def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None):
+def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float,
+                 rank: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """The detector's sparse OS-CFAR: ``(r, c, noise, scaled_alpha)`` for the local maxima
     of ``p`` (rows, n) that may pass the threshold, with the exact statistic at each (as
     :func:`_noise_os` computes it); no local maximum left out passes ``p > scaled_alpha * noise``.
@@ -150,7 +153,7 @@ def _os_constants(n_ref_side: int, pfa: float, rank: int | None) -> tuple[int, f
 
 
 def _os_detected(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, floor_factor: float,
-                 kern) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+                 kern: SimpleNamespace | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(r, c, noise) of the cells of ``p`` (rows, n) OS-CFAR detects, row-major: the local maxima with
     p > scaled_alpha * noise, noise > 0 and p > ``floor_factor`` times the row's largest cell.
 

@@ -13,13 +13,21 @@ Pure numpy/scipy: no I/O, no clock, no logging.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from .quadrature import quadrature_ramp_nu
-from ..spectrum.instfreq import best_fit_residual, fft_filter, hilbert, lowpass_padded, ramp_frequency
+from ..spectrum.instfreq import (
+    RampFrequency,
+    best_fit_residual,
+    check_positive,
+    fft_filter,
+    hilbert,
+    lowpass_padded,
+    ramp_frequency,
+)
 
 # narrow-band refinement of the MZI phase (see _Analyzer._refine)
 _RIDGE_WINDOW_S = 2e-6
@@ -30,6 +38,24 @@ _FOLD_SEARCH = 0.1
 _FOLD_SLOPE = 0.3
 # the correction across a turning-point gap switches sides within this time (see _to_drive)
 _GAP_SWITCH_S = 1e-6
+
+
+@dataclass(frozen=True)
+class ChirpGeometry:
+    """The chirp a linearization learns and the monitor that sees it (what :func:`lidard.dsp.linearize.ilc.linearize`
+    and :func:`lidard.dsp.linearize.chirpcheck.chirp_residual` share): the drive's sample rate (Hz), the digitizer's
+    (Hz), the duration of one ramp (two per drive period, s), the optical excursion of a ramp (Hz) and
+    the monitor MZI's delay (s)."""
+
+    fs_drive_hz: float
+    fs_adc_hz: float
+    ramp_s: float
+    excursion_hz: float
+    mzi_delay_s: float
+
+    def checked(self) -> ChirpGeometry:
+        """The same values as floats; a ValueError names the first that is not positive and finite."""
+        return ChirpGeometry(*(check_positive(f.name, getattr(self, f.name)) for f in fields(self)))
 
 
 @dataclass
@@ -46,8 +72,10 @@ class _Analysis:
 class _Analyzer:
     """Everything about turning one averaged MZI record into errors; fixed geometry per run."""
 
-    def __init__(self, *, fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s, roi, learn,
-                 meas_cutoff_hz, directions, refine=True):
+    def __init__(self, chirp: ChirpGeometry, *, roi: float, learn: float, meas_cutoff_hz: float,
+                 directions: tuple[int, int], refine: bool = True) -> None:
+        fs_drive_hz, fs_adc_hz, ramp_s = chirp.fs_drive_hz, chirp.fs_adc_hz, chirp.ramp_s
+        excursion_hz, mzi_delay_s = chirp.excursion_hz, chirp.mzi_delay_s
         self.fs_d, self.fs_a, self.T = fs_drive_hz, fs_adc_hz, ramp_s
         self.tau_m, self.roi, self.learn = mzi_delay_s, roi, learn
         self.slope = excursion_hz / ramp_s
@@ -61,7 +89,7 @@ class _Analyzer:
         # Hilbert transients and turning points: a few beat periods, but never into the learn region
         self.edge_s = min(3.0 / self.f_beat, 0.5 * (1 - learn) * ramp_s)
 
-    def _ramp_nu(self, x_avg: np.ndarray):
+    def _ramp_nu(self, x_avg: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, int]]:
         """Band-pass the averaged period, then per ramp: drive-frame nu (low-passed) on its time axis."""
         lo = 0.25 * self.f_beat
         hi = max(4.0 * self.f_beat, 4.0 * self.meas_cutoff)
@@ -78,7 +106,7 @@ class _Analyzer:
             out.append((t, self._unfold(nu, self.directions[r]), rf.phase_slips))
         return out
 
-    def _refine(self, seg: np.ndarray, rf) -> np.ndarray:
+    def _refine(self, seg: np.ndarray, rf: RampFrequency) -> np.ndarray:
         """Narrow-band re-estimate of one ramp's drive-frame nu (valid samples).
 
         The Hilbert phase of the averaged beat takes the whole pass band's noise non-linearly. With a
@@ -145,7 +173,7 @@ class _Analyzer:
         tr = t - r * self.T
         return (tr >= 0.5 * (1 - frac) * self.T) & (tr <= 0.5 * (1 + frac) * self.T)
 
-    def _records_nu(self, y: np.ndarray):
+    def _records_nu(self, y: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, int]]:
         """Per ramp (t, drive-frame nu, slips) of a set of records: a real fringe is averaged coherently
         then demodulated; a quadrature one (complex I + jQ) is demodulated per record and its phases
         averaged (:mod:`lidard.dsp.linearize.quadrature`)."""

@@ -11,9 +11,11 @@ Pure numpy: no I/O, no clock, no logging.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..spectrum.instfreq import fft_filter
 
@@ -24,7 +26,7 @@ _BASIS_DECIMATE = 4
 _INVERSE_FLOOR = 0.1
 
 
-def fit_fm_response(drive_v, ramps_nu, *, fs_drive_hz: float, ramp_s: float, learn: float,
+def fit_fm_response(drive_v: ArrayLike, ramps_nu: Sequence[tuple[np.ndarray, np.ndarray]], *, fs_drive_hz: float, ramp_s: float, learn: float,
                     floor_hz_per_v: float) -> np.ndarray:
     """Model-free estimate of the FM response H(f) (Hz/V, drive frame) on the drive's rfft grid.
 
@@ -79,15 +81,34 @@ class Proposal:
     reason: str = ""
 
 
-def propose_drive(cur_u: np.ndarray, err_drive: np.ndarray, ramps_nu, *, tuning_hz_per_v: float,
-                  beta: float, update: str, fs_drive_hz: float, ramp_s: float, learn: float,
-                  q_cutoff_hz: float, cap_v: float, min_beta: float, cap_text: str) -> Proposal:
+@dataclass(frozen=True)
+class UpdateLaw:
+    """How every learning step of one linearization is made: the law (``update``: "inverse" divides the
+    error by the fitted FM response, "scalar" by the tuning slope), the drive's sample rate (Hz) and
+    ramp (s), the learning region (fraction of a ramp), the Q filter's cut-off (Hz), and the peak-drive
+    cap: ``cap_v``, how it reads in a stop reason (``cap_text``), and the smallest gain a capped step
+    may back off to (``min_beta``)."""
+
+    update: str
+    fs_drive_hz: float
+    ramp_s: float
+    learn: float
+    q_cutoff_hz: float
+    cap_v: float
+    min_beta: float
+    cap_text: str
+
+
+def propose_drive(cur_u: np.ndarray, err_drive: np.ndarray, ramps_nu: Sequence[tuple[np.ndarray, np.ndarray]],
+                  law: UpdateLaw, *, tuning_hz_per_v: float, beta: float) -> Proposal:
     """One learning step from ``cur_u`` with error ``err_drive`` (Hz, drive grid), low-passed by Q.
 
     A step whose peak exceeds ``cap_v`` is a broken measurement or fit, never a linearization: the
     gain is halved and the plain scalar step tried once; if that too exceeds the cap (or the gain
     fell below ``min_beta``) no drive is proposed and ``reason`` says why.
     """
+    update, fs_drive_hz, ramp_s, learn, q_cutoff_hz = law.update, law.fs_drive_hz, law.ramp_s, law.learn, law.q_cutoff_hz
+    cap_v, min_beta, cap_text = law.cap_v, law.min_beta, law.cap_text
     K = tuning_hz_per_v
     if update == "inverse":
         h = fit_fm_response(cur_u, ramps_nu, fs_drive_hz=fs_drive_hz, ramp_s=ramp_s, learn=learn,

@@ -19,10 +19,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ._measure import _directions
-from ._measure import _Analyzer
-from ..spectrum.instfreq import check_finite_array, check_positive
+from ._measure import ChirpGeometry, _Analyzer, _directions
+from ..spectrum.instfreq import check_finite_array
 
 
 @dataclass(frozen=True)
@@ -48,25 +48,20 @@ class ChirpResidual:
         return self.error_hz / self.excursion_hz
 
 
-def chirp_residual(records, drive_v, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
-                   excursion_hz: float, mzi_delay_s: float, roi: float = 0.8, learn: float = 0.92,
-                   meas_cutoff_hz: float = 400e3) -> ChirpResidual:
+def chirp_residual(records: ArrayLike, drive_v: ArrayLike, chirp: ChirpGeometry, *, roi: float = 0.8,
+                   learn: float = 0.92, meas_cutoff_hz: float = 400e3) -> ChirpResidual:
     """The error of the chirp that ``drive_v`` produced, from monitor records of it.
 
     ``records``: shape ``(n, 2 ramp_s fs_adc_hz)``, each aligned with the start of the drive period;
     real (one photodiode) or complex I + jQ (quadrature monitor), as the ILC's ``measure`` returns.
     """
-    fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s = (check_positive(k, v) for k, v in (
-        ("fs_drive_hz", fs_drive_hz), ("fs_adc_hz", fs_adc_hz), ("ramp_s", ramp_s),
-        ("excursion_hz", excursion_hz), ("mzi_delay_s", mzi_delay_s)))
+    chirp = chirp.checked()
     u = check_finite_array("drive_v", drive_v, ndim=(1,))
     y = np.asarray(records)
     y = y.astype(np.complex128 if np.iscomplexobj(y) else np.float64)
     if y.ndim == 1:
         y = y[None, :]
-    an = _Analyzer(fs_drive_hz=fs_drive_hz, fs_adc_hz=fs_adc_hz, ramp_s=ramp_s, excursion_hz=excursion_hz,
-                   mzi_delay_s=mzi_delay_s, roi=roi, learn=learn, meas_cutoff_hz=meas_cutoff_hz,
-                   directions=_directions(u))
+    an = _Analyzer(chirp, roi=roi, learn=learn, meas_cutoff_hz=meas_cutoff_hz, directions=_directions(u))
     if y.ndim != 2 or y.shape[1] != an.n_adc:
         raise ValueError(f"records have shape {y.shape}; expected (n, {an.n_adc}) (one drive period each)")
     if abs(u.size - an.n_drive) > 0.5:
@@ -74,8 +69,8 @@ def chirp_residual(records, drive_v, *, fs_drive_hz: float, fs_adc_hz: float, ra
     check_finite_array("monitor records", y.view(np.float64))
     a = an.analyse(y, u)
     return ChirpResidual(up_error_hz=a.err_rms[0], down_error_hz=a.err_rms[1], up_nonlinearity_hz=a.rms[0],
-                         down_nonlinearity_hz=a.rms[1], noise_floor_hz=a.noise, excursion_hz=float(excursion_hz),
+                         down_nonlinearity_hz=a.rms[1], noise_floor_hz=a.noise, excursion_hz=chirp.excursion_hz,
                          records=int(y.shape[0]))
 
 
-__all__ = ["ChirpResidual", "chirp_residual"]
+__all__ = ["ChirpGeometry", "ChirpResidual", "chirp_residual"]

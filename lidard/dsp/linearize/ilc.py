@@ -59,9 +59,11 @@ from typing import Any, Literal
 from collections.abc import Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from ._measure import ChirpGeometry as ChirpGeometry  # public here: the chirp a caller hands to linearize
 from ._measure import _Analysis, _Analyzer, _directions
-from ._update import fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
+from ._update import UpdateLaw, fit_fm_response, propose_drive  # noqa: F401  (fit_fm_response: public here too)
 from ..spectrum.instfreq import check_finite_array, check_positive
 
 
@@ -92,7 +94,7 @@ class IlcIteration:
     accepted: bool
     averages: int = 0          # periods averaged for this measurement
 
-    def __getitem__(self, key: str):  # allow it["up_rms_hz"] as in the task's dict notation
+    def __getitem__(self, key: str) -> Any:  # allow it["up_rms_hz"] as in the task's dict notation
         return getattr(self, key)
 
 
@@ -111,15 +113,47 @@ class IlcResult:
 
 
 @dataclass(frozen=True)
+class IlcSettings:
+    """The knobs of one :func:`linearize` run (checked when it starts; a ValueError names a bad one).
+
+    ``beta``: the learning gain (0, 10]; ``max_iter``: updates at most (14, the dissertation's count);
+    ``roi``/``learn``: the fractions of each ramp where the nonlinearity is reported and where the error
+    is learned (0 < roi < learn <= 1); ``averages``: periods averaged per measurement, growing up to
+    ``max_averages`` (default: no growth) while the noise floor stops learning above ``target_frac`` of
+    the excursion; ``q_cutoff_hz``: the Q filter's low pass on the drive; ``meas_cutoff_hz``: the
+    frequency estimate's low pass; ``rel_tol``: an improvement below it twice running stops learning;
+    ``grow_tol``: an error growing by more is rolled back and beta halved, down to ``min_beta``;
+    ``abs_tol_frac``: a nonlinearity below this fraction of the excursion is done; ``refine``: the
+    narrow-band re-estimate of the frequency; ``update``: the inverse-model law or the scalar one;
+    ``max_drive_factor``/``max_drive_v``: no drive beyond that multiple of the initial peak, or beyond
+    that voltage (the output stage's range), is ever sent.
+    """
+
+    beta: float = 0.8
+    max_iter: int = 14
+    roi: float = 0.8
+    averages: int = 128
+    learn: float = 0.92
+    q_cutoff_hz: float = 1.0e6
+    meas_cutoff_hz: float = 400e3
+    rel_tol: float = 0.02
+    grow_tol: float = 0.2
+    min_beta: float = 0.05
+    abs_tol_frac: float = 1e-6
+    refine: bool = True
+    update: Literal["inverse", "scalar"] = "inverse"
+    max_drive_factor: float = 4.0
+    max_drive_v: float | None = None
+    max_averages: int | None = None
+    target_frac: float = 4e-6
+
+
+@dataclass(frozen=True)
 class _IlcOptions:
     """The validated knobs of one :func:`linearize` run."""
 
     excursion_hz: float
-    fs_drive_hz: float
-    ramp_s: float
-    learn: float
-    q_cutoff_hz: float
-    update: str
+    law: UpdateLaw                         # how each step is made (and the drive cap)
     max_iter: int
     rel_tol: float
     grow_tol: float
@@ -127,8 +161,6 @@ class _IlcOptions:
     abs_tol_frac: float
     target_frac: float
     max_avg: int
-    cap_v: float                           # the largest |drive| ever sent
-    cap_text: str                          # how the cap reads in a stop reason
 
 
 @dataclass
@@ -174,9 +206,11 @@ def _norm(pair: tuple[float, float]) -> float:
     return math.hypot(pair[0], pair[1])
 
 
-def _check_knobs(*, q_cutoff_hz, meas_cutoff_hz, beta, roi, learn, max_iter, update, max_drive_factor,
-                 max_drive_v, averages, max_averages, target_frac) -> int:
-    """Raise a ValueError naming the first bad argument; return the largest average count allowed."""
+def _check_knobs(s: IlcSettings) -> int:
+    """Raise a ValueError naming the first bad setting; return the largest average count allowed."""
+    q_cutoff_hz, meas_cutoff_hz, beta, roi, learn = s.q_cutoff_hz, s.meas_cutoff_hz, s.beta, s.roi, s.learn
+    max_iter, update, max_drive_factor, max_drive_v = s.max_iter, s.update, s.max_drive_factor, s.max_drive_v
+    averages, max_averages, target_frac = s.averages, s.max_averages, s.target_frac
     check_positive("q_cutoff_hz", q_cutoff_hz)
     check_positive("meas_cutoff_hz", meas_cutoff_hz)
     if not (math.isfinite(beta) and 0 < beta <= 10):
@@ -278,9 +312,7 @@ def _step(st: _IlcState, o: _IlcOptions) -> str:
     if not (math.isfinite(K) and K > 0):
         return "tuning slope not measurable"
     st.k += 1
-    prop = propose_drive(st.cur_u, st.cur_a.err_drive, st.cur_a.ramps_nu, tuning_hz_per_v=K, beta=st.beta,
-                         update=o.update, fs_drive_hz=o.fs_drive_hz, ramp_s=o.ramp_s, learn=o.learn,
-                         q_cutoff_hz=o.q_cutoff_hz, cap_v=o.cap_v, min_beta=o.min_beta, cap_text=o.cap_text)
+    prop = propose_drive(st.cur_u, st.cur_a.err_drive, st.cur_a.ramps_nu, o.law, tuning_hz_per_v=K, beta=st.beta)
     if prop.beta != st.beta:               # the cap halved the gain: the record says so
         st.beta = prop.beta
         st.iters[-1] = replace(st.iters[-1], beta=st.beta)
@@ -297,21 +329,16 @@ def _record(st: _IlcState, accepted: bool) -> None:
                                  beta=st.beta, phase_slips=a.slips, accepted=accepted, averages=st.n_avg))
 
 
-def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: float, ramp_s: float,
-              excursion_hz: float, mzi_delay_s: float, beta: float = 0.8, max_iter: int = 14,
-              roi: float = 0.8, averages: int = 128, learn: float = 0.92,
-              q_cutoff_hz: float = 1.0e6, meas_cutoff_hz: float = 400e3,
-              rel_tol: float = 0.02, grow_tol: float = 0.2, min_beta: float = 0.05,
-              abs_tol_frac: float = 1e-6, refine: bool = True,
-              update: Literal["inverse", "scalar"] = "inverse", max_drive_factor: float = 4.0,
-              max_drive_v: float | None = None, max_averages: int | None = None,
-              target_frac: float = 4e-6) -> IlcResult:
+def linearize(measure: MeasureFn, drive0_v: ArrayLike, chirp: ChirpGeometry,
+              settings: IlcSettings | None = None) -> IlcResult:
     """Iteratively pre-distort ``drive0_v`` so that the MZI-measured chirp becomes linear (§2.2).
 
     ``measure(drive_v, n_avg)`` plays one period of ``drive_v`` (at ``fs_drive_hz``, repeated) and
     returns ``n_avg`` recorded periods of the monitor-MZI beat, shape ``(n_avg, 2 ramp_s fs_adc_hz)``,
     each aligned with the start of the drive period: real (one photodiode), or complex I + jQ for a
-    quadrature monitor (``[monitor] quadrature``; phases averaged, see :mod:`lidard.dsp.linearize.quadrature`). Stops when the nonlinearity reaches twice the
+    quadrature monitor (``[monitor] quadrature``; phases averaged, see :mod:`lidard.dsp.linearize.quadrature`).
+    ``chirp``: the rates, ramp, excursion and monitor delay; ``settings``: the learner's knobs
+    (:class:`IlcSettings`; its defaults when None). Stops when the nonlinearity reaches twice the
     measured noise floor or stops improving by ``rel_tol``; a step whose error grows by more than
     ``grow_tol`` is rolled back and beta halved. Returns the best drive seen.
 
@@ -322,32 +349,28 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     never pays for it. The default target, 4e-6 of the excursion, is what a >= 1000x reduction of a
     ~0.7 % RMS nonlinearity needs; the measurement itself is unchanged.
     """
+    s = IlcSettings() if settings is None else settings
     if not callable(measure):
         raise TypeError("measure must be callable as measure(drive_v, n_avg)")
     u0 = check_finite_array("drive0_v", drive0_v, ndim=(1,)).copy()
-    fs_drive_hz, fs_adc_hz, ramp_s, excursion_hz, mzi_delay_s = (check_positive(name, v) for name, v in (
-        ("fs_drive_hz", fs_drive_hz), ("fs_adc_hz", fs_adc_hz), ("ramp_s", ramp_s),
-        ("excursion_hz", excursion_hz), ("mzi_delay_s", mzi_delay_s)))
-    max_avg = _check_knobs(q_cutoff_hz=q_cutoff_hz, meas_cutoff_hz=meas_cutoff_hz, beta=beta, roi=roi,
-                           learn=learn, max_iter=max_iter, update=update,
-                           max_drive_factor=max_drive_factor, max_drive_v=max_drive_v, averages=averages,
-                           max_averages=max_averages, target_frac=target_frac)
-    n_drive = 2 * ramp_s * fs_drive_hz
+    g = chirp.checked()
+    max_avg = _check_knobs(s)
+    n_drive = 2 * g.ramp_s * g.fs_drive_hz
     if abs(n_drive - u0.size) > 0.5:
         raise ValueError(f"drive0_v has {u0.size} samples; one period 2 ramp_s fs_drive_hz is {n_drive:g}")
-    an = _Analyzer(fs_drive_hz=fs_drive_hz, fs_adc_hz=fs_adc_hz, ramp_s=ramp_s, excursion_hz=excursion_hz,
-                   mzi_delay_s=mzi_delay_s, roi=roi, learn=learn, meas_cutoff_hz=meas_cutoff_hz,
-                   directions=_directions(u0), refine=bool(refine))
-    if an.f_beat * ramp_s < 10:
+    an = _Analyzer(g, roi=s.roi, learn=s.learn, meas_cutoff_hz=s.meas_cutoff_hz, directions=_directions(u0),
+                   refine=bool(s.refine))
+    if an.f_beat * g.ramp_s < 10:
         raise ValueError(f"MZI beat {an.f_beat:g} Hz gives < 10 fringes per ramp: mzi_delay_s too short")
-    o = _IlcOptions(excursion_hz=excursion_hz, fs_drive_hz=fs_drive_hz, ramp_s=ramp_s, learn=learn,
-                    q_cutoff_hz=q_cutoff_hz, update=update, max_iter=max_iter, rel_tol=rel_tol,
-                    grow_tol=grow_tol, min_beta=min_beta, abs_tol_frac=abs_tol_frac, target_frac=target_frac,
-                    max_avg=max_avg, **_drive_cap(u0, max_drive_factor, max_drive_v))
+    law = UpdateLaw(update=s.update, fs_drive_hz=g.fs_drive_hz, ramp_s=g.ramp_s, learn=s.learn,
+                    q_cutoff_hz=s.q_cutoff_hz, min_beta=s.min_beta, **_drive_cap(u0, s.max_drive_factor, s.max_drive_v))
+    o = _IlcOptions(excursion_hz=g.excursion_hz, law=law, max_iter=s.max_iter, rel_tol=s.rel_tol,
+                    grow_tol=s.grow_tol, min_beta=s.min_beta, abs_tol_frac=s.abs_tol_frac, target_frac=s.target_frac,
+                    max_avg=max_avg)
     plant = _Plant(measure, an)
-    a = plant.run(u0, int(averages))
-    st = _IlcState(u=u0, a=a, first=a, cur_u=u0, cur_a=a, best_u=u0, best_a=a, best_k=0, beta=float(beta),
-                   n_avg=int(averages), slips=a.slips)
+    a = plant.run(u0, int(s.averages))
+    st = _IlcState(u=u0, a=a, first=a, cur_u=u0, cur_a=a, best_u=u0, best_a=a, best_k=0, beta=float(s.beta),
+                   n_avg=int(s.averages), slips=a.slips)
     while True:
         accepted = _judge(st, o)
         _record(st, accepted)
@@ -367,5 +390,5 @@ def linearize(measure: MeasureFn, drive0_v, *, fs_drive_hz: float, fs_adc_hz: fl
     return IlcResult(drive_v=st.best_u, iterations=st.iters, reduction=red, converged=st.converged,
                      tuning_hz_per_v=best_a.tuning, best_iteration=st.best_k, phase_slips=st.slips,
                      stop_reason=st.reason,
-                     meta={"meas_cutoff_hz": meas_cutoff_hz, "q_cutoff_hz": q_cutoff_hz, "averages": st.n_avg,
-                           "roi": roi, "learn": learn, "mzi_beat_hz": an.f_beat})
+                     meta={"meas_cutoff_hz": s.meas_cutoff_hz, "q_cutoff_hz": s.q_cutoff_hz, "averages": st.n_avg,
+                           "roi": s.roi, "learn": s.learn, "mzi_beat_hz": an.f_beat})

@@ -24,9 +24,11 @@ Pure numpy/scipy: no I/O, no clock, no logging.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..spectrum.instfreq import check_finite_array, check_positive, hilbert
 from .reconstruct import delayed, quadrature_delta, reconstruct_phase, whole_delay_samples
@@ -60,7 +62,7 @@ def demodulated_phase(x: np.ndarray, *, fs_hz: float, beat_hz: float, bandwidth_
     return delta
 
 
-def mzi_phase_noise(mzi, *, fs_hz: float, edge_s: float, bandwidth_hz: float | None = None,
+def mzi_phase_noise(mzi: ArrayLike, *, fs_hz: float, edge_s: float, bandwidth_hz: float | None = None,
                     beat_hz: float | None = None) -> MziPhaseNoise:
     """Estimate Delta phi_m(t) from one ramp of the monitor-MZI beat (1-D, one ramp).
 
@@ -129,7 +131,8 @@ def _delayed(x: np.ndarray, shift: float) -> np.ndarray:
     return np.interp(k, np.arange(n), x, left=0.0, right=0.0)
 
 
-def cumulative_phase_noise(delta_rad, m_max: int, delay_samples: float):
+def cumulative_phase_noise(delta_rad: ArrayLike, m_max: int,
+                           delay_samples: float) -> Iterator[tuple[int, np.ndarray]]:
     """Yield (M, sum_{m<M} delta(t - m tau_m)) for M = 0..m_max."""
     s = np.zeros(np.asarray(delta_rad).size)
     yield 0, s.copy()
@@ -161,10 +164,10 @@ class CompensatedSpectrum:
         return 20.0 * math.log10(self.comp[sl].max() / self.raw[sl].max())
 
 
-def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_delay_s: float,
+def compensated_spectrum(beat: ArrayLike, mzi: ArrayLike, *, fs_hz: float, mzi_delay_s: float, max_delay_s: float,
                          window: str = "hann", edge_s: float | None = None,
                          nfft: int | None = None, bandwidth_hz: float | None = None,
-                         chirp_rate_hz_per_s: float | None = None, mzi_q=None,
+                         chirp_rate_hz_per_s: float | None = None, mzi_q: ArrayLike | None = None,
                          tau_step_s: float | None = None) -> CompensatedSpectrum:
     """Phase-noise compensated spectrum of one ramp of a LiDAR beat (real, 1-D) using the monitor MZI.
 
@@ -186,8 +189,8 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
     max_delay_s = check_positive("max_delay_s", max_delay_s)
     if edge_s is None:
         edge_s = max(20.0 / fs_hz, 1e-6)
-    beat = None if chirp_rate_hz_per_s is None else check_positive("chirp_rate_hz_per_s", chirp_rate_hz_per_s) * mzi_delay_s
-    pn = mzi_phase_noise(m_arr, fs_hz=fs_hz, edge_s=edge_s, bandwidth_hz=bandwidth_hz, beat_hz=beat)
+    mzi_beat_hz = None if chirp_rate_hz_per_s is None else check_positive("chirp_rate_hz_per_s", chirp_rate_hz_per_s) * mzi_delay_s
+    pn = mzi_phase_noise(m_arr, fs_hz=fs_hz, edge_s=edge_s, bandwidth_hz=bandwidth_hz, beat_hz=mzi_beat_hz)
     if not pn.f_mzi_hz > 0:
         raise ValueError("mzi: no positive beat frequency found (is the laser chirping?)")
     d = mzi_delay_s * fs_hz
@@ -215,7 +218,8 @@ def compensated_spectrum(beat, mzi, *, fs_hz: float, mzi_delay_s: float, max_del
                                start=start)
 
 
-def _analytic_spectrum(b, window, start, stop, nfft, fs_hz):
+def _analytic_spectrum(b: np.ndarray, window: str, start: int, stop: int, nfft: int | None,
+                       fs_hz: float) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
     """The beat's analytic signal over [start, stop), its window, and its uncompensated magnitude
     spectrum on the positive frequencies (both compensations start from it)."""
     z = hilbert(b - b.mean())[start:stop]
@@ -227,8 +231,10 @@ def _analytic_spectrum(b, window, start, stop, nfft, fs_hz):
     return z, w, nfft, pos, freq[pos], raw
 
 
-def _reconstructed_spectrum(b, mzi_i, mzi_q, *, fs_hz, mzi_delay_s, max_delay_s, window, start, stop, nfft,
-                            chirp_rate_hz_per_s, tau_step_s, n_edge) -> CompensatedSpectrum:
+def _reconstructed_spectrum(b: np.ndarray, mzi_i: np.ndarray, mzi_q: ArrayLike, *, fs_hz: float, mzi_delay_s: float,
+                            max_delay_s: float, window: str, start: int, stop: int, nfft: int | None,
+                            chirp_rate_hz_per_s: float | None, tau_step_s: float | None,
+                            n_edge: int) -> CompensatedSpectrum:
     """compensated_spectrum with a quadrature monitor: phi(t) rebuilt, every bin at its own round trip."""
     if chirp_rate_hz_per_s is None:
         raise ValueError("mzi_q needs chirp_rate_hz_per_s (the fringe is demodulated at gamma tau_m)")

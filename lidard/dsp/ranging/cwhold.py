@@ -31,11 +31,13 @@ Pure numpy: no I/O, no clock, no logging.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..spectrum.instfreq import analytic_phase
 from ..spectrum.rangefft import C_M_PER_S
@@ -88,7 +90,7 @@ class HoldProfile:
         return np.interp(t_s, *self._table)
 
 
-def hold_profile(records, fs_hz: float, start: int, mzi_delay_s: float) -> HoldProfile:
+def hold_profile(records: ArrayLike, fs_hz: float, start: int, mzi_delay_s: float) -> HoldProfile:
     """The hold's drift from monitor-MZI records (n_avg, n) of whole periods (up ramp, down ramp, hold),
     the hold from ``start``, in the chirp's frame: the up ramp raises nu.
 
@@ -152,6 +154,10 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
 
 
 # -- the frame DSP's use (lidard.dsp.ranging.threeseg.pair_frame_three) ---------------------------------------
+# ``dsp`` below is the frame's lidard.dsp.frame.FrameDsp (typed Any: frame imports this module)
+RampPair = Sequence[np.ndarray]        # [up ramp, down ramp] of a per-slot quantity, (n, K) each
+# (range, velocity, valid, present, up index, down index), (n, K) each
+PairSlots = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB: an exponential
 #: noise cell passes with probability exp(-20 ln 2) ~ 1e-6)
 PEAK_SNR = 20.0
@@ -172,7 +178,7 @@ class Candidates:
     lo: np.ndarray                      # the lower ramp beat (Hz); 0 for a lone peak
 
 
-def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates, cw_start: int, n_cw: int,
+def measure_boundary(dsp: Any, x: np.ndarray, profile: HoldProfile, cand: Candidates, cw_start: int, n_cw: int,
                      ramp_df_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Range (m), velocity (m/s, positive receding) and acceptance per candidate, from the dechirped
     CW segment: R = c (hi - f_cw) / (2 kappa), v = sign lambda f_cw / 2 (docs/physics.md)."""
@@ -217,7 +223,7 @@ def measure_boundary(dsp, x: np.ndarray, profile: HoldProfile, cand: Candidates,
     return rng, vel, ok
 
 
-def boundary_candidates(flat_f, flat_valid, pairs, cw_df_hz: float, ramp_df_hz: float) -> Candidates:
+def boundary_candidates(flat_f: RampPair, flat_valid: RampPair, pairs: PairSlots, cw_df_hz: float, ramp_df_hz: float) -> Candidates:
     """Ambiguous pairs (present, not valid), and ramp peaks left without a partner whose partner may
     sit under the DC guard (placed in a free slot): their |f_D| lies within lo_max / 2 of hi / 2."""
     (fu, fd), (vu, vd) = flat_f, flat_valid
@@ -256,7 +262,7 @@ def boundary_candidates(flat_f, flat_valid, pairs, cw_df_hz: float, ramp_df_hz: 
                       lo=np.concatenate([lo_a, np.zeros(len(lone_r))]))
 
 
-def resolve_boundary(dsp, x: np.ndarray, profile: HoldProfile, flat_f, flat_valid, pairs, *,
+def resolve_boundary(dsp: Any, x: np.ndarray, profile: HoldProfile, flat_f: RampPair, flat_valid: RampPair, pairs: PairSlots, *,
                      ramp_df_hz: float, cw_window: tuple[int, int]) -> None:
     """Update ``pairs`` = (range, velocity, valid, present, up index, down index), each (n, K), in
     place: candidates (:func:`boundary_candidates`) whose dechirped CW peak is found become valid

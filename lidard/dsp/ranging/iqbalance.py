@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..spectrum.window import DspInputError, get_window
 
@@ -63,7 +64,7 @@ def check_imbalance(gain: float, phase_rad: float) -> None:
 
 
 def correct(i: np.ndarray, q: np.ndarray, gain: float = 1.0, phase_rad: float = 0.0,
-            out_dtype=np.complex128) -> np.ndarray:
+            out_dtype: DTypeLike = np.complex128) -> np.ndarray:
     """The complex beat I + jQ' with the imbalance removed (Q' = (Q / g - I sin eps) / cos eps)."""
     check_imbalance(gain, phase_rad)
     i = np.asarray(i)

@@ -40,11 +40,14 @@ total likelihood is taken (the least motion among equally good sets). Pure numpy
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from .cwhold import HoldProfile, resolve_boundary
+from .cwhold import HoldProfile, PairSlots, resolve_boundary
 from ..detect.gate import aliased, point_flags
 from ..spectrum.rangefft import C_M_PER_S, RangeFFT
 from .assign import best_matching, line_snr, pair_loglik, tie_llr
@@ -114,7 +117,7 @@ def cw_band_power(p_cw: np.ndarray, df_hz: float, centre_hz: np.ndarray, half_hz
     return peak, width <= 0
 
 
-def cw_line_threshold(cw_pfa, records: int, cells=1):
+def cw_line_threshold(cw_pfa: float, records: int, cells: ArrayLike = 1) -> np.ndarray:
     """The noise-normalised power the peak of ``cells`` CW cells, each averaged over ``records`` records,
     passes with probability ``cw_pfa`` in noise alone (each cell at cw_pfa / cells: chi-square with 2L
     degrees of freedom, over 2L)."""
@@ -128,12 +131,14 @@ def cw_noise(p_cw: np.ndarray, records: int) -> np.ndarray:
     return _median_last(p_cw) / (float(chi2_isf(0.5, 2.0 * records)) / (2.0 * records))
 
 
-def _regime_line(table, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band, records, cw_pfa):
+def _regime_line(table: _RangeMax, df_hz: float, f_r: np.ndarray, d_abs: np.ndarray, noise: np.ndarray,
+                 band: tuple[np.ndarray, np.ndarray] | None, s: PairingSettings) -> tuple[np.ndarray, np.ndarray]:
     """Per candidate: (the noise-normalised peak power of the CW band the regime predicts, whether it
     is a line at ``cw_pfa`` over the band's cells). A regime that predicts |f_D| inside the CW's DC
     guard: (+inf, True), no beat can be seen there and none is needed. ``band``: (centre, half width)
     of the CW beat predicted from the measured drift (:func:`drift_band`), searched with 4 bins of
-    slack; None: a RHO_MAX spread around |f_D|."""
+    slack; None: a RHO_MAX spread around |f_D|. ``s``: the DC guard, the records, ``cw_pfa``."""
+    guard_bins, guard_hz, records, cw_pfa = s.guard_bins, s.guard_bins * df_hz, s.records, s.cw_pfa
     p_cw = table.p
     n = p_cw.shape[0]
     centre, half = (d_abs, RHO_MAX * f_r + 2 * df_hz) if band is None else (band[0], band[1] + 4 * df_hz)
@@ -146,7 +151,7 @@ def _regime_line(table, df_hz, f_r, d_abs, noise, guard_bins, guard_hz, band, re
     return np.where(guard, np.inf, x).reshape(f_r.shape), (line | guard).reshape(f_r.shape)
 
 
-def drift_band(f_r, f_d, rho):
+def drift_band(f_r: np.ndarray, f_d: np.ndarray, rho: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """(centre, half width) of |f_R rho(t) - f_D| over the CW window: the band a return's CW beat
     occupies when the held segment's drift rate, relative to the ramps', spans ``rho`` = (lo, hi)
     (measured: lidard.dsp.ranging.cwhold; f_D signed, the bench's convention)."""
@@ -156,8 +161,25 @@ def drift_band(f_r, f_d, rho):
     return 0.5 * (top + bottom), 0.5 * (top - bottom)
 
 
-def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz: float, rho=None,
-                records: int = 1, cw_pfa: float = 1e-6):
+@dataclass(frozen=True)
+class PairingSettings:
+    """What the three-segment pairing of one frame holds fixed: the ramps' chirp rate (Hz/s) and the
+    wavelength (m), the CW spectrum's DC guard (bins), the slots per pixel (``max_targets``), the records
+    the CW spectrum averages, the false-alarm rate of a CW line (``cw_pfa``) and the likelihood level
+    under which two assignments tie (``tie_level``, :func:`lidard.dsp.ranging.assign.tie_llr`)."""
+
+    chirp_rate_hz_per_s: float
+    wavelength_m: float
+    guard_bins: int
+    max_targets: int
+    records: int = 1
+    cw_pfa: float = 1e-6
+    tie_level: float = 1e-3
+
+
+def score_pairs(fu: np.ndarray, fd: np.ndarray, vu: np.ndarray, vd: np.ndarray, p_cw: np.ndarray, df_hz: float,
+                s: PairingSettings, *,
+                rho: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every (up i, down j) pair of every row: (possible (n, K, K), folded, f_range, f_dopp (signed),
     ambiguous).
 
@@ -169,11 +191,11 @@ def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz
     a, b = fu[:, :, None], fd[:, None, :]
     hi, lo = np.maximum(a, b), np.minimum(a, b)
     sign = np.where(b > a, 1.0, -1.0)            # sign(f_dn - f_up) = sign(f_D), both regimes
-    noise = np.maximum(cw_noise(p_cw, records), 1e-300)[:, None]
+    noise = np.maximum(cw_noise(p_cw, s.records), 1e-300)[:, None]
     regimes = ((0.5 * (hi + lo), 0.5 * (hi - lo)), (0.5 * (hi - lo), 0.5 * (hi + lo)))   # not folded, folded
     bands: list[Any] = [None, None] if rho is None else [drift_band(f_r, sign * d, rho) for f_r, d in regimes]
     table = _RangeMax(p_cw)                      # one table for both regimes
-    (x_n, l_n), (x_f, l_f) = (_regime_line(table, df_hz, f_r, d, noise, guard_bins, guard_hz, band, records, cw_pfa)
+    (x_n, l_n), (x_f, l_f) = (_regime_line(table, df_hz, f_r, d, noise, band, s)
                               for (f_r, d), band in zip(regimes, bands))
     folded = l_f & (~l_n | (x_f > x_n))
     f_r = np.where(folded, regimes[1][0], regimes[0][0])
@@ -190,24 +212,24 @@ def score_pairs(fu, fd, vu, vd, p_cw, df_hz: float, *, guard_bins: int, guard_hz
     return possible, folded, f_r, sign * d_abs, ambiguous
 
 
-def pair_three(fu, fd, vu, vd, p_cw, df_hz: float, *, chirp_rate_hz_per_s: float, wavelength_m: float,
-               guard_bins: int, max_targets: int, rho=None, snr=None, records: int = 1, cw_pfa: float = 1e-6,
-               tie_level: float = 1e-3):
+def pair_three(ramp_hz: Sequence[ArrayLike], masks: Sequence[ArrayLike], p_cw: np.ndarray, df_hz: float,
+               settings: PairingSettings, *, rho: tuple[float, float] | None = None,
+               snr: Sequence[np.ndarray] | None = None) -> PairSlots:
     """The assignment of up/down pairs per row of largest total likelihood (module doc).
 
-    Inputs (n, K) ramp magnitudes (Hz) and masks, the CW power spectrum (n, n_bins) with bin spacing
-    ``df_hz``; ``snr``: the (up, down) noise-normalised line powers (n, K) (None: all alike, the least
-    motion decides). Returns per row and slot (n, max_targets): range_m, velocity_mps (positive
-    receding), valid, present (valid, or a pair whose regime is ambiguous: drawn, flagged), up and
-    down index.
+    Inputs (up, down) ramp magnitudes (Hz) and (up, down) masks, (n, K) each, the CW power spectrum
+    (n, n_bins) with bin spacing ``df_hz``; ``snr``: the (up, down) noise-normalised line powers (n, K)
+    (None: all alike, the least motion decides). Returns per row and slot (n, max_targets): range_m, velocity_mps
+    (positive receding), valid, present (valid, or a pair whose regime is ambiguous: drawn, flagged),
+    up and down index.
     """
-    fu, fd = np.abs(np.asarray(fu, dtype=np.float64)), np.abs(np.asarray(fd, dtype=np.float64))
-    vu, vd = np.asarray(vu, dtype=bool), np.asarray(vd, dtype=bool)
+    fu, fd = (np.abs(np.asarray(f, dtype=np.float64)) for f in ramp_hz)
+    vu, vd = (np.asarray(v, dtype=bool) for v in masks)
+    chirp_rate_hz_per_s, wavelength_m = settings.chirp_rate_hz_per_s, settings.wavelength_m
+    max_targets, records, tie_level = settings.max_targets, settings.records, settings.tie_level
     n, ku = fu.shape
     kd = fd.shape[1]
-    ok_pair, _folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, guard_bins=guard_bins,
-                                                 guard_hz=guard_bins * df_hz, rho=rho, records=records,
-                                                 cw_pfa=cw_pfa)
+    ok_pair, _folded, f_r, f_d, amb = score_pairs(fu, fd, vu, vd, p_cw, df_hz, settings, rho=rho)
     loglik = np.ones((n, ku, kd)) if snr is None else pair_loglik(snr[0], snr[1], records)
     match = best_matching(np.where(ok_pair, loglik, -np.inf), np.abs(f_d), tie_llr(tie_level))
     out = {k: np.zeros((n, max_targets)) for k in ("range_m", "velocity_mps")}
@@ -245,14 +267,14 @@ def _smooth_at_most(n: int) -> int:
     return 2
 
 
-def cw_window(dsp, skip_fraction: float = CW_SKIP_FRACTION) -> tuple[int, int]:
+def cw_window(dsp: Any, skip_fraction: float = CW_SKIP_FRACTION) -> tuple[int, int]:
     """(first sample, samples used) of the CW segment in a record (after the two ramps): at least the
     first ``skip_fraction`` skipped, an FFT-friendly length ending with the record."""
     n = _smooth_at_most(dsp.cw_samples - int(dsp.cw_samples * skip_fraction))
     return 2 * dsp.ramp_samples + dsp.cw_samples - n, n
 
 
-def drift_rho(dsp, profile: HoldProfile) -> tuple[float, float]:
+def drift_rho(dsp: Any, profile: HoldProfile) -> tuple[float, float]:
     """The measured drift rate's range over the CW window, relative to the ramps' chirp rate (1st to
     99th percentile: the profile's Hilbert edge at the hold's end is not the laser)."""
     a, n = cw_window(dsp)
@@ -262,7 +284,7 @@ def drift_rho(dsp, profile: HoldProfile) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
+def cw_front_end(dsp: Any, x: np.ndarray, lsb_v: float) -> tuple[np.ndarray, float]:
     """The CW segment's power spectrum (n_pix, n_bins), averaged over the pixel's records, and its
     bin spacing (Hz)."""
     a, n = cw_window(dsp)
@@ -271,7 +293,8 @@ def cw_front_end(dsp, x: np.ndarray, lsb_v: float):
     return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
 
 
-def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarray) -> dict[str, Any]:
+def pair_frame_three(dsp: Any, out_f: list[Any], out_det: list[Any], cw: tuple[np.ndarray, float],
+                     x: np.ndarray) -> dict[str, Any]:
     """The FrameResult fields (as a dict) of a three-segment frame; ``x`` the batch's records (the
     CW segments the boundary's dechirp reads)."""
     (fu, fd), (du, dd) = out_f, out_det
@@ -282,17 +305,18 @@ def pair_frame_three(dsp, out_f: list[Any], out_det: list[Any], cw, x: np.ndarra
     vflat = [m.reshape(-1, m.shape[-1]) for m in (du.valid, dd.valid)]
     profile = dsp.hold
     (flat_u, flat_d), (valid_u, valid_d) = flat, vflat
-    rng, vel, ok, seen, iu, idn = pair_three(flat_u, flat_d, valid_u, valid_d, p_cw.reshape(-1, p_cw.shape[-1]), df,
-                                             chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s,
-                                             wavelength_m=dsp.wavelength_m, guard_bins=CW_GUARD_BINS, max_targets=k,
-                                             rho=dsp.drift_rho, snr=[a.reshape(-1, k) for a in line_snr(du, dd)],
-                                             records=x.shape[1], cw_pfa=dsp.ramp_pfa, tie_level=dsp.order_level)
+    pairing = PairingSettings(chirp_rate_hz_per_s=dsp.chirp_rate_hz_per_s, wavelength_m=dsp.wavelength_m,
+                              guard_bins=CW_GUARD_BINS, max_targets=k, records=x.shape[1], cw_pfa=dsp.ramp_pfa,
+                              tie_level=dsp.order_level)
+    rng, vel, ok, seen, iu, idn = pair_three((flat_u, flat_d), (valid_u, valid_d), p_cw.reshape(-1, p_cw.shape[-1]),
+                                             df, pairing, rho=dsp.drift_rho,
+                                             snr=[a.reshape(-1, k) for a in line_snr(du, dd)])
     if profile is not None:    # where the regimes meet, |f_D| from the dechirped CW segment (lidard.dsp.ranging.cwhold)
         resolve_boundary(dsp, x, profile, flat, vflat,
                          (rng, vel, ok, seen, iu, idn), ramp_df_hz=dsp.rfft.delta_f,
                          cw_window=cw_window(dsp, DECHIRP_SKIP_FRACTION))
 
-    def pick(field_up, field_dn):
+    def pick(field_up: np.ndarray, field_dn: np.ndarray) -> np.ndarray:
         a = np.take_along_axis(field_up.reshape(-1, k), np.maximum(iu, 0), axis=1)
         b = np.take_along_axis(field_dn.reshape(-1, k), np.maximum(idn, 0), axis=1)
         return np.where(iu >= 0, a, b)

@@ -31,13 +31,14 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from lidard.dsp.spectrum.rangefft import C_M_PER_S
 from lidard.dsp.ranging.assign import best_matching, pair_loglik, tie_llr
 from lidard.dsp.spectrum.window import DspInputError
 
 
-def _as_2d(a: object, name: str, dtype) -> np.ndarray:
+def _as_2d(a: object, name: str, dtype: DTypeLike) -> np.ndarray:
     arr = np.asarray(a)
     if arr.ndim == 0:
         raise DspInputError(f"{name} must have shape (..., K), got a scalar")

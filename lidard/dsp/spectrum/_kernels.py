@@ -16,10 +16,14 @@ order statistic. Edges are mirrored (numpy's "reflect"), as in :func:`lidard.dsp
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numba
 import numpy as np
 
-_jit = numba.njit(cache=True, nogil=True)
+# numba carries no type information: the compiled functions are typed Any to their (few) callers
+_jit: Callable[[Callable[..., Any]], Any] = numba.njit(cache=True, nogil=True)
 
 OS_BLOCK = 16       # cells per block of the OS-CFAR screen
 _HOOD = 48          # block neighbourhoods up to this many cells are counted in one fixed-length loop
@@ -27,13 +31,14 @@ _INF_BITS = 0x7FF0000000000000     # bit patterns of non-negative finite doubles
 
 
 @_jit
-def power(z, out):  # pragma: no cover (compiled; checked against numpy in the tests)
+def power(z: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover (compiled; checked against numpy in the tests)
     for i in range(z.size):
         out[i] = z[i].real * z[i].real + z[i].imag * z[i].imag
 
 
 @_jit
-def _block_tops(row, bits, top, buf, reach):  # pragma: no cover
+def _block_tops(row: np.ndarray, bits: np.ndarray, top: np.ndarray, buf: np.ndarray,
+                reach: int) -> tuple[float, bool]:  # pragma: no cover
     """Largest cell of each block of ``row`` into ``top``, and the row into buf[reach:] (the same
     pass over memory); returns (row max, plain): plain when every cell is a non-negative finite
     number and not -0.0, read from the int64 bit patterns ``bits`` (whose order is then the cells'
@@ -69,7 +74,7 @@ def _block_tops(row, bits, top, buf, reach):  # pragma: no cover
 
 
 @_jit
-def _has_bad(row):  # pragma: no cover
+def _has_bad(row: np.ndarray) -> bool:  # pragma: no cover
     bad = False
     for x in row:
         bad |= not ((x >= 0.0) & (x <= 1.7976931348623157e308))      # NaN, negative or infinite
@@ -77,7 +82,7 @@ def _has_bad(row):  # pragma: no cover
 
 
 @_jit
-def _fill_mirrored(row, reach, buf):  # pragma: no cover
+def _fill_mirrored(row: np.ndarray, reach: int, buf: np.ndarray) -> None:  # pragma: no cover
     """The ``reach`` mirrored cells on each side of buf[reach + j] = row[j] (the edge cell not repeated)."""
     n = row.size
     for i in range(reach):
@@ -86,7 +91,7 @@ def _fill_mirrored(row, reach, buf):  # pragma: no cover
 
 
 @_jit
-def _count_below(buf, lo, length, t):  # pragma: no cover
+def _count_below(buf: np.ndarray, lo: int, length: int, t: float) -> int:  # pragma: no cover
     """How many of buf[lo : lo + length] are not >= t (NaN counts, as in the per-cell count)."""
     below = 0
     for s in range(0, length, _HOOD):   # fixed-length masked chunks: vectorised (buf has _HOOD spare cells)
@@ -98,7 +103,7 @@ def _count_below(buf, lo, length, t):  # pragma: no cover
 
 
 @_jit
-def _kth(ref, k, plain):  # pragma: no cover
+def _kth(ref: np.ndarray, k: int, plain: bool) -> float:  # pragma: no cover
     """The k-th smallest of ``ref`` (as ``np.sort(ref)[k - 1]``: the same element, NaN last)."""
     if not plain:
         ref.sort()
@@ -115,7 +120,7 @@ def _kth(ref, k, plain):  # pragma: no cover
 
 
 @_jit
-def _local_maxima(buf, reach, lo, hi, n, maxima):  # pragma: no cover
+def _local_maxima(buf: np.ndarray, reach: int, lo: int, hi: int, n: int, maxima: np.ndarray) -> int:  # pragma: no cover
     """The local maxima among cells lo..hi-1 into ``maxima`` (beyond either edge is -inf); returns
     their number. Listed without a branch per cell; the mirrored cell at the first edge gives the
     edge's own test (x > p[1]), the last cell is tested apart (x >= p[n - 2])."""
@@ -133,7 +138,9 @@ def _local_maxima(buf, reach, lo, hi, n, maxima):  # pragma: no cover
 
 
 @_jit
-def _pass_cells(r, buf, q, maxima, plain, floor, cfg, out_r, out_c, out_noise, m):  # pragma: no cover
+def _pass_cells(r: int, buf: np.ndarray, q: int, maxima: np.ndarray, plain: bool, floor: float,
+                cfg: tuple[int, int, int, float, float, float, bool], out_r: np.ndarray, out_c: np.ndarray,
+                out_noise: np.ndarray, m: int) -> int:  # pragma: no cover
     """The per-cell count, then the exact statistic, for the local maxima listed; appends the cells
     kept (all that pass the count, or with ``exact`` those that pass the detector's test) at ``m``;
     returns the new count, or -1 when the output is full."""
@@ -168,8 +175,9 @@ def _pass_cells(r, buf, q, maxima, plain, floor, cfg, out_r, out_c, out_noise, m
 
 
 @_jit
-def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor_factor, exact,
-            out_r, out_c, out_noise):  # pragma: no cover
+def os_scan(p: np.ndarray, bits: np.ndarray, n_side: int, guard: int, k: int, thr_factor: float, mean_kth: float,
+            scaled_alpha: float, floor_factor: float, exact: bool, out_r: np.ndarray, out_c: np.ndarray,
+            out_noise: np.ndarray) -> int:  # pragma: no cover
     """OS-CFAR over the rows of ``p`` (``bits``: the same memory as int64), see :func:`lidard.dsp.spectrum.jit.os_detect`
     (``exact``) and :func:`lidard.dsp.spectrum.jit.os_screen`. Returns the number of cells written, -1 if
     they do not fit, -2 (``exact`` only) if ``p`` holds a NaN, an infinite or a negative value."""
@@ -203,7 +211,8 @@ def os_scan(p, bits, n_side, guard, k, thr_factor, mean_kth, scaled_alpha, floor
 
 
 @_jit
-def widths_6db(flat, start, col, n, max_half, out):  # pragma: no cover
+def widths_6db(flat: np.ndarray, start: np.ndarray, col: np.ndarray, n: int, max_half: int,
+               out: np.ndarray) -> None:  # pragma: no cover
     """-6 dB full widths of the peaks at flat[start + col] (rows of ``n`` cells from ``start``), as
     lidard.dsp.detect._post._widths_flat computes them: per side the first of ``max_half`` cells out
     (the edge cell repeating) below a quarter of the peak, interpolated with the cell before it."""
@@ -227,7 +236,7 @@ def widths_6db(flat, start, col, n, max_half, out):  # pragma: no cover
 
 
 @_jit
-def bin_table(tw, basis, k, out):  # pragma: no cover
+def bin_table(tw: np.ndarray, basis: np.ndarray, k: int, out: np.ndarray) -> None:  # pragma: no cover
     """lidard.dsp.spectrum.dtft._moments_on_bins's table of bin ``k``: out[t, c, q] = tw[(k t) mod n, c] * basis[t, q]
     (the demodulated Chebyshev basis, cos and sin parts), the same products without the gathered copy."""
     n, q_terms = basis.shape
@@ -241,13 +250,15 @@ def bin_table(tw, basis, k, out):  # pragma: no cover
 
 
 @_jit
-def _safe_div(num, den):  # pragma: no cover
+def _safe_div(num: float, den: float) -> float:  # pragma: no cover
     return num / den if abs(den) > 0 else 0.0
 
 
 @_jit
-def newton_real_step(gr, gi, d, d0, offsets, cos_phi, sin_phi, cos_w, sin_w, cos_w1, sin_w1, turn, n,
-                     det_floor, reach, h2, hh):  # pragma: no cover
+def newton_real_step(gr: np.ndarray, gi: np.ndarray, d: np.ndarray, d0: np.ndarray, offsets: np.ndarray,
+                     cos_phi: np.ndarray, sin_phi: np.ndarray, cos_w: np.ndarray, sin_w: np.ndarray,
+                     cos_w1: np.ndarray, sin_w1: np.ndarray, turn: np.ndarray, n: int, det_floor: float,
+                     reach: float, h2: float, hh: float) -> None:  # pragma: no cover
     """One Newton step of lidard.dsp.ranging.estimators._est_newton on real ramps, in place on ``d`` (m,):
     the real-tone likelihood at d + each of the three ``offsets`` (_real_tone_fit: Horner on the Taylor
     coefficients gr, gi (P, m), the turned angles, the two-column least squares), its finite-difference
@@ -287,8 +298,10 @@ _STEP_BLOCK = 64
 
 
 @_jit
-def _newton_pair(i, a_res, a_ims, j, d, d0, cos_phi, sin_phi, cos_w, sin_w, cos_w1, sin_w1, turn, nf, det_floor,
-                 reach, h2, hh):  # pragma: no cover
+def _newton_pair(i: int, a_res: np.ndarray, a_ims: np.ndarray, j: np.ndarray, d: np.ndarray, d0: np.ndarray,
+                 cos_phi: np.ndarray, sin_phi: np.ndarray, cos_w: np.ndarray, sin_w: np.ndarray, cos_w1: np.ndarray,
+                 sin_w1: np.ndarray, turn: np.ndarray, nf: float, det_floor: float, reach: float, h2: float,
+                 hh: float) -> None:  # pragma: no cover
     """The rest of newton_real_step for pair ``i``, from G at its three offsets (a_res, a_ims)."""
     di = d[i]
     for r in range(3):

@@ -29,9 +29,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
-def hilbert(x, axis: int = -1) -> np.ndarray:
+def hilbert(x: ArrayLike, axis: int = -1) -> np.ndarray:
     """The analytic signal x + j H{x} of real ``x`` along ``axis`` (Marple's discrete form, the same
     as scipy.signal.hilbert): the FFT with the negative frequencies zeroed, the positive ones doubled,
     DC and (for an even length) Nyquist kept once. numpy's FFT: importing scipy.signal costs about a
@@ -54,7 +55,7 @@ def hilbert(x, axis: int = -1) -> np.ndarray:
     return np.fft.ifft(np.fft.fft(x, axis=axis) * h.reshape(shape), axis=axis)
 
 
-def check_finite_array(name: str, x, *, ndim: tuple[int, ...] | None = None) -> np.ndarray:
+def check_finite_array(name: str, x: ArrayLike, *, ndim: tuple[int, ...] | None = None) -> np.ndarray:
     """float64 copy-free view of ``x``; ValueError naming ``name`` if NaN/inf or wrong rank."""
     a = np.asarray(x, dtype=np.float64)
     if ndim is not None and a.ndim not in ndim:
@@ -85,7 +86,7 @@ def _smooth_mask(f_abs: np.ndarray, lo_hz: float | None, hi_hz: float | None) ->
     return m
 
 
-def fft_filter(x, fs_hz: float, *, lo_hz: float | None = None, hi_hz: float | None = None,
+def fft_filter(x: ArrayLike, fs_hz: float, *, lo_hz: float | None = None, hi_hz: float | None = None,
                axis: int = -1) -> np.ndarray:
     """Zero-phase band filter by an FFT mask; treats the record as one period (circular)."""
     x = np.asarray(x, dtype=np.float64)
@@ -97,7 +98,7 @@ def fft_filter(x, fs_hz: float, *, lo_hz: float | None = None, hi_hz: float | No
     return np.fft.irfft(spec * mask.reshape(shape), n=n, axis=axis)
 
 
-def gaussian_lowpass(x, fs_hz: float, cutoff_hz: float, axis: int = -1) -> np.ndarray:
+def gaussian_lowpass(x: ArrayLike, fs_hz: float, cutoff_hz: float, axis: int = -1) -> np.ndarray:
     """Zero-phase Gaussian low pass (-3 dB at cutoff_hz), circular.
 
     A Gaussian response has a Gaussian impulse response: no ringing. A brick-wall or raised-cosine
@@ -113,7 +114,7 @@ def gaussian_lowpass(x, fs_hz: float, cutoff_hz: float, axis: int = -1) -> np.nd
     return np.fft.irfft(np.fft.rfft(x, axis=axis) * mask.reshape(shape), n=n, axis=axis)
 
 
-def lowpass_padded(x, fs_hz: float, cutoff_hz: float) -> np.ndarray:
+def lowpass_padded(x: ArrayLike, fs_hz: float, cutoff_hz: float) -> np.ndarray:
     """Zero-phase Gaussian low pass of a non-periodic 1-D segment.
 
     Odd mirror padding (continuous value and slope) hides the jump between the segment's ends that a
@@ -125,7 +126,7 @@ def lowpass_padded(x, fs_hz: float, cutoff_hz: float) -> np.ndarray:
     return gaussian_lowpass(ext, fs_hz, cutoff_hz)[pad:pad + x.size]
 
 
-def analytic_phase(x, pad: int) -> tuple[np.ndarray, np.ndarray]:
+def analytic_phase(x: ArrayLike, pad: int) -> tuple[np.ndarray, np.ndarray]:
     """Unwrapped Hilbert phase (rad, increasing for a positive-frequency beat) and envelope of ``x``.
 
     ``x`` is one segment (not periodic); ``pad`` samples of mirror image are added at both ends so
@@ -138,7 +139,7 @@ def analytic_phase(x, pad: int) -> tuple[np.ndarray, np.ndarray]:
     return np.unwrap(np.angle(z)), np.abs(z)
 
 
-def count_phase_slips(phase_rad, fs_hz: float, trend_hz: float) -> int:
+def count_phase_slips(phase_rad: ArrayLike, fs_hz: float, trend_hz: float) -> int:
     """Number of ~2 pi steps of an unwrapped phase against its smooth trend (low pass at trend_hz).
 
     A slip is a step of 2 pi; against a low-passed copy it leaves a residual that swings past
@@ -174,7 +175,7 @@ class RampFrequency:
     direction: int
 
 
-def ramp_frequency(mzi_ramp, *, fs_hz: float, mzi_delay_s: float, t0_s: float, direction: int,
+def ramp_frequency(mzi_ramp: ArrayLike, *, fs_hz: float, mzi_delay_s: float, t0_s: float, direction: int,
                    edge_s: float, trend_hz: float) -> RampFrequency:
     """Drive-frame instantaneous frequency of one ramp of a (band-passed) monitor-MZI beat.
 
@@ -195,7 +196,7 @@ def ramp_frequency(mzi_ramp, *, fs_hz: float, mzi_delay_s: float, t0_s: float, d
     return RampFrequency(t_s=t, nu_hz=nu, envelope=env, valid=valid, phase_slips=slips, direction=direction)
 
 
-def best_fit_residual(t, y) -> np.ndarray:
+def best_fit_residual(t: ArrayLike, y: ArrayLike) -> np.ndarray:
     """y minus its least-squares straight line in t."""
     t = np.asarray(t, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)

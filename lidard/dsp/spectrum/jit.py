@@ -92,7 +92,9 @@ def os_screen(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_fac
 
     A local maximum c is kept when at least ``k_rank`` of its reference cells lie below
     p[c] * ``thr_factor`` (a necessary condition of the detector's test, see os_cfar._os_screened)."""
-    return _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, 0.0, 0.0, False)
+    found = _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, 0.0, 0.0, False)
+    assert found is not None        # only the exact pass checks the values (and may refuse them)
+    return found
 
 
 def os_detect(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_factor: float, mean_kth: float,
@@ -106,7 +108,9 @@ def os_detect(p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_fac
     return _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, scaled_alpha, floor_factor, True)
 
 
-def _scan(kern, p, n_ref_side, n_guard, k_rank, thr_factor, mean_kth, scaled_alpha, floor_factor, exact):
+def _scan(kern: SimpleNamespace, p: np.ndarray, n_ref_side: int, n_guard: int, k_rank: int, thr_factor: float,
+          mean_kth: float, scaled_alpha: float, floor_factor: float,
+          exact: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     p = np.ascontiguousarray(p, dtype=np.float64)
     cap = max(1024, 4 * p.shape[0])
     while True:

@@ -63,8 +63,7 @@ class LinearizationHealth:
             records = self._lin.measure(drive_v, self.records)
         finally:
             self.safety.bring_down()
-        r = chirp_residual(records, drive_v, fs_drive_hz=AWG_RATE_HZ, fs_adc_hz=self._lin.fs_hz, ramp_s=c.ramp_s,
-                           excursion_hz=c.excursion_hz, mzi_delay_s=self._lin.mzi_delay_s)
+        r = chirp_residual(records, drive_v, self._lin.geometry())
         try:
             temp = float(self.safety.controller.tec_c())
         except Exception:

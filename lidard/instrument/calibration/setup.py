@@ -83,14 +83,14 @@ def calibration_setup(cfg, identities: dict[str, Any] | None = None) -> Calibrat
         bench = {"seed": data["sim"]["seed"], "tolerances": data["sim"]["tolerances"]}
     else:
         bench = {k: str(v) for k, v in sorted((identities or {}).items())}
-    profile = cfg.load_profile()
+    profile = cfg.resolved.profile
     lens = cfg.lens or profile.default_lens
-    receiver = {"laser_preset": cfg.load_laser().model_dump(mode="json"), "chirp": data["chirp"],
+    receiver = {"laser_preset": cfg.resolved.laser.model_dump(mode="json"), "chirp": data["chirp"],
                 **{s: data[s] for s in _RANGE_SECTIONS if s != "chirp"}}
     instruments = _digest(bench)
     rng = Setup({"laser": cfg.laser, "receiver": _digest(receiver), "instruments": instruments})
     pointing = Setup({"profile": profile.name, "lens": str(lens),
-                      "optics": _digest(cfg.optics().summary()), "instruments": instruments})
+                      "optics": _digest(cfg.resolved.optics.summary()), "instruments": instruments})
     return CalibrationSetup({"range": rng, "iq": rng, "pointing": pointing})
 
 

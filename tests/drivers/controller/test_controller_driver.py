@@ -38,9 +38,9 @@ def test_identify(ctl):
 
 
 def test_identify_refuses_another_map_version(clock):
-    from sim_devices.controller.device import ControllerSim
+    from sim_devices.controller import ControllerSim, ControllerSpec
 
-    with ControllerSim(clock, map_version=2, model="NEWER", firmware=(2, 7)) as newer:
+    with ControllerSim(clock, spec=ControllerSpec(map_version=2, model="NEWER", firmware=(2, 7))) as newer:
         with LaserHvController("127.0.0.1", newer.port, timeout_s=TIMEOUT_S, limits=LIMITS) as c:
             with pytest.raises(ProtocolError, match="MAP_VERSION = 2"):
                 c.identify()
@@ -269,9 +269,9 @@ def test_bring_up_waits_for_tec_and_names_it_when_it_does_not_settle(ctl, sim, c
 
 
 def test_bring_up_hv_not_settling_names_hv_and_switches_outputs_off(clock):
-    from sim_devices.controller.device import ControllerSim, Dynamics
+    from sim_devices.controller import ControllerSim, ControllerSpec, Dynamics
 
-    with ControllerSim(clock, dynamics=Dynamics(hv_tau_s=100.0)) as slow:
+    with ControllerSim(clock, spec=ControllerSpec(dynamics=Dynamics(hv_tau_s=100.0))) as slow:
         sc = SettleCheck(sleep=clock.advance, timeout_s=0.5, poll_s=0.05)
         with LaserHvController("127.0.0.1", slow.port, timeout_s=TIMEOUT_S, limits=LIMITS) as c:
             with pytest.raises(SettleError, match="HV voltage readback .* setpoint 50 V") as ei:

@@ -201,3 +201,21 @@ def test_snr_sweep_detection_probability_rises_and_stays_finite():
                 assert np.median(det.snr_db[:, 0]) == pytest.approx(snr_db - 1.76, abs=1.0)
     assert pd[0] < 0.5 and pd[-1] == 1.0 and pd[3] > 0.95  # 5 dB mostly missed, >= 20 dB found
     assert all(b >= a - 0.03 for a, b in zip(pd, pd[1:]))
+
+
+def test_the_settings_object_detects_as_the_named_knobs_do():
+    # two tones (bins 60 and 150) in white noise: the detector with its knobs in a CfarSettings finds
+    # them, in the same slots as the knobs given by name, and names a bad knob the same way
+    from lidard.dsp.detect.cfar import CfarSettings, cfar_detect_with
+    rng = np.random.default_rng(3)
+    x = cos(60, 1.0) + cos(150, 0.3) + 0.01 * rng.standard_normal(N)
+    rf = RangeFFT(N, float(N), 1.0)
+    p = np.abs(rf(x)) ** 2
+    knobs = dict(method="ca", pfa=1e-4, max_detections=3, window="hann")
+    by_name = cfar_detect(p, **knobs)
+    held = cfar_detect_with(p, CfarSettings(**knobs))
+    assert sorted(int(i) for i in held.index[held.valid]) == [60, 150]
+    for f in ("index", "power", "noise", "valid", "harmonic", "unresolved", "width_bins"):
+        assert np.array_equal(getattr(held, f), getattr(by_name, f)), f
+    with pytest.raises(DspInputError, match="n_ref=3"):
+        cfar_detect_with(p, CfarSettings(n_ref=3))

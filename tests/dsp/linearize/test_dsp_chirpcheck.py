@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from lidard.dsp.linearize.chirpcheck import chirp_residual
+from lidard.dsp.linearize.chirpcheck import ChirpGeometry, chirp_residual
 
 EXCURSION_HZ, RAMP_S, TAU_S = 8.6e9, 80e-6, 200e-9
 FS_ADC, FS_DRIVE = 250e6, 100e6
@@ -39,8 +39,7 @@ def _drive() -> np.ndarray:
 
 
 def _check(y):
-    return chirp_residual(y, _drive(), fs_drive_hz=FS_DRIVE, fs_adc_hz=FS_ADC, ramp_s=RAMP_S,
-                          excursion_hz=EXCURSION_HZ, mzi_delay_s=TAU_S)
+    return chirp_residual(y, _drive(), ChirpGeometry(fs_drive_hz=FS_DRIVE, fs_adc_hz=FS_ADC, ramp_s=RAMP_S, excursion_hz=EXCURSION_HZ, mzi_delay_s=TAU_S))
 
 
 @pytest.mark.parametrize("eps", [2e-4, 1e-3, -5e-4])

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from lidard.config import load_laser
-from lidard.dsp.linearize.ilc import linearize
+from lidard.dsp.linearize.ilc import IlcSettings, linearize
+from lidard.dsp.linearize.ilc import ChirpGeometry
 from lidard.dsp.spectrum.instfreq import best_fit_residual, fft_filter, ramp_frequency
 from sim_devices.world.laser import DfbLaser, ramp_nonlinearity_hz, triangle_drive
 
@@ -66,10 +67,10 @@ class Bench:
 
 
 def run(bench, **kw):
-    args = dict(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ, mzi_delay_s=bench.tau_m,
-                averages=64)
+    args = dict(averages=64)
     args.update(kw)
-    return linearize(bench.measure, bench.drive0(), **args)
+    return linearize(bench.measure, bench.drive0(), ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, bench.tau_m),
+                     IlcSettings(**args))
 
 
 def true_rms(bench, u):
@@ -228,29 +229,24 @@ def test_bad_inputs_raise_value_error():
     bad = u.copy()
     bad[10] = np.nan
     with pytest.raises(ValueError, match="drive0_v"):
-        linearize(b.measure, bad, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ, mzi_delay_s=TAU_M)
+        linearize(b.measure, bad, ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, TAU_M))
 
     def nan_measure(drive, n_avg):
         y = b.measure(drive, n_avg)
         y[0, 5] = np.inf
         return y
     with pytest.raises(ValueError, match="NaN or inf"):
-        linearize(nan_measure, u, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ, mzi_delay_s=TAU_M)
+        linearize(nan_measure, u, ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, TAU_M))
     with pytest.raises(ValueError, match="shape"):
-        linearize(lambda d, n: np.zeros((n, 100)), u, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S,
-                  excursion_hz=EXC_HZ, mzi_delay_s=TAU_M)
+        linearize(lambda d, n: np.zeros((n, 100)), u, ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, TAU_M))
     with pytest.raises(ValueError, match="samples"):
-        linearize(b.measure, u[:-10], fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                  mzi_delay_s=TAU_M)
+        linearize(b.measure, u[:-10], ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, TAU_M))
     with pytest.raises(ValueError, match="excursion_hz"):
-        linearize(b.measure, u, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=float("nan"),
-                  mzi_delay_s=TAU_M)
+        linearize(b.measure, u, ChirpGeometry(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=float("nan"), mzi_delay_s=TAU_M))
     with pytest.raises(ValueError, match="beta"):
-        linearize(b.measure, u, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                  mzi_delay_s=TAU_M, beta=float("inf"))
+        linearize(b.measure, u, ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, TAU_M), IlcSettings(beta=float("inf")))
     with pytest.raises(ValueError, match="triangle"):
-        linearize(b.measure, np.linspace(0, 1, u.size), fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S,
-                  excursion_hz=EXC_HZ, mzi_delay_s=TAU_M)
+        linearize(b.measure, np.linspace(0, 1, u.size), ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, TAU_M))
 
 
 def test_end_to_end_through_h2_synthesizer():
@@ -268,8 +264,7 @@ def test_end_to_end_through_h2_synthesizer():
         return out.mzi.astype(np.float64) * adc.lsb_v
 
     u0 = triangle_drive(EXC_HZ, RAMP_S, FS, laser.static_tuning_hz_per_v)
-    res = linearize(measure, u0, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                    mzi_delay_s=TAU_M, averages=64)
+    res = linearize(measure, u0, ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, TAU_M), IlcSettings(averages=64))
     final = np.array(ramp_nonlinearity_hz(laser.frequency_hz(res.drive_v, FS), n // 2)) / EXC_HZ
     assert np.all(final <= 5e-5)
     assert min(res.reduction.values()) >= 200
@@ -337,8 +332,8 @@ def test_fold_after_a_late_optical_turn_is_unfolded():
     nu = b.nu(u)
     n = nu.size // 2
     x = mzi_beat(nu, FS, tau_m, 0.0, 1, None)
-    an = ilc_mod._Analyzer(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ, mzi_delay_s=tau_m,
-                           roi=0.8, learn=0.92, meas_cutoff_hz=400e3, directions=ilc_mod._directions(u))
+    an = ilc_mod._Analyzer(ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, tau_m), roi=0.8, learn=0.92,
+                           meas_cutoff_hz=400e3, directions=ilc_mod._directions(u))
     t_all = np.arange(2 * n) / FS
     # the plain triangle really does turn late (what makes this case)
     dn = np.diff(nu)
@@ -385,9 +380,8 @@ def test_fitted_fm_response_tracks_the_laser_at_low_frequency():
     for preset in ("dfb_default", "dfb_slow_thermal"):
         b = Bench(preset, tau_m=tau_m, linewidth=0.0)
         u = b.drive0()
-        an = ilc_mod._Analyzer(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                               mzi_delay_s=tau_m, roi=0.8, learn=0.92, meas_cutoff_hz=400e3,
-                               directions=ilc_mod._directions(u))
+        an = ilc_mod._Analyzer(ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, tau_m), roi=0.8, learn=0.92,
+                           meas_cutoff_hz=400e3, directions=ilc_mod._directions(u))
         a = an.analyse(b.measure(u, 1), u)
         h = ilc_mod.fit_fm_response(u, a.ramps_nu, fs_drive_hz=FS, ramp_s=RAMP_S, learn=0.92,
                                     floor_hz_per_v=0.1 * a.tuning)
@@ -409,8 +403,8 @@ def test_error_on_the_drive_grid_is_defined_at_every_sample(monkeypatch):
     tau_m = 200e-9
     b = Bench("dfb_default", tau_m=tau_m, linewidth=0.0)
     u = b.drive0()
-    an = ilc_mod._Analyzer(fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ, mzi_delay_s=tau_m,
-                           roi=0.8, learn=0.92, meas_cutoff_hz=400e3, directions=ilc_mod._directions(u))
+    an = ilc_mod._Analyzer(ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, tau_m), roi=0.8, learn=0.92,
+                           meas_cutoff_hz=400e3, directions=ilc_mod._directions(u))
     e = an.analyse(b.measure(u, 1), u).err_drive
     assert e.shape == u.shape and np.all(np.isfinite(e))
     # and it is continuous there: no sample jumps by more than the 1 us raised-cosine switch allows
@@ -432,8 +426,7 @@ def test_linearize_is_repeatable_and_never_sends_beyond_max_drive_v(monkeypatch)
         def measure(u, n_avg, b=b, sent=sent):
             sent.append(float(np.abs(u).max()))
             return b.measure(u, n_avg)
-        r = linearize(measure, b.drive0(), fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                      mzi_delay_s=200e-9, averages=1, max_iter=4)
+        r = linearize(measure, b.drive0(), ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, 200e-9), IlcSettings(averages=1, max_iter=4))
         outs.append(r.drive_v)
         peaks.append(sent)
     assert np.array_equal(outs[0], outs[1])
@@ -446,9 +439,7 @@ def test_linearize_is_repeatable_and_never_sends_beyond_max_drive_v(monkeypatch)
     def measure(u, n_avg):
         sent.append(float(np.abs(u).max()))
         return b.measure(u, n_avg)
-    r = linearize(measure, u0, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                  mzi_delay_s=200e-9, averages=1, max_iter=4, max_drive_v=limit)
+    r = linearize(measure, u0, ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, 200e-9), IlcSettings(averages=1, max_iter=4, max_drive_v=limit))
     assert max(sent) <= limit and np.abs(r.drive_v).max() <= limit
     with pytest.raises(ValueError, match="max_drive_v"):
-        linearize(measure, u0, fs_drive_hz=FS, fs_adc_hz=FS, ramp_s=RAMP_S, excursion_hz=EXC_HZ,
-                  mzi_delay_s=200e-9, max_drive_v=0.5 * float(np.abs(u0).max()))
+        linearize(measure, u0, ChirpGeometry(FS, FS, RAMP_S, EXC_HZ, 200e-9), IlcSettings(max_drive_v=0.5 * float(np.abs(u0).max())))

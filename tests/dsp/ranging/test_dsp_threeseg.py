@@ -6,7 +6,7 @@ import pytest
 
 from lidard.dsp.frame import FrameDsp
 from lidard.dsp.spectrum.rangefft import C_M_PER_S
-from lidard.dsp.ranging.threeseg import pair_three
+from lidard.dsp.ranging.threeseg import PairingSettings, pair_three
 
 WL = 1.55e-6
 KAPPA = 8.6e9 / 80e-6
@@ -35,8 +35,8 @@ def _cw_power(*f_d_abs, spread_hz=0.0):
 def _pair(fu, fd, p_cw, k=1):
     fu, fd = (np.atleast_2d(x).astype(float) for x in (fu, fd))
     vu, vd = np.ones(fu.shape, bool), np.ones(fd.shape, bool)
-    return pair_three(fu, fd, vu, vd, p_cw, DF, chirp_rate_hz_per_s=KAPPA, wavelength_m=WL, guard_bins=2,
-                      max_targets=k)
+    return pair_three((fu, fd), (vu, vd), p_cw, DF,
+                      PairingSettings(chirp_rate_hz_per_s=KAPPA, wavelength_m=WL, guard_bins=2, max_targets=k))
 
 
 @pytest.mark.parametrize("range_m, v", [(0.3, 0.0), (0.3, 4.9), (0.3, -4.9), (1.0, 0.3), (1.0, -0.3),
@@ -142,10 +142,10 @@ def test_a_weak_noise_peak_does_not_take_a_true_peak_from_its_partner():
     down = np.array([[fd, fu + 0.3 * DF]])
     vu, vd = np.array([[True, False]]), np.array([[True, True]])
     p_cw = _cw_power(fc)
-    kw = dict(chirp_rate_hz_per_s=KAPPA, wavelength_m=WL, guard_bins=2, max_targets=2)
-    r0, v0, ok0, *_ = pair_three(up, down, vu, vd, p_cw, DF, **kw)
+    pairing = PairingSettings(chirp_rate_hz_per_s=KAPPA, wavelength_m=WL, guard_bins=2, max_targets=2)
+    r0, v0, ok0, *_ = pair_three((up, down), (vu, vd), p_cw, DF, pairing)
     assert ok0[0, 0] and abs(v0[0, 0]) < 0.05            # without the powers: equally likely, least motion
     snr = (np.array([[1000.0, 0.0]]), np.array([[900.0, 10.0]]))
-    r1, v1, ok1, *_ = pair_three(up, down, vu, vd, p_cw, DF, snr=snr, **kw)
+    r1, v1, ok1, *_ = pair_three((up, down), (vu, vd), p_cw, DF, pairing, snr=snr)
     assert ok1[0, 0] and r1[0, 0] == pytest.approx(0.64, abs=1e-6) and v1[0, 0] == pytest.approx(0.19, abs=1e-6)
     assert not ok1[0, 1]

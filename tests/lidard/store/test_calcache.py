@@ -7,6 +7,7 @@ linearize again. The bench is a FakeInstrument that counts linearize calls.
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import pytest
@@ -70,9 +71,11 @@ def test_another_laser_preset_is_another_key(fake):
 def test_changed_preset_values_change_the_key(monkeypatch):
     cfg = sim_config(_args())
     key = calcache.config_key(cfg)
-    preset = cfg.load_laser()
+    resolved = cfg.resolved
+    preset = resolved.laser
     moved = preset.model_copy(update={"coherence_time_s": preset.coherence_time_s * 2})
-    monkeypatch.setattr(type(cfg), "load_laser", lambda self: moved)
+    # the same preset name, other values (a new version of lasers.toml)
+    monkeypatch.setattr(type(cfg), "resolved", property(lambda self: dataclasses.replace(resolved, laser=moved)))
     assert calcache.config_key(cfg) != key
 
 

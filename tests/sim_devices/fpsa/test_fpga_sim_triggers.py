@@ -219,3 +219,38 @@ def test_segments_since_an_arm_stay_numbered_over_more_runs_than_the_board_remem
         assert b.row.tolist() == ([row, row] if k else [0, 1])
         assert b.t_s[0] > sim.run_start_s
         clock.advance(1e-4)
+
+
+def _fields(b):
+    return (b.index, b.t_s, b.pixel_index, b.row, b.col, b.beam_trigger, b.beam_row, b.beam_col,
+            b.beam_transmission)
+
+
+def test_reads_cut_from_a_block_of_triggers_equal_each_read_computed_alone(monkeypatch):
+    import sim_devices.fpsa.beams as beams
+    pattern = [[r, c] for r in (0, 1, 2, 4) for c in range(0, 40, 3)]
+    tm = p.Timing(settle_ns=700, dwell_ns=0, triggers_per_pixel=3, trigger_period_ns=2000)   # ghosts
+    _, sim = run(pattern, tm)
+    total = sim.total_triggers
+    reads = [(0, 7), (7, 30), (37, 1), (38, 60), (5, 9), (98, total - 98)]   # a re-read goes back
+    monkeypatch.setattr(beams, "TRIGGERS_AHEAD", 40)
+    cut = [sim.triggers(a, n, 1e-6) for a, n in reads]
+    monkeypatch.setattr(beams, "TRIGGERS_AHEAD", 0)       # every read computed on its own
+    _, fresh = run(pattern, tm)
+    alone = [fresh.triggers(a, n, 1e-6) for a, n in reads]
+    assert sum(len(b.beam_row) for b in alone) > sum(len(b) for b in alone)    # ghost beams in the windows
+    for x, y in zip(cut, alone):
+        for fx, fy in zip(_fields(x), _fields(y)):
+            assert fx.dtype == fy.dtype
+            np.testing.assert_array_equal(fx, fy)
+
+
+def test_a_switch_stuck_after_a_block_was_computed_shows_in_the_next_read(monkeypatch):
+    import sim_devices.fpsa.beams as beams
+    monkeypatch.setattr(beams, "TRIGGERS_AHEAD", 1000)
+    tm = p.Timing(settle_ns=8000, dwell_ns=0, triggers_per_pixel=2, trigger_period_ns=2000)
+    _, sim = run([[0, c] for c in range(20)], tm)
+    assert 30 not in sim.triggers(0, 4, 1e-6).beam_col      # the block of 40 triggers is computed here
+    sim.stick_switch("col", 30, True, t_s=0.0)      # column 30 on from the start: every pixel of row 0 emits it
+    later = sim.triggers(4, 4, 1e-6)
+    assert {2, 3, 30} <= set(later.beam_col.tolist()) and set(later.beam_trigger[later.beam_col == 30]) == {0, 1, 2, 3}

@@ -4,6 +4,8 @@ the bench's own chirp tables at the sample-rate ratios a scan uses."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -21,13 +23,16 @@ def _tables(rng, length):
 
 
 @pytest.mark.parametrize("ratio", [20.0, 2.5, 100.0 / 15.0, 1.25])
-def test_kernel_gives_the_numpy_fill_bit_for_bit(ratio):
+@pytest.mark.parametrize("spread", [900.0, 3.0])
+def test_kernel_gives_the_numpy_fill_bit_for_bit(ratio, spread):
     rng = np.random.default_rng(7)
     pq = synth_grid.rational_ratio(ratio)
     assert pq is not None
     n = 1190
     c0, c1, c2 = _tables(rng, int(n * ratio) + 4000)
-    d_awg = rng.uniform(0.0, 900.0, 37)            # delays of a scene's hits, AWG samples
+    # delays of a scene's hits, AWG samples: spread over the range gate, or a few samples apart (a
+    # surface at one distance: many hits share their integer offset from the grid)
+    d_awg = rng.uniform(0.0, spread, 37) + 1.0
     d_awg[:5] = np.rint(d_awg[:5])                 # whole-sample delays too
     const = rng.uniform(-5e3, 5e3, d_awg.size)
     b_start = 1000.0 + 0.375
@@ -50,3 +55,46 @@ def test_kernel_waits_until_loading_numba_pays(monkeypatch):
         assert synth_jit.static_fill(1) is None
     finally:
         synth_jit._compiled.cache_clear()
+
+
+@pytest.mark.parametrize("bits", [16, 12, 8])
+def test_quantizer_kernel_gives_the_numpy_passes_codes_and_flags(monkeypatch, bits):
+    from sim_devices.world import synth_chunk
+    from sim_devices.world.synth_types import AdcSpec
+    adc = AdcSpec(sample_rate_hz=5e6, n_samples=1190, bits=bits, input_range_v=1.0)
+    nc, channels = 24, ["beat", "mzi"]
+    rng = np.random.default_rng(3)
+    beat = (rng.normal(0, 0.05, (nc, adc.n_samples)) * np.linspace(0.1, 12.0, nc)[:, None]).astype(np.float32)
+    beat[:, 7] = 0.5 * adc.lsb_v + np.float32(0.25) * adc.lsb_v * np.arange(nc)   # ties and near-ties of rint
+    std = np.concatenate([np.full(12, 3e-3), np.full(12, 4e-2)])[:nc]      # two noise levels: the per-row scale
+
+    def run(kernel):
+        monkeypatch.setattr(synth_jit, "quantize_rows", lambda samples: kernel)
+        acc = {"beat": beat.copy(), "mzi": np.zeros((nc, adc.n_samples), np.float32)}
+        outs = {c: np.empty((nc, adc.n_samples), np.int16) for c in channels}
+        over = np.zeros((nc, 2), bool)
+        # the chunk run's fields digitize_chunk reads (the rest of a ChunkRun is the beat's, not used here)
+        run_ = SimpleNamespace(adc=adc, dc_v=0.0, noise_std=std, mzi_noise_asd_v_per_rthz=0.0,
+                               rng=np.random.default_rng(11))
+        synth_chunk.digitize_chunk(run_, acc, channels, 0, nc, outs, over, None)
+        return outs, over
+
+    want_codes, want_over = run(None)
+    got_codes, got_over = run(synth_jit._quantizer())
+    assert want_over[:, 0].any() and not want_over[:, 0].all()      # some rows clip, some do not
+    assert np.array_equal(got_over, want_over)
+    for c in channels:
+        assert np.array_equal(got_codes[c], want_codes[c])
+
+
+def test_range_reduction_kernel_gives_the_numpy_passes_values(monkeypatch):
+    from sim_devices.world import synth_chunk
+    rng = np.random.default_rng(5)
+    turns = rng.uniform(-4000.0, 4000.0, (13, 1190))          # a static beat phase in cycles
+    turns[0, :6] = [0.5, -0.5, 1.5, 2.5, -2.5, 1e6 + 0.25]    # half-cycle ties and a large phase
+    monkeypatch.setattr(synth_jit, "turns_to_radians_f32", lambda samples: None)      # the numpy passes
+    want = synth_chunk.cos_sin(turns.copy(), False, True, in_turns=True)[0]
+    monkeypatch.setattr(synth_jit, "turns_to_radians_f32", lambda samples: synth_jit._reducer())
+    got = synth_chunk.cos_sin(turns.copy(), False, True, in_turns=True)[0]
+    assert got.dtype == want.dtype == np.float32
+    assert np.array_equal(got.view(np.int32), want.view(np.int32))
