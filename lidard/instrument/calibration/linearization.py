@@ -135,7 +135,7 @@ class Linearization:
         plain_drive_v = np.asarray(plain_drive_v)[:int(round(2 * c.ramp_s * AWG_RATE_HZ))]
         self.safety.bring_up()
         try:
-            roi, learn = RANGE_WINDOW_FRACTION, min(1.0, RANGE_WINDOW_FRACTION + LEARN_MARGIN)
+            roi, learn = ilc_region(c.linear_window)
             res = ilc_linearize(self.measure, plain_drive_v, self.geometry(),
                                 IlcSettings(averages=32, max_averages=MAX_AVERAGES,
                                             max_drive_v=self.cfg.devices.awg.max_output_v,
