@@ -18,13 +18,17 @@ Variants (``--variant``):
   ``--edge-averages`` periods, no growth, ``--edge-steps`` steps), then the ILC as on main (ROI 0.8,
   learning 0.92, main's averaging schedule) from that drive.
 
+The tree's ``[chirp] linear_window`` sets the shipped region (config/sim.toml: "core", the default;
+config/sim_far.toml: "range"); ``--linear-window`` overrides it.
+
 Run: PYTHONPATH=<tree> python benchmarks/linearization_cost.py --config config/sim_far.toml [--variant edges-after-centre]
-     [--max-averages N] [--scene config/scenes/cal_letters.toml]
+     [--max-averages N] [--scene config/scenes/cal_letters.toml] [--linear-window core|range]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -52,6 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scene", default="config/scenes/empty.toml",
                     help="the bench's scene; the linearization's course differs with it (config/sim.toml on "
                          "this tree: 12 measurements with empty.toml, 19 with cal_letters.toml)")
+    ap.add_argument("--linear-window", choices=("core", "range"), default=None,
+                    help="override the config's [chirp] linear_window (trees that have the key)")
     args = ap.parse_args(argv)
 
     import lidard
@@ -61,23 +67,20 @@ def main(argv: list[str] | None = None) -> int:
 
     orig = lin_mod.ilc_linearize
 
-    def traced(measure: Any, drive0: Any, **kw: Any) -> Any:
+    def traced(measure: Any, drive0: Any, geometry: Any, settings: Any) -> Any:
+        edge = dataclasses.replace(settings, averages=args.edge_averages, max_averages=args.edge_averages,
+                                   max_iter=args.edge_steps, beta=args.edge_beta, roi=0.9, learn=0.95)
+        centre_s = dataclasses.replace(settings, roi=0.8, learn=0.92)
         if args.variant == "edges-after-centre":
-            kw_c = {k: v for k, v in kw.items() if k not in ("roi", "learn")}
-            centre = orig(measure, drive0, **kw_c)
+            centre = orig(measure, drive0, geometry, centre_s)
             _print_run(centre)
-            kw_e = {**kw_c, "averages": args.edge_averages, "max_averages": args.edge_averages,
-                    "max_iter": args.edge_steps, "beta": args.edge_beta, "roi": 0.9, "learn": 0.95}
-            res = orig(measure, centre.drive_v, **kw_e)
+            res = orig(measure, centre.drive_v, geometry, edge)
         elif args.variant == "edges-first":
-            kw_c = {k: v for k, v in kw.items() if k not in ("roi", "learn")}
-            kw_e = {**kw_c, "averages": args.edge_averages, "max_averages": args.edge_averages,
-                    "max_iter": args.edge_steps, "beta": args.edge_beta, "roi": 0.9, "learn": 0.95}
-            edges = orig(measure, drive0, **kw_e)
+            edges = orig(measure, drive0, geometry, edge)
             _print_run(edges)
-            res = orig(measure, edges.drive_v, **kw_c)
+            res = orig(measure, edges.drive_v, geometry, centre_s)
         else:
-            res = orig(measure, drive0, **kw)
+            res = orig(measure, drive0, geometry, settings)
         _print_run(res)
         return res
 
@@ -85,9 +88,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.max_averages is not None:
         lin_mod.MAX_AVERAGES = int(args.max_averages)
     tree = Path(lidard.__file__).resolve().parents[1]      # the tree on PYTHONPATH: its own config
-    cfg = load_config(str(tree / args.config))
+    env = dict(os.environ)
+    if args.linear_window is not None:
+        env["LIDARD__CHIRP__LINEAR_WINDOW"] = args.linear_window
+    cfg = load_config(str(tree / args.config), environ=env)
     inst = open_instrument(cfg, scene_path=str(tree / args.scene), bench="embedded")
-    print(f"tree {tree}, config {args.config}, scene {args.scene}, variant {args.variant}"
+    print(f"tree {tree}, config {args.config}, scene {args.scene}, variant {args.variant}, "
+          f"linear_window {getattr(cfg.chirp, 'linear_window', 'none (main)')}"
           + ("" if args.max_averages is None else f", MAX_AVERAGES {args.max_averages}"))
     t0 = time.process_time()
     inst.linearize()
