@@ -73,6 +73,18 @@ def measure(config: str, env: dict[str, str], plates: list[float]) -> list[tuple
     return out
 
 
+def line_fit(rows: list[tuple[float, float, float]]) -> tuple[float, float, int]:
+    """Weighted straight line (offset + scale) through the plate errors: its chi-square, the largest
+    departure of a plate from it (m) and the degrees of freedom. The benchmark's test of linearity."""
+    import numpy as np
+    d, e, s = (np.array(x) for x in zip(*rows))
+    s = np.maximum(s, 1e-7)
+    a = np.stack([np.ones_like(d), d], axis=1) / s[:, None]
+    coef = np.linalg.lstsq(a, e / s, rcond=None)[0]
+    r = e - (coef[0] + coef[1] * d)
+    return float(np.sum((r / s) ** 2)), float(np.max(np.abs(r))), d.size - 2
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default="config/sim_far.toml")
@@ -82,14 +94,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     lines = [f"config {args.config}, nominal bench; error = mean raw range - true ray range, mm (+- standard error)",
              f"load average {os.getloadavg()[0]:.1f}", "",
-             "| variant | " + " | ".join(f"{d:g} m" for d in args.plates) + " | wall s |",
-             "|---|" + "---|" * (len(args.plates) + 1)]
+             "| variant | " + " | ".join(f"{d:g} m" for d in args.plates) + " | line: chi2 (dof), max departure mm | wall s |",
+             "|---|" + "---|" * (len(args.plates) + 2)]
     print("\n".join(lines), flush=True)
     for name in args.variants:
         t0 = time.perf_counter()
         rows = measure(args.config, VARIANTS[name], args.plates)
+        chi2, dev, dof = line_fit(rows) if len(rows) >= 3 else (float("nan"), float("nan"), 0)
         line = (f"| {name} | " + " | ".join(f"{e * 1e3:+.3f} +- {s * 1e3:.3f}" for _, e, s in rows)
-                + f" | {time.perf_counter() - t0:.0f} |")
+                + f" | {chi2:.1f} ({dof}), {dev * 1e3:.3f} | {time.perf_counter() - t0:.0f} |")
         print(line, flush=True)
         lines.append(line)
     if args.out:

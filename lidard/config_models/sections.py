@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_serializer, model_validator
 
 from .base import Fraction, NonNegFloat, PosFloat, _Model
 
@@ -25,6 +25,22 @@ class Chirp(_Model):
     shape: Literal["triangle", "three_segment"] = "three_segment"
     # three_segment: the constant segment lasts lambda / (2 velocity_resolution_mps) (its Doppler bin)
     velocity_resolution_mps: float = Field(default=0.01, gt=0, le=10)
+    # Where the linearization makes the chirp linear (lidard.instrument.calibration.linearization):
+    # "core" (default) the centre of each ramp (80 %, learning 92 %); "range" the whole range window the
+    # range FFT uses (90 %, learning 95 %). Far-range work needs "range": "core" leaves a range error of
+    # up to 0.6 mm over 0.8-45 m that no scale and offset absorb (0.03 mm with "range"); a bench ranging
+    # within a few metres does not, and "range" costs it 3-4x the linearization's CPU
+    # (docs/measured/26_range_linearity.md). In the linearization's key only when not the default.
+    linear_window: Literal["core", "range"] = "core"
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):
+        # the default stays out of every dump, so the calibration caches and set-up hashes of a
+        # configuration that does not set it are those it had before the key existed
+        data = handler(self)
+        if self.linear_window == "core" and isinstance(data, dict):
+            data.pop("linear_window", None)
+        return data
 
     @model_validator(mode="before")
     @classmethod

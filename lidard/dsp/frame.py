@@ -47,6 +47,12 @@ from .spectrum.scratch import scratch
 from .ranging.velocity import pair_up_down_matched
 from .spectrum.window import WindowName
 
+#: the range window: the central fraction of each ramp the range estimator keeps (step 1 above). The
+#: chirp's pre-distortion linearizes over the same window (its region of interest): the range scale of
+#: a scan is the chirp's mean slope over it, so the two must be the one figure
+#: (lidard.instrument.calibration.linearization)
+RANGE_WINDOW_FRACTION = 0.9
+
 
 @dataclass(frozen=True)
 class FrameResult:
@@ -90,7 +96,7 @@ class FrameDsp:
     # per-ramp level 1e-6 on the scan's three-segment chirp (m = 10), the operating point it was tuned at
     pfa: float = 1e-11
     max_returns: int = 2
-    use_fraction: float = 0.9
+    use_fraction: float = RANGE_WINDOW_FRACTION
     estimator: str = DEFAULT_METHOD
     iq: bool = False            # I/Q receiver: process() takes beat (I) and beat_q (Q), two-sided spectra
     iq_gain: float = 1.0        # its calibrated imbalance (lidard.dsp.ranging.iqbalance): Q / I gain ratio ...

@@ -337,7 +337,7 @@ class ScanLoop:
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),
             # the range / pointing calibrations the ranges and directions were computed with
-            "geometry": self.applied.meta(self.cfg.monitor.delay_s),
+            "geometry": self.applied.meta(self.cfg.monitor.delay_s, float(dsp.max_range_m)),
             "calibrated": self.applied.calibrated(run.calibration_id is not None, iq=p.dsp.iq),
         }
         if p.phase_noise:

@@ -63,11 +63,21 @@ def fit_range(store, nominal_delay_s: float, setup: dict[str, Any] | None = None
             raise CalibrationRefused(f"range calibration: pending plate(s) {', '.join(alien)} were measured on another "
                                      "set-up (laser, chirp, receiver or instruments); drop them "
                                      "(`lidarctl calibration range drop ID`) and measure again")
+    modes = sorted({m["phase_noise_compensation"] for m in pending if m.get("phase_noise_compensation")})
+    if len(modes) > 1:
+        which = "; ".join(f"{mode}: " + ", ".join(f"{m['id']} ({float(m['known_m']):g} m)" for m in pending
+                                                  if m.get("phase_noise_compensation") == mode) for mode in modes)
+        raise CalibrationRefused(
+            "range calibration: the pending plates were measured in both phase-noise compensation modes "
+            f"({which}); a record holds one mode and applies to scans in that mode. Set "
+            "scan.phase_noise_compensation to the mode of the scans it is for, drop the others' plates "
+            "(`lidarctl calibration range drop ID`) and measure them again")
     fit = _fit([PlateMeasurement.from_dict(m) for m in pending], nominal_delay_s)
     temps = [m["temperature_c"] for m in pending if m.get("temperature_c") is not None]
     rec = store.geometry.save(
         "range", temperature_c=sum(temps) / len(temps) if temps else None,
-        inputs={"measurements": pending, **({"setup": setup} if setup else {})},
+        inputs={"measurements": pending, **({"setup": setup} if setup else {}),
+                **({"phase_noise_compensation": modes[0]} if modes else {})},
         fitted=fit.fitted(), residuals=fit.residuals())
     store.geometry.remove_range_measurements([m["id"] for m in pending])
     return rec

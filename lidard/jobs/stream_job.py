@@ -166,7 +166,7 @@ class StreamJob:
         self.state, self.started_at = "running", time.time()
         sink = None
         try:
-            cal = worker.current_linearization()
+            cal = worker.current_linearization(request=self.spec.request)
             self.linearization = worker.last_linearization
             sink = FrameSink(self.spec.out, self.spec.request.formats[0], dict(meta or {}))
             planner = planner_for(self.spec, worker.optics)

@@ -315,7 +315,7 @@ class ScanWorker:
                                    "fraction": 0.0, "hardware_time_s": 0.0, **(step or {})})
         if self.factory is not None and not self.factory.tried:
             self._factory_calibration(job)
-        cal = self.current_linearization(announce)
+        cal = self.current_linearization(announce, request=job.request)
         job.linearization = self.last_linearization
         return cal
 
@@ -331,11 +331,24 @@ class ScanWorker:
         if self.factory is not None:
             self.factory.run_if_needed(self, stage)
 
-    def current_linearization(self, announce: Callable[..., None] | None = None) -> CalibrationResult:
+    def phase_noise_of(self, request) -> str | None:
+        """The phase-noise compensation a scan of ``request`` runs with ("on"/"off"; None for an
+        instrument without a configuration, a test double): the range record it uses must share it."""
+        from ..instrument.calibration.procedures import scan_phase_noise
+        cfg = getattr(self.instrument, "cfg", None)
+        if cfg is None:
+            return None
+        delay = getattr(self.instrument, "monitor_delay_s", None)
+        return scan_phase_noise(cfg, request, delay() if callable(delay) else cfg.monitor.delay_s)
+
+    def current_linearization(self, announce: Callable[..., None] | None = None,
+                              request=None) -> CalibrationResult:
         """On the worker thread: apply the stored range/pointing calibrations, then the newest stored
         linearization if it is fresh (temperature rule, monitor delay) and passes the health check,
-        else a new one (``announce()`` first). ``self.last_linearization`` records the check."""
-        self.apply_geometry()
+        else a new one (``announce()`` first). ``self.last_linearization`` records the check.
+        ``request``: the scan (or stream) this is for; a range record must have been measured in its
+        phase-noise compensation mode (None: a record of either mode, e.g. for a calibration's own scans)."""
+        self.apply_geometry(None if request is None else self.phase_noise_of(request))
         cal = self.store.latest_calibration(self.laser)
         reason = "no calibration stored" if cal is None else self._stale_reason(cal)
         checked = self.instrument.check_linearization(cal) if reason is None else None
@@ -353,16 +366,17 @@ class ScanWorker:
         assert cal is not None   # with none stored, reason was set and one was made
         return cal
 
-    def apply_geometry(self):
+    def apply_geometry(self, phase_noise: str | None = None):
         """Hand the newest stored range, pointing and I/Q calibrations made on this instrument's set-up
         to the instrument; answers the :class:`AppliedCalibrations`, whose ``notes`` say
         why records of another set-up were left unused. Runs on the worker thread before every scan and
-        linearization."""
+        linearization. ``phase_noise`` ("on"/"off"): the scan's phase-noise compensation; a range record
+        measured in the other mode is left unused (None: any mode)."""
         from ..instrument.calibration.setup import select
         chosen, notes = {}, []
         for kind in ("range", "pointing", "iq"):
             rec, why = select(self.store.geometry.recent(kind, limit=200),
-                              None if self.setup is None else self.setup[kind])
+                              None if self.setup is None else self.setup[kind], phase_noise)
             chosen[kind] = rec
             if why is not None:
                 notes.append(why)

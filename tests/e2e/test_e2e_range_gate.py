@@ -13,6 +13,7 @@ from lidard.config import load_config
 from lidard.dsp.detect.gate import PointFlag
 from lidard.instrument import ScanRequest, open_instrument
 from tests.helpers.tolerances import NOMINAL_ENV
+from tests.helpers.tone_test import tone_test_drawn_max
 
 pytestmark = pytest.mark.slow  # benches per range gate, linearized
 
@@ -82,7 +83,12 @@ def test_weak_in_gate_returns_are_not_given_up():
     on_wall = np.abs(pts["range"] - bench.ground_truth(pts["row"], pts["col"])) < 5e-3
     assert on_wall.sum() >= 20 and np.median(pts["snr_db"][on_wall]) < 20      # weak, near the threshold
     assert not np.any(pts["flags"] & PointFlag.ALIASED)
-    assert np.all(pts["valid"][on_wall] == 1)                                  # every one detected is kept
+    # every one detected is kept, but for the single-tone test's own false rejections (a point flagged
+    # UNRESOLVED with p <= 2 order_level: tests/helpers/tone_test.py); no other reason, and no more of
+    # them than that rate allows (at most 2 of ~30 points)
+    drawn = pts["valid"][on_wall] != 1
+    assert np.all(pts["flags"][on_wall][drawn] == PointFlag.UNRESOLVED)
+    assert drawn.sum() <= tone_test_drawn_max(int(on_wall.sum()))
 
 
 def test_a_leak_through_a_poor_filter_is_flagged_aliased():

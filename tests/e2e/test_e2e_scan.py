@@ -13,6 +13,7 @@ import pytest
 from lidard.config import load_config
 from lidard.instrument import open_instrument
 from lidard.instrument import ScanRequest
+from lidard.instrument.calibration.linearization import MAX_ITERATIONS
 from sim_devices.world.scene import Scene
 from tests.helpers.tolerances import NOMINAL_ENV
 
@@ -38,9 +39,12 @@ def embedded():
 
 def test_linearization_through_the_mzi_reduces_nonlinearity(embedded):
     _, _, cal = embedded
-    # the ILC stops on its own criterion (noise floor / no further improvement), well before max_iter
+    # the ILC stops on its own criterion (noise floor / no further improvement) within its stated step
+    # limit (converged is False when max_iter stopped it). Over the range estimator's window (ROI 0.9,
+    # learning 0.95) the count depends on the noise draw: 12-19 measurements on this bench's seeds,
+    # against 9 over main's ROI 0.8 (docs/measured/26_range_linearity.md)
     assert cal.converged, cal
-    assert len(cal.iterations) <= 11
+    assert len(cal.iterations) <= MAX_ITERATIONS + 1       # the plain drive's measurement, then the steps
     assert cal.reduction["up"] > 100 and cal.reduction["down"] > 100
 
 

@@ -179,8 +179,11 @@ def test_stream_job_hands_each_frame_to_the_live_listeners(inst, tmp_path):
 
     class Worker:                   # what StreamJob.run needs of the scan worker
         instrument, last_linearization, events, optics = inst, None, EventHub(), inst.optics
+        asked_for: list = []
 
-        def current_linearization(self):
+        def current_linearization(self, request=None):
+            # the worker picks the range record for the stream's request (its phase-noise mode)
+            self.asked_for.append(request)
             return None
 
     w = Worker()
@@ -190,6 +193,7 @@ def test_stream_job_hands_each_frame_to_the_live_listeners(inst, tmp_path):
     job = StreamJob(StreamSpec(SMALL, frames=2, out=str(tmp_path / "frames")))
     job.run(w)
     assert job.state == "done" and len(job.frames) == 2
+    assert w.asked_for == [job.spec.request]
     assert [c[0] for c in clouds] == [frame_id(job.id, 0), frame_id(job.id, 1)]
     assert all(c[2] and c[1] > 0 and c[3] == {k} for k, c in enumerate(clouds))
     assert [(e["event"], e["frame"], e["points"]) for e in events[:-1]] == [("frame", k, clouds[k][1]) for k in range(2)]

@@ -33,6 +33,10 @@ class AppliedCalibrations:
     iq_imbalance: tuple[float, float] = (1.0, 0.0)   # the I/Q receiver's (gain ratio, phase error rad)
     #: why stored records were not applied (made on another set-up), one sentence per kind
     notes: tuple[str, ...] = ()
+    #: the range fit's standard errors and their covariance (s, m, s m); None: not stated by the record
+    delay_stderr_s: float | None = None
+    zero_offset_stderr_m: float | None = None
+    delay_zero_offset_cov: float | None = None
 
     @classmethod
     def from_records(cls, range_rec: Any = None, pointing_rec: Any = None, iq_rec: Any = None,
@@ -42,8 +46,10 @@ class AppliedCalibrations:
         if iq_rec is not None:
             kw.update(iq_id=iq_rec.id, iq_imbalance=(float(iq_rec.fitted["gain"]), float(iq_rec.fitted["phase_rad"])))
         if range_rec is not None:
-            kw.update(range_id=range_rec.id, delay_s=float(range_rec.fitted["delay_s"]),
-                      zero_offset_m=float(range_rec.fitted["zero_offset_m"]))
+            f = range_rec.fitted
+            kw.update(range_id=range_rec.id, delay_s=float(f["delay_s"]), zero_offset_m=float(f["zero_offset_m"]),
+                      **{k: float(f[k]) for k in ("delay_stderr_s", "zero_offset_stderr_m", "delay_zero_offset_cov")
+                         if f.get(k) is not None})
         if pointing_rec is not None:
             f = pointing_rec.fitted
             kw.update(pointing_id=pointing_rec.id,
@@ -72,9 +78,24 @@ class AppliedCalibrations:
         """Why stored calibrations were left unused (None when nothing was), for the scan record."""
         return "; ".join(self.notes) or None
 
-    def meta(self, nominal_delay_s: float) -> dict[str, Any]:
-        """What a scan's sidecar records about the geometry it was computed with."""
+    def range_uncertainty_m(self, range_m: float) -> float | None:
+        """The 1-sigma range error the range calibration leaves at ``range_m``: a range scales with the
+        effective delay (dR/dtau = R / tau) and the zero offset is subtracted, so
+        sigma^2 = (R/tau)^2 s_tau^2 + s_z0^2 - 2 (R/tau) cov(tau, z0). None without a range record or
+        when the record states no standard errors (a record without the covariance counts it 0)."""
+        if self.range_id is None or self.delay_s is None or self.delay_stderr_s is None \
+                or self.zero_offset_stderr_m is None:
+            return None
+        k = float(range_m) / self.delay_s
+        var = (k * self.delay_stderr_s) ** 2 + self.zero_offset_stderr_m ** 2 - 2 * k * (self.delay_zero_offset_cov or 0.0)
+        return float(max(var, 0.0) ** 0.5)
+
+    def meta(self, nominal_delay_s: float, max_range_m: float | None = None) -> dict[str, Any]:
+        """What a scan's sidecar records about the geometry it was computed with; ``max_range_m``: the
+        scan's range gate, where the range calibration's uncertainty is stated."""
         return {"range_calibration_id": self.range_id, "pointing_calibration_id": self.pointing_id,
+                "range_uncertainty_at_m": max_range_m,
+                "range_uncertainty_m": None if max_range_m is None else self.range_uncertainty_m(max_range_m),
                 "monitor_delay_s": self.delay_or(nominal_delay_s), "zero_offset_m": self.zero_offset_m,
                 "pointing": (self.pointing or Pointing()).as_dict(),
                 "iq_calibration_id": self.iq_id, "iq_gain": self.iq_imbalance[0], "iq_phase_rad": self.iq_imbalance[1]}

@@ -18,6 +18,18 @@ The constant segment is held, not learned: the laser's thermal terms keep drifti
 (:func:`lidard.dsp.ranging.cwhold.hold_profile`); it is stored with the linearization (``meta["hold_profile"]``)
 and the DSP takes it out of the CW beat where the real receiver's two regimes meet (|f_D| ~ f_R,
 lidard.dsp.ranging.threeseg).
+
+Region of interest (``[chirp] linear_window``, :func:`ilc_region`): ``"core"`` (the default) linearizes
+the centre of each ramp (the ILC's own region: ROI 0.8, learning 0.92), ``"range"`` the whole part of
+each ramp the range estimator uses (:data:`lidard.dsp.frame.RANGE_WINDOW_FRACTION`,
+``FrameDsp.use_fraction``'s default: the ROI), learning ``LEARN_MARGIN`` beyond it. The range scale
+of a scan is the chirp's mean slope over the range window, weighted about uniformly by the estimator.
+With the core region the learned drive leaves the turnaround transient's tail, MHz-sized at 4-6 % from
+a ramp end, inside the range window: a range scale of about -2.2e-5 at short range and less at long
+range (the beat averages the tail over its round trip), i.e. a range error of up to 0.6 mm over 0.8-45 m
+that no scale and offset absorb. The range region brings it to 0.03 mm but costs 3-4x the
+linearization's CPU (the turnaround's edges are learned slowly and averaged longer), which a bench
+ranging within a few metres does not need (docs/measured/26_range_linearity.md).
 """
 
 from __future__ import annotations
@@ -29,10 +41,10 @@ from collections.abc import Callable
 import numpy as np
 
 from ...config import Config
-from ...dsp.ranging.cwhold import hold_profile
-from ...dsp.linearize.ilc import IlcSettings
+from ...dsp.frame import RANGE_WINDOW_FRACTION
+from ...dsp.linearize.ilc import ChirpGeometry, IlcSettings
 from ...dsp.linearize.ilc import linearize as ilc_linearize
-from ...dsp.linearize.ilc import ChirpGeometry
+from ...dsp.ranging.cwhold import hold_profile
 from ...physics.chirp import adc_rate_hz
 from ..acquisition import AWG_RATE_HZ, AcquisitionLifecycle, AcquisitionPlan, drive_for_chirp
 from ..errors import InstrumentError
@@ -48,6 +60,19 @@ MAX_AVERAGES = 2048
 #: periods averaged for the held segment's drift (three-segment chirp): the repeatable fringe stays,
 #: the laser's phase noise and the monitor's noise average out (61 ms of hardware time at 238 us)
 HOLD_AVERAGES = 256
+#: the learning region reaches this far (fraction of a ramp) beyond the ROI, so the turnaround's
+#: transient, which the learned drive can only shorten, settles before the range window opens
+LEARN_MARGIN = 0.05
+
+
+def ilc_region(linear_window: str) -> tuple[float, float]:
+    """The ILC's (ROI, learning region), fractions of a ramp, for ``[chirp] linear_window``: ``"core"``
+    the ILC's own centre region, ``"range"`` the range estimator's window plus ``LEARN_MARGIN``."""
+    if linear_window == "core":
+        return IlcSettings.roi, IlcSettings.learn
+    if linear_window == "range":
+        return RANGE_WINDOW_FRACTION, min(1.0, RANGE_WINDOW_FRACTION + LEARN_MARGIN)
+    raise ValueError(f"chirp.linear_window must be 'core' or 'range', got {linear_window!r}")
 
 
 class Linearization:
@@ -110,12 +135,13 @@ class Linearization:
         plain_drive_v = np.asarray(plain_drive_v)[:int(round(2 * c.ramp_s * AWG_RATE_HZ))]
         self.safety.bring_up()
         try:
+            roi, learn = ilc_region(c.linear_window)
             res = ilc_linearize(self.measure, plain_drive_v, self.geometry(),
                                 IlcSettings(averages=32, max_averages=MAX_AVERAGES,
                                             max_drive_v=self.cfg.devices.awg.max_output_v,
                                             # a slow thermal term needs ~19 steps to its noise floor (measured
                                             # on the bench; the default DFB stops at ~8 by itself)
-                                            max_iter=MAX_ITERATIONS))
+                                            max_iter=MAX_ITERATIONS, roi=roi, learn=learn))
             hold = self.measure_hold(res.drive_v) if c.shape == "three_segment" else None
         finally:
             self.safety.bring_down()

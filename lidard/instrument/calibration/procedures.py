@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from ..dsp_plan import phase_noise_on
 from ..types import CalibrationResult, ScanRequest
 from .applied import AppliedCalibrations
 from .iq import measure_iq, require_iq_receiver
@@ -37,6 +38,13 @@ def _scan(instrument, request: ScanRequest, linearization: CalibrationResult) ->
     return res.points
 
 
+def scan_phase_noise(cfg, request: ScanRequest, mzi_delay_s: float) -> str:
+    """The phase-noise compensation a scan of ``request`` runs with, "on" or "off" (the scan's own rule,
+    :func:`lidard.instrument.dsp_plan.phase_noise_on`, with the monitor delay it is planned with)."""
+    mode = request.phase_noise_compensation or cfg.scan.phase_noise_compensation
+    return "on" if phase_noise_on(mode, float(request.max_range_m), mzi_delay_s) else "off"
+
+
 def measure_plate(instrument, optics, known_m: float, linearization: CalibrationResult,
                   applied: AppliedCalibrations) -> PlateMeasurement:
     """Scan the centre region with ``linearization`` (made against ``applied``'s delay) and reduce it.
@@ -47,7 +55,9 @@ def measure_plate(instrument, optics, known_m: float, linearization: Calibration
     delay = float(linearization.meta.get("mzi_delay_s") or instrument.monitor_delay_s())
     return plate_measurement(pts, known_m, delay_s=delay, zero_offset_used_m=applied.zero_offset_m,
                              temperature_c=instrument.laser_temperature_c(),
-                             linearization_id=linearization.meta.get("id"))
+                             linearization_id=linearization.meta.get("id"),
+                             phase_noise_compensation=None if getattr(instrument, "cfg", None) is None else
+                             scan_phase_noise(instrument.cfg, req, instrument.monitor_delay_s()))
 
 
 def measure_pointing(instrument, optics, surfaces: list[Surface], linearization: CalibrationResult,

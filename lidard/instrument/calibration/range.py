@@ -63,6 +63,9 @@ class PlateMeasurement:
     delay_s: float               # the monitor delay the chirp was linearized against (tau_used)
     temperature_c: float = float("nan")
     linearization_id: str | None = None
+    #: the plate scan's resolved phase-noise compensation, "on" or "off" (None: not recorded); a range
+    #: record holds plates of one mode and applies to scans in that mode (setup.mode_differs)
+    phase_noise_compensation: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -88,6 +91,9 @@ class RangeFit:
     residuals_m: tuple[float, ...]
     normalized_residuals: tuple[float, ...]
     pixel_std_m: float           # pooled single-pixel range noise of the plates
+    #: covariance of (delay_s, zero_offset_m), s m: with both standard errors, the range error the fit
+    #: leaves at any range (AppliedCalibrations.range_uncertainty_m)
+    delay_zero_offset_cov: float = 0.0
 
     @property
     def scale(self) -> float:
@@ -97,7 +103,7 @@ class RangeFit:
     def fitted(self) -> dict[str, Any]:
         return {"delay_s": self.delay_s, "zero_offset_m": self.zero_offset_m, "scale": self.scale,
                 "nominal_delay_s": self.nominal_delay_s, "delay_stderr_s": self.delay_stderr_s,
-                "zero_offset_stderr_m": self.zero_offset_stderr_m}
+                "zero_offset_stderr_m": self.zero_offset_stderr_m, "delay_zero_offset_cov": self.delay_zero_offset_cov}
 
     def residuals(self) -> dict[str, Any]:
         return {"chi2": self.chi2, "dof": self.dof, "p_value": self.p_value,
@@ -128,7 +134,8 @@ def centre_request(optics, max_range_m: float, half: int, **kw) -> ScanRequest:
 
 
 def plate_measurement(points: np.ndarray, known_m: float, *, delay_s: float, zero_offset_used_m: float = 0.0,
-                      temperature_c: float = float("nan"), linearization_id: str | None = None) -> PlateMeasurement:
+                      temperature_c: float = float("nan"), linearization_id: str | None = None,
+                      phase_noise_compensation: str | None = None) -> PlateMeasurement:
     """Reduce a plate scan's points (POINT_DTYPE) to a :class:`PlateMeasurement`.
 
     ``zero_offset_used_m``: the zero offset the scan already subtracted (added back: the fit wants raw
@@ -151,7 +158,7 @@ def plate_measurement(points: np.ndarray, known_m: float, *, delay_s: float, zer
     return PlateMeasurement(known_m=known_m, known_range_m=float(np.mean(known_m / dz)), raw_range_m=float(raw.mean()),
                             sem_m=max(std / math.sqrt(len(p)), SEM_FLOOR_M), pixel_std_m=std, n=int(len(p)),
                             delay_s=float(delay_s), temperature_c=float(temperature_c),
-                            linearization_id=linearization_id)
+                            linearization_id=linearization_id, phase_noise_compensation=phase_noise_compensation)
 
 
 def _describe(i: int, m: PlateMeasurement, resid_m: float, norm: float) -> str:
@@ -225,7 +232,8 @@ def fit_range(measurements: Sequence[PlateMeasurement], nominal_delay_s: float, 
     return RangeFit(delay_s=tau_eff, zero_offset_m=z0, nominal_delay_s=float(nominal_delay_s),
                     delay_stderr_s=float(np.sqrt(c2[0, 0])), zero_offset_stderr_m=float(np.sqrt(c2[1, 1])),
                     chi2=chi2, dof=dof, p_value=p, residuals_m=tuple(float(x) for x in resid_m),
-                    normalized_residuals=tuple(float(x) for x in norm), pixel_std_m=pooled)
+                    normalized_residuals=tuple(float(x) for x in norm), pixel_std_m=pooled,
+                    delay_zero_offset_cov=float(c2[0, 1]))
 
 
 def plate_scene(distance_m: float, size_m: float = 0.6, reflectivity: float = 0.5) -> dict[str, Any]:

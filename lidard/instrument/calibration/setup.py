@@ -101,19 +101,40 @@ def instrument_setup(cfg, instrument) -> CalibrationSetup:
     return calibration_setup(cfg, dict(getattr(registry, "identity", None) or {}))
 
 
-def select(records, setup: Setup | None) -> tuple[Any, str | None]:
+def mode_differs(inputs: dict[str, Any] | None, phase_noise: str | None) -> str | None:
+    """Why a range record (its ``inputs``) does not fit a scan whose phase-noise compensation is
+    ``phase_noise`` ("on"/"off"; None: any), or None when it does.
+
+    The compensation subtracts the monitor's measured phase, which holds the linearized chirp's
+    deterministic residual as well as the laser's phase noise, so the same target reads a slightly
+    different range with it on and off (docs/measured/26_range_linearity.md): a scale and offset fitted
+    in one mode are the set-up's in that mode only. A record that does not say its mode (made before
+    records named it) fits any scan."""
+    made = (inputs or {}).get("phase_noise_compensation")
+    if phase_noise is None or made is None or made == phase_noise:
+        return None
+    return (f"its plates were measured with phase-noise compensation {made}, this scan has it {phase_noise} "
+            "(scan.phase_noise_compensation; measure plates in this scan's mode)")
+
+
+def select(records, setup: Setup | None, phase_noise: str | None = None) -> tuple[Any, str | None]:
     """The newest of ``records`` (newest first; ``.id``, ``.inputs["setup"]``) made on ``setup``, and
-    why none was when there are records but none fits (None: no records, or a match).
+    why none was when there are records but none fits (None: no records, or a match). ``phase_noise``:
+    the scan's resolved phase-noise compensation ("on"/"off"), which a range record must have been
+    measured in as well (:func:`mode_differs`); None: any.
 
     Without a ``setup`` (an instrument whose set-up is not known, e.g. a test double) the newest record
     is used, as before calibrations named their set-up."""
     records = list(records)
     if not records:
         return None, None
-    if setup is None:
-        return records[0], None
+
+    def why(rec) -> str | None:
+        inputs = rec.inputs or {}
+        return ((None if setup is None else setup.differs(inputs.get("setup")))
+                or (mode_differs(inputs, phase_noise) if rec.kind == "range" else None))
     for rec in records:
-        if setup.differs((rec.inputs or {}).get("setup")) is None:
+        if why(rec) is None:
             return rec, None
     newest = records[0]
-    return None, f"{newest.kind} calibration {newest.id} not used: {setup.differs((newest.inputs or {}).get('setup'))}"
+    return None, f"{newest.kind} calibration {newest.id} not used: {why(newest)}"

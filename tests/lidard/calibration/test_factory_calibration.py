@@ -79,6 +79,12 @@ def test_one_shot_sim_scan_runs_the_factory_calibration_once_then_uses_the_cache
     geo = side["geometry"]
     assert abs(geo["monitor_delay_s"] - truth.mzi_delay_s) < 10e-12
     assert abs(geo["zero_offset_m"] - truth.zero_offset_m) < 0.2e-3
+    # the range error the calibration leaves at the scan's gate, against the bench's truth, is within
+    # 4 x the uncertainty the sidecar states there
+    gate = geo["range_uncertainty_at_m"]
+    left = (gate + truth.zero_offset_m) * geo["monitor_delay_s"] / truth.mzi_delay_s - geo["zero_offset_m"] - gate
+    assert gate == side["request"]["max_range_m"] and 0 < geo["range_uncertainty_m"] < 1e-3
+    assert abs(left) <= 4 * geo["range_uncertainty_m"], (left, geo["range_uncertainty_m"])
     assert side["linearization"]["relinearized"] is False      # the scan reuses the factory run's chirp
 
     code, out, err = run(capsys, *scan)                         # the cache: no second factory run
