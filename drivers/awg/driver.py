@@ -129,29 +129,34 @@ class AwgDriver:
     def _transact(self, message: bytes, query: bool) -> bytes:
         name = message[:40].decode("ascii", "replace")
         last: Exception | None = None
-        for attempt in self._transfers.tries():
-            try:
-                self._send(message)
-                return self._receive() if query else b""
-            except usb.core.USBError as exc:
-                err = classify_usb_error(exc, DEVICE, name)
-                if isinstance(err, DeviceDisconnected) and self._finder is not None:
-                    log.warning("awg: %s (attempt %d/%d); looking for the device again", err,
-                                attempt + 1, self._transfers.attempts)
-                    self.reconnect(name)
+        err: Exception | None = None
+        try:
+            for attempt in self._transfers.tries():
+                try:
+                    self._send(message)
+                    return self._receive() if query else b""
+                except usb.core.USBError as exc:
+                    err = classify_usb_error(exc, DEVICE, name)
+                    if isinstance(err, DeviceDisconnected) and self._finder is not None:
+                        log.warning("awg: %s (attempt %d/%d); looking for the device again", err,
+                                    attempt + 1, self._transfers.attempts)
+                        self.reconnect(name)
+                        last = exc
+                        continue
+                    if not isinstance(err, DeviceTimeout):
+                        if getattr(exc, "errno", None) == errno.EPIPE:
+                            # a stalled bulk pipe stays halted until cleared; leave it usable
+                            self._clear_halts()
+                        raise err from exc
                     last = exc
-                    continue
-                if not isinstance(err, DeviceTimeout):
-                    if getattr(exc, "errno", None) == errno.EPIPE:
-                        # a stalled bulk pipe stays halted until cleared; leave it usable
-                        self._clear_halts()
-                    raise err from exc
-                last = exc
-                self._clear_buffers()
-                log.warning("awg: timeout on %r (attempt %d/%d)", name, attempt + 1, self._transfers.attempts)
-            except ProtocolError as exc:
-                raise UsbDeviceError(DEVICE, name, f"bad reply: {exc}") from exc
-        raise DeviceTimeout(DEVICE, name, f"no answer after {self._transfers.attempts} attempts") from last
+                    self._clear_buffers()
+                    log.warning("awg: timeout on %r (attempt %d/%d)", name, attempt + 1, self._transfers.attempts)
+                except ProtocolError as exc:
+                    raise UsbDeviceError(DEVICE, name, f"bad reply: {exc}") from exc
+            raise DeviceTimeout(DEVICE, name, f"no answer after {self._transfers.attempts} attempts") from last
+        finally:
+            # a kept exception's traceback holds this frame (see DigitizerDriver._guard)
+            last = err = None
 
     def _clear_buffers(self) -> None:
         """USBTMC INITIATE_CLEAR + CHECK_CLEAR_STATUS: the device drops partial input and unread

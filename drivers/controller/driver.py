@@ -162,47 +162,52 @@ class LaserHvController:
         attempts = 0   # attempts that failed for want of an answer (timeout / no connection)
         busy = 0       # "come back later" exception answers
         unreachable: ConnectionException | None = None
-        while attempts < self._no_reply.attempts:
-            if unreachable is not None:
-                self._no_reply.sleep(self._no_reply.delay_s(attempts))
-            try:
-                with self._io_lock:
-                    try:
-                        rsp = request(*args, device_id=self.device_id, **kwargs)
-                    except (ConnectionException, ModbusIOException):
-                        self._client.close()  # drop any late reply before the next attempt
-                        raise
-            except ConnectionException as exc:
-                # the next request reconnects (lazy connect); bounded by the same retry budget
-                unreachable = exc
-                self._lost = True
-                attempts += 1
-                continue
-            except ModbusIOException:
-                attempts += 1
-                log.warning("%s: no reply to %s (attempt %d/%d)", DEVICE, operation, attempts,
-                            self.retries + 1)
-                continue
-            if rsp.isError():
-                code = getattr(rsp, "exception_code", None)
-                if not isinstance(code, int):
-                    raise bad_value(f"{operation} reply", rsp, "error response without an exception code")
-                if code in _TRANSIENT_CODES and busy + 1 < self._busy.attempts:
-                    # ACKNOWLEDGE / SERVER DEVICE BUSY mean "try again later": back off and repeat
-                    busy += 1
-                    delay = self._busy.delay_s(busy)
-                    log.warning("%s: %s answered Modbus exception %d; retry %d/%d in %.3g s", DEVICE,
-                                operation, code, busy, self.busy_retries, delay)
-                    self._busy.sleep(delay)
+        try:
+            while attempts < self._no_reply.attempts:
+                if unreachable is not None:
+                    self._no_reply.sleep(self._no_reply.delay_s(attempts))
+                try:
+                    with self._io_lock:
+                        try:
+                            rsp = request(*args, device_id=self.device_id, **kwargs)
+                        except (ConnectionException, ModbusIOException):
+                            self._client.close()  # drop any late reply before the next attempt
+                            raise
+                except ConnectionException as exc:
+                    # the next request reconnects (lazy connect); bounded by the same retry budget
+                    unreachable = exc
+                    self._lost = True
+                    attempts += 1
                     continue
-                raise modbus_exception(operation, register.name, value, code)
-            if self._lost:
-                self._lost = False
-                self.reconnect_count += 1
-            return rsp
-        if unreachable is not None:
-            raise DeviceUnreachable(DEVICE, self.host, self.port, operation) from unreachable
-        raise DeviceTimeout(DEVICE, operation, attempts=attempts)
+                except ModbusIOException:
+                    attempts += 1
+                    log.warning("%s: no reply to %s (attempt %d/%d)", DEVICE, operation, attempts,
+                                self.retries + 1)
+                    continue
+                if rsp.isError():
+                    code = getattr(rsp, "exception_code", None)
+                    if not isinstance(code, int):
+                        raise bad_value(f"{operation} reply", rsp, "error response without an exception code")
+                    if code in _TRANSIENT_CODES and busy + 1 < self._busy.attempts:
+                        # ACKNOWLEDGE / SERVER DEVICE BUSY mean "try again later": back off and repeat
+                        busy += 1
+                        delay = self._busy.delay_s(busy)
+                        log.warning("%s: %s answered Modbus exception %d; retry %d/%d in %.3g s", DEVICE,
+                                    operation, code, busy, self.busy_retries, delay)
+                        self._busy.sleep(delay)
+                        continue
+                    raise modbus_exception(operation, register.name, value, code)
+                if self._lost:
+                    self._lost = False
+                    self.reconnect_count += 1
+                return rsp
+            if unreachable is not None:
+                raise DeviceUnreachable(DEVICE, self.host, self.port, operation) from unreachable
+            raise DeviceTimeout(DEVICE, operation, attempts=attempts)
+        finally:
+            # a kept exception's traceback holds this frame (see DigitizerDriver._guard)
+            unreachable = None
+
 
     def _read_words(self, operation: str, register: p.Register, count: int) -> list[int]:
         fn = (self._client.read_input_registers if register.table is p.Table.INPUT

@@ -92,23 +92,29 @@ class DigitizerDriver:
 
     def _guard(self, command: str, fn: Callable[[], T], retry: bool = True) -> T:
         last: Exception | None = None
-        for attempt in (self._transfers if retry else RetryPolicy(1)).tries():
-            try:
-                return fn()
-            except usb.core.USBError as exc:
-                err = classify_usb_error(exc, DEVICE, command)
-                if isinstance(err, DeviceDisconnected) and self._finder is not None and retry:
-                    log.warning("digitizer: %s (attempt %d); looking for the device again", err, attempt + 1)
-                    self.reconnect(command)
+        err: Exception | None = None
+        try:
+            for attempt in (self._transfers if retry else RetryPolicy(1)).tries():
+                try:
+                    return fn()
+                except usb.core.USBError as exc:
+                    err = classify_usb_error(exc, DEVICE, command)
+                    if isinstance(err, DeviceDisconnected) and self._finder is not None and retry:
+                        log.warning("digitizer: %s (attempt %d); looking for the device again", err, attempt + 1)
+                        self.reconnect(command)
+                        last = exc
+                        continue
+                    if isinstance(err, DeviceStall):
+                        raise DigitizerError(DEVICE, command, "request refused (STALL)") from exc
+                    if not isinstance(err, DeviceTimeout):
+                        raise err from exc
                     last = exc
-                    continue
-                if isinstance(err, DeviceStall):
-                    raise DigitizerError(DEVICE, command, "request refused (STALL)") from exc
-                if not isinstance(err, DeviceTimeout):
-                    raise err from exc
-                last = exc
-                log.warning("digitizer: timeout on %s (attempt %d)", command, attempt + 1)
-        raise DeviceTimeout(DEVICE, command, f"no answer after {attempt + 1} attempts") from last
+                    log.warning("digitizer: timeout on %s (attempt %d)", command, attempt + 1)
+            raise DeviceTimeout(DEVICE, command, f"no answer after {attempt + 1} attempts") from last
+        finally:
+            # a kept exception's traceback holds this frame, and the frame these locals: a cycle only
+            # the cyclic collector frees, which pins every caller's frame and its arrays meanwhile
+            last = err = None
 
     def _out(self, req: p.Req, w_value: int = 0, data: bytes = b"") -> None:
         self._guard(req.name, lambda: self._dev.ctrl_transfer(

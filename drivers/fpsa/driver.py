@@ -202,47 +202,52 @@ class FpsaController:
         attempts = policy.attempts
         failure = "timeout"
         reopen_error: TransportError | None = None
-        for attempt in policy.tries():   # waited policy.delay_s(attempt) before each retry
-            if attempt:
-                self.retry_count += 1
-                log.warning("%s: %s attempt %d/%d after %s (backoff %.3g s)", self.device,
-                            cmd.name, attempt + 1, attempts, failure, policy.delay_s(attempt))
-            if self._port_broken and self._reopen is not None:
+        try:
+            for attempt in policy.tries():   # waited policy.delay_s(attempt) before each retry
+                if attempt:
+                    self.retry_count += 1
+                    log.warning("%s: %s attempt %d/%d after %s (backoff %.3g s)", self.device,
+                                cmd.name, attempt + 1, attempts, failure, policy.delay_s(attempt))
+                if self._port_broken and self._reopen is not None:
+                    try:
+                        self.reconnect()
+                    except TransportError as exc:
+                        reopen_error = exc
+                        failure = "port gone"
+                        continue
+                wire = (b"\x00" + frame) if attempt else frame
                 try:
-                    self.reconnect()
-                except TransportError as exc:
-                    reopen_error = exc
-                    failure = "port gone"
+                    self._port.write(wire)
+                    self.tx_bytes += len(wire)
+                    outcome = self._await(seq, cmd)
+                except (serial.SerialException, OSError) as exc:
+                    # the port itself failed (device unplugged / pty closed): reopen before retrying
+                    log.warning("%s: port error during %s: %s", self.device, cmd.name, exc)
+                    self._port_broken = True
+                    failure = "port error"
+                    if self._reopen is None:
+                        raise DeviceGone(self.device, cmd.name, f"port error: {exc}", url=self.url) from exc
                     continue
-            wire = (b"\x00" + frame) if attempt else frame
-            try:
-                self._port.write(wire)
-                self.tx_bytes += len(wire)
-                outcome = self._await(seq, cmd)
-            except (serial.SerialException, OSError) as exc:
-                # the port itself failed (device unplugged / pty closed): reopen before retrying
-                log.warning("%s: port error during %s: %s", self.device, cmd.name, exc)
-                self._port_broken = True
-                failure = "port error"
-                if self._reopen is None:
-                    raise DeviceGone(self.device, cmd.name, f"port error: {exc}", url=self.url) from exc
-                continue
-            if isinstance(outcome, p.Response):
-                if outcome.ok:
-                    return outcome.data
-                if outcome.code == p.NakCode.BAD_CRC:
-                    failure = "NAK BAD_CRC"
-                    continue
-                raise NakError(self.device, cmd.name, outcome.code, outcome.detail)
-            failure = outcome
-        if failure == "port gone" and reopen_error is not None:
-            raise DeviceGone(self.device, cmd.name, f"port could not be reopened after {attempts} "
-                             f"attempts ({reopen_error})", url=self.url) from reopen_error
-        if failure in ("timeout", "port error"):
-            raise DeviceTimeout(self.device, cmd.name, timeout_s=self.timeout_s,
-                                attempts=attempts, url=self.url)
-        raise LinkError(f"{self.device}: no valid answer to {cmd.name} after {attempts} "
-                        f"attempts (last: {failure})", device=self.device, command=cmd.name)
+                if isinstance(outcome, p.Response):
+                    if outcome.ok:
+                        return outcome.data
+                    if outcome.code == p.NakCode.BAD_CRC:
+                        failure = "NAK BAD_CRC"
+                        continue
+                    raise NakError(self.device, cmd.name, outcome.code, outcome.detail)
+                failure = outcome
+            if failure == "port gone" and reopen_error is not None:
+                raise DeviceGone(self.device, cmd.name, f"port could not be reopened after {attempts} "
+                                 f"attempts ({reopen_error})", url=self.url) from reopen_error
+            if failure in ("timeout", "port error"):
+                raise DeviceTimeout(self.device, cmd.name, timeout_s=self.timeout_s,
+                                    attempts=attempts, url=self.url)
+            raise LinkError(f"{self.device}: no valid answer to {cmd.name} after {attempts} "
+                            f"attempts (last: {failure})", device=self.device, command=cmd.name)
+        finally:
+            # a kept exception's traceback holds this frame, and this frame the exception: a cycle that
+            # pins every caller's frame (and its arrays) until the cyclic collector runs
+            reopen_error = None
 
     def _await(self, seq: int, cmd: p.Cmd) -> p.Response | str:
         deadline = self._monotonic() + self.timeout_s

@@ -169,26 +169,31 @@ class AcquisitionLifecycle:
         failures re-read the whole batch (bounded), then :class:`SegmentsLost`."""
         dig = self.devices["digitizer"]
         last: Exception | None = None
-        for attempt in self._batch_retry.tries():   # waited BATCH_BACKOFF_S (doubling) before a re-read
-            if attempt:
-                acq.faults["batch_retries"] += 1
-                log.warning("digitizer: re-reading segments %d..%d (attempt %d/%d) after %s",
-                            first, first + count - 1, attempt + 1, BATCH_RETRIES + 1, last)
-            with on_device("digitizer", "READ_SEGMENTS"):
-                try:
-                    return dig.read_segments(acq.segment_base + first, count, acq.layout)
-                except DeviceStall as exc:
-                    raise SegmentsLost(f"digitizer: refused READ_SEGMENTS({first},{count}): {exc}") from exc
-                except DeviceDisconnected as exc:
-                    last = exc
+        try:
+            for attempt in self._batch_retry.tries():   # waited BATCH_BACKOFF_S (doubling) before a re-read
+                if attempt:
+                    acq.faults["batch_retries"] += 1
+                    log.warning("digitizer: re-reading segments %d..%d (attempt %d/%d) after %s",
+                                first, first + count - 1, attempt + 1, BATCH_RETRIES + 1, last)
+                with on_device("digitizer", "READ_SEGMENTS"):
                     try:
-                        dig.reconnect(f"READ_SEGMENTS({first},{count})")
-                    except Exception as exc2:
-                        last = exc2
-                except (UsbTimeout, UsbDeviceError) as exc:
-                    last = exc
-        raise SegmentsLost(f"digitizer: segments {first}..{first + count - 1} could not be read after "
-                           f"{BATCH_RETRIES + 1} attempts: {type(last).__name__}: {last}") from last
+                        return dig.read_segments(acq.segment_base + first, count, acq.layout)
+                    except DeviceStall as exc:
+                        raise SegmentsLost(f"digitizer: refused READ_SEGMENTS({first},{count}): {exc}") from exc
+                    except DeviceDisconnected as exc:
+                        last = exc
+                        try:
+                            dig.reconnect(f"READ_SEGMENTS({first},{count})")
+                        except Exception as exc2:
+                            last = exc2
+                    except (UsbTimeout, UsbDeviceError) as exc:
+                        last = exc
+            raise SegmentsLost(f"digitizer: segments {first}..{first + count - 1} could not be read after "
+                               f"{BATCH_RETRIES + 1} attempts: {type(last).__name__}: {last}") from last
+        finally:
+            # a kept exception's traceback holds this frame, and this frame the exception: a cycle that
+            # pins every caller's frame (and its arrays) until the cyclic collector runs
+            last = None
 
     def read_all(self, acq: Acquisition, step: int,
                  done: Callable[[int, np.ndarray], None] | None = None) -> np.ndarray:
