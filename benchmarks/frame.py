@@ -25,6 +25,8 @@ import tempfile
 import threading
 import time
 
+from lidard.dsp_pool import cpu_time  # the DSP worker processes' CPU is a scan's too
+
 from lidard.config import CONFIG_DIR, load_config
 from lidard.instrument import open_instrument
 from lidard.instrument import ScanRequest
@@ -120,12 +122,15 @@ def run_frame(averages: int = 10, rows: tuple[int, int] = (0, 128), cols: tuple[
         req = ScanRequest(pattern="roi", rows=tuple(rows), cols=tuple(cols), averages=averages,
                           max_range_m=max_range_m, **band)
         with stage_timers() as acc:
-            t, c = time.perf_counter(), time.process_time()
+            t, c, own = time.perf_counter(), cpu_time(), time.process_time()
             res = inst.run_scan(req, lambda p: None, threading.Event(), cal)
-            wall, cpu = time.perf_counter() - t, time.process_time() - c
+            wall, cpu = time.perf_counter() - t, cpu_time() - c
+            workers_cpu = cpu - (time.process_time() - own)      # the DSP worker processes' share
     finally:
         inst.close()
     stages = _stages(acc, _write_ply_timed(res.points))
+    dsp_wall, dsp_cpu = stages["dsp"]
+    stages["dsp"] = (dsp_wall, dsp_cpu + workers_cpu)      # a batch's DSP runs on the pool's processes
     # the high-water mark of this process's memory (VmHWM): it includes whatever ran before in it
     peak_mb = peak_rss_mb()
     out = {"pixels": res.pixels_scanned, "averages": averages, "max_range_m": max_range_m,

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
+
+from lidard.dsp_pool import cpu_time  # the DSP worker processes' CPU is a scan's too
 
 import numpy as np
 
@@ -239,7 +240,7 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="write the tables (markdown) here")
     ap.add_argument("--no-bench", action="store_true", help="skip the scenes on the simulated bench")
     args = ap.parse_args()
-    t0 = time.process_time()
+    t0 = cpu_time()
     rows = table(args.pixels, args.seed)
     fp = ["| pfa (false points per range cell) | per-ramp level | detector alarms per ramp cell / level | pixels "
           "| gate cells | points | valid points | valid per gate cell (95 % CI) | / pfa (95 % CI) |",
@@ -250,10 +251,10 @@ def main() -> None:
         fp.append(false_points(pfa, n_pix, args.seed + 1))
         print(fp[-1], flush=True)
     scenes = [] if args.no_bench else bench_scenes()
-    print(f"CPU {time.process_time() - t0:.0f} s")
+    print(f"CPU {cpu_time() - t0:.0f} s")
     if args.out:
         with open(args.out, "w") as fh:
-            fh.write("\n".join([HEADER.format(load=os.getloadavg()[0], cpu=time.process_time() - t0), ""] + rows
+            fh.write("\n".join([HEADER.format(load=os.getloadavg()[0], cpu=cpu_time() - t0), ""] + rows
                                + ["", FP_TEXT, ""] + fp + ["", SCENES_TEXT, ""] + scenes) + "\n")
 
 
