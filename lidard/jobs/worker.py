@@ -222,10 +222,11 @@ class ScanWorker:
     # -- the worker ----------------------------------------------------------------------------
     def _run(self) -> None:
         if self.setup is not None:      # a real instrument (not a test double): its first scan finds the
-            # DSP worker processes started; imported here, on the worker's thread, so that the API and
-            # the queue load no DSP (the instrument seam, tests/lidard/test_instrument_rooms.py)
+            # DSP worker processes started. Beside the queue, not before it: a scan queued at start-up
+            # runs at once (it waits for the pool only if it needs it before the pool is up). Imported
+            # here so that the API and the queue load no DSP (tests/lidard/test_instrument_rooms.py).
             from ..dsp_pool import warm as warm_dsp_pool
-            warm_dsp_pool()
+            threading.Thread(target=warm_dsp_pool, name="lidard-dsp-pool-warm", daemon=True).start()
         while True:
             with self._cv:
                 while not self._queue and not self._stopping:
