@@ -203,7 +203,7 @@ def dsp(quick: bool, repeats: int = 1) -> dict:
     from lidard.instrument.pipeline import dsp_workers
     from lidard.instrument.points import PointBuffer, RawBatch
     from lidard.instrument.scan_loop import dsp_batch_bytes, plan_scan
-    from sim_devices.world.synth import AdcSpec, HitBatch, trajectory
+    from sim_devices.world.synth import AdcSpec, Effects, HitBatch, trajectory
     from sim_devices.world.synth_parallel import synthesize_read
     from sim_devices.world.laser import DfbLaser
     from lidard.instrument.acquisition import AWG_RATE_HZ, plain_drive
@@ -218,7 +218,7 @@ def dsp(quick: bool, repeats: int = 1) -> dict:
     seg = np.arange(n_pix * p.averages)
     hits = HitBatch.from_targets(seg, np.full(seg.size, 1.2), 0.02, radial_velocity_m_s=np.full(seg.size, 0.7))
     syn = synthesize_read(traj, adc, seg * cfg.chirp.period_s, hits, lambda s: np.random.default_rng([3, s]),
-                          noise_asd_v_per_rthz=3e-7)
+                          effects=Effects(noise_asd_v_per_rthz=3e-7))
     beat = syn.beat.reshape(n_pix, p.averages, -1)
     pixels = np.stack([np.zeros(n_pix, int), np.arange(n_pix) % 128], axis=1)
     samples = beat.size

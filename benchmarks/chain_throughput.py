@@ -150,7 +150,7 @@ def run_chain_throughput(n: int = 512, batch: int = 20_000, repeats: int = 9, ji
     x = make_ramps(n, batch)
     rf = RangeFFT(n, FS_HZ, CHIRP_RATE_HZ_PER_S, window="hann")
     w = np.hanning(n + 1)[:-1]
-    # OS-CFAR is cfar_detect's default method
+    # OS-CFAR is CfarSettings' default method
     chain = lambda: measure_peaks(rf, x, method=DEFAULT_METHOD, pfa=1e-6, max_detections=2)  # noqa: E731
     res = chain()
     plain = lambda: _plain(x, w)  # noqa: E731
@@ -172,7 +172,7 @@ def median_cpu_s(fn, repeats: int) -> float:
 
 def _stages_ms(rf: RangeFFT, x: np.ndarray, repeats: int) -> dict:
     """The chain's stages timed one by one on the same ramps (ms, median CPU of ``repeats``): where it goes."""
-    from lidard.dsp.detect.cfar import cfar_detect
+    from lidard.dsp.detect.cfar import CfarSettings, cfar_detect_with
     from lidard.dsp.chain import _refine_valid
     from lidard.dsp.spectrum.jit import power
 
@@ -180,7 +180,7 @@ def _stages_ms(rf: RangeFFT, x: np.ndarray, repeats: int) -> dict:
     p = power(spec)
     gate = np.flatnonzero(rf.gate_mask)
     kw = dict(pfa=1e-6, max_detections=2, bin_range=(int(gate[0]), int(gate[-1])), window=rf.window)
-    det = cfar_detect(p, **kw)
+    det = cfar_detect_with(p, CfarSettings(**kw))
     idx = rf.index_to_bin(np.where(det.valid, det.index, 1))
     from lidard.dsp.spectrum.rangefft import check_samples
 
@@ -188,7 +188,7 @@ def _stages_ms(rf: RangeFFT, x: np.ndarray, repeats: int) -> dict:
     buf, pbuf = np.empty_like(spec), np.empty_like(p)
     return {"fft_and_power": 1e3 * median_cpu_s(
                 lambda: rf.spectrum_of(check_samples(x, rf.n_samples), out=buf, power_out=pbuf), repeats),
-            "cfar": 1e3 * median_cpu_s(lambda: cfar_detect(p, **kw), repeats),
+            "cfar": 1e3 * median_cpu_s(lambda: cfar_detect_with(p, CfarSettings(**kw)), repeats),
             "estimator": 1e3 * median_cpu_s(lambda: _refine_valid(x, idx, det.valid, spec, method=DEFAULT_METHOD,
                                                                     window=rf.window, zero_pad=rf.zero_pad), repeats)}
 

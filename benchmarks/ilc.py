@@ -18,7 +18,7 @@ from lidard.dsp.linearize.ilc import IlcSettings, linearize
 from lidard.dsp.linearize.ilc import ChirpGeometry
 from lidard.instrument.calibration.linearization import MAX_AVERAGES, MAX_ITERATIONS   # the instrument's policy
 from sim_devices.world.laser import DfbLaser, ramp_nonlinearity_hz, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, MonitorMzi, synthesize, trajectory
 
 RAMP_S, EXC_HZ, FS = 80e-6, 8.6e9, 100e6
 TAU_M = Monitor().delay_s
@@ -34,8 +34,8 @@ def _run(preset, seed=1, averages=32, max_iter=MAX_ITERATIONS, max_averages=MAX_
 
     def measure(drive, n_avg):
         out = synthesize(trajectory(laser, drive, FS), adc, np.zeros(n_avg), None,
-                         linewidth_hz=laser.linewidth_hz, rng=rng, mzi_delay_s=TAU_M, mzi_amplitude_v=0.3,
-                         mzi_quadrature=quadrature)
+                         effects=Effects(linewidth_hz=laser.linewidth_hz), rng=rng,
+                         mzi=MonitorMzi(TAU_M, 0.3, quadrature=quadrature))
         i = out.mzi.astype(np.float64) * adc.lsb_v
         return i + 1j * out.mzi_q.astype(np.float64) * adc.lsb_v if quadrature else i
 

@@ -33,7 +33,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from lidard.api.app import create_app
+from lidard.api.app import WorkerOptions, create_app
 from lidard.config import CONFIG_DIR, load_config
 
 # A full frame: long enough (linearization, then 96 x 128 pixels) to run through the whole load;
@@ -129,7 +129,7 @@ def run_load(clients: int = 50, requests_per_client: int = 40, seed: int = 1, *,
         instrument = open_instrument(cfg, scene_path=scene, bench=bench)
     with tempfile.TemporaryDirectory(prefix="lidard-load-") as data_dir:
         app = create_app(cfg, instrument=instrument, data_dir=data_dir, close_instrument=own,
-                         progress_interval_s=0.25)
+                         worker_options=WorkerOptions(progress_interval_s=0.25))
         with serve(app) as url:
             import httpx
             with httpx.Client(base_url=url, timeout=60.0) as http:

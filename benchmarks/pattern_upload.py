@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from drivers.fpsa import protocol as p
-from drivers.fpsa.driver import FpsaController
+from drivers.fpsa.driver import FpsaController, FpsaLink
 from sim_devices.clock import VirtualClock
 from sim_devices.fpsa.device import FpgaConfig, FpgaSim, default_bonded_rows
 
@@ -37,8 +37,9 @@ def one_upload(baud: int, chunk: int, via_pty: bool) -> dict[str, float]:
     pattern = raster()
     server = sim.serve_pty() if via_pty else None
     try:
-        drv = (FpsaController.from_url(server.path, timeout_s=2.0, baudrate=baud, chunk_pixels=chunk)
-               if server else FpsaController(sim.open_pipe(), timeout_s=2.0, chunk_pixels=chunk))
+        link = FpsaLink(timeout_s=2.0, chunk_pixels=chunk)
+        drv = (FpsaController.from_url(server.path, baudrate=baud, link=link)
+               if server else FpsaController(sim.open_pipe(), link=link))
         drv.reset()
         rx0, tx0, t_virtual0 = sim.rx_bytes, sim.tx_bytes, clock.now()
         t0 = time.perf_counter()

@@ -28,7 +28,9 @@ import numpy as np
 from lidard.config import Chirp, load_laser
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, sample_rate_for_range_hz, synthesize, trajectory
+from sim_devices.world.synth import (
+    AdcSpec, Effects, HitBatch, MonitorMzi, sample_rate_for_range_hz, synthesize, trajectory,
+)
 
 FS_AWG_HZ = 200e6
 
@@ -75,8 +77,8 @@ def run_synthesis(repeats: int = 5, quick: bool = False) -> dict:
                 adc = AdcSpec(fs, n, bits=8, input_range_v=1.0, quantize=q)
 
                 def run():
-                    synthesize(traj, adc, t_start, hits, noise_asd_v_per_rthz=2e-8,
-                               linewidth_hz=laser.linewidth_hz if pn else 0.0, rng=rng)
+                    synthesize(traj, adc, t_start, hits, rng=rng, effects=Effects(
+                               noise_asd_v_per_rthz=2e-8, linewidth_hz=laser.linewidth_hz if pn else 0.0))
 
                 dt = _time(run, repeats)
                 rows.append({"workload": name, "segments": n_seg, "fs_hz": fs, "samples": n,
@@ -89,8 +91,9 @@ def run_synthesis(repeats: int = 5, quick: bool = False) -> dict:
     mzi = []
     for pn in (False, True):
         def run_mzi():
-            synthesize(traj, adc, np.arange(n_seg) * period, None, linewidth_hz=laser.linewidth_hz if pn else 0.0,
-                       rng=rng, mzi_delay_s=10e-9, mzi_amplitude_v=0.3)
+            synthesize(traj, adc, np.arange(n_seg) * period, None,
+                       effects=Effects(linewidth_hz=laser.linewidth_hz if pn else 0.0), rng=rng,
+                       mzi=MonitorMzi(10e-9, 0.3))
 
         dt = _time(run_mzi, repeats)
         mzi.append({"segments": n_seg, "samples": n, "fs_hz": fs, "phase_noise": pn,

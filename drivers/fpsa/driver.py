@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import time
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -49,6 +48,7 @@ from drivers.transport import ByteChannel, DeviceTimeout, TracedChannel, Transpo
 
 from . import protocol as p
 from .errors import NakError
+from .link import ChipLayout, FpsaLink
 from .patterns import validate_pixels
 
 log = logging.getLogger(__name__)
@@ -56,19 +56,10 @@ log = logging.getLogger(__name__)
 DEFAULT_BAUDRATE = 3_000_000  # see docs/protocols/fpsa.md, "Physical link"
 _MIN_CHUNK_PIXELS = 32        # smallest chunk the upload falls back to on a noisy line
 
-__all__ = ["DEFAULT_BAUDRATE", "FpsaController", "LinkError"]
+__all__ = ["DEFAULT_BAUDRATE", "ChipLayout", "FpsaController", "FpsaLink", "LinkError"]
 
-
-def _check_settings(device: str, timeout_s: float, retries: int, backoff_s: float,
-                    chunk_pixels: int) -> None:
-    if not timeout_s > 0:
-        raise InvalidValue(device, "configure", f"{device}: timeout_s must be > 0, got {timeout_s!r}")
-    if not (isinstance(retries, int) and retries >= 0):
-        raise InvalidValue(device, "configure", f"{device}: retries must be an int >= 0, got {retries!r}")
-    if not backoff_s >= 0:
-        raise InvalidValue(device, "configure", f"{device}: backoff_s must be >= 0, got {backoff_s!r}")
-    if not 1 <= chunk_pixels <= p.MAX_CHUNK_PIXELS:
-        raise InvalidValue(device, "configure", f"{device}: chunk_pixels must be 1..{p.MAX_CHUNK_PIXELS}")
+_DEFAULT_LINK = FpsaLink()        # 0.5 s replies, 3 retries from 10 ms, 1024-pixel frames, the wall clock
+_UNKNOWN_CHIP = ChipLayout()      # the chip's layout as the board reports it
 
 
 def _url_opener(url: str, baudrate: int, timeout_s: float, trace: bool,
@@ -86,7 +77,8 @@ class FpsaController:
     ``FpsaController.from_url(url, ...)`` is the usual way in: it opens the URL through
     :func:`drivers.transport.open_channel` and reopens the same URL on a port failure. The driver
     closes the channels it opened (through ``from_url`` or ``reopen``); a channel passed in is the
-    caller's to close.
+    caller's to close. ``link``: timeouts, retries, upload chunks and clocks (:class:`FpsaLink`);
+    ``chip``: what is known of the chip's layout beforehand (:class:`ChipLayout`).
     """
 
     def __init__(
@@ -95,27 +87,21 @@ class FpsaController:
         *,
         reopen: Callable[[], ByteChannel] | None = None,
         url: str | None = None,
-        timeout_s: float = 0.5,
-        retries: int = 3,
-        backoff_s: float = 0.01,
+        link: FpsaLink = _DEFAULT_LINK,
+        chip: ChipLayout = _UNKNOWN_CHIP,
         baudrate: int = DEFAULT_BAUDRATE,
-        bonded_rows: tuple[int, ...] | list[int] | np.ndarray | None = None,
-        rows: int | None = None,
-        cols: int | None = None,
         trace: bool = False,
-        sleep: Callable[[float], None] = time.sleep,
-        monotonic: Callable[[], float] = time.monotonic,
-        chunk_pixels: int = 1024,
         device: str = "fpsa",
     ) -> None:
-        _check_settings(device, timeout_s, retries, backoff_s, chunk_pixels)
+        link.check(device)
+        timeout_s = link.timeout_s
         self.device = device
         self.timeout_s = float(timeout_s)
-        self.retries = retries
-        self.backoff_s = float(backoff_s)
-        self.chunk_pixels = chunk_pixels
-        self._sleep = sleep
-        self._monotonic = monotonic
+        self.retries = link.retries
+        self.backoff_s = float(link.backoff_s)
+        self.chunk_pixels = link.chunk_pixels
+        self._sleep = link.sleep
+        self._monotonic = link.monotonic
         self.reconnect_count = 0
         self._port_broken = False
         owns = False
@@ -136,17 +122,17 @@ class FpsaController:
         self._port: ByteChannel = TracedChannel(channel, device=device) if trace else channel
         self._parser = p.FrameParser()
         self._seq = 0
-        self._rows = rows
-        self._cols = cols
+        self._rows = chip.rows
+        self._cols = chip.cols
         self._bonded: np.ndarray | None = None
-        if bonded_rows is not None:
-            self._set_bonded(bonded_rows)
+        if chip.bonded_rows is not None:
+            self._set_bonded(chip.bonded_rows)
         self.tx_bytes = 0
         self.rx_bytes = 0
         self.retry_count = 0
 
     @classmethod
-    def from_url(cls, url: str, *, baudrate: int = DEFAULT_BAUDRATE, timeout_s: float = 0.5,
+    def from_url(cls, url: str, *, baudrate: int = DEFAULT_BAUDRATE, link: FpsaLink = _DEFAULT_LINK,
                  trace: bool = False, device: str = "fpsa", **kwargs: Any) -> FpsaController:
         """Open ``url`` (any scheme of :data:`drivers.transport.SCHEMES`, ``trace+`` prefix allowed)
         and drive it; a failed port is closed and the SAME url reopened before the next attempt.
@@ -154,10 +140,9 @@ class FpsaController:
         Raises :class:`~drivers.errors.TransportError` (or :class:`~drivers.errors.DeviceGone`)
         naming the device when the URL cannot be opened. Other keywords go to the constructor.
         """
-        _check_settings(device, timeout_s, kwargs.get("retries", 0), kwargs.get("backoff_s", 0.0),
-                        kwargs.get("chunk_pixels", 1))
-        opener = _url_opener(url, baudrate, timeout_s, trace, device)
-        drv = cls(opener(), reopen=opener, url=url, timeout_s=timeout_s, device=device, **kwargs)
+        link.check(device)
+        opener = _url_opener(url, baudrate, link.timeout_s, trace, device)
+        drv = cls(opener(), reopen=opener, url=url, link=link, device=device, **kwargs)
         drv._owns_port = True
         return drv
 

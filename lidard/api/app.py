@@ -17,6 +17,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from fastapi import Depends, FastAPI, Request
@@ -44,21 +45,50 @@ def _factory(cfg: Config, worker: ScanWorker):
     return FactoryCalibration(nominal_delay_s=cfg.monitor.delay_s, scene=lambda: bench_scene(cfg, worker))
 
 
-def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str | Path | None = None,
-               *, token: str | None = None, max_queue: int = 16, progress_interval_s: float = 0.25,
-               close_instrument: bool = True, lease_ttl_s: float | None = None,
-               clock: Callable[[], float] = time.monotonic, max_body_bytes: int | None = None,
-               store: Store | None = None, factory_calibration: bool | None = None) -> FastAPI:
-    """Build the daemon's app.
+@dataclass(frozen=True)
+class ApiAccess:
+    """Who may change what, and how much a request may carry.
 
     ``token``: when set, mutating requests (POST/PUT/PATCH/DELETE) need ``Authorization: Bearer``;
     reads stay open. ``lease_ttl_s`` (default ``cfg.daemon.lease_ttl_s``)/``clock``: the control lock
-    (lidard.api.control).
-    ``max_body_bytes``: request body limit (413 above it), default ``cfg.daemon.max_body_bytes``.
-    ``factory_calibration``: run a simulated bench's factory calibration before the first scan when no
-    range/pointing record of its set-up is stored (lidard.jobs.guided); default: when the app opens a
-    simulated bench itself and ``sim.factory_calibration`` is on.
+    (lidard.api.control). ``max_body_bytes``: request body limit (413 above it), default
+    ``cfg.daemon.max_body_bytes``.
     """
+
+    token: str | None = None
+    lease_ttl_s: float | None = None
+    clock: Callable[[], float] = time.monotonic
+    max_body_bytes: int | None = None
+
+
+@dataclass(frozen=True)
+class WorkerOptions:
+    """How the scan worker runs: its queue bound, how often it reports progress, and
+    ``factory_calibration``: run a simulated bench's factory calibration before the first scan when no
+    range/pointing record of its set-up is stored (lidard.jobs.guided); default (None): when the app
+    opens a simulated bench itself and ``sim.factory_calibration`` is on."""
+
+    max_queue: int = 16
+    progress_interval_s: float = 0.25
+    factory_calibration: bool | None = None
+
+
+_OPEN_ACCESS = ApiAccess()        # no token; the configuration's lease and body limit
+_DEFAULT_WORKER = WorkerOptions()
+
+
+def create_app(cfg: Config, instrument: Instrument | None = None, data_dir: str | Path | None = None,
+               *, store: Store | None = None, close_instrument: bool = True, access: ApiAccess = _OPEN_ACCESS,
+               worker_options: WorkerOptions = _DEFAULT_WORKER) -> FastAPI:
+    """Build the daemon's app.
+
+    ``access``: the token, control lease and request body limit (:class:`ApiAccess`);
+    ``worker_options``: the scan worker's queue, progress interval and factory calibration
+    (:class:`WorkerOptions`); ``close_instrument``: close the instrument when the app stops.
+    """
+    token, lease_ttl_s, clock, max_body_bytes = access.token, access.lease_ttl_s, access.clock, access.max_body_bytes
+    max_queue, progress_interval_s = worker_options.max_queue, worker_options.progress_interval_s
+    factory_calibration = worker_options.factory_calibration
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):

@@ -67,7 +67,7 @@ def serve(args) -> int:
     sock = bind(host, port)
     import uvicorn
 
-    from ..api.app import create_app
+    from ..api.app import ApiAccess, WorkerOptions, create_app
     from ..store import Store
     try:
         # the data directory's lock before the bench or the hardware: a second daemon on a held
@@ -84,8 +84,8 @@ def serve(args) -> int:
         raise
     # the daemon opened its bench from the configuration: it calibrates itself at its first scan when
     # sim.factory_calibration is on (create_app checks that it is a simulated bench)
-    app = create_app(cfg, instrument=instrument, store=store, token=token,
-                     factory_calibration=cfg.sim.factory_calibration)
+    app = create_app(cfg, instrument=instrument, store=store, access=ApiAccess(token=token),
+                     worker_options=WorkerOptions(factory_calibration=cfg.sim.factory_calibration))
     # an open event stream must not hold shutdown (and the laser/HV power-down) hostage
     server = _server_class()(uvicorn.Config(app, log_level=args.log_level, timeout_graceful_shutdown=5), app)
     sys.stderr.write(f"lidard: serving on http://{host}:{sock.getsockname()[1]} (OpenAPI at /docs)\n")

@@ -8,7 +8,7 @@ instantaneous frequency, compiled passes) at the ground; :mod:`.detect` (CFAR, r
 chain; :mod:`.pnframe` and :mod:`.frame` the front ends the scan engine runs.
 """
 
-from lidard.dsp.detect.cfar import CfarMethod, Detections, ca_cfar_alpha, cfar_detect
+from lidard.dsp.detect.cfar import CfarMethod, CfarSettings, Detections, ca_cfar_alpha, cfar_detect_with
 from lidard.dsp.detect.os_cfar import os_cfar_alpha
 from lidard.dsp.ranging.crlb import crlb_freq_var, crlb_freq_var_post_fft, post_fft_snr
 from lidard.dsp.chain import PeakMeasurements, measure_peaks
@@ -22,6 +22,7 @@ __all__ = [
     "DEFAULT_METHOD",
     "ESTIMATORS",
     "CfarMethod",
+    "CfarSettings",
     "Detections",
     "DspInputError",
     "EstimatorName",
@@ -30,7 +31,7 @@ __all__ = [
     "WindowInfo",
     "WindowName",
     "ca_cfar_alpha",
-    "cfar_detect",
+    "cfar_detect_with",
     "crlb_freq_var",
     "crlb_freq_var_post_fft",
     "estimate",

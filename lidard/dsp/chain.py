@@ -17,12 +17,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .detect.cfar import Detections, cfar_detect
+from .detect.cfar import CfarSettings, Detections, cfar_detect_with
 from .spectrum.jit import power as power_of
 from .ranging.estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
 from .spectrum.rangefft import RangeFFT, check_samples
 from .spectrum.scratch import scratch
-from .spectrum.window import DspInputError, WindowName
+from .spectrum.window import DspInputError
 
 # (indices of the detections (..., K) with invalid slots at a harmless bin) -> (signals, signed peak
 # bins for the estimator, precomputed spectrum or None)
@@ -41,10 +41,9 @@ class ChainResult:
     frac_records: np.ndarray | None = None
 
 
-def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: WindowName, estimator: str,
-                      average_axis: int | None = None, zero_pad: int = 1, iq: bool = False,
-                      keep: np.ndarray | None = None, idle_index: int = 1, power: np.ndarray | None = None,
-                      **cfar_kwargs) -> ChainResult:
+def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSettings, estimator: str,
+                      average_axis: int | None = None, keep: np.ndarray | None = None, idle_index: int = 1,
+                      power: np.ndarray | None = None) -> ChainResult:
     """``spec`` (batch..., [averages,] n_bins) complex in RangeFFT layout -> refined detections.
 
     ``average_axis``: the axis of ``spec`` holding the averages of one pixel (powers are averaged over
@@ -52,12 +51,14 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, window: Window
     detection may sit on (a |range| gate on a two-sided spectrum); ``idle_index``: the spectrum index
     given to the estimator for empty detection slots (their result is ignored); ``power``: |spec|^2 when
     the caller has it already (computed with the spectrum, :meth:`RangeFFT.spectrum_of`);
-    ``cfar_kwargs``: pfa, max_detections, bin_range, ... of :func:`lidard.dsp.detect.cfar.cfar_detect`.
+    ``cfar``: the detector's knobs (:class:`lidard.dsp.detect.cfar.CfarSettings`); its window, zero
+    padding and layout (``iq``) are the spectrum's, and the estimator refines with them.
     """
     p_ramps = p = power_of(spec) if power is None else power
     if average_axis is not None:
         p = p.mean(axis=average_axis)
-    det = cfar_detect(p, window=window, zero_pad=zero_pad, iq=iq, **cfar_kwargs)
+    window, zero_pad = cfar.window, cfar.zero_pad
+    det = cfar_detect_with(p, cfar)
     if keep is not None:
         ok = det.valid & keep[np.maximum(det.index, 0)]
         det = replace(det, valid=ok, index=np.where(ok, det.index, -1))
@@ -114,8 +115,8 @@ class PeakMeasurements:
 
 def measure_peaks(rf: RangeFFT, x: object, *, method: EstimatorName = DEFAULT_METHOD,
                   **cfar_kwargs) -> PeakMeasurements:
-    """Range FFT, CFAR (``cfar_kwargs`` go to :func:`lidard.dsp.detect.cfar.cfar_detect`; window,
-    zero_pad and iq are taken from ``rf``; the range gate of ``rf`` limits the search) and sub-bin
+    """Range FFT, CFAR (``cfar_kwargs``: the other fields of :class:`lidard.dsp.detect.cfar.CfarSettings`;
+    window, zero_pad and iq are taken from ``rf``; the range gate of ``rf`` limits the search) and sub-bin
     refinement of every detection with ``method``: the chain on one batch, no averaging."""
     a = check_samples(x, rf.n_samples)
     # the spectrum and its power never leave this call (the results are gathered from them): scratch
@@ -128,9 +129,9 @@ def measure_peaks(rf: RangeFFT, x: object, *, method: EstimatorName = DEFAULT_ME
     cfar_kwargs.setdefault("bin_range", (int(gate[0]), int(gate[-1])))
     # |range| gate on a two-sided spectrum: the contiguous bin_range above covers both signs
     keep = rf.gate_mask if (rf.iq and rf.range_gate_m is not None) else None
-    res = detect_and_refine(spec, lambda idx: (a, rf.index_to_bin(idx), spec), window=rf.window,
-                            estimator=method, zero_pad=rf.zero_pad, iq=rf.iq, keep=keep,
-                            idle_index=int(rf.bin_to_index(1)), power=p, **cfar_kwargs)
+    cfar = CfarSettings(window=rf.window, zero_pad=rf.zero_pad, iq=rf.iq, **cfar_kwargs)
+    res = detect_and_refine(spec, lambda idx: (a, rf.index_to_bin(idx), spec), cfar=cfar,
+                            estimator=method, keep=keep, idle_index=int(rf.bin_to_index(1)), power=p)
     det, frac = res.detections, res.frac_bins
     freq_hz = np.where(det.valid, frac * rf.delta_f, 0.0)
     return PeakMeasurements(freq_hz=freq_hz, range_m=np.where(det.valid, rf.bin_to_range_m(frac), 0.0), detections=det)

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from .chain import detect_and_refine
+from .detect.cfar import CfarSettings
 from .ranging.estimators import DEFAULT_METHOD
 from .detect.gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
 from .ranging.iqbalance import check_imbalance, correct, mirror_images, ramp_volts
@@ -294,10 +295,9 @@ class FrameDsp:
                 return ramp, rf.index_to_bin(idx), spec
 
             res = detect_and_refine(
-                spec, signals, window=self.window,
-                estimator=self.estimator, average_axis=1, method="os", pfa=self.ramp_pfa, iq=self.iq,
-                max_detections=self.candidate_slots, bin_range=self.bin_range, idle_index=int(rf.bin_to_index(1)),
-                power=p)
+                spec, signals, cfar=CfarSettings(method="os", pfa=self.ramp_pfa, max_detections=self.candidate_slots,
+                                                 window=self.window, iq=self.iq, bin_range=self.bin_range),
+                estimator=self.estimator, average_axis=1, idle_index=int(rf.bin_to_index(1)), power=p)
             det = res.detections
             if self.iq:     # the hybrid's image of a stronger return is not a return
                 img = mirror_images(det.index, det.power, det.valid, rf.n_fft)

@@ -37,6 +37,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .chain import detect_and_refine
+from .detect.cfar import CfarSettings
 from .ranging.iqbalance import mirror_images, ramp_volts
 from .spectrum.instfreq import check_positive, hilbert
 from .phasenoise.compensate import demodulated_phase
@@ -360,9 +361,9 @@ def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray,
             return ramps.real_signals(m_of_bin[idx]), rf.index_to_bin(idx), None
 
         res = detect_and_refine(
-            spec, signals,
-            window=dsp.window, estimator=dsp.estimator, average_axis=1, method="os", pfa=dsp.ramp_pfa, iq=dsp.iq,
-            max_detections=dsp.candidate_slots, bin_range=dsp.bin_range, idle_index=int(rf.bin_to_index(1)))
+            spec, signals, cfar=CfarSettings(method="os", pfa=dsp.ramp_pfa, max_detections=dsp.candidate_slots,
+                                             window=dsp.window, iq=dsp.iq, bin_range=dsp.bin_range),
+            estimator=dsp.estimator, average_axis=1, idle_index=int(rf.bin_to_index(1)))
         det = res.detections
         if dsp.iq:      # the hybrid's image of a stronger return is not a return
             det = replace(det, valid=det.valid & ~mirror_images(det.index, det.power, det.valid, rf.n_fft))

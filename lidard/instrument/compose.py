@@ -23,7 +23,7 @@ from drivers.awg.driver import AwgDriver
 from drivers.controller.driver import LaserHvController
 from drivers.controller.protocol import Limits
 from drivers.digitizer.driver import DigitizerDriver
-from drivers.fpsa.driver import FpsaController
+from drivers.fpsa.driver import FpsaController, FpsaLink
 
 from ..config import Config
 from .errors import InstrumentError, SceneRejected, SimFaultError
@@ -75,7 +75,7 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     port = ep["controller_port"] if on_bench else d.controller.port
     # Backoffs go through ``sleep`` (the virtual clock on a bench) so a device that comes back after
     # some virtual time is found again without any wall-clock wait.
-    fpsa = FpsaController.from_url(fpsa_url, timeout_s=d.fpsa.timeout_s, baudrate=d.fpsa.baudrate, sleep=sleep)
+    fpsa = FpsaController.from_url(fpsa_url, baudrate=d.fpsa.baudrate, link=FpsaLink(timeout_s=d.fpsa.timeout_s, sleep=sleep))
     ctrl = LaserHvController(host, port, device_id=d.controller.device_id, timeout_s=d.controller.timeout_s,
                              # the laser preset's absolute maximum caps the controller's limit too
                              limits=Limits(max_laser_current_ma=min(d.controller.max_laser_current_ma,

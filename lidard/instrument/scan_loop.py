@@ -200,20 +200,25 @@ class ScanLoop:
                        calibration_id=calibration_id)
 
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
-        from ..raw.record import (
-            ScanRecorder,  # zarr is loaded only by scans that record
+        from ..raw.record import (  # zarr is loaded only by scans that record
+            RecordLayout,
+            ReplayRecipe,
+            ScanDescription,
+            ScanRecorder,
         )
         p, adc = run.plan, run.plan.adc
         optics = self.applied.optics(self.optics)      # the calibrated rays, as the points use
         return ScanRecorder.start(
-            raw_path, pixels=p.pixels, directions=optics.directions(p.pixels[:, 0], p.pixels[:, 1]),
-            averages=p.averages, channels=tuple(acq.layout.channels), record_length=adc.record_length, dsp=p.dsp,
-            lsb_v=p.lsb_v, phase_noise=p.phase_noise, mzi_delay_s=p.mzi_delay_s,
-            adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
-                 "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
-            chirp=self.cfg.chirp.model_dump(), calibration_id=run.calibration_id,
-            scan={"pattern": request.pattern, "averages": p.averages, "max_range_m": float(request.max_range_m),
-                  "max_speed_mps": float(p.dsp.max_speed_mps)},
+            raw_path,
+            RecordLayout(pixels=p.pixels, directions=optics.directions(p.pixels[:, 0], p.pixels[:, 1]),
+                         averages=p.averages, channels=tuple(acq.layout.channels), record_length=adc.record_length),
+            ReplayRecipe(dsp=p.dsp, lsb_v=p.lsb_v, phase_noise=p.phase_noise, mzi_delay_s=p.mzi_delay_s),
+            ScanDescription(
+                adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
+                     "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
+                chirp=self.cfg.chirp.model_dump(), calibration_id=run.calibration_id,
+                scan={"pattern": request.pattern, "averages": p.averages, "max_range_m": float(request.max_range_m),
+                      "max_speed_mps": float(p.dsp.max_speed_mps)}),
             drive_v=drive_v)
 
     # -- acquire ----------------------------------------------------------------------------------

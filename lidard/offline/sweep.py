@@ -55,7 +55,9 @@ from sim_devices.digitizer.device import decimation_filter
 from sim_devices.digitizer.front_end import write_samples
 from sim_devices.world.fidelity import phase_noise_negligible
 from sim_devices.world.scene import Scene
-from sim_devices.world.synth import AdcSpec, ChirpTrajectory, HitBatch, synthesize, trajectory_from_frequency
+from sim_devices.world.synth import (
+    AdcSpec, ChirpTrajectory, Effects, HitBatch, MonitorMzi, synthesize, trajectory_from_frequency,
+)
 from sim_devices.world.world import BeamHits, World
 
 from .spec import SweepTask
@@ -176,11 +178,11 @@ def task_frame(task: SweepTask, rng: np.random.Generator | None = None) -> TaskF
         linewidth = 0.0
     if rng is None:
         rng = np.random.default_rng([task.base_seed, task.seed, int(task.key[:12], 16)])
-    syn = synthesize(traj, adc, np.zeros(n_seg), hits, noise_asd_v_per_rthz=asd, linewidth_hz=linewidth, rng=rng,
-                     beat_filter=decimation_filter(fs, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db),
-                     mzi_delay_s=cfg.monitor.delay_s if pn_on else None,
-                     mzi_amplitude_v=cfg.monitor.amplitude_v if pn_on else None,
-                     mzi_noise_asd_v_per_rthz=_monitor_asd(cfg, pt.laser.rin_db_per_hz, fs) if pn_on else 0.0)
+    syn = synthesize(traj, adc, np.zeros(n_seg), hits, rng=rng,
+                     effects=Effects(noise_asd_v_per_rthz=asd, linewidth_hz=linewidth,
+                                     beat_filter=decimation_filter(fs, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db)),
+                     mzi=MonitorMzi(cfg.monitor.delay_s, cfg.monitor.amplitude_v,
+                                    _monitor_asd(cfg, pt.laser.rin_db_per_hz, fs)) if pn_on else None)
     shape = (n, avg, rl)
     beat = _recorded(cfg, fs, syn.beat).reshape(shape)
     mzi = _recorded(cfg, fs, syn.mzi).reshape(shape) if pn_on and syn.mzi is not None else None

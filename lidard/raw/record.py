@@ -11,6 +11,7 @@ the ADC scale, the phase-noise choice and monitor delay (§2.3), the chirp and t
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from collections.abc import Sequence
@@ -32,6 +33,41 @@ RAW_CHUNK_BYTES = 1 << 20
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class RecordLayout:
+    """What the capture holds per pixel: the planned ``pixels`` (n, 2) in scan order, each beam's
+    ``directions`` (n, 3), ``averages`` segments per pixel of ``record_length`` samples in each of
+    ``channels`` (the digitizer's order: how records arrive)."""
+
+    pixels: np.ndarray
+    directions: np.ndarray
+    averages: int
+    channels: tuple[str, ...]
+    record_length: int
+
+
+@dataclass(frozen=True)
+class ReplayRecipe:
+    """What :mod:`lidard.raw.replay` needs to run the same DSP again: the frame DSP, the ADC's volts
+    per code, the phase-noise choice and the monitor's delay (§2.3)."""
+
+    dsp: FrameDsp
+    lsb_v: float
+    phase_noise: bool
+    mzi_delay_s: float
+
+
+@dataclass(frozen=True)
+class ScanDescription:
+    """JSON-ready descriptions stored as attributes: the ADC, the chirp, the calibration in use and
+    the scan request."""
+
+    adc: dict[str, Any]
+    chirp: dict[str, Any]
+    calibration_id: Any
+    scan: dict[str, Any] = field(default_factory=dict)
+
+
 class ScanRecorder:
     """Writes one scan's raw capture; every call is safe to make after a failure of the writer
     (a recording problem is logged and stops the recording, never the scan)."""
@@ -43,28 +79,26 @@ class ScanRecorder:
         self.pixels_recorded = 0        # pixels handed to the writer (committed or waiting for their chunk)
 
     @classmethod
-    def start(cls, path: str | Path, *, pixels: np.ndarray, directions: np.ndarray, averages: int,
-              channels: Sequence[str], record_length: int, dsp: FrameDsp, lsb_v: float, phase_noise: bool,
-              mzi_delay_s: float, adc: dict[str, Any], chirp: dict[str, Any], calibration_id: Any,
-              scan: dict[str, Any] | None = None, drive_v: np.ndarray | None = None,
-              chunk_bytes: int | None = None) -> ScanRecorder:
-        """``channels``: the digitizer's order (how records arrive); ``adc``/``chirp``/``scan``:
-        JSON-ready descriptions stored as attributes."""
-        ch = tuple(channels)
-        bytes_per_pixel = int(averages) * int(record_length) * 2 * len(ch)
+    def start(cls, path: str | Path, layout: RecordLayout, recipe: ReplayRecipe, about: ScanDescription, *,
+              drive_v: np.ndarray | None = None, chunk_bytes: int | None = None) -> ScanRecorder:
+        """A new capture at ``path`` laid out as ``layout``, with what replays it (``recipe``) and what
+        describes it (``about``) stored as attributes; ``drive_v``: the chirp's drive waveform."""
+        ch = tuple(layout.channels)
+        averages, record_length = int(layout.averages), int(layout.record_length)
+        bytes_per_pixel = averages * record_length * 2 * len(ch)
         attrs = {
-            "adc": {**adc, "lsb_v": float(lsb_v)},
-            "dsp": frame_dsp_attrs(dsp),
-            "phase_noise": {"on": bool(phase_noise), "mzi_delay_s": float(mzi_delay_s)},
-            "chirp": chirp,
-            "calibration_id": calibration_id,
-            "scan": scan or {},
+            "adc": {**about.adc, "lsb_v": float(recipe.lsb_v)},
+            "dsp": frame_dsp_attrs(recipe.dsp),
+            "phase_noise": {"on": bool(recipe.phase_noise), "mzi_delay_s": float(recipe.mzi_delay_s)},
+            "chirp": about.chirp,
+            "calibration_id": about.calibration_id,
+            "scan": about.scan or {},
             "pixel_order": "pixels[i] is the i-th pixel scanned; segment i * averages + k is its k-th chirp",
             "time_base": "t_s: the points' t (s since the scan's first trigger, continued across resumes); "
                          "trigger_time_ns: the digitizer's own time stamps",
         }
-        writer = RawWriter.create(path, pixels=pixels, directions=directions, averages=int(averages), channels=ch,
-                                  record_length=int(record_length),
+        writer = RawWriter.create(path, pixels=layout.pixels, directions=layout.directions, averages=averages,
+                                  channels=ch, record_length=record_length,
                                   chunk_pixels=chunk_pixels_for(bytes_per_pixel, chunk_bytes or RAW_CHUNK_BYTES),
                                   attrs=attrs, drive_v=drive_v)
         return cls(writer, ch)

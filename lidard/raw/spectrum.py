@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from ..dsp.detect.cfar import cfar_detect
-from ..dsp.detect.os_cfar import _noise_os   # the kernel cfar_detect thresholds with (no public twin)
+from ..dsp.detect.cfar import CfarSettings, cfar_detect_with
+from ..dsp.detect.os_cfar import _noise_os   # the kernel cfar_detect_with thresholds with (no public twin)
 from ..dsp.ranging.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
 from ..dsp.spectrum.window import get_window
@@ -24,7 +24,7 @@ from ..outputs.schema import POINT_DTYPE, POINT_NAMES
 from .capture import PixelNotRecorded, RawCapture
 from .replay import ReplayDsp, ReprocessSettings, replay_dsp
 
-# cfar_detect's defaults, which FrameDsp uses (n_ref cells in total, n_guard per side)
+# CfarSettings defaults, which FrameDsp uses (n_ref cells in total, n_guard per side)
 _N_REF, _N_GUARD = 16, 2
 
 
@@ -105,8 +105,8 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
     power, threshold, dets = {}, {}, []
     for name, start in (("up", 0), ("down", d.ramp_samples)):
         p = _ramp_power(replay, beat, mzi, mzi_q, start)
-        det = cfar_detect(p, method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
-                          bin_range=gate, iq=d.iq)
+        det = cfar_detect_with(p, CfarSettings(method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
+                          bin_range=gate, iq=d.iq))
         noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True)   # drawn at every bin
         power[name], threshold[name] = p[0], (alpha * noise)[0]
         for j in np.flatnonzero(det.valid[0]):

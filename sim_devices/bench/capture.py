@@ -38,7 +38,7 @@ from sim_devices.digitizer.device import (
 from sim_devices.fpsa.device import FpgaSim
 from sim_devices.world.fidelity import FidelityLedger, phase_noise_negligible
 from sim_devices.world.laser import DfbLaser
-from sim_devices.world.synth import AdcSpec, HitBatch, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, MonitorMzi, trajectory
 from sim_devices.world.synth_chirp import ChirpTrajectory
 from sim_devices.world.synth_parallel import synthesize_read
 from sim_devices.world.tec import TecTuning
@@ -355,11 +355,10 @@ class SegmentSynthesizer:
         # a large read in parts on the bench's threads, each part seeded as a read from its first segment
         return synthesize_read(self.trajectory(), adc, np.zeros(n), hits,
                                lambda s: np.random.default_rng([self.seed, run, int(first) + s]),
-                               noise_asd_v_per_rthz=noise_asd, beat_filter=aa, linewidth_hz=linewidth,
-                          mzi_delay_s=self._truth.mzi_delay_s if want_mzi else None,
-                          mzi_amplitude_v=self.cfg.monitor.amplitude_v if want_mzi else None,
-                          mzi_noise_asd_v_per_rthz=mzi_asd if want_mzi else 0.0, mzi_quadrature=want_q,
-                          iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad))
+                               effects=Effects(noise_asd_v_per_rthz=noise_asd, beat_filter=aa, linewidth_hz=linewidth,
+                                               iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad)),
+                               mzi=MonitorMzi(self._truth.mzi_delay_s, self.cfg.monitor.amplitude_v, mzi_asd,
+                                              quadrature=want_q) if want_mzi else None)
 
     @staticmethod
     def _records(syn, cfg: CaptureConfig, n: int, hits, lit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

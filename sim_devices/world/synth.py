@@ -78,7 +78,9 @@ from sim_devices.world.synth_chunk import (
     mzi_chunk,
 )
 from sim_devices.world.synth_grid import rational_ratio
-from sim_devices.world.synth_types import AdcSpec, HitBatch, SynthError, Synthesized
+from sim_devices.world.synth_types import (
+    AdcSpec, Effects, HitBatch, MonitorMzi, SynthError, Synthesized, SynthOutputs,
+)
 
 _CHUNK_ELEMENTS = 1 << 20      # samples per chunk of temporaries (~8 MB per float64 array)
 
@@ -97,10 +99,9 @@ def _per_segment(name: str, v, n_seg: int) -> np.ndarray:
     return a
 
 
-def _validated(t_start_s, hits: HitBatch | None, noise_asd_v_per_rthz, linewidth_hz: float, rng,
-               mzi_delay_s: float | None, mzi_amplitude_v: float | None, mzi_noise_asd_v_per_rthz: float,
-               dc_v: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None],
-                                     np.ndarray]:
+def _validated(t_start_s, hits: HitBatch | None, eff: Effects, rng, mzi: MonitorMzi | None,
+               ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None],
+                          np.ndarray]:
     """The arguments of :func:`synthesize` checked (a SynthError names the first bad one):
     (t_start_s, (seg, tau, amp, dop, phase) of the hits, per-segment noise ASD)."""
     t0 = np.asarray(t_start_s, dtype=np.float64)
@@ -109,21 +110,21 @@ def _validated(t_start_s, hits: HitBatch | None, noise_asd_v_per_rthz, linewidth
     n_seg = t0.size
     hits = hits if hits is not None else HitBatch.empty()
     seg, tau, amp, dop, ph = hits.validated(n_seg)
-    asd = _per_segment("noise_asd_v_per_rthz", noise_asd_v_per_rthz, n_seg)
+    asd = _per_segment("noise_asd_v_per_rthz", eff.noise_asd_v_per_rthz, n_seg)
+    linewidth_hz = eff.linewidth_hz
     if not (math.isfinite(linewidth_hz) and linewidth_hz >= 0):
         raise SynthError(f"synthesize: linewidth_hz must be >= 0 and finite, got {linewidth_hz!r}")
-    want_mzi = mzi_delay_s is not None
-    if mzi_delay_s is not None:
-        if not (math.isfinite(mzi_delay_s) and mzi_delay_s > 0):
-            raise SynthError(f"synthesize: mzi_delay_s must be positive and finite, got {mzi_delay_s!r}")
-        if mzi_amplitude_v is None or not (math.isfinite(mzi_amplitude_v) and mzi_amplitude_v >= 0):
-            raise SynthError(f"synthesize: mzi_amplitude_v must be given (>= 0) with mzi_delay_s, got {mzi_amplitude_v!r}")
-    if not (math.isfinite(mzi_noise_asd_v_per_rthz) and mzi_noise_asd_v_per_rthz >= 0):
-        raise SynthError(f"synthesize: mzi_noise_asd_v_per_rthz must be >= 0, got {mzi_noise_asd_v_per_rthz!r}")
-    if not math.isfinite(dc_v):
-        raise SynthError(f"synthesize: dc_v must be finite, got {dc_v!r}")
-    need_rng = (linewidth_hz > 0 and (seg.size or want_mzi)) or asd.max(initial=0) > 0 \
-        or (want_mzi and mzi_noise_asd_v_per_rthz > 0)
+    if mzi is not None:
+        if not (math.isfinite(mzi.delay_s) and mzi.delay_s > 0):
+            raise SynthError(f"synthesize: mzi.delay_s must be positive and finite, got {mzi.delay_s!r}")
+        if not (math.isfinite(mzi.amplitude_v) and mzi.amplitude_v >= 0):
+            raise SynthError(f"synthesize: mzi.amplitude_v must be >= 0 and finite, got {mzi.amplitude_v!r}")
+        if not (math.isfinite(mzi.noise_asd_v_per_rthz) and mzi.noise_asd_v_per_rthz >= 0):
+            raise SynthError(f"synthesize: mzi.noise_asd_v_per_rthz must be >= 0, got {mzi.noise_asd_v_per_rthz!r}")
+    if not math.isfinite(eff.dc_v):
+        raise SynthError(f"synthesize: dc_v must be finite, got {eff.dc_v!r}")
+    need_rng = (linewidth_hz > 0 and (seg.size or mzi is not None)) or asd.max(initial=0) > 0 \
+        or (mzi is not None and mzi.noise_asd_v_per_rthz > 0)
     if need_rng and rng is None:
         raise SynthError("synthesize: rng (numpy Generator) is required when noise or phase noise is on")
     return t0, (seg, tau, amp, dop, ph), asd
@@ -144,8 +145,7 @@ def _sorted_hits(traj: ChirpTrajectory, seg, tau, amp, dop, ph, fs: float) -> So
 
 
 def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s: float,
-            mzi_delay_s: float | None, mzi_amplitude_v: float | None, mzi_quadrature: bool,
-            need_base: bool, beat_filter) -> Tables:
+            mzi: MonitorMzi | None, need_base: bool, beat_filter) -> Tables:
     """The deterministic chirp phase on the record grid, once per distinct start offset, and the
     monitor MZI's deterministic phase and clean fringes."""
     n_awg = traj.n
@@ -154,7 +154,7 @@ def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s:
     x_start[x_start >= n_awg] = 0.0
     u_start, u_inv = np.unique(x_start, return_inverse=True)
     k = np.arange(n, dtype=np.float64)
-    max_tau_samples_awg = max(max_tau_s, mzi_delay_s or 0.0) * traj.fs_hz
+    max_tau_samples_awg = max(max_tau_s, mzi.delay_s if mzi is not None else 0.0) * traj.fs_hz
     # hits' x - tau fs may go back one period, and a record may span several: tile the tables
     back = int(math.ceil(max_tau_samples_awg / n_awg)) + 1
     periods = back + int(math.ceil((n * ratio + 1) / n_awg)) + 1
@@ -165,55 +165,50 @@ def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s:
     grid = rational_ratio(ratio) if traj.phase_rad.dtype == np.float64 else None
     tb = Tables(traj, n, fs, ratio, k, off, periods, u_start, u_inv, u_start.size == 1, grid,
                 2.0 * np.pi * traj.mean_hz, aa_rate, base)
-    if mzi_delay_s is not None:
+    if mzi is not None:
         # the MZI's deterministic phase depends only on the start offset: once per distinct offset
-        tau_m = float(mzi_delay_s)
+        tau_m = float(mzi.delay_s)
         xm = u_start[:, None] + off + k[None, :] * ratio - tau_m * traj.fs_hz
         tb.mzi_det = base - traj._phase_nonneg(xm, periods)
         tb.mzi_det += tb.mean_w * tau_m + 2.0 * np.pi * math.fmod(traj.nu0_hz * tau_m, 1.0)
-        tb.mzi_clean = np.cos(tb.mzi_det) * mzi_amplitude_v
-        tb.mzi_clean_q = np.sin(tb.mzi_det) * mzi_amplitude_v if mzi_quadrature else None
+        tb.mzi_clean = np.cos(tb.mzi_det) * mzi.amplitude_v
+        tb.mzi_clean_q = np.sin(tb.mzi_det) * mzi.amplitude_v if mzi.quadrature else None
     return tb
 
 
+_NO_EFFECTS = Effects()          # the clean beat
+_RECORDS_ONLY = SynthOutputs()   # the records, no volts or phase noise
+
+
 def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | None, *,
-               noise_asd_v_per_rthz=0.0, linewidth_hz: float = 0.0, rng: np.random.Generator | None = None,
-               mzi_delay_s: float | None = None, mzi_amplitude_v: float | None = None,
-               mzi_noise_asd_v_per_rthz: float = 0.0, dc_v: float = 0.0,
-               return_volts: bool = False, return_phase_noise: bool = False, mzi_quadrature: bool = False,
-               fast_trig: bool | None = None, beat_filter: antialias.BeatFilter | None = None,
-               iq_imbalance: tuple[float, float] = (1.0, 0.0)) -> Synthesized:
+               rng: np.random.Generator | None = None, effects: Effects = _NO_EFFECTS, mzi: MonitorMzi | None = None,
+               outputs: SynthOutputs = _RECORDS_ONLY) -> Synthesized:
     """Synthesize the digitized LiDAR beat (and the monitor MZI) for ``len(t_start_s)`` segments.
 
     ``t_start_s[s]`` is the time of segment s's first sample on the AWG's time axis (t = 0 at the
     start of a drive period; the drive repeats every ``traj.period_s``). ``hits`` may be None or empty
-    (noise only). ``noise_asd_v_per_rthz``: scalar or per-segment white-noise ASD of the LiDAR channel.
-    ``rng`` is required only when something random is switched on.
-    ``mzi_quadrature``: also the monitor MZI's quadrature output (channel ``mzi_q``: sin of the same
-    phase, as a 90-degree hybrid or 3x3 coupler and a second digitizer channel give; its own noise draws).
-    ``fast_trig`` (default: ``adc.quantize``) evaluates cos/sin in float32 after an exact float64
-    range reduction (error ~1e-7 of the amplitude, invisible after quantization); unquantized output
-    uses float64 trig so that tests can compare volts to 1e-9.
-    ``beat_filter``: the digitizer's anti-alias filter at each return's true beat frequency
-    (:mod:`sim_devices.world.antialias`); None: an ideal one (nothing beyond fs/2 is synthesized).
-    ``iq_imbalance``: (g, eps) of the coherent receiver's 90-degree hybrid and photodiode pair: the Q
-    channel is g A sin(dPhi + eps) (lidard.dsp.ranging.iqbalance); (1, 0) is an ideal hybrid. Each channel
-    draws its own white noise (two photodiodes, two digitizer channels).
+    (noise only). ``effects``: white noise, phase noise, DC, the anti-alias filter and the I/Q hybrid
+    (:class:`Effects`; none by default); ``mzi``: the monitor MZI's channel(s) (:class:`MonitorMzi`;
+    None: no MZI); ``outputs``: volts, phase noise and the trig precision (:class:`SynthOutputs`).
+    ``rng`` is required only when something random is switched on. Each channel draws its own white
+    noise (two photodiodes, two digitizer channels).
     """
+    linewidth_hz, dc_v = effects.linewidth_hz, effects.dc_v
+    beat_filter, iq_imbalance = effects.beat_filter, effects.iq_imbalance
+    return_volts, return_phase_noise, fast_trig = outputs.volts, outputs.phase_noise, outputs.fast_trig
     fast = adc.quantize if fast_trig is None else bool(fast_trig)
-    t0, raw_hits, asd = _validated(t_start_s, hits, noise_asd_v_per_rthz, linewidth_hz, rng, mzi_delay_s,
-                                   mzi_amplitude_v, mzi_noise_asd_v_per_rthz, dc_v)
+    t0, raw_hits, asd = _validated(t_start_s, hits, effects, rng, mzi)
     n_seg, n, fs = t0.size, int(adc.n_samples), float(adc.sample_rate_hz)
-    want_mzi = mzi_delay_s is not None
+    want_mzi = mzi is not None
+    mzi_quadrature = mzi is not None and mzi.quadrature
     h = _sorted_hits(traj, *raw_hits, fs)
-    tb = _tables(traj, t0, n, fs, float(h.tau.max(initial=0.0)), mzi_delay_s, mzi_amplitude_v,
-                 mzi_quadrature, h.seg.size > 0 or want_mzi, beat_filter)
+    tb = _tables(traj, t0, n, fs, float(h.tau.max(initial=0.0)), mzi, h.seg.size > 0 or want_mzi, beat_filter)
 
     # -- phase-noise geometry ----------------------------------------------------------------------
     pn_on = linewidth_hz > 0 and (h.seg.size > 0 or want_mzi)
     var_step = 2.0 * np.pi * linewidth_hz / fs
     pn_rng = rng if pn_on else None      # _validated requires an rng when phase noise is on
-    m_mzi, w_mzi = delay_split(np.array([mzi_delay_s]), fs) if want_mzi else (None, None)
+    m_mzi, w_mzi = delay_split(np.array([mzi.delay_s]), fs) if mzi is not None else (None, None)
     n_pre = max(int(h.m.max(initial=0)), int(m_mzi[0]) if m_mzi is not None else 0) + 1
 
     channels = ["beat"] + (["beat_q"] if adc.iq else []) + (["mzi"] if want_mzi else []) \
@@ -228,8 +223,9 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     seg_bounds = np.searchsorted(h.seg, np.arange(0, n_seg + chunk, chunk))
     noise_std = asd * math.sqrt(fs / 2.0)
     run = ChunkRun(tb=tb, adc=adc, fast=fast, rng=rng, var_step=var_step, n_pre=n_pre, iq_imbalance=iq_imbalance,
-                   beat_filter=beat_filter, quadrature=mzi_quadrature, mzi_amplitude_v=mzi_amplitude_v, m_mzi=m_mzi,
-                   w_mzi=w_mzi, dc_v=dc_v, noise_std=noise_std, mzi_noise_asd_v_per_rthz=mzi_noise_asd_v_per_rthz)
+                   beat_filter=beat_filter, quadrature=mzi_quadrature,
+                   mzi_amplitude_v=mzi.amplitude_v if mzi is not None else None, m_mzi=m_mzi, w_mzi=w_mzi, dc_v=dc_v,
+                   noise_std=noise_std, mzi_noise_asd_v_per_rthz=mzi.noise_asd_v_per_rthz if mzi is not None else 0.0)
     for ci, s0 in enumerate(range(0, n_seg, chunk)):
         s1 = min(n_seg, s0 + chunk)
         nc = s1 - s0
@@ -262,5 +258,5 @@ def sample_rate_for_range_hz(max_range_m: float, rate_hz_per_s: float, *, oversa
     return oversample * 2.0 * f_max
 
 
-__all__ = ["AdcSpec", "ChirpTrajectory", "HitBatch", "SynthError", "Synthesized", "sample_rate_for_range_hz",
-           "synthesize", "trajectory", "trajectory_from_frequency"]
+__all__ = ["AdcSpec", "ChirpTrajectory", "Effects", "HitBatch", "MonitorMzi", "SynthError", "SynthOutputs",
+           "Synthesized", "sample_rate_for_range_hz", "synthesize", "trajectory", "trajectory_from_frequency"]

@@ -6,6 +6,9 @@ format, the returns to synthesize, the records, and the one error type of the sy
 * :class:`HitBatch`: one row per return (segment, delay tau = 2 d / c, amplitude G_TIA I_AC of
   eq. 2-11, optical Doppler f_D = -2 v / lambda of eqs. 2-4/2-5, optional speckle phase), validated
   against the batch;
+* :class:`Effects`, :class:`MonitorMzi`, :class:`SynthOutputs`: what the synthesis adds to the clean
+  beat (white noise, phase noise, DC, the receiver's filter and hybrid), the monitor MZI channel(s),
+  and what it returns besides the records;
 * :class:`Synthesized`: the records (codes or volts) per channel, overrange flags and, on request,
   the analog volts and the phase-noise realization.
 """
@@ -15,9 +18,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from typing import Any
+
 import numpy as np
 
 from lidard.physics.constants import C_M_PER_S
+from sim_devices.world.antialias import BeatFilter
 
 
 class SynthError(ValueError):
@@ -131,6 +137,49 @@ class HitBatch:
         return seg, tau, amp, dop, ph
 
 
+@dataclass(frozen=True)
+class Effects:
+    """What the synthesis adds to the clean beat; every one off by default (nothing random drawn).
+
+    ``noise_asd_v_per_rthz``: scalar or per-segment white-noise ASD of the LiDAR channel(s);
+    ``linewidth_hz``: the laser's Lorentzian linewidth (one Wiener phase per segment, shared with the
+    monitor MZI); ``dc_v``: offset of the beat channels; ``beat_filter``: the digitizer's anti-alias
+    filter at each return's true beat frequency (:mod:`sim_devices.world.antialias`; None: an ideal
+    one, nothing beyond fs/2 is synthesized); ``iq_imbalance``: (g, eps) of the coherent receiver's
+    90-degree hybrid, the Q channel being g A sin(dPhi + eps) ((1, 0): an ideal hybrid).
+    """
+
+    noise_asd_v_per_rthz: Any = 0.0
+    linewidth_hz: float = 0.0
+    dc_v: float = 0.0
+    beat_filter: BeatFilter | None = None
+    iq_imbalance: tuple[float, float] = (1.0, 0.0)
+
+
+@dataclass(frozen=True)
+class MonitorMzi:
+    """The monitor MZI recorded beside the beat: its delay, fringe amplitude and white-noise ASD;
+    ``quadrature``: also its 90-degree output (channel ``mzi_q``, sin of the same phase, as a hybrid
+    or 3x3 coupler and a second digitizer channel give; its own noise draws)."""
+
+    delay_s: float
+    amplitude_v: float
+    noise_asd_v_per_rthz: float = 0.0
+    quadrature: bool = False
+
+
+@dataclass(frozen=True)
+class SynthOutputs:
+    """What the synthesis returns besides the records: the analog ``volts`` of every channel, the
+    ``phase_noise`` realization; ``fast_trig`` (default: the ADC's ``quantize``) evaluates cos/sin in
+    float32 after an exact float64 range reduction (error ~1e-7 of the amplitude, invisible after
+    quantization); unquantized output uses float64 trig so that volts compare to 1e-9."""
+
+    volts: bool = False
+    phase_noise: bool = False
+    fast_trig: bool | None = None
+
+
 @dataclass
 class Synthesized:
     """Digitizer records for ``n_seg`` segments.
@@ -138,8 +187,8 @@ class Synthesized:
     ``beat``: (n_seg, n) int16 codes (float64 volts if not quantized) -- the real beat, or I for I/Q;
     ``beat_q``: Q channel or None; ``mzi``: monitor-MZI channel or None; ``overrange``: (n_seg,
     len(channels)) bool, a channel clipped somewhere in that segment; ``channels`` names the columns.
-    ``volts`` (if ``return_volts``): the analog channels before clipping/quantization.
-    ``phase_noise_rad`` (if ``return_phase_noise``): the Wiener realization (n_seg, n_pre + n) on the
+    ``volts`` (if ``SynthOutputs.volts``): the analog channels before clipping/quantization.
+    ``phase_noise_rad`` (if ``SynthOutputs.phase_noise``): the Wiener realization (n_seg, n_pre + n) on the
     ADC grid, sample k of the record being column ``n_pre + k``; None when the linewidth is 0.
     """
 

@@ -4,6 +4,7 @@ fewer estimator rows."""
 import numpy as np
 
 import lidard.dsp.chain as chain
+from lidard.dsp.detect.cfar import CfarSettings
 from lidard.dsp.ranging.estimators import estimate
 from lidard.dsp.spectrum.rangefft import RangeFFT
 
@@ -28,8 +29,8 @@ def test_valid_slots_match_a_refinement_of_every_slot_and_empty_slots_are_skippe
         return real_estimate(xs, rows, bins, **kw)
 
     monkeypatch.setattr(chain, "estimate_rows", counting)
-    res = chain.detect_and_refine(spec, lambda idx: (x, idx, spec), window="hann", estimator="newton",
-                                  average_axis=1, method="os", pfa=1e-6, max_detections=2, bin_range=(2, 170))
+    cfar = CfarSettings(method="os", pfa=1e-6, max_detections=2, bin_range=(2, 170), window="hann")
+    res = chain.detect_and_refine(spec, lambda idx: (x, idx, spec), cfar=cfar, estimator="newton", average_axis=1)
     det = res.detections
     assert 0 < det.valid.sum() < det.valid.size          # a mix of valid and empty slots
     # every slot of every average refined, the old way, then averaged over the averages

@@ -42,13 +42,13 @@ def test_width_6db_is_the_first_crossing_on_each_side(in_place):
 
 def test_power_checks_name_the_bad_values_without_a_full_map():
     big = np.full((2, 40), 1e307)                       # finite, but its sum overflows
-    assert not cfar.cfar_detect(big).valid.any()
+    assert not cfar.cfar_detect_with(big).valid.any()
     for bad, what in ((np.nan, "NaN or infinite"), (np.inf, "NaN or infinite"), (-np.inf, "NaN or infinite"),
                       (-1.0, "negative")):
         p = np.ones((2, 40))
         p[1, 3] = bad
         with pytest.raises(DspInputError, match=what):
-            cfar.cfar_detect(p)
+            cfar.cfar_detect_with(p)
 
 
 def test_sample_check_accepts_huge_finite_ramps_and_counts_the_bad_ones():

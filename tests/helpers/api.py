@@ -6,6 +6,7 @@ a timeout, never by sleeping."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import socket
 import threading
 from collections.abc import Iterator
@@ -14,15 +15,19 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from lidard.api.app import create_app
+from lidard.api.app import ApiAccess, WorkerOptions, create_app
 from lidard.config import load_config
 from tests.helpers.fakes import FakeInstrument
 
 
 def make_app(data_dir: str | Path, instrument: Any = None, cfg: Any = None, **app_kw):
-    """``create_app`` with the default configuration and a :class:`FakeInstrument` unless given."""
+    """``create_app`` with the default configuration and a :class:`FakeInstrument` unless given;
+    ``app_kw``: its keywords, or a field of its :class:`ApiAccess` or :class:`WorkerOptions` by name."""
     inst = FakeInstrument() if instrument is None else instrument
-    return create_app(load_config() if cfg is None else cfg, instrument=inst, data_dir=data_dir, **app_kw)
+    access = {k: app_kw.pop(k) for k in [f.name for f in dataclasses.fields(ApiAccess)] if k in app_kw}
+    worker = {k: app_kw.pop(k) for k in [f.name for f in dataclasses.fields(WorkerOptions)] if k in app_kw}
+    return create_app(load_config() if cfg is None else cfg, instrument=inst, data_dir=data_dir,
+                      access=ApiAccess(**access), worker_options=WorkerOptions(**worker), **app_kw)
 
 
 @contextlib.contextmanager

@@ -10,7 +10,7 @@ import numpy as np
 from drivers.awg import protocol as awg_p
 from drivers.controller.driver import LaserHvController, SettleCheck
 from drivers.controller.protocol import Limits
-from drivers.fpsa.driver import FpsaController
+from drivers.fpsa.driver import FpsaController, FpsaLink
 from lidard.config import load_config
 from lidard.physics.chirp import triangle_drive_v
 from sim_devices.bench.bench import Bench
@@ -53,9 +53,9 @@ def controller(bench: Bench, **kw) -> LaserHvController:
                              settle_check=SettleCheck(sleep=bench.clock.advance), **kw)
 
 
-def fpsa(bench: Bench, **kw) -> FpsaController:
-    kw.setdefault("timeout_s", 0.5)
-    return FpsaController.from_url(bench.endpoints()["fpsa_url"], **kw)
+def fpsa(bench: Bench, **link) -> FpsaController:
+    """The bench's FPSA driver; ``link``: fields of its :class:`~drivers.fpsa.link.FpsaLink`."""
+    return FpsaController.from_url(bench.endpoints()["fpsa_url"], link=FpsaLink(**link))
 
 
 def power_up(bench: Bench) -> LaserHvController:

@@ -160,12 +160,12 @@ def test_openapi_python_client_generated_from_the_schema_runs_a_scan(tmp_path, m
     import subprocess
     import sys
 
-    from lidard.api.app import create_app
+    from lidard.api.app import ApiAccess, WorkerOptions, create_app
     from lidard.config import load_config
     from tests.helpers.api import live_server
 
-    app = create_app(load_config(), instrument=FakeInstrument(), data_dir=tmp_path / "data", token=TOKEN,
-                     progress_interval_s=0.0)
+    app = create_app(load_config(), instrument=FakeInstrument(), data_dir=tmp_path / "data", access=ApiAccess(token=TOKEN),
+                     worker_options=WorkerOptions(progress_interval_s=0.0))
     with live_server(app) as url:
         import httpx
         spec = tmp_path / "openapi.json"

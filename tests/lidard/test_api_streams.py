@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from fastapi.testclient import TestClient
 
-from lidard.api.app import create_app
+from lidard.api.app import WorkerOptions, create_app
 from lidard.config import load_config
 from lidard.live.points import LIVE_FIELDS, decode_points
 from tests.helpers.fakes import FakeInstrument
@@ -16,7 +16,7 @@ T = 20.0
 
 def test_streams_are_listed_and_each_frame_is_served_in_the_viewer_layout(tmp_path):
     app = create_app(load_config(), instrument=FakeInstrument(), data_dir=tmp_path / "data",
-                     progress_interval_s=0.0)
+                     worker_options=WorkerOptions(progress_interval_s=0.0))
     with TestClient(app) as c:
         assert c.get("/streams").json() == {"streams": [], "running": None}
         ids = []
@@ -52,7 +52,7 @@ def test_a_track_stream_budgets_its_first_frame_from_the_configured_chirp(tmp_pa
     configuration (averages x chirp period + settle), so frame 0's budget is margin / rate / (2 x that)
     (no frames measured yet), and the frame visits no more pixels than that."""
     cfg = load_config()
-    app = create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path / "data", progress_interval_s=0.0)
+    app = create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path / "data", worker_options=WorkerOptions(progress_interval_s=0.0))
     with TestClient(app) as c:
         r = c.post("/streams", json={"pattern": "track", "frame_rate_hz": 20, "averages": 2, "frames": 2})
         assert r.status_code == 201, r.text

@@ -8,7 +8,7 @@ from fastapi.testclient import TestClient
 
 from tests.helpers.fakes import StreamingInstrument
 
-from lidard.api.app import create_app
+from lidard.api.app import WorkerOptions, create_app
 from lidard.api.routers.viewer import STATIC_DIR
 from lidard.config import load_config
 from lidard.instrument.types import POINT_DTYPE
@@ -22,7 +22,7 @@ T = WAIT_S  # a deadline for a hung test (tests/helpers/deadlines.py)
 @pytest.fixture
 def client(tmp_path):
     inst = StreamingInstrument()
-    app = create_app(load_config(), instrument=inst, data_dir=tmp_path / "data", progress_interval_s=0.0)
+    app = create_app(load_config(), instrument=inst, data_dir=tmp_path / "data", worker_options=WorkerOptions(progress_interval_s=0.0))
     with TestClient(app) as c:
         yield c, inst, app
 

@@ -16,7 +16,7 @@ from websockets.sync.client import connect
 
 from tests.helpers.fakes import FakeInstrument
 
-from lidard.api.app import create_app
+from lidard.api.app import WorkerOptions, create_app
 from lidard.config import ConfigError, load_config
 from lidard.outputs.channels import POINTS_TOPIC, STATUS_TOPIC
 from lidard.outputs.mcap import decode_point_cloud
@@ -51,7 +51,7 @@ def _live_cfg(tmp_path, **live):
 def test_foxglove_client_receives_the_point_cloud_with_every_point(tmp_path):
     cfg = _live_cfg(tmp_path, foxglove=True, foxglove_port=0)
     assert cfg.live.foxglove_host == "127.0.0.1"  # loopback unless configured otherwise
-    app = create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path / "data", progress_interval_s=0.0)
+    app = create_app(cfg, instrument=FakeInstrument(), data_dir=tmp_path / "data", worker_options=WorkerOptions(progress_interval_s=0.0))
     with TestClient(app) as c:
         fox = app.state.foxglove
         with connect(f"ws://127.0.0.1:{fox.port}", subprotocols=SUBPROTOCOLS, open_timeout=T) as ws:
@@ -98,7 +98,7 @@ def test_foxglove_gets_each_batch_then_the_whole_cloud(tmp_path):
     inst = StreamingInstrument(n=50)
     inst.release.set()
     app = create_app(_live_cfg(tmp_path, foxglove=True, foxglove_port=0), instrument=inst,
-                     data_dir=tmp_path / "data", progress_interval_s=0.0)
+                     data_dir=tmp_path / "data", worker_options=WorkerOptions(progress_interval_s=0.0))
     with TestClient(app) as c:
         fox = app.state.foxglove
         with connect(f"ws://127.0.0.1:{fox.port}", subprotocols=SUBPROTOCOLS, open_timeout=T) as ws:
@@ -121,7 +121,7 @@ def test_foxglove_gets_each_stream_frame_as_it_completes_in_order(tmp_path):
     the frame's status event with its index, and the stream's end event last."""
     n = 5
     app = create_app(_live_cfg(tmp_path, foxglove=True, foxglove_port=0), instrument=FakeInstrument(),
-                     data_dir=tmp_path / "data", progress_interval_s=0.0)
+                     data_dir=tmp_path / "data", worker_options=WorkerOptions(progress_interval_s=0.0))
     with TestClient(app) as c:
         fox = app.state.foxglove
         with connect(f"ws://127.0.0.1:{fox.port}", subprotocols=SUBPROTOCOLS, open_timeout=T) as ws:

@@ -12,7 +12,7 @@ from lidard.physics.constants import C_M_PER_S
 from lidard.physics.decimation import DecimationError, DecimationFilter
 from sim_devices.digitizer.device import decimation_filter
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, synthesize, trajectory
 
 RAMP_S, EXC_HZ = 80e-6, 8.6e9
 GAMMA = EXC_HZ / RAMP_S
@@ -54,7 +54,7 @@ def test_tones_are_filtered_at_their_true_beat_then_fold(traj, d_m):
     adc = AdcSpec(FS, n, bits=16, input_range_v=2.0, quantize=False)
     hits = HitBatch.from_targets([0], [d_m], 0.5)
     filt = decimation_filter(FS, 1e9, 60.0)
-    beat = synthesize(traj, adc, np.zeros(1), hits, beat_filter=filt).beat[0]
+    beat = synthesize(traj, adc, np.zeros(1), hits, effects=Effects(beat_filter=filt)).beat[0]
     f_true = 2 * GAMMA * d_m / C_M_PER_S
     expect = 0.5 * float(DecimationFilter(60.0).gain(f_true, FS))
     # the up ramp's middle half, away from the turning point: amplitude of the folded tone

@@ -14,7 +14,7 @@ from lidard.dsp.linearize.ilc import ChirpGeometry
 from lidard.physics.budget import monitor_noise_asd
 from sim_devices.bench.bench import Bench
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, MonitorMzi, synthesize, trajectory
 
 Q = 1.602176634e-19
 
@@ -61,9 +61,8 @@ def _ilc_floor(noise_asd: float, seed: int = 5) -> float:
     adc = AdcSpec(sample_rate_hz=FS, n_samples=n, bits=16, input_range_v=1.0)
 
     def measure(drive, n_avg):
-        out = synthesize(trajectory(laser, drive, FS), adc, np.zeros(n_avg), None, linewidth_hz=0.0,
-                         rng=rng, mzi_delay_s=TAU_M, mzi_amplitude_v=0.3,
-                         mzi_noise_asd_v_per_rthz=noise_asd)
+        out = synthesize(trajectory(laser, drive, FS), adc, np.zeros(n_avg), None, effects=Effects(linewidth_hz=0.0),
+                         rng=rng, mzi=MonitorMzi(TAU_M, 0.3, noise_asd))
         return out.mzi.astype(np.float64) * adc.lsb_v
 
     u0 = triangle_drive(EXC_HZ, RAMP_S, FS, laser.static_tuning_hz_per_v)

@@ -157,8 +157,15 @@ def _not_sidelobes(p2: np.ndarray, rows: np.ndarray, idx: np.ndarray, env: np.nd
 
 @dataclass(frozen=True)
 class CfarSettings:
-    """The detector's knobs (what :func:`cfar_detect` takes by name; their meaning: its docstring),
-    checked when a detection runs (a DspInputError names a bad one)."""
+    """The detector's knobs, checked when a detection runs (a DspInputError names a bad one).
+
+    n_ref: reference cells in total (half on each side); n_guard: guard cells on each side.
+    window/zero_pad: of the spectrum (for side-lobe, main-lobe and resolution tests).
+    iq: spectrum is two-sided and fft-shifted (RangeFFT layout), else one-sided rfft layout.
+    bin_range: (first, last) spectrum indices searched (e.g. a range gate).
+    dc_guard_bins: bins with |frequency bin| < dc_guard_bins are never reported (default: the
+        window's main-lobe half-width, so DC and its lobe are excluded).
+    """
 
     method: CfarMethod = "os"
     pfa: float = 1e-5
@@ -176,45 +183,12 @@ class CfarSettings:
     unresolved_factor: float = 1.12
 
 
-def cfar_detect(
-    power: np.ndarray,
-    *,
-    method: CfarMethod = "os",
-    pfa: float = 1e-5,
-    n_ref: int = 16,
-    n_guard: int = 2,
-    os_rank: int | None = None,
-    max_detections: int = 4,
-    window: WindowName = "hann",
-    zero_pad: int = 1,
-    iq: bool = False,
-    bin_range: tuple[int, int] | None = None,
-    dc_guard_bins: int | None = None,
-    sidelobe_margin_db: float = 6.0,
-    harmonic_ratio_db: float = 15.0,
-    unresolved_factor: float = 1.12,
-) -> Detections:
-    """Detect up to ``max_detections`` peaks per ramp in ``power`` (..., n_bins), strongest first.
-
-    n_ref: reference cells in total (half on each side); n_guard: guard cells on each side.
-    window/zero_pad: of the spectrum (for side-lobe, main-lobe and resolution tests).
-    iq: spectrum is two-sided and fft-shifted (RangeFFT layout), else one-sided rfft layout.
-    bin_range: (first, last) spectrum indices searched (e.g. a range gate).
-    dc_guard_bins: bins with |frequency bin| < dc_guard_bins are never reported (default: the
-        window's main-lobe half-width, so DC and its lobe are excluded).
-
-    The knobs by name, as the configuration's [dsp] keys and the detection chain pass them; the same
-    detection with the knobs held in one object is :func:`cfar_detect_with`.
-    """
-    return cfar_detect_with(power, CfarSettings(
-        method=method, pfa=pfa, n_ref=n_ref, n_guard=n_guard, os_rank=os_rank, max_detections=max_detections,
-        window=window, zero_pad=zero_pad, iq=iq, bin_range=bin_range, dc_guard_bins=dc_guard_bins,
-        sidelobe_margin_db=sidelobe_margin_db, harmonic_ratio_db=harmonic_ratio_db,
-        unresolved_factor=unresolved_factor))
+_DEFAULT_SETTINGS = CfarSettings()    # OS-CFAR at pfa 1e-5 on a one-sided Hann spectrum
 
 
-def cfar_detect_with(power: np.ndarray, s: CfarSettings) -> Detections:
-    """:func:`cfar_detect` with its knobs in ``s``."""
+def cfar_detect_with(power: np.ndarray, s: CfarSettings = _DEFAULT_SETTINGS) -> Detections:
+    """Detect up to ``s.max_detections`` peaks per ramp in ``power`` (..., n_bins), strongest first,
+    with the detector's knobs in ``s`` (their meaning: :class:`CfarSettings`)."""
     p = _checked_power(power, s)
     lead = p.shape[:-1]
     p2 = p.reshape(-1, p.shape[-1])

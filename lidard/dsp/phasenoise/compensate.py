@@ -200,12 +200,11 @@ def compensated_spectrum(beat: ArrayLike, mzi: ArrayLike, *, fs_hz: float, mzi_d
     stop = b.size - n_edge
     if stop - start < 64:
         raise ValueError(f"ramp of {b.size} samples too short for max_delay_s={max_delay_s!r} and edge_s={edge_s!r}")
+    span = _Span(fs_hz=fs_hz, window=window, start=start, stop=stop, nfft=nfft, n_edge=n_edge)
     if mzi_q is not None:
-        return _reconstructed_spectrum(b, m_arr, mzi_q, fs_hz=fs_hz, mzi_delay_s=mzi_delay_s,
-                                       max_delay_s=max_delay_s, window=window, start=start, stop=stop,
-                                       nfft=nfft, chirp_rate_hz_per_s=chirp_rate_hz_per_s,
-                                       tau_step_s=tau_step_s, n_edge=n_edge)
-    z, w, nfft, pos, freq, raw = _analytic_spectrum(b, window, start, stop, nfft, fs_hz)
+        return _reconstructed_spectrum(b, m_arr, mzi_q, span, mzi_delay_s=mzi_delay_s, max_delay_s=max_delay_s,
+                                       chirp_rate_hz_per_s=chirp_rate_hz_per_s, tau_step_s=tau_step_s)
+    z, w, nfft, pos, freq, raw = _analytic_spectrum(b, span)
     m_of_bin = np.clip(np.rint(freq / pn.f_mzi_hz), 0, m_max).astype(int)
     comp = np.empty_like(raw)
     for m, s in cumulative_phase_noise(pn.delta_rad, m_max, d):
@@ -218,10 +217,24 @@ def compensated_spectrum(beat: ArrayLike, mzi: ArrayLike, *, fs_hz: float, mzi_d
                                start=start)
 
 
-def _analytic_spectrum(b: np.ndarray, window: str, start: int, stop: int, nfft: int | None,
-                       fs_hz: float) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class _Span:
+    """The analysis span of one ramp: samples [start, stop) at ``fs_hz`` under ``window``, an
+    ``nfft``-point FFT (None: the span's length), ``n_edge`` Hilbert-edge samples at each end."""
+
+    fs_hz: float
+    window: str
+    start: int
+    stop: int
+    nfft: int | None
+    n_edge: int
+
+
+def _analytic_spectrum(b: np.ndarray,
+                       span: _Span) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
     """The beat's analytic signal over [start, stop), its window, and its uncompensated magnitude
     spectrum on the positive frequencies (both compensations start from it)."""
+    window, start, stop, nfft, fs_hz = span.window, span.start, span.stop, span.nfft, span.fs_hz
     z = hilbert(b - b.mean())[start:stop]
     w = get_window(window, stop - start, symmetric=True)
     nfft = int(nfft or (stop - start))
@@ -231,11 +244,11 @@ def _analytic_spectrum(b: np.ndarray, window: str, start: int, stop: int, nfft: 
     return z, w, nfft, pos, freq[pos], raw
 
 
-def _reconstructed_spectrum(b: np.ndarray, mzi_i: np.ndarray, mzi_q: ArrayLike, *, fs_hz: float, mzi_delay_s: float,
-                            max_delay_s: float, window: str, start: int, stop: int, nfft: int | None,
-                            chirp_rate_hz_per_s: float | None, tau_step_s: float | None,
-                            n_edge: int) -> CompensatedSpectrum:
+def _reconstructed_spectrum(b: np.ndarray, mzi_i: np.ndarray, mzi_q: ArrayLike, span: _Span, *, mzi_delay_s: float,
+                            max_delay_s: float, chirp_rate_hz_per_s: float | None,
+                            tau_step_s: float | None) -> CompensatedSpectrum:
     """compensated_spectrum with a quadrature monitor: phi(t) rebuilt, every bin at its own round trip."""
+    fs_hz, start, stop, n_edge = span.fs_hz, span.start, span.stop, span.n_edge
     if chirp_rate_hz_per_s is None:
         raise ValueError("mzi_q needs chirp_rate_hz_per_s (the fringe is demodulated at gamma tau_m)")
     q = check_finite_array("mzi_q", mzi_q, ndim=(1,))
@@ -248,7 +261,7 @@ def _reconstructed_spectrum(b: np.ndarray, mzi_i: np.ndarray, mzi_q: ArrayLike, 
     valid = np.zeros(b.size, dtype=bool)
     valid[n_edge:b.size - n_edge] = True
     phi, _ = reconstruct_phase(delta, valid, d_samples)
-    z, w, nfft, pos, freq, raw = _analytic_spectrum(b, window, start, stop, nfft, fs_hz)
+    z, w, nfft, pos, freq, raw = _analytic_spectrum(b, span)
     g_max = int(math.ceil(max_delay_s / step))
     g_of_bin = np.clip(np.rint(freq / (gamma * step)), 0, g_max).astype(int)
     comp = np.empty_like(raw)

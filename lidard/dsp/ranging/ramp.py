@@ -22,7 +22,7 @@ grown model to pass: the rate is below ``level``. Pure numpy.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -85,8 +85,8 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     if grow.any():
         pix = judged[grow]
         slot = np.argmax(det.unresolved[pix], axis=-1)
-        out, det = _grow(ramp, spec, power, det, out, pix, noise[grow], det.index[pix, slot], SEARCH_BINS * zp, slot,
-                         rf=rf, window=window, test=test, pfa=pfa)
+        out, det = _grow(_Records(ramp, spec, power), det, out,
+                         _Search(pix, noise[grow], det.index[pix, slot], SEARCH_BINS * zp, slot), rf=rf, test=test, pfa=pfa)
     # a return on a stronger one's skirt that the detector missed: the cells around the strongest
     # detection, its fitted tones taken out, at the detector's pfa per cell
     skirt = free & ~grow
@@ -100,8 +100,8 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
         hit = rp[np.arange(pix.size), best] > _floor(nz, det.power[pix, 0], pfa, l_n)
         if hit.any():
             c2 = cells[np.arange(pix.size), best][hit]
-            out, det = _grow(ramp, spec, power, det, out, pix[hit], nz[hit], c2, zp, np.zeros(hit.sum(), np.int64),
-                             rf=rf, window=window, test=test, pfa=pfa)
+            out, det = _grow(_Records(ramp, spec, power), det, out,
+                             _Search(pix[hit], nz[hit], c2, zp, np.zeros(hit.sum(), np.int64)), rf=rf, test=test, pfa=pfa)
     # a ramp with several tones: their powers from the joint fit, not their peak cells (each other's
     # leakage moves a cell by dB): the pair likelihood compares the two ramps' amplitudes
     several = np.flatnonzero(np.count_nonzero(det.valid, axis=-1) >= 2)
@@ -137,11 +137,31 @@ def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (both & (d < RESOLUTION_BINS)).any(axis=-1)
 
 
-def _grow(ramp, spec, power, det: Detections, frac, pix, noise, centre, half, slot, *, rf: RangeFFT, window: str,
-          test: dict[str, Any], pfa: float):
-    """Step 3 of the module doc on the pixels ``pix`` (each has a free slot): a tone searched within
-    ``half`` cells of ``centre`` in the records less the fitted tones; ``slot`` the detection whose
-    noise estimate it takes; ``frac`` (P, L, K) per record."""
+class _Records(NamedTuple):
+    """The records (P, L, N), their windowed spectra and |spec|^2 (P, L, n_bins)."""
+
+    ramp: np.ndarray
+    spec: np.ndarray
+    power: np.ndarray
+
+
+class _Search(NamedTuple):
+    """Where :func:`_grow` looks for a hidden tone: on the pixels ``pix`` (each has a free slot), within
+    ``half`` cells of ``centre``; ``noise`` their noise estimates and ``slot`` the detection whose
+    noise the new one takes."""
+
+    pix: np.ndarray
+    noise: np.ndarray
+    centre: np.ndarray
+    half: int
+    slot: np.ndarray
+
+
+def _grow(rec: _Records, det: Detections, frac, search: _Search, *, rf: RangeFFT, test: dict[str, Any], pfa: float):
+    """Step 3 of the module doc on the pixels of ``search``: a tone searched within its cells in the
+    records less the fitted tones; ``frac`` (P, L, K) per record."""
+    ramp, spec, power = rec
+    pix, noise, centre, half, slot = search
     zp, (_, l_n, n) = rf.zero_pad, ramp.shape
     valid = det.valid[pix]
     k = valid.shape[-1]

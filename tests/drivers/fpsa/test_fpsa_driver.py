@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from drivers.fpsa import protocol as p
-from drivers.fpsa.driver import FpsaController, LinkError
+from drivers.fpsa.driver import ChipLayout, FpsaController, FpsaLink, LinkError
 from drivers.fpsa.errors import NakError, PatternError
 from drivers.errors import DeviceGone, TransportError
 from drivers.transport import DeviceTimeout
@@ -17,11 +17,11 @@ from tests.helpers.deadlines import REPLY_S
 BONDED = tuple(r for r in range(128) if r % 4 != 3)
 
 
-def make(**kw):
+def make(chip: ChipLayout | None = None):
     clock = VirtualClock()
     sim = FpgaSim(clock, FpgaConfig(seed=3))
     sleeps: list[float] = []
-    drv = FpsaController(sim.open_pipe(), sleep=sleeps.append, **kw)
+    drv = FpsaController(sim.open_pipe(), link=FpsaLink(sleep=sleeps.append), chip=chip or ChipLayout())
     return clock, sim, drv, sleeps
 
 
@@ -80,7 +80,7 @@ def test_every_command_over_a_real_pty():
     clock = VirtualClock()
     sim = FpgaSim(clock, FpgaConfig(seed=3))
     with sim.serve_pty() as server:
-        with FpsaController.from_url(server.path, timeout_s=REPLY_S, retries=1) as drv:
+        with FpsaController.from_url(server.path, link=FpsaLink(timeout_s=REPLY_S, retries=1)) as drv:
             exercise_every_command(drv, sim, clock)
 
 
@@ -88,7 +88,7 @@ def test_full_12288_pixel_pattern_over_pty_and_run_completes():
     clock = VirtualClock()
     sim = FpgaSim(clock)
     pattern = full_raster()
-    with sim.serve_pty() as server, FpsaController.from_url(server.path, timeout_s=REPLY_S) as drv:
+    with sim.serve_pty() as server, FpsaController.from_url(server.path, link=FpsaLink(timeout_s=REPLY_S)) as drv:
         drv.reset()
         assert drv.upload_pattern(pattern) == 12
         drv.set_timing(settle_ns=8000, trigger_period_ns=10_000)
@@ -101,7 +101,7 @@ def test_full_12288_pixel_pattern_over_pty_and_run_completes():
 
 
 def test_driver_refuses_unbonded_and_out_of_range_before_sending():
-    clock, sim, drv, _ = make(bonded_rows=BONDED, rows=128, cols=128)
+    clock, sim, drv, _ = make(ChipLayout(rows=128, cols=128, bonded_rows=BONDED))
     sent_before = sim.rx_bytes
     bad = full_raster()
     bad[17] = (3, 9)  # row 3: one in four rows is not bonded (§4.3.3)
@@ -128,7 +128,7 @@ def test_fpga_naks_unbonded_row_when_driver_check_is_bypassed():
     clock, sim, drv, _ = make()
     drv.reset()
     # a driver that believes every row is bonded skips the local refusal
-    liar = FpsaController(sim.open_pipe(), bonded_rows=range(128), rows=128, cols=128)
+    liar = FpsaController(sim.open_pipe(), chip=ChipLayout(rows=128, cols=128, bonded_rows=range(128)))
     pattern = np.array([[0, 0], [1, 1], [2, 2], [3, 3]])
     with pytest.raises(NakError) as ei:
         liar.upload_pattern(pattern)
@@ -138,7 +138,7 @@ def test_fpga_naks_unbonded_row_when_driver_check_is_bypassed():
         liar.set_pixel(7, 0)
     assert ei.value.code == p.NakCode.BAD_ROW_UNBONDED
     small = FpgaSim(VirtualClock(), FpgaConfig(rows=128, cols=100))
-    liar2 = FpsaController(small.open_pipe(), bonded_rows=BONDED, rows=128, cols=128)
+    liar2 = FpsaController(small.open_pipe(), chip=ChipLayout(rows=128, cols=128, bonded_rows=BONDED))
     liar2.reset()
     with pytest.raises(NakError) as ei:
         liar2.upload_pattern(np.array([[0, 0], [0, 99], [0, 100]]))
@@ -187,7 +187,7 @@ def test_crc_error_gets_nak_then_retry_succeeds():
     clock = VirtualClock()
     sim = FpgaSim(clock)
     sleeps = []
-    drv = FpsaController(CorruptWrites(sim.open_pipe(), n=1), sleep=sleeps.append, backoff_s=0.01)
+    drv = FpsaController(CorruptWrites(sim.open_pipe(), n=1), link=FpsaLink(sleep=sleeps.append, backoff_s=0.01))
     ident = drv.identify()
     assert ident.rows == 128
     assert drv.retry_count == 1 and sleeps == [0.01]
@@ -197,11 +197,11 @@ def test_crc_error_gets_nak_then_retry_succeeds():
 def test_lost_answer_is_retried_without_re_executing():
     clock = VirtualClock()
     sim = FpgaSim(clock)
-    drv = FpsaController(sim.open_pipe(), sleep=lambda s: None)
+    drv = FpsaController(sim.open_pipe(), link=FpsaLink(sleep=lambda s: None))
     drv.reset()
     drv.upload_pattern(np.array([[0, 0], [1, 1]]))
     drv.arm()
-    lossy = FpsaController(DropAnswers(sim.open_pipe(), n=1), sleep=lambda s: None)
+    lossy = FpsaController(DropAnswers(sim.open_pipe(), n=1), link=FpsaLink(sleep=lambda s: None))
     lossy._seq = 77  # a second host session with its own seq space
     executed = sim.executed
     lossy.start()  # first START executes, its ACK is lost; the retry gets the cached ACK
@@ -226,7 +226,7 @@ class DeadPort:
 def test_no_answer_bounded_retries_with_backoff_then_device_timeout():
     port = DeadPort()
     sleeps = []
-    drv = FpsaController(port, timeout_s=0.2, retries=3, backoff_s=0.05, sleep=sleeps.append)
+    drv = FpsaController(port, link=FpsaLink(timeout_s=0.2, retries=3, backoff_s=0.05, sleep=sleeps.append))
     with pytest.raises(DeviceTimeout) as ei:
         drv.arm()
     err = ei.value
@@ -255,7 +255,7 @@ class GarbleAnswers:
 
 def test_answers_always_garbled_gives_link_error():
     sim = FpgaSim(VirtualClock())
-    drv = FpsaController(GarbleAnswers(sim.open_pipe()), retries=2, sleep=lambda s: None)
+    drv = FpsaController(GarbleAnswers(sim.open_pipe()), link=FpsaLink(retries=2, sleep=lambda s: None))
     with pytest.raises(LinkError, match="IDENTIFY"):
         drv.identify()
 
@@ -288,9 +288,9 @@ def test_constructor_rejects_bad_arguments():
     with pytest.raises(TypeError):
         FpsaController(12345)
     with pytest.raises(ValueError):
-        FpsaController(DeadPort(), timeout_s=0)
+        FpsaController(DeadPort(), link=FpsaLink(timeout_s=0))
     with pytest.raises(ValueError):
-        FpsaController(DeadPort(), retries=-1)
+        FpsaController(DeadPort(), link=FpsaLink(retries=-1))
 
 
 def test_channel_seam_reopen_and_from_url():
@@ -315,12 +315,12 @@ def test_channel_seam_reopen_and_from_url():
         opened.append(sim.open_pipe())
         return opened[-1]
 
-    drv = FpsaController(Unplugged(), reopen=reopen, sleep=lambda s: None)
+    drv = FpsaController(Unplugged(), reopen=reopen, link=FpsaLink(sleep=lambda s: None))
     assert drv.identify().rows == 128
     assert drv.reconnect_count == 1 and len(opened) == 1 and opened[0].timeout == drv.timeout_s
     # without ``reopen`` a failed port is final, typed, and names device and command
     with pytest.raises(DeviceGone) as ei:
-        FpsaController(Unplugged(), sleep=lambda s: None).status()
+        FpsaController(Unplugged(), link=FpsaLink(sleep=lambda s: None)).status()
     assert (ei.value.device, ei.value.command) == ("fpsa", "STATUS")
     with pytest.raises(TransportError):
         FpsaController.from_url("nosuch://x")
@@ -328,6 +328,6 @@ def test_channel_seam_reopen_and_from_url():
 
 def test_url_constructor_still_works_for_one_release():
     with pytest.warns(DeprecationWarning, match="from_url"):
-        drv = FpsaController("loop://", timeout_s=0.05, retries=0)
+        drv = FpsaController("loop://", link=FpsaLink(timeout_s=0.05, retries=0))
     assert drv.url == "loop://" and drv._reopen is not None
     drv.close()

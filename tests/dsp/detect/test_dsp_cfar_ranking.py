@@ -55,8 +55,8 @@ def test_os_noise_is_exact_wherever_the_threshold_can_pass():
 def test_an_empty_batch_gives_empty_detections():
     # a raw capture's last committed chunk can hold no pixel (a daemon killed between its writes): the
     # detector answers empty arrays of the batch's shape, as the frame DSP did before the ranking
-    from lidard.dsp.detect.cfar import cfar_detect
-    det = cfar_detect(np.zeros((0, 3, 257)), window="hann", max_detections=2)
+    from lidard.dsp.detect.cfar import CfarSettings, cfar_detect_with
+    det = cfar_detect_with(np.zeros((0, 3, 257)), CfarSettings(window="hann", max_detections=2))
     assert det.index.shape == (0, 3, 2) and not det.valid.any()
 
 

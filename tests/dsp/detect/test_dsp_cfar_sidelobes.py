@@ -29,9 +29,9 @@ def test_pairwise_sidelobe_test_equals_the_dense_sweep(window, zero_pad, monkeyp
     rng = np.random.default_rng(7 + zero_pad)
     p = _spectra(rng, 40, 256, window, zero_pad)
     kw = dict(method="os", pfa=1e-4, max_detections=6, window=window, zero_pad=zero_pad)
-    sparse = cfar.cfar_detect(p, **kw)
+    sparse = cfar.cfar_detect_with(p, cfar.CfarSettings(**kw))
     monkeypatch.setattr(cfar, "_SPARSE_PAIRS_PER_CELL", -1)  # force the dense sweep
-    dense = cfar.cfar_detect(p, **kw)
+    dense = cfar.cfar_detect_with(p, cfar.CfarSettings(**kw))
     for name in ("index", "power", "valid", "harmonic", "unresolved", "snr_db"):
         np.testing.assert_array_equal(getattr(sparse, name), getattr(dense, name), err_msg=name)
     assert sparse.valid.sum() >= 40  # the comparison covered real detections

@@ -149,7 +149,7 @@ def test_the_compiled_pass_names_bad_values_as_the_numpy_check_does(monkeypatch,
     for jit_env in ("1", "0"):
         monkeypatch.setenv("LIDARD_DSP_JIT", jit_env)
         with pytest.raises(cfar.DspInputError, match=what):
-            cfar.cfar_detect(p)
+            cfar.cfar_detect_with(p)
     monkeypatch.setenv("LIDARD_DSP_JIT", "1")
     assert jit.os_detect(p, 8, 2, 12, 0.05, 2.0, 20.0, 1e-20, jit.kernels()) is None
 
@@ -157,4 +157,4 @@ def test_the_compiled_pass_names_bad_values_as_the_numpy_check_does(monkeypatch,
 def test_signed_zeros_are_not_bad_values():
     p = np.zeros((2, 40))
     p[0, ::3] = -0.0
-    assert not cfar.cfar_detect(p).valid.any()
+    assert not cfar.cfar_detect_with(p).valid.any()

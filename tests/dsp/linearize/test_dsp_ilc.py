@@ -251,7 +251,7 @@ def test_bad_inputs_raise_value_error():
 
 def test_end_to_end_through_h2_synthesizer():
     """The learner against H2's beat/MZI synthesis (quantized 8-bit ADC, shared Wiener phase noise)."""
-    from sim_devices.world.synth import AdcSpec, synthesize, trajectory
+    from sim_devices.world.synth import AdcSpec, Effects, MonitorMzi, synthesize, trajectory
     laser = DfbLaser(load_laser("dfb_default"))
     rng = np.random.default_rng(21)
     n = int(2 * RAMP_S * FS)
@@ -259,8 +259,8 @@ def test_end_to_end_through_h2_synthesizer():
 
     def measure(drive, n_avg):
         traj = trajectory(laser, drive, FS)
-        out = synthesize(traj, adc, np.zeros(n_avg), None, linewidth_hz=laser.linewidth_hz, rng=rng,
-                         mzi_delay_s=TAU_M, mzi_amplitude_v=0.3)
+        out = synthesize(traj, adc, np.zeros(n_avg), None, effects=Effects(linewidth_hz=laser.linewidth_hz), rng=rng,
+                         mzi=MonitorMzi(TAU_M, 0.3))
         return out.mzi.astype(np.float64) * adc.lsb_v
 
     u0 = triangle_drive(EXC_HZ, RAMP_S, FS, laser.static_tuning_hz_per_v)

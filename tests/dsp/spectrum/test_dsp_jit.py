@@ -83,7 +83,7 @@ _FIELDS = ("index", "power", "noise", "snr_db", "valid", "harmonic", "unresolved
 ])
 def test_the_detector_is_the_same_with_and_without_the_kernels(monkeypatch, kw):
     # two tones (one clipped: harmonic ghosts), close pairs (unresolved), a ramp of zeros, a ramp
-    # full of peaks: every output of cfar_detect bit for bit
+    # full of peaks: every output of cfar_detect_with bit for bit
     rng = np.random.default_rng(len(kw))
     n, rows = 256, 300
     t = np.arange(n)
@@ -98,7 +98,7 @@ def test_the_detector_is_the_same_with_and_without_the_kernels(monkeypatch, kw):
     p = np.abs(spec) ** 2
     p[0] = 0.0
     p[1, ::2] = 1e3
-    got, want = _both(monkeypatch, lambda: cfar.cfar_detect(p, **kw))
+    got, want = _both(monkeypatch, lambda: cfar.cfar_detect_with(p, cfar.CfarSettings(**kw)))
     for name in _FIELDS:
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
     assert want.valid.sum() > rows and want.harmonic.any() and want.unresolved.any()

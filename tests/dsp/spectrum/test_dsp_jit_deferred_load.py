@@ -11,14 +11,14 @@ _PROBE = """
 import json, sys
 import numpy as np
 from lidard.dsp.spectrum import jit
-from lidard.dsp.detect.cfar import cfar_detect
+from lidard.dsp.detect.cfar import CfarSettings, cfar_detect_with
 p = np.random.default_rng(1).exponential(size=(64, 512))
 p[:, 100] += 1e3
-small = cfar_detect(p, method="os", pfa=1e-6)          # 32 k cells: numpy
+small = cfar_detect_with(p, CfarSettings(method="os", pfa=1e-6))          # 32 k cells: numpy
 before = "numba" in sys.modules
 k_small = jit.kernels(1000)
 k_big = jit.kernels(jit.LOAD_AFTER_CELLS)               # the count passes the threshold: loaded
-big = cfar_detect(p, method="os", pfa=1e-6)
+big = cfar_detect_with(p, CfarSettings(method="os", pfa=1e-6))
 print(json.dumps({"before": before, "k_small": k_small is None, "k_big": k_big is not None,
                   "same": bool(np.array_equal(small.index, big.index) and np.array_equal(small.valid, big.valid)),
                   "found": bool(small.valid.any())}))

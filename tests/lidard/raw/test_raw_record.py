@@ -8,7 +8,7 @@ import numpy as np
 
 from lidard.dsp.frame import FrameDsp
 from lidard.raw import RawCapture
-from lidard.raw.record import ScanRecorder
+from lidard.raw.record import RecordLayout, ReplayRecipe, ScanDescription, ScanRecorder
 
 
 @dataclass
@@ -21,12 +21,14 @@ def _start(path, **kw):
     # the whole 8-sample ramp used: the smallest range FFT a FrameDsp builds (n >= 8)
     dsp = FrameDsp(ramp_samples=8, use_fraction=1.0, fs_hz=1e6, chirp_rate_hz_per_s=1e14, wavelength_m=1.55e-6,
                    max_range_m=2.0)
-    args = dict(pixels=np.array([[0, 0], [0, 1], [1, 0]]), directions=np.tile([0.0, 0.0, 1.0], (3, 1)),
-                averages=2, channels=("mzi", "beat"), record_length=16, dsp=dsp, lsb_v=3e-5, phase_noise=True,
-                mzi_delay_s=2e-7, adc={"sample_rate_hz": 1e6, "bits": 16}, chirp={"excursion_hz": 8.6e9},
-                calibration_id="c1", scan={"id": "S1"}, drive_v=np.linspace(-1, 1, 5), chunk_bytes=2 * 16 * 2 * 2)
+    layout = RecordLayout(pixels=np.array([[0, 0], [0, 1], [1, 0]]), directions=np.tile([0.0, 0.0, 1.0], (3, 1)),
+                          averages=2, channels=("mzi", "beat"), record_length=16)
+    recipe = ReplayRecipe(dsp=dsp, lsb_v=3e-5, phase_noise=True, mzi_delay_s=2e-7)
+    about = ScanDescription(adc={"sample_rate_hz": 1e6, "bits": 16}, chirp={"excursion_hz": 8.6e9},
+                            calibration_id="c1", scan={"id": "S1"})
+    args = dict(drive_v=np.linspace(-1, 1, 5), chunk_bytes=2 * 16 * 2 * 2)
     args.update(kw)
-    return ScanRecorder.start(path, **args)
+    return ScanRecorder.start(path, layout, recipe, about, **args)
 
 
 def test_records_arrive_in_the_recorded_channel_order_with_their_headers(tmp_path):

@@ -11,7 +11,7 @@ from lidard.dsp.ranging.estimators import estimate
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import fidelity as fid
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, SynthOutputs, synthesize, trajectory
 
 RAMP_S, EXC_HZ = 80e-6, 8.6e9
 KAPPA = EXC_HZ / RAMP_S
@@ -60,8 +60,9 @@ def _records(traj, tau, fs, asd=0.0, linewidth=0.0, n_seg=400):
     n = int(RAMP_S * fs) // 2 * 2
     adc = AdcSpec(fs, n, bits=16, input_range_v=2.0, quantize=False)
     hits = HitBatch.from_targets(np.arange(n_seg), np.full(n_seg, tau * C_M_PER_S / 2), AMP_V)
-    v = synthesize(traj, adc, np.arange(n_seg) * traj.period_s, hits, return_volts=True,
-                   rng=np.random.default_rng(7), noise_asd_v_per_rthz=asd, linewidth_hz=linewidth).volts["beat"]
+    v = synthesize(traj, adc, np.arange(n_seg) * traj.period_s, hits, outputs=SynthOutputs(volts=True),
+                   rng=np.random.default_rng(7),
+                   effects=Effects(noise_asd_v_per_rthz=asd, linewidth_hz=linewidth)).volts["beat"]
     return _up_ramp_freqs(v, fs, n)
 
 

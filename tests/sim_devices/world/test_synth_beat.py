@@ -11,7 +11,7 @@ from lidard.physics.budget import quantization_asd
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import synth as synth_mod
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, SynthError, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, MonitorMzi, SynthError, synthesize, trajectory
 
 RAMP_S = 80e-6
 EXC_HZ = 8.6e9
@@ -79,7 +79,7 @@ def test_peak_asd_is_amplitude_sqrt_T_over_2_and_noise_floor_follows_the_asd(ide
     asd = 2e-6
     hits = HitBatch(seg=np.arange(n_seg), tau_s=np.full(n_seg, tau), amplitude_v=np.full(n_seg, amp))
     r = synthesize(ideal_traj, adc, np.arange(n_seg) * ideal_traj.period_s, hits,
-                   noise_asd_v_per_rthz=asd, rng=np.random.default_rng(3))
+                   effects=Effects(noise_asd_v_per_rthz=asd), rng=np.random.default_rng(3))
     a = _asd(r.beat, fs)
     peak = np.mean(a[:, j])
     assert peak == pytest.approx(amp * np.sqrt(RAMP_S / 2), rel=0.01)      # eq. 2-14, tau_c = inf
@@ -92,7 +92,7 @@ def test_noise_only_segments_and_per_segment_asd(ideal_traj):
     n = 512
     adc = AdcSpec(fs, n, bits=16, input_range_v=4.0, quantize=False)
     asd = np.array([1e-6, 0.0, 4e-6, 0.0] * 16)
-    r = synthesize(ideal_traj, adc, np.zeros(asd.size), None, noise_asd_v_per_rthz=asd,
+    r = synthesize(ideal_traj, adc, np.zeros(asd.size), None, effects=Effects(noise_asd_v_per_rthz=asd),
                    rng=np.random.default_rng(0))
     assert np.all(r.beat[1::2] == 0.0)                                  # no hit, no noise: silence
     std = r.beat.std(axis=1)
@@ -107,7 +107,7 @@ def test_quantization_noise_adds_to_the_analog_floor(ideal_traj):
     lsb = rng_v / 2**bits
     asd = lsb / np.sqrt(fs / 2)                 # one LSB rms of analog noise dithers the quantizer
     adc = AdcSpec(fs, n, bits=bits, input_range_v=rng_v)
-    r = synthesize(ideal_traj, adc, np.zeros(32), None, noise_asd_v_per_rthz=asd, rng=np.random.default_rng(1))
+    r = synthesize(ideal_traj, adc, np.zeros(32), None, effects=Effects(noise_asd_v_per_rthz=asd), rng=np.random.default_rng(1))
     assert r.beat.dtype == np.int16
     v = r.beat * r.lsb_v
     a = _asd(v, fs)
@@ -164,7 +164,7 @@ def test_mzi_channel_beats_at_gamma_tau_m(ideal_traj):
     n = int(RAMP_S * fs)
     tau_m = 40e-9
     adc = AdcSpec(fs, n, bits=12, input_range_v=2.0, quantize=False)
-    r = synthesize(ideal_traj, adc, np.zeros(1), None, mzi_delay_s=tau_m, mzi_amplitude_v=0.3)
+    r = synthesize(ideal_traj, adc, np.zeros(1), None, mzi=MonitorMzi(tau_m, 0.3))
     assert r.channels == ("beat", "mzi")
     spec = np.abs(np.fft.rfft(r.mzi[0]))
     f = np.fft.rfftfreq(n, 1 / fs)
@@ -179,12 +179,14 @@ def test_bad_inputs_raise_named_errors(ideal_traj):
     with pytest.raises(SynthError, match="tau_s"):
         synthesize(ideal_traj, adc, np.zeros(2), HitBatch(seg=np.array([0]), tau_s=np.array([-1e-9]),
                                                           amplitude_v=np.array([0.1])))
-    with pytest.raises(SynthError, match="mzi_amplitude_v"):
-        synthesize(ideal_traj, adc, np.zeros(2), None, mzi_delay_s=1e-8)
+    with pytest.raises(SynthError, match="mzi.amplitude_v"):
+        synthesize(ideal_traj, adc, np.zeros(2), None, mzi=MonitorMzi(1e-8, float("nan")))
+    with pytest.raises(SynthError, match="mzi.delay_s"):
+        synthesize(ideal_traj, adc, np.zeros(2), None, mzi=MonitorMzi(0.0, 0.3))
     with pytest.raises(SynthError, match="rng"):
-        synthesize(ideal_traj, adc, np.zeros(2), None, noise_asd_v_per_rthz=1e-6)
+        synthesize(ideal_traj, adc, np.zeros(2), None, effects=Effects(noise_asd_v_per_rthz=1e-6))
     with pytest.raises(SynthError, match="noise_asd_v_per_rthz"):
-        synthesize(ideal_traj, adc, np.zeros(2), None, noise_asd_v_per_rthz=[1e-6, 1e-6, 1e-6],
+        synthesize(ideal_traj, adc, np.zeros(2), None, effects=Effects(noise_asd_v_per_rthz=[1e-6, 1e-6, 1e-6]),
                    rng=np.random.default_rng(0))
     with pytest.raises(SynthError, match="bits"):
         AdcSpec(10e6, 100, bits=20)
@@ -196,7 +198,7 @@ def test_dc_offset_and_codes_match_the_analog_volts_within_half_an_lsb(ideal_tra
     fs = 20e6
     n = 1000
     # 8 bits over 1 V: LSB = 1/256 V; 0.1 V -> code round(25.6) = 26
-    r = synthesize(ideal_traj, AdcSpec(fs, n, bits=8, input_range_v=1.0), np.zeros(2), None, dc_v=0.1)
+    r = synthesize(ideal_traj, AdcSpec(fs, n, bits=8, input_range_v=1.0), np.zeros(2), None, effects=Effects(dc_v=0.1))
     assert np.all(r.beat == 26)
     # quantized output (fast float32 trig) vs float64-trig volts of the same hits, 12 bits
     adc = AdcSpec(fs, n, bits=12, input_range_v=1.0, iq=True)
@@ -218,7 +220,7 @@ def test_hybrid_imbalance_puts_g_sin_of_the_phase_plus_eps_on_q(ideal_traj):
     t0 = np.array([0.0, 3e-5])
     ideal = synthesize(ideal_traj, adc, t0, hits)
     g, eps = 1.08, 0.09
-    bad = synthesize(ideal_traj, adc, t0, hits, iq_imbalance=(g, eps))
+    bad = synthesize(ideal_traj, adc, t0, hits, effects=Effects(iq_imbalance=(g, eps)))
     assert np.array_equal(bad.beat, ideal.beat)
     # sin(x + eps) = sin x cos eps + cos x sin eps, summed over the hits of a segment
     assert np.allclose(bad.beat_q, g * (ideal.beat_q * np.cos(eps) + ideal.beat * np.sin(eps)), atol=1e-12)

@@ -9,7 +9,7 @@ import pytest
 from lidard.config import load_laser
 from sim_devices.world import synth as synth_mod
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, synthesize, trajectory
 from sim_devices.world.synth_grid import rational_ratio, static_beat_phase
 
 RAMP_S = 80e-6
@@ -54,9 +54,9 @@ def test_synthesize_gives_the_same_codes_with_and_without_the_fast_path(traj, mo
     adc = AdcSpec(40e6, int(RAMP_S * 40e6), bits=16, input_range_v=1.0)
     hits = HitBatch.from_targets([0, 0, 1, 2, 4], [1.0, 2.3, 0.4, 7.9, 3.3], [0.2, 0.05, 0.3, 0.1, 0.2])
     t0 = np.zeros(5)
-    fast = synthesize(traj, adc, t0, hits, noise_asd_v_per_rthz=1e-8, rng=np.random.default_rng(1))
+    fast = synthesize(traj, adc, t0, hits, effects=Effects(noise_asd_v_per_rthz=1e-8), rng=np.random.default_rng(1))
     monkeypatch.setattr(synth_mod, "rational_ratio", lambda ratio: None)
-    slow = synthesize(traj, adc, t0, hits, noise_asd_v_per_rthz=1e-8, rng=np.random.default_rng(1))
+    slow = synthesize(traj, adc, t0, hits, effects=Effects(noise_asd_v_per_rthz=1e-8), rng=np.random.default_rng(1))
     diff = np.abs(fast.beat.astype(np.int32) - slow.beat)
     assert np.abs(slow.beat).max() > 1000             # the returns are there
     assert diff.max() <= 1 and np.count_nonzero(diff) <= 2     # ~1e-9 rad apart: a rounding tie at most

@@ -7,7 +7,7 @@ import numpy as np
 
 from lidard.config import load_laser
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, MonitorMzi, synthesize, trajectory
 
 
 def _traj():
@@ -19,12 +19,14 @@ def test_quadrature_channel_is_the_same_fringe_90_degrees_on_with_the_same_phase
     fs, n = 500e6, 4000
     adc = AdcSpec(fs, n, bits=16, input_range_v=4.0, quantize=False)
     hits = HitBatch.from_targets([0, 1], [30.0, 30.0], 0.2)
-    kw = dict(mzi_delay_s=200e-9, mzi_amplitude_v=0.3, linewidth_hz=3e6, rng=np.random.default_rng(4))
-    r = synthesize(_traj(), adc, np.zeros(2), hits, mzi_quadrature=True, **kw)
+    eff = Effects(linewidth_hz=3e6)
+    r = synthesize(_traj(), adc, np.zeros(2), hits, effects=eff, rng=np.random.default_rng(4),
+                   mzi=MonitorMzi(200e-9, 0.3, quadrature=True))
     assert r.channels == ("beat", "mzi", "mzi_q")
     # I^2 + Q^2 = A^2 whatever the (noisy) phase: the two are one phasor
     np.testing.assert_allclose(r.mzi ** 2 + r.mzi_q ** 2, 0.3 ** 2, rtol=1e-9)
     # and its phase is the monitor channel's: the cos channel alone (same seed) is unchanged
-    r1 = synthesize(_traj(), adc, np.zeros(2), hits, **{**kw, "rng": np.random.default_rng(4)})
+    r1 = synthesize(_traj(), adc, np.zeros(2), hits, effects=eff, rng=np.random.default_rng(4),
+                    mzi=MonitorMzi(200e-9, 0.3))
     np.testing.assert_array_equal(r1.mzi, r.mzi)
     assert r1.mzi_q is None and r1.channels == ("beat", "mzi")

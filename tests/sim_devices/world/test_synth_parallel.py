@@ -8,7 +8,7 @@ import pytest
 from lidard.config import load_laser
 from sim_devices.world import synth_parallel as sp
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, synthesize, trajectory
 
 RAMP_S, EXC_HZ = 80e-6, 8.6e9
 
@@ -32,7 +32,7 @@ def test_a_read_in_parts_is_the_reads_of_its_parts_joined(traj, monkeypatch, wor
     hits = HitBatch.from_targets(seg, 0.3 + 0.02 * np.arange(seg.size), 0.05,
                                  radial_velocity_m_s=0.1 * np.sin(np.arange(seg.size)))
     t0 = np.arange(n_seg) * 2 * RAMP_S
-    kw = dict(noise_asd_v_per_rthz=2e-6, linewidth_hz=0.0)
+    kw = dict(effects=Effects(noise_asd_v_per_rthz=2e-6, linewidth_hz=0.0))
     whole = sp.synthesize_read(traj, adc, t0, hits, _rng_for, workers=workers, **kw)
     bounds = np.linspace(0, n_seg, workers + 1).astype(int)
     for a, b in zip(bounds[:-1], bounds[1:]):
@@ -51,6 +51,6 @@ def test_a_small_read_stays_on_the_calling_thread_unchanged(traj):
     adc = AdcSpec(10e6, 1600, bits=16, input_range_v=1.0, quantize=True)
     t0 = np.arange(8) * 2 * RAMP_S
     hits = HitBatch.from_targets(np.arange(8), np.full(8, 0.5), 0.05)
-    a = sp.synthesize_read(traj, adc, t0, hits, _rng_for, workers=4, noise_asd_v_per_rthz=2e-6)
-    b = synthesize(traj, adc, t0, hits, rng=_rng_for(0), noise_asd_v_per_rthz=2e-6)
+    a = sp.synthesize_read(traj, adc, t0, hits, _rng_for, workers=4, effects=Effects(noise_asd_v_per_rthz=2e-6))
+    b = synthesize(traj, adc, t0, hits, rng=_rng_for(0), effects=Effects(noise_asd_v_per_rthz=2e-6))
     assert np.array_equal(a.beat, b.beat)

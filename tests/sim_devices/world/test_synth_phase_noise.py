@@ -10,7 +10,7 @@ from lidard.config import load_laser
 from lidard.physics.budget import LinkParams, asd_components
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world.laser import DfbLaser, triangle_drive
-from sim_devices.world.synth import AdcSpec, HitBatch, synthesize, trajectory
+from sim_devices.world.synth import AdcSpec, Effects, HitBatch, MonitorMzi, SynthOutputs, synthesize, trajectory
 
 RAMP_S = 80e-6
 
@@ -28,14 +28,14 @@ class _NoDraws:
         raise AssertionError(f"random generator used ({name}) although the effect is switched off")
 
 
-def _beat_phase_noise(traj, fs, n, n_seg, tau_s, linewidth_hz, seed, **kw):
+def _beat_phase_noise(traj, fs, n, n_seg, tau_s, linewidth_hz, seed, mzi=None):
     """Phase of the I/Q beat relative to the noiseless beat, and the synthesis result."""
     adc = AdcSpec(fs, n, bits=16, input_range_v=4.0, iq=True, quantize=False)
     hits = HitBatch(seg=np.arange(n_seg), tau_s=np.full(n_seg, tau_s), amplitude_v=np.ones(n_seg))
     t0 = np.zeros(n_seg)
-    r = synthesize(traj, adc, t0, hits, linewidth_hz=linewidth_hz, rng=np.random.default_rng(seed),
-                   return_phase_noise=True, **kw)
-    r0 = synthesize(traj, adc, t0, hits, **{k: v for k, v in kw.items() if k.startswith("mzi_")})
+    r = synthesize(traj, adc, t0, hits, effects=Effects(linewidth_hz=linewidth_hz), rng=np.random.default_rng(seed),
+                   outputs=SynthOutputs(phase_noise=True), mzi=mzi)
+    r0 = synthesize(traj, adc, t0, hits, mzi=mzi)
     dphi = np.angle((r.beat + 1j * r.beat_q) * np.conj(r0.beat + 1j * r0.beat_q))
     return dphi, r, r0
 
@@ -55,7 +55,7 @@ def test_integer_delays_use_the_exact_shared_realization_for_beat_and_mzi():
     n, m, m_mzi = 1500, 3, 5
     lw = 1e6
     dphi, r, r0 = _beat_phase_noise(traj, fs, n, 4, m / fs, lw, seed=2,
-                                    mzi_delay_s=m_mzi / fs, mzi_amplitude_v=0.3)
+                                    mzi=MonitorMzi(m_mzi / fs, 0.3))
     pn, pre = r.phase_noise_rad, r.phase_noise_pre
     assert pn.shape == (4, pre + n)
     k = pre + np.arange(n)
@@ -83,7 +83,7 @@ def test_phase_noise_peak_and_pedestal_follow_eqs_2_14_and_2_15(tau_s, tau_c, ex
     j = int(round(excursion * tau_s))                # integer bin: f_b T = excursion tau
     adc = AdcSpec(fs, n, bits=16, input_range_v=4.0, quantize=False)
     hits = HitBatch(seg=np.arange(n_seg), tau_s=np.full(n_seg, tau_s), amplitude_v=np.full(n_seg, 0.5))
-    r = synthesize(_ideal(excursion), adc, np.zeros(n_seg), hits, linewidth_hz=1 / (np.pi * tau_c),
+    r = synthesize(_ideal(excursion), adc, np.zeros(n_seg), hits, effects=Effects(linewidth_hz=1 / (np.pi * tau_c)),
                    rng=np.random.default_rng(7))
     x = np.fft.fft(r.beat, axis=1) * np.sqrt(2.0 / (n * fs))          # eq. 2-13 scaling
     coherent = np.mean(x, axis=0)
@@ -137,14 +137,14 @@ def test_switched_off_effects_draw_nothing():
     adc = AdcSpec(50e6, 400, bits=8)
     hits = HitBatch.from_targets([0, 1], [3.0, 40.0], 0.2)
     # linewidth 0, no noise: not a single draw, also with the MZI on
-    r = synthesize(traj, adc, np.zeros(3), hits, linewidth_hz=0.0, noise_asd_v_per_rthz=0.0, rng=_NoDraws(),
-                   mzi_delay_s=20e-9, mzi_amplitude_v=0.3)
+    r = synthesize(traj, adc, np.zeros(3), hits, effects=Effects(linewidth_hz=0.0, noise_asd_v_per_rthz=0.0),
+                   rng=_NoDraws(), mzi=MonitorMzi(20e-9, 0.3))
     assert r.phase_noise_rad is None and np.any(r.beat != 0)
     # a linewidth but nothing to apply it to (no hits, no MZI): no draw either
-    r = synthesize(traj, adc, np.zeros(3), None, linewidth_hz=1e6, rng=_NoDraws())
+    r = synthesize(traj, adc, np.zeros(3), None, effects=Effects(linewidth_hz=1e6), rng=_NoDraws())
     assert np.all(r.beat == 0)
     # with a real generator, the phase-noise-free run leaves the state untouched
     rng = np.random.default_rng(0)
     state = rng.bit_generator.state
-    synthesize(traj, adc, np.zeros(3), hits, linewidth_hz=0.0, rng=rng)
+    synthesize(traj, adc, np.zeros(3), hits, effects=Effects(linewidth_hz=0.0), rng=rng)
     assert rng.bit_generator.state == state
