@@ -16,11 +16,12 @@ Reported (and checked at the end):
   (``GET /scans/{id}/points``), parses and holds exactly the stored point count (``counts.points``);
   measured points without a file count as lost (data lost = 0);
 * HTTP 5xx answers (target 0), temporary files left under the data dir (target 0);
-* memory per process (VmRSS of the daemon and, separately, of its child bench, sampled once per
-  scan): the median of the last minute against the median of minute 2 (``growth``; target: each
+* memory per process (VmRSS of the daemon and, separately, of each of its descendants by role,
+  sampled once per scan: the child bench, the DSP pool's forkserver, its workers together, the
+  resource tracker, anything else; roles told apart by command line, see :func:`role_of`): the median of the last minute against the median of minute 2 (``growth``; target: each
   within 10 MB, however long the run), and the median of the last 5 minutes against minutes 2-6
   (``drift``). ``--rss-csv FILE`` writes every sample (seconds, daemon MB, bench MB, and where the daemon's memory
-  is: anonymous MB, of which in transparent huge pages, threads).
+  is: anonymous MB, of which in transparent huge pages, threads; then the other roles' MB).
 
     nice -n 19 python benchmarks/soak.py --minutes 60 [--seed 1] [--json out.json] [--rss-csv rss.csv]
 
@@ -153,7 +154,7 @@ def heap_detail(pid: int) -> tuple[float, float, int]:
 
 
 def children(pid: int) -> list[int]:
-    """The direct children of ``pid`` (the daemon's child bench)."""
+    """The direct children of ``pid``."""
     out: list[int] = []
     for task in Path(f"/proc/{pid}/task").glob("*"):
         try:
@@ -163,10 +164,50 @@ def children(pid: int) -> list[int]:
     return out
 
 
-def bench_rss_mb(pid: int) -> float:
-    """VmRSS of the daemon's children together (the simulated bench process)."""
-    kids = children(pid)
-    return sum(rss_mb(k) for k in kids) if kids else float("nan")
+def cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+#: the roles of the daemon's descendants, as the soak reports them (each its own RSS column)
+ROLES = ("bench", "dsp_forkserver", "dsp_workers", "resource_tracker", "other")
+
+
+def role_of(cmd: str, parent_role: str | None) -> str:
+    """What a descendant of the daemon is, from its command line (and its parent's role): the simulated
+    bench (``-m sim_devices.bench.bench``), the DSP pool's forkserver (a child of the daemon running
+    ``multiprocessing.forkserver``), the pool's workers (the forkserver's children, same command line),
+    multiprocessing's resource tracker, or something else."""
+    if "sim_devices.bench.bench" in cmd:
+        return "bench"
+    if "multiprocessing.forkserver" in cmd:
+        return "dsp_workers" if parent_role == "dsp_forkserver" else "dsp_forkserver"
+    if "multiprocessing.resource_tracker" in cmd:
+        return "resource_tracker"
+    return "other"
+
+
+def descendants_by_role(pid: int) -> dict[str, list[int]]:
+    """Every descendant of ``pid`` (children, their children, ...) by :func:`role_of`."""
+    out: dict[str, list[int]] = {r: [] for r in ROLES}
+    todo: list[tuple[int, str | None]] = [(k, None) for k in children(pid)]
+    while todo:
+        k, parent_role = todo.pop()
+        role = role_of(cmdline(k), parent_role)
+        out[role].append(k)
+        todo += [(g, role) for g in children(k)]
+    return out
+
+
+def rss_by_role(pid: int) -> dict[str, tuple[float, int]]:
+    """role -> (VmRSS of its processes together in MB, NaN when there is none; how many processes)."""
+    out: dict[str, tuple[float, int]] = {}
+    for role, pids in descendants_by_role(pid).items():
+        mbs = [m for m in (rss_mb(k) for k in pids) if not math.isnan(m)]
+        out[role] = (sum(mbs) if mbs else float("nan"), len(mbs))
+    return out
 
 
 class Client:
@@ -220,7 +261,8 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
     acks: Counter = Counter()
     clean_not_done: list[dict[str, Any]] = []
     rss: list[tuple[float, float]] = []
-    bench_rss: list[tuple[float, float]] = []
+    kids: dict[str, list[tuple[float, float]]] = {r: [] for r in ROLES}   # role -> (s, MB) samples
+    n_workers: list[int] = []
     detail: list[tuple[float, float, int]] = []         # the daemon's anonymous / huge-page MB, threads
     refused_injections: list[dict[str, Any]] = []
     ack_refusals: list[str] = []
@@ -264,7 +306,10 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
                 ack_refusals.append(a.text[:300])
             t_now = time.monotonic() - t0
             rss.append((t_now, rss_mb(proc.pid)))
-            bench_rss.append((t_now, bench_rss_mb(proc.pid)))
+            for role, (mb, n) in rss_by_role(proc.pid).items():
+                kids[role].append((t_now, mb))
+                if role == "dsp_workers":
+                    n_workers.append(n)
             detail.append(heap_detail(proc.pid))
     finally:
         tmp_left = [str(p) for p in data_dir.rglob("*.tmp")]
@@ -278,9 +323,12 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
         "injections_refused": refused_injections, "acknowledgement_refusals": ack_refusals[:20],
         "clean_scans_not_done": clean_not_done, "files_checked": files_checked, "points_lost": lost,
         "http": {str(k): v for k, v in c.status.items()}, "http_5xx": sum(v for k, v in c.status.items() if k >= 500),
-        "temp_files_left": tmp_left, "rss_mb": memory_figures(rss), "bench_rss_mb": memory_figures(bench_rss),
-        "rss_samples": [(round(t, 1), round(d, 2), round(b, 2), round(a, 2), round(h, 2), n)
-                        for (t, d), (_, b), (a, h, n) in zip(rss, bench_rss, detail)],
+        "temp_files_left": tmp_left, "rss_mb": memory_figures(rss),
+        **{f"{role}_rss_mb": memory_figures(kids[role]) for role in ROLES},
+        "rss_samples": [(round(t, 1), round(d, 2), *(round(kids[r][i][1], 2) for r in ROLES[:1]),
+                         round(a, 2), round(h, 2), n,
+                         *(round(kids[r][i][1], 2) for r in ROLES[1:]), n_workers[i])
+                        for i, ((t, d), (a, h, n)) in enumerate(zip(rss, detail))],
     }
 
 
@@ -311,19 +359,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="seed of the fault choice")
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
     ap.add_argument("--rss-csv", default=None, help="write every RSS sample here: seconds, daemon MB, bench MB, daemon anonymous MB, "
-                         "of which huge pages, daemon threads")
+                         "of which huge pages, daemon threads, then the MB of the DSP forkserver, of the DSP workers "
+                         "together, of the resource tracker, of any other child, and the number of DSP workers")
     args = ap.parse_args(argv)
     res = soak(args.minutes, args.seed)
     samples = res.pop("rss_samples")
     if args.rss_csv:
-        Path(args.rss_csv).write_text("t_s,daemon_mb,bench_mb,daemon_anon_mb,daemon_anon_huge_mb,daemon_threads\n"
+        Path(args.rss_csv).write_text("t_s,daemon_mb,bench_mb,daemon_anon_mb,daemon_anon_huge_mb,daemon_threads,"
+                                      + ",".join(f"{r}_mb" for r in ROLES[1:]) + ",dsp_workers_n\n"
                                       + "".join(",".join(map(str, row)) + "\n" for row in samples))
     print(json.dumps(res, indent=2))
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2))
     ok = (not res["clean_scans_not_done"] and res["points_lost"] == 0 and res["http_5xx"] == 0
           and not res["temp_files_left"])
-    for mem in (res["rss_mb"], res["bench_rss_mb"]):
+    for mem in (res["rss_mb"], *(res[f"{role}_rss_mb"] for role in ROLES)):
         if "growth" in mem:
             ok = ok and mem["growth"] <= 10.0
     print("soak targets", "MET" if ok else "NOT MET")

@@ -1,4 +1,5 @@
-"""Markdown figures of a soak run (benchmarks/soak.py): per-process RSS (the daemon, its child bench)
+"""Markdown figures of a soak run (benchmarks/soak.py): per-process RSS (the daemon; its
+child bench, DSP forkserver, DSP workers, resource tracker, each on its own)
 at minute marks, their growth from minute 2, and the run's outcome counts.
 
     nice -n 19 python benchmarks/soak.py --minutes 60 --json soak.json --rss-csv soak.csv
@@ -14,24 +15,42 @@ import statistics
 from pathlib import Path
 
 
-def at_minutes(rows: list[tuple[float, ...]], step_min: float) -> list[tuple[float, ...]]:
-    """Median of every column after the time (daemon RSS, bench RSS, and where sampled the daemon's
-    anonymous and huge-page MB) in each minute that ends on a multiple of ``step_min``."""
+def at_minutes(rows: list[dict[str, float]], cols: list[str], step_min: float) -> list[tuple[float, list[float]]]:
+    """Median of each of ``cols`` in each minute that ends on a multiple of ``step_min`` (and minutes 1, 2);
+    a column's NaN samples (its process not there) are left out, NaN when all are."""
     out = []
-    end = rows[-1][0] / 60.0
+    end = rows[-1]["t_s"] / 60.0
     marks = [1.0, 2.0] + [float(x) for x in range(int(step_min), int(end) + 1, int(step_min)) if x > 2]
+    if end - marks[-1] > 0.5:
+        marks.append(end)                              # the run's last minute, when no mark ends it
     for m in marks:
-        win = [r for r in rows if (m - 1) * 60.0 <= r[0] < m * 60.0]
+        win = [r for r in rows if (m - 1) * 60.0 <= r["t_s"] <= m * 60.0]
         if win:
-            out.append((m, *(statistics.median(r[k] for r in win) for k in range(1, len(win[0])))))
+            vals = []
+            for c in cols:
+                xs = [r[c] for r in win if r[c] == r[c]]
+                vals.append(statistics.median(xs) if xs else float("nan"))
+            out.append((m, vals))
     return out
 
 
-def render(res: dict, rows: list[tuple[float, ...]], commit: str, load: str, command: str) -> str:
-    d, b = res["rss_mb"], res["bench_rss_mb"]
-    minutes = rows[-1][0] / 60.0
+#: (JSON key of the figures, CSV column, name in the tables); the first two are in every run's output,
+#: the rest (the DSP pool's processes, the resource tracker, anything else) from the per-role soak on
+PROCESSES = [("rss_mb", "daemon_mb", "daemon"), ("bench_rss_mb", "bench_mb", "child bench"),
+             ("dsp_forkserver_rss_mb", "dsp_forkserver_mb", "DSP forkserver"),
+             ("dsp_workers_rss_mb", "dsp_workers_mb", "DSP workers (together)"),
+             ("resource_tracker_rss_mb", "resource_tracker_mb", "resource tracker"),
+             ("other_rss_mb", "other_mb", "other children")]
+
+
+def _mb(x: float) -> str:
+    return "-" if x != x else f"{x:.1f} MB"      # NaN: no such process in that minute
+
+
+def render(res: dict, rows: list[dict[str, float]], commit: str, load: str, command: str) -> str:
+    minutes = rows[-1]["t_s"] / 60.0
     lines = [
-        "## Soak: memory of the daemon and of its child bench",
+        "## Soak: memory of the daemon and of each of its child processes",
         "",
         f"`{command}` then `python benchmarks/soak_report.py ...` (this file). Machine: {res['machine']}, "
         f"shared with other sessions' test suites (load average {load}); commit {commit}.",
@@ -43,19 +62,24 @@ def render(res: dict, rows: list[tuple[float, ...]], commit: str, load: str, com
         "",
         "| process | RSS minute 2 (median) | RSS last minute (median) | growth from minute 2 | max |",
         "|---|---|---|---|---|",
-        f"| daemon | {d['median_minute_2']:.1f} MB | {d['median_last_minute']:.1f} MB | {d['growth']:+.1f} MB | {d['max']:.1f} MB |",
-        f"| child bench | {b['median_minute_2']:.1f} MB | {b['median_last_minute']:.1f} MB | {b['growth']:+.1f} MB | {b['max']:.1f} MB |",
-        "",
-        "RSS by minute (median of the samples taken after each scan in that minute):",
-        "",
     ]
-    if len(rows[0]) > 3:        # the daemon's anonymous memory and its share in transparent huge pages
-        lines += ["| minute | daemon | bench | daemon anonymous | of which huge pages |", "|---|---|---|---|---|"]
-        lines += [f"| {m:g} | {dm:.1f} MB | {bm:.1f} MB | {am:.1f} MB | {hm:.1f} MB |"
-                  for m, dm, bm, am, hm in at_minutes(rows, 5.0)]
-    else:
-        lines += ["| minute | daemon | bench |", "|---|---|---|"]
-        lines += [f"| {m:g} | {dm:.1f} MB | {bm:.1f} MB |" for m, dm, bm in at_minutes(rows, 5.0)]
+    shown = []
+    for key, col, name in PROCESSES:
+        fig = res.get(key) or {}
+        if "growth" in fig:
+            lines.append(f"| {name} | {fig['median_minute_2']:.1f} MB | {fig['median_last_minute']:.1f} MB | "
+                         f"{fig['growth']:+.1f} MB | {fig['max']:.1f} MB |")
+        if col in rows[0] and any(r[col] == r[col] for r in rows):      # sampled and present at least once
+            shown.append((col, name))
+    extra = [c for c in ("daemon_anon_mb", "daemon_anon_huge_mb") if c in rows[0]]
+    cols = [c for c, _ in shown] + extra
+    names = [n for _, n in shown] + ["daemon anonymous", "of which huge pages"][:len(extra)]
+    lines += ["", "RSS by minute (median of the samples taken after each scan in that minute; - : no such process):", "",
+              "| minute | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    lines += [f"| {m:.3g} | " + " | ".join(_mb(v) for v in vals) + " |" for m, vals in at_minutes(rows, cols, 5.0)]
+    if "dsp_workers_n" in rows[0]:
+        ns = sorted({int(r["dsp_workers_n"]) for r in rows})
+        lines += ["", f"DSP workers alive at a sample: {', '.join(map(str, ns))}."]
     return "\n".join(lines) + "\n"
 
 
@@ -68,11 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     res = json.loads(Path(args.json).read_text())
     with open(args.csv) as f:
-        cols = ["t_s", "daemon_mb", "bench_mb"]
-        reader = csv.DictReader(f)
-        if "daemon_anon_mb" in (reader.fieldnames or []):
-            cols += ["daemon_anon_mb", "daemon_anon_huge_mb"]
-        rows = [tuple(float(r[k]) for k in cols) for r in reader]
+        rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
     command = f"nice -n 19 python benchmarks/soak.py --minutes {res['minutes']:g} --json soak.json --rss-csv soak.csv"
     print(render(res, rows, args.commit, args.load, command), end="")
     return 0

@@ -29,7 +29,7 @@ from . import heap
 from .events import EventHub, PointListener, Subscriber
 from .guided import FactoryCalibration
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
-                    request_to_dict)
+                    detached, request_to_dict)
 from .scan_job import ScanJobRun, raw_path
 
 log = logging.getLogger("lidard.jobs")
@@ -260,7 +260,7 @@ class ScanWorker:
             cal.meta = {**cal.meta, "id": self.store.save_calibration(cal)}
             job.future.set_result(cal)
         except Exception as exc:
-            job.future.set_exception(exc)
+            job.future.set_exception(detached(exc))
 
     def _run_task(self, job: _TaskJob) -> None:
         if not job.future.set_running_or_notify_cancel():
@@ -268,7 +268,7 @@ class ScanWorker:
         try:
             job.future.set_result(job.fn())
         except Exception as exc:
-            job.future.set_exception(exc)
+            job.future.set_exception(detached(exc))
 
     def _run_selftest(self, job: _SelftestJob) -> None:
         if not job.future.set_running_or_notify_cancel():
@@ -279,7 +279,7 @@ class ScanWorker:
                      f"stuck switches: {report.get('stuck')}")
             job.future.set_result(report)
         except Exception as exc:
-            job.future.set_exception(exc)
+            job.future.set_exception(detached(exc))
 
     def _stale_reason(self, cal: CalibrationResult) -> str | None:
         """Why a stored calibration must not be reused (the laser's temperature moved, or it targets
