@@ -53,7 +53,38 @@ def dsp_workers() -> int:
     return max(1, min(4, cores))
 
 
-class DspPipeline:
+class _InOrder:
+    """The hand-out both pipelines share: results in submission order, an error at its place (the
+    results before it are handed out first, the error is raised at the next call)."""
+
+    _results: dict[int, tuple[bool, Any]]
+    _out: int
+    _error: BaseException | None
+
+    def _raise_kept(self) -> None:
+        if self._error is not None:
+            exc, self._error = self._error, None
+            raise exc
+
+    def _hand_out(self, out: list[Any], finish: Callable[[Any], Any]) -> bool:
+        """Move the next result, through ``finish``, into ``out``; False when an error stops the
+        hand-out (kept for the next call when ``out`` holds results, raised now when it does not)."""
+        ok, value = self._results.pop(self._out)
+        self._out += 1
+        if ok:
+            out.append(finish(value))
+            return True
+        if not out:
+            raise value
+        self._error = value
+        return False
+
+
+def _same(value: Any) -> Any:
+    return value
+
+
+class DspPipeline(_InOrder):
     """``fn(job)`` on ``workers`` threads; at most ``depth`` jobs queued behind the running ones."""
 
     def __init__(self, fn: Callable[[Any], Any], workers: int, depth: int | None = None,
@@ -105,9 +136,7 @@ class DspPipeline:
     def ready(self, wait: bool = False) -> list[Any]:
         """The results finished in order since the last call (``wait``: every submitted one).
         A job that raised: the results before it are returned, its exception is raised next call."""
-        if self._error is not None:
-            exc, self._error = self._error, None
-            raise exc
+        self._raise_kept()
         out: list[Any] = []
         with self._cond:
             while self._out < self._submitted:
@@ -116,14 +145,8 @@ class DspPipeline:
                         break
                     self._cond.wait()
                     continue
-                ok, value = self._results.pop(self._out)
-                self._out += 1
-                if not ok:
-                    if out:
-                        self._error = value
-                        return out
-                    raise value
-                out.append(value)
+                if not self._hand_out(out, _same):
+                    break
         return out
 
     def close(self) -> None:
@@ -135,7 +158,7 @@ class DspPipeline:
             t.join()
 
 
-class ProcessDspPipeline:
+class ProcessDspPipeline(_InOrder):
     """The same contract as :class:`DspPipeline` (bounded, in order, errors in place) on the process's
     DSP pool (:mod:`lidard.dsp_pool`): a batch's samples go to a worker through a shared-memory slot, its
     frame result comes back and ``finish(result, meta)`` turns it into the caller's value here.
@@ -216,9 +239,7 @@ class ProcessDspPipeline:
 
     def ready(self, wait: bool = False) -> list[Any]:
         """As :meth:`DspPipeline.ready`: the finished results in order, an error at its place."""
-        if self._error is not None:
-            exc, self._error = self._error, None
-            raise exc
+        self._raise_kept()
         if not self._closed:      # once closed every answer is in (and the pool may be another's)
             self._take(0)
         out: list[Any] = []
@@ -228,14 +249,8 @@ class ProcessDspPipeline:
                     break
                 self._take(None)
                 continue
-            ok, value = self._results.pop(self._out)
-            self._out += 1
-            if not ok:
-                if out:
-                    self._error = value
-                    return out
-                raise value
-            out.append(self._finish(*value))
+            if not self._hand_out(out, lambda v: self._finish(*v)):
+                break
         return out
 
     def close(self) -> None:
