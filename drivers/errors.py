@@ -57,9 +57,10 @@ Pure module: no I/O, importable by codecs, drivers and simulators alike.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 __all__ = [
+    "detached",
     "CommandRefused",
     "CrcError",
     "DeviceError",
@@ -75,6 +76,8 @@ __all__ = [
     "SettleError",
     "TransportError",
 ]
+
+_E = TypeVar("_E", bound=BaseException)
 
 
 class DeviceError(Exception):
@@ -205,3 +208,22 @@ class InvalidValue(DeviceError, ValueError):
 
 class SettleError(DeviceError):
     """A readback did not reach its setpoint within tolerance in the allowed time."""
+
+
+def detached(exc: _E) -> _E:
+    """``exc`` and the exceptions it was raised from, without their tracebacks: for an exception kept
+    past its handler (a job's future, a parser's list of recent errors). A kept traceback keeps every
+    frame it passed through with their locals, and in Python 3.11 a frame object that outlives its
+    call is linked to its caller's frame, so one kept error pins its whole call stack's frames and
+    arrays (a scan's linearization health check: ~5 MB) for as long as it is kept. What a caller reads
+    of a failure (type, message, device, command, causes) stays."""
+    seen: set[int] = set()
+    todo: list[BaseException | None] = [exc]
+    while todo:
+        cur = todo.pop()
+        if cur is None or id(cur) in seen:
+            continue
+        seen.add(id(cur))
+        cur.__traceback__ = None
+        todo += [cur.__cause__, cur.__context__]
+    return exc

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 from cobs import cobs as _cobs
 
-from drivers.errors import CrcError, FramingError, LengthError, PayloadError, ProtocolError
+from drivers.errors import CrcError, FramingError, LengthError, PayloadError, ProtocolError, detached
 
 from .errors import DEVICE, error_command
 from .protocol_codes import (
@@ -190,7 +190,10 @@ class FrameParser:
             try:
                 out.append(decode_inner(cobs_decode(chunk)))
             except ProtocolError as exc:
-                out.append(exc)
+                # kept in ``errors`` for the parser's life: without the frames it passed through (a
+                # daemon's driver parses on the scan's thread, and a kept traceback pinned the scan's
+                # whole call stack with its arrays, ~5 MB each, until 64 newer errors pushed it out)
+                out.append(detached(exc))
         for item in out:
             if isinstance(item, ProtocolError):
                 self.errors.append(item)

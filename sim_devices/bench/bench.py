@@ -97,6 +97,7 @@ from sim_devices.world.mems import SwitchDynamics
 from sim_devices.world.scene import Scene, SceneError
 from sim_devices.world.tec import from_tolerances as tec_model
 from sim_devices.world.tolerances import BenchTruth, draw_truth
+from sim_devices.world import synth_jit
 from sim_devices.world.world import World
 
 
@@ -323,6 +324,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, SceneError) as exc:
         print(f"lidar-sim: {exc}", file=sys.stderr)
         return 2
+    # A bench process serves a daemon for as long as it runs: load the compiled synthesis kernels now,
+    # beside the start-up, rather than when its scans pass their break-even minutes later (a ~130 MB
+    # jump of its memory at a time that depends on the scans; sim_devices.world.synth_jit.load_now).
+    threading.Thread(target=synth_jit.load_now, name="lidar-sim-jit-load", daemon=True).start()
     ep = bench.start(usb="tcp", control=True)
     if args.json:
         print(json.dumps(ep), flush=True)

@@ -99,3 +99,24 @@ def quantize_rows(samples: int) -> Callable[..., Any] | None:
     if not _worth_it(samples) or _compiled() is None:
         return None
     return _quantizer()
+
+
+def load_now() -> bool:
+    """Load numba and the compiled kernels now, whatever has been asked so far (module docstring), and
+    run the range reduction once on a few samples, which starts numba's code generator (~60 MB the
+    first compiled call adds to a process, on top of ~70 MB for the import).
+
+    For a bench process that serves a daemon (``lidar-sim``): it passes the break-even within minutes
+    of scanning (~180 M samples), so it would load numba anyway, only later, as one jump of its memory
+    at a time that depends on the scans; loaded at its start, its memory is at its steady size from
+    then on. False where numba is missing or ``LIDARD_DSP_JIT=0`` (nothing loaded)."""
+    import numpy as np
+
+    if os.environ.get("LIDARD_DSP_JIT", "1") == "0" or _compiled() is None:
+        return False
+    reduce = _reducer()
+    if reduce is None:
+        return False
+    turns = np.linspace(-2.5, 2.5, 16)              # the types cos_sin passes: float64 in, float32 out
+    reduce(turns, np.empty(turns.size, dtype=np.float32))
+    return True

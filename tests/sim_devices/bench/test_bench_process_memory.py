@@ -1,0 +1,73 @@
+"""A bench process that serves a daemon (``lidar-sim``) loads its compiled synthesis kernels at its
+start, not when its scans pass the kernels' break-even minutes later: that late load was a one-time
+jump of ~130 MB of its memory (numba's libraries and code generator) at a time that depended on the
+scans (50-445 s into a soak), i.e. growth of a long-running process after its start-up."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("numba")
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def _fresh(code: str, **env: str) -> dict:
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         cwd=REPO, env={**os.environ, **env}, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+_PROBE = """
+import json, sys
+from sim_devices.world import synth_jit
+before = [synth_jit.static_fill(1) is not None, "numba" in sys.modules]
+loaded = synth_jit.load_now()
+after = [synth_jit.static_fill(1) is not None, synth_jit.turns_to_radians_f32(1) is not None,
+         synth_jit.quantize_rows(1) is not None, "numba" in sys.modules]
+print(json.dumps({"before": before, "loaded": loaded, "after": after}))
+"""
+
+
+def test_load_now_makes_the_kernels_used_from_the_first_sample():
+    r = _fresh(_PROBE, LIDARD_DSP_JIT="1")
+    # control: a fresh process below the break-even runs the numpy path and has not loaded numba
+    assert r["before"] == [False, False]
+    assert r["loaded"] is True
+    assert r["after"] == [True, True, True, True]
+
+
+def test_load_now_respects_the_jit_switch():
+    r = _fresh(_PROBE, LIDARD_DSP_JIT="0")
+    assert r["loaded"] is False
+    assert r["after"] == [False, False, False, False]
+
+
+@pytest.mark.slow  # starts a lidar-sim process (a few seconds; numba's import in it)
+def test_lidar_sim_process_loads_the_kernels_at_start():
+    proc = subprocess.Popen([sys.executable, "-m", "sim_devices.bench.bench", "--json",
+                             "--config", str(REPO / "config" / "sim.toml")], cwd=REPO,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "LIDARD_DSP_JIT": "1"})
+    try:
+        assert proc.stdout is not None
+        json.loads(proc.stdout.readline())          # its endpoints: it is serving, no scan has run
+        maps = Path(f"/proc/{proc.pid}/maps")
+        deadline = time.monotonic() + 240.0         # a bound for a loaded machine, not a speed target
+        loaded = False
+        while not loaded and time.monotonic() < deadline and proc.poll() is None:
+            loaded = "llvmlite" in maps.read_text()
+            if not loaded:
+                time.sleep(0.2)
+        assert loaded, "lidar-sim did not load numba's libraries without being asked for a sample"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=60)
