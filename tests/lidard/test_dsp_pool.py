@@ -6,6 +6,7 @@ Ctrl-C left to the acquiring process, and a second user at the same time sent to
 import os
 import signal
 import threading
+import weakref
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from lidard.instrument.pipeline import DspPipeline, ProcessDspPipeline
 from lidard.instrument.points import PointBuffer, RawBatch
 from lidard.instrument.scan_loop import plan_scan
 from tests.helpers.tolerances import NOMINAL_ENV
-from tests.lidard.test_dsp_pipeline import _batches
+from tests.lidard.test_dsp_pipeline import _batches, held_after_error
 
 pytestmark = pytest.mark.skipif(dsp_pool.pool_workers() < 2, reason="needs 2 cores (one core: threads, tested apart)")
 
@@ -74,6 +75,27 @@ def test_a_failing_batch_raises_at_its_place_and_the_others_keep_their_points(pl
     assert [int(g["row"][0]) for g in pipe.ready(wait=True)] == [43, 44]
     pb.close()
 
+
+
+def test_a_failed_batchs_error_keeps_no_frame_once_handed_out(plan):
+    # the worker's error comes back pickled (no frames); raised here, its traceback takes the
+    # acquisition's frames, which must not stay tied to the pipeline once the caller has dropped it
+    _, _, p = plan
+    batches = _batches(p, 3, 24, np.random.default_rng(5))
+    bad = batches[1]
+    batches[1] = RawBatch(bad.beat[:, :, :10], bad.pixels, bad.t_pix_s, bad.clipped)   # too short a record
+    pb = _buffer(plan, workers=2, processes=True)
+    pipe = pb._pipe
+    assert isinstance(pipe, ProcessDspPipeline)
+    for b in batches:
+        pb._pending.append(b)
+        pb.flush()
+    assert [int(g["row"][0]) for g in pipe.ready(wait=True)] == [40]
+    kept: list[weakref.ref] = []
+    msg, held = held_after_error(pipe.ready, kept)
+    assert "beat must be" in msg and held == [False]
+    assert [int(g["row"][0]) for g in pipe.ready(wait=True)] == [42]
+    pb.close()
 
 def test_the_samples_in_the_workers_are_bounded_by_the_slots(plan):
     # however far the DSP falls behind, at most 2 batches a worker are in shared memory
