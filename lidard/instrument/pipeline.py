@@ -27,7 +27,6 @@ Both have the same contract:
 from __future__ import annotations
 
 import logging
-import os
 import queue
 import threading
 from typing import Any
@@ -41,16 +40,6 @@ from ..dsp_pool import DspPool, DspWorkerLost, Slot, dsp_pool, message_id
 log = logging.getLogger(__name__)
 
 _STOP = object()
-
-
-def dsp_workers() -> int:
-    """DSP worker threads for this process: one per core it may run on (its affinity), at most 4
-    (beyond that the read loop, not the DSP, sets the pace; each worker holds its own scratch)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
-    return max(1, min(4, cores))
 
 
 class _InOrder:
