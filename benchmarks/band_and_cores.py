@@ -200,7 +200,7 @@ def dsp(quick: bool, repeats: int = 1) -> dict:
     import numpy as np
     from lidard.config import load_config, load_laser
     from lidard.instrument import ScanRequest
-    from lidard.instrument.pipeline import dsp_workers
+    from lidard.cores import pool_workers
     from lidard.instrument.points import PointBuffer, RawBatch
     from lidard.instrument.scan_loop import dsp_batch_bytes, plan_scan
     from sim_devices.world.synth import AdcSpec, Effects, HitBatch, trajectory
@@ -226,8 +226,8 @@ def dsp(quick: bool, repeats: int = 1) -> dict:
     from lidard import dsp_pool
     pool = dsp_pool.dsp_pool()          # started before the clock, as a daemon has it
     pids = pool.pids if pool is not None else []
-    modes = {"serial": {"workers": 0}, "threads": {"workers": dsp_workers()},
-             "processes": {"workers": dsp_workers(), "processes": True}}
+    modes = {"serial": {"workers": 0}, "threads": {"workers": pool_workers()},
+             "processes": {"workers": pool_workers(), "processes": True}}
     runs = [(r, mode, kw) for r in range(max(1, repeats)) for mode, kw in modes.items()]   # alternated
     for r, mode, kw in runs:
         per = max(1, dsp_batch_bytes(p, max(1, kw["workers"])) // (p.averages * p.adc.record_length * 2))

@@ -43,6 +43,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .cores import pool_workers
+
 log = logging.getLogger(__name__)
 
 #: modules the forkserver imports once, so that a worker starts with the frame DSP loaded and warm
@@ -281,15 +283,6 @@ def message_id() -> int:
 _POOL: DspPool | None = None
 _POOL_PID = 0
 _LOCK = threading.Lock()
-
-
-def pool_workers() -> int:
-    """DSP processes for this process: one per core it may run on (its affinity), at most 4."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
-    return max(1, min(4, cores))
 
 
 def dsp_pool() -> DspPool | None:

@@ -26,6 +26,7 @@ from drivers.digitizer.driver import DigitizerDriver
 from drivers.fpsa.driver import FpsaController, FpsaLink
 
 from ..config import Config
+from .devices import DeviceRegistry
 from .errors import InstrumentError, SceneRejected, SimFaultError
 from .facade import LidarInstrument, SimHooks
 
@@ -62,8 +63,8 @@ def _ms(seconds: float) -> int:
     return max(1, int(round(seconds * 1000.0)))
 
 
-def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) -> dict[str, Any]:
-    """The four drivers, keyed by device name (addresses "bench" are taken from ``endpoints``)."""
+def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) -> DeviceRegistry:
+    """The four drivers (addresses "bench" are taken from ``endpoints``)."""
     from drivers.awg import protocol as awg_p
     from drivers.digitizer import protocol as dig_p
 
@@ -88,7 +89,7 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
                     timeout_ms=_ms(d.awg.timeout_s), sleep=sleep)
     dig = DigitizerDriver(_usb_device(usb_backend, dig_ids, "digitizer"), finder=_usb_finder(usb_backend, dig_ids),
                           timeout_ms=_ms(d.digitizer.timeout_s), sleep=sleep)
-    return {"fpsa": fpsa, "awg": awg, "digitizer": dig, "controller": ctrl}
+    return DeviceRegistry(fpsa=fpsa, awg=awg, digitizer=dig, controller=ctrl)
 
 
 def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | None = None) -> LidarInstrument:
@@ -103,8 +104,7 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
             raise InstrumentError("--scene needs a simulated configuration (sim.enabled = true)")
         from usb.backend import libusb1
 
-        parts = _connect(cfg, None, libusb1.get_backend(), time.sleep)
-        return LidarInstrument(cfg, simulated=False, **parts)
+        return LidarInstrument(cfg, _connect(cfg, None, libusb1.get_backend(), time.sleep), simulated=False)
     mode = bench or cfg.sim.bench
     if mode == "embedded":
         return _open_embedded(cfg, scene_path)
@@ -125,7 +125,7 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
         start_scene = Scene.from_toml(scene_path) if scene_path else None
     b = Bench(bench_cfg or cfg, start_scene)
     ep = b.start(usb="inproc")
-    parts = _connect(cfg, ep, b.usb_backend, b.clock.advance)
+    drivers = _connect(cfg, ep, b.usb_backend, b.clock.advance)
 
     def set_scene(d: dict) -> dict:
         try:
@@ -141,8 +141,8 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
                      active_faults=lambda: b.active_faults(),
                      fidelity=b.fidelity.snapshot, hold_scene_clock=b.hold_scene_clock)
     # on_close is the bench's own close: tests reach the embedded bench as ``inst._on_close.__self__``
-    return LidarInstrument(cfg, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
-                           on_close=b.close, **parts)
+    return LidarInstrument(cfg, drivers, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
+                           on_close=b.close)
 
 
 def open_split_bench(daemon_cfg: Config, bench_cfg: Config, scene: dict | None = None) -> LidarInstrument:
@@ -225,6 +225,6 @@ def _open_child(cfg: Config, scene_path: str | None) -> LidarInstrument:
                      active_faults=lambda: call("faults")["faults"],
                      fidelity=lambda: call("fidelity")["fidelity"],
                      hold_scene_clock=lambda hold: call("hold_scene_clock", hold=bool(hold)))
-    parts = _connect(cfg, ep, backend_from_url(ep["usb_url"]), advance)
-    return LidarInstrument(cfg, simulated=True, sleep=advance, now=lambda: float(ctl.call("ping")["t_s"]),
-                           sim=hooks, on_close=stop_child, **parts)
+    drivers = _connect(cfg, ep, backend_from_url(ep["usb_url"]), advance)
+    return LidarInstrument(cfg, drivers, simulated=True, sleep=advance, now=lambda: float(ctl.call("ping")["t_s"]),
+                           sim=hooks, on_close=stop_child)

@@ -66,14 +66,17 @@ class SimHooks:
 class LidarInstrument:
     """Scans, calibration, self-test, device health and simulation control over one set of drivers."""
 
-    def __init__(self, cfg: Config, *, fpsa: Any, awg: Any, digitizer: Any, controller: Any, simulated: bool,
+    def __init__(self, cfg: Config, drivers: DeviceRegistry, *, simulated: bool,
                  sleep: Callable[[float], object] = time.sleep, on_close: Callable[[], None] | None = None,
                  now: Callable[[], float] = time.monotonic, sim: SimHooks | None = None):
+        """``drivers``: the four devices' drivers (:func:`lidard.instrument.compose.open_instrument`
+        connects them); identified here, the FPSA's registers cleared."""
         self.cfg = cfg
         self.profile = cfg.resolved.profile
         self.laser = cfg.resolved.laser
         self.optics = self.profile.optics(cfg.lens, cfg.chirp.wavelength_m)
-        self.registry = DeviceRegistry(fpsa=fpsa, awg=awg, digitizer=digitizer, controller=controller)
+        self.registry = drivers
+        controller, fpsa = drivers["controller"], drivers["fpsa"]
         self.simulated = simulated
         self._sleep = sleep
         self._sim = sim

@@ -27,7 +27,6 @@ Both have the same contract:
 from __future__ import annotations
 
 import logging
-import os
 import queue
 import threading
 from typing import Any
@@ -43,19 +42,14 @@ log = logging.getLogger(__name__)
 _STOP = object()
 
 
-def dsp_workers() -> int:
-    """DSP worker threads for this process: one per core it may run on (its affinity), at most 4
-    (beyond that the read loop, not the DSP, sets the pace; each worker holds its own scratch)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
-    return max(1, min(4, cores))
-
-
 class _InOrder:
     """The hand-out both pipelines share: results in submission order, an error at its place (the
-    results before it are handed out first, the error is raised at the next call)."""
+    results before it are handed out first, the error is raised at the next call).
+
+    Once raised, an error is the caller's alone: nothing here refers to it any more. Its traceback
+    holds every frame it passed through (the failed DSP's, the acquisition's) with their arrays; a
+    local left bound to it in a frame of that traceback would be a cycle that keeps them all until
+    the cyclic collector's next full collection, so the raising frames unbind it as it leaves."""
 
     _results: dict[int, tuple[bool, Any]]
     _out: int
@@ -64,7 +58,10 @@ class _InOrder:
     def _raise_kept(self) -> None:
         if self._error is not None:
             exc, self._error = self._error, None
-            raise exc
+            try:
+                raise exc
+            finally:
+                del exc
 
     def _hand_out(self, out: list[Any], finish: Callable[[Any], Any]) -> bool:
         """Move the next result, through ``finish``, into ``out``; False when an error stops the
@@ -74,10 +71,13 @@ class _InOrder:
         if ok:
             out.append(finish(value))
             return True
-        if not out:
+        if out:
+            self._error = value
+            return False
+        try:
             raise value
-        self._error = value
-        return False
+        finally:
+            del value
 
 
 def _same(value: Any) -> Any:
@@ -122,6 +122,7 @@ class DspPipeline(_InOrder):
                 del job, item                     # the raw samples go as soon as they are processed
                 with self._cond:
                     self._results[seq] = res
+                    del res                       # the result (or error) is the taker's from here
                     self._cond.notify_all()
         finally:
             release_scratch()

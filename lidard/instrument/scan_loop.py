@@ -29,6 +29,7 @@ import numpy as np
 from drivers.digitizer.protocol_headers import header_column
 
 from ..config import Config
+from ..cores import pool_workers
 from ..dsp.frame import FrameDsp
 from ..dsp.pnframe import compensator_for, gate_m_range
 from .plan import plan
@@ -39,7 +40,6 @@ from .calibration.applied import AppliedCalibrations
 from .dsp_plan import AdcPlan, DspCalibration, adc_plan, plan_signal, speed_span_mps  # noqa: F401
 from .dsp_plan import phase_noise_on as pn_rule
 from .errors import ScanFailed, SegmentsLost, describe_failure, device_of, driver_error
-from .pipeline import dsp_workers
 from .points import PointBuffer, RawBatch
 from .safety import SafetyMonitor, describe_safe
 from .types import CalibrationResult, ProgressFn, ScanProgress, ScanRequest, ScanResult
@@ -155,7 +155,7 @@ class ScanLoop:
         p = plan_scan(self.cfg, self.optics, request, self.applied.delay_or(self.cfg.monitor.delay_s),
                       self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
-        workers = dsp_workers()
+        workers = pool_workers()
         flush = dsp_batch_bytes(p, workers)
         # the DSP pool's processes for a scan of more than one batch (one batch: nothing to overlap)
         run = self.new_run(p, (calibration.meta or {}).get("id") if calibration else None,

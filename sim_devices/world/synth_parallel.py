@@ -13,7 +13,6 @@ A read smaller than two parts of ``MIN_PART_SAMPLES`` stays on the calling threa
 
 from __future__ import annotations
 
-import os
 import threading
 from typing import Any
 from concurrent.futures import ThreadPoolExecutor
@@ -21,6 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from lidard.cores import pool_workers
 from sim_devices.world.synth import synthesize
 from sim_devices.world.synth_types import HitBatch, Synthesized
 
@@ -33,12 +33,8 @@ _POOL_LOCK = threading.Lock()
 
 
 def synth_threads() -> int:
-    """Threads for one read: the cores this process may use, at most 4."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
-    return max(1, min(4, cores))
+    """Threads for one read: the cores this process may use, at most 4 (:func:`lidard.cores.pool_workers`)."""
+    return pool_workers()
 
 
 def _pool(workers: int) -> ThreadPoolExecutor:

@@ -1,8 +1,13 @@
 """The DSP worker pipeline of a scan (lidard.instrument.pipeline): results in submission order whatever
 order the workers finish in, a bounded queue (the reads wait when the DSP falls behind), a worker's error
-at its place in the order, and the points identical to the serial DSP's, in pixel order."""
+at its place in the order (and nothing of it kept once handed out), and the points identical to the serial
+DSP's, in pixel order."""
 
+import gc
 import threading
+import weakref
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -77,6 +82,77 @@ def test_an_error_comes_after_the_results_before_it_and_the_later_ones_are_kept(
     with pytest.raises(RuntimeError, match="after close"):
         pipe.submit(9)
 
+
+def _hand_out_and_drop(ready: Callable[[], Any], kept: list[weakref.ref]) -> str:
+    """``ready()`` called from a frame that holds a batch's array (as the acquisition's frames do); the
+    error it raises is caught and dropped. Its message, for the caller to check."""
+    def acquisition():
+        batch = np.ones((64, 4096))          # 2 MB: the raw batch the acquisition's frame holds
+        kept.append(weakref.ref(batch))
+        ready()
+    try:
+        acquisition()
+    except Exception as exc:                 # what the scan loop's handler does: log, drop
+        return str(exc)
+    raise AssertionError("the failed batch's error was not handed out")
+
+
+def held_after_error(ready: Callable[[], Any], kept: list[weakref.ref]) -> tuple[str, list[bool]]:
+    """With the cyclic collector off (what only a collection would free counts as held): hand out
+    the error, drop it, and say which of ``kept`` are still alive. A kept traceback keeps every frame
+    it passed through (the failed DSP's, the acquisition's) with their arrays; in a cycle those stay
+    until a full collection, minutes apart in a long-running daemon."""
+    gc.collect()
+    gc.disable()
+    try:
+        msg = _hand_out_and_drop(ready, kept)
+        held = [r() is not None for r in kept]
+    finally:
+        gc.enable()
+    return msg, held
+
+
+def test_a_failed_batchs_arrays_are_freed_once_its_error_is_handed_out():
+    kept: list[weakref.ref] = []
+
+    def fn(j):
+        records = np.ones((64, 4096))        # the DSP's working arrays, held by its frame
+        if j == 1:
+            kept.append(weakref.ref(records))
+            raise ValueError(f"bad batch {j} after {records.shape[0]} records")
+        return j
+
+    pipe = DspPipeline(fn, workers=2)
+    for j in range(3):
+        pipe.submit(j)
+    assert pipe.ready(wait=True) == [0]
+    msg, held = held_after_error(lambda: pipe.ready(wait=True), kept)
+    assert msg == "bad batch 1 after 64 records" and len(held) == 2
+    assert held == [False, False], "the failed batch's arrays outlive its handed-out error"
+    assert pipe.ready(wait=True) == [2]      # the pipeline goes on: the later results are kept
+    pipe.close()
+
+
+def test_an_error_kept_behind_earlier_results_is_not_kept_once_raised():
+    # ready(wait=True) hands out the result before the failed batch and keeps the error for its next call
+    kept: list[weakref.ref] = []
+
+    def fn(j):
+        if j == 0:
+            return j
+        records = np.ones((64, 4096))
+        kept.append(weakref.ref(records))
+        raise ValueError(f"bad batch {j}")
+
+    pipe = DspPipeline(fn, workers=2)
+    pipe.submit(0)
+    pipe.submit(1)
+    assert pipe.ready(wait=True) == [0]
+    assert pipe._error is not None
+    msg, held = held_after_error(pipe.ready, kept)
+    assert msg == "bad batch 1" and held == [False, False]
+    assert pipe._error is None
+    pipe.close()
 
 def _batches(p, n_batches, px_per_batch, rng):
     """Raw batches of a plan: a tone per pixel at a pixel-dependent beat, white noise, int16 codes."""

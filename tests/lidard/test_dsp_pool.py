@@ -6,6 +6,7 @@ Ctrl-C left to the acquiring process, and a second user at the same time sent to
 import os
 import signal
 import threading
+import weakref
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from lidard.instrument.pipeline import DspPipeline, ProcessDspPipeline
 from lidard.instrument.points import PointBuffer, RawBatch
 from lidard.instrument.scan_loop import plan_scan
 from tests.helpers.tolerances import NOMINAL_ENV
-from tests.lidard.test_dsp_pipeline import _batches
+from tests.lidard.test_dsp_pipeline import _batches, held_after_error
 
 pytestmark = pytest.mark.skipif(dsp_pool.pool_workers() < 2, reason="needs 2 cores (one core: threads, tested apart)")
 
@@ -55,23 +56,40 @@ def test_the_worker_processes_give_the_serial_dsps_points_bit_for_bit_in_pixel_o
     assert np.max(np.abs(procs["range"][first] - r_true[first])) < p.dsp.range_resolution_m
 
 
-def test_a_failing_batch_raises_at_its_place_and_the_others_keep_their_points(plan):
+def _fed_with_a_bad_batch(plan, n: int, bad: int, seed: int) -> tuple[PointBuffer, ProcessDspPipeline]:
+    """A buffer on the worker processes fed ``n`` batches of rows 40, 41, ...; batch ``bad`` has too short
+    a record (its DSP raises)."""
     _, _, p = plan
-    batches = _batches(p, 5, 24, np.random.default_rng(3))
-    bad = batches[2]
-    batches[2] = RawBatch(bad.beat[:, :, :10], bad.pixels, bad.t_pix_s, bad.clipped)   # too short a record
+    batches = _batches(p, n, 24, np.random.default_rng(seed))
+    b = batches[bad]
+    batches[bad] = RawBatch(b.beat[:, :, :10], b.pixels, b.t_pix_s, b.clipped)
     pb = _buffer(plan, workers=2, processes=True)
-    pipe = pb._pipe
-    assert isinstance(pipe, ProcessDspPipeline)
+    assert isinstance(pb._pipe, ProcessDspPipeline)
     for b in batches:
-        pb.flush()
         pb._pending.append(b)
-    pb.flush()
+        pb.flush()
+    return pb, pb._pipe
+
+
+def test_a_failing_batch_raises_at_its_place_and_the_others_keep_their_points(plan):
+    pb, pipe = _fed_with_a_bad_batch(plan, 5, 2, seed=3)
     got = pipe.ready(wait=True)
     assert [int(g["row"][0]) for g in got] == [40, 41]         # the two before it, in order
     with pytest.raises(ValueError, match="beat must be"):
         pipe.ready(wait=True)
     assert [int(g["row"][0]) for g in pipe.ready(wait=True)] == [43, 44]
+    pb.close()
+
+
+def test_a_failed_batchs_error_keeps_no_frame_once_handed_out(plan):
+    # the worker's error comes back pickled (no frames); raised here, its traceback takes the
+    # acquisition's frames, which must not stay tied to the pipeline once the caller has dropped it
+    pb, pipe = _fed_with_a_bad_batch(plan, 3, 1, seed=5)
+    assert [int(g["row"][0]) for g in pipe.ready(wait=True)] == [40]
+    kept: list[weakref.ref] = []
+    msg, held = held_after_error(pipe.ready, kept)
+    assert "beat must be" in msg and held == [False]
+    assert [int(g["row"][0]) for g in pipe.ready(wait=True)] == [42]
     pb.close()
 
 

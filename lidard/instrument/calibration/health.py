@@ -8,13 +8,15 @@ chip: a gradient drifts with the ambient), so a rule on the readback temperature
 ``scan.linearity_check_records`` periods of the drive in use are recorded on the monitor MZI (the
 same measurement as one ILC iteration, :class:`.linearization.Linearization`), and their RMS error
 against the ideal chirp (:func:`lidard.dsp.linearize.chirpcheck.chirp_residual`: slope excursion / ramp, free
-offset) is compared with ``scan.linearity_threshold_hz``. Above it the chirp is re-linearized before
+offset), over the region the drive was linearized over (``[chirp] linear_window``,
+:func:`.linearization.ilc_region`: the ROI 0.8 of each ramp by default, 0.9 with ``"range"``), is compared
+with ``scan.linearity_threshold_hz``. Above it the chirp is re-linearized before
 the scan (the job worker decides, :meth:`lidard.jobs.worker.ScanWorker.calibration_for_scan`).
 
 Why the error and not the nonlinearity: a temperature change scales the FM response, which keeps a
 linear chirp linear but changes its slope, and every range measured with a wrong slope is off by the
 same factor (range error / range = slope error / slope). The RMS error over the ROI of a relative
-slope error ``e`` is ``e x excursion x 0.8 / sqrt(12)`` (0.23 x 8.6 GHz x e on sim.toml), so the
+slope error ``e`` is ``e x excursion x ROI / sqrt(12)`` (0.23 x 8.6 GHz x e on sim.toml), so the
 default 200 kHz threshold stands for e ~ 1e-4, a range error of ~0.1 mm per metre.
 
 Cost: one drive upload and ``linearity_check_records`` chirp periods on the centre pixel (16 x 160 us =
@@ -63,7 +65,10 @@ class LinearizationHealth:
             records = self._lin.measure(drive_v, self.records)
         finally:
             self.safety.bring_down()
-        r = chirp_residual(records, drive_v, self._lin.geometry())
+        # over the region the drive was linearized over ([chirp] linear_window): a drive learned over
+        # the core leaves the turnaround's tail in the range window, which is not its staleness
+        roi, learn = self._lin.region
+        r = chirp_residual(records, drive_v, self._lin.geometry(), roi=roi, learn=learn)
         try:
             temp = float(self.safety.controller.tec_c())
         except Exception:

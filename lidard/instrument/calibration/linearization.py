@@ -123,6 +123,12 @@ class Linearization:
             return i
         return i + 1j * samples[:, acq.channel_index("mzi_q"), :]
 
+    @property
+    def region(self) -> tuple[float, float]:
+        """The (ROI, learning region) this configuration linearizes over (:func:`ilc_region`): what the
+        ILC learns, and what the health check measures a drive over."""
+        return ilc_region(self.cfg.chirp.linear_window)
+
     def geometry(self) -> ChirpGeometry:
         """The chirp the linearization learns and its monitor, as the ILC and the health check see them."""
         c = self.cfg.chirp
@@ -135,7 +141,7 @@ class Linearization:
         plain_drive_v = np.asarray(plain_drive_v)[:int(round(2 * c.ramp_s * AWG_RATE_HZ))]
         self.safety.bring_up()
         try:
-            roi, learn = ilc_region(c.linear_window)
+            roi, learn = self.region
             res = ilc_linearize(self.measure, plain_drive_v, self.geometry(),
                                 IlcSettings(averages=32, max_averages=MAX_AVERAGES,
                                             max_drive_v=self.cfg.devices.awg.max_output_v,

@@ -228,8 +228,7 @@ def fit_pointing(optics: FpsaOptics, rows, cols, range_m, surfaces: list[Surface
         gate = max(10.0 * noise_m, 1e-4)   # wider than the refusal limit: the RMS test sees the tails
     assert first is not None   # the loop ran
     _check_kept(surfaces, first, np.bincount(idx[use], minlength=len(surfaces)), gate)
-    return _summarise(optics, x, sol, rows[use], cols[use], range_m[use], idx[use], surfaces, noise_m,
-                      n_out=int((~use).sum()))
+    return _summarise(optics, sol, range_m[use], idx[use], surfaces, noise_m, n_out=int((~use).sum()))
 
 
 def _check_kept(surfaces: list[Surface], first: np.ndarray, last: np.ndarray, gate_m: float) -> None:
@@ -242,8 +241,10 @@ def _check_kept(surfaces: list[Surface], first: np.ndarray, last: np.ndarray, ga
                 f"{gate_m * 1e3:.2f} mm of its known surface after the fit: its known pose/size is wrong or it moved")
 
 
-def _summarise(optics, x, sol, rows, cols, range_m, idx, surfaces, noise_m, n_out) -> PointingFit:
-    res = sol.fun
+def _summarise(optics, sol, range_m, idx, surfaces, noise_m, n_out) -> PointingFit:
+    """The fit ``sol`` (least squares over the points in use, at ``range_m``, on ``surfaces[idx]``) as a
+    :class:`PointingFit`, or refused when its residual or its standard errors say the geometry is wrong."""
+    x, res = sol.x, sol.fun
     rms = float(np.sqrt(np.mean(res ** 2)))
     px = res / range_m * optics.focal_m / optics.pitch_m
     try:
