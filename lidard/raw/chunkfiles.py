@@ -25,17 +25,17 @@ from typing import Any
 from collections.abc import Callable
 
 import numpy as np
+from numcodecs import blosc  # type: ignore[import-untyped]
+from numcodecs.zstd import Zstd  # type: ignore[import-untyped]
 
 Decoder = Callable[[bytes, np.ndarray], None]
 
 
 def _blosc(data: bytes, out: np.ndarray) -> None:
-    from numcodecs import blosc
     blosc.decompress(data, out)
 
 
 def _zstd(data: bytes, out: np.ndarray) -> None:
-    from numcodecs.zstd import Zstd
     Zstd().decode(data, out)
 
 
