@@ -40,8 +40,9 @@ REQUEST = {"pattern": "roi", "rows": (40, 56), "cols": (0, 128), "averages": 10,
 STAGES = ("open", "read", "dsp", "points")
 
 
-def timed_task(raw_path: str, task_index: int, chunks_per_task: int):
-    """One replay task as lidard.raw.replay.reprocess_task runs it, each stage's (wall, CPU) timed."""
+def timed_task(raw_path: str, task_index: int, chunks_per_task: int, prefetch: bool = True):
+    """One replay task as lidard.raw.replay.reprocess_task runs it (``prefetch``: it asks for the next
+    task's chunk files as it does), each stage's (wall, CPU) timed."""
     import numpy as np
     from lidard.raw.capture import RawCapture
     from lidard.raw.replay import replay_dsp
@@ -56,7 +57,10 @@ def timed_task(raw_path: str, task_index: int, chunks_per_task: int):
     lap("open", w, c)
     w, c = time.perf_counter(), time.thread_time()
     first = task_index * chunks_per_task
-    ch = cap.chunks(first, min(first + chunks_per_task, cap.n_chunks))
+    stop = min(first + chunks_per_task, cap.n_chunks)
+    ch = cap.chunks(first, stop)
+    if prefetch:
+        cap.prefetch(stop, stop + chunks_per_task)
     lap("read", w, c)
     w, c = time.perf_counter(), time.thread_time()
     beat = ch.channel("beat", cap.channels, cap.averages)
@@ -86,12 +90,12 @@ def _tasks(path: str) -> tuple[int, int]:
     return k, -(-cap.n_chunks // k)
 
 
-def one_core(path: str) -> dict:
+def one_core(path: str, prefetch: bool = True) -> dict:
     """The replay on this process's one thread, stage by stage (run pinned to one core)."""
     import numpy as np
     k, n = _tasks(path)
     w, c = time.perf_counter(), time.process_time()
-    parts = [timed_task(path, i, k) for i in range(n)]
+    parts = [timed_task(path, i, k, prefetch) for i in range(n)]
     pts = np.concatenate([p for p, _ in parts])
     wall, cpu = time.perf_counter() - w, time.process_time() - c
     ref = np.load(path + ".points.npy")
@@ -99,7 +103,7 @@ def one_core(path: str) -> dict:
             "identical_to_scan": bool(np.array_equal(pts, ref)), "cores": len(os.sched_getaffinity(0))}
 
 
-def two_cores(path: str) -> dict:
+def two_cores(path: str, prefetch: bool = True) -> dict:
     """The replay on the DSP's worker processes (the default local_map), each task timed in its worker."""
     import numpy as np
     from lidard import dsp_pool
@@ -110,7 +114,7 @@ def two_cores(path: str) -> dict:
     try:
         pids = pool.pids
         w, c, cw = time.perf_counter(), time.process_time(), _pids_cpu(pids)
-        parts = pool.map(timed_task, [(path, i, k) for i in range(n)])
+        parts = pool.map(timed_task, [(path, i, k, prefetch) for i in range(n)])
         pts = np.concatenate([p for p, _ in parts])
         wall, cpu, wcpu = time.perf_counter() - w, time.process_time() - c, _pids_cpu(pids) - cw
     finally:
@@ -163,6 +167,18 @@ def _describe(path: str) -> dict:
             "bytes_on_disk": sum(f.stat().st_size for f in (Path(path) / "segments").rglob("*") if f.is_file())}
 
 
+def evict(path: str) -> None:
+    """Drop this capture's files from the page cache (``posix_fadvise`` DONTNEED; no other file is
+    touched): the next replay reads them from the disk, as a capture recorded days ago is."""
+    for f in Path(path).rglob("*"):
+        if f.is_file():
+            fd = os.open(f, os.O_RDONLY)
+            try:
+                os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+            finally:
+                os.close(fd)
+
+
 def _high_priority() -> None:
     """This process (and its children) in a new session whose autogroup is at nice -20."""
     if os.getsid(0) != os.getpid():
@@ -179,10 +195,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rounds", type=int, default=3, help="alternated rounds of one core and two (after a warm-up)")
     ap.add_argument("--priority", action="store_true", help="root: a session of its own at autogroup nice -20")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--cold", action="store_true",
+                    help="evict the capture's files from the page cache before every replay; each mode is run "
+                         "with and without the replay's prefetch of the next task's chunk files")
     ap.add_argument("--one-core-child", help=argparse.SUPPRESS)
+    ap.add_argument("--no-prefetch", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.one_core_child:
-        print(json.dumps(one_core(a.one_core_child)))
+        print(json.dumps(one_core(a.one_core_child, prefetch=not a.no_prefetch)))
         return
     if a.priority:
         _high_priority()
@@ -194,11 +214,21 @@ def main(argv: list[str] | None = None) -> None:
         out: dict = {"capture": d, "hardware_s": d["samples"] / d["fs_hz"], "rounds": []}
         child = ["taskset", "-c", "0", sys.executable, str(Path(__file__).resolve()), "--one-core-child", path]
         env = {**os.environ, "PYTHONPATH": str(REPO)}
+        modes = [("one core", True), ("two cores", True)]
+        if a.cold:
+            modes += [("one core", False), ("two cores", False)]
         for r in range(a.rounds + 1):
             row: dict = {"round": r}
-            for mode in (("one core", "two cores") if r % 2 else ("two cores", "one core")):
-                res = (json.loads(subprocess.run(child, env=env, check=True, capture_output=True, text=True).stdout)
-                       if mode == "one core" else two_cores(path))
+            for mode, prefetch in (modes if r % 2 else modes[::-1]):
+                if a.cold:
+                    evict(path)
+                if mode == "one core":
+                    argv_ = child + ([] if prefetch else ["--no-prefetch"])
+                    res = json.loads(subprocess.run(argv_, env=env, check=True, capture_output=True, text=True).stdout)
+                else:
+                    res = two_cores(path, prefetch)
+                if a.cold:
+                    mode = f"{mode}, cold, {'prefetch' if prefetch else 'no prefetch'}"
                 res["x_digitizer_rate"] = out["hardware_s"] / res["wall_s"]
                 res["load"] = os.getloadavg()[0]
                 row[mode] = res

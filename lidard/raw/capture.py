@@ -267,6 +267,20 @@ class RawCapture:
             a = self._arrays[name] = _arr(self._g, name)
         return a
 
+    def _chunk_files(self, name: str) -> ChunkFiles | None:
+        if name not in self._files:
+            self._files[name] = ChunkFiles.open(self.path / name)
+        return self._files[name]
+
+    def prefetch(self, first: int, stop: int) -> None:
+        """Have the kernel start reading the samples of chunks ``first`` .. ``stop - 1`` from disk now
+        (a replay asks for its next task's as it starts the DSP on this one: a capture that is not in
+        the page cache is read while the DSP runs). Nothing happens for a layout read through zarr."""
+        files = self._chunk_files("segments")
+        first, stop = max(0, first), min(stop, self.n_chunks)
+        if files is not None and first < stop:
+            files.advise(first * self.chunk_pixels * self.averages, stop * self.chunk_pixels * self.averages)
+
     def chunk(self, index: int) -> RawChunk:
         return self.chunks(index, index + 1)
 
@@ -281,9 +295,7 @@ class RawCapture:
         seg, pix = slice(s0, s1), slice(p0, p1)
 
         def read(name: str, rows: slice) -> np.ndarray:
-            if name not in self._files:
-                self._files[name] = ChunkFiles.open(self.path / name)
-            files = self._files[name]
+            files = self._chunk_files(name)
             if files is None:
                 return np.asarray(self._array(name)[rows])
             try:

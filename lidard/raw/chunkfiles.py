@@ -19,6 +19,7 @@ is absent (zarr writes no chunk that holds only the fill value) reads as the fil
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -100,6 +101,22 @@ class ChunkFiles:
 
     def _key(self, i: int) -> Path:
         return self.root / self.separator.join(["c", str(i)] + ["0"] * (len(self.shape) - 1))
+
+    def advise(self, start: int, stop: int) -> None:
+        """Ask the kernel to read the chunk files of rows ``start`` .. ``stop - 1`` into the page cache
+        now (``posix_fadvise`` WILLNEED: the disk reads run while the caller computes, no CPU here)."""
+        start, stop = max(0, start), min(stop, self.shape[0])
+        for i in range(start // self.rows_per_chunk, -(-stop // self.rows_per_chunk)):
+            try:
+                fd = os.open(self._key(i), os.O_RDONLY)
+            except OSError:
+                continue
+            try:
+                os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_WILLNEED)
+            except (OSError, AttributeError):
+                pass
+            finally:
+                os.close(fd)
 
     def read(self, start: int, stop: int) -> np.ndarray:
         """Rows ``start`` .. ``stop - 1`` (within the array's shape) as a new array."""

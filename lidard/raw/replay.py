@@ -162,8 +162,11 @@ def reprocess_task(raw_path: str | Path, task_index: int, settings: ReprocessSet
     first = int(task_index) * k
     if not 0 <= first < cap.n_chunks:
         raise RawCaptureError(f"raw capture {cap.path}: task {task_index} out of range")
-    return replay_dsp(cap.attrs, settings).points(cap.chunks(first, min(first + k, cap.n_chunks)), cap.channels,
-                                                  cap.averages)
+    replay = replay_dsp(cap.attrs, settings)
+    stop = min(first + k, cap.n_chunks)
+    chunk = cap.chunks(first, stop)
+    cap.prefetch(stop, stop + k)        # the next task's samples come off the disk while this one's DSP runs
+    return replay.points(chunk, cap.channels, cap.averages)
 
 
 def local_map(fn, *iterables):

@@ -4,6 +4,8 @@ fall-back to zarr for a layout it does not know."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import zarr
@@ -85,3 +87,26 @@ def test_a_damaged_chunk_file_is_named(capture):
     cap.chunk(0)
     with pytest.raises(RawCaptureError, match=r"segments rows 32\.\.63 unreadable"):
         cap.chunk(1)
+
+
+def test_a_task_asks_the_kernel_for_the_next_tasks_sample_files(make_capture, monkeypatch):
+    # 40 pixels in chunks of 4 (10 chunks), tasks of 2 chunks: task 1 reads chunks 2, 3 and advises 4, 5;
+    # the last task advises nothing (no chunk beyond the capture)
+    from lidard.raw import replay
+    syn = make_capture("c.zarr", n_pix=40, chunk_pixels=4)
+    advised: list[str] = []
+    real = os.posix_fadvise
+
+    def spy(fd, offset, length, advice):
+        if advice == os.POSIX_FADV_WILLNEED:
+            advised.append(os.path.relpath(os.readlink(f"/proc/self/fd/{fd}"), syn.path))
+        return real(fd, offset, length, advice)
+
+    monkeypatch.setattr(os, "posix_fadvise", spy)
+    pts = replay.reprocess_task(syn.path, 1, chunks_per_task=2)
+    assert advised == ["segments/c/4/0/0", "segments/c/5/0/0"]
+    advised.clear()
+    replay.reprocess_task(syn.path, 4, chunks_per_task=2)
+    assert advised == []
+    ref = _direct_points(syn)
+    assert np.array_equal(pts, ref[np.isin(ref["row"] * 8 + ref["col"], np.arange(8, 16))])
