@@ -20,7 +20,7 @@ Layout of ``raw.zarr`` (a Zarr v3 group on a local directory):
 
 Chunks: one chunk holds the whole records of ``chunk_pixels`` consecutive pixels along the first
 axis of every per-segment/per-pixel array, so chunk ``i`` of every array belongs to the same pixels
-and is one independent reprocessing task.
+and can be reprocessed on its own (a replay task reads several consecutive ones).
 
 Crash safety: the store's files are written to a temporary name and renamed into place (zarr's
 ``LocalStore`` does this for every key since zarr 3.1), so a chunk file is either absent or whole.
