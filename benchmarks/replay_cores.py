@@ -1,6 +1,6 @@
 """Where a raw replay's wall goes, per stage, on one core and on two (docs/measured/27_replay.md).
 
-    python benchmarks/replay_cores.py [--capture DIR] [--keep DIR] [--rounds N] [--priority] [--json]
+    python benchmarks/replay_cores.py [--capture DIR] [--keep DIR] [--rounds N] [--cold] [--codecs] [--priority] [--json]
 
 A 10 m/s region scan (rows 40:56, every column, 10 averages; cal_letters scene, embedded bench) is
 recorded raw (or ``--capture`` an existing one; ``--keep`` keeps the recording), then replayed in
@@ -167,6 +167,33 @@ def _describe(path: str) -> dict:
             "bytes_on_disk": sum(f.stat().st_size for f in (Path(path) / "segments").rglob("*") if f.is_file())}
 
 
+def codecs(path: str, repeats: int = 3) -> dict:
+    """The capture's samples, chunk by chunk, through blosc-lz4 (level 1) byte-shuffled (captures
+    before), bit-shuffled (now) and stored plain: bytes kept, encode and decode CPU (best of ``repeats``)."""
+    import numpy as np
+    from numcodecs import blosc
+    from lidard.raw.capture import RawCapture
+    cap = RawCapture(path)
+    rows = cap.chunk_pixels * cap.averages
+    seg = cap.chunks(0, cap.n_chunks).segments
+    parts = [seg[i:i + rows] for i in range(0, len(seg), rows)]
+    out = {}
+    for name, shuffle in (("byte-shuffled", blosc.SHUFFLE), ("bit-shuffled", blosc.BITSHUFFLE), ("none", None)):
+        enc_cpu, dec_cpu, enc = [], [], []
+        for _ in range(repeats):
+            c = time.process_time()
+            enc = [p.tobytes() if shuffle is None else blosc.compress(p, b"lz4", 1, shuffle) for p in parts]
+            enc_cpu.append(time.process_time() - c)
+            c = time.process_time()
+            for e, p in zip(enc, parts):
+                if shuffle is not None:
+                    blosc.decompress(e, np.empty_like(p))
+            dec_cpu.append(time.process_time() - c)
+        out[name] = {"ratio": sum(len(e) for e in enc) / seg.nbytes, "encode_cpu_s": min(enc_cpu),
+                     "decode_cpu_s": min(dec_cpu)}
+    return out
+
+
 def evict(path: str) -> None:
     """Drop this capture's files from the page cache (``posix_fadvise`` DONTNEED; no other file is
     touched): the next replay reads them from the disk, as a capture recorded days ago is."""
@@ -198,6 +225,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cold", action="store_true",
                     help="evict the capture's files from the page cache before every replay; each mode is run "
                          "with and without the replay's prefetch of the next task's chunk files")
+    ap.add_argument("--codecs", action="store_true",
+                    help="also the samples' bytes and encode/decode CPU byte-shuffled, bit-shuffled and plain")
     ap.add_argument("--one-core-child", help=argparse.SUPPRESS)
     ap.add_argument("--no-prefetch", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -212,6 +241,8 @@ def main(argv: list[str] | None = None) -> None:
             record(Path(path))
         d = _describe(path)
         out: dict = {"capture": d, "hardware_s": d["samples"] / d["fs_hz"], "rounds": []}
+        if a.codecs:
+            out["codecs"] = codecs(path)
         child = ["taskset", "-c", "0", sys.executable, str(Path(__file__).resolve()), "--one-core-child", path]
         env = {**os.environ, "PYTHONPATH": str(REPO)}
         modes = [("one core", True), ("two cores", True)]

@@ -35,3 +35,11 @@ def test_one_core_replay_is_timed_per_stage_and_gives_the_replays_points(tmp_pat
     assert mod.one_core(str(syn.path))["identical_to_scan"] is False
     d = mod._describe(str(syn.path))
     assert d["samples"] == 40 * 2 * 1024 and d["codec"] == "blosc lz4 bitshuffle" and d["chunks"] == 10
+
+
+def test_codec_figures_cover_the_three_layouts_and_plain_keeps_every_byte(tmp_path):
+    mod = _script()
+    syn = write_capture(tmp_path / "raw.zarr", n_pix=16, chunk_pixels=4)
+    c = mod.codecs(str(syn.path), repeats=1)
+    assert set(c) == {"byte-shuffled", "bit-shuffled", "none"}
+    assert c["none"]["ratio"] == 1.0 and 0 < c["bit-shuffled"]["ratio"] < 1 and 0 < c["byte-shuffled"]["ratio"] < 1
