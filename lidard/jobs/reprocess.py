@@ -2,7 +2,7 @@
 
 What ``POST /scans/{id}/reprocess`` and ``lidarctl reprocess`` do, knowing nothing about HTTP: read
 the original's raw capture (``scans/<id>/raw.zarr``), run the DSP again (:func:`lidard.raw.reprocess`,
-per chunk through ``map_fn``), write the new point cloud and its sidecar under the new scan's
+in tasks of consecutive chunks through ``map_fn``), write the new point cloud and its sidecar under the new scan's
 directory and record the new scan with ``reprocessed_from`` = the original's id. The sidecar starts
 from the original's (profile, chirp, calibration, scene) with the DSP settings actually used.
 """

@@ -20,7 +20,7 @@ Layout of ``raw.zarr`` (a Zarr v3 group on a local directory):
 
 Chunks: one chunk holds the whole records of ``chunk_pixels`` consecutive pixels along the first
 axis of every per-segment/per-pixel array, so chunk ``i`` of every array belongs to the same pixels
-and is one independent reprocessing task.
+and can be reprocessed on its own (a replay task reads several consecutive ones).
 
 Crash safety: the store's files are written to a temporary name and renamed into place (zarr's
 ``LocalStore`` does this for every key since zarr 3.1), so a chunk file is either absent or whole.
@@ -43,11 +43,15 @@ import zarr
 from zarr.codecs import BloscCodec
 
 from ..errors import LidardError
+from .chunkfiles import ChunkFiles
 
 FORMAT = "lidard-raw/1"
 RAW_NAME = "raw.zarr"        # a scan's capture: <data dir>/scans/<id>/raw.zarr
 # Fast enough to keep up with the digitizer on one core; noise-like int16 gains little from more.
-_COMPRESSOR = BloscCodec(cname="lz4", clevel=1, shuffle="shuffle")
+# Bit-shuffled: a recorded 10 m/s capture's samples to 44 % of their bytes (byte-shuffled: 67 %), in
+# less CPU both ways (docs/measured/27_replay.md). The codec is each array's own metadata: captures
+# written byte-shuffled read as before.
+_COMPRESSOR = BloscCodec(cname="lz4", clevel=1, shuffle="bitshuffle")
 
 
 class RawCaptureError(LidardError):
@@ -255,12 +259,27 @@ class RawCapture:
         self.n_chunks = min(int(self.attrs["chunks_complete"]), -(-self.n_pixels // max(self.chunk_pixels, 1)))
         self.complete = bool(self.attrs["complete"])
         self._arrays: dict[str, zarr.Array] = {}    # opened once: a lookup reads the array's metadata
+        self._files: dict[str, ChunkFiles | None] = {}   # the direct reader of each array, None: zarr reads it
 
     def _array(self, name: str) -> zarr.Array:
         a = self._arrays.get(name)
         if a is None:
             a = self._arrays[name] = _arr(self._g, name)
         return a
+
+    def _chunk_files(self, name: str) -> ChunkFiles | None:
+        if name not in self._files:
+            self._files[name] = ChunkFiles.open(self.path / name)
+        return self._files[name]
+
+    def prefetch(self, first: int, stop: int) -> None:
+        """Have the kernel start reading the samples of chunks ``first`` .. ``stop - 1`` from disk now
+        (a replay asks for its next task's as it starts the DSP on this one: a capture that is not in
+        the page cache is read while the DSP runs). Nothing happens for a layout read through zarr."""
+        files = self._chunk_files("segments")
+        first, stop = max(0, first), min(stop, self.n_chunks)
+        if files is not None and first < stop:
+            files.advise(first * self.chunk_pixels * self.averages, stop * self.chunk_pixels * self.averages)
 
     def chunk(self, index: int) -> RawChunk:
         return self.chunks(index, index + 1)
@@ -276,7 +295,14 @@ class RawCapture:
         seg, pix = slice(s0, s1), slice(p0, p1)
 
         def read(name: str, rows: slice) -> np.ndarray:
-            return np.asarray(self._array(name)[rows])
+            files = self._chunk_files(name)
+            if files is None:
+                return np.asarray(self._array(name)[rows])
+            try:
+                return files.read(rows.start, rows.stop)
+            except (OSError, ValueError, RuntimeError) as exc:    # a damaged chunk file: named, as zarr's read is
+                raise RawCaptureError(f"raw capture {self.path}: {name} rows {rows.start}..{rows.stop - 1} "
+                                      f"unreadable: {type(exc).__name__}: {exc}") from None
 
         return RawChunk(index=first, segments=read("segments", seg), overrange=read("overrange", seg),
                         trigger_time_ns=read("trigger_time_ns", seg), pixels=read("pixels", pix),

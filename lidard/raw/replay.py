@@ -9,9 +9,11 @@ rebuild from today's configuration) and feeds it the same int16 records, so the 
 reproduce the original points exactly (the DSP treats every pixel on its own: the result does not
 depend on how pixels are batched).
 
-The capture is stored in chunks of ~1 MiB (lidard.raw.record); the DSP is run on scan-sized batches
-of consecutive chunks (``TASK_BYTES``, the scan's own DSP batch): a call's fixed costs are paid per
-task, not per chunk (1 MiB tasks were 1.8x slower). One task is one independent unit:
+The capture is stored in chunks of ~1 MiB (lidard.raw.record); the DSP is run on batches of
+consecutive chunks (``TASK_BYTES``): a call's fixed costs are paid per task, not per chunk (1 MiB
+tasks were 1.8x slower, 8 MiB ones ~12 % slower in DSP CPU than 24 MiB ones on a recorded 10 m/s
+capture, docs/measured/27_replay.md), but never fewer than ``MIN_TASKS`` tasks when the capture has
+the chunks for them, so that every worker of a pool gets work. One task is one independent unit:
 :func:`reprocess_task` takes a path, a task index and the settings (all picklable) and returns that
 task's points, so a thread pool (the default: one thread per core), a process pool or a Dask cluster
 maps it over ``range(task_count(path))``; concatenating the results in task order gives the whole
@@ -40,8 +42,13 @@ from .capture import RawCapture, RawCaptureError, RawChunk
 from .points import frame_points
 
 ESTIMATORS: tuple[str, ...] = get_args(EstimatorName)
-#: raw bytes per reprocessing task: the scan loop's largest DSP batch (lidard.instrument.scan_loop.BATCH_BYTES)
-TASK_BYTES = 8 << 20
+#: raw bytes per reprocessing task. The DSP's CPU per sample falls with the batch up to ~120 pixels of
+#: 10 m/s records (~23 MB) and is flat beyond; its working memory grows with it (~2.4x the task's samples
+#: at the peak), and a task is read whole by the worker that runs it.
+TASK_BYTES = 24 << 20
+#: tasks a capture is cut into at least (when it has the chunks): two for each of a pool's up to four
+#: workers (lidard.dsp_pool.pool_workers), so that a small capture still runs on every core
+MIN_TASKS = 8
 
 
 @dataclass(frozen=True)
@@ -136,11 +143,12 @@ def chunk_count(raw_path: str | Path) -> int:
 
 def _chunks_per_task(cap: RawCapture) -> int:
     chunk_bytes = cap.chunk_pixels * cap.averages * len(cap.channels) * int(cap.attrs["record_length"]) * 2
-    return max(1, TASK_BYTES // max(chunk_bytes, 1))
+    return max(1, min(TASK_BYTES // max(chunk_bytes, 1), cap.n_chunks // MIN_TASKS))
 
 
 def task_count(raw_path: str | Path) -> int:
-    """Tasks of a reprocessing: runs of consecutive committed chunks of about TASK_BYTES."""
+    """Tasks of a reprocessing: runs of consecutive committed chunks of about TASK_BYTES (fewer bytes
+    when that would leave fewer than MIN_TASKS tasks)."""
     cap = RawCapture(raw_path)
     return -(-cap.n_chunks // _chunks_per_task(cap))
 
@@ -154,8 +162,11 @@ def reprocess_task(raw_path: str | Path, task_index: int, settings: ReprocessSet
     first = int(task_index) * k
     if not 0 <= first < cap.n_chunks:
         raise RawCaptureError(f"raw capture {cap.path}: task {task_index} out of range")
-    return replay_dsp(cap.attrs, settings).points(cap.chunks(first, min(first + k, cap.n_chunks)), cap.channels,
-                                                  cap.averages)
+    replay = replay_dsp(cap.attrs, settings)
+    stop = min(first + k, cap.n_chunks)
+    chunk = cap.chunks(first, stop)
+    cap.prefetch(stop, stop + k)        # the next task's samples come off the disk while this one's DSP runs
+    return replay.points(chunk, cap.channels, cap.averages)
 
 
 def local_map(fn, *iterables):

@@ -155,6 +155,7 @@ def test_scan_sized_tasks_of_several_chunks_give_the_same_points(capture, monkey
     # their own, so the cloud is the direct one whatever the tasks; local threads and a plain map agree
     from lidard.raw import replay
     monkeypatch.setattr(replay, "TASK_BYTES", task_bytes)
+    monkeypatch.setattr(replay, "MIN_TASKS", 1)
     ref = _direct(capture, capture.dsp)
     n_tasks = replay.task_count(capture.path)
     assert (n_tasks == 3) if task_bytes == 1 else (n_tasks == 1) if task_bytes == 1 << 30 else (1 <= n_tasks <= 3)
@@ -164,3 +165,20 @@ def test_scan_sized_tasks_of_several_chunks_give_the_same_points(capture, monkey
     assert np.array_equal(threaded.points, ref) and np.array_equal(serial.points, ref)
     with pytest.raises(RawCaptureError, match="out of range"):
         replay.reprocess_task(capture.path, n_tasks)
+
+
+def test_a_capture_is_cut_into_at_least_min_tasks_when_it_has_the_chunks(make_capture, monkeypatch):
+    # 40 pixels in chunks of 2: 20 chunks; tasks of every chunk (TASK_BYTES huge) would leave one task
+    # and one busy core, so the cut stops at MIN_TASKS tasks; a capture of fewer chunks gets one a chunk
+    from lidard.raw import replay
+    cap = make_capture("many.zarr", chunk_pixels=2)
+    monkeypatch.setattr(replay, "TASK_BYTES", 1 << 30)
+    monkeypatch.setattr(replay, "MIN_TASKS", 8)
+    assert replay.task_count(cap.path) == 10               # 2 chunks a task: 20 // 8
+    monkeypatch.setattr(replay, "MIN_TASKS", 30)
+    assert replay.task_count(cap.path) == 20               # fewer chunks than MIN_TASKS: one a task
+    monkeypatch.setattr(replay, "MIN_TASKS", 1)
+    assert replay.task_count(cap.path) == 1
+    monkeypatch.setattr(replay, "MIN_TASKS", 8)
+    rep = reprocess(cap.path, map_fn=map)
+    assert rep.meta["tasks"] == 10 and np.array_equal(rep.points, _direct(cap, cap.dsp))
