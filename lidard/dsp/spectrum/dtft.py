@@ -97,11 +97,7 @@ def _window_dtft_bins(window: str, n: int, x_bins: np.ndarray) -> np.ndarray:
     """W(x) = sum_t w[t] exp(-j 2 pi x t / n) of the periodic window, x in bins of n points."""
     coef = _cosine_sum(window, n)
     if coef is not None:
-        x = np.asarray(x_bins, dtype=np.float64)
-        out = coef[0] * _dirichlet(x, n)
-        for k, c in enumerate(coef[1:], start=1):
-            out = out + 0.5 * c * (_dirichlet(x - k, n) + _dirichlet(x + k, n))
-        return out
+        return _cosine_sum_dtft(coef, n, np.asarray(x_bins, dtype=np.float64))
     # not a known cosine sum: direct sum, chunked to bound the (points x n) temporary
     w = get_window(window, n)
     t = np.arange(n)
@@ -111,6 +107,62 @@ def _window_dtft_bins(window: str, n: int, x_bins: np.ndarray) -> np.ndarray:
     for i in range(0, x.size, step):
         out[i:i + step] = np.exp(-2j * np.pi * np.outer(x[i:i + step], t) / n) @ w
     return out.reshape(np.shape(x_bins))
+
+
+def _cosine_sum_dtft(coef: tuple[float, ...], n: int, x: np.ndarray) -> np.ndarray:
+    """sum_k c_k (D(x) or (D(x - k) + D(x + k)) / 2) of a cosine-sum window with the kernels' shared factors
+    taken once: D(x + m) = exp(-j phi) exp(-j pi m (n-1)/n) (-1)^m sin(pi x) / sin(pi (x + m) / n),
+    phi = pi x (n-1)/n. So W(x) = sin(pi x) exp(-j phi) S(x), S = sum_m a_m (-1)^m exp(-j pi m (n-1)/n)
+    / sin(pi (x + m) / n) (a_0 = c_0, a_+-k = c_k / 2): one sine of the numerator (taken on x less its
+    nearest integer, exact), one phase and one sine per term's denominator, where each kernel alone
+    took four transcendentals and a complex product (most of the model-order test's time). Where a
+    denominator vanishes (x + m on a multiple of n) the kernels are summed one by one with their
+    limits (:func:`_dirichlet`)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out, near, terms = _cosine_sum_parts(coef, n, x)
+    if near.any():
+        xn = x[near]
+        out[near] = sum(a * _dirichlet(xn + m, n) for m, a in terms)
+    return out
+
+
+def _cosine_sum_parts(coef: tuple[float, ...], n: int,
+                      x: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[int, float]]]:
+    """:func:`_cosine_sum_dtft` before the vanishing denominators' points are replaced (NaN there):
+    (W, where a denominator vanishes, the terms (m, a_m))."""
+    terms = [(0, coef[0])] + [(m, 0.5 * c) for k, c in enumerate(coef[1:], start=1) for m in (-k, k)]
+    near = np.zeros(x.shape, dtype=bool)
+    s_re = np.zeros(x.shape)
+    s_im = np.zeros(x.shape)
+    den = np.empty(x.shape)
+    tmp = np.empty(x.shape)
+    for m, a in terms:
+        np.add(x, m, out=den)
+        den *= np.pi / n
+        np.sin(den, out=den)
+        near |= np.abs(den) < 1e-12
+        theta = np.pi * m * (n - 1) / n
+        sign = -1.0 if m % 2 else 1.0
+        np.divide(sign * a, den, out=tmp)
+        s_re += np.cos(theta) * tmp
+        tmp *= np.sin(theta)
+        s_im -= tmp
+    r = np.rint(x)
+    num = np.subtract(x, r)
+    num *= np.pi
+    np.sin(num, out=num)
+    num *= 1.0 - 2.0 * np.mod(r, 2.0)                    # sin(pi x) = (-1)^r sin(pi (x - r))
+    phi = x * (np.pi * (n - 1) / n)
+    c, s = np.cos(phi), np.sin(phi)
+    # exp(-j phi) S = (c S_re + s S_im) + j (c S_im - s S_re)
+    out = np.empty(x.shape, dtype=np.complex128)
+    np.multiply(c, s_re, out=out.real)
+    out.real += s * s_im
+    np.multiply(c, s_im, out=out.imag)
+    out.imag -= s * s_re
+    out.real *= num
+    out.imag *= num
+    return out, near, terms
 
 
 @lru_cache(maxsize=64)
