@@ -165,6 +165,61 @@ def _cosine_sum_parts(coef: tuple[float, ...], n: int,
     return out, near, terms
 
 
+def _window_dtft_grid(window: str, n: int, x0: np.ndarray, m: int, zero_pad: int) -> np.ndarray:
+    """W(x0 + i / zero_pad) for i < m (..., m): the window's DTFT on m consecutive cells of a spectrum
+    zero-padded ``zero_pad`` times, from each start ``x0`` (...,) (bins of the n-point grid).
+
+    The cells are a whole bin apart every ``zero_pad`` of them, and a whole bin changes the Dirichlet
+    kernels' common factors by a sign and a fixed phase only (:func:`_cosine_sum_dtft`): the numerator's
+    sine and the phase are taken on the first ``zero_pad`` cells, and each denominator sine once for
+    the kernels that share it (m + 2 L sines for L cosine terms, where each cell alone took 2 L + 4).
+    Not a cosine sum: :func:`_window_dtft_bins` on every cell."""
+    x0 = np.asarray(x0, dtype=np.float64)
+    coef = _cosine_sum(window, n)
+    zp = int(zero_pad)
+    if coef is None:
+        return _window_dtft_bins(window, n, x0[..., None] + np.arange(m) / zp)
+    terms = [(0, coef[0])] + [(mm, 0.5 * c) for k, c in enumerate(coef[1:], start=1) for mm in (-k, k)]
+    reach = len(coef) - 1
+    with np.errstate(divide="ignore", invalid="ignore"):   # NaN where a denominator vanishes: replaced below
+        r_n, q_n = min(zp, m), -(-m // zp)
+        y = x0[..., None] + np.arange(r_n) / zp                              # (..., R): the first cells
+        den = np.sin((y[..., None] + np.arange(-reach, q_n + reach)) * (np.pi / n))       # (..., R, J)
+        inv = 1.0 / den
+        near_den = np.abs(den) < 1e-12
+        s_re = np.zeros(y.shape + (q_n,))
+        s_im = np.zeros(y.shape + (q_n,))
+        near = np.zeros(y.shape + (q_n,), dtype=bool)
+        for mm, a in terms:
+            sl = slice(mm + reach, mm + reach + q_n)
+            theta = np.pi * mm * (n - 1) / n
+            coef_m = -a if mm % 2 else a
+            s_re += (coef_m * np.cos(theta)) * inv[..., sl]
+            s_im -= (coef_m * np.sin(theta)) * inv[..., sl]
+            near |= near_den[..., sl]
+        # T = (-1)^q exp(-j psi_q) S, psi_q = pi q (n-1)/n: the q-th whole bin's sign and phase
+        q = np.arange(q_n)
+        cq = np.where(q % 2, -1.0, 1.0) * np.cos(np.pi * q * (n - 1) / n)
+        sq = np.where(q % 2, -1.0, 1.0) * np.sin(np.pi * q * (n - 1) / n)
+        t_re = cq * s_re + sq * s_im
+        t_im = cq * s_im - sq * s_re
+        r = np.rint(y)
+        num = np.sin(np.pi * (y - r)) * (1.0 - 2.0 * np.mod(r, 2.0))         # sin(pi y), (..., R)
+        phi = y * (np.pi * (n - 1) / n)
+        c, s = np.cos(phi)[..., None], np.sin(phi)[..., None]
+        out = np.empty(y.shape + (q_n,), dtype=np.complex128)
+        np.multiply(c, t_re, out=out.real)
+        out.real += s * t_im
+        np.multiply(c, t_im, out=out.imag)
+        out.imag -= s * t_re
+        out.real *= num[..., None]
+        out.imag *= num[..., None]
+    if near.any():          # a denominator vanishes: those cells one by one, with the kernels' limits
+        out[near] = _cosine_sum_dtft(coef, n, np.broadcast_to(y[..., None] + q, near.shape)[near])
+    # (..., R, Q) -> cell i = q zero_pad + r
+    return np.swapaxes(out, -1, -2).reshape(x0.shape + (r_n * q_n,))[..., :m]
+
+
 @lru_cache(maxsize=64)
 def _jacobsen_table(window: str, n: int, zero_pad: int) -> tuple[np.ndarray, np.ndarray]:
     """Noise-free r(delta) of the given window/length/padding, delta in bins of the padded grid."""
