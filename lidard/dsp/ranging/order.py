@@ -34,7 +34,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import gammainccinv
 
-from ..spectrum.dtft import _window_dtft_bins, _window_dtft_grid
+from ..spectrum.windowdtft import _window_dtft_bins, _window_dtft_grid
 from ..spectrum.window import get_window
 
 
