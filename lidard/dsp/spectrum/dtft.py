@@ -27,7 +27,7 @@ from math import comb, factorial
 import numpy as np
 
 from lidard.dsp.spectrum import jit
-from lidard.dsp.spectrum.windowdtft import _dirichlet, _window_dtft_bins  # noqa: F401  (the estimators' name)
+from lidard.dsp.spectrum.windowdtft import _window_dtft_bins
 
 _CHUNK_ROWS = 4096  # bounds the (rows x N) temporaries of the moment computation
 _GEMM_BLOCK_MNK = 500_000   # rows x columns x inner length of one BLAS call of _small_gemm (below)
