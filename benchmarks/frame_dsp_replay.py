@@ -95,7 +95,7 @@ def compare(a_path: str, b_path: str) -> None:
             print(f"{f}: {int(np.count_nonzero(x != y))} entries differ")
         else:
             fin = np.isfinite(x) & np.isfinite(y)
-            d = np.abs(x - y)[fin]
+            d = np.abs(x[fin] - y[fin])
             print(f"{f}: finite/non-finite mismatches {int(np.count_nonzero(np.isfinite(x) != np.isfinite(y)))}, "
                   f"largest difference {d.max() if d.size else 0.0:.3g}")
 
