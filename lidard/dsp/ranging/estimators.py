@@ -40,9 +40,10 @@ from typing import Literal, get_args
 import numpy as np
 
 from lidard.dsp.spectrum import jit
-from lidard.dsp.spectrum.dtft import (  # noqa: F401  (_dirichlet, _small_gemm: tests reach in)
-    _DtftNearBin, _dirichlet, _jacobsen_ratio, _jacobsen_table, _safe_ratio, _small_gemm, _terms_for,
+from lidard.dsp.spectrum.dtft import (  # noqa: F401  (_small_gemm: tests reach in)
+    _DtftNearBin, _jacobsen_ratio, _jacobsen_table, _safe_ratio, _small_gemm, _terms_for,
 )
+from lidard.dsp.spectrum.windowdtft import _dirichlet  # noqa: F401  (tests reach in)
 from lidard.dsp.spectrum.rangefft import check_samples, gather_bins, windowed_fft
 from lidard.dsp.spectrum.window import DspInputError, WindowName, check_window_name, get_window
 

@@ -34,7 +34,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import gammainccinv
 
-from ..spectrum.dtft import _window_dtft_bins
+from ..spectrum.windowdtft import _window_dtft_bins, _window_dtft_grid
 from ..spectrum.window import get_window
 
 
@@ -105,7 +105,8 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     # (+-2 bins for Hann; +-(HALF_BINS + 3) is generous for every window here) reaches them
     near = valid[b] & (np.abs(f_mean[b] - f_mean[b, slot][:, None]) / zero_pad <= HALF_BINS + 3)   # (q, K)
     f_all = np.where(near[:, None, :], fr[b], 0.0)                            # (q, L, K)
-    cols = _window_dtft_bins(window, n_samples, (kbin[:, None, None, :] - f_all[..., None]) / zero_pad)
+    # the cells are consecutive: the window's DTFT from the first one on (lidard.dsp.spectrum.dtft)
+    cols = _window_dtft_grid(window, n_samples, (kbin[:, :1, None] - f_all) / zero_pad, m, zero_pad)
     cols = np.where(near[:, None, :, None], cols, 0.0)                        # (q, L, K, m)
     white = _whitener(window, n_samples, m)
     xw = np.einsum("ij,qlj->qli", white, x)
@@ -173,11 +174,17 @@ def _fit_near(spec, centre, frac, valid, *, half, window, n_samples, zero_pad, i
     p_n = centre.shape[0]
     rows = np.arange(p_n) if rows is None else np.asarray(rows)
     n_fft = n_bins if iq else 2 * (n_bins - 1)
-    cells = np.clip(centre[:, None] + np.arange(-half, half + 1), 0, n_bins - 1)       # (P, m)
-    kbin = (cells - n_fft // 2) if iq else cells
+    first = centre - half
+    m = 2 * half + 1
+    cells = np.clip(first[:, None] + np.arange(m), 0, n_bins - 1)                      # (P, m)
     x = spec[rows[:, None, None], np.arange(l_n)[None, :, None], cells[:, None, :]]   # (P, L, m)
     f = np.where(valid[:, None, :], frac, 0.0)
-    cols = _window_dtft_bins(window, n_samples, (kbin[:, None, None, :] - f[..., None]) / zero_pad)
+    k0 = (first - n_fft // 2) if iq else first
+    # the window's DTFT on the consecutive cells from the first one (lidard.dsp.spectrum.dtft); a
+    # cell clipped at the spectrum's edge reads the value of the cell it was clipped to
+    cols = _window_dtft_grid(window, n_samples, (k0[:, None, None] - f) / zero_pad, m, zero_pad)
+    if np.any(cells != first[:, None] + np.arange(m)):
+        cols = np.take_along_axis(cols, (cells - first[:, None])[:, None, None, :], axis=-1)
     cols = np.where(valid[:, None, :, None], cols, 0.0)                                 # (P, L, K, m)
     g = np.einsum("plki,plqi->plkq", np.conj(cols), cols)
     k = valid.shape[-1]

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -49,7 +50,8 @@ from numpy.typing import ArrayLike
 
 from .cwhold import HoldProfile, PairSlots, resolve_boundary
 from ..detect.gate import aliased, point_flags
-from ..spectrum.rangefft import C_M_PER_S, RangeFFT
+from ..spectrum.rangefft import C_M_PER_S, RangeFFT, check_samples
+from ..spectrum.scratch import scratch
 from .assign import best_matching, line_snr, pair_loglik, tie_llr
 from .order import chi2_isf
 from .order import median_last as _median_last
@@ -288,9 +290,21 @@ def cw_front_end(dsp: Any, x: np.ndarray, lsb_v: float) -> tuple[np.ndarray, flo
     """The CW segment's power spectrum (n_pix, n_bins), averaged over the pixel's records, and its
     bin spacing (Hz)."""
     a, n = cw_window(dsp)
-    rf = RangeFFT(n, dsp.fs_hz, dsp.chirp_rate_hz_per_s, window=dsp.window)
-    spec = rf(x[..., a:a + n].astype(np.float64) * lsb_v)
-    return (spec.real ** 2 + spec.imag ** 2).mean(axis=1), rf.delta_f
+    rf = _cw_fft(n, dsp.fs_hz, dsp.chirp_rate_hz_per_s, dsp.window)
+    seg = x[..., a:a + n]
+    volts = np.multiply(seg, lsb_v, dtype=np.float64)     # codes -> volts in one pass (astype, then scale)
+    if seg.dtype.kind not in "iu":      # integer codes are finite: no NaN/inf pass over them
+        volts = check_samples(volts, n)
+    shape = rf.spectrum_shape(volts.shape[:-1])
+    p = scratch("threeseg.cw_power", shape, np.float64)
+    rf.spectrum_of(volts, scratch("threeseg.cw_spec", shape, np.complex128), power_out=p)
+    return p.mean(axis=1), rf.delta_f
+
+
+@lru_cache(maxsize=8)
+def _cw_fft(n: int, fs_hz: float, chirp_rate_hz_per_s: float, window: str) -> RangeFFT:
+    """The CW segment's RangeFFT (its window built once per geometry, not on every batch)."""
+    return RangeFFT(n, fs_hz, chirp_rate_hz_per_s, window=window)  # type: ignore[arg-type]
 
 
 def pair_frame_three(dsp: Any, out_f: list[Any], out_det: list[Any], cw: tuple[np.ndarray, float],

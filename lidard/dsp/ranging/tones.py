@@ -30,7 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..spectrum.dtft import _DtftNearBin, _dirichlet, _terms_for
+from ..spectrum.dtft import _DtftNearBin, _terms_for
+from ..spectrum.windowdtft import _dirichlet
 
 #: Newton iterations of the joint refinement (each a 3^K-point stencil of J; from a start within
 #: ~0.2 bin it converges in two or three)

@@ -1,7 +1,7 @@
 """The DTFT near a spectral peak, shared by the sub-bin estimators (:mod:`lidard.dsp.ranging.estimators`; §2.1).
 
 Two tools: the noise-free Jacobsen ratio r(delta) of a window, length and zero-padding, built from the
-window's DTFT (a sum of shifted Dirichlet kernels for the cosine-sum windows), and X(f0 + delta) with
+window's DTFT (:mod:`lidard.dsp.spectrum.windowdtft`), and X(f0 + delta) with
 its first two derivatives for many ramps at once (:class:`_DtftNearBin`), which the ``aboutanios``
 and ``newton`` estimators iterate on.
 
@@ -27,7 +27,7 @@ from math import comb, factorial
 import numpy as np
 
 from lidard.dsp.spectrum import jit
-from lidard.dsp.spectrum.window import get_window
+from lidard.dsp.spectrum.windowdtft import _window_dtft_bins
 
 _CHUNK_ROWS = 4096  # bounds the (rows x N) temporaries of the moment computation
 _GEMM_BLOCK_MNK = 500_000   # rows x columns x inner length of one BLAS call of _small_gemm (below)
@@ -43,74 +43,6 @@ def _safe_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
 
 def _jacobsen_ratio(xm, x0, xp) -> np.ndarray:
     return np.real(_safe_ratio(xm - xp, 2.0 * x0 - xm - xp))
-
-
-# Periodic cosine-sum windows, w[t] = sum_k c_k cos(2 pi k t / n): their DTFT is a sum of shifted
-# Dirichlet kernels, so the table below costs O(grid x terms) instead of O(grid x n) (the direct
-# sum took 11.5 s for the first scan at 150 m). Checked against get_window before use.
-_COSINE_SUM: dict[str, tuple[float, ...]] = {
-    "rectangular": (1.0,),
-    "hann": (0.5, -0.5),
-    "blackmanharris": (0.35875, -0.48829, 0.14128, -0.01168),
-}
-
-
-def _dirichlet(x_bins: np.ndarray, n: int) -> np.ndarray:
-    """sum_{t<n} exp(-j 2 pi x t / n) for x in bins of the n-point grid (-> n at x = 0 mod n).
-
-    = exp(-j pi x (n-1)/n) sin(pi x) / sin(pi x / n). The phase factor is built from a real cosine and
-    sine (numpy's complex exp is a scalar loop, several times slower), and the limit at the grid's
-    multiples (at x = m n the sum is n exp(-j pi m (n-1)) times (-1)^(m(n-1)): n exactly) is taken
-    only where the denominator vanishes."""
-    a = np.pi * np.asarray(x_bins, dtype=np.float64)
-    den = np.sin(a / n)
-    near = np.abs(den) < 1e-12
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.sin(a, out=np.empty(a.shape))
-        ratio /= den
-    if near.any():
-        an = a[near]
-        ratio[near] = n * np.cos(an) / np.cos(an / n)
-    b = a * (n - 1)
-    b /= n
-    out = np.empty(a.shape, dtype=np.complex128)
-    np.multiply(np.cos(b), ratio, out=out.real)
-    np.multiply(np.sin(b), ratio, out=out.imag)
-    np.negative(out.imag, out=out.imag)
-    return out
-
-
-@lru_cache(maxsize=64)
-def _cosine_sum(window: str, n: int) -> tuple[float, ...] | None:
-    """The window's cosine-sum coefficients when get_window gives exactly that sum at this length
-    (checked once per window and length, not on every call), else None."""
-    coef = _COSINE_SUM.get(window)
-    if coef is None:
-        return None
-    t = np.arange(n)
-    w = get_window(window, n)
-    ok = np.allclose(sum(c * np.cos(2.0 * np.pi * k * t / n) for k, c in enumerate(coef)), w, rtol=0, atol=1e-12)
-    return coef if ok else None
-
-
-def _window_dtft_bins(window: str, n: int, x_bins: np.ndarray) -> np.ndarray:
-    """W(x) = sum_t w[t] exp(-j 2 pi x t / n) of the periodic window, x in bins of n points."""
-    coef = _cosine_sum(window, n)
-    if coef is not None:
-        x = np.asarray(x_bins, dtype=np.float64)
-        out = coef[0] * _dirichlet(x, n)
-        for k, c in enumerate(coef[1:], start=1):
-            out = out + 0.5 * c * (_dirichlet(x - k, n) + _dirichlet(x + k, n))
-        return out
-    # not a known cosine sum: direct sum, chunked to bound the (points x n) temporary
-    w = get_window(window, n)
-    t = np.arange(n)
-    x = np.asarray(x_bins, dtype=np.float64).ravel()
-    out = np.empty(x.size, dtype=np.complex128)
-    step = max(1, 4_000_000 // n)
-    for i in range(0, x.size, step):
-        out[i:i + step] = np.exp(-2j * np.pi * np.outer(x[i:i + step], t) / n) @ w
-    return out.reshape(np.shape(x_bins))
 
 
 @lru_cache(maxsize=64)

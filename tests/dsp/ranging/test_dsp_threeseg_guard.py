@@ -14,7 +14,7 @@ real beat just outside the guard is still seen.
 import numpy as np
 import pytest
 
-from lidard.dsp.spectrum.dtft import _window_dtft_bins
+from lidard.dsp.spectrum.windowdtft import _window_dtft_bins
 from lidard.dsp.frame import FrameDsp
 from lidard.dsp.ranging.threeseg import CW_GUARD_BINS, cw_band_power, cw_front_end, cw_line_threshold, cw_noise, cw_window
 
