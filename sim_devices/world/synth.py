@@ -159,7 +159,7 @@ def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s:
     back = int(math.ceil(max_tau_samples_awg / n_awg)) + 1
     periods = back + int(math.ceil((n * ratio + 1) / n_awg)) + 1
     off = back * n_awg
-    aa_rate = antialias.max_chirp_rate_hz_per_s(traj.nu_hz, traj.fs_hz) if beat_filter is not None else 0.0
+    aa_rate = antialias.trajectory_rates(traj)[1] if beat_filter is not None else 0.0
     base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
     # the fast path needs float64 tables (the float32 trajectory exists for the precision test only)
     grid = rational_ratio(ratio) if traj.phase_rad.dtype == np.float64 else None
