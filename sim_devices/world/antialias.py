@@ -104,13 +104,13 @@ def sample_gains(dphi: np.ndarray, fs_hz: float, filt: BeatFilter, bound_hz: np.
     rows = np.flatnonzero(np.asarray(bound_hz) > filt.passband_hz)
     if rows.size == 0:
         return None
-    x = dphi[rows] if rows.size < dphi.shape[0] else dphi
-    n = x.shape[1]
+    n = dphi.shape[1]
     if n < 2:
         return None
     scale = fs_hz if turns else fs_hz / (2.0 * np.pi)
     if cols is not None:
-        return _gains_at(x, rows, np.asarray(cols, dtype=np.intp), n, scale, filt)
+        return _gains_at(dphi, rows, np.asarray(cols, dtype=np.intp), n, scale, filt)
+    x = dphi[rows] if rows.size < dphi.shape[0] else dphi
     # |d dphi / dk| x scale: numpy.gradient's differences (central inside, one-sided at the ends;
     # halving is exact, so scale / 2 gives its values bit for bit)
     f = np.empty(x.shape)
@@ -125,13 +125,14 @@ def sample_gains(dphi: np.ndarray, fs_hz: float, filt: BeatFilter, bound_hz: np.
     return rows[r], c, filt.response(f[r, c])
 
 
-def _gains_at(x: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int, scale: float, filt: BeatFilter):
-    """sample_gains on the columns ``cols`` only: the same differences and products per sample (the
-    values bit for bit), the same (row, column) order."""
+def _gains_at(dphi: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int, scale: float, filt: BeatFilter):
+    """sample_gains on the rows ``rows`` and columns ``cols`` of ``dphi`` only: the same differences
+    and products per sample (the values bit for bit), the same (row, column) order."""
     if cols.size == 0:
         return None
     left, right = np.maximum(cols - 1, 0), np.minimum(cols + 1, n - 1)
-    f = x[:, right] - x[:, left]
+    r = rows[:, None]
+    f = dphi[r, right] - dphi[r, left]
     f *= np.where((cols > 0) & (cols < n - 1), 0.5 * scale, scale)
     np.abs(f, out=f)
     r, c = np.nonzero(f > filt.passband_hz)

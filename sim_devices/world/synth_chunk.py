@@ -260,9 +260,12 @@ def _by_rank(parts: dict, rk: np.ndarray, lseg: np.ndarray, max_rank: int, nh: i
         if dense:
             acc[c] = part
             continue
-        acc[c] = np.zeros((nc, n), dtype=part.dtype)
-        for r in range(max_rank + 1):
-            sel = np.nonzero(rk == r)[0]
+        first = np.nonzero(rk == 0)[0]
+        # every segment has a hit: the first hits, in segment order, are the sum's first term
+        covered = first.size == nc
+        acc[c] = part[first] if covered else np.zeros((nc, n), dtype=part.dtype)
+        for r in range(0 if not covered else 1, max_rank + 1):
+            sel = first if r == 0 else np.nonzero(rk == r)[0]
             if sel.size == 0:
                 continue
             if r == 0:
