@@ -224,7 +224,7 @@ def beat_chunk(run: ChunkRun, h: SortedHits, hs: slice, s0: int, nc: int, phi: n
     the hits ``hs`` (all in those segments): one tone per hit, summed per segment by rank."""
     tb, n_pre, var_step, rng, fast, adc = run.tb, run.n_pre, run.var_step, run.rng, run.fast, run.adc
     iq_imbalance, beat_filter = run.iq_imbalance, run.beat_filter
-    n, fs = tb.n, tb.fs
+    n = tb.n
     lseg = h.seg[hs] - s0
     dphi, in_turns = _beat_phase(tb, h, hs, fast, phi is not None)
     # before phase noise: the filter sees the chirp's beat
