@@ -145,9 +145,11 @@ def _sorted_hits(traj: ChirpTrajectory, seg, tau, amp, dop, ph, fs: float) -> So
 
 
 def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s: float,
-            mzi: MonitorMzi | None, need_base: bool, beat_filter) -> Tables:
+            mzi: MonitorMzi | None, hits: str, beat_filter) -> Tables:
     """The deterministic chirp phase on the record grid, once per distinct start offset, and the
-    monitor MZI's deterministic phase and clean fringes."""
+    monitor MZI's deterministic phase and clean fringes. ``hits``: "none", "static" (no Doppler) or
+    "moving"; static returns on a rational grid from one start offset take the fast path, which
+    needs no record-grid chirp phase (synth_chunk._beat_phase)."""
     n_awg = traj.n
     ratio = traj.fs_hz / fs
     x_start = np.mod(t0 * traj.fs_hz, n_awg)
@@ -159,10 +161,12 @@ def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s:
     back = int(math.ceil(max_tau_samples_awg / n_awg)) + 1
     periods = back + int(math.ceil((n * ratio + 1) / n_awg)) + 1
     off = back * n_awg
-    aa_rate = antialias.max_chirp_rate_hz_per_s(traj.nu_hz, traj.fs_hz) if beat_filter is not None else 0.0
-    base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
+    aa_rate = antialias.trajectory_rates(traj)[1] if beat_filter is not None else 0.0
     # the fast path needs float64 tables (the float32 trajectory exists for the precision test only)
     grid = rational_ratio(ratio) if traj.phase_rad.dtype == np.float64 else None
+    fast_hits = hits == "static" and grid is not None and u_start.size == 1
+    need_base = mzi is not None or (hits != "none" and not fast_hits)
+    base = traj.periodic_phase_samples(u_start[:, None] + off + k * ratio, periods) if need_base else None
     tb = Tables(traj, n, fs, ratio, k, off, periods, u_start, u_inv, u_start.size == 1, grid,
                 2.0 * np.pi * traj.mean_hz, aa_rate, base)
     if mzi is not None:
@@ -202,7 +206,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     want_mzi = mzi is not None
     mzi_quadrature = mzi is not None and mzi.quadrature
     h = _sorted_hits(traj, *raw_hits, fs)
-    tb = _tables(traj, t0, n, fs, float(h.tau.max(initial=0.0)), mzi, h.seg.size > 0 or want_mzi, beat_filter)
+    kind = "none" if h.seg.size == 0 else "moving" if np.any(h.dop != 0.0) else "static"
+    tb = _tables(traj, t0, n, fs, float(h.tau.max(initial=0.0)), mzi, kind, beat_filter)
 
     # -- phase-noise geometry ----------------------------------------------------------------------
     pn_on = linewidth_hz > 0 and (h.seg.size > 0 or want_mzi)

@@ -168,6 +168,32 @@ def _beat_phase(tb: Tables, h: SortedHits, hs: slice, fast: bool, phi_on: bool):
     return dphi, in_turns
 
 
+#: relative and absolute (Hz) margins of the anti-alias column screen over its bound: far above the
+#: rounding of a beat frequency estimated from float64 phases (~1e-4 Hz)
+_SCREEN_REL, _SCREEN_HZ = 1e-6, 1e3
+
+
+def _filter_gains(tb: Tables, h: SortedHits, hs: slice, dphi: np.ndarray, in_turns: bool,
+                  beat_filter: antialias.BeatFilter):
+    """antialias.sample_gains of the hits ``hs``: only the returns and, when every record starts at one
+    offset, only the samples whose beat may leave the pass band (antialias.column_rates)."""
+    tau, dop = h.tau[hs], np.abs(h.dop[hs])
+    bound = tau * tb.aa_rate + dop
+    may = bound > beat_filter.passband_hz
+    if not may.any():
+        return None
+    cols = None
+    if tb.single_start:
+        traj = tb.traj
+        tau_max, dop_max = float(tau[may].max()), float(dop[may].max())
+        # the Doppler's change of the delay over a record, in AWG samples, widens the reach
+        reach = tau_max * traj.fs_hz + dop_max * traj.fs_hz / traj.nu0_hz * tb.n / tb.fs
+        rates = antialias.column_rates(traj, float(tb.u_start[0]) + tb.off, tb.ratio, tb.n, reach)
+        edge = tau_max * rates * (1.0 + _SCREEN_REL) + dop_max + _SCREEN_HZ
+        cols = np.flatnonzero(edge > beat_filter.passband_hz)
+    return antialias.sample_gains(dphi, tb.fs, beat_filter, bound, turns=in_turns, cols=cols)
+
+
 @dataclass(frozen=True)
 class ChunkRun:
     """What every chunk of one synthesis shares: the tables, the ADC, the float32 trig path (``fast``),
@@ -198,13 +224,11 @@ def beat_chunk(run: ChunkRun, h: SortedHits, hs: slice, s0: int, nc: int, phi: n
     the hits ``hs`` (all in those segments): one tone per hit, summed per segment by rank."""
     tb, n_pre, var_step, rng, fast, adc = run.tb, run.n_pre, run.var_step, run.rng, run.fast, run.adc
     iq_imbalance, beat_filter = run.iq_imbalance, run.beat_filter
-    n, fs = tb.n, tb.fs
+    n = tb.n
     lseg = h.seg[hs] - s0
     dphi, in_turns = _beat_phase(tb, h, hs, fast, phi is not None)
-    aa = None
-    if beat_filter is not None:   # before phase noise: the filter sees the chirp's beat
-        bound = h.tau[hs] * tb.aa_rate + np.abs(h.dop[hs])
-        aa = antialias.sample_gains(dphi, fs, beat_filter, bound, turns=in_turns)
+    # before phase noise: the filter sees the chirp's beat
+    aa = None if beat_filter is None else _filter_gains(tb, h, hs, dphi, in_turns, beat_filter)
     if phi is not None:
         dphi += phi[lseg, n_pre:]
         dphi -= delayed_noise(phi, lseg, n_pre, n, h.m[hs], h.w[hs], var_step, rng)
@@ -236,9 +260,12 @@ def _by_rank(parts: dict, rk: np.ndarray, lseg: np.ndarray, max_rank: int, nh: i
         if dense:
             acc[c] = part
             continue
-        acc[c] = np.zeros((nc, n), dtype=part.dtype)
-        for r in range(max_rank + 1):
-            sel = np.nonzero(rk == r)[0]
+        first = np.nonzero(rk == 0)[0]
+        # every segment has a hit: the first hits, in segment order, are the sum's first term
+        covered = first.size == nc
+        acc[c] = part[first] if covered else np.zeros((nc, n), dtype=part.dtype)
+        for r in range(0 if not covered else 1, max_rank + 1):
+            sel = first if r == 0 else np.nonzero(rk == r)[0]
             if sel.size == 0:
                 continue
             if r == 0:
