@@ -53,11 +53,12 @@ def load() -> float:
     return os.getloadavg()[0]
 
 
-def _instrument(cfg):
-    """An embedded bench and its linearization (from the user's calibration cache when it has one)."""
+def _instrument(cfg, bench: str = "embedded"):
+    """A simulated bench (embedded in this process, or the daemon's default: a child process speaking
+    the wire) and its linearization (from the user's calibration cache when it has one)."""
     from lidard.store import calcache
     from lidard.instrument import open_instrument
-    inst = open_instrument(cfg, scene_path=SCENE, bench="embedded")
+    inst = open_instrument(cfg, scene_path=SCENE, bench=bench)
     cal = calcache.load(cfg)
     if cal is None or cal.laser != cfg.laser:
         cal = inst.linearize()
@@ -129,13 +130,13 @@ def _pids_cpu(pids: list[int]) -> float:
     return total
 
 
-def scan_figures(req_kw: dict) -> dict:
-    """One scan on a fresh embedded bench: wall, CPU, hardware time and the ADC plan."""
+def scan_figures(req_kw: dict, bench: str = "embedded") -> dict:
+    """One scan on a fresh simulated bench: wall, CPU, hardware time and the ADC plan."""
     from lidard.config import load_config
     from lidard.instrument import ScanRequest
     from lidard import dsp_pool
     cfg = load_config(REPO / "config" / "sim.toml")
-    inst, cal = _instrument(cfg)
+    inst, cal = _instrument(cfg, bench)
     dsp_pool.warm()      # as the daemon has it: its DSP worker processes started before its first scan
     try:
         req = ScanRequest(**req_kw)
@@ -171,12 +172,12 @@ def frame(quick: bool) -> dict:
 
 
 _CHILD = ("import json, sys; sys.path.insert(0, {repo!r}); from benchmarks.band_and_cores import scan_figures; "
-          "print(json.dumps(scan_figures({req})))")
+          "print(json.dumps(scan_figures({req}, bench={bench!r})))")
 
 
-def taskset(repeats: int) -> dict:
+def taskset(repeats: int, bench: str = "embedded") -> dict:
     req = dict(REGION, rows=(40, 56) if repeats < 2 else REGION["rows"])
-    code = _CHILD.format(repo=str(REPO), req=repr(req))
+    code = _CHILD.format(repo=str(REPO), req=repr(req), bench=bench)
     runs: dict[str, list] = {"0": [], "0,1": []}
     for _ in range(max(1, repeats)):
         for cpus in ("0", "0,1"):           # alternated: the machine's load drifts
@@ -185,7 +186,7 @@ def taskset(repeats: int) -> dict:
             runs[cpus].append(json.loads(out.strip().splitlines()[-1]))
     one = [r["wall_s"] for r in runs["0"]]
     two = [r["wall_s"] for r in runs["0,1"]]
-    return {"region": req, "one_core_wall_s": one, "two_cores_wall_s": two,
+    return {"region": req, "bench": bench, "one_core_wall_s": one, "two_cores_wall_s": two,
             "speedup_each": [a / b for a, b in zip(one, two)], "speedup_of_sums": sum(one) / sum(two),
             "cpu_s_one_core": [r["cpu_s"] for r in runs["0"]], "cpu_s_two_cores": [r["cpu_s"] for r in runs["0,1"]],
             # CPU over wall: the cores the scan kept busy (<= 1 pinned to one core, <= 2 on two)
@@ -360,6 +361,9 @@ def main(argv: list[str] | None = None) -> None:
                     choices=["frame", "taskset", "dsp", "replay", "threads", "startup"])
     ap.add_argument("--quick", action="store_true", help="a region instead of the full frame; one taskset pair")
     ap.add_argument("--repeats", type=int, default=3, help="taskset pairs, dsp rounds and start-up runs (alternated)")
+    ap.add_argument("--bench", choices=["embedded", "child"], default="embedded",
+                    help="taskset: the simulated bench in the scanning process, or (the daemon's default) a "
+                         "lidar-sim child process of its own")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--priority", action="store_true",
                     help="root: run in a session of its own at autogroup nice -20 (wall times on a shared machine)")
@@ -368,7 +372,7 @@ def main(argv: list[str] | None = None) -> None:
         _high_priority()
     out = {"machine": f"{os.cpu_count()} cores", "load_start": load()}
     for s in a.sections:
-        out[s] = {"frame": lambda: frame(a.quick), "taskset": lambda: taskset(1 if a.quick else a.repeats),
+        out[s] = {"frame": lambda: frame(a.quick), "taskset": lambda: taskset(1 if a.quick else a.repeats, a.bench),
                   "dsp": lambda: dsp(a.quick, 1 if a.quick else a.repeats),
                   "replay": lambda: replay(a.quick, 1 if a.quick else a.repeats),
                   "threads": lambda: threads_per_scan(a.repeats), "startup": lambda: startup(a.repeats)}[s]()
