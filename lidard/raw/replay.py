@@ -23,7 +23,6 @@ cloud (:func:`reprocess`). :func:`reprocess_chunk` does one storage chunk.
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -174,6 +173,7 @@ def local_map(fn, *iterables):
     this process may use, started once and reused; ``fn`` must be importable by name), results in
     order; on one thread per core when there is no pool to be had (one core, or it is busy with a scan)."""
     from ..dsp_pool import dsp_pool
+    from ..cores import usable_cores
     args = list(zip(*iterables))
     pool = dsp_pool() if len(args) > 1 else None
     if pool is not None and pool.lease():
@@ -181,10 +181,7 @@ def local_map(fn, *iterables):
             return pool.map(fn, args)
         finally:
             pool.unlease()
-    try:
-        workers = max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        workers = os.cpu_count() or 1
+    workers = usable_cores()
     if workers == 1 or len(args) < 2:
         return [fn(*a) for a in args]
     # the pool's threads end with the map, and their scratch buffers (thread-local) with them

@@ -108,6 +108,8 @@ class RecordingFake(FakeInstrument):
             return super().run_scan(request, progress, cancel, calibration)
         write_capture(raw_path, pixels=pixels, directions=self.optics.directions(pixels[:, 0], pixels[:, 1]),
                       chunk_pixels=8)
-        pts = reprocess(raw_path).points
+        # on this thread: a fake's scan must not wait for the DSP worker processes' first start (their
+        # forkserver loads the compiled kernels: minutes under a heavy load on a fresh clone's cold cache)
+        pts = reprocess(raw_path, map_fn=map).points
         return ScanResult(points=pts, meta={"fake": True}, pixels_scanned=len(pixels), pixels_planned=len(pixels),
                           hardware_time_s=1e-3 * len(pixels))
