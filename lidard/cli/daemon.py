@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import os
+import threading
 import sys
 
 from . import base
@@ -45,6 +46,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also serve the Foxglove live stream (as [live] foxglove = true; loopback, port from "
                         "[live] foxglove_port, default 8765)")
     return p
+
+
+def _load_dsp_kernels() -> None:
+    # the DSP pool's warm-up (the compiled kernels loaded, the frame DSP run once on a made-up batch),
+    # the same one its forkserver runs; a failure there only leaves the kernels to load later
+    import importlib
+    importlib.import_module("lidard.dsp_pool_preload")
 
 
 def serve(args) -> int:
@@ -86,6 +94,12 @@ def serve(args) -> int:
     # sim.factory_calibration is on (create_app checks that it is a simulated bench)
     app = create_app(cfg, instrument=instrument, store=store, access=ApiAccess(token=token),
                      worker_options=WorkerOptions(factory_calibration=cfg.sim.factory_calibration))
+    # The frame DSP's compiled kernels, loaded now beside the start-up: a one-batch scan's DSP runs in
+    # this process, and a daemon passes the kernels' break-even (lidard.dsp.spectrum.jit.LOAD_AFTER_CELLS)
+    # within the hour of small scans; loaded then, numba's libraries and code generator came as one
+    # ~110 MB jump of the daemon's memory 50 minutes into a soak. Loaded at start, the daemon is at its
+    # steady size from its first minutes (docs/reliability.md). LIDARD_DSP_JIT=0 loads nothing.
+    threading.Thread(target=_load_dsp_kernels, name="lidard-dsp-kernels", daemon=True).start()
     # an open event stream must not hold shutdown (and the laser/HV power-down) hostage
     server = _server_class()(uvicorn.Config(app, log_level=args.log_level, timeout_graceful_shutdown=5), app)
     sys.stderr.write(f"lidard: serving on http://{host}:{sock.getsockname()[1]} (OpenAPI at /docs)\n")

@@ -13,8 +13,6 @@ import threading
 from importlib import metadata
 from typing import Any
 
-from drivers.errors import detached  # noqa: F401  (re-exported: the worker drops a failed job's tracebacks)
-
 from ..errors import LidardError, UnknownScan  # noqa: F401  (UnknownScan re-exported)
 from ..instrument.types import ScanRequest
 
@@ -53,6 +51,28 @@ def describe_error(exc: BaseException) -> str:
         parts.append(f"caused by {type(cur).__name__}: {cur}")
         cur = cur.__cause__ or cur.__context__
     return "; ".join(parts)
+
+
+def detached(exc: BaseException) -> BaseException:
+    """``exc`` and the exceptions it was raised from, without their tracebacks: for an exception kept
+    past its handler (a job's future). A kept traceback keeps every frame it passed through, with their
+    arrays (a failed linearization's MZI records: megabytes), and the handler's frame holds the job that
+    holds the future that holds the exception: a cycle that only the cyclic collector frees, minutes
+    apart in a daemon. What the caller reads of a failure (type, message, causes) stays.
+
+    The drivers have the same rule for their parsers' kept errors (``drivers.errors.detached``); it is
+    written twice on purpose: the drivers may not import the daemon, and the job queue loads no
+    drivers (tests/lidard/test_instrument_rooms.py)."""
+    seen: set[int] = set()
+    todo: list[BaseException | None] = [exc]
+    while todo:
+        cur = todo.pop()
+        if cur is None or id(cur) in seen:
+            continue
+        seen.add(id(cur))
+        cur.__traceback__ = None
+        todo += [cur.__cause__, cur.__context__]
+    return exc
 
 
 def request_to_dict(req: ScanRequest) -> dict[str, Any]:
