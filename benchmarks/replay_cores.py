@@ -34,6 +34,10 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+# the CPU of other processes, and a session of its own at autogroup nice -20: as band_and_cores.py measures
+from benchmarks.band_and_cores import _high_priority, _pids_cpu  # noqa: E402
 SCENE = str(REPO / "config" / "scenes" / "cal_letters.toml")
 REQUEST = {"pattern": "roi", "rows": (40, 56), "cols": (0, 128), "averages": 10, "max_range_m": 2.0,
            "max_speed_mps": 10.0}
@@ -124,18 +128,6 @@ def two_cores(path: str, prefetch: bool = True) -> dict:
             "workers": len(pids), "stages": _sum_stages(parts), "identical_to_scan": bool(np.array_equal(pts, ref))}
 
 
-def _pids_cpu(pids: list[int]) -> float:
-    total = 0.0
-    for pid in pids:
-        try:
-            with open(f"/proc/{pid}/stat") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-        except OSError:
-            pass
-    return total
-
-
 def record(path: Path) -> None:
     """A 10 m/s region scan recorded raw at ``path``; its points saved next to it (``.points.npy``)."""
     import numpy as np
@@ -204,15 +196,6 @@ def evict(path: str) -> None:
                 os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
             finally:
                 os.close(fd)
-
-
-def _high_priority() -> None:
-    """This process (and its children) in a new session whose autogroup is at nice -20."""
-    if os.getsid(0) != os.getpid():
-        env = {**os.environ, "PYTHONPATH": str(REPO)}
-        os.execvpe("setsid", ["setsid", "-w", sys.executable, *sys.argv], env)
-    Path("/proc/self/autogroup").write_text("-20")
-    os.nice(-20 - os.nice(0))
 
 
 def main(argv: list[str] | None = None) -> None:
