@@ -35,9 +35,10 @@ so the measurements' errors from ``dnu`` have the covariance
 For ``tau << a`` this is ``d_i d_j sigma_eps^2``, ``sigma_eps = (sigma / kappa) sqrt(3 / (4 B a^3))``
 = 1.5e-6: to first order a residual chirp error is a slope error, a range scale error common to the
 plates. The sim's laser model under the learned drive (ground truth) gives a slope error of +1.5e-6
-over the window on every seed tried, and through the estimator's weight 1, 8, 37, 96 um at 0.8, 5, 20,
-45 m; the plates read that (the 20 m plate, about 3 standard errors off a line through the others,
-made the chi-square without this term pass or fail with the noise draw: 22 % of draws failed).
+over the window on every seed tried (1-3), and through the estimator's weight 1, 8, 37 um at 0.8, 5,
+20 m (96 um at 45 m) on the plain front end; the plates read that within their noise. The 20 m plate,
+about 3 standard errors off a line through the others, is why the chi-square without this term passed
+or failed with the noise draw (14.0 and 14.6 > 13.8 on one draw; 22 % of simulated draws).
 
 A common scale would be absorbed by the line, but not every plate goes through the same front end. At
 ``max_range_m >= c tau_m`` (the 45 m plate) the scan compensates the laser's phase from the quadrature
@@ -54,8 +55,9 @@ alone the 45 m plate would be free by ``45 m x sigma_eps`` = 68 um). The chi-squ
 ``A = [1, d]``, ``n - 2`` = 3 degrees of freedom (``C_lin`` is a variance, not a fitted parameter).
 What it still fails on (``test_chi2_passes_this_bench_and_fails_a_far_nonlinearity``): a range error
 quadratic in ``d``, +-0.2 mm at 45 m, on this bench's pattern (chi-square 35 / 26 against 16.3; 2.0
-without it). 0.1 mm at 45 m (4.5 standard errors of that plate) is at the plates' resolution: about a
-third of noise draws catch it.
+without it). Put into every point of the scans (range + A (range / 45 m)^2, seed 1) it read 56.1 / 16.9
+for A = +0.2 / -0.2 mm (and a 0.115 mm departure), 23.8 / 5.4 for +0.1 / -0.1 mm: 0.1 mm at 45 m (4.5
+standard errors of that plate) is at the plates' resolution, about a third of noise draws catch it.
 """
 
 from __future__ import annotations
