@@ -35,7 +35,7 @@ What it reports about its own residual (:func:`iteration_record`): per ILC measu
 nonlinearity and the RMS error against the ideal chirp of each ramp over the ROI, the periods averaged
 and the measurement's noise floor; ``meta["best_iteration"]`` is the measurement of the drive kept and
 ``meta["learning_bandwidth_hz"]`` the bandwidth it was learned in (the Q filter). The kept drive's error
-is the residual chirp error a scan inherits. On sim_far.toml (nominal bench) it is about 41 kHz per ramp
+is the residual chirp error a scan inherits. On sim_far.toml (nominal bench) it is 35-42 kHz per ramp
 against a noise floor of about 17 Hz: what the learning stopped improving on (mostly the turnaround's
 tail at the ROI's edges), not measurement noise, so it is the same from one noise draw to the next.
 tests/e2e/test_e2e_range_linearity.py turns it into the range error it allows a plate.
