@@ -71,6 +71,7 @@ from typing import Any
 
 import numpy as np
 
+from lidard import heap
 from lidard.config import Config, ConfigError, load_config
 from sim_devices.awg.device import SimAwg
 from sim_devices.bench.capture import (
@@ -317,6 +318,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
     args = ap.parse_args(argv)
+    # Before any thread exists: a bench process serves a daemon for as long as it runs, and its reads
+    # free multi-MB record arrays on several threads; with glibc's dynamic mmap threshold those arrays
+    # end up carved out of per-thread arenas whose touched pages stay resident after they are freed
+    # (lidard.heap): the same fixed threshold and bounded arenas as the daemon.
+    heap.configure()
     try:
         cfg = load_config(args.config or Path(__file__).resolve().parent.parent / "config" / "sim.toml")
         scene = Scene.from_toml(args.scene) if args.scene else None

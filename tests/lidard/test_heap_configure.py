@@ -1,4 +1,4 @@
-"""lidard.jobs.heap.configure: with glibc's defaults, freeing one large array raises the mmap threshold,
+"""lidard.heap.configure: with glibc's defaults, freeing one large array raises the mmap threshold,
 so the next arrays of that size are carved out of the arena heaps (where they fragment and, through
 numpy's huge-page request, leave huge-page ranges behind). After configure every large array is a
 mapping of its own, unmapped from its first byte to its last when it is freed. Each case runs in a
@@ -13,12 +13,12 @@ import sys
 
 import pytest
 
-from lidard.jobs import heap
+from lidard import heap
 
 PROBE = r"""
 import json, sys
 import numpy as np
-from lidard.jobs import heap
+from lidard import heap
 if sys.argv[1] == "configure":
     heap.configure()
 size = 8 << 20

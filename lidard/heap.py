@@ -1,10 +1,12 @@
-"""The daemon's C heap: set up once at start so a process that runs for weeks does not creep up, and
-freed pages handed back after every job of the scan worker.
+"""The C heap of a long-running process: set up once at its start so a process that runs for weeks
+does not creep up, and freed pages handed back after every job of the daemon's scan worker.
 
-A scan allocates and frees tens of MB of numpy temporaries (the DSP's batches are up to 8 MiB) and
-many small objects on several threads (the worker, the DSP pipeline's threads, the HTTP server's
-thread pool). With glibc's defaults three things let a daemon's RSS wander by tens of MB although
-nothing is leaked:
+Two processes run for as long as the instrument does and allocate alike: the daemon (a scan allocates
+and frees tens of MB of numpy temporaries, the DSP's batches are up to 8 MiB, and many small objects on
+several threads: the worker, the DSP pipeline's threads, the HTTP server's thread pool) and its
+simulated bench, ``lidar-sim`` (every digitizer read synthesizes records of up to tens of MB on the USB
+bridge's connection thread and the synthesis pool's threads). With glibc's defaults three things let
+such a process's RSS wander by tens of MB although nothing is leaked:
 
 * **The dynamic mmap threshold.** A block above the threshold (128 KiB at start) is its own mapping,
   unmapped when freed; but freeing such a block raises the threshold to its size (up to 32 MiB), so
@@ -86,3 +88,26 @@ def trim() -> bool:
         return False
     libc.malloc_trim(0)
     return True
+
+
+class _Mallinfo2(ctypes.Structure):
+    # glibc's struct mallinfo2 (malloc.h, glibc >= 2.33): every field a size_t
+    _fields_ = [(name, ctypes.c_size_t) for name in
+                ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks",
+                 "keepcost")]
+
+
+def usage() -> dict[str, int] | None:
+    """What the C heap holds now, over all arenas (glibc's ``mallinfo2``): ``arena_bytes`` taken from
+    the system for the arenas (the main heap and the threads' heaps), of them ``in_use_bytes`` and
+    ``free_kept_bytes`` (freed, still resident or reserved: what a process that does not give memory
+    back piles up), ``mmapped_bytes`` in blocks that are mappings of their own. None where the C library
+    has no ``mallinfo2`` (musl, macOS, glibc before 2.33)."""
+    libc = _libc()
+    fn = getattr(libc, "mallinfo2", None) if libc is not None else None
+    if fn is None:
+        return None
+    fn.argtypes, fn.restype = [], _Mallinfo2
+    mi = fn()
+    return {"arena_bytes": int(mi.arena), "in_use_bytes": int(mi.uordblks), "free_kept_bytes": int(mi.fordblks),
+            "mmapped_bytes": int(mi.hblkhd)}
