@@ -23,13 +23,14 @@ one-tone ``newton``. At K = 1 this is that estimator (averaged over the records 
 instead of by the mean of the per-record estimates); it reaches the K-tone Cramer-Rao bound once
 the tones are apart by more than about one bin (tests/dsp/ranging/test_dsp_ranging.py).
 
-Pure numpy.
+Pure numpy, with one compiled kernel where numba is installed (the energy J of :func:`joint_energy`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..spectrum import jit
 from ..spectrum.dtft import _DtftNearBin, _terms_for
 from ..spectrum.windowdtft import _dirichlet
 
@@ -81,7 +82,16 @@ def _gram(f: np.ndarray, n: int) -> np.ndarray:
 def joint_energy(b: np.ndarray, f: np.ndarray, active: np.ndarray, n: int, real: bool) -> np.ndarray:
     """J per pixel and stencil point: ``b`` (P, S, L, K) the records' DTFT at the tones, ``f`` (P, S, K)
     the tones (bins of the n-point grid), ``active`` (P, K) the tones in the model (an inactive tone's
-    column is left out: unit diagonal, no projection)."""
+    column is left out: unit diagonal, no projection). With the compiled kernels loaded the assembly,
+    solve and energy are one pass (lidard.dsp.spectrum._kernels_fit; G the same, J to rounding)."""
+    kern = jit.kernels(0)
+    if kern is not None:
+        fm = np.concatenate([f, -f], axis=-1) if real else f
+        i, j = np.triu_indices(fm.shape[-1], 1)
+        out = np.empty(b.shape[:2])
+        if kern.joint_energy(_dirichlet(fm[..., i] - fm[..., j], n), np.ascontiguousarray(b, dtype=np.complex128),
+                             np.ascontiguousarray(active, dtype=bool), float(n), bool(real), out):
+            return out
     if real:   # columns exp(+j w t) then exp(-j w t); b for the latter is conj(X(f)) (x real)
         b = np.concatenate([b, np.conj(b)], axis=-1)
         f = np.concatenate([f, -f], axis=-1)

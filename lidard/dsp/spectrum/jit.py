@@ -41,10 +41,12 @@ _asked = [0]        # cells asked for so far in this process (a count; races onl
 def _compiled() -> SimpleNamespace | None:
     try:
         from lidard.dsp.spectrum import _kernels as jit_kernels  # needs numba
+        from lidard.dsp.spectrum import _kernels_fit as fit_kernels
     except ImportError:
         return None
     return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db,
-                           bin_table=jit_kernels.bin_table, newton_real_step=jit_kernels.newton_real_step)
+                           bin_table=jit_kernels.bin_table, newton_real_step=jit_kernels.newton_real_step,
+                           joint_energy=fit_kernels.joint_energy, window_grid=fit_kernels.window_grid)
 
 
 def kernels(cells: int | None = None) -> SimpleNamespace | None:

@@ -1,0 +1,160 @@
+"""Compiled kernels of the tone-model fits (numba; loaded with :mod:`lidard.dsp.spectrum._kernels` by
+:mod:`lidard.dsp.spectrum.jit`, only where numba is installed; importing this module compiles nothing).
+
+:func:`window_grid` is the arithmetic of :func:`lidard.dsp.spectrum.windowdtft._window_dtft_grid` (the window's
+DTFT on the cells the model-order test and the skirt search fit) after numpy's sines and cosines: the
+same IEEE operations in the same order, bit for bit, in one pass where numpy made about twenty over
+(..., cells) temporaries.
+
+:func:`joint_energy` stands in for the numpy body of :func:`lidard.dsp.ranging.tones.joint_energy`: per pixel
+and stencil point a Gram matrix of a few tones (4 x 4 for two tones of a real ramp), one linear solve
+and an energy. numpy made a LAPACK call per tiny matrix behind a dozen passes of assembly (``where``,
+``concatenate``, ``einsum``) over (P, S, M, M) temporaries: half the joint refinement's CPU. Here it is
+one pass. The Dirichlet kernels (the transcendentals) still come from numpy, so G is the same matrix
+bit for bit; the solve is Gaussian elimination with partial pivoting as LAPACK's (the pivot of largest
+|re| + |im|), whose rounding may differ from LAPACK's blocked code in the last bits: J agrees to
+~1e-15 relative, and the refined frequencies to ~1e-12 bin (tests/dsp/spectrum/test_dsp_jit_lsq.py),
+where the numpy path is the reference.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numba
+import numpy as np
+
+# error_model="numpy": a division by zero gives inf or NaN as in numpy (the callers replace those
+# points), not Python's exception
+_jit: Callable[[Callable[..., Any]], Any] = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+
+@_jit
+def window_grid(den: np.ndarray, off: np.ndarray, fre: np.ndarray, fim: np.ndarray, cq: np.ndarray, sq: np.ndarray,
+                num: np.ndarray, c: np.ndarray, s: np.ndarray, out: np.ndarray,
+                near: np.ndarray) -> None:  # pragma: no cover (compiled; checked against numpy in the tests)
+    """``out`` (B, R, Q) complex and ``near`` (B, R, Q): the cosine-sum window's DTFT on the grid of
+    _window_dtft_grid from its numpy sines: ``den`` (B, R, J) the shifted kernels' denominators; per
+    term t, ``off[t]`` its first column of ``den`` and ``fre[t]``, ``fim[t]`` its factors a_m (-1)^m
+    cos(theta_m), a_m (-1)^m sin(theta_m); ``cq``, ``sq`` (Q,) the whole bins' sign and phase; ``num``,
+    ``c``, ``s`` (B, R) the numerator's sine and the phase's cosine and sine. ``near``: a denominator
+    under 1e-12 (the value there is inf or NaN, replaced by the caller)."""
+    b_n, r_n, j_n = den.shape
+    q_n = cq.size
+    inv = np.empty(j_n)
+    tiny = np.empty(j_n, dtype=np.bool_)
+    for b in range(b_n):
+        for r in range(r_n):
+            for j in range(j_n):
+                inv[j] = 1.0 / den[b, r, j]
+                tiny[j] = abs(den[b, r, j]) < 1e-12
+            cc = c[b, r]
+            ss = s[b, r]
+            nm = num[b, r]
+            for q in range(q_n):
+                s_re = 0.0
+                s_im = 0.0
+                hit = False
+                for t in range(off.size):
+                    s_re += fre[t] * inv[off[t] + q]
+                    s_im -= fim[t] * inv[off[t] + q]
+                    hit |= tiny[off[t] + q]
+                t_re = cq[q] * s_re + sq[q] * s_im
+                t_im = cq[q] * s_im - sq[q] * s_re
+                o_re = cc * t_re
+                o_re += ss * t_im
+                o_im = cc * t_im
+                o_im -= ss * t_re
+                out[b, r, q] = complex(o_re * nm, o_im * nm)
+                near[b, r, q] = hit
+
+
+@_jit
+def joint_energy(upper: np.ndarray, b: np.ndarray, active: np.ndarray, n: float, real: bool,
+                 out: np.ndarray) -> bool:  # pragma: no cover (compiled; checked against numpy in the tests)
+    """J[p, s] = sum_l b_l^H G^-1 b_l into ``out`` (P, S); False where a pivot is exactly zero (a
+    singular G: the caller takes the numpy path, which says so).
+
+    ``upper`` (P, S, M (M - 1) / 2): G's entries above the diagonal in np.triu_indices order (the
+    Dirichlet kernel at the pairwise differences of the model's frequencies: for a real ramp the K
+    tones then their K images, M = 2K); ``b`` (P, S, L, K) the records' DTFT at the tones (a real
+    ramp's image columns take conj(b)); ``active`` (P, K): an inactive tone's rows and columns are the
+    identity's and its b is zero. The diagonal is ``n``."""
+    p_n, s_n, l_n, k = b.shape
+    m = 2 * k if real else k
+    g = np.empty((m, m), dtype=np.complex128)
+    y = np.empty((m, l_n), dtype=np.complex128)
+    rhs = np.empty((m, l_n), dtype=np.complex128)
+    on = np.empty(m, dtype=np.bool_)
+    for p in range(p_n):
+        for i in range(m):
+            on[i] = active[p, i % k]
+        for s in range(s_n):
+            q = 0
+            for i in range(m):
+                g[i, i] = n if on[i] else 1.0
+                for j in range(i + 1, m):
+                    v = upper[p, s, q] if (on[i] and on[j]) else 0j
+                    g[i, j] = v
+                    g[j, i] = np.conj(v)
+                    q += 1
+                for a in range(l_n):
+                    if not on[i]:
+                        v = 0j
+                    elif i < k:
+                        v = b[p, s, a, i]
+                    else:
+                        v = np.conj(b[p, s, a, i - k])
+                    rhs[i, a] = v
+                    y[i, a] = v
+            if not _solve_in_place(g, y):
+                return False
+            acc = 0.0
+            for i in range(m):
+                for a in range(l_n):
+                    acc += y[i, a].real * rhs[i, a].real + y[i, a].imag * rhs[i, a].imag
+            out[p, s] = acc
+    return True
+
+
+@_jit
+def _solve_in_place(g: np.ndarray, y: np.ndarray) -> bool:  # pragma: no cover
+    """G x = y by Gaussian elimination with partial pivoting (LAPACK's pivot: the largest |re| + |im|,
+    the first of equals), x into ``y``; ``g`` is overwritten. False on an exactly zero pivot."""
+    m = g.shape[0]
+    cols = y.shape[1]
+    for c in range(m):
+        piv = c
+        best = abs(g[c, c].real) + abs(g[c, c].imag)
+        for r in range(c + 1, m):
+            v = abs(g[r, c].real) + abs(g[r, c].imag)
+            if v > best:
+                best = v
+                piv = r
+        if best == 0.0:
+            return False
+        if piv != c:
+            for j in range(m):
+                t = g[c, j]
+                g[c, j] = g[piv, j]
+                g[piv, j] = t
+            for j in range(cols):
+                t = y[c, j]
+                y[c, j] = y[piv, j]
+                y[piv, j] = t
+        d = g[c, c]
+        for r in range(c + 1, m):
+            f = g[r, c] / d
+            if f != 0:
+                for j in range(c + 1, m):
+                    g[r, j] -= f * g[c, j]
+                for j in range(cols):
+                    y[r, j] -= f * y[c, j]
+    for c in range(m - 1, -1, -1):
+        for j in range(cols):
+            acc = y[c, j]
+            for i in range(c + 1, m):
+                acc -= g[c, i] * y[i, j]
+            y[c, j] = acc / g[c, c]
+    return True
