@@ -159,11 +159,14 @@ def median_last(p: np.ndarray) -> np.ndarray:
 NOISE_STRIDE = 4
 
 
-def cell_noise(power: np.ndarray) -> np.ndarray:
+def cell_noise(power: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
     """Mean noise power per cell of each pixel (P, L, n_bins) -> (P,): the median of each record's
     spectrum (exponential cells: median = ln 2 x mean; every NOISE_STRIDE-th cell, fewer than a
-    hundred cells: all), averaged over the records."""
+    hundred cells: all), averaged over the records. ``rows``: those pixels of ``power`` only (only
+    their cells read are gathered)."""
     p = power[..., ::NOISE_STRIDE] if power.shape[-1] >= 100 * NOISE_STRIDE else power
+    if rows is not None:
+        p = p[rows]
     return (median_last(p) / np.log(2.0)).mean(axis=-1)
 
 

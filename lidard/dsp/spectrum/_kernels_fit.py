@@ -158,3 +158,4 @@ def _solve_in_place(g: np.ndarray, y: np.ndarray) -> bool:  # pragma: no cover
                 acc -= g[c, i] * y[i, j]
             y[c, j] = acc / g[c, c]
     return True
+
