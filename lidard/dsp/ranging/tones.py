@@ -23,7 +23,7 @@ one-tone ``newton``. At K = 1 this is that estimator (averaged over the records 
 instead of by the mean of the per-record estimates); it reaches the K-tone Cramer-Rao bound once
 the tones are apart by more than about one bin (tests/dsp/ranging/test_dsp_ranging.py).
 
-Pure numpy, with one compiled kernel where numba is installed (the energy J of :func:`joint_energy`).
+Pure numpy; where numba is installed one iteration's J on the stencil is one compiled pass.
 """
 
 from __future__ import annotations
@@ -82,16 +82,7 @@ def _gram(f: np.ndarray, n: int) -> np.ndarray:
 def joint_energy(b: np.ndarray, f: np.ndarray, active: np.ndarray, n: int, real: bool) -> np.ndarray:
     """J per pixel and stencil point: ``b`` (P, S, L, K) the records' DTFT at the tones, ``f`` (P, S, K)
     the tones (bins of the n-point grid), ``active`` (P, K) the tones in the model (an inactive tone's
-    column is left out: unit diagonal, no projection). With the compiled kernels loaded the assembly,
-    solve and energy are one pass (lidard.dsp.spectrum._kernels_fit; G the same, J to rounding)."""
-    kern = jit.kernels(0)
-    if kern is not None:
-        fm = np.concatenate([f, -f], axis=-1) if real else f
-        i, j = np.triu_indices(fm.shape[-1], 1)
-        out = np.empty(b.shape[:2])
-        if kern.joint_energy(_dirichlet(fm[..., i] - fm[..., j], n), np.ascontiguousarray(b, dtype=np.complex128),
-                             np.ascontiguousarray(active, dtype=bool), float(n), bool(real), out):
-            return out
+    column is left out: unit diagonal, no projection)."""
     if real:   # columns exp(+j w t) then exp(-j w t); b for the latter is conj(X(f)) (x real)
         b = np.concatenate([b, np.conj(b)], axis=-1)
         f = np.concatenate([f, -f], axis=-1)
@@ -134,19 +125,37 @@ def refine_joint(x: np.ndarray, f0: np.ndarray, active: np.ndarray, *, iteration
         if live.size == 0:
             break
         m, act = live.size, active[live]
-        dd = d[live][:, None, :] + sten[None, :, :]                      # (m, S, K)
-        # X(centre + dd) per record: the evaluator holds (P, L, K) pairs, offsets per stencil point
-        delta = np.broadcast_to(dd[:, :, None, :], (m, s_n, l_n, k))
-        cols = None if m == p_n else (live[:, None] * (l_n * k) + np.arange(l_n * k)).reshape(-1)
-        xs = ev.dtft(np.moveaxis(delta, 1, 0).reshape(s_n, -1), cols=cols)   # (S, m*L*K)
-        b = np.moveaxis(xs.reshape(s_n, m, l_n, k), 0, 1)                  # (m, S, L, K)
-        j = joint_energy(b, cent[live][:, None, :] + dd, act, n, real)
+        j = _stencil_energy(ev, live, l_n, d[live], sten, cent[live], act, n, real)
+        if j is None:
+            dd = d[live][:, None, :] + sten[None, :, :]                  # (m, S, K)
+            # X(centre + dd) per record: the evaluator holds (P, L, K) pairs, offsets per stencil point
+            delta = np.broadcast_to(dd[:, :, None, :], (m, s_n, l_n, k))
+            cols = None if m == p_n else (live[:, None] * (l_n * k) + np.arange(l_n * k)).reshape(-1)
+            xs = ev.dtft(np.moveaxis(delta, 1, 0).reshape(s_n, -1), cols=cols)   # (S, m*L*K)
+            b = np.moveaxis(xs.reshape(s_n, m, l_n, k), 0, 1)              # (m, S, L, K)
+            j = joint_energy(b, cent[live][:, None, :] + dd, act, n, real)
         step, newton = _newton_step(j, k, act)
         step = np.where(act, np.clip(step, -0.25, 0.25), 0.0)
         d[live] = np.clip(d[live] + step, d0[live] - reach, d0[live] + reach)
         # a Newton step this small has converged (the next moves by its square): the pixel is done
         live = live[~(newton & (np.abs(step).max(axis=1, initial=0.0) < CONVERGED_BINS))]
     return np.where(active, np.rint(start) + d, f0)
+
+
+def _stencil_energy(ev: _DtftNearBin, live: np.ndarray, l_n: int, d: np.ndarray, sten: np.ndarray, cent: np.ndarray,
+                    active: np.ndarray, n: int, real: bool) -> np.ndarray | None:
+    """J (m, S) of the ``live`` pixels on the stencil by the compiled kernel (the records' DTFT, G and
+    the solve in one pass: lidard.dsp.spectrum._kernels_fit.joint_stencil; J to rounding), or None
+    (numba not loaded, or a singular G: the numpy path then)."""
+    kern = jit.kernels(0)
+    if kern is None:
+        return None
+    gr, gi = ev._terms()
+    out = np.empty((live.size, sten.shape[0]))
+    ok = kern.joint_stencil(gr, gi, np.ascontiguousarray(live, dtype=np.int64), int(l_n), np.ascontiguousarray(d),
+                            np.ascontiguousarray(sten), np.ascontiguousarray(cent), np.ascontiguousarray(active),
+                            float(n), bool(real), out)
+    return out if ok else None
 
 
 def _newton_step(j: np.ndarray, k: int, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

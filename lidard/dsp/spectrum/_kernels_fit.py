@@ -93,29 +93,127 @@ def joint_energy(upper: np.ndarray, b: np.ndarray, active: np.ndarray, n: float,
         for s in range(s_n):
             q = 0
             for i in range(m):
-                g[i, i] = n if on[i] else 1.0
                 for j in range(i + 1, m):
-                    v = upper[p, s, q] if (on[i] and on[j]) else 0j
-                    g[i, j] = v
-                    g[j, i] = np.conj(v)
+                    g[i, j] = upper[p, s, q]
                     q += 1
                 for a in range(l_n):
-                    if not on[i]:
-                        v = 0j
-                    elif i < k:
-                        v = b[p, s, a, i]
-                    else:
-                        v = np.conj(b[p, s, a, i - k])
-                    rhs[i, a] = v
-                    y[i, a] = v
-            if not _solve_in_place(g, y):
+                    rhs[i, a] = b[p, s, a, i] if i < k else np.conj(b[p, s, a, i - k])
+            e = _energy(g, rhs, on, n, y)
+            if np.isnan(e) and _singular(g):
                 return False
-            acc = 0.0
-            for i in range(m):
-                for a in range(l_n):
-                    acc += y[i, a].real * rhs[i, a].real + y[i, a].imag * rhs[i, a].imag
-            out[p, s] = acc
+            out[p, s] = e
     return True
+
+
+@_jit
+def joint_stencil(gr: np.ndarray, gi: np.ndarray, live: np.ndarray, l_n: int, d: np.ndarray, sten: np.ndarray,
+                  cent: np.ndarray, active: np.ndarray, n: float, real: bool,
+                  out: np.ndarray) -> bool:  # pragma: no cover (compiled; checked against numpy in the tests)
+    """One iteration's J (m, S) of lidard.dsp.ranging.tones.refine_joint in one pass: for live pixel i
+    (pixel ``live[i]`` of the moments) and stencil point s, the tones at cent + d + sten[s]; each
+    record's DTFT there from the Taylor coefficients ``gr``, ``gi`` (P, pairs; pair (pixel, record,
+    tone) = (pixel L + record) K + tone) by Horner and the phase exp(-j pi delta (n-1)/n); G from the
+    Dirichlet kernel; then J as :func:`joint_energy`. The sines and cosines are the C library's (numpy
+    takes its own vectorised ones): J agrees with the numpy path to rounding. False: a singular G."""
+    m_n, k = d.shape
+    s_n = sten.shape[0]
+    p_terms = gr.shape[0]
+    mm = 2 * k if real else k
+    g = np.empty((mm, mm), dtype=np.complex128)
+    y = np.empty((mm, l_n), dtype=np.complex128)
+    rhs = np.empty((mm, l_n), dtype=np.complex128)
+    on = np.empty(mm, dtype=np.bool_)
+    f = np.empty(k)
+    dd = np.empty(k)
+    for i in range(m_n):
+        for t in range(mm):
+            on[t] = active[i, t % k]
+        for s in range(s_n):
+            for t in range(k):
+                dd[t] = d[i, t] + sten[s, t]
+                f[t] = cent[i, t] + dd[t]
+            for a in range(l_n):
+                col0 = (live[i] * l_n + a) * k
+                for t in range(k):
+                    delta = dd[t]
+                    acc_re = 0.0
+                    acc_im = 0.0
+                    for p in range(p_terms - 1, -1, -1):
+                        acc_re *= delta
+                        acc_re += gr[p, col0 + t]
+                        acc_im *= delta
+                        acc_im += gi[p, col0 + t]
+                    theta = -np.pi * delta * (n - 1.0) / n
+                    c = np.cos(theta)
+                    sn = np.sin(theta)
+                    x = complex(c * acc_re - sn * acc_im, c * acc_im + sn * acc_re)
+                    rhs[t, a] = x
+                    if real:
+                        rhs[t + k, a] = np.conj(x)
+            # G_ij = D(f_i - f_j); for a real ramp the images' block is conj(A), A_ij = D(f_i - f_j) of the
+            # tones, and the tones' against the images' is D(f_i + f_j), symmetric in i, j: K^2 kernels, not
+            # K (2K - 1) (D(-x) = conj(D(x)))
+            for r in range(k):
+                for j in range(r + 1, k):
+                    v = _dirichlet(f[r] - f[j], n)
+                    g[r, j] = v
+                    if real:
+                        g[r + k, j + k] = np.conj(v)
+                if real:
+                    for j in range(r, k):
+                        v = _dirichlet(f[r] + f[j], n)
+                        g[r, j + k] = v
+                        g[j, r + k] = v
+            e = _energy(g, rhs, on, n, y)
+            if np.isnan(e) and _singular(g):
+                return False
+            out[i, s] = e
+    return True
+
+
+@_jit
+def _dirichlet(x: float, n: float) -> complex:  # pragma: no cover
+    """lidard.dsp.spectrum.windowdtft._dirichlet at one point (the C library's sines and cosines)."""
+    a = np.pi * x
+    den = np.sin(a / n)
+    if abs(den) < 1e-12:
+        ratio = n * np.cos(a) / np.cos(a / n)
+    else:
+        ratio = np.sin(a) / den
+    b = a * (n - 1.0) / n
+    return complex(np.cos(b) * ratio, -(np.sin(b) * ratio))
+
+
+@_jit
+def _energy(g: np.ndarray, rhs: np.ndarray, on: np.ndarray, n: float, y: np.ndarray) -> float:  # pragma: no cover
+    """sum_l rhs_l^H G^-1 rhs_l with G's strict upper triangle given in ``g`` (Hermitian, diagonal ``n``)
+    and the inactive tones' rows and columns the identity's, their rhs zero; ``g`` and ``y`` are
+    overwritten. NaN on an exactly zero pivot (``g`` then holds the pivot's column: :func:`_singular`)."""
+    m, l_n = rhs.shape
+    for i in range(m):
+        g[i, i] = n if on[i] else 1.0
+        for j in range(i + 1, m):
+            v = g[i, j] if (on[i] and on[j]) else 0j
+            g[i, j] = v
+            g[j, i] = np.conj(v)
+        for a in range(l_n):
+            if not on[i]:
+                rhs[i, a] = 0j
+            y[i, a] = rhs[i, a]
+    if not _solve_in_place(g, y):
+        g[0, 0] = 0j
+        return np.nan
+    acc = 0.0
+    for i in range(m):
+        for a in range(l_n):
+            acc += y[i, a].real * rhs[i, a].real + y[i, a].imag * rhs[i, a].imag
+    return acc
+
+
+@_jit
+def _singular(g: np.ndarray) -> bool:  # pragma: no cover
+    """Whether :func:`_energy` stopped on a zero pivot (it marks g[0, 0] = 0: a G's diagonal never is)."""
+    return g[0, 0] == 0
 
 
 @_jit
