@@ -6,15 +6,17 @@ DTFT on the cells the model-order test and the skirt search fit) after numpy's s
 same IEEE operations in the same order, bit for bit, in one pass where numpy made about twenty over
 (..., cells) temporaries.
 
-:func:`joint_energy` stands in for the numpy body of :func:`lidard.dsp.ranging.tones.joint_energy`: per pixel
-and stencil point a Gram matrix of a few tones (4 x 4 for two tones of a real ramp), one linear solve
-and an energy. numpy made a LAPACK call per tiny matrix behind a dozen passes of assembly (``where``,
-``concatenate``, ``einsum``) over (P, S, M, M) temporaries: half the joint refinement's CPU. Here it is
-one pass. The Dirichlet kernels (the transcendentals) still come from numpy, so G is the same matrix
-bit for bit; the solve is Gaussian elimination with partial pivoting as LAPACK's (the pivot of largest
-|re| + |im|), whose rounding may differ from LAPACK's blocked code in the last bits: J agrees to
-~1e-15 relative, and the refined frequencies to ~1e-12 bin (tests/dsp/spectrum/test_dsp_jit_lsq.py),
-where the numpy path is the reference.
+:func:`joint_stencil` is one iteration of :func:`lidard.dsp.ranging.tones.refine_joint`'s Newton search: per
+pixel and stencil point the records' DTFT at the tones (Horner on the moments' Taylor terms), the Gram
+matrix of the tones and their images (4 x 4 for two tones of a real ramp) from the Dirichlet kernel,
+one linear solve and the energy J. numpy made a LAPACK call per tiny matrix behind a dozen passes of
+assembly (``where``, ``concatenate``, ``einsum``, ``moveaxis``) over (P, S, M, M) temporaries: most of
+the joint refinement's CPU. Here it is one pass. Not bit for bit: the sines and cosines are the C
+library's (numpy's are its own vectorised ones) and the solve is Gaussian elimination with LAPACK's
+partial pivoting (the largest |re| + |im|) in plain loops, so J agrees with the numpy path to
+rounding (~1e-15 relative) and a refined frequency to ~1e-8 bin at most (a pixel whose last Newton
+step sits at the convergence threshold may take one step more or less;
+tests/dsp/spectrum/test_dsp_jit_fit.py). The numpy path is the reference and the fallback.
 """
 
 from __future__ import annotations
@@ -71,41 +73,6 @@ def window_grid(den: np.ndarray, off: np.ndarray, fre: np.ndarray, fim: np.ndarr
 
 
 @_jit
-def joint_energy(upper: np.ndarray, b: np.ndarray, active: np.ndarray, n: float, real: bool,
-                 out: np.ndarray) -> bool:  # pragma: no cover (compiled; checked against numpy in the tests)
-    """J[p, s] = sum_l b_l^H G^-1 b_l into ``out`` (P, S); False where a pivot is exactly zero (a
-    singular G: the caller takes the numpy path, which says so).
-
-    ``upper`` (P, S, M (M - 1) / 2): G's entries above the diagonal in np.triu_indices order (the
-    Dirichlet kernel at the pairwise differences of the model's frequencies: for a real ramp the K
-    tones then their K images, M = 2K); ``b`` (P, S, L, K) the records' DTFT at the tones (a real
-    ramp's image columns take conj(b)); ``active`` (P, K): an inactive tone's rows and columns are the
-    identity's and its b is zero. The diagonal is ``n``."""
-    p_n, s_n, l_n, k = b.shape
-    m = 2 * k if real else k
-    g = np.empty((m, m), dtype=np.complex128)
-    y = np.empty((m, l_n), dtype=np.complex128)
-    rhs = np.empty((m, l_n), dtype=np.complex128)
-    on = np.empty(m, dtype=np.bool_)
-    for p in range(p_n):
-        for i in range(m):
-            on[i] = active[p, i % k]
-        for s in range(s_n):
-            q = 0
-            for i in range(m):
-                for j in range(i + 1, m):
-                    g[i, j] = upper[p, s, q]
-                    q += 1
-                for a in range(l_n):
-                    rhs[i, a] = b[p, s, a, i] if i < k else np.conj(b[p, s, a, i - k])
-            e = _energy(g, rhs, on, n, y)
-            if np.isnan(e) and _singular(g):
-                return False
-            out[p, s] = e
-    return True
-
-
-@_jit
 def joint_stencil(gr: np.ndarray, gi: np.ndarray, live: np.ndarray, l_n: int, d: np.ndarray, sten: np.ndarray,
                   cent: np.ndarray, active: np.ndarray, n: float, real: bool,
                   out: np.ndarray) -> bool:  # pragma: no cover (compiled; checked against numpy in the tests)
@@ -113,7 +80,7 @@ def joint_stencil(gr: np.ndarray, gi: np.ndarray, live: np.ndarray, l_n: int, d:
     (pixel ``live[i]`` of the moments) and stencil point s, the tones at cent + d + sten[s]; each
     record's DTFT there from the Taylor coefficients ``gr``, ``gi`` (P, pairs; pair (pixel, record,
     tone) = (pixel L + record) K + tone) by Horner and the phase exp(-j pi delta (n-1)/n); G from the
-    Dirichlet kernel; then J as :func:`joint_energy`. The sines and cosines are the C library's (numpy
+    Dirichlet kernel; then J = sum_l b_l^H G^-1 b_l (:func:`_energy`). The sines and cosines are the C library's (numpy
     takes its own vectorised ones): J agrees with the numpy path to rounding. False: a singular G."""
     m_n, k = d.shape
     s_n = sten.shape[0]
