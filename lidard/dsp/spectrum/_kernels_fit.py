@@ -224,3 +224,107 @@ def _solve_in_place(g: np.ndarray, y: np.ndarray) -> bool:  # pragma: no cover
             y[c, j] = acc / g[c, c]
     return True
 
+
+
+@_jit
+def order_fit(x: np.ndarray, cols: np.ndarray, near: np.ndarray, white: np.ndarray, fit: np.ndarray,
+              total: np.ndarray) -> bool:  # pragma: no cover (compiled; checked against numpy in the tests)
+    """lidard.dsp.ranging.order.order_statistic's whitened least squares, one pass per detection: ``x``
+    (Q, L, M) its cells in each record, ``cols`` (Q, L, K, M) the tones' window DTFT there (zero for
+    the tones not ``near``, (Q, K)), ``white`` (M, M) the whitener. Into ``fit`` (Q,) the fitted
+    energy summed over the records and ``total`` (Q,) the whitened cells' energy. False on an exactly
+    zero pivot (the caller takes the numpy path, which says so)."""
+    q_n, l_n, m = x.shape
+    k = cols.shape[2]
+    xw = np.empty(m, dtype=np.complex128)
+    cw = np.empty((k, m), dtype=np.complex128)
+    g = np.empty((k, k), dtype=np.complex128)
+    rhs = np.empty(k, dtype=np.complex128)
+    amp = np.empty((k, 1), dtype=np.complex128)
+    for q in range(q_n):
+        f_acc = 0.0
+        t_acc = 0.0
+        for a in range(l_n):
+            for i in range(m):
+                v = 0j
+                for j in range(m):
+                    v += white[i, j] * x[q, a, j]
+                xw[i] = v
+                t_acc += abs(v) ** 2
+                for t in range(k):
+                    v = 0j
+                    for j in range(m):
+                        v += white[i, j] * cols[q, a, t, j]
+                    cw[t, i] = v
+            _gram_rhs(cw, xw, near[q], g, rhs, 0.0)
+            for t in range(k):
+                amp[t, 0] = rhs[t]
+            if not _solve_in_place(g, amp):
+                return False
+            for t in range(k):
+                f_acc += (np.conj(rhs[t]) * amp[t, 0]).real
+        fit[q] = f_acc
+        total[q] = t_acc
+    return True
+
+
+@_jit
+def residual_fit(x: np.ndarray, cols: np.ndarray, valid: np.ndarray, out: np.ndarray) -> bool:  # pragma: no cover
+    """lidard.dsp.ranging.order.residual_near's fit and residual: ``x`` (P, L, M) the cells, ``cols``
+    (P, L, K, M) the valid tones' window DTFT (zero for the others), ``valid`` (P, K). Each record's
+    least-squares amplitudes (G regularised by 1e-12 of the largest |G| entry of the whole call, as
+    there), and into ``out`` (P, M) the residual's power averaged over the records. False on an exactly
+    zero pivot."""
+    p_n, l_n, m = x.shape
+    k = cols.shape[2]
+    g = np.empty((k, k), dtype=np.complex128)
+    rhs = np.empty(k, dtype=np.complex128)
+    amp = np.empty((k, 1), dtype=np.complex128)
+    gmax = 0.0
+    for p in range(p_n):
+        for a in range(l_n):
+            _gram_rhs(cols[p, a], x[p, a], valid[p], g, rhs, 0.0)
+            for t in range(k):
+                for u in range(k):
+                    if valid[p, t] and valid[p, u]:     # the others' entries are 0 before the identity
+                        gmax = max(gmax, abs(g[t, u]))
+    reg = 1e-12 * gmax
+    for p in range(p_n):
+        for i in range(m):
+            out[p, i] = 0.0
+        for a in range(l_n):
+            _gram_rhs(cols[p, a], x[p, a], valid[p], g, rhs, reg)
+            for t in range(k):
+                amp[t, 0] = rhs[t]
+            if not _solve_in_place(g, amp):
+                return False
+            for i in range(m):
+                v = 0j
+                for t in range(k):
+                    v += amp[t, 0] * cols[p, a, t, i]
+                r = x[p, a, i] - v
+                out[p, i] += r.real * r.real + r.imag * r.imag
+        for i in range(m):
+            out[p, i] /= l_n
+    return True
+
+
+@_jit
+def _gram_rhs(cw: np.ndarray, xw: np.ndarray, on: np.ndarray, g: np.ndarray, rhs: np.ndarray,
+              reg: float) -> None:  # pragma: no cover
+    """g = cw^H cw (K, K) with an absent tone's rows and columns the identity's, plus ``reg`` on the
+    diagonal; rhs = cw^H xw."""
+    k, m = cw.shape
+    for t in range(k):
+        v = 0j
+        for i in range(m):
+            v += np.conj(cw[t, i]) * xw[i]
+        rhs[t] = v
+        for u in range(k):
+            if on[t] and on[u]:
+                v = 0j
+                for i in range(m):
+                    v += np.conj(cw[t, i]) * cw[u, i]
+            else:
+                v = 1.0 + 0j if t == u else 0j
+            g[t, u] = v + reg if t == u else v

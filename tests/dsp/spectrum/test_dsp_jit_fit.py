@@ -94,3 +94,45 @@ def test_the_noise_floor_of_some_pixels_reads_only_theirs(n_bins):
     rows = np.array([3, 5, 6, 17, 39])
     np.testing.assert_array_equal(cell_noise(p, rows), cell_noise(p[rows]))
     assert abs(cell_noise(p).mean() - 2.0) < 0.1
+
+
+@needs_numba
+@pytest.mark.parametrize("k_tones", [1, 2])
+def test_the_compiled_order_test_and_skirt_search_are_the_numpy_ones(monkeypatch, k_tones):
+    # one or two tones 2.5 to 6 bins apart in noise, per-record frequencies (a moving return), an
+    # empty slot on some ramps: the model-order statistic, its verdicts and the skirt search's
+    # residual power agree with the numpy path to rounding; a planted second tone inside the first's
+    # cells (not in the model) is flagged by both
+    from lidard.dsp.ranging.order import order_statistic, residual_near, unresolved
+    from lidard.dsp.spectrum.rangefft import RangeFFT
+
+    rng = np.random.default_rng(k_tones)
+    n, p_n, records = 360, 80, 4
+    rf = RangeFFT(n, 5e6, 1.075e14, window="hann")
+    f1 = rng.uniform(30, 140, p_n)
+    f = np.stack([f1, f1 + rng.uniform(2.5, 6.0, p_n)], axis=1)[:, :k_tones]
+    amp = np.stack([np.ones(p_n), rng.uniform(0.3, 1.0, p_n)], axis=1)[:, :k_tones]
+    valid = np.ones((p_n, k_tones), dtype=bool)
+    if k_tones == 2:
+        valid[::3, 1] = False
+        amp = np.where(valid, amp, 0.0)
+    fr = f[:, None, :] + 0.02 * np.arange(records)[None, :, None]          # the beat moves record by record
+    t = np.arange(n)
+    phase = rng.uniform(0, 2 * np.pi, fr.shape)
+    x = (amp[:, None, :, None] * np.cos(2 * np.pi * fr[..., None] * t / n + phase[..., None])).sum(axis=2)
+    x[:10] += 0.6 * np.cos(2 * np.pi * (f1[:10, None, None] + 0.9) * t / n)   # hidden under the first peak
+    x += 0.01 * rng.standard_normal(x.shape)
+    spec = rf(x)
+    index = np.rint(f).astype(np.int64)
+    noise = np.full(p_n, 0.01 ** 2 * (rf.window_samples ** 2).sum() / rf.window_samples.sum() ** 2)
+    kw = dict(window="hann", n_samples=n)
+    got, want = _both(monkeypatch, lambda: order_statistic(spec, index, fr, valid, noise, **kw))
+    for a, b in zip(got, want):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.nanmax(np.abs(b)), equal_nan=True)
+    flags, flags_np = _both(monkeypatch, lambda: unresolved(spec, index, fr, valid, noise, level=1e-3, **kw))
+    np.testing.assert_array_equal(flags, flags_np)
+    assert flags_np[:10, 0].all() and flags_np[10:, 0].mean() < 0.1
+    (cells, rp), (cells_np, rp_np) = _both(monkeypatch, lambda: residual_near(spec, index[:, 0], fr, valid, half=8,
+                                                                              **kw))
+    np.testing.assert_array_equal(cells, cells_np)
+    np.testing.assert_allclose(rp, rp_np, rtol=1e-8, atol=1e-12 * rp_np.max())
