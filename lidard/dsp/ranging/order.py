@@ -199,8 +199,7 @@ def cell_noise(power: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
 def _fit_near(spec, centre, frac, valid, *, half, window, n_samples, zero_pad, iq, rows):
     """The least-squares fit of the valid tones ``frac`` (P, L, K) to the cells around ``centre`` (P,):
     (cells (P, m), their values (P, L, m), the tones' columns (P, L, K, m), amplitudes (P, L, K))."""
-    cells, x, cols = _cells_near(spec, centre, frac, valid, half=half, window=window, n_samples=n_samples,
-                                 zero_pad=zero_pad, iq=iq, rows=rows)
+    cells, x, cols = _cells_near(spec, centre, frac, valid, half=half, grid=(window, n_samples, zero_pad, iq), rows=rows)
     g = np.einsum("plki,plqi->plkq", np.conj(cols), cols)
     k = valid.shape[-1]
     on = valid[:, None, :, None] & valid[:, None, None, :]
@@ -209,9 +208,10 @@ def _fit_near(spec, centre, frac, valid, *, half, window, n_samples, zero_pad, i
     return cells, x, cols, np.linalg.solve(g, rhs[..., None])[..., 0]
 
 
-def _cells_near(spec, centre, frac, valid, *, half, window, n_samples, zero_pad, iq, rows):
+def _cells_near(spec, centre, frac, valid, *, half, grid, rows):
     """What :func:`_fit_near` fits: (cells (P, m), their values (P, L, m), the valid tones' columns
-    (P, L, K, m), zero for the others)."""
+    (P, L, K, m), zero for the others); ``grid``: (window, n_samples, zero_pad, iq) of the spectrum."""
+    window, n_samples, zero_pad, iq = grid
     _, l_n, n_bins = spec.shape
     p_n = centre.shape[0]
     rows = np.arange(p_n) if rows is None else np.asarray(rows)
@@ -239,8 +239,8 @@ def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid:
     one from the detector, the weak one stands out here. ``rows``: as for :func:`order_statistic`."""
     kern = jit.kernels(0)
     if kern is not None:    # the fit and the residual in one compiled pass (the same sums to rounding)
-        cells, x, cols = _cells_near(spec, centre, frac, valid, half=half, window=window, n_samples=n_samples,
-                                     zero_pad=zero_pad, iq=iq, rows=rows)
+        cells, x, cols = _cells_near(spec, centre, frac, valid, half=half, grid=(window, n_samples, zero_pad, iq),
+                                     rows=rows)
         out = np.empty(cells.shape)
         if kern.residual_fit(np.ascontiguousarray(x), np.ascontiguousarray(cols), np.ascontiguousarray(valid), out):
             return cells, out

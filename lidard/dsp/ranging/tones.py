@@ -125,7 +125,7 @@ def refine_joint(x: np.ndarray, f0: np.ndarray, active: np.ndarray, *, iteration
         if live.size == 0:
             break
         m, act = live.size, active[live]
-        j = _stencil_energy(ev, live, l_n, d[live], sten, cent[live], act, n, real)
+        j = _stencil_energy(ev, live, d[live], sten, cent[live], act, (l_n, n, real))
         if j is None:
             dd = d[live][:, None, :] + sten[None, :, :]                  # (m, S, K)
             # X(centre + dd) per record: the evaluator holds (P, L, K) pairs, offsets per stencil point
@@ -142,14 +142,16 @@ def refine_joint(x: np.ndarray, f0: np.ndarray, active: np.ndarray, *, iteration
     return np.where(active, np.rint(start) + d, f0)
 
 
-def _stencil_energy(ev: _DtftNearBin, live: np.ndarray, l_n: int, d: np.ndarray, sten: np.ndarray, cent: np.ndarray,
-                    active: np.ndarray, n: int, real: bool) -> np.ndarray | None:
-    """J (m, S) of the ``live`` pixels on the stencil by the compiled kernel (the records' DTFT, G and
+def _stencil_energy(ev: _DtftNearBin, live: np.ndarray, d: np.ndarray, sten: np.ndarray, cent: np.ndarray,
+                    active: np.ndarray, dims: tuple[int, int, bool]) -> np.ndarray | None:
+    """J (m, S) of the ``live`` pixels on the stencil by the compiled kernel (``dims``: the records per
+    pixel, the ramp's samples and whether it is real; the records' DTFT, G and
     the solve in one pass: lidard.dsp.spectrum._kernels_fit.joint_stencil; J to rounding), or None
     (numba not loaded, or a singular G: the numpy path then)."""
     kern = jit.kernels(0)
     if kern is None:
         return None
+    l_n, n, real = dims
     gr, gi = ev._terms()
     out = np.empty((live.size, sten.shape[0]))
     ok = kern.joint_stencil(gr, gi, np.ascontiguousarray(live, dtype=np.int64), int(l_n), np.ascontiguousarray(d),
