@@ -153,10 +153,11 @@ def _stencil_energy(ev: _DtftNearBin, live: np.ndarray, d: np.ndarray, sten: np.
         return None
     l_n, n, real = dims
     gr, gi = ev._terms()
+    offs, sidx = np.unique(sten, return_inverse=True)       # the stencil's distinct offsets (0, +-_H)
     out = np.empty((live.size, sten.shape[0]))
     ok = kern.joint_stencil(gr, gi, np.ascontiguousarray(live, dtype=np.int64), int(l_n), np.ascontiguousarray(d),
-                            np.ascontiguousarray(sten), np.ascontiguousarray(cent), np.ascontiguousarray(active),
-                            float(n), bool(real), out)
+                            offs, np.ascontiguousarray(sidx.reshape(sten.shape), dtype=np.int64),
+                            np.ascontiguousarray(cent), np.ascontiguousarray(active), float(n), bool(real), out)
     return out if ok else None
 
 

@@ -73,50 +73,60 @@ def window_grid(den: np.ndarray, off: np.ndarray, fre: np.ndarray, fim: np.ndarr
 
 
 @_jit
-def joint_stencil(gr: np.ndarray, gi: np.ndarray, live: np.ndarray, l_n: int, d: np.ndarray, sten: np.ndarray,
-                  cent: np.ndarray, active: np.ndarray, n: float, real: bool,
+def joint_stencil(gr: np.ndarray, gi: np.ndarray, live: np.ndarray, l_n: int, d: np.ndarray, offs: np.ndarray,
+                  sidx: np.ndarray, cent: np.ndarray, active: np.ndarray, n: float, real: bool,
                   out: np.ndarray) -> bool:  # pragma: no cover (compiled; checked against numpy in the tests)
     """One iteration's J (m, S) of lidard.dsp.ranging.tones.refine_joint in one pass: for live pixel i
-    (pixel ``live[i]`` of the moments) and stencil point s, the tones at cent + d + sten[s]; each
-    record's DTFT there from the Taylor coefficients ``gr``, ``gi`` (P, pairs; pair (pixel, record,
-    tone) = (pixel L + record) K + tone) by Horner and the phase exp(-j pi delta (n-1)/n); G from the
-    Dirichlet kernel; then J = sum_l b_l^H G^-1 b_l (:func:`_energy`). The sines and cosines are the C library's (numpy
-    takes its own vectorised ones): J agrees with the numpy path to rounding. False: a singular G."""
+    (pixel ``live[i]`` of the moments) and stencil point s, tone t at cent + d + offs[sidx[s, t]] (the
+    stencil's few distinct offsets ``offs``: each record's DTFT and each tone's own image term are taken
+    once per offset, not once per stencil point); each record's DTFT from the Taylor coefficients
+    ``gr``, ``gi`` (P, pairs; pair (pixel, record, tone) = (pixel L + record) K + tone) by Horner and
+    the phase exp(-j pi delta (n-1)/n); G from the Dirichlet kernel; then J = sum_l b_l^H G^-1 b_l
+    (:func:`_energy`). The sines and cosines are the C library's (numpy takes its own vectorised
+    ones): J agrees with the numpy path to rounding. False: a singular G."""
     m_n, k = d.shape
-    s_n = sten.shape[0]
+    s_n = sidx.shape[0]
+    u_n = offs.size
     p_terms = gr.shape[0]
     mm = 2 * k if real else k
     g = np.empty((mm, mm), dtype=np.complex128)
     y = np.empty((mm, l_n), dtype=np.complex128)
     rhs = np.empty((mm, l_n), dtype=np.complex128)
     on = np.empty(mm, dtype=np.bool_)
+    fu = np.empty((u_n, k))
+    xu = np.empty((u_n, l_n, k), dtype=np.complex128)
+    own = np.empty((u_n, k), dtype=np.complex128)
     f = np.empty(k)
-    dd = np.empty(k)
     for i in range(m_n):
         for t in range(mm):
             on[t] = active[i, t % k]
-        for s in range(s_n):
+        for u in range(u_n):
             for t in range(k):
-                dd[t] = d[i, t] + sten[s, t]
-                f[t] = cent[i, t] + dd[t]
-            for a in range(l_n):
-                col0 = (live[i] * l_n + a) * k
-                for t in range(k):
-                    delta = dd[t]
+                delta = d[i, t] + offs[u]
+                fu[u, t] = cent[i, t] + delta
+                if real:        # D(2 f_t): a tone against its own image
+                    own[u, t] = _dirichlet(fu[u, t] + fu[u, t], n)
+                theta = -np.pi * delta * (n - 1.0) / n
+                c = np.cos(theta)
+                sn = np.sin(theta)
+                for a in range(l_n):
+                    col = (live[i] * l_n + a) * k + t
                     acc_re = 0.0
                     acc_im = 0.0
                     for p in range(p_terms - 1, -1, -1):
                         acc_re *= delta
-                        acc_re += gr[p, col0 + t]
+                        acc_re += gr[p, col]
                         acc_im *= delta
-                        acc_im += gi[p, col0 + t]
-                    theta = -np.pi * delta * (n - 1.0) / n
-                    c = np.cos(theta)
-                    sn = np.sin(theta)
-                    x = complex(c * acc_re - sn * acc_im, c * acc_im + sn * acc_re)
-                    rhs[t, a] = x
+                        acc_im += gi[p, col]
+                    xu[u, a, t] = complex(c * acc_re - sn * acc_im, c * acc_im + sn * acc_re)
+        for s in range(s_n):
+            for t in range(k):
+                u = sidx[s, t]
+                f[t] = fu[u, t]
+                for a in range(l_n):
+                    rhs[t, a] = xu[u, a, t]
                     if real:
-                        rhs[t + k, a] = np.conj(x)
+                        rhs[t + k, a] = np.conj(xu[u, a, t])
             # G_ij = D(f_i - f_j); for a real ramp the images' block is conj(A), A_ij = D(f_i - f_j) of the
             # tones, and the tones' against the images' is D(f_i + f_j), symmetric in i, j: K^2 kernels, not
             # K (2K - 1) (D(-x) = conj(D(x)))
@@ -127,7 +137,8 @@ def joint_stencil(gr: np.ndarray, gi: np.ndarray, live: np.ndarray, l_n: int, d:
                     if real:
                         g[r + k, j + k] = np.conj(v)
                 if real:
-                    for j in range(r, k):
+                    g[r, r + k] = own[sidx[s, r], r]
+                    for j in range(r + 1, k):
                         v = _dirichlet(f[r] + f[j], n)
                         g[r, j + k] = v
                         g[j, r + k] = v
