@@ -8,6 +8,10 @@ They exist because numpy makes one pass over the whole array per operation: the 
 :mod:`lidard.dsp.detect.os_cfar` took about a dozen passes over every spectrum cell, here it is one, which
 also checks the values and finds each ramp's strongest cell (the detector's floor). The kernels
 themselves are in :mod:`lidard.dsp.spectrum._kernels` (which imports numba); this module holds their callers.
+The tone-model fits' kernels (:mod:`lidard.dsp.spectrum._kernels_fit`: the joint refinement's iteration,
+the model-order test's and the skirt search's least squares) are the exception: a solve in plain loops
+and the C library's sines give their values to rounding, not bit for bit (tests/dsp/spectrum/test_dsp_jit_fit.py);
+their window grid is bit for bit.
 
 numba is imported on first use, never at import time (``lidarctl --help`` and a scan's imports stay
 fast), and only if it is installed (a dependency wherever numba publishes wheels: the
