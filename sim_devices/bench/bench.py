@@ -318,11 +318,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
     args = ap.parse_args(argv)
-    # Before any thread exists: a bench process serves a daemon for as long as it runs, and its reads
-    # free multi-MB record arrays on several threads; with glibc's dynamic mmap threshold those arrays
-    # end up carved out of per-thread arenas whose touched pages stay resident after they are freed
-    # (lidard.heap): the same fixed threshold and bounded arenas as the daemon.
-    heap.configure()
+    # Before any thread exists: a bench process serves a daemon for as long as it runs, and every read
+    # allocates and frees 0.5-16 MB arrays on the synthesis pool's threads (lidard.heap). Every array
+    # numpy advises huge pages on is a mapping of its own; the smaller ones are reused from the heaps
+    # from read to read (no page faults: a 256 KiB threshold made them fresh mappings, ~0.1 s of system
+    # time a small scan), whose free pages go back once the bench has gone idle (below).
+    heap.configure(mmap_threshold=heap.NUMPY_HUGEPAGE_BYTES, trim_threshold=heap.HEAP_BYTES)
     try:
         cfg = load_config(args.config or Path(__file__).resolve().parent.parent / "config" / "sim.toml")
         scene = Scene.from_toml(args.scene) if args.scene else None
@@ -334,13 +335,15 @@ def main(argv: list[str] | None = None) -> int:
     # beside the start-up, rather than when its scans pass their break-even minutes later (a ~130 MB
     # jump of its memory at a time that depends on the scans; sim_devices.world.synth_jit.load_now).
     threading.Thread(target=synth_jit.load_now, name="lidar-sim-jit-load", daemon=True).start()
+    stop = threading.Event()
+    trimmer = heap.IdleTrimmer(lambda: bench.synthesizer.segments_synthesized, heap.BENCH_IDLE_S)
+    threading.Thread(target=trimmer.run, args=(stop,), name="lidar-sim-heap-trim", daemon=True).start()
     ep = bench.start(usb="tcp", control=True)
     if args.json:
         print(json.dumps(ep), flush=True)
     else:
         for k, v in ep.items():
             print(f"{k}: {v}", flush=True)
-    stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
 

@@ -29,7 +29,8 @@ class _ControlServer:
     ``{"cmd": "faults"}`` -> ``{"faults": [...]}``. Tests and benchmarks only:
     ``{"cmd": "truth"}`` -> ``{"truth": BenchTruth.as_dict()}`` (the hidden tolerances);
     ``{"cmd": "heap"}`` -> ``{"heap": lidard.heap.usage() (None without glibc), "threads": [names of
-    the Python threads], "os_threads": n}`` (what a long-running bench process holds).
+    the Python threads], "os_threads": n, "anon_bytes": resident anonymous memory (None without
+    procfs), "trims": lidard.heap.trims_done()}`` (what a long-running bench process holds).
     """
 
     def __init__(self, bench) -> None:   # a sim_devices.bench.bench.Bench (not imported: no cycle)
@@ -88,7 +89,8 @@ class _ControlServer:
             return {"truth": b.truth().as_dict()}
         if cmd == "heap":    # the process's memory and threads, for memory tests and soaks
             return {"heap": heap.usage(), "threads": sorted(t.name for t in threading.enumerate()),
-                    "os_threads": _os_threads()}
+                    "os_threads": _os_threads(), "anon_bytes": _anon_bytes(),
+                    "trims": heap.trims_done()}
         if cmd == "ground_truth":
             truth = b.ground_truth(np.asarray(msg["rows"]), np.asarray(msg["cols"]))
             return {"range_m": [None if not np.isfinite(x) else float(x) for x in truth]}
@@ -97,6 +99,19 @@ class _ControlServer:
     def close(self) -> None:
         self._closed = True
         self._sock.close()
+
+
+def _anon_bytes() -> int | None:
+    """Resident anonymous memory of this process (the heaps, the mappings of large blocks), bytes;
+    None without procfs."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("RssAnon:"):
+                    return int(line.split()[1]) << 10
+    except OSError:
+        pass
+    return None
 
 
 def _os_threads() -> int:

@@ -38,3 +38,19 @@ def test_a_short_run_reports_every_scan_done():
     res = child_bench_cost.run(3, 0)
     assert res["states"] == ["done"] and res["measured_scans"] == 2
     assert res["bench_user_s_per_scan"] > 0 and res["bench_rss_mb"] > 50
+
+
+@pytest.mark.parametrize("argv, scan", [(["--region"], child_bench_cost.REGION), ([], child_bench_cost.SCAN)])
+def test_region_flag_selects_the_larger_scan(argv, scan, monkeypatch, capsys):
+    seen = []
+    monkeypatch.setattr(child_bench_cost, "run", lambda scans, skip, s, idle: seen.append(s) or {"scans": scans})
+    assert child_bench_cost.main(["--scans", "4", *argv]) == 0
+    assert seen == [scan]
+    # the region reads every column of its rows at 10 averages: larger reads than the soak's ROI
+    assert (scan["cols"] == (0, 128) and scan["averages"] == 10) == bool(argv)
+
+
+def test_a_bad_idle_time_is_refused(capsys):
+    with pytest.raises(SystemExit) as exc:
+        child_bench_cost.main(["--idle-s", "-1"])
+    assert exc.value.code == 2 and "--idle-s must be" in capsys.readouterr().err
