@@ -324,6 +324,14 @@ def main(argv: list[str] | None = None) -> int:
     # from read to read (no page faults: a 256 KiB threshold made them fresh mappings, ~0.1 s of system
     # time a small scan), whose free pages go back once the bench has gone idle (below).
     heap.configure(mmap_threshold=heap.NUMPY_HUGEPAGE_BYTES, trim_threshold=heap.HEAP_BYTES)
+    # A bench process serves a daemon for as long as it runs: load the compiled synthesis kernels now,
+    # rather than when its scans pass their break-even minutes later (a ~130 MB jump of its memory at a
+    # time that depends on the scans; sim_devices.world.synth_jit.load_now). The load runs beside the
+    # bench's construction, and the bench serves only once it is done: numba's import and code
+    # generator hold the interpreter for seconds on a busy machine, and a controller read that waits
+    # behind them past the driver's timeouts (3 x 0.5 s) failed a daemon's first self-test or scan.
+    jit_load = threading.Thread(target=synth_jit.load_now, name="lidar-sim-jit-load", daemon=True)
+    jit_load.start()
     try:
         cfg = load_config(args.config or Path(__file__).resolve().parent.parent / "config" / "sim.toml")
         scene = Scene.from_toml(args.scene) if args.scene else None
@@ -331,10 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, SceneError) as exc:
         print(f"lidar-sim: {exc}", file=sys.stderr)
         return 2
-    # A bench process serves a daemon for as long as it runs: load the compiled synthesis kernels now,
-    # beside the start-up, rather than when its scans pass their break-even minutes later (a ~130 MB
-    # jump of its memory at a time that depends on the scans; sim_devices.world.synth_jit.load_now).
-    threading.Thread(target=synth_jit.load_now, name="lidar-sim-jit-load", daemon=True).start()
+    jit_load.join()
     stop = threading.Event()
     trimmer = heap.IdleTrimmer(lambda: bench.synthesizer.segments_synthesized, heap.BENCH_IDLE_S)
     threading.Thread(target=trimmer.run, args=(stop,), name="lidar-sim-heap-trim", daemon=True).start()
