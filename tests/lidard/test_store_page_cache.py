@@ -58,6 +58,7 @@ def test_page_cache_stops_growing_at_its_bound(tmp_path):
         grown = used() - base
     finally:
         store.close()
+    print(f"SQLite heap after 200 scans' rows: {first / 1024:.0f} KiB, after 3,000: {grown / 1024:.0f} KiB")
     # 3,000 scans' pages (~1.2 MiB under SQLite's default bound) held to the store's bound, plus
     # the page headers and the statement cache
     assert grown <= PAGE_CACHE_KIB * 1024 * 1.25 + (128 << 10), (grown, first)
