@@ -9,18 +9,10 @@ from lidard.dsp.ranging.order import cell_noise
 from lidard.dsp.ranging.tones import refine_joint
 from lidard.dsp.spectrum import jit
 from lidard.dsp.spectrum.windowdtft import _window_dtft_grid
+from tests.helpers.jit_ab import compiled_and_numpy
 
 needs_numba = pytest.mark.skipif(jit._compiled() is None, reason="numba is not installed")
 
-
-def _both(monkeypatch, fn):
-    jit.kernels()
-    got = fn()
-    monkeypatch.setenv("LIDARD_DSP_JIT", "0")
-    assert jit.kernels() is None
-    want = fn()
-    monkeypatch.delenv("LIDARD_DSP_JIT")
-    return got, want
 
 
 @needs_numba
@@ -30,7 +22,7 @@ def test_the_window_grid_is_the_numpy_grid_bit_for_bit(monkeypatch, window, n, z
     rng = np.random.default_rng(m + n)
     x0 = rng.uniform(-20, 20, (6, 2, 3))
     x0[0, 0] = [-3.0, 2.0, -n - 1.0]          # whole bins and a multiple of n: the limits' cells
-    got, want = _both(monkeypatch, lambda: _window_dtft_grid(window, n, x0, m, zero_pad))
+    got, want = compiled_and_numpy(monkeypatch, lambda: _window_dtft_grid(window, n, x0, m, zero_pad))
     assert np.all(np.isfinite(want))
     np.testing.assert_array_equal(got, want)
 
@@ -64,7 +56,7 @@ def test_the_compiled_joint_refinement_finds_the_tones_the_numpy_path_finds(monk
     start = f + rng.uniform(-0.2, 0.2, f.shape)
     for noise, tol_truth in ((0.0, 1e-4), (0.05, None)):
         x = _tones(f, amp, n, records, iq, rng, noise)
-        got, want = _both(monkeypatch, lambda: refine_joint(x, start, active))
+        got, want = compiled_and_numpy(monkeypatch, lambda: refine_joint(x, start, active))
         np.testing.assert_allclose(got[~active], start[~active], rtol=0, atol=0)   # an inactive tone: as given
         assert np.max(np.abs(got - want)) < 1e-7
         if tol_truth is not None:
@@ -126,13 +118,13 @@ def test_the_compiled_order_test_and_skirt_search_are_the_numpy_ones(monkeypatch
     index = np.rint(f).astype(np.int64)
     noise = np.full(p_n, 0.01 ** 2 * (rf.window_samples ** 2).sum() / rf.window_samples.sum() ** 2)
     kw = dict(window="hann", n_samples=n)
-    got, want = _both(monkeypatch, lambda: order_statistic(spec, index, fr, valid, noise, **kw))
+    got, want = compiled_and_numpy(monkeypatch, lambda: order_statistic(spec, index, fr, valid, noise, **kw))
     for a, b in zip(got, want):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.nanmax(np.abs(b)), equal_nan=True)
-    flags, flags_np = _both(monkeypatch, lambda: unresolved(spec, index, fr, valid, noise, level=1e-3, **kw))
+    flags, flags_np = compiled_and_numpy(monkeypatch, lambda: unresolved(spec, index, fr, valid, noise, level=1e-3, **kw))
     np.testing.assert_array_equal(flags, flags_np)
     assert flags_np[:10, 0].all() and flags_np[10:, 0].mean() < 0.1
-    (cells, rp), (cells_np, rp_np) = _both(monkeypatch, lambda: residual_near(spec, index[:, 0], fr, valid, half=8,
+    (cells, rp), (cells_np, rp_np) = compiled_and_numpy(monkeypatch, lambda: residual_near(spec, index[:, 0], fr, valid, half=8,
                                                                               **kw))
     np.testing.assert_array_equal(cells, cells_np)
     np.testing.assert_allclose(rp, rp_np, rtol=1e-8, atol=1e-12 * rp_np.max())
