@@ -29,6 +29,7 @@ from lidard.instrument import ScanRequest, open_instrument
 from lidard.jobs import ScanWorker
 from lidard.store import Store
 from sim_devices.bench.control import BenchControlClient
+from tests.helpers.fault_scans import FaultCycle
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a lidar-sim child on glibc")
 
@@ -76,17 +77,7 @@ def test_child_bench_heap_stays_bounded_and_flat_and_keeps_no_threads(tmp_path, 
     worker = ScanWorker(inst, store, laser=cfg.laser, max_queue=1, optics=cfg.optics(),
                         recalibrate_delta_c=cfg.scan.recalibrate_delta_c)
     worker.start()
-    k = [0]
-
-    def one_scan() -> None:
-        fault = FAULTS[k[0] % len(FAULTS)]
-        k[0] += 1
-        if fault is not None:
-            inst.inject_fault(fault[0], **fault[1])
-        rec = worker.submit_scan(ScanRequest(**SCAN))
-        final = worker.wait(rec.id, timeout_s=600)
-        inst.clear_faults()
-        assert final.state == "done", (fault, final.state, final.error)
+    one_scan = FaultCycle(inst, worker, FAULTS, ScanRequest(**SCAN), timeout_s=600).scan
 
     try:
         for _ in range(WARM):
