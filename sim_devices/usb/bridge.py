@@ -91,6 +91,7 @@ class UsbBridgeServer:
         self.host, self.port = self._sock.getsockname()[:2]
         self._threads: list[threading.Thread] = []
         self._conns: list[socket.socket] = []
+        self._lock = threading.Lock()
         self._closed = threading.Event()
         self._accept = threading.Thread(target=self._serve, name="usb-bridge-accept", daemon=True)
         self._accept.start()
@@ -106,9 +107,10 @@ class UsbBridgeServer:
             except OSError:
                 return
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._conns.append(conn)
             t = threading.Thread(target=self._handle, args=(conn,), name="usb-bridge-conn", daemon=True)
-            self._threads.append(t)
+            with self._lock:
+                self._conns.append(conn)
+                self._threads.append(t)
             t.start()
 
     def _handle(self, conn: socket.socket) -> None:
@@ -124,6 +126,14 @@ class UsbBridgeServer:
             return
         finally:
             conn.close()
+            # a bench serves daemons for weeks, one connection per daemon session: a finished
+            # connection leaves nothing behind
+            with self._lock:
+                if conn in self._conns:
+                    self._conns.remove(conn)
+                me = threading.current_thread()
+                if me in self._threads:
+                    self._threads.remove(me)
 
     def _dispatch(self, conn: socket.socket, req: bytearray, scratch: bytearray) -> bytearray:
         op = req[0]
@@ -179,14 +189,16 @@ class UsbBridgeServer:
         except OSError:
             pass
         self._sock.close()
-        for c in list(self._conns):
+        with self._lock:
+            conns, threads = list(self._conns), list(self._threads)
+        for c in conns:
             try:
                 c.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
             c.close()
         self._accept.join(timeout=5)
-        for t in self._threads:
+        for t in threads:
             t.join(timeout=5)
 
     def __enter__(self) -> UsbBridgeServer:

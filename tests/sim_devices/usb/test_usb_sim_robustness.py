@@ -101,3 +101,23 @@ def test_digitizer_driver_over_bridge_reads_golden_samples():
     finally:
         backend.close()
         server.close()
+
+
+def test_bridge_keeps_nothing_of_finished_connections():
+    """A bench serves daemon after daemon: each finished connection's socket and thread are dropped
+    (a list of them grew by one per daemon session before)."""
+    awg = SimAwg()
+    server = UsbBridgeServer([awg])
+    try:
+        for _ in range(40):
+            backend = RemoteUsbBackend(server.url)
+            dev = usb.core.find(idVendor=awgp.AWG_VID, idProduct=awgp.AWG_PID, backend=backend)
+            assert AwgDriver(dev, timeout_ms=500, retries=1).identify().model == "AWG-16"
+            backend.close()
+        threads = list(server._threads)
+        for t in threads:
+            t.join(timeout=10)
+        assert not any(t.is_alive() for t in threads)
+        assert server._threads == [] and server._conns == []
+    finally:
+        server.close()
