@@ -109,7 +109,7 @@ def test_bridge_keeps_nothing_of_finished_connections():
     awg = SimAwg()
     server = UsbBridgeServer([awg])
     try:
-        for _ in range(40):
+        for _ in range(8):
             backend = RemoteUsbBackend(server.url)
             dev = usb.core.find(idVendor=awgp.AWG_VID, idProduct=awgp.AWG_PID, backend=backend)
             assert AwgDriver(dev, timeout_ms=500, retries=1).identify().model == "AWG-16"
