@@ -183,3 +183,76 @@ def test_the_config_key_reaches_the_monitor_and_bad_values_are_refused():
     assert load_config(REPO / "config" / "sim.toml", environ={}).daemon.safety_period_s == 0.02
     with pytest.raises(ConfigError, match="safety_period_s"):
         load_config(REPO / "config" / "sim.toml", environ={"LIDARD__DAEMON__SAFETY_PERIOD_S": "0"})
+
+
+class _Timeline:
+    """A wall clock the test moves: the watch's waits advance it, and the scan thread's own flag reads
+    (``reads``: times) happen on the way, in the watch's thread (deterministic, no sleep)."""
+
+    def __init__(self, reads, end_s):
+        self.t, self.reads, self.end_s = 0.0, list(reads), end_s
+        self.log: list[tuple[float, str]] = []          # (time, "scan" | "watch") of every flags read
+        self.mon: SafetyMonitor | None = None
+
+    def now(self):
+        return self.t
+
+    def wait(self, dt_s):
+        target = self.t + dt_s
+        while self.reads and self.reads[0] <= target:
+            self.t = self.reads.pop(0)
+            self.mon.controller.who = "scan"
+            self.mon.read_flags()                       # the scan loop's check between two reads
+            self.mon.controller.who = "watch"
+        self.t = target
+        return self.t >= self.end_s
+
+
+class _TimedController(_ScriptedController):
+    """The interlock opens at ``open_at_s`` on the test's clock."""
+
+    def __init__(self, timeline, open_at_s):
+        super().__init__([_Flags()])
+        self.timeline, self.open_at_s, self.who = timeline, open_at_s, "watch"
+
+    def flags(self):
+        self.timeline.log.append((self.timeline.t, self.who))
+        return _Flags(interlock_closed=self.timeline.t < self.open_at_s)
+
+
+def _watched(reads, end_s, period_s=0.005, open_at_s=float("inf")):
+    tl = _Timeline(reads, end_s)
+    tl.mon = mon = SafetyMonitor(_TimedController(tl, open_at_s), laser_current_ma=50.0, hv_v=50.0, sleep=lambda s: None,
+                                 now=lambda: 0.0, period_s=None, wall=tl.now)
+    watch = SafetyWatch(mon, period_s, wait=tl.wait)
+    watch._run()                                        # the watch's loop, on the test's clock
+    return tl, mon, watch
+
+
+def test_safe_readings_by_the_scan_thread_stand_for_the_watchs_polls_and_the_bound_holds():
+    period = 0.005
+    # the scan thread checks every 3 ms up to 30 ms, then stops (blocked in the DSP) until the end
+    scan_reads = [round(0.003 * k, 6) for k in range(1, 11)]
+    tl, mon, watch = _watched(scan_reads, end_s=0.06, period_s=period)
+    times = [t for t, _ in tl.log]
+    watch_times = [t for t, who in tl.log if who == "watch"]
+    # every gap between two readings (whoever took them) within the period: the bound of a watch alone
+    assert max(b - a for a, b in zip([0.0] + times, times + [tl.end_s])) <= period + 1e-12
+    # no poll while the scan thread read often enough; the first one period after its last safe reading
+    assert watch_times[0] == pytest.approx(0.030 + period) and all(t > 0.030 for t in watch_times)
+    assert watch.checks == len(watch_times) == 6                 # 35, 40, ..., 60 ms
+    # the same span without the scan thread's readings: a poll every period, as before
+    tl0, _, watch0 = _watched([], end_s=0.06, period_s=period)
+    assert [round(t, 6) for t, _ in tl0.log] == [round(period * k, 6) for k in range(1, 13)]
+    assert watch0.checks == 12
+
+
+def test_an_unsafe_reading_is_not_stamped_and_the_watch_trips_one_period_after_the_last_safe_one():
+    period = 0.005
+    # the interlock opens at 10 ms: safe readings at 3, 6, 9 ms; the scan thread's readings at 12 and
+    # 13.5 ms see it open but (say) their caller is slow to act: the watch trips on its own at 9 + 5 ms
+    tl, mon, watch = _watched([0.003, 0.006, 0.009, 0.012, 0.0135], end_s=0.1, period_s=period, open_at_s=0.010)
+    assert mon.last_safe_read_s == pytest.approx(0.009)
+    assert mon.tripped is not None and mon.tripped["by"] == "watch" and "interlock" in mon.tripped["reason"]
+    first_watch = next(t for t, who in tl.log if who == "watch")
+    assert first_watch == pytest.approx(0.009 + period) and watch.checks == 1
