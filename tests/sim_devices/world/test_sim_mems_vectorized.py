@@ -195,3 +195,22 @@ def test_fpga_beams_with_stuck_switches_match_the_loop_reference(seed):
     assert per_window.max() >= 2 and per_window.min() == 0
     healthy = b.t_s + 1.5e-6 < start + 50e-6  # windows that end before the first fault
     assert healthy.sum() >= 2 and np.all(per_window[healthy] == 1)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_floor_test_skips_the_exponential_only_where_it_cannot_change_the_answer(seed):
+    """possibly_lit_many decides settled switches without the time; the answers equal the full
+    evaluation a + b > floor at every (switch, window end), also for floors at the levels themselves
+    (a level at an event, one ulp above or below it)."""
+    rng = np.random.default_rng(100 + seed)
+    n = 9
+    dyn = ROW_SWITCH if seed % 2 else COLUMN_SWITCH
+    sw, t, v, init = _random_bank(rng, n, dyn, 60, 20e-6)
+    bank = SwitchBank(n, dyn, sw, t, v, init)
+    tw = np.sort(np.concatenate([rng.uniform(-2e-6, 24e-6, 40), t]))
+    idx = bank._last_event(np.repeat(np.arange(n), tw.size), np.tile(tw, n))
+    levels = bank._level[np.isfinite(bank._level) & (bank._level > 0) & (bank._level < 1)]
+    floors = [0.0, 1e-3, 0.5, 1.0, *levels[:3], *np.nextafter(levels[:3], 2.0), *np.nextafter(levels[:3], -1.0)]
+    for floor in floors:
+        a, b, _ = bank._state(idx, np.tile(tw, n))
+        np.testing.assert_array_equal(bank._above(idx, tw, float(floor)), a + b > floor)
