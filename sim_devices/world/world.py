@@ -93,6 +93,7 @@ class World:
 
     def set_scene(self, scene: Scene) -> None:
         self.scene = scene
+        self._white_asd: tuple[LinkParams, float] | None = None    # (link, white-noise ASD)
         self._hits_store = HitStore()        # the hits of every pixel cast (central ray; footprint if mixed)
         self._mixed: dict[int, tuple] = {}   # footprint-weighted returns of the mixed pixels
         self._speckle = np.array([bool(t.speckle) for t in scene.targets], bool)
@@ -101,9 +102,13 @@ class World:
 
     # -- noise ------------------------------------------------------------------------------------
     def white_noise_asd_v(self) -> float:
-        """ASD of the white noises at the ADC input (shot, RIN, thermal, ambient), V/sqrt(Hz)."""
-        c = asd_components(self.link, 1.0)  # white terms do not depend on distance (P_ref >> P_rx)
-        return float(np.sqrt(sum(float(c[k]) ** 2 for k in WHITE_NOISES)))
+        """ASD of the white noises at the ADC input (shot, RIN, thermal, ambient), V/sqrt(Hz); kept
+        for the link it was computed for (LinkParams is frozen: a new link is a new object), every
+        read of the bench asks for it."""
+        if self._white_asd is None or self._white_asd[0] is not self.link:
+            c = asd_components(self.link, 1.0)  # white terms do not depend on distance (P_ref >> P_rx)
+            self._white_asd = (self.link, float(np.sqrt(sum(float(c[k]) ** 2 for k in WHITE_NOISES))))
+        return self._white_asd[1]
 
     # -- beams ------------------------------------------------------------------------------------
     def _cast_pixels(self, rows: np.ndarray, cols: np.ndarray) -> None:

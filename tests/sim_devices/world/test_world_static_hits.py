@@ -83,3 +83,19 @@ def test_precast_pixels_get_the_hits_of_a_read_by_read_cast():
     for i, (cat, _) in zip(range(0, rows.size, 20), got):
         expect = _entries(ahead, rows[i:i + 20], cols[i:i + 20])
         assert all(np.array_equal(cat[j], np.concatenate([e[j] for e in expect])) for j in range(7))
+
+
+def test_the_kept_white_noise_asd_follows_a_new_link():
+    from dataclasses import replace
+
+    from lidard.physics.budget import asd_components
+    from sim_devices.world.world import WHITE_NOISES
+
+    def direct(link):
+        c = asd_components(link, 1.0)
+        return float(np.sqrt(sum(float(c[k]) ** 2 for k in WHITE_NOISES)))
+
+    w = _world()
+    assert w.white_noise_asd_v() == direct(w.link) == w.white_noise_asd_v()
+    w.link = replace(w.link, tia_gain_v_per_a=3.0 * w.link.tia_gain_v_per_a)   # e.g. another TIA fitted
+    assert w.white_noise_asd_v() == direct(w.link) != direct(replace(w.link, tia_gain_v_per_a=w.link.tia_gain_v_per_a / 3))
