@@ -10,14 +10,10 @@ is the host's view of it, so the points measured while the light was unknown are
 Two independent checks run while the outputs may be on (from :meth:`~SafetyMonitor.bring_up` to
 :meth:`~SafetyMonitor.bring_down` or a trip):
 
-* the **watch** (:class:`SafetyWatch`): a daemon thread that makes sure the flags are read at least
-  every ``period_s`` of WALL time (``[daemon] safety_period_s``, 20 ms) and trips on its own, whatever
-  the scan thread is doing (a DSP flush of an 8 MiB batch takes most of a second of host time, during
-  which the virtual clock does not move). A safe reading taken by anyone else (the scan loop's check
-  below) counts: the watch's next poll is due ``period_s`` after the latest safe reading, so while the
-  scan thread reads the flags between reads more often than the period the watch sends nothing, and
-  the moment it stops (blocked in the DSP, a slow read) the watch reads them itself -- the same bound
-  on the time from a fault to its detection, for one Modbus request per period instead of two;
+* the **watch** (:class:`SafetyWatch`): a daemon thread that reads the flags every ``period_s`` of
+  WALL time (``[daemon] safety_period_s``, 20 ms) and trips on its own, whatever the scan thread is
+  doing (a DSP flush of an 8 MiB batch takes most of a second of host time, during which the
+  virtual clock does not move);
 * the scan loop's check between digitizer reads (at most ``SAFETY_CHECK_S`` of hardware time apart,
   the virtual-clock period on the bench); it also decides which points are kept, since it runs right
   after each read. After the watch tripped, :meth:`~SafetyMonitor.check` answers the watch's reason,
@@ -84,8 +80,7 @@ class SafetyMonitor:
 
     def __init__(self, controller: Any, *, laser_current_ma: float, hv_v: float,
                  sleep: Callable[[float], object], now: Callable[[], float], period_s: float | None = 0.02,
-                 pull_in_v: float | None = None, spread_v: float = 0.0,
-                 wall: Callable[[], float] = time.monotonic):
+                 pull_in_v: float | None = None, spread_v: float = 0.0):
         self.controller = controller
         self.laser_current_ma = laser_current_ma     # setpoints of bring_up()
         self.hv_v = hv_v
@@ -100,9 +95,6 @@ class SafetyMonitor:
         self._switch_s: float | None = None           # the interpreter's switch interval before the watch
         self.last_trip: dict[str, Any] | None = None  # the latest trip, with wall (monotonic) stamps
         self.trip_event = threading.Event()           # set by a trip, cleared by the next bring_up
-        self.wall = wall                              # the watch's clock (wall time; a test's own)
-        # wall time at which the latest SAFE flags reading was requested (the watch's period counts from it)
-        self.last_safe_read_s = float("-inf")
 
     def settle(self, *, stop_on_trip: bool = False) -> SettleCheck:
         """The controller's readback wait, on the instrument's clock (virtual on a bench); for a
@@ -124,11 +116,8 @@ class SafetyMonitor:
             return tripped["reason"]
         return self.read_flags()
 
-    def read_flags(self, *, stamp: bool = True) -> str | None:
-        """One Modbus request: None when the interlock is closed and no fault is latched. A safe
-        answer is stamped with the time the request was sent (``stamp``; the watch keeps its own
-        schedule): the state was safe at least until then."""
-        t_sent = self.wall()
+    def read_flags(self) -> str | None:
+        """One Modbus request: None when the interlock is closed and no fault is latched."""
         try:
             flags = self.controller.flags()
         except Exception as exc:
@@ -142,8 +131,6 @@ class SafetyMonitor:
             except Exception:
                 names = ["unknown"]
             return f"controller: fault latched mid-scan ({', '.join(names)})"
-        if stamp and t_sent > self.last_safe_read_s:
-            self.last_safe_read_s = t_sent
         return None
 
     @property
@@ -292,30 +279,21 @@ class SafetyMonitor:
 
 
 class SafetyWatch:
-    """The wall-clock watch: a daemon thread that reads the flags whenever ``period_s`` has passed
-    without a safe reading, and trips once.
+    """The wall-clock watch: a daemon thread reading the flags every ``period_s`` and tripping once.
 
     Its period is wall time on purpose (``threading.Event.wait``): it is the host's real-time check,
-    independent of the acquisition's virtual clock and of the DSP. A poll is due ``period_s`` after the
-    later of its own last scheduled poll (a fixed-rate schedule: a slow check does not push every
-    later one back) and the latest safe reading stamped by another caller
-    (:attr:`SafetyMonitor.last_safe_read_s`): a safe answer at t says the state was safe until t, so
-    reading again before t + ``period_s`` adds nothing to the bound on the time from a fault to its
-    detection. An unsafe answer is never stamped (its caller trips, or the watch finds it at its next
-    poll). It ends after a trip (the outputs are down and the session is over) or when stopped; being
-    a daemon thread it cannot keep the process alive, and :meth:`SafetyMonitor.bring_down` /
-    ``stop_watch`` join it. ``wait``: the stop event's wait (a test drives the loop on its own clock).
+    independent of the acquisition's virtual clock and of the DSP. It ends after a trip (the outputs
+    are down and the session is over) or when stopped; being a daemon thread it cannot keep the
+    process alive, and :meth:`SafetyMonitor.bring_down` / ``stop_watch`` join it.
     """
 
-    def __init__(self, monitor: SafetyMonitor, period_s: float,
-                 wait: Callable[[float], bool] | None = None):
+    def __init__(self, monitor: SafetyMonitor, period_s: float):
         if not (isinstance(period_s, (int, float)) and 0 < period_s <= 1.0):
             raise InstrumentError(f"daemon.safety_period_s must be in (0, 1] s, got {period_s!r}")
         self.monitor = monitor
         self.period_s = float(period_s)
         self.checks = 0
         self._stop = threading.Event()
-        self._wait = wait if wait is not None else self._stop.wait
         self._thread = threading.Thread(target=self._run, name="lidard-safety-watch", daemon=True)
 
     def start(self) -> None:
@@ -331,18 +309,13 @@ class SafetyWatch:
             self._thread.join(timeout=10.0)
 
     def _run(self) -> None:
-        wall = self.monitor.wall
-        scheduled = wall()      # the last poll's scheduled time (the start counts as one)
-        while True:
-            due = max(scheduled, self.monitor.last_safe_read_s) + self.period_s
-            if self._wait(max(0.0, due - wall())):
-                return
+        next_t = time.monotonic() + self.period_s
+        # fixed-rate schedule: a slow check does not push every later one back
+        while not self._stop.wait(max(0.0, next_t - time.monotonic())):
+            next_t += self.period_s
             if self.monitor.tripped is not None:
                 return          # the scan thread's own check tripped first
-            if self.monitor.last_safe_read_s + self.period_s > due:
-                continue        # a safe reading came in while waiting: the poll is due a period after it
-            scheduled = due
-            reason = self.monitor.read_flags(stamp=False)
+            reason = self.monitor.read_flags()
             self.checks += 1
             if reason is not None and not self._stop.is_set():
                 self.monitor.trip(reason, by="watch")
