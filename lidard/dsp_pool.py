@@ -17,6 +17,13 @@ cores cost ~35 % more CPU than on one. A worker process has a GIL of its own.
   name and layout. A result (per pixel and return slot) comes back pickled: small.
 * At the end of a scan each worker drops its DSP scratch buffers (lidard.dsp.spectrum.scratch): an idle daemon
   holds none.
+* The workers run ``WORKER_NICE`` below the process that started them: a scan's pace is set by the
+  serial chain of its acquiring thread (read -> transport -> safety check -> next read; on an
+  embedded bench, the bench's synthesis threads in it too), while the DSP has slack (batches queued,
+  back-pressure when it falls behind). On two busy cores the scheduler then gives the chain its core
+  first and the DSP the rest; a region scan's wall time fell 7 % (5 of 5 alternated pairs at load 22,
+  docs/measured/27_acquisition.md). With the kernel's autogroups it ranks them only within the
+  daemon's own session.
 * A worker that dies (killed, out of memory) fails the batches it held with :class:`DspWorkerLost`;
   the pool is started afresh for the next user.
 * As with any multiprocessing start other than fork, a worker imports the parent's main script (not a
@@ -59,6 +66,10 @@ class DspWorkerLost(RuntimeError):
 
 # ---------------------------------------------------------------------------------------- worker side
 
+#: how much lower than the acquiring process the workers run (nice increment; see the docstring)
+WORKER_NICE = 10
+
+
 def _batch_arrays(shm: shared_memory.SharedMemory, layout: list[tuple[str, str, tuple[int, ...], int]]
                   ) -> dict[str, np.ndarray]:
     return {name: np.ndarray(shape, np.dtype(dt), buffer=shm.buf, offset=off) for name, dt, shape, off in layout}
@@ -82,6 +93,7 @@ def _serve(conn: connection.Connection) -> None:
     mzi_delay_s) answers (seq, ok, FrameResult or exception), ("call", seq, fn, args) answers fn(*args),
     ("release",) drops the DSP's scratch buffers, ("stop",) or a closed pipe ends it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # Ctrl-C is the acquiring process's to handle
+    os.nice(WORKER_NICE)                              # the acquiring chain first (module docstring)
     from .dsp.frame import FrameDsp
     from .dsp.spectrum.scratch import release as release_scratch
     dsp = None

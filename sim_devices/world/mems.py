@@ -101,6 +101,17 @@ def hysteresis_states(volts: np.ndarray, initial_on: np.ndarray | bool,
     return np.where(last >= 0, taken, init)
 
 
+#: a level this far from the floor decides "above the floor" without evaluating its exponential
+#: (SwitchBank._above); rounding moves a + b by ~1e-16
+_DECIDED_MARGIN = 1e-9
+#: a level within this of its target counts as settled there (SwitchBank._settled_s: ~21 time
+#: constants after a full swing)
+_SETTLED_TOL = 1e-9
+#: windows per group in which a switch dark throughout is skipped (SwitchBank._live_queries): a
+#: pixel's dwell spans, a few tens of them a group, see a few switches change
+_GROUP_WINDOWS = 16
+
+
 class SwitchBank:
     """Drive history and optical response of ``n`` switches of one kind.
 
@@ -149,6 +160,12 @@ class SwitchBank:
         self._tau = np.where(self._target > 0.5, dynamics.tau_on_s, dynamics.tau_off_s)
         self._level = self._levels_at_events()
         self._cum_on = np.cumsum(self._target)
+        # when each event's level is within _SETTLED_TOL of its target (-inf: already at the event);
+        # the tolerance halved against the rounding of log and exp
+        swing = np.abs(self._level - self._target)
+        with np.errstate(divide="ignore"):
+            self._settled_s = np.where(swing > _SETTLED_TOL / 2,
+                                       self._t + self._tau * np.log(swing / (_SETTLED_TOL / 2)), -np.inf)
         # One sorted key per event, switch-major: key = switch * stride + rank of its time among
         # all event times. "Event e of switch s is at or before t" is then "key_e <= key(s, t)",
         # so the last event of any (switch, time) query is one searchsorted for the whole batch
@@ -246,18 +263,62 @@ class SwitchBank:
             raise ValueError(f"switch index outside 0..{self.n - 1}: {sw1.min()}..{sw1.max()}")
         # Switch-major (S, W) layout: the rank of a time is shared by all switches, and with the
         # windows in time order the query keys come sorted, which keeps searchsorted in cache.
-        shape = (sw1.size, t0.size)
-        base = (sw1 * self._stride)[:, None]
-        t0b = np.broadcast_to(t0[None, :], shape).ravel()
-        t1b = np.broadcast_to(t1[None, :], shape).ravel()
+        n_s, n_w = sw1.size, t0.size
+        out = np.zeros(n_s * n_w, bool)
+        if n_s == 0 or n_w == 0:
+            return out.reshape(n_w, n_s) if n_s == 0 else out.reshape(n_s, n_w).T
         r0 = np.searchsorted(self._t_all, t0, side="right")
         r1 = np.searchsorted(self._t_all, t1, side="right")
-        i0 = np.searchsorted(self._key, (base + r0).ravel(), side="right") - 1
-        i1 = np.searchsorted(self._key, (base + r1).ravel(), side="right") - 1
-        a0, b0, _ = self._state(i0, t0b)
-        a1, b1, _ = self._state(i1, t1b)
+        k = self._live_queries(sw1, t0, t1, floor)
+        s_k, w_k = k // n_w, k % n_w
+        i0 = np.searchsorted(self._key, sw1[s_k] * self._stride + r0[w_k], side="right") - 1
+        i1 = np.searchsorted(self._key, sw1[s_k] * self._stride + r1[w_k], side="right") - 1
         on_inside = (self._cum_on[i1] - self._cum_on[i0]) > 0
-        return ((a0 + b0 > floor) | (a1 + b1 > floor) | on_inside).reshape(shape).T
+        out[k] = self._above(i0, t0[w_k], floor) | self._above(i1, t1[w_k], floor) | on_inside
+        return out.reshape(n_s, n_w).T
+
+    def _live_queries(self, sw1: np.ndarray, t0: np.ndarray, t1: np.ndarray, floor: float) -> np.ndarray:
+        """Switch-major indices (s * W + w) of the (switch, window) queries that need evaluating: all
+        but those of a switch DARK over a group of ``_GROUP_WINDOWS`` consecutive windows -- no event
+        inside the group's span and, at its start, an OFF target it has settled to (its level then
+        stays within ``_SETTLED_TOL`` of 0, below the floor, and nothing turns it on: the query's
+        answer is False exactly). A scan's drive turns a few rows and columns on in a group of
+        windows: most of the bank's switches are dark there and cost one lookup per group."""
+        n_s, n_w = sw1.size, t0.size
+        if not 2 * _SETTLED_TOL < floor < 1.0 - 2 * _SETTLED_TOL:
+            return np.arange(n_s * n_w)
+        starts = np.arange(0, n_w, _GROUP_WINDOWS)
+        g0, g1 = np.minimum.reduceat(t0, starts), np.maximum.reduceat(t1, starts)
+        base = (sw1 * self._stride)[:, None]
+        j0 = np.searchsorted(self._key, (base + np.searchsorted(self._t_all, g0, side="right")).ravel(), side="right") - 1
+        j1 = np.searchsorted(self._key, (base + np.searchsorted(self._t_all, g1, side="right")).ravel(), side="right") - 1
+        dark = (j0 == j1) & (self._target[j0] == 0.0) & (self._settled_s[j0] <= np.tile(g0, n_s))
+        live = ~dark.reshape(n_s, starts.size)[:, np.arange(n_w) // _GROUP_WINDOWS]
+        return np.flatnonzero(live.ravel())
+
+    def _above(self, idx: np.ndarray, t_q: np.ndarray, floor: float) -> np.ndarray:
+        """``a + b > floor`` of :meth:`_state` (idx, t_q), the exponential evaluated only where it can
+        change the answer.
+
+        After its last event a switch's level goes from the level at the event to the target a
+        (b = (level - a) e, 0 <= e <= 1, falling with time): once the event is ``_settled_s`` old,
+        |b| <= ``_SETTLED_TOL`` and the answer is the target's (a is 0 or 1, the floor farther than
+        twice that from both); before, where the level at the event and the target are both above
+        or both below the floor, so is a + b. Both decide by margins far above rounding, so the
+        answers are the exact evaluation's; only a switch in a transition across the floor needs
+        its exponential (a few of a bank's, where every switch of every window needed one)."""
+        a, level = self._target[idx], self._level[idx]
+        out = np.minimum(a, level) > floor + _DECIDED_MARGIN
+        unsure = ~out & (np.maximum(a, level) >= floor - _DECIDED_MARGIN)
+        if 2 * _SETTLED_TOL < floor < 1.0 - 2 * _SETTLED_TOL:
+            settled = t_q >= self._settled_s[idx]
+            out |= settled & (a > floor)
+            unsure &= ~settled
+        k = np.flatnonzero(unsure)
+        if k.size:
+            a_u, b_u, _ = self._state(idx[k], t_q[k])
+            out[k] = a_u + b_u > floor
+        return out
 
 
 def mean_path_transmission(rows: SwitchBank, row: np.ndarray, cols: SwitchBank, col: np.ndarray,

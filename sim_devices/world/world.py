@@ -46,6 +46,7 @@ from lidard.physics.optics import FpsaOptics
 from . import footprint as fp
 from . import mixed_returns as mr
 from . import motion
+from .hit_store import HitStore
 from .scene import Scene
 from .speckle import speckle_factors
 from .tolerances import BenchTruth
@@ -92,7 +93,8 @@ class World:
 
     def set_scene(self, scene: Scene) -> None:
         self.scene = scene
-        self._cache: dict[int, tuple] = {}   # central ray's hits per pixel
+        self._white_asd: tuple[LinkParams, float] | None = None    # (link, white-noise ASD)
+        self._hits_store = HitStore()        # the hits of every pixel cast (central ray; footprint if mixed)
         self._mixed: dict[int, tuple] = {}   # footprint-weighted returns of the mixed pixels
         self._speckle = np.array([bool(t.speckle) for t in scene.targets], bool)
         self._moving = np.array([bool(np.any(t.velocity != 0)) for t in scene.targets], bool)
@@ -100,27 +102,29 @@ class World:
 
     # -- noise ------------------------------------------------------------------------------------
     def white_noise_asd_v(self) -> float:
-        """ASD of the white noises at the ADC input (shot, RIN, thermal, ambient), V/sqrt(Hz)."""
-        c = asd_components(self.link, 1.0)  # white terms do not depend on distance (P_ref >> P_rx)
-        return float(np.sqrt(sum(float(c[k]) ** 2 for k in WHITE_NOISES)))
+        """ASD of the white noises at the ADC input (shot, RIN, thermal, ambient), V/sqrt(Hz); kept
+        for the link it was computed for (LinkParams is frozen: a new link is a new object), every
+        read of the bench asks for it."""
+        if self._white_asd is None or self._white_asd[0] is not self.link:
+            c = asd_components(self.link, 1.0)  # white terms do not depend on distance (P_ref >> P_rx)
+            self._white_asd = (self.link, float(np.sqrt(sum(float(c[k]) ** 2 for k in WHITE_NOISES))))
+        return self._white_asd[1]
 
     # -- beams ------------------------------------------------------------------------------------
-    def _cast_pixels(self, rows: np.ndarray, cols: np.ndarray, footprint: bool = True) -> list[tuple]:
-        """Cached hit tuples per pixel: the footprint's weighted returns where the pixel is mixed
-        (``footprint``), else the central ray's hits."""
-        keys = rows.astype(np.int64) * 4096 + cols.astype(np.int64)
-        missing = np.unique(keys[[k not in self._cache for k in keys]]) if len(keys) else keys
-        if len(missing):
-            d = self.optics.directions(missing // 4096, missing % 4096)
-            h = self._static_cast(d)
-            self.rays_cast += len(missing)
-            for i, k in enumerate(missing):
-                self._cache[int(k)] = (*_entry(h, i), np.ones(int(h.count[i])))
-            if self.scene.mixed_pixels:
-                self._sample_footprints(missing, d, h)
-        if footprint and self._mixed:
-            return [self._mixed.get(int(k)) or self._cache[int(k)] for k in keys]
-        return [self._cache[int(k)] for k in keys]
+    def _cast_pixels(self, rows: np.ndarray, cols: np.ndarray) -> None:
+        """Cast the pixels at (rows, cols) not cast yet, each once, and store their hits
+        (:class:`~sim_devices.world.hit_store.HitStore`; the mixed ones' footprints too)."""
+        rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+        miss = self._hits_store.missing(rows, cols)
+        if not miss.any():
+            return
+        missing = np.unique(rows[miss] * 4096 + cols[miss])
+        d = self.optics.directions(missing // 4096, missing % 4096)
+        h = self._static_cast(d)
+        self.rays_cast += len(missing)
+        self._hits_store.add_cast(missing // 4096, missing % 4096, h)
+        if self.scene.mixed_pixels:
+            self._sample_footprints(missing, d, h)
 
     def precast(self, rows, cols) -> None:
         """Cast and cache the pixels at (rows, cols) not cast yet, in one vectorized call. A scan's
@@ -129,16 +133,13 @@ class World:
         read path). The cache is per pixel, so the answers are the same either way."""
         rows, cols = np.asarray(rows), np.asarray(cols)
         if rows.size:
-            self._cast_pixels(rows, cols, footprint=False)
+            self._cast_pixels(rows, cols)
 
     def is_mixed(self, rows, cols) -> np.ndarray:
         """(n,) True where the bench gives the pixel footprint-weighted returns (cast on demand)."""
         rows, cols = np.asarray(rows), np.asarray(cols)
-        keys = rows.astype(np.int64) * 4096 + cols.astype(np.int64)
-        uk, inv = np.unique(keys, return_inverse=True)          # once per distinct pixel
-        self._cast_pixels(uk // 4096, uk % 4096, footprint=False)
-        mixed = np.fromiter((int(k) in self._mixed for k in uk), bool, count=len(uk))
-        return mixed[inv.ravel()]
+        self._cast_pixels(rows, cols)
+        return self._hits_store.mixed(rows, cols)
 
     def _static_cast(self, d: np.ndarray, origin=(0.0, 0.0, 0.0)):
         """Cast into the static targets, hits naming their index in the whole scene."""
@@ -181,7 +182,9 @@ class World:
                 (sub.range_m, sub.incidence_rad, sub.reflectivity, sub.radial_velocity_mps,
                  sub.transmission, sub.target_index)]
         for j, entry in zip(mixed, mr.mix_samples(cols, self.range_bin_m(), self.max_hits)):
-            self._mixed[int(keys[cand[j]])] = entry
+            key = int(keys[cand[j]])
+            self._mixed[key] = entry
+            self._hits_store.add_mixed(key // 4096, key % 4096, entry)
 
     def _hits(self, rows, cols, t_s, footprint: bool = True):
         """(7 flat hit arrays, beam index) of beams at (rows, cols) fired at scene times ``t_s``."""
@@ -194,22 +197,13 @@ class World:
         return cat, beam
 
     def _static_hits(self, rows: np.ndarray, cols: np.ndarray, footprint: bool):
-        """(7 flat hit arrays, beam index) of the static scene: the cached entries of each DISTINCT
-        pixel concatenated once, then indexed per beam (a pixel's averages and the beams of a
-        switch transition repeat pixels; per-beam Python work cost ~0.1 ms a trigger)."""
-        keys = rows.astype(np.int64) * 4096 + cols.astype(np.int64)
-        if keys.size == 0:
+        """(7 flat hit arrays, beam index) of the static scene: each beam's stored hits, gathered
+        from the store in one pass (a pixel's averages and the beams of a switch transition repeat
+        pixels; per-beam Python work cost ~0.1 ms a trigger, per-pixel tuples ~0.3 ms a read)."""
+        if len(rows) == 0:
             return [np.zeros(0) for _ in range(7)], np.zeros(0, np.intp)
-        uk, inv = np.unique(keys, return_inverse=True)
-        entries = self._cast_pixels(uk // 4096, uk % 4096, footprint)
-        counts_u = np.fromiter((len(e[0]) for e in entries), dtype=np.int64, count=len(entries))
-        start_u = np.cumsum(counts_u) - counts_u
-        cat_u = [np.concatenate([e[j] for e in entries]) for j in range(7)]
-        counts = counts_u[inv.ravel()]
-        beam = np.repeat(np.arange(keys.size), counts)
-        # hit h of beam b is entry row start_u[pixel of b] + (h - first hit of b)
-        idx = np.repeat(start_u[inv.ravel()] - (np.cumsum(counts) - counts), counts) + np.arange(beam.size)
-        return [c[idx] for c in cat_u], beam
+        self._cast_pixels(rows, cols)
+        return self._hits_store.gather(rows, cols, footprint)
 
     def beam_hits(self, rows, cols, transmission, chirp=None, t_s=None) -> BeamHits:
         """Beat tones of beams lit at (rows, cols) with switch-path transmissions ``transmission``;
@@ -267,11 +261,3 @@ class World:
             ranges = np.r_[self._mixed[int(keys[i])][0], out[i]]   # + the central ray's (moving) hit
             out[i] = mr.nearest_truth(float(meas[i]), ranges, self.range_bin_m())
         return out
-
-
-def _entry(h, i: int) -> tuple:
-    """(range, incidence, reflectivity, radial velocity, transmission, target) of ray i's hits."""
-    n = int(h.count[i])
-    return (h.range_m[i, :n].copy(), h.incidence_rad[i, :n].copy(), h.reflectivity[i, :n].copy(),
-            h.radial_velocity_mps[i, :n].copy(), h.transmission[i, :n].copy(),
-            h.target_index[i, :n].astype(np.float64))

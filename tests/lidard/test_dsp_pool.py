@@ -143,6 +143,15 @@ def test_a_dead_worker_is_replaced_and_ctrl_c_is_left_to_the_acquiring_process(p
     assert len(pb.points()) >= 4 * 24
 
 
+def test_the_workers_run_below_the_acquiring_process():
+    # the scan's serial chain (reads, transport, safety check) gets a busy machine's cores first
+    pool = dsp_pool.dsp_pool()
+    assert sorted(pool.map(os.getpid, [()] * len(pool.workers))) == sorted(pool.pids)   # each one serving
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    assert [os.getpriority(os.PRIO_PROCESS, pid) for pid in pool.pids] == \
+        [min(19, mine + dsp_pool.WORKER_NICE)] * len(pool.workers)
+
+
 def test_a_worker_that_dies_under_a_batch_fails_that_batch_with_a_clear_error(plan):
     _, _, p = plan
     pb = _buffer(plan, workers=2, processes=True)

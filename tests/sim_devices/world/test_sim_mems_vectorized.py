@@ -195,3 +195,56 @@ def test_fpga_beams_with_stuck_switches_match_the_loop_reference(seed):
     assert per_window.max() >= 2 and per_window.min() == 0
     healthy = b.t_s + 1.5e-6 < start + 50e-6  # windows that end before the first fault
     assert healthy.sum() >= 2 and np.all(per_window[healthy] == 1)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_floor_test_skips_the_exponential_only_where_it_cannot_change_the_answer(seed):
+    """possibly_lit_many decides settled switches without the time, and skips switches dark over a
+    group of windows; the answers equal the full evaluation a + b > floor at every (switch, window
+    end), also for floors at the levels themselves (a level at an event, one ulp above or below it)."""
+    rng = np.random.default_rng(100 + seed)
+    n = 9
+    dyn = ROW_SWITCH if seed % 2 else COLUMN_SWITCH
+    sw, t, v, init = _random_bank(rng, n, dyn, 60, 20e-6)
+    bank = SwitchBank(n, dyn, sw, t, v, init)
+    tw = np.sort(np.concatenate([rng.uniform(-2e-6, 24e-6, 40), t]))
+    idx = bank._last_event(np.repeat(np.arange(n), tw.size), np.tile(tw, n))
+    levels = bank._level[np.isfinite(bank._level) & (bank._level > 0) & (bank._level < 1)]
+    floors = [0.0, 1e-3, 0.5, 1.0, *levels[:3], *np.nextafter(levels[:3], 2.0), *np.nextafter(levels[:3], -1.0)]
+    tq = np.tile(tw, n)
+    for floor in floors:
+        a, b, _ = bank._state(idx, tq)
+        np.testing.assert_array_equal(bank._above(idx, tq, float(floor)), a + b > floor)
+
+    # the whole test, dark groups skipped, against the full evaluation of every (switch, window)
+    t0 = tw[:-1]
+    t1 = t0 + rng.choice([0.0, 0.2e-6, 2e-6], t0.size)
+    for floor in floors:
+        got = bank.possibly_lit_many(np.arange(n), t0, t1, float(floor))
+        i0 = bank._last_event(np.repeat(np.arange(n), t0.size), np.tile(t0, n))
+        i1 = bank._last_event(np.repeat(np.arange(n), t1.size), np.tile(t1, n))
+        a0, b0, _ = bank._state(i0, np.tile(t0, n))
+        a1, b1, _ = bank._state(i1, np.tile(t1, n))
+        full = (a0 + b0 > floor) | (a1 + b1 > floor) | (bank._cum_on[i1] - bank._cum_on[i0] > 0)
+        np.testing.assert_array_equal(got, full.reshape(n, t0.size).T)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_switches_dark_over_a_group_of_windows_are_skipped_with_the_same_answers(seed):
+    """A slow drive (events ~40 us apart, switches settle in ~20 us): many (switch, group) pairs are
+    dark and skipped; possibly_lit_many still answers what the full evaluation does."""
+    rng = np.random.default_rng(200 + seed)
+    n = 12
+    dyn = ROW_SWITCH if seed % 2 else COLUMN_SWITCH
+    sw, t, v, init = _random_bank(rng, n, dyn, 40, 1.6e-3)
+    bank = SwitchBank(n, dyn, sw, t, v, init)
+    t0 = np.sort(rng.uniform(-0.1e-3, 1.7e-3, 400))
+    t1 = t0 + rng.choice([0.0, 1e-6, 20e-6], t0.size)
+    switches = rng.permutation(n)
+    floor = 1e-3
+    live = bank._live_queries(switches.astype(np.int64), t0, t1, floor)
+    assert 0 < live.size < 0.8 * n * t0.size                      # the shortcut is taken, not everywhere
+    got = bank.possibly_lit_many(switches, t0, t1, floor)
+    ref = _reference_events(n, dyn, sw, t, v, init)
+    want = np.array([[_ref_possibly_lit(ref[s], a, b, floor) for s in switches] for a, b in zip(t0, t1)], bool)
+    np.testing.assert_array_equal(got, want)
