@@ -1,4 +1,4 @@
-"""Simulated laser / TEC / HV controller: a Modbus TCP server on 127.0.0.1 with device logic.
+"""Simulated laser / TEC / HV controller: a pymodbus TCP server on 127.0.0.1 with device logic.
 
 Byte-level peer of drivers/controller/driver.py (register map in drivers/controller/protocol.py,
 wire format in docs/protocols/controller.md). What it models:
@@ -25,8 +25,7 @@ wire format in docs/protocols/controller.md). What it models:
   fault ``tec_offset``) that the readback cannot show.
 
 The device logic (state, lags, limits, interlock, faults) is ``sim_devices.controller.model``; this
-module serves it over Modbus TCP (the framing and function codes: ``sim_devices.controller.modbus_tcp``,
-an asyncio protocol answering each request where it arrives) and injects the protocol-level faults. Start/stop from a thread
+module serves it over Modbus TCP and injects the protocol-level faults. Start/stop from a thread
 (``start()``/``stop()``, or ``with ControllerSim(...) as sim``) or from a running asyncio loop
 (``await start_async()``/``await stop_async()``). Port 0 binds a free port, reported by ``.port``.
 """
@@ -37,11 +36,23 @@ import asyncio
 import threading
 
 from pymodbus.constants import ExcCodes
+from pymodbus.pdu import ModbusPDU
+from pymodbus.server import ModbusBaseServer, ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.controller import protocol as p
 from sim_devices.clock import VirtualClock
-from sim_devices.controller.model import ControllerModel, ControllerSpec, ControllerState, Dynamics
-from sim_devices.controller.modbus_tcp import ModbusTcpConnection, answer, exception_pdu
+from sim_devices.controller.model import (
+    ControllerModel,
+    ControllerSpec,
+    ControllerState,
+    Dynamics,
+    _bits_to_words,
+)
+
+_READ_FC_TABLE = {1: p.Table.COIL, 2: p.Table.DISCRETE_INPUT, 3: p.Table.HOLDING, 4: p.Table.INPUT}
+_WRITE_FC_TABLE = {5: p.Table.COIL, 15: p.Table.COIL, 6: p.Table.HOLDING, 16: p.Table.HOLDING,
+                   22: p.Table.HOLDING, 23: p.Table.HOLDING}
 
 
 class ControllerSim:
@@ -69,10 +80,10 @@ class ControllerSim:
         self._pending_timeouts = 0
         self._sticky_exception: int | None = None  # every request, until clear_injected()
         self._sticky_timeout = False
+        self._current_exception: int | None = None
         self.requests_received = 0
         self.responses_dropped = 0
-        self._server: asyncio.Server | None = None
-        self._connections: set[asyncio.Transport] = set()
+        self._server: ModbusTcpServer | None = None
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop_event: asyncio.Event | None = None
@@ -128,47 +139,89 @@ class ControllerSim:
                 self._sticky_timeout = False
         return n
 
-    # -- requests ---------------------------------------------------------------------------
-    def request(self, unit: int, pdu: bytes) -> bytes | None:
-        """The response PDU to one request (None: the response is lost on the wire, an injected
-        timeout; the request still executed). Every request counts (``requests_received``, the
-        heartbeat register) and takes the next injected exception, if any, instead of executing."""
-        self.requests_received += 1
-        self.model.heartbeat += 1
-        with self._inject_lock:
-            exc = self._pending_exceptions.pop(0) if self._pending_exceptions else self._sticky_exception
-        if exc is not None:
-            rsp = exception_pdu(pdu[0], exc)
-        elif unit != self.device_id:
-            rsp = exception_pdu(pdu[0], int(ExcCodes.DEVICE_FAILURE))   # no such device behind this port
+    # -- pymodbus hooks ---------------------------------------------------------------------
+    async def _action(self, function_code: int, start_address: int, address: int, count: int,
+                      registers: list[int], set_values: list[int] | list[bool] | None) -> ExcCodes | None:
+        if self._current_exception is not None:
+            return ExcCodes(self._current_exception)
+        if set_values is not None:
+            table = _WRITE_FC_TABLE.get(function_code)
+            if table is None:
+                return ExcCodes.ILLEGAL_FUNCTION
+            code = self.model.write(table, address, set_values)
+            if code is not None:
+                return ExcCodes(int(code))
         else:
-            rsp = answer(self.model, pdu)
-        with self._inject_lock:
-            if self._sticky_timeout or self._pending_timeouts > 0:
-                self._pending_timeouts = max(0, self._pending_timeouts - 1)
-                self.responses_dropped += 1
-                return None
-        return rsp
+            table = _READ_FC_TABLE.get(function_code) or _WRITE_FC_TABLE[function_code]
+        # Refresh pymodbus' register block from the model so the read (or the write's echo)
+        # reflects device logic; the block starts at address 0 (see _build_device).
+        img = self.model.image(table)
+        words = _bits_to_words(img) if table in (p.Table.COIL, p.Table.DISCRETE_INPUT) else list(img)
+        registers[0:len(words)] = words
+        return None
+
+    def _trace_pdu(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU:
+        if not sending:
+            self.requests_received += 1
+            self.model.heartbeat += 1
+            # Decide per request (not per datastore call: a write calls the action twice).
+            with self._inject_lock:
+                if self._pending_exceptions:
+                    self._current_exception = self._pending_exceptions.pop(0)
+                else:
+                    self._current_exception = self._sticky_exception
+        return pdu
+
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        if sending:
+            with self._inject_lock:
+                if self._sticky_timeout:
+                    self.responses_dropped += 1
+                    return b""
+                if self._pending_timeouts > 0:
+                    self._pending_timeouts -= 1
+                    self.responses_dropped += 1
+                    return b""
+        return data
+
+    def _build_device(self) -> SimDevice:
+        def bits(table: p.Table) -> list[SimData]:
+            return [SimData(0, values=[False] * p.table_size(table), datatype=DataType.BITS)]
+
+        def regs(table: p.Table) -> list[SimData]:
+            return [SimData(0, values=[0] * p.table_size(table), datatype=DataType.REGISTERS)]
+
+        return SimDevice(
+            self.device_id,
+            simdata=(bits(p.Table.COIL), bits(p.Table.DISCRETE_INPUT),
+                     regs(p.Table.HOLDING), regs(p.Table.INPUT)),
+            action=self._action,
+        )
 
     # -- lifecycle --------------------------------------------------------------------------
     async def start_async(self) -> int:
         """Start serving inside the running loop; returns the bound port."""
         if self._server is not None:
             raise RuntimeError("controller sim already started")
-        loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(lambda: ModbusTcpConnection(self, self._connections),
-                                                self.host, self._requested_port)
-        self.port = self._server.sockets[0].getsockname()[1]
+        server = ModbusTcpServer(
+            self._build_device(),
+            address=(self.host, self._requested_port),
+            trace_packet=self._trace_packet,
+            trace_pdu=self._trace_pdu,
+        )
+        await server.serve_forever(background=True)
+        self._server = server
+        # pymodbus types its transport as a BaseTransport; serving TCP, it is the asyncio.Server
+        self.port = server.transport.sockets[0].getsockname()[1]  # type: ignore[attr-defined]
         return self.port
 
     async def stop_async(self) -> None:
         if self._server is None:
             return
         server, self._server = self._server, None
-        server.close()
-        for t in list(self._connections):      # the clients' connections end with the server
-            t.close()
-        await server.wait_closed()
+        await server.shutdown()
+        if ModbusBaseServer.active_server is server:  # pymodbus keeps the last server alive
+            ModbusBaseServer.active_server = None
 
     def start(self, timeout_s: float = 5.0) -> int:
         """Run the server on its own thread + event loop; returns the bound port."""

@@ -75,6 +75,15 @@ def _approach(x: float, target: float, dt_s: float, tau_s: float) -> float:
     return target + (x - target) * math.exp(-dt_s / tau_s)
 
 
+def _bits_to_words(bits: Sequence[bool | int]) -> list[int]:
+    # pymodbus' SimDevice packs coil/discrete-input n at bit (n % 16) of word n // 16.
+    words = [0] * ((len(bits) + 15) // 16)
+    for i, b in enumerate(bits):
+        if b:
+            words[i // 16] |= 1 << (i % 16)
+    return words
+
+
 class ControllerModel:
     """Device logic without networking (what the firmware would do). Thread-safe."""
 
