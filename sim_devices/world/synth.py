@@ -158,7 +158,10 @@ def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s:
     ratio = traj.fs_hz / fs
     x_start = np.mod(t0 * traj.fs_hz, n_awg)
     x_start[x_start >= n_awg] = 0.0
-    u_start, u_inv = np.unique(x_start, return_inverse=True)
+    if x_start.size and x_start.min() == x_start.max():       # triggers period-aligned: one offset
+        u_start, u_inv = x_start[:1].copy(), np.zeros(x_start.size, np.intp)
+    else:
+        u_start, u_inv = np.unique(x_start, return_inverse=True)
     k = np.arange(n, dtype=np.float64)
     max_tau_samples_awg = max(max_tau_s, mzi.delay_s if mzi is not None else 0.0) * traj.fs_hz
     # hits' x - tau fs may go back one period, and a record may span several: tile the tables

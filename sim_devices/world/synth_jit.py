@@ -73,7 +73,7 @@ def _worth_it(samples: int, saved_s: float = SAVED_S_PHASE) -> bool:
     seconds (module docstring)."""
     if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
         return False
-    if _compiled.cache_info().currsize == 0 and not _numba_loaded():
+    if not _numba_loaded() and _compiled.cache_info().currsize == 0:
         _asked[0] += int(samples) * saved_s
         if _asked[0] < LOAD_CPU_S:
             return False
