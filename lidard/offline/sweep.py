@@ -53,11 +53,10 @@ from lidard.physics.budget import monitor_noise_asd, quantization_asd, snr_db
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.digitizer.device import decimation_filter
 from sim_devices.digitizer.front_end import write_samples
-from sim_devices.world.gauss import NoiseStream
 from sim_devices.world.fidelity import phase_noise_negligible
 from sim_devices.world.scene import Scene
 from sim_devices.world.synth import (
-    AdcSpec, ChirpTrajectory, Effects, HitBatch, MonitorMzi, synthesize, trajectory_from_frequency,
+    AdcSpec, ChirpTrajectory, Effects, HitBatch, MonitorMzi, NoiseStream, synthesize, trajectory_from_frequency,
 )
 from sim_devices.world.world import BeamHits, World
 
