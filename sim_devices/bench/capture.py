@@ -353,8 +353,8 @@ class SegmentSynthesizer:
         run = self._run_index()
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
-        # a large read in parts on the bench's threads: a record's white and phase noise are a function
-        # of (seed, run, trigger index), whatever the parts
+        # a large read in parts on the bench's threads: the white noise of a record is a function of
+        # (seed, run, trigger index), the phase noise seeded as a read from each part's first segment
         return synthesize_read(self.trajectory(), adc, np.zeros(n), hits,
                                lambda s: np.random.default_rng([self.seed, run, int(first) + s]),
                                noise=NoiseStream(stream_key(self.seed, run), int(first)),

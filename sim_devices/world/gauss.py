@@ -57,9 +57,8 @@ SIN_COEF = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(5, -1, -
 ANGLE_BITS = 24
 ANGLE_STEP = 2.0 * math.pi / (1 << ANGLE_BITS)
 
-#: draws of one record (each its own noise): the digitizer's four inputs' white noise, the laser's
-#: Wiener phase steps, and the Brownian-bridge terms of a return's (and the monitor MZI's) fractional delay
-CHANNELS = ("beat", "beat_q", "mzi", "mzi_q", "phase", "bridge", "mzi_bridge")
+#: channels of one record (each its own noise): the digitizer's four inputs
+CHANNELS = ("beat", "beat_q", "mzi", "mzi_q")
 
 
 def _mix64_int(z: int) -> int:
@@ -112,22 +111,12 @@ class NoiseStream:
 
 def record_keys(stream: NoiseStream, start: int, count: int, channel: str) -> np.ndarray:
     """The keys (uint64) of records ``stream.first + start ..`` (``count`` of them) on ``channel``."""
-    return keys_at(stream, np.arange(start, start + count), channel)
-
-
-def keys_at(stream: NoiseStream, records: np.ndarray, channel: str, sub: np.ndarray | None = None) -> np.ndarray:
-    """The keys (uint64) of records ``stream.first + records`` on ``channel``; ``sub``: a further index
-    per key (the rank of a return within its record), folded in through a third finalizer."""
     c = CHANNELS.index(channel)
-    idx = np.asarray(records, dtype=np.int64).astype(np.uint64) + np.uint64(stream.first)
+    idx = np.arange(stream.first + start, stream.first + start + count, dtype=np.uint64)
     z = idx * np.uint64(len(CHANNELS)) + np.uint64(c + 1)
     z *= np.uint64(GAMMA)
     z += np.uint64(int(stream.key))
-    z = mix64(mix64(z))
-    if sub is not None:
-        z += (np.asarray(sub, dtype=np.int64).astype(np.uint64) + np.uint64(1)) * np.uint64(GAMMA)
-        mix64(z)
-    return z
+    return mix64(mix64(z))
 
 
 def _words(keys: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:

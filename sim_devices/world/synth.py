@@ -69,6 +69,7 @@ import numpy as np
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import antialias
 from sim_devices.world.gauss import NoiseStream
+from sim_devices.world.laser import wiener_phase
 from sim_devices.world.synth_chirp import ChirpTrajectory, trajectory, trajectory_from_frequency
 from sim_devices.world.synth_chunk import (
     ChunkRun,
@@ -78,7 +79,6 @@ from sim_devices.world.synth_chunk import (
     delay_split,
     digitize_chunk,
     mzi_chunk,
-    wiener_rows,
 )
 from sim_devices.world.synth_grid import rational_ratio
 from sim_devices.world.synth_types import (
@@ -127,10 +127,10 @@ def _validated(t_start_s, hits: HitBatch | None, eff: Effects, rng, mzi: Monitor
     if not math.isfinite(eff.dc_v):
         raise SynthError(f"synthesize: dc_v must be finite, got {eff.dc_v!r}")
     white = asd.max(initial=0) > 0 or (mzi is not None and mzi.noise_asd_v_per_rthz > 0)
-    need_rng = ((linewidth_hz > 0 and (seg.size or mzi is not None)) or white) and not keyed
+    need_rng = (linewidth_hz > 0 and (seg.size or mzi is not None)) or (white and not keyed)
     if need_rng and rng is None:
-        raise SynthError("synthesize: rng (numpy Generator) or a noise stream is required when noise or "
-                         "phase noise is on")
+        raise SynthError("synthesize: rng (numpy Generator) is required when phase noise is on, or white noise "
+                         "without a noise stream")
     return t0, (seg, tau, amp, dop, ph), asd
 
 
@@ -201,18 +201,20 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     (noise only). ``effects``: white noise, phase noise, DC, the anti-alias filter and the I/Q hybrid
     (:class:`Effects`; none by default); ``mzi``: the monitor MZI's channel(s) (:class:`MonitorMzi`;
     None: no MZI); ``outputs``: volts, phase noise and the trig precision (:class:`SynthOutputs`).
-    Every random draw (white noise, phase noise) comes from the stream ``noise``: record s of this
-    call is record ``noise.first + s`` of it (:mod:`sim_devices.world.gauss`: the same record index,
-    key and draw give the same noise, whatever the call, so a read cut into parts gives the same
-    records). Without a stream, one is keyed by one draw of ``rng``, which is then required, only
-    when something random is switched on. Each channel draws its own white noise (two photodiodes,
-    two digitizer channels).
+    ``rng`` is required only when something random is switched on. Each channel draws its own white
+    noise (two photodiodes, two digitizer channels): record s of this call is record
+    ``noise.first + s`` of the stream ``noise`` (:mod:`sim_devices.world.gauss`: the same record
+    index, key and channel give the same noise, whatever the call); without one, white noise is
+    drawn from a stream keyed by one draw of ``rng``, taken before the phase noise's draws.
     """
     linewidth_hz, dc_v = effects.linewidth_hz, effects.dc_v
     beat_filter, iq_imbalance = effects.beat_filter, effects.iq_imbalance
     return_volts, return_phase_noise, fast_trig = outputs.volts, outputs.phase_noise, outputs.fast_trig
     fast = adc.quantize if fast_trig is None else bool(fast_trig)
     t0, raw_hits, asd = _validated(t_start_s, hits, effects, rng, mzi, noise is not None)
+    if noise is None and (asd.max(initial=0) > 0 or (mzi is not None and mzi.noise_asd_v_per_rthz > 0)):
+        assert rng is not None          # _validated requires one
+        noise = NoiseStream.from_rng(rng)
     n_seg, n, fs = t0.size, int(adc.n_samples), float(adc.sample_rate_hz)
     want_mzi = mzi is not None
     mzi_quadrature = mzi is not None and mzi.quadrature
@@ -223,10 +225,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     # -- phase-noise geometry ----------------------------------------------------------------------
     pn_on = linewidth_hz > 0 and (h.seg.size > 0 or want_mzi)
     var_step = 2.0 * np.pi * linewidth_hz / fs
-    white = asd.max(initial=0) > 0 or (mzi is not None and mzi.noise_asd_v_per_rthz > 0)
-    if noise is None and (white or pn_on):
-        assert rng is not None          # _validated requires one
-        noise = NoiseStream.from_rng(rng)
+    pn_rng = rng if pn_on else None      # _validated requires an rng when phase noise is on
     m_mzi, w_mzi = delay_split(np.array([mzi.delay_s]), fs) if mzi is not None else (None, None)
     n_pre = max(int(h.m.max(initial=0)), int(m_mzi[0]) if m_mzi is not None else 0) + 1
 
@@ -241,7 +240,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     chunk = max(1, _CHUNK_ELEMENTS // max(n, 1))
     seg_bounds = np.searchsorted(h.seg, np.arange(0, n_seg + chunk, chunk))
     noise_std = asd * math.sqrt(fs / 2.0)
-    run = ChunkRun(tb=tb, adc=adc, fast=fast, var_step=var_step, n_pre=n_pre, iq_imbalance=iq_imbalance,
+    run = ChunkRun(tb=tb, adc=adc, fast=fast, rng=rng, var_step=var_step, n_pre=n_pre, iq_imbalance=iq_imbalance,
                    beat_filter=beat_filter, quadrature=mzi_quadrature,
                    mzi_amplitude_v=mzi.amplitude_v if mzi is not None else None, m_mzi=m_mzi, w_mzi=w_mzi, dc_v=dc_v,
                    noise_std=noise_std, mzi_noise_asd_v_per_rthz=mzi.noise_asd_v_per_rthz if mzi is not None else 0.0,
@@ -250,7 +249,7 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
         s1 = min(n_seg, s0 + chunk)
         nc = s1 - s0
         h0, h1 = int(seg_bounds[ci]), int(seg_bounds[ci + 1])
-        phi = wiener_rows(noise, s0, nc, n_pre + n, var_step) if pn_on and noise is not None else None
+        phi = wiener_phase(linewidth_hz, n_pre + n, 1.0 / fs, pn_rng, shape=(nc,)) if pn_rng is not None else None
         if pn_all is not None:
             pn_all[s0:s1] = phi
         acc = {}

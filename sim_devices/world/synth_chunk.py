@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim_devices.world import antialias, synth_jit
-from sim_devices.world.gauss import NoiseStream, keys_at, normal_rows, record_keys
+from sim_devices.world.gauss import NoiseStream, normal_rows, record_keys
 from sim_devices.world.synth_chirp import ChirpTrajectory
 from sim_devices.world.synth_grid import static_beat_phase
 from sim_devices.world.synth_types import AdcSpec
@@ -77,28 +77,9 @@ def delay_split(tau_s: np.ndarray, fs: float):
     return m.astype(np.intp), w
 
 
-def normals(keys: np.ndarray, n: int, std: float | np.ndarray = 1.0) -> np.ndarray:
-    """gauss.normal_rows(keys, n, std) as float32, compiled when the kernels run (the same values)."""
-    std_rows = np.broadcast_to(np.asarray(std, dtype=np.float64), keys.shape)
-    kernel = synth_jit.noise_rows(keys.size * n)
-    if kernel is None:
-        return normal_rows(keys, n, std_rows)
-    out = np.empty((keys.size, n), np.float32)
-    kernel(keys, np.ascontiguousarray(std_rows), out)
-    return out
-
-
-def wiener_rows(stream: NoiseStream, s0: int, nc: int, n: int, var_step: float) -> np.ndarray:
-    """The laser's Wiener phase of records s0 .. s0 + nc - 1 (n samples with the pre-roll):
-    phi[k] = sum_{i <= k} w_i, w_i ~ N(0, var_step), the steps the records' own "phase" draws."""
-    steps = normals(record_keys(stream, s0, nc, "phase"), n, math.sqrt(var_step)).astype(np.float64)
-    return np.cumsum(steps, axis=1, out=steps)
-
-
-def delayed_noise(phi, rows, n_pre, n, m, w, var_step, bridge):
+def delayed_noise(phi, rows, n_pre, n, m, w, var_step, rng):
     """phi(t_k - tau) for records `rows` of phi (n_rows, n_pre+n), tau fs = m - w: exact for w == 0,
-    else linear interpolation between samples k - m and k - m + 1 plus a Brownian-bridge term;
-    ``bridge(i)``: standard normals (len(i), n) for the delays ``i`` with a fraction."""
+    else linear interpolation between samples k - m and k - m + 1 plus a Brownian-bridge term."""
     win = np.lib.stride_tricks.sliding_window_view(phi, n, axis=1)    # win[r, j] = phi[r, j:j+n]
     out = win[rows, n_pre - m]                                        # contiguous row copies
     frac = np.nonzero(w > 0)[0]
@@ -107,7 +88,7 @@ def delayed_noise(phi, rows, n_pre, n, m, w, var_step, bridge):
         step = win[rows[frac], n_pre - m[frac] + 1]
         step -= out[frac]
         step *= ww
-        step += bridge(frac).astype(np.float64) * np.sqrt(var_step * ww * (1.0 - ww))
+        step += rng.standard_normal((frac.size, n)) * np.sqrt(var_step * ww * (1.0 - ww))
         out[frac] += step
     return out
 
@@ -215,15 +196,16 @@ def _filter_gains(tb: Tables, h: SortedHits, hs: slice, dphi: np.ndarray, in_tur
 @dataclass(frozen=True)
 class ChunkRun:
     """What every chunk of one synthesis shares: the tables, the ADC, the float32 trig path (``fast``),
-    the phase noise's variance per sample (``var_step``) and pre-roll (``n_pre``
+    the random stream of the phase noise, its variance per sample (``var_step``) and pre-roll (``n_pre``
     samples), the receiver (``iq_imbalance`` (g, eps), the anti-alias ``beat_filter``), the monitor MZI
     (``quadrature`` output, ``mzi_amplitude_v``, its delay split ``m_mzi``/``w_mzi``; None without an
     MZI), the beat channels' ``dc_v``, the beat's white-noise std per segment, the MZI's noise ASD and
-    the stream of the white and phase noise (``noise``; None when neither is on)."""
+    the white noise's stream (``noise``; None when no white noise is on)."""
 
     tb: Tables
     adc: AdcSpec
     fast: bool
+    rng: np.random.Generator | None
     var_step: float
     n_pre: int
     iq_imbalance: tuple[float, float]
@@ -241,7 +223,7 @@ class ChunkRun:
 def beat_chunk(run: ChunkRun, h: SortedHits, hs: slice, s0: int, nc: int, phi: np.ndarray | None) -> dict:
     """The beat channels ("beat", and "beat_q" for I/Q) of the ``nc`` segments from ``s0``, from
     the hits ``hs`` (all in those segments): one tone per hit, summed per segment by rank."""
-    tb, n_pre, var_step, fast, adc = run.tb, run.n_pre, run.var_step, run.fast, run.adc
+    tb, n_pre, var_step, rng, fast, adc = run.tb, run.n_pre, run.var_step, run.rng, run.fast, run.adc
     iq_imbalance, beat_filter = run.iq_imbalance, run.beat_filter
     n = tb.n
     lseg = h.seg[hs] - s0
@@ -250,10 +232,7 @@ def beat_chunk(run: ChunkRun, h: SortedHits, hs: slice, s0: int, nc: int, phi: n
     aa = None if beat_filter is None else _filter_gains(tb, h, hs, dphi, in_turns, beat_filter)
     if phi is not None:
         dphi += phi[lseg, n_pre:]
-        rank, noise = h.rank[hs], run.noise
-        assert noise is not None        # keyed whenever the phase noise is on (synth.synthesize)
-        dphi -= delayed_noise(phi, lseg, n_pre, n, h.m[hs], h.w[hs], var_step,
-                              lambda i: normals(keys_at(noise, s0 + lseg[i], "bridge", rank[i]), n))
+        dphi -= delayed_noise(phi, lseg, n_pre, n, h.m[hs], h.w[hs], var_step, rng)
     a = h.amp[hs, None]
     parts = {}
     cos_part, sin_part = cos_sin(dphi, adc.iq, fast, in_turns=in_turns)
@@ -301,7 +280,7 @@ def mzi_chunk(run: ChunkRun, s0: int, s1: int, phi: np.ndarray | None) -> dict:
     """The monitor MZI ("mzi", and "mzi_q" with the quadrature output) of segments s0..s1-1: the
     clean fringes, or with phase noise the same Wiener realization as the beat's, delayed by the
     MZI's delay."""
-    tb, n_pre, var_step, fast, quadrature = run.tb, run.n_pre, run.var_step, run.fast, run.quadrature
+    tb, n_pre, var_step, rng, fast, quadrature = run.tb, run.n_pre, run.var_step, run.rng, run.fast, run.quadrature
     amplitude_v, m_mzi, w_mzi = run.mzi_amplitude_v, run.m_mzi, run.w_mzi
     # given whenever an MZI is synthesized (synth._validated)
     assert amplitude_v is not None and m_mzi is not None and w_mzi is not None
@@ -312,12 +291,9 @@ def mzi_chunk(run: ChunkRun, s0: int, s1: int, phi: np.ndarray | None) -> dict:
     # the tables hold the MZI's phase and fringes whenever an MZI is synthesized (synth._tables)
     assert mzi_det is not None and tb.mzi_clean is not None
     if phi is not None:
-        noise = run.noise
-        assert noise is not None        # keyed whenever the phase noise is on (synth.synthesize)
         mphi = mzi_det[0] + phi[:, n_pre:] if single_start else mzi_det[ub] + phi[:, n_pre:]
         mphi -= delayed_noise(phi, np.arange(nc), n_pre, n, np.full(nc, m_mzi[0]),
-                              np.full(nc, w_mzi[0]), var_step,
-                              lambda i: normals(keys_at(noise, s0 + i, "mzi_bridge"), n))
+                              np.full(nc, w_mzi[0]), var_step, rng)
         mzi_v, mzi_s = cos_sin(mphi, quadrature, fast)
         mzi_v *= amplitude_v
         acc["mzi"] = mzi_v

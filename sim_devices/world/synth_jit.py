@@ -113,23 +113,6 @@ def quantize_rows(samples: int, noisy: bool = False) -> Callable[..., Any] | Non
     return None if q is None else q[1] if noisy else q[0]
 
 
-def noise_rows(samples: int) -> Callable[..., Any] | None:
-    """The compiled generator of gauss.normal_rows (synth_kernels.noise_rows(keys, std, out)), or None,
-    by the same rule (the phase noise's steps and bridge terms)."""
-    if not _worth_it(samples, SAVED_S_NOISE) or _compiled() is None:
-        return None
-    return _generator()
-
-
-@lru_cache(maxsize=1)
-def _generator() -> Callable[..., Any] | None:
-    try:
-        from sim_devices.world import synth_kernels  # needs numba
-    except ImportError:
-        return None
-    return synth_kernels.noise_rows
-
-
 def load_now() -> bool:
     """Load numba and the compiled kernels now, whatever has been asked so far (module docstring), and
     run the range reduction once on a few samples, which starts numba's code generator (~60 MB the

@@ -5,12 +5,12 @@ A read of ``n`` segments is cut into parts of consecutive segments, each synthes
 in order. numpy's trig, arithmetic and random fills release the GIL, so the parts run side by side
 (and beside the host's DSP threads on an embedded bench).
 
-The noise does not depend on the cut: every random draw of record s of the read (white noise, the
-laser's phase noise) is a function of its index ``noise.first + s`` in the stream
-(:mod:`sim_devices.world.gauss`), so a read gives the same records in one part or in four, on any
-number of cores. Without a stream, each part keys its own from ``rng_for(first)``, the generator of a
-read starting at that segment: a part is then exactly the records a read of those segments alone would
-give. A read smaller than two parts of ``MIN_PART_SAMPLES`` stays on the calling thread, unchanged.
+The white noise does not depend on the cut: record s of the read is record ``noise.first + s`` of
+the stream (:mod:`sim_devices.world.gauss`, a function of the record's index), so a read gives the
+same records in one part or in four. The phase noise (when the bench synthesizes it) is drawn from
+``rng_for(first)``, the generator the bench seeds for a read starting at that segment, so a part is
+exactly the records a read of those segments alone would give. A read smaller than two parts of
+``MIN_PART_SAMPLES`` stays on the calling thread, unchanged.
 """
 
 from __future__ import annotations
@@ -82,8 +82,8 @@ def _joined(parts: list[Synthesized]) -> Synthesized:
 def synthesize_read(traj, adc, t_start_s, hits: HitBatch | None, rng_for: Callable[[int], np.random.Generator],
                     *, workers: int | None = None, noise: NoiseStream | None = None, **kw) -> Synthesized:
     """:func:`synthesize` of a read, in parts on ``workers`` threads (default :func:`synth_threads`);
-    ``rng_for(s)``: the generator of a read starting at segment ``s`` of this one; ``noise``: the stream
-    of the noise from the read's first segment (None: each part keys its own from its generator)."""
+    ``rng_for(s)``: the generator of a read starting at segment ``s`` of this one; ``noise``: the white
+    noise's stream from the read's first segment (None: each part keys its own from its generator)."""
     t0 = np.asarray(t_start_s, dtype=np.float64)
     n_seg = t0.size
     workers = synth_threads() if workers is None else int(workers)

@@ -83,26 +83,3 @@ def test_a_small_read_stays_on_the_calling_thread_unchanged(traj):
     a = sp.synthesize_read(traj, adc, t0, hits, _rng_for, workers=4, effects=Effects(noise_asd_v_per_rthz=2e-6))
     b = synthesize(traj, adc, t0, hits, rng=_rng_for(0), effects=Effects(noise_asd_v_per_rthz=2e-6))
     assert np.array_equal(a.beat, b.beat)
-
-
-def test_phase_noise_and_the_monitor_do_not_depend_on_the_cut_either(traj, monkeypatch):
-    """With the laser's phase noise (Wiener steps and the bridge terms of fractional delays) and the
-    monitor MZI's own noise on: 1, 2 and 4 parts give the same bytes on every channel, and the phase
-    noise is there (the records differ from the same read without it)."""
-    from sim_devices.world.synth import MonitorMzi
-    fs, n, n_seg = 10e6, 1200, 40
-    adc = AdcSpec(fs, n, bits=16, input_range_v=1.0, quantize=True)
-    monkeypatch.setattr(sp, "MIN_PART_SAMPLES", 4 * n)
-    seg = np.repeat(np.arange(n_seg), 2)[::3]
-    hits = HitBatch.from_targets(seg, 0.31 + 0.0173 * np.arange(seg.size), 0.05)      # fractional delays
-    t0 = np.arange(n_seg) * 2 * RAMP_S
-    kw = dict(effects=Effects(noise_asd_v_per_rthz=2e-6, linewidth_hz=2e6),
-              mzi=MonitorMzi(47.3e-9, 0.3, 1e-6, quadrature=True))
-    noise = NoiseStream(stream_key(3, 1), 77)
-    reads = {w: sp.synthesize_read(traj, adc, t0, hits, _rng_for, workers=w, noise=noise, **kw) for w in (1, 2, 4)}
-    for w in (2, 4):
-        for c in ("beat", "mzi", "mzi_q"):
-            assert np.array_equal(getattr(reads[w], c), getattr(reads[1], c)), (w, c)
-    no_pn = sp.synthesize_read(traj, adc, t0, hits, _rng_for, workers=2, noise=noise,
-                               effects=Effects(noise_asd_v_per_rthz=2e-6), mzi=kw["mzi"])
-    assert not np.array_equal(no_pn.mzi, reads[1].mzi)
