@@ -1,10 +1,9 @@
-"""Gaussian draws of the digitizer records: a counter-based generator, float32 samples.
+"""White Gaussian noise for the digitizer records: a counter-based generator, float32 samples.
 
 The additive noise of every record (shot + RIN + thermal + ambient, dissertation §2.4 eqs.
 2-16..2-21, drawn in :mod:`sim_devices.world.synth_chunk`) is the largest single cost of a frame's
-synthesis; the laser's phase noise (its Wiener steps and the bridge terms of fractional delays) is
-drawn the same way. Each is a pure function of (the stream's key, the record's index, the draw
-(channel), the sample's index): no generator state is carried from one record to the next, so a read
+synthesis. It is drawn here as a pure function of (the stream's key, the record's index, the
+channel, the sample's index): no generator state is carried from one record to the next, so a read
 cut into parts on several threads (:mod:`sim_devices.world.synth_parallel`) gives the same records
 as the read in one piece, and the compiled quantizer (:mod:`sim_devices.world.synth_kernels`) draws
 each record's noise in the same pass that adds it and rounds it to codes (no noise array, no
