@@ -52,6 +52,11 @@ from typing import Any
 import httpx
 from plyfile import PlyData
 
+try:
+    from benchmarks import soak_smaps
+except ImportError:            # run as a script: benchmarks/ itself is on sys.path
+    import soak_smaps          # type: ignore[no-redef]
+
 REPO = Path(__file__).resolve().parents[1]
 
 # kind -> parameters; scans are injected into before they start, and cleared after they end
@@ -250,7 +255,8 @@ def check_files(c: Client, rec: dict[str, Any]) -> tuple[int, int]:
     return 1, abs(n - points)
 
 
-def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
+def soak(minutes: float, seed: int = 1, p_fault: float = 0.6, smaps_dir: Path | None = None,
+         smaps_every_s: float = 20.0) -> dict[str, Any]:
     rng = random.Random(seed)
     tmp = tempfile.TemporaryDirectory(prefix="lidard-soak-")
     data_dir = Path(tmp.name)
@@ -269,6 +275,7 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
     lost = scans = files_checked = 0
     by_fault: dict[str, Counter] = defaultdict(Counter)   # injected kind ("none") -> outcomes
     t0 = time.monotonic()
+    smaps_next, smaps_k = 0.0, 0        # the next memory-map sample (benchmarks/soak_smaps.py)
     try:
         while time.monotonic() - t0 < minutes * 60.0:
             fault = rng.choice(FAULT_MIX) if rng.random() < p_fault else None
@@ -311,6 +318,10 @@ def soak(minutes: float, seed: int = 1, p_fault: float = 0.6) -> dict[str, Any]:
                 if role == "dsp_workers":
                     n_workers.append(n)
             detail.append(heap_detail(proc.pid))
+            if smaps_dir is not None and t_now >= smaps_next:
+                soak_smaps.write_sample(smaps_dir, smaps_k, t_now, {
+                    "daemon": [proc.pid], "bench": descendants_by_role(proc.pid)["bench"]})
+                smaps_next, smaps_k = t_now + smaps_every_s, smaps_k + 1
     finally:
         tmp_left = [str(p) for p in data_dir.rglob("*.tmp")]
         stop_daemon(proc)
@@ -361,8 +372,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rss-csv", default=None, help="write every RSS sample here: seconds, daemon MB, bench MB, daemon anonymous MB, "
                          "of which huge pages, daemon threads, then the MB of the DSP forkserver, of the DSP workers "
                          "together, of the resource tracker, of any other child, and the number of DSP workers")
+    ap.add_argument("--smaps-dir", type=Path, default=None,
+                    help="also write the memory maps and threads of the daemon and its bench here, one JSON file "
+                         "a sample (read them with benchmarks/soak_smaps.py)")
+    ap.add_argument("--smaps-every", type=float, default=20.0, help="seconds between two --smaps-dir samples")
     args = ap.parse_args(argv)
-    res = soak(args.minutes, args.seed)
+    if args.smaps_every <= 0:
+        ap.error(f"--smaps-every must be > 0 seconds, got {args.smaps_every}")
+    res = soak(args.minutes, args.seed, smaps_dir=args.smaps_dir, smaps_every_s=args.smaps_every)
     samples = res.pop("rss_samples")
     if args.rss_csv:
         Path(args.rss_csv).write_text("t_s,daemon_mb,bench_mb,daemon_anon_mb,daemon_anon_huge_mb,daemon_threads,"

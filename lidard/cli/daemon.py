@@ -56,8 +56,8 @@ def _load_dsp_kernels() -> None:
 
 
 def serve(args) -> int:
-    # before any thread exists: a daemon's heap must not creep up over weeks of scans (lidard.jobs.heap)
-    from ..jobs import heap
+    # before any thread exists: a daemon's heap must not creep up over weeks of scans (lidard.heap)
+    from .. import heap
     heap.configure()
     cfg = base.load_config(args.config)
     if args.foxglove:

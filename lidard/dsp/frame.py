@@ -284,9 +284,10 @@ class FrameDsp:
         rf = self.rfft
         out_f, out_det = [], []
         for r0 in (0, r):
-            ramp = ramp_volts(x[..., r0 + a:r0 + a + n], lsb_v, iq=self.iq, down=bool(r0))
-            # (n_pix, n_avg, n_bins) and its power; they die with this ramp's pass: one scratch
-            # buffer each for both ramps
+            # the ramp's volts, (n_pix, n_avg, n_bins) spectrum and its power die with this ramp's
+            # pass: one scratch buffer each for both ramps (a fresh 10 MB array faults in its pages)
+            ramp = ramp_volts(x[..., r0 + a:r0 + a + n], lsb_v, iq=self.iq, down=bool(r0),
+                              out=None if self.iq else scratch("frame.ramp", x.shape[:-1] + (n,), np.float64))
             shape = rf.spectrum_shape(ramp.shape[:-1])
             p = scratch("frame.power", shape, np.float64)
             spec = (rf.spectrum_of if codes else rf)(ramp, scratch("frame.spec", shape, np.complex128), p)

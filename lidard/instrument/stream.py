@@ -88,6 +88,13 @@ class _State:
     acq: Acquisition | None = None      # the last frame's acquisition, when the next may run on its arm
     arms: int = 0                       # digitizer acquisitions set up (configure + arm) so far
 
+    def start_s(self, frame_t0_ns: float | None) -> float:
+        """A frame's start on the stream's time axis: its first trigger; for a frame that never
+        triggered (a stop during its set-up), where the last frame ended, so frame times still grow and
+        a rate over the kept frames stays defined (it read 0.0, the stream's first trigger)."""
+        ref = self.end_ns if frame_t0_ns is None else frame_t0_ns
+        return 0.0 if ref is None or self.t0_ns is None else (ref - self.t0_ns) * 1e-9
+
 
 class StreamLoop:
     """Runs frames back to back on the scan loop's acquisition, safety and DSP machinery."""
@@ -224,7 +231,7 @@ class StreamLoop:
             setup = 0.0
         pts = self._place(pts, index, run, st)
         frame = Frame(index, pts, px, run.done,
-                      0.0 if frame_t0 is None or st.t0_ns is None else (frame_t0 - st.t0_ns) * 1e-9,
+                      st.start_s(frame_t0),
                       run.hw_last_s, setup, self.pixel_period_s(p),
                       partial=run.done < p.n_pixels, stop_reason=run.stop_reason, trade=dict(fp.trade),
                       faults=dict(run.faults))

@@ -25,7 +25,7 @@ from ..instrument.types import CalibrationResult, ScanRequest
 from ..physics.optics import FpsaOptics
 from ..instrument.plan import planned_pixel_count
 from ..store import ScanRecord, Store
-from . import heap
+from .. import heap
 from .events import EventHub, PointListener, Subscriber
 from .guided import FactoryCalibration
 from .kinds import (QueueFull, UnknownScan, WorkerStopped, _CalibrationJob, _ScanJob, _SelftestJob, _TaskJob,
@@ -249,7 +249,7 @@ class ScanWorker:
             finally:
                 with self._cv:
                     self._current = None
-                heap.trim()     # a daemon's RSS must not creep up job after job (lidard.jobs.heap)
+                heap.trim()     # a daemon's RSS must not creep up job after job (lidard.heap)
 
     def _run_calibration(self, job: _CalibrationJob) -> None:
         if not job.future.set_running_or_notify_cancel():

@@ -71,6 +71,7 @@ from typing import Any
 
 import numpy as np
 
+from lidard import heap
 from lidard.config import Config, ConfigError, load_config
 from sim_devices.awg.device import SimAwg
 from sim_devices.bench.capture import (
@@ -317,6 +318,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--json", action="store_true", help="print the endpoints as one JSON line")
     args = ap.parse_args(argv)
+    # Before any thread exists: a bench process serves a daemon for as long as it runs, and every read
+    # allocates and frees 0.5-16 MB arrays on the synthesis pool's threads (lidard.heap). Every array
+    # numpy advises huge pages on is a mapping of its own; the smaller ones are reused from the heaps
+    # from read to read (no page faults: a 256 KiB threshold made them fresh mappings, ~0.1 s of system
+    # time a small scan), whose free pages go back once the bench has gone idle (below).
+    heap.configure(mmap_threshold=heap.NUMPY_HUGEPAGE_BYTES, trim_threshold=heap.HEAP_BYTES)
+    # A bench process serves a daemon for as long as it runs: load the compiled synthesis kernels now,
+    # rather than when its scans pass their break-even minutes later (a ~130 MB jump of its memory at a
+    # time that depends on the scans; sim_devices.world.synth_jit.load_now). The load runs beside the
+    # bench's construction, and the bench serves only once it is done: numba's import and code
+    # generator hold the interpreter for seconds on a busy machine, and a controller read that waits
+    # behind them past the driver's timeouts (3 x 0.5 s) failed a daemon's first self-test or scan.
+    jit_load = threading.Thread(target=synth_jit.load_now, name="lidar-sim-jit-load", daemon=True)
+    jit_load.start()
     try:
         cfg = load_config(args.config or Path(__file__).resolve().parent.parent / "config" / "sim.toml")
         scene = Scene.from_toml(args.scene) if args.scene else None
@@ -324,17 +339,16 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, SceneError) as exc:
         print(f"lidar-sim: {exc}", file=sys.stderr)
         return 2
-    # A bench process serves a daemon for as long as it runs: load the compiled synthesis kernels now,
-    # beside the start-up, rather than when its scans pass their break-even minutes later (a ~130 MB
-    # jump of its memory at a time that depends on the scans; sim_devices.world.synth_jit.load_now).
-    threading.Thread(target=synth_jit.load_now, name="lidar-sim-jit-load", daemon=True).start()
+    jit_load.join()
+    stop = threading.Event()
+    trimmer = heap.IdleTrimmer(lambda: bench.synthesizer.segments_synthesized, heap.BENCH_IDLE_S)
+    threading.Thread(target=trimmer.run, args=(stop,), name="lidar-sim-heap-trim", daemon=True).start()
     ep = bench.start(usb="tcp", control=True)
     if args.json:
         print(json.dumps(ep), flush=True)
     else:
         for k, v in ep.items():
             print(f"{k}: {v}", flush=True)
-    stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
 

@@ -1,7 +1,8 @@
 """The control socket of a bench running as its own process (``lidar-sim --json``), and its client.
 
 A JSON-lines protocol on 127.0.0.1: set_scene, set_interlock, advance, ground_truth, truth, ping,
-inject, clear_faults, faults, fidelity (the ledger of modelled / skipped effects). The server side
+inject, clear_faults, faults, fidelity (the ledger of modelled / skipped effects), heap (the bench
+process's C heap and threads, for memory tests and soaks). The server side
 calls the :class:`sim_devices.bench.bench.Bench` it serves; the client (:class:`BenchControlClient`) is
 what lidard's composition root uses to steer a child bench.
 """
@@ -9,11 +10,13 @@ what lidard's composition root uses to steer a child bench.
 from __future__ import annotations
 
 import json
+import os
 import socket
 import threading
 
 import numpy as np
 
+from lidard import heap
 from sim_devices.world.scene import Scene, SceneError
 
 
@@ -24,7 +27,10 @@ class _ControlServer:
     ``{"cmd": "inject", "kind": K, **params}`` -> ``{"fault": {...}}``,
     ``{"cmd": "clear_faults", "kind": K | null}`` -> ``{"cleared": n}``,
     ``{"cmd": "faults"}`` -> ``{"faults": [...]}``. Tests and benchmarks only:
-    ``{"cmd": "truth"}`` -> ``{"truth": BenchTruth.as_dict()}`` (the hidden tolerances).
+    ``{"cmd": "truth"}`` -> ``{"truth": BenchTruth.as_dict()}`` (the hidden tolerances);
+    ``{"cmd": "heap"}`` -> ``{"heap": lidard.heap.usage() (None without glibc), "threads": [names of
+    the Python threads], "os_threads": n, "anon_bytes": resident anonymous memory (None without
+    procfs), "trims": lidard.heap.trims_done()}`` (what a long-running bench process holds).
     """
 
     def __init__(self, bench) -> None:   # a sim_devices.bench.bench.Bench (not imported: no cycle)
@@ -81,6 +87,10 @@ class _ControlServer:
             return {"fidelity": b.fidelity.snapshot()}
         if cmd == "truth":   # the hidden tolerances, for tests/benchmarks of a child bench
             return {"truth": b.truth().as_dict()}
+        if cmd == "heap":    # the process's memory and threads, for memory tests and soaks
+            return {"heap": heap.usage(), "threads": sorted(t.name for t in threading.enumerate()),
+                    "os_threads": _os_threads(), "anon_bytes": _anon_bytes(),
+                    "trims": heap.trims_done()}
         if cmd == "ground_truth":
             truth = b.ground_truth(np.asarray(msg["rows"]), np.asarray(msg["cols"]))
             return {"range_m": [None if not np.isfinite(x) else float(x) for x in truth]}
@@ -89,6 +99,27 @@ class _ControlServer:
     def close(self) -> None:
         self._closed = True
         self._sock.close()
+
+
+def _anon_bytes() -> int | None:
+    """Resident anonymous memory of this process (the heaps, the mappings of large blocks), bytes;
+    None without procfs."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("RssAnon:"):
+                    return int(line.split()[1]) << 10
+    except OSError:
+        pass
+    return None
+
+
+def _os_threads() -> int:
+    """Threads of this process, the interpreter's own and those of native libraries alike."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:                       # no procfs: the Python threads only
+        return threading.active_count()
 
 
 class BenchControlClient:

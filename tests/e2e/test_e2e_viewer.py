@@ -212,15 +212,18 @@ def test_viewer_follows_a_running_stream_and_replays_it_after_stop(tmp_path):
                 n = end["frames_done"]
                 starts = [f["start_s"] for f in end["frames"]]
                 # stopped: the kept frames are replayed in a loop; the counter runs through all of them
-                shown = page.evaluate("window.viewer.framesShown")
-                seen = set()
-                for _ in range(2 * n):
-                    page.wait_for_function(f"window.viewer.framesShown > {shown}", timeout=30_000)
-                    shown, idx, text = page.evaluate("""[window.viewer.framesShown, window.viewer.frameIndex,
-                        document.getElementById('frame-counter').textContent]""")
-                    assert text.startswith(f"frame {idx + 1} / {n} ")
-                    seen.add(idx)
-                assert seen == set(range(n))
+                # every draw rewrites the counter: the page notes each one (a sampler from here would
+                # miss draws on a busy machine), until every frame was drawn twice
+                page.evaluate("""() => { window.drawnCounters = [];
+                    new MutationObserver(() => window.drawnCounters.push(
+                        document.getElementById('frame-counter').textContent)).observe(
+                        document.getElementById('frame-counter'), {childList: true, characterData: true, subtree: true}); }""")
+                page.wait_for_function(f"window.drawnCounters.length >= {2 * n}", timeout=120_000)
+                drawn = page.evaluate("window.drawnCounters")
+                idx = [int(t.split(" ")[1]) - 1 for t in drawn]
+                assert all(t.startswith(f"frame {k + 1} / {n} ") for k, t in zip(idx, drawn)), drawn
+                assert all(b == (a + 1) % n for a, b in zip(idx, idx[1:])), idx    # in order, none skipped
+                assert set(idx) == set(range(n))
                 assert page.evaluate("window.viewer.frameRateHz") == pytest.approx(
                     (n - 1) / (starts[-1] - starts[0]), rel=1e-9)
             finally:

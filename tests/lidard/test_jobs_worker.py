@@ -240,7 +240,7 @@ def test_calibration_is_redone_when_the_laser_temperature_moved(tmp_path):
 
 
 def test_the_worker_gives_freed_heap_back_after_every_job(rig, monkeypatch):
-    from lidard.jobs import heap
+    from lidard import heap
     trims = []
     monkeypatch.setattr(heap, "trim", lambda: trims.append(1) or True)
     inst, store, w = rig()
@@ -255,7 +255,7 @@ def test_heap_trim_returns_pages_on_glibc():
     import ctypes
     import sys
 
-    from lidard.jobs import heap
+    from lidard import heap
     if not sys.platform.startswith("linux") or not hasattr(ctypes.CDLL(None), "malloc_trim"):
         assert heap.trim() is False
         return

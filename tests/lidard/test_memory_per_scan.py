@@ -30,6 +30,7 @@ from lidard.instrument import open_instrument
 from lidard.jobs import ScanWorker
 from lidard.live.points import LivePoints
 from lidard.store import Store
+from tests.helpers.fault_scans import FaultCycle
 
 SCAN = {"pattern": "roi", "rows": (40, 44), "cols": (48, 56), "max_range_m": 2.0}
 # faults that leave nothing latched: the scan retries, re-reads or reconnects and ends done
@@ -85,23 +86,15 @@ def test_per_scan_allocations_do_not_grow(tmp_path):
     worker.add_point_listener(live)
     worker.start()
     ends = []
-    k = [0]
+
+    def follow(ev: dict) -> None:            # what the SSE endpoint does with each event
+        if ev["event"] == "end":
+            ends.append(ev["state"])
+
+    cycle = FaultCycle(inst, worker, FAULTS, ScanRequest(**SCAN), timeout_s=300)
 
     def one_scan() -> None:
-        fault = FAULTS[k[0] % len(FAULTS)]
-        k[0] += 1
-        if fault is not None:
-            inst.inject_fault(fault[0], **fault[1])
-        rec = worker.submit_scan(ScanRequest(**SCAN))
-
-        def follow(ev: dict) -> None:        # what the SSE endpoint does with each event
-            if ev["event"] == "end":
-                ends.append(ev["state"])
-        unsubscribe = worker.subscribe(rec.id, follow)
-        final = worker.wait(rec.id, timeout_s=300)
-        unsubscribe()
-        inst.clear_faults()
-        assert final.state == "done", (fault, final.state, final.error)
+        cycle.scan(during=lambda rec: worker.subscribe(rec.id, follow))
 
     try:
         for _ in range(WARM):

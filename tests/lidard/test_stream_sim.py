@@ -248,3 +248,11 @@ def test_max_speed_sizes_the_streams_adc_band(inst):
         res = inst.run_stream(req, _small(inst), lambda f: None, threading.Event(), frames=1)
         rates.append(res.meta["adc"]["sample_rate_hz"])
     assert rates[1] > rates[0]
+
+
+def test_a_frame_that_never_triggered_starts_where_the_last_one_ended():
+    from lidard.instrument.stream import _State
+    st = _State(t0_ns=1e9, end_ns=3.5e9)            # the stream's first trigger; the last frame's end
+    assert st.start_s(2.0e9) == pytest.approx(1.0)    # a frame that triggered: its first trigger
+    assert st.start_s(None) == pytest.approx(2.5)     # a stop during its set-up: no trigger
+    assert _State().start_s(None) == 0.0              # the first frame, stopped before any trigger

@@ -152,12 +152,17 @@ def estimate_imbalance(i: np.ndarray, q: np.ndarray, *, window: str = "hann",
     return ImbalanceFit(gain, phase, g_sem, p_sem, int(r.size), image_rejection_db(gain, phase), after)
 
 
-def ramp_volts(seg: np.ndarray, lsb_v: float, *, iq: bool, down: bool) -> np.ndarray:
+def ramp_volts(seg: np.ndarray, lsb_v: float, *, iq: bool, down: bool, out: np.ndarray | None = None) -> np.ndarray:
     """One ramp's samples as the DSP takes them: float64 volts of a real beat; for an I/Q beat (the
     corrected complex I + jQ) complex volts, a down ramp conjugated so that it puts a static target at
-    the up ramp's +f_R (the sign convention of lidard.dsp.ranging.velocity)."""
+    the up ramp's +f_R (the sign convention of lidard.dsp.ranging.velocity). ``out``: a real beat's
+    volts are written there (a float64 array of ``seg``'s shape: a caller's scratch buffer)."""
     if not iq:      # cast, then scale in place: the same values as one mixed-type multiply, ~25 % faster
-        volts = seg.astype(np.float64)
+        if out is None:
+            volts = seg.astype(np.float64)
+        else:
+            volts = out
+            np.copyto(volts, seg)
         volts *= lsb_v
         return volts
     z = seg * lsb_v

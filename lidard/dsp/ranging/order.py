@@ -24,7 +24,8 @@ relative misfit (residual / fitted energy in the cells) the model allows; a resi
 not evidence of a second surface.
 
 Peaks within ``DC_BINS`` of DC (or of Nyquist) are not judged: their mirror image sits in the cells.
-Pure numpy.
+Pure numpy; where numba is installed the least-squares fits of the cells are compiled passes
+(lidard.dsp.spectrum._kernels_fit: the same sums to rounding).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import gammainccinv
 
+from ..spectrum import jit
 from ..spectrum.windowdtft import _window_dtft_bins, _window_dtft_grid
 from ..spectrum.window import get_window
 
@@ -109,6 +111,37 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     cols = _window_dtft_grid(window, n_samples, (kbin[:, :1, None] - f_all) / zero_pad, m, zero_pad)
     cols = np.where(near[:, None, :, None], cols, 0.0)                        # (q, L, K, m)
     white = _whitener(window, n_samples, m)
+    kern = jit.kernels(0)
+    got = None if kern is None else _order_fit_compiled(kern, x, cols, near, white)
+    if got is not None:
+        fit, total = got
+    else:
+        fit, total = _order_fit(x, cols, near, white)
+    r = np.maximum(total - fit, 0.0)
+    k_loc = near.sum(axis=1)
+    stat[b, slot] = 2.0 * r / noise[b]
+    # each record's amplitudes and (when given per record) frequencies were fitted
+    dof[b, slot] = (2.0 * (m - k_loc) - k_loc) * l_n if np.ndim(frac) == 3 else 2.0 * (m - k_loc) * l_n - k_loc
+    resid[b, slot] = r
+    energy[b, slot] = fit
+    return stat, dof, resid, energy
+
+
+def _order_fit_compiled(kern, x: np.ndarray, cols: np.ndarray, near: np.ndarray,
+                        white: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_order_fit` in one compiled pass (lidard.dsp.spectrum._kernels_fit.order_fit: the same
+    sums to rounding), or None on a singular G (the numpy path then says so)."""
+    fit, total = np.empty(x.shape[0]), np.empty(x.shape[0])
+    ok = kern.order_fit(np.ascontiguousarray(x), np.ascontiguousarray(cols), np.ascontiguousarray(near),
+                        np.ascontiguousarray(white), fit, total)
+    return (fit, total) if ok else None
+
+
+def _order_fit(x: np.ndarray, cols: np.ndarray, near: np.ndarray, white: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The whitened least squares of :func:`order_statistic`: (the fitted energy, the whitened cells'
+    energy), both summed over the records, per detection (Q,). ``x`` (Q, L, M) the cells, ``cols``
+    (Q, L, K, M) the tones' window DTFT there (zero for the tones not ``near``, (Q, K))."""
+    k = cols.shape[2]
     xw = np.einsum("ij,qlj->qli", white, x)
     cw = np.einsum("ij,qlkj->qlki", white, cols)
     # least squares in the whitened cells, record by record: the absent tones' columns zero
@@ -119,14 +152,7 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     amp = np.linalg.solve(g, rhs[..., None])[..., 0]                          # (q, L, K)
     fit = np.real(np.einsum("qlk,qlk->q", np.conj(rhs), amp))
     total = np.sum(np.abs(xw) ** 2, axis=(1, 2))
-    r = np.maximum(total - fit, 0.0)
-    k_loc = near.sum(axis=1)
-    stat[b, slot] = 2.0 * r / noise[b]
-    # each record's amplitudes and (when given per record) frequencies were fitted
-    dof[b, slot] = (2.0 * (m - k_loc) - k_loc) * l_n if np.ndim(frac) == 3 else 2.0 * (m - k_loc) * l_n - k_loc
-    resid[b, slot] = r
-    energy[b, slot] = fit
-    return stat, dof, resid, energy
+    return fit, total
 
 
 def unresolved(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid: np.ndarray, noise: np.ndarray, *,
@@ -159,17 +185,33 @@ def median_last(p: np.ndarray) -> np.ndarray:
 NOISE_STRIDE = 4
 
 
-def cell_noise(power: np.ndarray) -> np.ndarray:
+def cell_noise(power: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
     """Mean noise power per cell of each pixel (P, L, n_bins) -> (P,): the median of each record's
     spectrum (exponential cells: median = ln 2 x mean; every NOISE_STRIDE-th cell, fewer than a
-    hundred cells: all), averaged over the records."""
+    hundred cells: all), averaged over the records. ``rows``: those pixels of ``power`` only (only
+    their cells read are gathered)."""
     p = power[..., ::NOISE_STRIDE] if power.shape[-1] >= 100 * NOISE_STRIDE else power
+    if rows is not None:
+        p = p[rows]
     return (median_last(p) / np.log(2.0)).mean(axis=-1)
 
 
 def _fit_near(spec, centre, frac, valid, *, half, window, n_samples, zero_pad, iq, rows):
     """The least-squares fit of the valid tones ``frac`` (P, L, K) to the cells around ``centre`` (P,):
     (cells (P, m), their values (P, L, m), the tones' columns (P, L, K, m), amplitudes (P, L, K))."""
+    cells, x, cols = _cells_near(spec, centre, frac, valid, half=half, grid=(window, n_samples, zero_pad, iq), rows=rows)
+    g = np.einsum("plki,plqi->plkq", np.conj(cols), cols)
+    k = valid.shape[-1]
+    on = valid[:, None, :, None] & valid[:, None, None, :]
+    g = np.where(on, g, np.eye(k)[None, None]) + 1e-12 * np.eye(k)[None, None] * np.abs(g).max()
+    rhs = np.einsum("plki,pli->plk", np.conj(cols), x)
+    return cells, x, cols, np.linalg.solve(g, rhs[..., None])[..., 0]
+
+
+def _cells_near(spec, centre, frac, valid, *, half, grid, rows):
+    """What :func:`_fit_near` fits: (cells (P, m), their values (P, L, m), the valid tones' columns
+    (P, L, K, m), zero for the others); ``grid``: (window, n_samples, zero_pad, iq) of the spectrum."""
+    window, n_samples, zero_pad, iq = grid
     _, l_n, n_bins = spec.shape
     p_n = centre.shape[0]
     rows = np.arange(p_n) if rows is None else np.asarray(rows)
@@ -185,13 +227,7 @@ def _fit_near(spec, centre, frac, valid, *, half, window, n_samples, zero_pad, i
     cols = _window_dtft_grid(window, n_samples, (k0[:, None, None] - f) / zero_pad, m, zero_pad)
     if np.any(cells != first[:, None] + np.arange(m)):
         cols = np.take_along_axis(cols, (cells - first[:, None])[:, None, None, :], axis=-1)
-    cols = np.where(valid[:, None, :, None], cols, 0.0)                                 # (P, L, K, m)
-    g = np.einsum("plki,plqi->plkq", np.conj(cols), cols)
-    k = valid.shape[-1]
-    on = valid[:, None, :, None] & valid[:, None, None, :]
-    g = np.where(on, g, np.eye(k)[None, None]) + 1e-12 * np.eye(k)[None, None] * np.abs(g).max()
-    rhs = np.einsum("plki,pli->plk", np.conj(cols), x)
-    return cells, x, cols, np.linalg.solve(g, rhs[..., None])[..., 0]
+    return cells, x, np.where(valid[:, None, :, None], cols, 0.0)                       # (P, L, K, m)
 
 
 def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid: np.ndarray, *, half: int,
@@ -201,6 +237,13 @@ def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid:
     windowed spectrum around ``centre`` (P,) cells with every valid tone of ``frac`` (P, L, K) fitted
     by least squares (amplitude per record) and taken out. Where a strong return's skirt hides a weak
     one from the detector, the weak one stands out here. ``rows``: as for :func:`order_statistic`."""
+    kern = jit.kernels(0)
+    if kern is not None:    # the fit and the residual in one compiled pass (the same sums to rounding)
+        cells, x, cols = _cells_near(spec, centre, frac, valid, half=half, grid=(window, n_samples, zero_pad, iq),
+                                     rows=rows)
+        out = np.empty(cells.shape)
+        if kern.residual_fit(np.ascontiguousarray(x), np.ascontiguousarray(cols), np.ascontiguousarray(valid), out):
+            return cells, out
     cells, x, cols, amp = _fit_near(spec, centre, frac, valid, half=half, window=window, n_samples=n_samples,
                                     zero_pad=zero_pad, iq=iq, rows=rows)
     r = x - np.einsum("plk,plki->pli", amp, cols)

@@ -69,7 +69,7 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     judged = np.flatnonzero(valid.any(axis=-1))
     if judged.size == 0:
         return out.mean(axis=1), replace(det, unresolved=flags)
-    noise = cell_noise(power if judged.size == p_n else power[judged])
+    noise = cell_noise(power, None if judged.size == p_n else judged)
     test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
     # most ramps hold one detection in slot 0: those are tested with that slot alone (half the work)
     lone = valid[judged, 0] & (np.count_nonzero(valid[judged], axis=-1) == 1)

@@ -23,13 +23,14 @@ one-tone ``newton``. At K = 1 this is that estimator (averaged over the records 
 instead of by the mean of the per-record estimates); it reaches the K-tone Cramer-Rao bound once
 the tones are apart by more than about one bin (tests/dsp/ranging/test_dsp_ranging.py).
 
-Pure numpy.
+Pure numpy; where numba is installed one iteration's J on the stencil is one compiled pass.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..spectrum import jit
 from ..spectrum.dtft import _DtftNearBin, _terms_for
 from ..spectrum.windowdtft import _dirichlet
 
@@ -124,19 +125,40 @@ def refine_joint(x: np.ndarray, f0: np.ndarray, active: np.ndarray, *, iteration
         if live.size == 0:
             break
         m, act = live.size, active[live]
-        dd = d[live][:, None, :] + sten[None, :, :]                      # (m, S, K)
-        # X(centre + dd) per record: the evaluator holds (P, L, K) pairs, offsets per stencil point
-        delta = np.broadcast_to(dd[:, :, None, :], (m, s_n, l_n, k))
-        cols = None if m == p_n else (live[:, None] * (l_n * k) + np.arange(l_n * k)).reshape(-1)
-        xs = ev.dtft(np.moveaxis(delta, 1, 0).reshape(s_n, -1), cols=cols)   # (S, m*L*K)
-        b = np.moveaxis(xs.reshape(s_n, m, l_n, k), 0, 1)                  # (m, S, L, K)
-        j = joint_energy(b, cent[live][:, None, :] + dd, act, n, real)
+        j = _stencil_energy(ev, live, d[live], sten, cent[live], act, (l_n, n, real))
+        if j is None:
+            dd = d[live][:, None, :] + sten[None, :, :]                  # (m, S, K)
+            # X(centre + dd) per record: the evaluator holds (P, L, K) pairs, offsets per stencil point
+            delta = np.broadcast_to(dd[:, :, None, :], (m, s_n, l_n, k))
+            cols = None if m == p_n else (live[:, None] * (l_n * k) + np.arange(l_n * k)).reshape(-1)
+            xs = ev.dtft(np.moveaxis(delta, 1, 0).reshape(s_n, -1), cols=cols)   # (S, m*L*K)
+            b = np.moveaxis(xs.reshape(s_n, m, l_n, k), 0, 1)              # (m, S, L, K)
+            j = joint_energy(b, cent[live][:, None, :] + dd, act, n, real)
         step, newton = _newton_step(j, k, act)
         step = np.where(act, np.clip(step, -0.25, 0.25), 0.0)
         d[live] = np.clip(d[live] + step, d0[live] - reach, d0[live] + reach)
         # a Newton step this small has converged (the next moves by its square): the pixel is done
         live = live[~(newton & (np.abs(step).max(axis=1, initial=0.0) < CONVERGED_BINS))]
     return np.where(active, np.rint(start) + d, f0)
+
+
+def _stencil_energy(ev: _DtftNearBin, live: np.ndarray, d: np.ndarray, sten: np.ndarray, cent: np.ndarray,
+                    active: np.ndarray, dims: tuple[int, int, bool]) -> np.ndarray | None:
+    """J (m, S) of the ``live`` pixels on the stencil by the compiled kernel (``dims``: the records per
+    pixel, the ramp's samples and whether it is real; the records' DTFT, G and
+    the solve in one pass: lidard.dsp.spectrum._kernels_fit.joint_stencil; J to rounding), or None
+    (numba not loaded, or a singular G: the numpy path then)."""
+    kern = jit.kernels(0)
+    if kern is None:
+        return None
+    l_n, n, real = dims
+    gr, gi = ev._terms()
+    offs, sidx = np.unique(sten, return_inverse=True)       # the stencil's distinct offsets (0, +-_H)
+    out = np.empty((live.size, sten.shape[0]))
+    ok = kern.joint_stencil(gr, gi, np.ascontiguousarray(live, dtype=np.int64), int(l_n), np.ascontiguousarray(d),
+                            offs, np.ascontiguousarray(sidx.reshape(sten.shape), dtype=np.int64),
+                            np.ascontiguousarray(cent), np.ascontiguousarray(active), float(n), bool(real), out)
+    return out if ok else None
 
 
 def _newton_step(j: np.ndarray, k: int, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

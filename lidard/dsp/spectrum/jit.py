@@ -8,6 +8,10 @@ They exist because numpy makes one pass over the whole array per operation: the 
 :mod:`lidard.dsp.detect.os_cfar` took about a dozen passes over every spectrum cell, here it is one, which
 also checks the values and finds each ramp's strongest cell (the detector's floor). The kernels
 themselves are in :mod:`lidard.dsp.spectrum._kernels` (which imports numba); this module holds their callers.
+The tone-model fits' kernels (:mod:`lidard.dsp.spectrum._kernels_fit`: the joint refinement's iteration,
+the model-order test's and the skirt search's least squares) are the exception: a solve in plain loops
+and the C library's sines give their values to rounding, not bit for bit (tests/dsp/spectrum/test_dsp_jit_fit.py);
+their window grid is bit for bit.
 
 numba is imported on first use, never at import time (``lidarctl --help`` and a scan's imports stay
 fast), and only if it is installed (a dependency wherever numba publishes wheels: the
@@ -41,10 +45,14 @@ _asked = [0]        # cells asked for so far in this process (a count; races onl
 def _compiled() -> SimpleNamespace | None:
     try:
         from lidard.dsp.spectrum import _kernels as jit_kernels  # needs numba
+        from lidard.dsp.spectrum import _kernels_fit as fit_kernels
     except ImportError:
         return None
     return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db,
-                           bin_table=jit_kernels.bin_table, newton_real_step=jit_kernels.newton_real_step)
+                           bin_table=jit_kernels.bin_table, newton_real_step=jit_kernels.newton_real_step,
+                           joint_stencil=fit_kernels.joint_stencil,
+                           order_fit=fit_kernels.order_fit, residual_fit=fit_kernels.residual_fit,
+                           window_grid=fit_kernels.window_grid)
 
 
 def kernels(cells: int | None = None) -> SimpleNamespace | None:

@@ -14,6 +14,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from lidard.dsp.spectrum import jit
 from lidard.dsp.spectrum.window import get_window
 
 
@@ -137,6 +138,34 @@ def _cosine_sum_parts(coef: tuple[float, ...], n: int,
     return out, near, terms
 
 
+def _grid_terms(den: np.ndarray, factors: list[tuple[int, float, float]], q_n: int, cq: np.ndarray, sq: np.ndarray,
+                num: np.ndarray, c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_window_dtft_grid`'s cells (..., R, Q) from the denominators' sines ``den`` (..., R, J),
+    each term's (first column, signed coefficient, phase theta_m) and the whole bins' and the first
+    cells' factors; and where a denominator vanishes (inf or NaN there)."""
+    inv = 1.0 / den
+    near_den = np.abs(den) < 1e-12
+    s_re = np.zeros(den.shape[:-1] + (q_n,))
+    s_im = np.zeros(den.shape[:-1] + (q_n,))
+    near = np.zeros(den.shape[:-1] + (q_n,), dtype=bool)
+    for j0, coef_m, theta in factors:
+        sl = slice(j0, j0 + q_n)
+        s_re += (coef_m * np.cos(theta)) * inv[..., sl]
+        s_im -= (coef_m * np.sin(theta)) * inv[..., sl]
+        near |= near_den[..., sl]
+    t_re = cq * s_re + sq * s_im
+    t_im = cq * s_im - sq * s_re
+    c, s = c[..., None], s[..., None]
+    out = np.empty(t_re.shape, dtype=np.complex128)
+    np.multiply(c, t_re, out=out.real)
+    out.real += s * t_im
+    np.multiply(c, t_im, out=out.imag)
+    out.imag -= s * t_re
+    out.real *= num[..., None]
+    out.imag *= num[..., None]
+    return out, near
+
+
 def _window_dtft_grid(window: str, n: int, x0: np.ndarray, m: int, zero_pad: int) -> np.ndarray:
     """W(x0 + i / zero_pad) for i < m (..., m): the window's DTFT on m consecutive cells of a spectrum
     zero-padded ``zero_pad`` times, from each start ``x0`` (...,) (bins of the n-point grid).
@@ -157,35 +186,26 @@ def _window_dtft_grid(window: str, n: int, x0: np.ndarray, m: int, zero_pad: int
         r_n, q_n = min(zp, m), -(-m // zp)
         y = x0[..., None] + np.arange(r_n) / zp                              # (..., R): the first cells
         den = np.sin((y[..., None] + np.arange(-reach, q_n + reach)) * (np.pi / n))       # (..., R, J)
-        inv = 1.0 / den
-        near_den = np.abs(den) < 1e-12
-        s_re = np.zeros(y.shape + (q_n,))
-        s_im = np.zeros(y.shape + (q_n,))
-        near = np.zeros(y.shape + (q_n,), dtype=bool)
-        for mm, a in terms:
-            sl = slice(mm + reach, mm + reach + q_n)
-            theta = np.pi * mm * (n - 1) / n
-            coef_m = -a if mm % 2 else a
-            s_re += (coef_m * np.cos(theta)) * inv[..., sl]
-            s_im -= (coef_m * np.sin(theta)) * inv[..., sl]
-            near |= near_den[..., sl]
         # T = (-1)^q exp(-j psi_q) S, psi_q = pi q (n-1)/n: the q-th whole bin's sign and phase
         q = np.arange(q_n)
         cq = np.where(q % 2, -1.0, 1.0) * np.cos(np.pi * q * (n - 1) / n)
         sq = np.where(q % 2, -1.0, 1.0) * np.sin(np.pi * q * (n - 1) / n)
-        t_re = cq * s_re + sq * s_im
-        t_im = cq * s_im - sq * s_re
         r = np.rint(y)
         num = np.sin(np.pi * (y - r)) * (1.0 - 2.0 * np.mod(r, 2.0))         # sin(pi y), (..., R)
         phi = y * (np.pi * (n - 1) / n)
-        c, s = np.cos(phi)[..., None], np.sin(phi)[..., None]
-        out = np.empty(y.shape + (q_n,), dtype=np.complex128)
-        np.multiply(c, t_re, out=out.real)
-        out.real += s * t_im
-        np.multiply(c, t_im, out=out.imag)
-        out.imag -= s * t_re
-        out.real *= num[..., None]
-        out.imag *= num[..., None]
+        c, s = np.cos(phi), np.sin(phi)
+        factors = [(mm + reach, -a if mm % 2 else a, np.pi * mm * (n - 1) / n) for mm, a in terms]
+        kern = jit.kernels(0)
+        if kern is not None and y.size:    # the arithmetic below in one compiled pass (the same values)
+            out = np.empty(y.shape + (q_n,), dtype=np.complex128)
+            near = np.empty(out.shape, dtype=bool)
+            kern.window_grid(den.reshape((-1,) + den.shape[-2:]), np.array([f[0] for f in factors], dtype=np.int64),
+                             np.array([cm * np.cos(th) for _, cm, th in factors]),
+                             np.array([cm * np.sin(th) for _, cm, th in factors]), cq, sq,
+                             num.reshape(-1, r_n), c.reshape(-1, r_n), s.reshape(-1, r_n),
+                             out.reshape((-1,) + out.shape[-2:]), near.reshape((-1,) + near.shape[-2:]))
+        else:
+            out, near = _grid_terms(den, factors, q_n, cq, sq, num, c, s)
     if near.any():          # a denominator vanishes: those cells one by one, with the kernels' limits
         out[near] = _cosine_sum_dtft(coef, n, np.broadcast_to(y[..., None] + q, near.shape)[near])
     # (..., R, Q) -> cell i = q zero_pad + r

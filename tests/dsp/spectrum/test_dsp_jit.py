@@ -7,17 +7,10 @@ from lidard.dsp.detect import cfar
 from lidard.dsp.spectrum import jit
 from lidard.dsp.chain import measure_peaks
 from lidard.dsp.spectrum.rangefft import RangeFFT
+from tests.helpers.jit_ab import compiled_and_numpy
 
 pytestmark = pytest.mark.skipif(jit._compiled() is None, reason="numba is not installed")
 
-
-def _both(monkeypatch, fn):
-    got = fn()
-    monkeypatch.setenv("LIDARD_DSP_JIT", "0")
-    assert jit.kernels() is None
-    want = fn()
-    monkeypatch.delenv("LIDARD_DSP_JIT")
-    return got, want
 
 
 def test_power_is_re2_plus_im2():
@@ -34,7 +27,7 @@ def test_os_screen_detects_what_the_numpy_screen_does(monkeypatch, n_side, guard
     p[:, :2] *= 300.0                                   # maxima at the first cells (mirrored windows)
     p[5, 30:33] = 1e4                                   # a plateau: only its first cell is a local maximum
     p[7] = 0.0
-    got, want = _both(monkeypatch, lambda: cfar._os_screened(p, n_side, guard, 1e-3, rank))
+    got, want = compiled_and_numpy(monkeypatch, lambda: cfar._os_screened(p, n_side, guard, 1e-3, rank))
     assert got[3] == want[3]                            # the same scaled alpha
     # the screens differ (per cell here, per block there); the cells that pass the exact test agree
     passing = []
@@ -52,7 +45,7 @@ def test_the_chain_is_the_same_with_and_without_the_kernels(monkeypatch):
     t = np.arange(n)
     x = np.cos(2 * np.pi * rng.uniform(10, 118, (400, 1)) * t / n) + 0.3 * rng.standard_normal((400, n))
     rf = RangeFFT(n, 5e6, 1.075e14, window="hann")
-    got, want = _both(monkeypatch, lambda: measure_peaks(rf, x, pfa=1e-6, max_detections=2))
+    got, want = compiled_and_numpy(monkeypatch, lambda: measure_peaks(rf, x, pfa=1e-6, max_detections=2))
     assert want.detections.valid[:, 0].mean() > 0.9
     np.testing.assert_array_equal(got.freq_hz, want.freq_hz)
     for f in ("index", "power", "noise", "snr_db", "valid", "width_bins"):
@@ -98,7 +91,7 @@ def test_the_detector_is_the_same_with_and_without_the_kernels(monkeypatch, kw):
     p = np.abs(spec) ** 2
     p[0] = 0.0
     p[1, ::2] = 1e3
-    got, want = _both(monkeypatch, lambda: cfar.cfar_detect_with(p, cfar.CfarSettings(**kw)))
+    got, want = compiled_and_numpy(monkeypatch, lambda: cfar.cfar_detect_with(p, cfar.CfarSettings(**kw)))
     for name in _FIELDS:
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
     assert want.valid.sum() > rows and want.harmonic.any() and want.unresolved.any()
@@ -115,7 +108,7 @@ def test_widths_are_the_same_with_and_without_the_kernels(monkeypatch, max_half)
     cols[:20] = 0
     cols[20:40] = 39
     rows = np.repeat(np.arange(200), 2)
-    got, want = _both(monkeypatch, lambda: cfar._width_6db(p, None, max_half, rows=rows, cols=cols))
+    got, want = compiled_and_numpy(monkeypatch, lambda: cfar._width_6db(p, None, max_half, rows=rows, cols=cols))
     np.testing.assert_array_equal(got, want)
     assert np.unique(want).size > 50 if max_half else not want.any()     # max_half 0: no bin looked at
 
@@ -138,7 +131,7 @@ def test_newton_on_real_ramps_is_the_same_with_and_without_the_kernels(monkeypat
     pb = np.stack([np.rint(f[:, 0] * zero_pad), rng.integers(-n * zero_pad // 2 + 1, n * zero_pad // 2, m)], -1)
     pb = pb.astype(np.int64)
     pb[5:10, 0], pb[10:15, 0] = 0, n * zero_pad // 2
-    got, want = _both(monkeypatch, lambda: estimate(x, pb, "newton", zero_pad=zero_pad))
+    got, want = compiled_and_numpy(monkeypatch, lambda: estimate(x, pb, "newton", zero_pad=zero_pad))
     assert jit.kernels() is not None
     np.testing.assert_array_equal(got, want)
     # and it is the estimator: near the truth where the tone is clear of DC, Nyquist and the noise
@@ -158,5 +151,5 @@ def test_moment_tables_are_the_same_with_and_without_the_kernels(monkeypatch, ki
         x = x + 1j * rng.standard_normal((50, n))
     rows, f0 = rng.integers(0, 50, 200), rng.integers(-n // 2, n // 2, 200).astype(float)
     basis, _ = _moment_basis(n, 26)
-    got, want = _both(monkeypatch, lambda: _moments_on_bins(x, rows, f0, basis))
+    got, want = compiled_and_numpy(monkeypatch, lambda: _moments_on_bins(x, rows, f0, basis))
     np.testing.assert_array_equal(got, want)

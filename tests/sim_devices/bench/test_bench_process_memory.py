@@ -1,7 +1,9 @@
 """A bench process that serves a daemon (``lidar-sim``) loads its compiled synthesis kernels at its
 start, not when its scans pass the kernels' break-even minutes later: that late load was a one-time
 jump of ~130 MB of its memory (numba's libraries and code generator) at a time that depended on the
-scans (50-445 s into a soak), i.e. growth of a long-running process after its start-up."""
+scans (50-445 s into a soak), i.e. growth of a long-running process after its start-up. It loads them
+before it serves: loaded beside its serving, the load held the interpreter while a daemon's first
+controller reads waited, and on a busy machine they timed out."""
 
 from __future__ import annotations
 
@@ -9,7 +11,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -60,14 +61,10 @@ def test_lidar_sim_process_loads_the_kernels_at_start():
     try:
         assert proc.stdout is not None
         json.loads(proc.stdout.readline())          # its endpoints: it is serving, no scan has run
-        maps = Path(f"/proc/{proc.pid}/maps")
-        deadline = time.monotonic() + 240.0         # a bound for a loaded machine, not a speed target
-        loaded = False
-        while not loaded and time.monotonic() < deadline and proc.poll() is None:
-            loaded = "llvmlite" in maps.read_text()
-            if not loaded:
-                time.sleep(0.2)
-        assert loaded, "lidar-sim did not load numba's libraries without being asked for a sample"
+        # loaded before it serves: a load beside its serving held the interpreter while a daemon's
+        # first controller reads waited (they timed out on a busy machine)
+        assert "llvmlite" in Path(f"/proc/{proc.pid}/maps").read_text(), \
+            "lidar-sim announced its endpoints before loading numba's libraries"
     finally:
         proc.terminate()
         proc.wait(timeout=60)
