@@ -15,6 +15,9 @@
    39 +- 3). It prints, per L, the misses per ramp, P(a pixel is missed) with its 95 % Poisson
    bounds, P(16 of 16), and the down ramp's margin (peak over the CFAR threshold, dB).
 
+``--seeds 0 1 2 ... --averages 1`` runs the test's scan itself at each bench seed instead (the
+child's ``LIDARD__SIM__SEED``): its points, the pixels missed and each pixel's down-ramp margin.
+
 The broad, uncalibrated peak fills the OS-CFAR's reference cells with its own skirts, so its margin
 over the threshold is small (~2 dB on the down ramp) although the peak is ~29 dB above the white
 noise floor: the noise moves the skirts' cells as much as the peak. The figures are CPU-bound and do
@@ -42,8 +45,9 @@ QUIET = {"LIDARD__SIM__EFFECTS__NOISE": "false", "LIDARD__SIM__EFFECTS__QUANTIZA
 LINE_BIN, NEAR_BINS = 39, 3      # the target's line (0.76 m) and how far a detection may lie from it
 
 
-def capture(out: Path, averages: int, child_env: dict[str, str]) -> Path:
-    """The test's scan on a lidar-sim child (its environment: ``child_env``), recorded raw."""
+def capture(out: Path, averages: int, child_env: dict[str, str]) -> tuple[Path, np.ndarray]:
+    """The test's scan on a lidar-sim child (its environment: ``child_env``), recorded raw at ``out``;
+    answers ``out`` and the scan's points."""
     from lidard.config import load_config
     from lidard.instrument import ScanRequest, open_instrument
 
@@ -59,11 +63,50 @@ def capture(out: Path, averages: int, child_env: dict[str, str]) -> Path:
             else:
                 os.environ[k] = v
     try:
-        inst.run_scan(ScanRequest(**SCAN, averages=averages), lambda p: None, threading.Event(), None,  # type: ignore[arg-type]
-                      raw_path=out)
+        res = inst.run_scan(ScanRequest(**SCAN, averages=averages), lambda p: None,  # type: ignore[arg-type]
+                            threading.Event(), None, raw_path=out)
     finally:
         inst.close()
-    return out
+    return out, res.points
+
+
+def _margin_db(p: np.ndarray, ramp_pfa: float) -> np.ndarray:
+    """Per row of ramp power spectra: the largest ratio (dB) of a cell near the line to its OS-CFAR
+    threshold (alpha times the ordered statistic of its reference cells, as the frame DSP's)."""
+    from lidard.dsp.detect.os_cfar import _noise_os
+    from lidard.raw.spectrum import _N_GUARD, _N_REF
+
+    noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, ramp_pfa, None, exact=True)
+    near = slice(LINE_BIN - NEAR_BINS, LINE_BIN + NEAR_BINS + 1)
+    return 10 * np.log10((p[:, near] / (alpha[None, near] * noise[:, near])).max(axis=1))
+
+
+def down_margins_db(cap) -> np.ndarray:
+    """Per pixel of a capture: the down ramp's margin (dB) at its line, as :func:`detections` measures it."""
+    from lidard.raw.replay import replay_dsp
+    from lidard.raw.spectrum import _ramp_power
+
+    rep = replay_dsp(cap.attrs)
+    beat = cap.chunks(0, cap.n_chunks).channel("beat", cap.channels, cap.averages)
+    return _margin_db(_ramp_power(rep, beat, None, None, rep.dsp.ramp_samples), rep.dsp.ramp_pfa)
+
+
+def seed_scans(seeds: list[int], averages: int, as_json: bool) -> None:
+    """The test's scan at each bench seed (``LIDARD__SIM__SEED`` of the child): points, the pixels
+    missed and the down ramp's margins."""
+    from lidard.raw.capture import RawCapture
+
+    for seed in seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            path, pts = capture(Path(tmp) / "scan.zarr", averages, {**CHILD_ENV, "LIDARD__SIM__SEED": str(seed)})
+            m = down_margins_db(RawCapture(path))
+        got = {(int(r), int(c)) for r, c in zip(pts["row"], pts["col"])}
+        missed = [(r, c) for r in range(*SCAN["rows"]) for c in range(*SCAN["cols"]) if (r, c) not in got]  # type: ignore[misc]
+        row = {"seed": seed, "averages": averages, "points": len(pts), "missed": missed,
+               "down_margin_db": [round(float(x), 3) for x in m]}
+        print(json.dumps(row) if as_json else
+              f"seed {seed}: {len(pts)} points, missed {missed}; down margin mean {m.mean():.2f} dB, min {m.min():.2f}")
+        sys.stdout.flush()
 
 
 def budget_sigma_v(fs_hz: float, lsb_v: float) -> float:
@@ -87,15 +130,13 @@ def detections(rep, codes: np.ndarray, rng: np.random.Generator, sigma_codes: fl
     """Monte Carlo of the per-ramp detection (module doc, 3): trial t takes pixel t % n_pix's noiseless
     ``codes`` (n_pix, record) plus noise."""
     from lidard.dsp.detect.cfar import CfarSettings, cfar_detect_with
-    from lidard.dsp.detect.os_cfar import _noise_os
-    from lidard.raw.spectrum import _N_GUARD, _N_REF, _ramp_power
+    from lidard.raw.spectrum import _ramp_power
 
     d = rep.dsp
     s = CfarSettings(method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
                      bin_range=d.bin_range, iq=d.iq)
     miss = {"up": 0, "down": 0, "pixel": 0}
     margins: list[np.ndarray] = []
-    near = slice(LINE_BIN - NEAR_BINS, LINE_BIN + NEAR_BINS + 1)
     for t0 in range(0, trials, batch):
         nb = min(batch, trials - t0)
         pix = np.arange(t0, t0 + nb) % codes.shape[0]
@@ -108,8 +149,7 @@ def detections(rep, codes: np.ndarray, rng: np.random.Generator, sigma_codes: fl
             miss[name] += int((~hit).sum())
             found &= hit
             if name == "down":
-                noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True)
-                margins.append(10 * np.log10((p[:, near] / (alpha[None, near] * noise[:, near])).max(axis=1)))
+                margins.append(_margin_db(p, d.ramp_pfa))
         miss["pixel"] += int((~found).sum())
     m = np.concatenate(margins)
     k = miss["pixel"]
@@ -146,16 +186,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--averages", type=int, nargs="+", default=[1, 2, 4])
     ap.add_argument("--trials", type=int, default=100_000)
     ap.add_argument("--seed", type=int, default=12345, help="the Monte Carlo's generator")
+    ap.add_argument("--seeds", type=int, nargs="+", default=None,
+                    help="instead: the test's scan at these bench seeds (at the first --averages)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     if a.trials < 1 or any(L < 1 for L in a.averages):
         ap.error("--trials and --averages must be >= 1")
+    if a.seeds is not None:
+        seed_scans(a.seeds, a.averages[0], a.json)
+        return 0
     from lidard.raw.capture import RawCapture
     from lidard.raw.replay import replay_dsp
 
     with tempfile.TemporaryDirectory() as tmp:
-        clean = RawCapture(capture(Path(tmp) / "clean.zarr", 1, {**CHILD_ENV, **QUIET}))
-        noisy = RawCapture(capture(Path(tmp) / "noisy.zarr", 2, CHILD_ENV))
+        clean = RawCapture(capture(Path(tmp) / "clean.zarr", 1, {**CHILD_ENV, **QUIET})[0])
+        noisy = RawCapture(capture(Path(tmp) / "noisy.zarr", 2, CHILD_ENV)[0])
         rep = replay_dsp(clean.attrs)
         codes = clean.chunks(0, clean.n_chunks).channel("beat", clean.channels, 1)[:, 0].astype(np.float64)
         two = noisy.chunks(0, noisy.n_chunks).channel("beat", noisy.channels, 2).astype(np.float64)
