@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-SCAN = {"pattern": "roi", "rows": (44, 46), "cols": (60, 68), "max_range_m": 2.0}
+ROWS, COLS = (44, 46), (60, 68)      # the test's region: 16 bonded pixels of the CAL letters
 ENV = {"LIDARD__CHIRP__SHAPE": "triangle", "LIDARD__SCAN__PFA": "1e-9"}      # the host's (the test's)
 CHILD_ENV = {"LIDARD__SIM__TOLERANCES__ENABLED": "false", "LIDARD__SIM__FACTORY_CALIBRATION": "false"}  # pytest's
 QUIET = {"LIDARD__SIM__EFFECTS__NOISE": "false", "LIDARD__SIM__EFFECTS__QUANTIZATION": "false"}
@@ -63,7 +63,7 @@ def capture(out: Path, averages: int, child_env: dict[str, str]) -> tuple[Path, 
             else:
                 os.environ[k] = v
     try:
-        res = inst.run_scan(ScanRequest(**SCAN, averages=averages), lambda p: None,  # type: ignore[arg-type]
+        res = inst.run_scan(ScanRequest(pattern="roi", rows=ROWS, cols=COLS, max_range_m=2.0, averages=averages), lambda p: None,
                             threading.Event(), None, raw_path=out)
     finally:
         inst.close()
@@ -101,7 +101,7 @@ def seed_scans(seeds: list[int], averages: int, as_json: bool) -> None:
             path, pts = capture(Path(tmp) / "scan.zarr", averages, {**CHILD_ENV, "LIDARD__SIM__SEED": str(seed)})
             m = down_margins_db(RawCapture(path))
         got = {(int(r), int(c)) for r, c in zip(pts["row"], pts["col"])}
-        missed = [(r, c) for r in range(*SCAN["rows"]) for c in range(*SCAN["cols"]) if (r, c) not in got]  # type: ignore[misc]
+        missed = [(r, c) for r in range(*ROWS) for c in range(*COLS) if (r, c) not in got]
         row = {"seed": seed, "averages": averages, "points": len(pts), "missed": missed,
                "down_margin_db": [round(float(x), 3) for x in m]}
         print(json.dumps(row) if as_json else
