@@ -56,7 +56,7 @@ from sim_devices.digitizer.front_end import write_samples
 from sim_devices.world.fidelity import phase_noise_negligible
 from sim_devices.world.scene import Scene
 from sim_devices.world.synth import (
-    AdcSpec, ChirpTrajectory, Effects, HitBatch, MonitorMzi, synthesize, trajectory_from_frequency,
+    AdcSpec, ChirpTrajectory, Effects, HitBatch, MonitorMzi, NoiseStream, synthesize, trajectory_from_frequency,
 )
 from sim_devices.world.world import BeamHits, World
 
@@ -144,9 +144,11 @@ class TaskFrame:
     noise_asd_v_per_rthz: float
 
 
-def task_frame(task: SweepTask, rng: np.random.Generator | None = None) -> TaskFrame:
+def task_frame(task: SweepTask, rng: np.random.Generator | None = None,
+               noise: NoiseStream | None = None) -> TaskFrame:
     """Synthesize ``task.trials`` pixels (each ``scan.averages`` records) and run the scan's DSP.
-    ``rng``: the noise's generator (default: the task's own, from its seeds; tests give the bench's)."""
+    ``rng``: the noise's generator (default: the task's own, from its seeds); ``noise``: the white
+    noise's stream (default: keyed by ``rng``). Tests give the bench's, to draw the bench's noise."""
     pt = task.point
     cfg = pt.cfg
     traj = linear_trajectory(cfg)
@@ -178,7 +180,7 @@ def task_frame(task: SweepTask, rng: np.random.Generator | None = None) -> TaskF
         linewidth = 0.0
     if rng is None:
         rng = np.random.default_rng([task.base_seed, task.seed, int(task.key[:12], 16)])
-    syn = synthesize(traj, adc, np.zeros(n_seg), hits, rng=rng,
+    syn = synthesize(traj, adc, np.zeros(n_seg), hits, rng=rng, noise=noise,
                      effects=Effects(noise_asd_v_per_rthz=asd, linewidth_hz=linewidth,
                                      beat_filter=decimation_filter(fs, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db)),
                      mzi=MonitorMzi(cfg.monitor.delay_s, cfg.monitor.amplitude_v,

@@ -37,6 +37,7 @@ from sim_devices.digitizer.device import (
 )
 from sim_devices.fpsa.device import FpgaSim
 from sim_devices.world.fidelity import FidelityLedger, phase_noise_negligible
+from sim_devices.world.gauss import NoiseStream, stream_key
 from sim_devices.world.laser import DfbLaser
 from sim_devices.world.synth import AdcSpec, Effects, HitBatch, MonitorMzi, trajectory
 from sim_devices.world.synth_chirp import ChirpTrajectory
@@ -352,9 +353,11 @@ class SegmentSynthesizer:
         run = self._run_index()
         a = self.cfg.adc
         aa = decimation_filter(cfg.sample_rate_hz, a.max_sample_rate_hz, a.stopband_db)
-        # a large read in parts on the bench's threads, each part seeded as a read from its first segment
+        # a large read in parts on the bench's threads: the white noise of a record is a function of
+        # (seed, run, trigger index), the phase noise seeded as a read from each part's first segment
         return synthesize_read(self.trajectory(), adc, np.zeros(n), hits,
                                lambda s: np.random.default_rng([self.seed, run, int(first) + s]),
+                               noise=NoiseStream(stream_key(self.seed, run), int(first)),
                                effects=Effects(noise_asd_v_per_rthz=noise_asd, beat_filter=aa, linewidth_hz=linewidth,
                                                iq_imbalance=(self._truth.iq_gain, self._truth.iq_phase_rad)),
                                mzi=MonitorMzi(self._truth.mzi_delay_s, self.cfg.monitor.amplitude_v, mzi_asd,

@@ -46,10 +46,12 @@ accumulated by rank (the r-th hit of every segment at once). The deterministic c
 are computed once per distinct start offset within the drive period (usually one: triggers are
 period-aligned). Static returns on a rational AWG/ADC grid (r = p/q, q <= 16) take their delayed
 phase from per-residue vectors instead of per-sample gathers (:mod:`sim_devices.world.synth_grid`), and
-the white noise is a float32 Box-Muller draw (:mod:`sim_devices.world.gauss`). With quantization
+the white noise is a counter-based float32 draw (:mod:`sim_devices.world.gauss`: a function of the
+record's index, not of a generator's state). With quantization
 on, cos/sin run in float32 after an exact float64 range reduction (error ~1e-7 of the amplitude,
-<< 1 LSB of a 16-bit ADC). The random stream is drawn chunk by chunk,
-so results are reproducible for the same inputs and seed (not across different chunk sizes).
+<< 1 LSB of a 16-bit ADC). The phase noise's random stream is drawn chunk by chunk,
+so results are reproducible for the same inputs and seed (not across different chunk sizes); the
+white noise of a record depends only on its stream key, record index and channel.
 benchmarks/synthesis.py measures ~40 M samples/s per core without phase noise, ~20 M with it.
 
 Parts: the chirp trajectory is ``sim_devices.world.synth_chirp``, the input/output types and
@@ -66,6 +68,7 @@ import numpy as np
 
 from lidard.physics.constants import C_M_PER_S
 from sim_devices.world import antialias
+from sim_devices.world.gauss import NoiseStream
 from sim_devices.world.laser import wiener_phase
 from sim_devices.world.synth_chirp import ChirpTrajectory, trajectory, trajectory_from_frequency
 from sim_devices.world.synth_chunk import (
@@ -99,7 +102,7 @@ def _per_segment(name: str, v, n_seg: int) -> np.ndarray:
     return a
 
 
-def _validated(t_start_s, hits: HitBatch | None, eff: Effects, rng, mzi: MonitorMzi | None,
+def _validated(t_start_s, hits: HitBatch | None, eff: Effects, rng, mzi: MonitorMzi | None, keyed: bool,
                ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None],
                           np.ndarray]:
     """The arguments of :func:`synthesize` checked (a SynthError names the first bad one):
@@ -123,10 +126,11 @@ def _validated(t_start_s, hits: HitBatch | None, eff: Effects, rng, mzi: Monitor
             raise SynthError(f"synthesize: mzi.noise_asd_v_per_rthz must be >= 0, got {mzi.noise_asd_v_per_rthz!r}")
     if not math.isfinite(eff.dc_v):
         raise SynthError(f"synthesize: dc_v must be finite, got {eff.dc_v!r}")
-    need_rng = (linewidth_hz > 0 and (seg.size or mzi is not None)) or asd.max(initial=0) > 0 \
-        or (mzi is not None and mzi.noise_asd_v_per_rthz > 0)
+    white = asd.max(initial=0) > 0 or (mzi is not None and mzi.noise_asd_v_per_rthz > 0)
+    need_rng = (linewidth_hz > 0 and (seg.size or mzi is not None)) or (white and not keyed)
     if need_rng and rng is None:
-        raise SynthError("synthesize: rng (numpy Generator) is required when noise or phase noise is on")
+        raise SynthError("synthesize: rng (numpy Generator) is required when phase noise is on, or white noise "
+                         "without a noise stream")
     return t0, (seg, tau, amp, dop, ph), asd
 
 
@@ -154,7 +158,10 @@ def _tables(traj: ChirpTrajectory, t0: np.ndarray, n: int, fs: float, max_tau_s:
     ratio = traj.fs_hz / fs
     x_start = np.mod(t0 * traj.fs_hz, n_awg)
     x_start[x_start >= n_awg] = 0.0
-    u_start, u_inv = np.unique(x_start, return_inverse=True)
+    if x_start.size and x_start.min() == x_start.max():       # triggers period-aligned: one offset
+        u_start, u_inv = x_start[:1].copy(), np.zeros(x_start.size, np.intp)
+    else:
+        u_start, u_inv = np.unique(x_start, return_inverse=True)
     k = np.arange(n, dtype=np.float64)
     max_tau_samples_awg = max(max_tau_s, mzi.delay_s if mzi is not None else 0.0) * traj.fs_hz
     # hits' x - tau fs may go back one period, and a record may span several: tile the tables
@@ -186,7 +193,7 @@ _RECORDS_ONLY = SynthOutputs()   # the records, no volts or phase noise
 
 def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | None, *,
                rng: np.random.Generator | None = None, effects: Effects = _NO_EFFECTS, mzi: MonitorMzi | None = None,
-               outputs: SynthOutputs = _RECORDS_ONLY) -> Synthesized:
+               outputs: SynthOutputs = _RECORDS_ONLY, noise: NoiseStream | None = None) -> Synthesized:
     """Synthesize the digitized LiDAR beat (and the monitor MZI) for ``len(t_start_s)`` segments.
 
     ``t_start_s[s]`` is the time of segment s's first sample on the AWG's time axis (t = 0 at the
@@ -195,13 +202,19 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     (:class:`Effects`; none by default); ``mzi``: the monitor MZI's channel(s) (:class:`MonitorMzi`;
     None: no MZI); ``outputs``: volts, phase noise and the trig precision (:class:`SynthOutputs`).
     ``rng`` is required only when something random is switched on. Each channel draws its own white
-    noise (two photodiodes, two digitizer channels).
+    noise (two photodiodes, two digitizer channels): record s of this call is record
+    ``noise.first + s`` of the stream ``noise`` (:mod:`sim_devices.world.gauss`: the same record
+    index, key and channel give the same noise, whatever the call); without one, white noise is
+    drawn from a stream keyed by one draw of ``rng``, taken before the phase noise's draws.
     """
     linewidth_hz, dc_v = effects.linewidth_hz, effects.dc_v
     beat_filter, iq_imbalance = effects.beat_filter, effects.iq_imbalance
     return_volts, return_phase_noise, fast_trig = outputs.volts, outputs.phase_noise, outputs.fast_trig
     fast = adc.quantize if fast_trig is None else bool(fast_trig)
-    t0, raw_hits, asd = _validated(t_start_s, hits, effects, rng, mzi)
+    t0, raw_hits, asd = _validated(t_start_s, hits, effects, rng, mzi, noise is not None)
+    if noise is None and (asd.max(initial=0) > 0 or (mzi is not None and mzi.noise_asd_v_per_rthz > 0)):
+        assert rng is not None          # _validated requires one
+        noise = NoiseStream.from_rng(rng)
     n_seg, n, fs = t0.size, int(adc.n_samples), float(adc.sample_rate_hz)
     want_mzi = mzi is not None
     mzi_quadrature = mzi is not None and mzi.quadrature
@@ -230,7 +243,8 @@ def synthesize(traj: ChirpTrajectory, adc: AdcSpec, t_start_s, hits: HitBatch | 
     run = ChunkRun(tb=tb, adc=adc, fast=fast, rng=rng, var_step=var_step, n_pre=n_pre, iq_imbalance=iq_imbalance,
                    beat_filter=beat_filter, quadrature=mzi_quadrature,
                    mzi_amplitude_v=mzi.amplitude_v if mzi is not None else None, m_mzi=m_mzi, w_mzi=w_mzi, dc_v=dc_v,
-                   noise_std=noise_std, mzi_noise_asd_v_per_rthz=mzi.noise_asd_v_per_rthz if mzi is not None else 0.0)
+                   noise_std=noise_std, mzi_noise_asd_v_per_rthz=mzi.noise_asd_v_per_rthz if mzi is not None else 0.0,
+                   noise=noise)
     for ci, s0 in enumerate(range(0, n_seg, chunk)):
         s1 = min(n_seg, s0 + chunk)
         nc = s1 - s0
@@ -263,5 +277,5 @@ def sample_rate_for_range_hz(max_range_m: float, rate_hz_per_s: float, *, oversa
     return oversample * 2.0 * f_max
 
 
-__all__ = ["AdcSpec", "ChirpTrajectory", "Effects", "HitBatch", "MonitorMzi", "SynthError", "SynthOutputs",
+__all__ = ["AdcSpec", "ChirpTrajectory", "Effects", "HitBatch", "MonitorMzi", "NoiseStream", "SynthError", "SynthOutputs",
            "Synthesized", "sample_rate_for_range_hz", "synthesize", "trajectory", "trajectory_from_frequency"]

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from sim_devices.world import antialias, synth_jit
-from sim_devices.world.gauss import standard_normal_f32
+from sim_devices.world.gauss import NoiseStream, normal_rows, record_keys
 from sim_devices.world.synth_chirp import ChirpTrajectory
 from sim_devices.world.synth_grid import static_beat_phase
 from sim_devices.world.synth_types import AdcSpec
@@ -197,10 +196,11 @@ def _filter_gains(tb: Tables, h: SortedHits, hs: slice, dphi: np.ndarray, in_tur
 @dataclass(frozen=True)
 class ChunkRun:
     """What every chunk of one synthesis shares: the tables, the ADC, the float32 trig path (``fast``),
-    the random stream, the phase noise's variance per sample (``var_step``) and pre-roll (``n_pre``
+    the random stream of the phase noise, its variance per sample (``var_step``) and pre-roll (``n_pre``
     samples), the receiver (``iq_imbalance`` (g, eps), the anti-alias ``beat_filter``), the monitor MZI
     (``quadrature`` output, ``mzi_amplitude_v``, its delay split ``m_mzi``/``w_mzi``; None without an
-    MZI), the beat channels' ``dc_v``, the beat's white-noise std per segment and the MZI's noise ASD."""
+    MZI), the beat channels' ``dc_v``, the beat's white-noise std per segment, the MZI's noise ASD and
+    the white noise's stream (``noise``; None when no white noise is on)."""
 
     tb: Tables
     adc: AdcSpec
@@ -217,6 +217,7 @@ class ChunkRun:
     dc_v: float
     noise_std: np.ndarray
     mzi_noise_asd_v_per_rthz: float
+    noise: NoiseStream | None = None
 
 
 def beat_chunk(run: ChunkRun, h: SortedHits, hs: slice, s0: int, nc: int, phi: np.ndarray | None) -> dict:
@@ -309,41 +310,38 @@ def mzi_chunk(run: ChunkRun, s0: int, s1: int, phi: np.ndarray | None) -> dict:
 def digitize_chunk(run: ChunkRun, acc: dict, channels: list[str], s0: int, s1: int, outs: dict,
                    overrange: np.ndarray, volts: dict | None) -> None:
     """Add white noise (and ``dc_v`` on the beat channels) to each channel of segments s0..s1-1,
-    then quantize (or keep volts), flag overrange and clip into ``outs``/``overrange``/``volts``."""
+    then quantize (or keep volts), flag overrange and clip into ``outs``/``overrange``/``volts``.
+    The noise of record s of a channel is gauss.normal_rows of its key (``run.noise``): the compiled
+    quantizer draws it in its own pass, the numpy path as an array; the same values."""
     adc, dc_v, noise_std = run.adc, run.dc_v, run.noise_std
-    mzi_noise_asd_v_per_rthz = run.mzi_noise_asd_v_per_rthz
-    rng: Any = run.rng            # a Generator whenever a noise is on (synth._validated requires one)
     nc, n, fs = s1 - s0, int(adc.n_samples), float(adc.sample_rate_hz)
     for c in channels:
         v = acc[c]
-        noise = None
         if c in ("mzi", "mzi_q"):
-            if mzi_noise_asd_v_per_rthz > 0:
-                noise = standard_normal_f32(rng, (nc, n), mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
+            std = np.full(nc, run.mzi_noise_asd_v_per_rthz * math.sqrt(fs / 2.0))
         else:
             if dc_v:
                 v += dc_v
             std = noise_std[s0:s1]
-            if std.max(initial=0.0) > 0:
-                # float32 Box-Muller draws (gauss.py): 7 digits are plenty for a noise sample
-                if std.min() == std.max():          # one noise level for the chunk: no pass
-                    noise = standard_normal_f32(rng, (nc, n), float(std[0]))
-                else:
-                    noise = standard_normal_f32(rng, (nc, n))
-                    noise *= std[:, None].astype(np.float32)
+        keys = None
+        if std.max(initial=0.0) > 0:
+            assert run.noise is not None        # synth.synthesize keys a stream whenever a noise is on
+            keys = record_keys(run.noise, s0, nc, c)
         j = channels.index(c)
         kernel = None
         if adc.quantize and volts is None and v.dtype == np.float32 and outs[c].dtype == np.int16:
-            kernel = synth_jit.quantize_rows(v.size)
+            kernel = synth_jit.quantize_rows(v.size, noisy=keys is not None)
         if kernel is not None:      # noise, scale, rounding, flags and clip in one compiled pass
             over = np.empty(nc, dtype=bool)
-            kernel(v, _NO_NOISE if noise is None else noise, noise is not None, np.float32(1.0 / adc.lsb_v),
-                   np.float32(adc.code_min), np.float32(adc.code_max), outs[c][s0:s1], over)
+            q = (np.float32(1.0 / adc.lsb_v), np.float32(adc.code_min), np.float32(adc.code_max), outs[c][s0:s1], over)
+            if keys is None:
+                kernel(v, _NO_NOISE, False, *q)
+            else:
+                kernel(v, keys, np.ascontiguousarray(std, dtype=np.float64), *q)
             overrange[s0:s1, j] = over
             continue
-        if noise is not None:
-            v += noise
-            del noise
+        if keys is not None:
+            v += normal_rows(keys, n, std)
         if volts is not None:
             volts[c][s0:s1] = v
         lo: float

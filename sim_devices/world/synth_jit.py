@@ -13,15 +13,20 @@ operations in the same order (the same codes and flags; tests/sim_devices/world/
 the float32 cosine's range reduction of a phase in cycles (three numpy passes) a third,
 :func:`turns_to_radians_f32`.
 
-The trigonometry stays in numpy: its float32 cosine is a SIMD loop (~0.7 ns a sample here) where a
-compiled scalar cosine costs ~9 ns (measured on this 2-core EPYC), so a kernel running the cosine,
-the noise and the quantization in the same pass would be slower, not faster.
+With white noise on, the quantizer draws each record's noise in the same pass
+(:func:`sim_devices.world.synth_kernels.noisy_quantize_rows`: the counter-based generator of
+:mod:`sim_devices.world.gauss`, whose log and sine are polynomials, so the loops vectorize without a
+vector libm, and numpy computes the same bits).
 
-Loading numba costs ~0.9 s of CPU once per process and the kernel saves ~5 ns a sample, so it is used
-only when numba is already loaded in the process (the host's DSP loads it for large scans,
-lidard.dsp.spectrum.jit) or once this process has asked for ``LOAD_AFTER_SAMPLES`` samples (the break-even of
-that model); until then, and without numba, the numpy path runs. ``LIDARD_DSP_JIT=0`` turns the
-kernel off as it does the DSP's.
+The beat's cosine stays in numpy: its float32 cosine is a SIMD loop (~0.7 ns a sample here) where a
+compiled scalar libm cosine costs ~9 ns (measured on this 2-core EPYC).
+
+Loading numba costs ``LOAD_CPU_S`` of CPU once per process; the static phase kernel saves ~5 ns a
+sample and the noisy quantizer ~25 ns a noise sample (gauss' numpy path is ~30 ns a sample, the
+kernel ~2), so the kernels are used when numba is already loaded in the process (the host's DSP
+loads it for large scans, lidard.dsp.spectrum.jit) or once the savings this process has asked for
+reach the loading cost (the break-even of that model); until then, and without numba, the numpy
+path runs. ``LIDARD_DSP_JIT=0`` turns the kernels off as it does the DSP's.
 """
 
 from __future__ import annotations
@@ -32,10 +37,13 @@ from collections.abc import Callable
 from functools import lru_cache
 from typing import Any
 
-#: samples of static beat phase before numba is loaded for this kernel alone: ~0.9 s of loading over
-#: ~5 ns saved a sample (module docstring)
-LOAD_AFTER_SAMPLES = 180_000_000
-_asked = [0]        # samples asked for so far (a count; a race only delays the load)
+#: CPU seconds of loading numba and the kernels once in a process (measured: ~0.9 s)
+LOAD_CPU_S = 0.9
+#: CPU seconds a compiled sample saves (module docstring): static beat phase, noise + quantization
+SAVED_S_PHASE, SAVED_S_NOISE = 5e-9, 25e-9
+#: samples of static beat phase before numba is loaded for this kernel alone (the break-even)
+LOAD_AFTER_SAMPLES = int(LOAD_CPU_S / SAVED_S_PHASE)
+_asked = [0.0]      # CPU seconds the kernels would have saved so far (a race only delays the load)
 
 
 @lru_cache(maxsize=1)
@@ -52,21 +60,22 @@ def _numba_loaded() -> bool:
 
 
 @lru_cache(maxsize=1)
-def _quantizer() -> Callable[..., Any] | None:
+def _quantizer() -> tuple[Callable[..., Any], Callable[..., Any]] | None:
     try:
         from sim_devices.world import synth_kernels  # needs numba
     except ImportError:
         return None
-    return synth_kernels.quantize_rows
+    return synth_kernels.quantize_rows, synth_kernels.noisy_quantize_rows
 
 
-def _worth_it(samples: int) -> bool:
-    """Whether the kernels run for a call about to process ``samples`` (module docstring)."""
+def _worth_it(samples: int, saved_s: float = SAVED_S_PHASE) -> bool:
+    """Whether the kernels run for a call about to process ``samples``, each saving ``saved_s`` CPU
+    seconds (module docstring)."""
     if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
         return False
-    if _compiled.cache_info().currsize == 0 and not _numba_loaded():
-        _asked[0] += int(samples)
-        if _asked[0] < LOAD_AFTER_SAMPLES:
+    if not _numba_loaded() and _compiled.cache_info().currsize == 0:
+        _asked[0] += int(samples) * saved_s
+        if _asked[0] < LOAD_CPU_S:
             return False
     return True
 
@@ -94,11 +103,14 @@ def _reducer() -> Callable[..., Any] | None:
     return synth_kernels.turns_to_radians_f32
 
 
-def quantize_rows(samples: int) -> Callable[..., Any] | None:
-    """The compiled noise + quantizer pass (synth_kernels.quantize_rows), or None, by the same rule."""
-    if not _worth_it(samples) or _compiled() is None:
+def quantize_rows(samples: int, noisy: bool = False) -> Callable[..., Any] | None:
+    """The compiled quantizer pass, or None, by the same rule: with ``noisy``, the one that draws the
+    records' noise (synth_kernels.noisy_quantize_rows(v, keys, std, scale, lo, hi, out, over)),
+    else synth_kernels.quantize_rows(v, noise, has_noise, scale, lo, hi, out, over)."""
+    if not _worth_it(samples, SAVED_S_NOISE if noisy else SAVED_S_PHASE) or _compiled() is None:
         return None
-    return _quantizer()
+    q = _quantizer()
+    return None if q is None else q[1] if noisy else q[0]
 
 
 def load_now() -> bool:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sim_devices.world import gauss
+
 
 @numba.njit(cache=True, nogil=True)
 def static_fill(c0, c1, c2, b_start, ratio, p, q, n, d_awg, neg_const, out):  # pragma: no cover (compiled)
@@ -96,3 +98,134 @@ def turns_to_radians_f32(turns, out):  # pragma: no cover (compiled)
     for i in range(turns.size):
         t = turns[i]
         out[i] = np.float32((t - np.rint(t)) * two_pi)
+
+
+# -- the records' white noise (sim_devices.world.gauss: the same operations in the same order) ------------
+_G = np.uint64(gauss.GAMMA)
+_M1, _M2 = np.uint64(gauss.MIX1), np.uint64(gauss.MIX2)
+_S11, _S27, _S30, _S31 = np.uint64(11), np.uint64(27), np.uint64(30), np.uint64(31)
+_SA = np.uint64(64 - gauss.ANGLE_BITS)
+_L0, _L1, _L2, _L3, _L4, _L5, _L6, _L7 = gauss.LOG_COEF
+_C0, _C1, _C2, _C3, _C4, _C5, _C6 = gauss.COS_COEF
+_N0, _N1, _N2, _N3, _N4, _N5 = gauss.SIN_COEF
+_LN2, _SQRT2, _STEP = gauss.LN2, gauss.SQRT2, gauss.ANGLE_STEP
+_HALF_Q = 1 << (gauss.ANGLE_BITS - 3)
+_Q_SHIFT = gauss.ANGLE_BITS - 2
+_MANT = 0x000FFFFFFFFFFFFF
+_ONE = 0x3FF0000000000000
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _mix(c):  # pragma: no cover (compiled)
+    z = (c ^ (c >> _S30)) * _M1
+    z = (z ^ (z >> _S27)) * _M2
+    return z ^ (z >> _S31)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _noise_row(key, sd, h, w1, w2, f, e, noise):  # pragma: no cover (compiled)
+    """gauss.normal_rows of one record into ``noise`` (float32, >= 2h): cosines at [0, h), sines at
+    [h, 2h). Separate simple loops, each of which vectorizes (scratch w1, w2 uint64, f, e float64)."""
+    g2 = _G + _G
+    c = key + _G
+    for j in range(h):                           # words 2j and 2j + 1
+        w1[j] = _mix(c)
+        w2[j] = _mix(c + _G)
+        c += g2
+    for j in range(h):                           # U (53 bits) as float64, exactly
+        f[j] = np.float64(np.int64(w1[j] >> _S11) + 1)
+    fb = f.view(np.int64)
+    for j in range(h):                           # f = m 2**(e + 53), m in [1, 2): the bits
+        b = fb[j]
+        e[j] = np.float64((b >> 52) - 1076)
+        fb[j] = (b & _MANT) | _ONE
+    for j in range(h):
+        m = f[j]
+        ej = e[j]
+        big = m > _SQRT2
+        m = m * 0.5 if big else m
+        ej = ej + 1.0 if big else ej
+        s = (m - 1.0) / (m + 1.0)
+        z = s * s
+        p = _L0 * z + _L1
+        p = p * z + _L2
+        p = p * z + _L3
+        p = p * z + _L4
+        p = p * z + _L5
+        p = p * z + _L6
+        p = p * z + _L7
+        lnu = ej * _LN2 + s * p
+        f[j] = np.sqrt(lnu * -2.0) * sd
+    for j in range(h):
+        a = np.int64(w2[j] >> _SA)
+        qq = (a + _HALF_Q) >> _Q_SHIFT
+        t = a - (qq << _Q_SHIFT)
+        q = qq & 3
+        x = (np.float64(t) + 0.5) * _STEP
+        z = x * x
+        cs = _C0 * z + _C1
+        cs = cs * z + _C2
+        cs = cs * z + _C3
+        cs = cs * z + _C4
+        cs = cs * z + _C5
+        cs = cs * z + _C6
+        sn = _N0 * z + _N1
+        sn = sn * z + _N2
+        sn = sn * z + _N3
+        sn = sn * z + _N4
+        sn = sn * z + _N5
+        sn = sn * x
+        odd = (q & 1) == 1
+        c1 = sn if odd else cs
+        s1 = cs if odd else sn
+        c1 = -c1 if (q == 1 or q == 2) else c1
+        s1 = -s1 if q >= 2 else s1
+        r = f[j]
+        noise[j] = np.float32(r * c1)
+        noise[j + h] = np.float32(r * s1)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def noise_rows(keys, std, out):  # pragma: no cover (compiled)
+    """gauss.normal_rows(keys, n, std) into the float32 ``out`` (rows, n); ``std`` float64 per row."""
+    rows, n = out.shape
+    h = (n + 1) // 2
+    w1 = np.empty(h, np.uint64)
+    w2 = np.empty(h, np.uint64)
+    f = np.empty(h)
+    e = np.empty(h)
+    noise = np.empty(2 * h, np.float32)
+    for r in range(rows):
+        _noise_row(keys[r], std[r], h, w1, w2, f, e, noise)
+        for k in range(n):
+            out[r, k] = noise[k]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def noisy_quantize_rows(v, keys, std, scale, lo, hi, out, over):  # pragma: no cover (compiled)
+    """:func:`quantize_rows` with the noise of gauss.normal_rows(keys, n, std) drawn in the same pass,
+    record by record (no noise array): the same float32 sum, scale, rounding, clip and flags. A row
+    of ``std`` 0 has no noise (adding gauss' +-0 changes no code)."""
+    rows, n = v.shape
+    h = (n + 1) // 2
+    w1 = np.empty(h, np.uint64)
+    w2 = np.empty(h, np.uint64)
+    f = np.empty(h)
+    e = np.empty(h)
+    noise = np.zeros(2 * h, np.float32)
+    for r in range(rows):
+        clipped = 0
+        if std[r] != 0.0:
+            _noise_row(keys[r], std[r], h, w1, w2, f, e, noise)
+            for k in range(n):
+                x = np.rint((v[r, k] + noise[k]) * scale)
+                y = min(max(x, lo), hi)
+                clipped += y != x
+                out[r, k] = np.int16(y)
+        else:
+            for k in range(n):
+                x = np.rint(v[r, k] * scale)
+                y = min(max(x, lo), hi)
+                clipped += y != x
+                out[r, k] = np.int16(y)
+        over[r] = clipped > 0

@@ -5,10 +5,12 @@ A read of ``n`` segments is cut into parts of consecutive segments, each synthes
 in order. numpy's trig, arithmetic and random fills release the GIL, so the parts run side by side
 (and beside the host's DSP threads on an embedded bench).
 
-The noise stays what it was: each part draws from ``rng_for(first)``, the generator the bench seeds
-for a read starting at that segment, so a part is exactly the records a read of those segments alone
-would give (the bench already seeds each read by its first segment; the statistics are a read's).
-A read smaller than two parts of ``MIN_PART_SAMPLES`` stays on the calling thread, unchanged.
+The white noise does not depend on the cut: record s of the read is record ``noise.first + s`` of
+the stream (:mod:`sim_devices.world.gauss`, a function of the record's index), so a read gives the
+same records in one part or in four. The phase noise (when the bench synthesizes it) is drawn from
+``rng_for(first)``, the generator the bench seeds for a read starting at that segment, so a part is
+exactly the records a read of those segments alone would give. A read smaller than two parts of
+``MIN_PART_SAMPLES`` stays on the calling thread, unchanged.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from collections.abc import Callable
 import numpy as np
 
 from lidard.cores import pool_workers
+from sim_devices.world.gauss import NoiseStream
 from sim_devices.world.synth import synthesize
 from sim_devices.world.synth_types import HitBatch, Synthesized
 
@@ -77,18 +80,20 @@ def _joined(parts: list[Synthesized]) -> Synthesized:
 
 
 def synthesize_read(traj, adc, t_start_s, hits: HitBatch | None, rng_for: Callable[[int], np.random.Generator],
-                    *, workers: int | None = None, **kw) -> Synthesized:
+                    *, workers: int | None = None, noise: NoiseStream | None = None, **kw) -> Synthesized:
     """:func:`synthesize` of a read, in parts on ``workers`` threads (default :func:`synth_threads`);
-    ``rng_for(s)``: the generator of a read starting at segment ``s`` of this one."""
+    ``rng_for(s)``: the generator of a read starting at segment ``s`` of this one; ``noise``: the white
+    noise's stream from the read's first segment (None: each part keys its own from its generator)."""
     t0 = np.asarray(t_start_s, dtype=np.float64)
     n_seg = t0.size
     workers = synth_threads() if workers is None else int(workers)
     parts = max(1, min(workers, n_seg, n_seg * int(adc.n_samples) // MIN_PART_SAMPLES))
     if parts == 1:
-        return synthesize(traj, adc, t0, hits, rng=rng_for(0), **kw)
+        return synthesize(traj, adc, t0, hits, rng=rng_for(0), noise=noise, **kw)
     bounds = np.linspace(0, n_seg, parts + 1).astype(int)
     jobs = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
     pool = _pool(parts)
-    futs = [pool.submit(synthesize, traj, adc, t0[a:b], _part_hits(hits, a, b), rng=rng_for(a), **kw)
+    futs = [pool.submit(synthesize, traj, adc, t0[a:b], _part_hits(hits, a, b), rng=rng_for(a),
+                        noise=None if noise is None else noise.shifted(a), **kw)
             for a, b in jobs]
     return _joined([f.result() for f in futs])

@@ -5,8 +5,8 @@ three-segment record, FrameDsp) and their beat from the same synthesis (sim_devi
 the digitizer's decimation filter). The bench is set so that the scan's chirp is the sweep's
 linearized one: the "ideal" laser (a linear FM response, no thermal terms) under the daemon's plain
 drive, no tolerances (the nominal geometry is the truth), the commanded beam only (no MEMS dynamics),
-and the sweep's noise drawn from the generator the bench seeds for that read (a sweep task seeds its
-own otherwise). What remains different is the bench's AWG: its drive is played from int16 DAC
+and the sweep's noise drawn as the bench draws it (its white noise's stream and its read's generator;
+a sweep task seeds its own otherwise). What remains different is the bench's AWG: its drive is played from int16 DAC
 codes, so its chirp departs from the exact drive by the codes' rounding; the tolerances below are
 that, measured, well under the noise's own scatter (the CRLB).
 """
@@ -23,6 +23,7 @@ from lidard.instrument.types import CalibrationResult, ScanRequest
 from lidard.offline.spec import expand_sweep
 from lidard.offline.sweep import calibration, crlb_range_m, linear_trajectory, task_frame
 from lidard.raw.points import frame_points
+from sim_devices.world.gauss import NoiseStream, stream_key
 
 GRID = {"laser": "ideal", "scan.max_range_m": 4.0, "sim.effects.mems_dynamics": False}
 
@@ -30,6 +31,12 @@ GRID = {"laser": "ideal", "scan.max_range_m": 4.0, "sim.effects.mems_dynamics": 
 def _bench_rng(task) -> np.random.Generator:
     """The noise generator of the bench's first read of its first run (SegmentSynthesizer._synthesize)."""
     return np.random.default_rng([task.point.cfg.sim.seed, 1, 0])
+
+
+def _bench_noise(task) -> NoiseStream:
+    """The white noise's stream of the bench's first run from its first trigger (the bench keys it by
+    seed and run; a record's noise is a function of its trigger index, whatever the reads)."""
+    return NoiseStream(stream_key(task.point.cfg.sim.seed, 1), 0)
 
 
 def _task(distance_m: float, velocity_mps: float, shape: str = "three_segment"):
@@ -86,7 +93,7 @@ def test_a_sweep_runs_the_scans_default_chirp():
                                                             (2.2, -0.3, "three_segment"), (2.5, 0.2, "triangle")])
 def test_a_sweep_task_and_a_scan_of_its_pixel_give_the_same_points(tmp_path, distance_m, velocity_mps, shape):
     task = _task(distance_m, velocity_mps, shape)
-    tf = task_frame(task, _bench_rng(task))
+    tf = task_frame(task, _bench_rng(task), _bench_noise(task))
     dsp = tf.plan.dsp
     assert (dsp.cw_samples > 0) == (shape == "three_segment")
     scan, meta = _scan_points(task, tf, tmp_path)

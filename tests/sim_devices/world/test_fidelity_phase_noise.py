@@ -83,9 +83,14 @@ def test_formulas_match_the_synthesis_where_its_sampling_resolves_the_delay(traj
 
 def test_unfiltered_sampling_overstates_near_range_phase_noise_by_one_over_tau_fs(traj):
     """tau fs = 0.06 (CAL at 5 MS/s): the synthesis' samples carry the whole pedestal, aliased into the
-    band, 1 / (tau fs) times the in-band physics the rule uses (fidelity.py's docstring)."""
+    band, 1 / (tau fs) times the in-band physics the rule uses (fidelity.py's docstring). Measured
+    against a delay the sampling resolves (tau fs = 4, where the sampled noise is the physical one in
+    band), so that the estimator's own weighting (between the uniform fit and the Hann bound the rule
+    uses, previous test) cancels: over 10 draws the absolute ratio is 0.55-0.68 of the Hann bound's."""
+    def excess(tau, fs):
+        (f0, _), (f_pn, _) = _records(traj, tau, fs), _records(traj, tau, fs, linewidth=LINEWIDTH_HZ)
+        std_m = C_M_PER_S * np.std(f_pn - f0) / (2 * KAPPA)
+        return (std_m / fid.phase_noise_range_std_m(tau, LINEWIDTH_HZ, 0.8 * RAMP_S, KAPPA)) ** 2
+
     tau, fs = 6e-9, 10e6
-    (f0, _), (f_pn, _) = _records(traj, tau, fs), _records(traj, tau, fs, linewidth=LINEWIDTH_HZ)
-    std_m = C_M_PER_S * np.std(f_pn - f0) / (2 * KAPPA)
-    physical = fid.phase_noise_range_std_m(tau, LINEWIDTH_HZ, 0.8 * RAMP_S, KAPPA)
-    assert (std_m / physical) ** 2 == pytest.approx(1.0 / (tau * fs), rel=0.35)
+    assert excess(tau, fs) / excess(40e-9, 100e6) == pytest.approx(1.0 / (tau * fs), rel=0.35)

@@ -1,6 +1,7 @@
 """The compiled static beat phase (sim_devices.world.synth_jit) against the numpy path it stands in for
 (synth_grid._fill): the same float64 operations in the same order, so the same values bit for bit, on
-the bench's own chirp tables at the sample-rate ratios a scan uses."""
+the bench's own chirp tables at the sample-rate ratios a scan uses; the quantizer with the records' noise
+drawn in its pass against gauss' numpy generator and the numpy quantizer passes."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from sim_devices.world import synth_grid, synth_jit
+from sim_devices.world.gauss import NoiseStream, stream_key
 
 pytest.importorskip("numba")
 
@@ -58,7 +60,8 @@ def test_kernel_waits_until_loading_numba_pays(monkeypatch):
 
 
 @pytest.mark.parametrize("bits", [16, 12, 8])
-def test_quantizer_kernel_gives_the_numpy_passes_codes_and_flags(monkeypatch, bits):
+@pytest.mark.parametrize("mzi_asd", [0.0, 2e-6])
+def test_quantizer_kernel_gives_the_numpy_passes_codes_and_flags(monkeypatch, bits, mzi_asd):
     from sim_devices.world import synth_chunk
     from sim_devices.world.synth_types import AdcSpec
     adc = AdcSpec(sample_rate_hz=5e6, n_samples=1190, bits=bits, input_range_v=1.0)
@@ -67,15 +70,17 @@ def test_quantizer_kernel_gives_the_numpy_passes_codes_and_flags(monkeypatch, bi
     beat = (rng.normal(0, 0.05, (nc, adc.n_samples)) * np.linspace(0.1, 12.0, nc)[:, None]).astype(np.float32)
     beat[:, 7] = 0.5 * adc.lsb_v + np.float32(0.25) * adc.lsb_v * np.arange(nc)   # ties and near-ties of rint
     std = np.concatenate([np.full(12, 3e-3), np.full(12, 4e-2)])[:nc]      # two noise levels: the per-row scale
+    std[5] = 0.0                                                            # a dark record: no noise
 
-    def run(kernel):
-        monkeypatch.setattr(synth_jit, "quantize_rows", lambda samples: kernel)
+    def run(kernels):
+        monkeypatch.setattr(synth_jit, "quantize_rows",
+                            lambda samples, noisy=False: None if kernels is None else kernels[1] if noisy else kernels[0])
         acc = {"beat": beat.copy(), "mzi": np.zeros((nc, adc.n_samples), np.float32)}
         outs = {c: np.empty((nc, adc.n_samples), np.int16) for c in channels}
         over = np.zeros((nc, 2), bool)
         # the chunk run's fields digitize_chunk reads (the rest of a ChunkRun is the beat's, not used here)
-        run_ = SimpleNamespace(adc=adc, dc_v=0.0, noise_std=std, mzi_noise_asd_v_per_rthz=0.0,
-                               rng=np.random.default_rng(11))
+        run_ = SimpleNamespace(adc=adc, dc_v=0.0, noise_std=std, mzi_noise_asd_v_per_rthz=mzi_asd,
+                               noise=NoiseStream(stream_key(11), 40))
         synth_chunk.digitize_chunk(run_, acc, channels, 0, nc, outs, over, None)
         return outs, over
 
@@ -85,6 +90,20 @@ def test_quantizer_kernel_gives_the_numpy_passes_codes_and_flags(monkeypatch, bi
     assert np.array_equal(got_over, want_over)
     for c in channels:
         assert np.array_equal(got_codes[c], want_codes[c])
+    assert np.any(want_codes["mzi"] != 0) == (mzi_asd > 0)      # the MZI's own noise, when it has one
+
+
+def test_noise_kernel_gives_the_numpy_generators_bits():
+    """synth_kernels.noise_rows against gauss.normal_rows: the same float32 bits for odd and even record
+    lengths (the last pair's sine unused) and per-row levels, including a zero one."""
+    from sim_devices.world import gauss, synth_kernels as kernels
+    for n in (1, 2, 7, 1190, 1191):
+        keys = gauss.record_keys(NoiseStream(stream_key(5, 9), 3), 2, 17, "beat_q")
+        std = np.linspace(0.0, 3.0, 17)
+        want = gauss.normal_rows(keys, n, std)
+        got = np.empty((17, n), np.float32)
+        kernels.noise_rows(keys, std, got)
+        assert np.array_equal(got.view(np.int32), want.view(np.int32))
 
 
 def test_range_reduction_kernel_gives_the_numpy_passes_values(monkeypatch):
