@@ -72,13 +72,16 @@ def _whitener(window: str, n: int, m: int) -> np.ndarray:
 
 def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid: np.ndarray, noise: np.ndarray,
                     *, window: str, n_samples: int, zero_pad: int = 1, iq: bool = False,
-                    rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                    rows: np.ndarray | None = None,
+                    freq_params: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per detection (P, K): (2 x whitened residual / sigma^2, its degrees of freedom, the residual
     and the fitted energy, both in power units of ``spec``). ``spec`` (P, L, n_bins) complex in
     RangeFFT layout, ``index`` its detections' cells, ``frac`` their refined signed frequencies in bins
     of the spectrum grid, (P, K) or per record (P, L, K) (a moving return's beat moves between the
     records), ``noise`` (P,) the noise power per cell. Detections not judged: NaN. ``rows`` (P,): the
-    pixels' rows of ``spec`` when it holds more (read in place, not gathered)."""
+    pixels' rows of ``spec`` when it holds more (read in place, not gathered). ``freq_params``: the
+    parameters each tone's frequencies were fitted with (the degrees of freedom lose that many a
+    tone); None: one a record for ``frac`` (P, L, K), one for (P, K)."""
     _, l_n, n_bins = spec.shape
     k = index.shape[-1]
     p_n = index.shape[0]
@@ -121,7 +124,9 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     k_loc = near.sum(axis=1)
     stat[b, slot] = 2.0 * r / noise[b]
     # each record's amplitudes and (when given per record) frequencies were fitted
-    dof[b, slot] = (2.0 * (m - k_loc) - k_loc) * l_n if np.ndim(frac) == 3 else 2.0 * (m - k_loc) * l_n - k_loc
+    if freq_params is None:
+        freq_params = l_n if np.ndim(frac) == 3 else 1
+    dof[b, slot] = 2.0 * (m - k_loc) * l_n - k_loc * freq_params
     resid[b, slot] = r
     energy[b, slot] = fit
     return stat, dof, resid, energy
@@ -157,12 +162,14 @@ def _order_fit(x: np.ndarray, cols: np.ndarray, near: np.ndarray, white: np.ndar
 
 def unresolved(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid: np.ndarray, noise: np.ndarray, *,
                level: float, window: str, n_samples: int, zero_pad: int = 1, iq: bool = False,
-               rows: np.ndarray | None = None) -> np.ndarray:
-    """Detections (P, K) whose cells the fitted tones do not explain at the stated ``level`` (module doc)."""
+               rows: np.ndarray | None = None, freq_params: int | None = None) -> np.ndarray:
+    """Detections (P, K) whose cells the fitted tones do not explain at the stated ``level`` (module doc);
+    ``freq_params``: as for :func:`order_statistic`."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"model-order level must be in (0, 1), got {level!r}")
     stat, dof, resid, energy = order_statistic(spec, index, frac, valid, noise, window=window,
-                                               n_samples=n_samples, zero_pad=zero_pad, iq=iq, rows=rows)
+                                               n_samples=n_samples, zero_pad=zero_pad, iq=iq, rows=rows,
+                                               freq_params=freq_params)
     judged = np.isfinite(stat)
     limit = np.where(judged, chi2_isf(level, np.maximum(dof, 1.0)), np.inf)
     return judged & (stat > limit) & (resid > MODEL_ERROR * energy)
