@@ -56,13 +56,14 @@ def refine_pixel_tone(x: np.ndarray, start: np.ndarray, *, max_drift: float = 0.
     """(f (P,), drift (P,)): each pixel's beat at its middle record and its drift per record, bins of
     the N-point grid. ``x`` (P, L, N) the pixels' records (real, or complex I/Q: ``start`` signed),
     ``start`` (P,) bins; ``max_drift`` (bins per record) the largest drift a target inside the speed
-    band gives (0: a common frequency)."""
+    band gives (0, or one record: a common frequency)."""
     x = np.asarray(x)
     p_n, l_n, n = x.shape
     start = np.asarray(start, dtype=np.float64)
     if p_n == 0:
         return start.copy(), np.zeros(0)
     c = record_offsets(l_n)
+    max_drift = float(max_drift) if l_n >= 2 else 0.0      # one record: no drift to see
     centre = np.rint(start)
     span = REACH_BINS + float(max_drift) * float(np.abs(c).max())
     ev = _DtftNearBin(x.reshape(-1, n), None, np.repeat(centre, l_n), _terms_for(span + 0.51 + _H))

@@ -80,6 +80,10 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
             out[lone, slot], drift[lone, slot] = f1 * zp, s1 * zp
     several = np.flatnonzero(count >= 2)
     if several.size:
+        if ml:  # each tone alone first (as the one-tone Newton started the joint fit): the three-bin
+            # start carries a neighbour's leakage (~0.1-0.2 bin two cells apart), beyond the joint fit's few steps
+            pix, slots = np.nonzero(valid[several])
+            out[several[pix], slots] = refine_pixel_tone(ramp[several[pix]], out[several[pix], slots] / zp)[0] * zp
         out[several] = refine_joint(ramp[several], out[several] / zp, valid[several]) * zp
     flags = np.zeros(valid.shape, dtype=bool)
     judged = np.flatnonzero(valid.any(axis=-1))
@@ -92,7 +96,8 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     rec = out[:, None, :] + record_offsets(l_n)[None, :, None] * drift[:, None, :]
     # most ramps hold one detection in slot 0: those are tested with that slot alone (half the work)
     lone = valid[judged, 0] & (np.count_nonzero(valid[judged], axis=-1) == 1)
-    for sel, ks, params in ((lone, slice(0, 1), 2 if ml else 1), (~lone, slice(None), 1)):
+    drifting = ml and max_drift > 0 and l_n >= 2
+    for sel, ks, params in ((lone, slice(0, 1), 2 if drifting else 1), (~lone, slice(None), 1)):
         if sel.any():
             pix = judged[sel]
             flags[pix, ks] = unresolved(spec, det.index[pix, ks], rec[pix][..., ks], valid[pix, ks], noise[sel],
