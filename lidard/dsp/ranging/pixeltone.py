@@ -51,22 +51,25 @@ def record_offsets(l_n: int) -> np.ndarray:
     return np.arange(l_n) - 0.5 * (l_n - 1)
 
 
-def refine_pixel_tone(x: np.ndarray, start: np.ndarray, *, max_drift: float = 0.0,
-                      iterations: int = ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
+def refine_pixel_tone(x: np.ndarray, start: np.ndarray, *, max_drift: float = 0.0, iterations: int = ITERATIONS,
+                      rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(f (P,), drift (P,)): each pixel's beat at its middle record and its drift per record, bins of
     the N-point grid. ``x`` (P, L, N) the pixels' records (real, or complex I/Q: ``start`` signed),
     ``start`` (P,) bins; ``max_drift`` (bins per record) the largest drift a target inside the speed
-    band gives (0, or one record: a common frequency)."""
+    band gives (0, or one record: a common frequency). ``rows`` (P,): the pixels are these rows of ``x``
+    (read in place: gathering a frame's records cost as much as the fit's moments)."""
     x = np.asarray(x)
-    p_n, l_n, n = x.shape
+    _, l_n, n = x.shape
     start = np.asarray(start, dtype=np.float64)
+    p_n = start.size
+    flat = None if rows is None else (np.asarray(rows, dtype=np.int64)[:, None] * l_n + np.arange(l_n)).ravel()
     if p_n == 0:
         return start.copy(), np.zeros(0)
     c = record_offsets(l_n)
     max_drift = float(max_drift) if l_n >= 2 else 0.0      # one record: no drift to see
     centre = np.rint(start)
     span = REACH_BINS + float(max_drift) * float(np.abs(c).max())
-    ev = _DtftNearBin(x.reshape(-1, n), None, np.repeat(centre, l_n), _terms_for(span + 0.51 + _H))
+    ev = _DtftNearBin(x.reshape(-1, n), flat, np.repeat(centre, l_n), _terms_for(span + 0.51 + _H))
     real = x.dtype.kind != "c"
     d0 = start - centre
     d = d0.copy()

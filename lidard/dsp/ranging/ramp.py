@@ -76,14 +76,14 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
         lone = np.flatnonzero(count == 1)
         if lone.size:
             slot = np.argmax(valid[lone], axis=-1)
-            f1, s1 = refine_pixel_tone(ramp[lone], out[lone, slot] / zp, max_drift=max_drift)
+            f1, s1 = refine_pixel_tone(ramp, out[lone, slot] / zp, max_drift=max_drift, rows=lone)
             out[lone, slot], drift[lone, slot] = f1 * zp, s1 * zp
     several = np.flatnonzero(count >= 2)
     if several.size:
         if ml:  # each tone alone first (as the one-tone Newton started the joint fit): the three-bin
             # start carries a neighbour's leakage (~0.1-0.2 bin two cells apart), beyond the joint fit's few steps
             pix, slots = np.nonzero(valid[several])
-            out[several[pix], slots] = refine_pixel_tone(ramp[several[pix]], out[several[pix], slots] / zp)[0] * zp
+            out[several[pix], slots] = refine_pixel_tone(ramp, out[several[pix], slots] / zp, rows=several[pix])[0] * zp
         out[several] = refine_joint(ramp[several], out[several] / zp, valid[several]) * zp
     flags = np.zeros(valid.shape, dtype=bool)
     judged = np.flatnonzero(valid.any(axis=-1))
