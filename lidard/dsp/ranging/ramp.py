@@ -185,7 +185,6 @@ def _grow(rec: _Records, det: Detections, frac, search: _Search, *, rf: RangeFFT
     pix, noise, centre, half, slot = search
     zp, (_, l_n, n) = rf.zero_pad, ramp.shape
     valid = det.valid[pix]
-    k = valid.shape[-1]
     f = frac[pix] / zp                                                         # (q, K)
     resid = subtract_tones(ramp[pix], f, valid)
     w = rf.window_samples

@@ -107,7 +107,7 @@ def test_a_fast_return_through_the_frame_dsp_is_one_clean_point_at_its_mid_pixel
         x[..., k * ramp:(k + 1) * ramp] += np.cos(ph)
     f, det = dsp._plain_front_end(x, 1.0)
     r_mid = r0 + v * (ramp / fs + 0.5 * (L - 1) * period)
-    for ramp_f, d in zip(f, det):
+    for d in det:
         assert d.valid[:, 0].all() and not d.unresolved[:, 0].any()
     fu, fd = f[0][:, 0], f[1][:, 0]
     rng_m = C_M_PER_S * np.abs(fd - fu) / 2 / (2 * gamma)           # folded: |f_D| > f_R at 1.3 m
