@@ -143,3 +143,27 @@ def test_the_compiled_record_slopes_give_the_numpy_fit_bit_for_bit(monkeypatch):
     # the kernel makes numpy's products and sums in numpy's order from numpy's sines (as newton_real_step)
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_the_estimator_key_selects_the_pixel_fit_or_the_mean_of_record_estimates():
+    # newton: one fit per pixel; another estimator: every record refined, their mean (the comparison path)
+    gamma = 8.6e9 / 80e-6
+    kw = dict(ramp_samples=400, fs_hz=5e6, chirp_rate_hz_per_s=gamma, wavelength_m=1.55e-6, max_range_m=2.0,
+              max_speed_mps=0.4)
+    ml, mean = FrameDsp(**kw), FrameDsp(**kw, estimator="parabolic")
+    assert ml.pixel_ml and not mean.pixel_ml
+    rng = np.random.default_rng(5)
+    p_n = 300
+    f = rng.uniform(60.0, 61.0, p_n)                   # bins of the 360 used samples
+    t = np.arange(400) - ml.offset
+    sigma = np.sqrt(ml.n_used / (4 * 10 ** 2.0))       # 20 dB a record
+    tone = np.cos(2 * np.pi * f[:, None, None] * t / ml.n_used + rng.uniform(0, 2 * np.pi, (p_n, L, 1)))
+    x = np.concatenate([tone, tone], axis=-1) + sigma * rng.standard_normal((p_n, L, 800))
+    errs = []
+    for dsp in (ml, mean):
+        got, det = dsp._plain_front_end(x, 1.0)
+        assert det[0].valid[:, 0].all()
+        errs.append(got[0][:, 0] / dsp.rfft.delta_f - f)
+    b = _bound(sigma)
+    assert errs[0].var() / b < 1.25                    # the pixel fit at the bound
+    assert errs[1].var() / b > 1.5                     # the parabola's mean: a biased, noisier estimate
