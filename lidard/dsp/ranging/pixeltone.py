@@ -27,6 +27,8 @@ loaded each iteration's per-record slopes are one compiled pass (lidard.dsp.spec
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..spectrum import jit
@@ -46,15 +48,26 @@ PEAK_CURVATURE = 2.0 * np.pi ** 2 / 3.0
 _H = 1e-3
 
 
+class PixelFit(NamedTuple):
+    """One return's fit to a pixel's records (P,) each, bins of the N-point grid: ``freq`` the beat at
+    the middle record and ``drift`` its change a record; ``common`` the beat with no drift (the
+    maximum of the likelihood along s = 0, from the quadratic model at the fit); ``gain`` the
+    likelihood's energy gained by the drift over ``common`` (J's units: the records' squared volts)."""
+
+    freq: np.ndarray
+    drift: np.ndarray
+    common: np.ndarray
+    gain: np.ndarray
+
+
 def record_offsets(l_n: int) -> np.ndarray:
     """The centred record indices (L,): record l's beat is f + offsets[l] x drift."""
     return np.arange(l_n) - 0.5 * (l_n - 1)
 
 
 def refine_pixel_tone(x: np.ndarray, start: np.ndarray, *, max_drift: float = 0.0, iterations: int = ITERATIONS,
-                      rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(f (P,), drift (P,)): each pixel's beat at its middle record and its drift per record, bins of
-    the N-point grid. ``x`` (P, L, N) the pixels' records (real, or complex I/Q: ``start`` signed),
+                      rows: np.ndarray | None = None) -> PixelFit:
+    """Each pixel's beat at its middle record and its drift per record (:class:`PixelFit`). ``x`` (P, L, N) the pixels' records (real, or complex I/Q: ``start`` signed),
     ``start`` (P,) bins; ``max_drift`` (bins per record) the largest drift a target inside the speed
     band gives (0, or one record: a common frequency). ``rows`` (P,): the pixels are these rows of ``x``
     (read in place: gathering a frame's records cost as much as the fit's moments)."""
@@ -64,7 +77,7 @@ def refine_pixel_tone(x: np.ndarray, start: np.ndarray, *, max_drift: float = 0.
     p_n = start.size
     flat = None if rows is None else (np.asarray(rows, dtype=np.int64)[:, None] * l_n + np.arange(l_n)).ravel()
     if p_n == 0:
-        return start.copy(), np.zeros(0)
+        return PixelFit(start.copy(), np.zeros(0), start.copy(), np.zeros(0))
     c = record_offsets(l_n)
     max_drift = float(max_drift) if l_n >= 2 else 0.0      # one record: no drift to see
     centre = np.rint(start)
@@ -74,6 +87,7 @@ def refine_pixel_tone(x: np.ndarray, start: np.ndarray, *, max_drift: float = 0.
     d0 = start - centre
     d = d0.copy()
     s = np.zeros(p_n)
+    h_ff = h_fs = h_ss = np.zeros(p_n)
     for _ in range(iterations):
         j, slope, curv = (a.reshape(p_n, l_n) for a in _record_slopes(ev, (d[:, None] + c * s[:, None]).ravel(),
                                                                       real, n))
@@ -95,7 +109,13 @@ def refine_pixel_tone(x: np.ndarray, start: np.ndarray, *, max_drift: float = 0.
             step_f, step_s = _ratio(-g_f, h_ff), np.zeros(p_n)
         d = np.clip(d + np.clip(step_f, -0.25, 0.25), d0 - REACH_BINS, d0 + REACH_BINS)
         s = np.clip(s + step_s, -max_drift, max_drift)
-    return centre + d, s
+    if max_drift <= 0:
+        return PixelFit(centre + d, s, centre + d, np.zeros(p_n))
+    # the quadratic model at the fit: along s = 0 the likelihood peaks h_fs s / h_ff further, s^2 / 2
+    # (h_fs^2 / h_ff - h_ss) lower (the Schur complement of the last Hessian, negative definite there)
+    common = centre + d + _ratio(h_fs * s, h_ff)
+    gain = np.maximum(0.5 * s * s * (_ratio(h_fs * h_fs, h_ff) - h_ss), 0.0)
+    return PixelFit(centre + d, s, common, gain)
 
 
 def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:

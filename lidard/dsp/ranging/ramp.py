@@ -71,37 +71,49 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     out = np.array(frac, dtype=np.float64)
     valid = det.valid
     count = np.count_nonzero(valid, axis=-1)
+    flags = np.zeros(valid.shape, dtype=bool)
+    judged = np.flatnonzero(count > 0)
+    noise = np.zeros(p_n)           # the noise power per cell of the judged pixels
+    if judged.size:
+        noise[judged] = cell_noise(power, None if judged.size == p_n else judged)
     drift = np.zeros(out.shape)     # (P, K) a lone return's beat drift per record (bins of the spectrum grid)
     if ml:
         lone = np.flatnonzero(count == 1)
         if lone.size:
             slot = np.argmax(valid[lone], axis=-1)
-            f1, s1 = refine_pixel_tone(ramp, out[lone, slot] / zp, max_drift=max_drift, rows=lone)
-            out[lone, slot], drift[lone, slot] = f1 * zp, s1 * zp
+            fit = refine_pixel_tone(ramp, out[lone, slot] / zp, max_drift=max_drift, rows=lone)
+            moving = _drift_seen(fit.gain, noise[lone], rf, level)
+            out[lone, slot] = np.where(moving, fit.freq, fit.common) * zp
+            drift[lone, slot] = np.where(moving, fit.drift, 0.0) * zp
     several = np.flatnonzero(count >= 2)
     if several.size:
         if ml:  # each tone alone first (as the one-tone Newton started the joint fit): the three-bin
             # start carries a neighbour's leakage (~0.1-0.2 bin two cells apart), beyond the joint fit's few steps
             pix, slots = np.nonzero(valid[several])
-            out[several[pix], slots] = refine_pixel_tone(ramp, out[several[pix], slots] / zp, rows=several[pix])[0] * zp
+            out[several[pix], slots] = refine_pixel_tone(ramp, out[several[pix], slots] / zp,
+                                                         rows=several[pix]).freq * zp
         out[several] = refine_joint(ramp[several], out[several] / zp, valid[several]) * zp
-    flags = np.zeros(valid.shape, dtype=bool)
-    judged = np.flatnonzero(valid.any(axis=-1))
     if judged.size == 0:
         return out, replace(det, unresolved=flags)
-    noise = cell_noise(power, None if judged.size == p_n else judged)
     test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
-    # each record's frequencies (P, L, K): the pixel's, moved by a lone return's drift (the test's
-    # degrees of freedom lose two parameters a tone, frequency and drift)
-    rec = out[:, None, :] + record_offsets(l_n)[None, :, None] * drift[:, None, :]
+    moved = drift.any(axis=-1)
+
+    def freqs(pix: np.ndarray, ks: slice) -> tuple[np.ndarray, np.ndarray | None]:
+        """The frequencies the tests fit on ``pix``: the pixel's (P, K), or where a lone return keeps
+        its drift every record's (P, L, K), with each pixel's frequency parameters a tone (1 or 2)."""
+        if not moved[pix].any():
+            return out[pix][..., ks], None
+        rec = out[pix][:, None, ks] + record_offsets(l_n)[None, :, None] * drift[pix][:, None, ks]
+        return rec, np.where(moved[pix], 2, 1)
+
     # most ramps hold one detection in slot 0: those are tested with that slot alone (half the work)
-    lone = valid[judged, 0] & (np.count_nonzero(valid[judged], axis=-1) == 1)
-    drifting = ml and max_drift > 0 and l_n >= 2
-    for sel, ks, params in ((lone, slice(0, 1), 2 if drifting else 1), (~lone, slice(None), 1)):
+    lone = valid[judged, 0] & (count[judged] == 1)
+    for sel, ks in ((lone, slice(0, 1)), (~lone, slice(None))):
         if sel.any():
             pix = judged[sel]
-            flags[pix, ks] = unresolved(spec, det.index[pix, ks], rec[pix][..., ks], valid[pix, ks], noise[sel],
-                                        rows=pix, freq_params=params, **test)
+            f_t, params = freqs(pix, ks)
+            flags[pix, ks] = unresolved(spec, det.index[pix, ks], f_t, valid[pix, ks], noise[pix], rows=pix,
+                                        freq_params=params, **test)
     flags |= _too_close(out / zp, valid)
     det = replace(det, unresolved=flags)
     free = ~valid[judged].all(axis=-1)
@@ -110,15 +122,16 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
         pix = judged[grow]
         slot = np.argmax(det.unresolved[pix], axis=-1)
         out, det = _grow(_Records(ramp, spec, power), det, out,
-                         _Search(pix, noise[grow], det.index[pix, slot], SEARCH_BINS * zp, slot), rf=rf, test=test, pfa=pfa)
+                         _Search(pix, noise[pix], det.index[pix, slot], SEARCH_BINS * zp, slot), rf=rf, test=test, pfa=pfa)
     # a return on a stronger one's skirt that the detector missed: the cells around the strongest
     # detection, its fitted tones taken out, at the detector's pfa per cell
     skirt = free & ~grow
     if skirt.any():
-        pix, nz = judged[skirt], noise[skirt]
+        pix = judged[skirt]
+        nz = noise[pix]
         ks = slice(0, max(1, int(np.count_nonzero(valid[pix], axis=-1).max()) if k > 1 else 1))
         ks = slice(None) if not np.all(valid[pix, ks].sum(axis=-1) == valid[pix].sum(axis=-1)) else ks
-        cells, rp = residual_near(spec, det.index[pix, 0], rec[pix][..., ks], valid[pix, ks], half=SKIRT_BINS * zp,
+        cells, rp = residual_near(spec, det.index[pix, 0], freqs(pix, ks)[0], valid[pix, ks], half=SKIRT_BINS * zp,
                                   window=window, n_samples=n, zero_pad=zp, iq=rf.iq, rows=pix)
         best = np.argmax(rp, axis=-1)
         hit = rp[np.arange(pix.size), best] > _floor(nz, det.power[pix, 0], pfa, l_n)
@@ -130,7 +143,7 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     # leakage moves a cell by dB): the pair likelihood compares the two ramps' amplitudes
     several = np.flatnonzero(np.count_nonzero(det.valid, axis=-1) >= 2)
     if several.size:
-        pw = fitted_power(spec, det.index[several], _records(out[several], l_n), det.valid[several], window=window, n_samples=n,
+        pw = fitted_power(spec, det.index[several], out[several], det.valid[several], window=window, n_samples=n,
                           zero_pad=zp, iq=rf.iq, rows=several)
         power_all = det.power.copy()
         power_all[several] = np.where(det.valid[several], pw, det.power[several])
@@ -139,9 +152,17 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     return out, det
 
 
-def _records(f: np.ndarray, l_n: int) -> np.ndarray:
-    """The pixel's frequencies (P, K) as every record's (P, L, K) (a view): the records share them."""
-    return np.broadcast_to(f[:, None, :], (f.shape[0], l_n, f.shape[-1]))
+def _drift_seen(gain: np.ndarray, noise: np.ndarray, rf: RangeFFT, level: float) -> np.ndarray:
+    """Whether a lone return's fitted drift is a parameter of the model, not noise: the likelihood ratio
+    of the drift against a common frequency, chi-square with one degree of freedom under no drift, past
+    its ``level`` quantile (the model-order test's level). ``gain`` (P,) the fit's energy gained by the
+    drift (:class:`.pixeltone.PixelFit`), ``noise`` (P,) the noise power per spectrum cell: the noise
+    per sample is that over sum(w^2) / sum(w)^2 of the range FFT's window; a complex record's energy
+    is N times its projection's, and its noise is split over two parts."""
+    w = rf.window_samples
+    sigma2 = np.maximum(noise, 1e-300) * w.sum() ** 2 / np.sum(w * w)
+    stat = 2.0 * gain / (w.size * sigma2) if rf.iq else gain / sigma2
+    return stat > chi2_isf(level, 1.0)
 
 
 def _floor(noise: np.ndarray, peak: np.ndarray, pfa: float, l_n: int) -> np.ndarray:

@@ -76,14 +76,31 @@ def test_a_drifting_beat_is_fitted_at_the_common_frequencys_bound():
     spec = rf(x)
     k = 55 + np.argmax((np.abs(spec) ** 2).mean(axis=1)[:, 55:67], axis=1)
     start = pooled_jacobsen(spec, k[:, None], window="hann", n_samples=N)[:, 0]
-    got, drift = refine_pixel_tone(x, start, max_drift=0.13)
+    fit = refine_pixel_tone(x, start, max_drift=0.13)
+    got, drift = fit.freq, fit.drift
     b = _bound(sigma)
     assert abs((got - f).mean()) < 3 * np.sqrt(b / f.size)
     assert (got - f).var() / b < 1.25
     assert np.abs(drift - 0.12).max() < 0.02
     # without the drift in the model the same records give a worse estimate of the same frequency
-    common, _ = refine_pixel_tone(x, start)
+    common = refine_pixel_tone(x, start).freq
     assert (common - f).var() > 1.5 * (got - f).var()
+
+
+def test_the_drifts_likelihood_gain_on_a_static_return_is_chi_square_with_one_degree():
+    # no drift in the records, a drift allowed: twice the log-likelihood ratio, gain / sigma^2 for real
+    # records, is chi-square(1) (mean 1, 1 % past its 1 % quantile): the frame keeps the drift past the
+    # model-order level, else fits the common frequency (lidard.dsp.ranging.ramp)
+    from scipy.stats import chi2
+
+    x, f, sigma = _pixels(np.random.default_rng(6), 20.0, p_n=3000)
+    fit = refine_pixel_tone(x, f + 0.02, max_drift=0.13)
+    stat = fit.gain / sigma ** 2
+    assert abs(stat.mean() - 1.0) < 0.1                 # 3000 draws: the mean's spread ~0.026
+    assert 0.005 < np.mean(stat > chi2.isf(0.01, 1)) < 0.017
+    # its common frequency is the one-parameter fit's (the quadratic model's step: within 5 % of the bound's sd)
+    one = refine_pixel_tone(x, f + 0.02).freq
+    assert np.abs(fit.common - one).max() < 0.05 * np.sqrt(_bound(sigma))
 
 
 def test_a_fast_return_through_the_frame_dsp_is_one_clean_point_at_its_mid_pixel_range():
@@ -141,8 +158,8 @@ def test_the_compiled_record_slopes_give_the_numpy_fit_bit_for_bit(monkeypatch):
     start = f + np.random.default_rng(12).uniform(-0.2, 0.2, f.size)
     got, want = compiled_and_numpy(monkeypatch, lambda: refine_pixel_tone(x, start, max_drift=0.06))
     # the kernel makes numpy's products and sums in numpy's order from numpy's sines (as newton_real_step)
-    np.testing.assert_array_equal(got[0], want[0])
-    np.testing.assert_array_equal(got[1], want[1])
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_the_estimator_key_selects_the_pixel_fit_or_the_mean_of_record_estimates():
