@@ -18,6 +18,10 @@ the pixel's middle record, the instant the frame DSP refers its range to
 orthogonal (the cross term of their Fisher information sums the centred indices: zero for records of
 equal power), so fitting s costs f nothing at the bound, and a common frequency fitted to a drifting
 beat would leave a misfit that the model-order test (:mod:`.order`) reads as a second surface.
+Whether the drift belongs to the model is itself a model-order question: the likelihood it gains over
+a common frequency (:attr:`PixelFit.gain`, from the quadratic model at the fit) is chi-square with one
+degree of freedom when the return does not move; the frame DSP keeps it past the model-order test's
+level and otherwise takes the common frequency (:func:`lidard.dsp.ranging.ramp.refine_ramp`).
 
 Newton's method in (f, s): the derivatives of the sum are sums of each record's slope and curvature
 at its own f_l (the three-point differences of the one-record estimator), weighted by 1, c_l, c_l^2:

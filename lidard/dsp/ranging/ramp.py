@@ -65,7 +65,9 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     is the selected estimator's mean over the records and only a ramp's several detections are
     refined, jointly. ``max_drift``: the largest change of a lone return's beat from one record to the
     next (bins of the N-point grid) inside the speed band: it is fitted with the frequency
-    (:mod:`.pixeltone`), which is then the beat at the pixel's middle record."""
+    (:mod:`.pixeltone`), which is then the beat at the pixel's middle record, and kept where its
+    likelihood ratio passes ``level`` (:func:`_drift_seen`; else the common frequency, whose tests
+    take the window's DTFT once a pixel)."""
     zp, (p_n, l_n, n) = rf.zero_pad, ramp.shape
     k = det.valid.shape[-1]
     out = np.array(frac, dtype=np.float64)
