@@ -98,7 +98,7 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     if judged.size == 0:
         return out, replace(det, unresolved=flags)
     test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
-    moved = drift.any(axis=-1)
+    moved: np.ndarray = np.asarray(drift.any(axis=-1))
 
     def freqs(pix: np.ndarray, ks: slice) -> tuple[np.ndarray, np.ndarray | None]:
         """The frequencies the tests fit on ``pix``: the pixel's (P, K), or where a lone return keeps
