@@ -41,9 +41,9 @@ class ChainResult:
     frac_records: np.ndarray | None = None
 
 
-def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSettings, estimator: str,
+def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSettings, estimator: str | None,
                       average_axis: int | None = None, keep: np.ndarray | None = None, idle_index: int = 1,
-                      power: np.ndarray | None = None, pixel_start: bool = False) -> ChainResult:
+                      power: np.ndarray | None = None) -> ChainResult:
     """``spec`` (batch..., [averages,] n_bins) complex in RangeFFT layout -> refined detections.
 
     ``average_axis``: the axis of ``spec`` holding the averages of one pixel (powers are averaged over
@@ -53,7 +53,7 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSett
     the caller has it already (computed with the spectrum, :meth:`RangeFFT.spectrum_of`);
     ``cfar``: the detector's knobs (:class:`lidard.dsp.detect.cfar.CfarSettings`); its window, zero
     padding and layout (``iq``) are the spectrum's, and the estimator refines with them.
-    ``pixel_start``: no refinement of each record; ``frac_bins`` is one three-bin estimate per pixel
+    ``estimator`` None: no refinement of each record; ``frac_bins`` is one three-bin estimate per pixel
     pooled over its records (:func:`lidard.dsp.ranging.estimators.pooled_jacobsen`), the start of the
     caller's refinement by the pixel's likelihood (``spec`` (P, L, n_bins), ``average_axis`` 1).
     """
@@ -72,9 +72,9 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSett
     valid = det.valid
     if average_axis is not None:
         valid = np.broadcast_to(np.expand_dims(valid, ax), index.shape)
-    if pixel_start:
+    if estimator is None:
         if average_axis is None or average_axis % spec.ndim != 1 or spec.ndim != 3:
-            raise ValueError("pixel_start needs spec (pixels, records, bins) with average_axis=1")
+            raise ValueError("estimator=None (the pixel start) needs spec (pixels, records, bins) with average_axis=1")
         x, bins, _ = refine(np.where(det.valid, det.index, idle_index))
         start = pooled_jacobsen(spec, bins, window=window, n_samples=x.shape[-1], zero_pad=zero_pad, iq=cfar.iq)
         return ChainResult(frac_bins=np.where(det.valid, start, bins), detections=det, power=p_ramps)

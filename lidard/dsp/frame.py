@@ -316,8 +316,8 @@ class FrameDsp:
             res = detect_and_refine(
                 spec, signals, cfar=CfarSettings(method="os", pfa=self.ramp_pfa, max_detections=self.candidate_slots,
                                                  window=self.window, iq=self.iq, bin_range=self.bin_range),
-                estimator=self.estimator, average_axis=1, idle_index=int(rf.bin_to_index(1)), power=p,
-                pixel_start=self.pixel_ml)
+                estimator=None if self.pixel_ml else self.estimator, average_axis=1,
+                idle_index=int(rf.bin_to_index(1)), power=p)
             det = res.detections
             if self.iq:     # the hybrid's image of a stronger return is not a return
                 img = mirror_images(det.index, det.power, det.valid, rf.n_fft)
