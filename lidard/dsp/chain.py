@@ -19,7 +19,7 @@ import numpy as np
 
 from .detect.cfar import CfarSettings, Detections, cfar_detect_with
 from .spectrum.jit import power as power_of
-from .ranging.estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows
+from .ranging.estimators import DEFAULT_METHOD, EstimatorName, estimate, estimate_rows, pooled_jacobsen
 from .spectrum.rangefft import RangeFFT, check_samples
 from .spectrum.scratch import scratch
 from .spectrum.window import DspInputError
@@ -41,7 +41,7 @@ class ChainResult:
     frac_records: np.ndarray | None = None
 
 
-def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSettings, estimator: str,
+def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSettings, estimator: str | None,
                       average_axis: int | None = None, keep: np.ndarray | None = None, idle_index: int = 1,
                       power: np.ndarray | None = None) -> ChainResult:
     """``spec`` (batch..., [averages,] n_bins) complex in RangeFFT layout -> refined detections.
@@ -53,6 +53,9 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSett
     the caller has it already (computed with the spectrum, :meth:`RangeFFT.spectrum_of`);
     ``cfar``: the detector's knobs (:class:`lidard.dsp.detect.cfar.CfarSettings`); its window, zero
     padding and layout (``iq``) are the spectrum's, and the estimator refines with them.
+    ``estimator`` None: no refinement of each record; ``frac_bins`` is one three-bin estimate per pixel
+    pooled over its records (:func:`lidard.dsp.ranging.estimators.pooled_jacobsen`), the start of the
+    caller's refinement by the pixel's likelihood (``spec`` (P, L, n_bins), ``average_axis`` 1).
     """
     p_ramps = p = power_of(spec) if power is None else power
     if average_axis is not None:
@@ -69,6 +72,12 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSett
     valid = det.valid
     if average_axis is not None:
         valid = np.broadcast_to(np.expand_dims(valid, ax), index.shape)
+    if estimator is None:
+        if average_axis is None or average_axis % spec.ndim != 1 or spec.ndim != 3:
+            raise ValueError("estimator=None (the pixel start) needs spec (pixels, records, bins) with average_axis=1")
+        x, bins, _ = refine(np.where(det.valid, det.index, idle_index))
+        start = pooled_jacobsen(spec, bins, window=window, n_samples=x.shape[-1], zero_pad=zero_pad, iq=cfar.iq)
+        return ChainResult(frac_bins=np.where(det.valid, start, bins), detections=det, power=p_ramps)
     x, bins, spectrum = refine(index)
     frac = _refine_valid(x, bins, valid, spectrum, method=estimator, window=window, zero_pad=zero_pad)
     per_record = frac

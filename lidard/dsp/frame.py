@@ -10,8 +10,10 @@ A segment is one triangle period captured after one trigger: the up ramp then th
 3. detects up to ``max_returns`` peaks per ramp with OS-CFAR at ``ramp_pfa``, the per-ramp level
    that makes ``pfa`` the rate of false points per range cell (:mod:`lidard.dsp.ranging.points`),
    inside the range gate widened by the Doppler allowance,
-4. refines each detection to a fractional bin on every segment with the selected sub-bin estimator
-   and averages those frequencies (the dissertation averages 10 distance measurements per pixel);
+4. refines each detection to a fractional bin once per pixel: the segments of a pixel share the
+   frequency (their amplitudes and phases are their own), so its maximum-likelihood estimate
+   maximises the sum of the segments' likelihoods (the default ``newton`` estimator; the others
+   refine every segment and average, as the dissertation averages 10 distance measurements a pixel);
    a ramp's several detections are refined jointly and every detection is tested against the fitted
    tones (:mod:`lidard.dsp.ranging`: no mutual leakage bias; ``unresolved`` by a model-order test at
    ``order_level``; a return hidden beside a stronger one is added),
@@ -193,6 +195,22 @@ class FrameDsp:
         return self.max_returns + round(self.ramp_pfa * (hi - lo + 1) / self.rfft.zero_pad)
 
     @property
+    def pixel_ml(self) -> bool:
+        """The ``newton`` estimator is the likelihood of a tone in white noise: on a pixel's records,
+        which share the frequency, it is maximised once on their summed likelihood
+        (:func:`lidard.dsp.ranging.ramp.refine_ramp`), not once per record and averaged. The other
+        estimators refine every record and take the mean."""
+        return self.estimator == "newton"
+
+    @property
+    def max_drift_bins(self) -> float:
+        """How far a return's beat moves from one record to the next at the band's speed: its range
+        changes by max_speed x the record period, its beat by 2 gamma / c per metre (bins of the
+        ramp's N-point grid). The per-pixel refinement fits that drift (at most this) with the frequency."""
+        period_s = (2 * self.ramp_samples + self.cw_samples) / self.fs_hz
+        return 2 * self.chirp_rate_hz_per_s * self.max_speed_mps * period_s / C_M_PER_S * self.n_used / self.fs_hz
+
+    @property
     def range_resolution_m(self) -> float:
         return C_M_PER_S / (2 * self.chirp_rate_hz_per_s * self.n_used / self.fs_hz)
 
@@ -298,16 +316,18 @@ class FrameDsp:
             res = detect_and_refine(
                 spec, signals, cfar=CfarSettings(method="os", pfa=self.ramp_pfa, max_detections=self.candidate_slots,
                                                  window=self.window, iq=self.iq, bin_range=self.bin_range),
-                estimator=self.estimator, average_axis=1, idle_index=int(rf.bin_to_index(1)), power=p)
+                estimator=None if self.pixel_ml else self.estimator, average_axis=1,
+                idle_index=int(rf.bin_to_index(1)), power=p)
             det = res.detections
             if self.iq:     # the hybrid's image of a stronger return is not a return
                 img = mirror_images(det.index, det.power, det.valid, rf.n_fft)
                 det = replace(det, valid=det.valid & ~img)
             # the ramp's detections refined jointly (no mutual leakage bias), and the model-order test:
             # a peak the fitted tones do not explain hides a second surface (lidard.dsp.ranging)
-            assert res.power is not None and res.frac_records is not None   # power=p was given
-            frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_records, rf=rf, window=self.window,
-                                    level=self.order_level, pfa=self.ramp_pfa)
+            assert res.power is not None   # power=p was given
+            frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_bins, rf=rf, window=self.window,
+                                    level=self.order_level, pfa=self.ramp_pfa, ml=self.pixel_ml,
+                                    max_drift=self.max_drift_bins)
             out_f.append(frac * rf.delta_f)
             out_det.append(det)
         return out_f, out_det

@@ -2,6 +2,8 @@
 
 :mod:`.lines` says what a return (range, velocity) predicts on every segment of a chirp period;
 :mod:`.tones` fits the K tones of a ramp jointly (maximum likelihood, no mutual leakage bias);
+:mod:`.pixeltone` fits one return's beat to all the records of a pixel (maximum likelihood, with the
+drift of a moving return's beat);
 :mod:`.order` tests whether the fitted tones explain the spectrum around each peak (the model-order
 test at a stated level that replaced the width and residual rules); :mod:`.ramp` runs them on a
 ramp's detections for the frame DSP and grows the model by a return the detector missed;
@@ -16,6 +18,6 @@ ramps), :mod:`.threeseg` (the three-segment chirp) with :mod:`.cwhold` (the held
 """
 
 __all__ = [
-    "assign", "crlb", "cwhold", "estimators", "iqbalance", "lines", "order", "points", "ramp", "threeseg",
+    "assign", "crlb", "cwhold", "estimators", "iqbalance", "lines", "order", "pixeltone", "points", "ramp", "threeseg",
     "tones", "velocity",
 ]

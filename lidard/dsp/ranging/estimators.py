@@ -353,3 +353,28 @@ def estimate_rows(x: np.ndarray, rows: np.ndarray, peak_bins: np.ndarray, *, met
     if not np.all(np.isfinite(out)):   # a NaN or infinite sample in a refined ramp shows here
         raise DspInputError("x contains NaN or infinite samples in a refined ramp")
     return out
+
+
+def pooled_jacobsen(spec: np.ndarray, peak_bins: np.ndarray, *, window: WindowName, n_samples: int,
+                    zero_pad: int = 1, iq: bool = False) -> np.ndarray:
+    """One three-bin estimate per pixel from all its records: the start of the pixel's likelihood
+    refinement (:func:`lidard.dsp.ranging.tones.refine_joint` over the records).
+
+    ``spec`` (P, L, n_bins) the records' windowed spectra (RangeFFT layout), ``peak_bins`` (P, K) signed
+    bins of the spectrum grid. Each record's Jacobsen ratio r_l = Re(N_l / D_l) (N = X[-1] - X[+1],
+    D = 2 X[0] - X[-1] - X[+1]) has the same noise-free value r(delta) whatever the record's amplitude
+    and phase, so the records pool by least squares, r = Re(sum_l N_l conj(D_l)) / sum_l |D_l|^2 (a
+    weak record weighs by its power, not as one vote in ten), mapped to the offset through the
+    window's table as ``jacobsen`` does. Returns fractional bins (P, K) of the spectrum grid."""
+    p_n, l_n, n_bins = spec.shape
+    pb = np.asarray(peak_bins, dtype=np.int64)
+    k = pb.shape[-1]
+    n_fft = n_bins if iq else 2 * (n_bins - 1)
+    idx = np.broadcast_to((pb[:, None, :, None] + np.array([-1, 0, 1])), (p_n, l_n, k, 3)).reshape(p_n * l_n, 3 * k)
+    v = gather_bins(spec.reshape(p_n * l_n, n_bins), idx, n_fft, iq).reshape(p_n, l_n, k, 3)
+    num = v[..., 0] - v[..., 2]
+    den = 2.0 * v[..., 1] - v[..., 0] - v[..., 2]
+    r = _safe_ratio(np.real(np.sum(num * np.conj(den), axis=1)), np.sum(den.real ** 2 + den.imag ** 2, axis=1))
+    r_tab, d_tab = _jacobsen_table(window, n_samples, int(zero_pad))
+    return pb + np.interp(r, r_tab, d_tab)
+

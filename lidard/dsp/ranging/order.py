@@ -72,19 +72,22 @@ def _whitener(window: str, n: int, m: int) -> np.ndarray:
 
 def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid: np.ndarray, noise: np.ndarray,
                     *, window: str, n_samples: int, zero_pad: int = 1, iq: bool = False,
-                    rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                    rows: np.ndarray | None = None,
+                    freq_params: int | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per detection (P, K): (2 x whitened residual / sigma^2, its degrees of freedom, the residual
     and the fitted energy, both in power units of ``spec``). ``spec`` (P, L, n_bins) complex in
     RangeFFT layout, ``index`` its detections' cells, ``frac`` their refined signed frequencies in bins
     of the spectrum grid, (P, K) or per record (P, L, K) (a moving return's beat moves between the
     records), ``noise`` (P,) the noise power per cell. Detections not judged: NaN. ``rows`` (P,): the
-    pixels' rows of ``spec`` when it holds more (read in place, not gathered)."""
+    pixels' rows of ``spec`` when it holds more (read in place, not gathered). ``freq_params``: the
+    parameters each tone's frequencies were fitted with (the degrees of freedom lose that many a
+    tone), one number or one a pixel (P,); None: one a record for ``frac`` (P, L, K), one for (P, K)."""
     _, l_n, n_bins = spec.shape
     k = index.shape[-1]
     p_n = index.shape[0]
     rows = np.arange(p_n) if rows is None else np.asarray(rows)
-    fr = np.broadcast_to(np.asarray(frac, dtype=np.float64)[..., None, :] if np.ndim(frac) == 2 else frac,
-                         (p_n, l_n, k))
+    # a pixel's frequencies (P, K), common to its records: the window's DTFT once a pixel, not a record
+    fr = np.asarray(frac, dtype=np.float64)[:, None, :] if np.ndim(frac) == 2 else np.asarray(frac, dtype=np.float64)
     f_mean = fr.mean(axis=1)
     n_fft = n_bins if iq else 2 * (n_bins - 1)
     m = 2 * HALF_BINS + 1
@@ -109,7 +112,7 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     f_all = np.where(near[:, None, :], fr[b], 0.0)                            # (q, L, K)
     # the cells are consecutive: the window's DTFT from the first one on (lidard.dsp.spectrum.dtft)
     cols = _window_dtft_grid(window, n_samples, (kbin[:, :1, None] - f_all) / zero_pad, m, zero_pad)
-    cols = np.where(near[:, None, :, None], cols, 0.0)                        # (q, L, K, m)
+    cols = np.broadcast_to(np.where(near[:, None, :, None], cols, 0.0), (b.size, l_n, k, m))   # (q, L, K, m)
     white = _whitener(window, n_samples, m)
     kern = jit.kernels(0)
     got = None if kern is None else _order_fit_compiled(kern, x, cols, near, white)
@@ -121,7 +124,9 @@ def order_statistic(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid
     k_loc = near.sum(axis=1)
     stat[b, slot] = 2.0 * r / noise[b]
     # each record's amplitudes and (when given per record) frequencies were fitted
-    dof[b, slot] = (2.0 * (m - k_loc) - k_loc) * l_n if np.ndim(frac) == 3 else 2.0 * (m - k_loc) * l_n - k_loc
+    if freq_params is None:
+        freq_params = l_n if np.ndim(frac) == 3 else 1
+    dof[b, slot] = 2.0 * (m - k_loc) * l_n - k_loc * np.broadcast_to(np.asarray(freq_params, dtype=float), (p_n,))[b]
     resid[b, slot] = r
     energy[b, slot] = fit
     return stat, dof, resid, energy
@@ -157,12 +162,14 @@ def _order_fit(x: np.ndarray, cols: np.ndarray, near: np.ndarray, white: np.ndar
 
 def unresolved(spec: np.ndarray, index: np.ndarray, frac: np.ndarray, valid: np.ndarray, noise: np.ndarray, *,
                level: float, window: str, n_samples: int, zero_pad: int = 1, iq: bool = False,
-               rows: np.ndarray | None = None) -> np.ndarray:
-    """Detections (P, K) whose cells the fitted tones do not explain at the stated ``level`` (module doc)."""
+               rows: np.ndarray | None = None, freq_params: int | np.ndarray | None = None) -> np.ndarray:
+    """Detections (P, K) whose cells the fitted tones do not explain at the stated ``level`` (module doc);
+    ``freq_params``: as for :func:`order_statistic`."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"model-order level must be in (0, 1), got {level!r}")
     stat, dof, resid, energy = order_statistic(spec, index, frac, valid, noise, window=window,
-                                               n_samples=n_samples, zero_pad=zero_pad, iq=iq, rows=rows)
+                                               n_samples=n_samples, zero_pad=zero_pad, iq=iq, rows=rows,
+                                               freq_params=freq_params)
     judged = np.isfinite(stat)
     limit = np.where(judged, chi2_isf(level, np.maximum(dof, 1.0)), np.inf)
     return judged & (stat > limit) & (resid > MODEL_ERROR * energy)
@@ -220,14 +227,15 @@ def _cells_near(spec, centre, frac, valid, *, half, grid, rows):
     m = 2 * half + 1
     cells = np.clip(first[:, None] + np.arange(m), 0, n_bins - 1)                      # (P, m)
     x = spec[rows[:, None, None], np.arange(l_n)[None, :, None], cells[:, None, :]]   # (P, L, m)
-    f = np.where(valid[:, None, :], frac, 0.0)
+    f = np.where(valid[:, None, :], frac[:, None, :] if frac.ndim == 2 else frac, 0.0)     # (P, L or 1, K)
     k0 = (first - n_fft // 2) if iq else first
     # the window's DTFT on the consecutive cells from the first one (lidard.dsp.spectrum.dtft); a
     # cell clipped at the spectrum's edge reads the value of the cell it was clipped to
     cols = _window_dtft_grid(window, n_samples, (k0[:, None, None] - f) / zero_pad, m, zero_pad)
     if np.any(cells != first[:, None] + np.arange(m)):
         cols = np.take_along_axis(cols, (cells - first[:, None])[:, None, None, :], axis=-1)
-    return cells, x, np.where(valid[:, None, :, None], cols, 0.0)                       # (P, L, K, m)
+    cols = np.where(valid[:, None, :, None], cols, 0.0)
+    return cells, x, np.broadcast_to(cols, (p_n, l_n) + cols.shape[2:])                # (P, L, K, m)
 
 
 def residual_near(spec: np.ndarray, centre: np.ndarray, frac: np.ndarray, valid: np.ndarray, *, half: int,

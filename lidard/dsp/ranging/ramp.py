@@ -29,6 +29,7 @@ import numpy as np
 from ..detect.cfar import Detections
 from ..spectrum.rangefft import RangeFFT, windowed_fft
 from .order import HALF_BINS, MODEL_ERROR, cell_noise, chi2_isf, fitted_power, residual_near, unresolved
+from .pixeltone import record_offsets, refine_pixel_tone
 from .tones import ITERATIONS, refine_joint, subtract_tones
 
 #: how far (bins) from a peak the fitted tones do not explain a hidden return is looked for: the
@@ -50,35 +51,72 @@ SKIRT_BINS = 8
 
 
 def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Detections, frac: np.ndarray, *,
-                rf: RangeFFT, window: str, level: float, pfa: float) -> tuple[np.ndarray, Detections]:
-    """(refined frac (P, K), mean over the records; the detections with ``unresolved`` set and hidden
-    returns added).
+                rf: RangeFFT, window: str, level: float, pfa: float, ml: bool = True,
+                max_drift: float = 0.0) -> tuple[np.ndarray, Detections]:
+    """(refined frac (P, K); the detections with ``unresolved`` set and hidden returns added).
 
     ``ramp`` (P, L, N) the records, ``spec``/``power`` (P, L, n_bins) their windowed spectra and
-    |spec|^2, ``det`` (P, K) the detector's, ``frac`` (P, L, K) each record's one-tone estimates
-    (signed fractional bins of the spectrum grid). Frequencies are fitted record by record: a moving
-    return's beat moves between them (5 m/s: a tenth of a bin per record at the bench's 80 us ramps)."""
+    |spec|^2, ``det`` (P, K) the detector's, ``frac`` (P, K) one estimate per detection and pixel
+    (signed fractional bins of the spectrum grid). The pixel's records share each tone's frequency
+    and have their own complex amplitudes (the speckle, the record's start phase): the likelihood of
+    the frequencies is the sum of the records' projections (:func:`.tones.refine_joint`), maximised
+    once per pixel. ``ml``: ``frac`` is only a start (:func:`lidard.dsp.ranging.estimators.pooled_jacobsen`)
+    and a lone detection is refined by that likelihood too (the ``newton`` estimator); else ``frac``
+    is the selected estimator's mean over the records and only a ramp's several detections are
+    refined, jointly. ``max_drift``: the largest change of a lone return's beat from one record to the
+    next (bins of the N-point grid) inside the speed band: it is fitted with the frequency
+    (:mod:`.pixeltone`), which is then the beat at the pixel's middle record, and kept where its
+    likelihood ratio passes ``level`` (:func:`_drift_seen`; else the common frequency, whose tests
+    take the window's DTFT once a pixel)."""
     zp, (p_n, l_n, n) = rf.zero_pad, ramp.shape
     k = det.valid.shape[-1]
     out = np.array(frac, dtype=np.float64)
     valid = det.valid
-    several = np.flatnonzero(np.count_nonzero(valid, axis=-1) >= 2)
-    if several.size:
-        out[several] = _joint(ramp[several], out[several] / zp, valid[several]) * zp
+    count = np.count_nonzero(valid, axis=-1)
     flags = np.zeros(valid.shape, dtype=bool)
-    judged = np.flatnonzero(valid.any(axis=-1))
+    judged = np.flatnonzero(count > 0)
+    noise = np.zeros(p_n)           # the noise power per cell of the judged pixels
+    if judged.size:
+        noise[judged] = cell_noise(power, None if judged.size == p_n else judged)
+    drift = np.zeros(out.shape)     # (P, K) a lone return's beat drift per record (bins of the spectrum grid)
+    if ml:
+        lone = np.flatnonzero(count == 1)
+        if lone.size:
+            slot = np.argmax(valid[lone], axis=-1)
+            fit = refine_pixel_tone(ramp, out[lone, slot] / zp, max_drift=max_drift, rows=lone)
+            moving = _drift_seen(fit.gain, noise[lone], rf, level)
+            out[lone, slot] = np.where(moving, fit.freq, fit.common) * zp
+            drift[lone, slot] = np.where(moving, fit.drift, 0.0) * zp
+    several = np.flatnonzero(count >= 2)
+    if several.size:
+        if ml:  # each tone alone first (as the one-tone Newton started the joint fit): the three-bin
+            # start carries a neighbour's leakage (~0.1-0.2 bin two cells apart), beyond the joint fit's few steps
+            pix, slots = np.nonzero(valid[several])
+            out[several[pix], slots] = refine_pixel_tone(ramp, out[several[pix], slots] / zp,
+                                                         rows=several[pix]).freq * zp
+        out[several] = refine_joint(ramp[several], out[several] / zp, valid[several]) * zp
     if judged.size == 0:
-        return out.mean(axis=1), replace(det, unresolved=flags)
-    noise = cell_noise(power, None if judged.size == p_n else judged)
+        return out, replace(det, unresolved=flags)
     test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
+    moved: np.ndarray = np.asarray(drift.any(axis=-1))
+
+    def freqs(pix: np.ndarray, ks: slice) -> tuple[np.ndarray, np.ndarray | None]:
+        """The frequencies the tests fit on ``pix``: the pixel's (P, K), or where a lone return keeps
+        its drift every record's (P, L, K), with each pixel's frequency parameters a tone (1 or 2)."""
+        if not moved[pix].any():
+            return out[pix][..., ks], None
+        rec = out[pix][:, None, ks] + record_offsets(l_n)[None, :, None] * drift[pix][:, None, ks]
+        return rec, np.where(moved[pix], 2, 1)
+
     # most ramps hold one detection in slot 0: those are tested with that slot alone (half the work)
-    lone = valid[judged, 0] & (np.count_nonzero(valid[judged], axis=-1) == 1)
+    lone = valid[judged, 0] & (count[judged] == 1)
     for sel, ks in ((lone, slice(0, 1)), (~lone, slice(None))):
         if sel.any():
             pix = judged[sel]
-            flags[pix, ks] = unresolved(spec, det.index[pix, ks], out[pix][..., ks], valid[pix, ks], noise[sel],
-                                        rows=pix, **test)
-    flags |= _too_close(out.mean(axis=1) / zp, valid)
+            f_t, params = freqs(pix, ks)
+            flags[pix, ks] = unresolved(spec, det.index[pix, ks], f_t, valid[pix, ks], noise[pix], rows=pix,
+                                        freq_params=params, **test)
+    flags |= _too_close(out / zp, valid)
     det = replace(det, unresolved=flags)
     free = ~valid[judged].all(axis=-1)
     grow = flags[judged].any(axis=-1) & free
@@ -86,15 +124,16 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
         pix = judged[grow]
         slot = np.argmax(det.unresolved[pix], axis=-1)
         out, det = _grow(_Records(ramp, spec, power), det, out,
-                         _Search(pix, noise[grow], det.index[pix, slot], SEARCH_BINS * zp, slot), rf=rf, test=test, pfa=pfa)
+                         _Search(pix, noise[pix], det.index[pix, slot], SEARCH_BINS * zp, slot), rf=rf, test=test, pfa=pfa)
     # a return on a stronger one's skirt that the detector missed: the cells around the strongest
     # detection, its fitted tones taken out, at the detector's pfa per cell
     skirt = free & ~grow
     if skirt.any():
-        pix, nz = judged[skirt], noise[skirt]
+        pix = judged[skirt]
+        nz = noise[pix]
         ks = slice(0, max(1, int(np.count_nonzero(valid[pix], axis=-1).max()) if k > 1 else 1))
         ks = slice(None) if not np.all(valid[pix, ks].sum(axis=-1) == valid[pix].sum(axis=-1)) else ks
-        cells, rp = residual_near(spec, det.index[pix, 0], out[pix][..., ks], valid[pix, ks], half=SKIRT_BINS * zp,
+        cells, rp = residual_near(spec, det.index[pix, 0], freqs(pix, ks)[0], valid[pix, ks], half=SKIRT_BINS * zp,
                                   window=window, n_samples=n, zero_pad=zp, iq=rf.iq, rows=pix)
         best = np.argmax(rp, axis=-1)
         hit = rp[np.arange(pix.size), best] > _floor(nz, det.power[pix, 0], pfa, l_n)
@@ -112,15 +151,20 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
         power_all[several] = np.where(det.valid[several], pw, det.power[several])
         det = replace(det, power=power_all, snr_db=10 * np.log10(np.maximum(power_all, 1e-300)
                                                                  / np.maximum(det.noise, 1e-300)))
-    return out.mean(axis=1), det
+    return out, det
 
 
-def _joint(x: np.ndarray, f: np.ndarray, active: np.ndarray, **kw) -> np.ndarray:
-    """:func:`refine_joint` record by record: ``x`` (P, L, N), ``f`` (P, L, K) in bins, ``active`` (P, K)."""
-    p_n, l_n, n = x.shape
-    k = f.shape[-1]
-    got = refine_joint(x.reshape(-1, 1, n), f.reshape(-1, k), np.repeat(active, l_n, axis=0), **kw)
-    return got.reshape(p_n, l_n, k)
+def _drift_seen(gain: np.ndarray, noise: np.ndarray, rf: RangeFFT, level: float) -> np.ndarray:
+    """Whether a lone return's fitted drift is a parameter of the model, not noise: the likelihood ratio
+    of the drift against a common frequency, chi-square with one degree of freedom under no drift, past
+    its ``level`` quantile (the model-order test's level). ``gain`` (P,) the fit's energy gained by the
+    drift (:class:`.pixeltone.PixelFit`), ``noise`` (P,) the noise power per spectrum cell: the noise
+    per sample is that over sum(w^2) / sum(w)^2 of the range FFT's window; a complex record's energy
+    is N times its projection's, and its noise is split over two parts."""
+    w = rf.window_samples
+    sigma2 = np.maximum(noise, 1e-300) * w.sum() ** 2 / np.sum(w * w)
+    stat = 2.0 * gain / (w.size * sigma2) if rf.iq else gain / sigma2
+    return stat > chi2_isf(level, 1.0)
 
 
 def _floor(noise: np.ndarray, peak: np.ndarray, pfa: float, l_n: int) -> np.ndarray:
@@ -159,14 +203,13 @@ class _Search(NamedTuple):
 
 def _grow(rec: _Records, det: Detections, frac, search: _Search, *, rf: RangeFFT, test: dict[str, Any], pfa: float):
     """Step 3 of the module doc on the pixels of ``search``: a tone searched within its cells in the
-    records less the fitted tones; ``frac`` (P, L, K) per record."""
+    records less the fitted tones; ``frac`` (P, K)."""
     ramp, spec, power = rec
     pix, noise, centre, half, slot = search
     zp, (_, l_n, n) = rf.zero_pad, ramp.shape
     valid = det.valid[pix]
-    k = valid.shape[-1]
-    f = frac[pix] / zp                                                         # (q, L, K)
-    resid = subtract_tones(ramp[pix].reshape(-1, 1, n), f.reshape(-1, k), np.repeat(valid, l_n, axis=0))
+    f = frac[pix] / zp                                                         # (q, K)
+    resid = subtract_tones(ramp[pix], f, valid)
     w = rf.window_samples
     rs = windowed_fft(resid.reshape(pix.size, l_n, n), w / w.sum(), rf.n_fft, "shifted" if rf.iq else "real")
     rp = (rs.real ** 2 + rs.imag ** 2).mean(axis=1)                             # (q, n_bins)
@@ -178,11 +221,11 @@ def _grow(rec: _Records, det: Detections, frac, search: _Search, *, rf: RangeFFT
     # and more than the strongest tone's model error (_floor)
     strong = rp[rows, c2] > _floor(noise, det.power[pix].max(axis=-1), pfa, l_n)
     f_new = f.copy()
-    f_new[rows, :, free] = (rf.index_to_bin(c2) / zp)[:, None]
+    f_new[rows, free] = rf.index_to_bin(c2) / zp
     act = valid.copy()
     act[rows, free] = True
-    f_new = _joint(ramp[pix], f_new, act, reach=GROW_REACH_BINS, iterations=2 * ITERATIONS)
-    fm = f_new.mean(axis=1)
+    f_new = refine_joint(ramp[pix], f_new, act, reach=GROW_REACH_BINS, iterations=2 * ITERATIONS)
+    fm = f_new
     apart = np.abs(fm[rows, free][:, None] - fm) >= RESOLUTION_BINS
     apart = np.where(valid, apart, True).all(axis=-1)
     index = det.index[pix].copy()

@@ -266,7 +266,7 @@ def newton_real_step(gr: np.ndarray, gi: np.ndarray, d: np.ndarray, d0: np.ndarr
     transcendentals come from numpy (its own vectorised cos and sin): ``cos_phi`` ... ``sin_w1`` (m,) of
     the angles pi d (n-1)/n, w = 2 pi (f0 + d)/n and w (n-1); ``turn`` (6, 3): cos and sin of the
     offsets' angles pi o (n-1)/n, 2 pi o/n and 2 pi o (n-1)/n."""
-    p_terms, m = gr.shape
+    m = gr.shape[1]
     nf = float(n)
     j = np.empty(3)
     delta = np.empty((3, _STEP_BLOCK))
@@ -274,22 +274,56 @@ def newton_real_step(gr: np.ndarray, gi: np.ndarray, d: np.ndarray, d0: np.ndarr
     acc_im = np.empty((3, _STEP_BLOCK))
     for i0 in range(0, m, _STEP_BLOCK):
         nb = min(_STEP_BLOCK, m - i0)
-        for r in range(3):
-            for b in range(nb):
-                delta[r, b] = d[i0 + b] + offsets[r]
-                acc_re[r, b] = 0.0
-                acc_im[r, b] = 0.0
-        # Horner over the terms, a block of pairs at a time (the terms are term-major: rows of gr)
-        for p in range(p_terms - 1, -1, -1):
-            for b in range(nb):
-                g_re = gr[p, i0 + b]
-                g_im = gi[p, i0 + b]
-                for r in range(3):
-                    acc_re[r, b] = acc_re[r, b] * delta[r, b] + g_re
-                    acc_im[r, b] = acc_im[r, b] * delta[r, b] + g_im
+        _horner3(gr, gi, d, offsets, i0, nb, delta, acc_re, acc_im)
         for b in range(nb):
             _newton_pair(i0 + b, acc_re[:, b], acc_im[:, b], j, d, d0, cos_phi, sin_phi, cos_w, sin_w, cos_w1,
                          sin_w1, turn, nf, det_floor, reach, h2, hh)
+
+
+@_jit
+def _horner3(gr: np.ndarray, gi: np.ndarray, d: np.ndarray, offsets: np.ndarray, i0: int, nb: int, delta: np.ndarray,
+             acc_re: np.ndarray, acc_im: np.ndarray) -> None:  # pragma: no cover
+    """G at d + each of the three offsets for the block of pairs [i0, i0 + nb): Horner over the terms
+    (term-major: rows of gr), a block at a time (each term's row read once)."""
+    p_terms = gr.shape[0]
+    for r in range(3):
+        for b in range(nb):
+            delta[r, b] = d[i0 + b] + offsets[r]
+            acc_re[r, b] = 0.0
+            acc_im[r, b] = 0.0
+    for p in range(p_terms - 1, -1, -1):
+        for b in range(nb):
+            g_re = gr[p, i0 + b]
+            g_im = gi[p, i0 + b]
+            for r in range(3):
+                acc_re[r, b] = acc_re[r, b] * delta[r, b] + g_re
+                acc_im[r, b] = acc_im[r, b] * delta[r, b] + g_im
+
+
+@_jit
+def real_slopes(gr: np.ndarray, gi: np.ndarray, d: np.ndarray, offsets: np.ndarray, cos_phi: np.ndarray,
+                sin_phi: np.ndarray, cos_w: np.ndarray, sin_w: np.ndarray, cos_w1: np.ndarray, sin_w1: np.ndarray,
+                turn: np.ndarray, n: int, det_floor: float, h2: float, hh: float, energy: np.ndarray, slope: np.ndarray,
+                curv: np.ndarray) -> None:  # pragma: no cover
+    """The real-tone likelihood, its finite-difference slope and curvature (m,) at ``d`` (m,), the same
+    evaluation as newton_real_step's without its step (its arguments alike): for the pixel fit
+    (lidard.dsp.ranging.pixeltone), which sums them over a pixel's records before it steps."""
+    m = gr.shape[1]
+    nf = float(n)
+    j = np.empty(3)
+    delta = np.empty((3, _STEP_BLOCK))
+    acc_re = np.empty((3, _STEP_BLOCK))
+    acc_im = np.empty((3, _STEP_BLOCK))
+    for i0 in range(0, m, _STEP_BLOCK):
+        nb = min(_STEP_BLOCK, m - i0)
+        _horner3(gr, gi, d, offsets, i0, nb, delta, acc_re, acc_im)
+        for b in range(nb):
+            i = i0 + b
+            _pair_energies(i, acc_re[:, b], acc_im[:, b], j, cos_phi, sin_phi, cos_w, sin_w, cos_w1, sin_w1, turn,
+                           nf, det_floor)
+            energy[i] = j[1]
+            slope[i] = (j[2] - j[0]) / h2
+            curv[i] = (j[2] - 2.0 * j[1] + j[0]) / hh
 
 
 #: pairs per block of newton_real_step's Horner pass: the block's accumulators (6 x 64 doubles) stay in L1 while
@@ -304,30 +338,7 @@ def _newton_pair(i: int, a_res: np.ndarray, a_ims: np.ndarray, j: np.ndarray, d:
                  hh: float) -> None:  # pragma: no cover
     """The rest of newton_real_step for pair ``i``, from G at its three offsets (a_res, a_ims)."""
     di = d[i]
-    for r in range(3):
-        a_re = a_res[r]
-        a_im = a_ims[r]
-        cp = cos_phi[i] * turn[0, r] - sin_phi[i] * turn[1, r]
-        sp = sin_phi[i] * turn[0, r] + cos_phi[i] * turn[1, r]
-        c = cp * a_re + sp * a_im
-        s = sp * a_re - cp * a_im
-        cw = cos_w[i] * turn[2, r] - sin_w[i] * turn[3, r]
-        sw = sin_w[i] * turn[2, r] + cos_w[i] * turn[3, r]
-        cos_n1 = cos_w1[i] * turn[4, r] - sin_w1[i] * turn[5, r]
-        sin_n1 = sin_w1[i] * turn[4, r] + cos_w1[i] * turn[5, r]
-        sin_nw = sin_n1 * cw + cos_n1 * sw
-        if abs(sw) < 1e-12:
-            dirichlet = nf * cos_n1
-        else:
-            dirichlet = sin_nw / sw
-        scc = 0.5 * (nf + cos_n1 * dirichlet)
-        sss = 0.5 * (nf - cos_n1 * dirichlet)
-        scs = 0.5 * sin_n1 * dirichlet
-        det = scc * sss - scs * scs
-        if det > det_floor:
-            j[r] = _safe_div(sss * c * c - 2.0 * scs * c * s + scc * s * s, det)
-        else:
-            j[r] = _safe_div(c * c, scc)
+    _pair_energies(i, a_res, a_ims, j, cos_phi, sin_phi, cos_w, sin_w, cos_w1, sin_w1, turn, nf, det_floor)
     dp = (j[2] - j[0]) / h2
     dpp = (j[2] - 2.0 * j[1] + j[0]) / hh
     if dpp < 0:
@@ -352,3 +363,35 @@ def _newton_pair(i: int, a_res: np.ndarray, a_ims: np.ndarray, j: np.ndarray, d:
     elif v > hi:
         v = hi
     d[i] = v
+
+
+@_jit
+def _pair_energies(i: int, a_res: np.ndarray, a_ims: np.ndarray, j: np.ndarray, cos_phi: np.ndarray,
+                   sin_phi: np.ndarray, cos_w: np.ndarray, sin_w: np.ndarray, cos_w1: np.ndarray, sin_w1: np.ndarray,
+                   turn: np.ndarray, nf: float, det_floor: float) -> None:  # pragma: no cover
+    """j[r]: the real-tone least-squares energy of pair ``i`` at its three offsets (_real_tone_fit),
+    from G there (a_res, a_ims) and the turned angles."""
+    for r in range(3):
+        a_re = a_res[r]
+        a_im = a_ims[r]
+        cp = cos_phi[i] * turn[0, r] - sin_phi[i] * turn[1, r]
+        sp = sin_phi[i] * turn[0, r] + cos_phi[i] * turn[1, r]
+        c = cp * a_re + sp * a_im
+        s = sp * a_re - cp * a_im
+        cw = cos_w[i] * turn[2, r] - sin_w[i] * turn[3, r]
+        sw = sin_w[i] * turn[2, r] + cos_w[i] * turn[3, r]
+        cos_n1 = cos_w1[i] * turn[4, r] - sin_w1[i] * turn[5, r]
+        sin_n1 = sin_w1[i] * turn[4, r] + cos_w1[i] * turn[5, r]
+        sin_nw = sin_n1 * cw + cos_n1 * sw
+        if abs(sw) < 1e-12:
+            dirichlet = nf * cos_n1
+        else:
+            dirichlet = sin_nw / sw
+        scc = 0.5 * (nf + cos_n1 * dirichlet)
+        sss = 0.5 * (nf - cos_n1 * dirichlet)
+        scs = 0.5 * sin_n1 * dirichlet
+        det = scc * sss - scs * scs
+        if det > det_floor:
+            j[r] = _safe_div(sss * c * c - 2.0 * scs * c * s + scc * s * s, det)
+        else:
+            j[r] = _safe_div(c * c, scc)

@@ -50,6 +50,7 @@ def _compiled() -> SimpleNamespace | None:
         return None
     return SimpleNamespace(os_scan=jit_kernels.os_scan, power=jit_kernels.power, widths_6db=jit_kernels.widths_6db,
                            bin_table=jit_kernels.bin_table, newton_real_step=jit_kernels.newton_real_step,
+                           real_slopes=jit_kernels.real_slopes,
                            joint_stencil=fit_kernels.joint_stencil,
                            order_fit=fit_kernels.order_fit, residual_fit=fit_kernels.residual_fit,
                            window_grid=fit_kernels.window_grid)
