@@ -231,15 +231,16 @@ WALL_ROI = ScanRequest(pattern="roi", rows=(40, 72), cols=(0, 128), max_range_m=
 
 
 def wall_time_to_safe(trials: int = 8, bench: str = "child", seed: int = 1) -> dict[str, Any]:
-    """Time to safe state on WALL time while the scan thread is busy in the DSP of a full batch.
+    """Time to safe state on WALL time while the DSP works on full batches beside the acquisition.
 
     Daemon composition (child-process bench: the controller's Modbus server is another process, as
     a real controller is another box). Each trial scans ``WALL_ROI``; when the first full 8 MiB batch
-    enters the DSP, a helper thread waits a random fraction of that DSP call's expected duration and
+    is handed to the DSP, a helper thread waits a random fraction of one batch's DSP period and
     opens the interlock through the bench's fault injection. Figures, from the moment the injection
     is sent (an upper bound: the loop opens somewhere inside that call) to the safety watch's trip
     record (``SafetyMonitor.last_trip``, monotonic clock): detection, laser/HV off commanded, both read
-    back. ``dsp_busy`` says whether the DSP call was still running when the readback was done."""
+    back. ``dsp_busy`` says whether DSP batches were in flight (on the DSP workers, beside the
+    acquisition) when the interlock opened."""
     import threading
 
     from lidard.instrument.points import PointBuffer
@@ -248,37 +249,44 @@ def wall_time_to_safe(trials: int = 8, bench: str = "child", seed: int = 1) -> d
     cfg = load_config(CONFIG_DIR / "sim.toml", environ=ENV)
     inst = open_instrument(cfg, scene_path=str(CONFIG_DIR / "scenes" / "cal_letters.toml"), bench=bench)
     rng = np.random.default_rng(seed)
-    original = PointBuffer._process      # one DSP batch (on a DSP worker thread since the pipeline)
+    # the DSP runs beside the acquisition (worker processes, or threads): the hook is where the
+    # acquiring thread hands a full batch over, and the trial's opening lands while it is processed
+    original = PointBuffer.flush
     trial: dict[str, Any] = {}
-    flush_s: list[float] = []
+    flush_s: list[float] = []          # time between full hand-overs: one batch's DSP period
+    last_full: list[float] = []
 
-    def open_later(delay_s: float) -> None:
-        time.sleep(delay_s)          # wall time on purpose: the opening must land inside the DSP call
+    def open_later(delay_s: float, buf: PointBuffer) -> None:
+        time.sleep(delay_s)          # wall time on purpose: the opening must land inside the DSP's work
         trial["t_open"] = time.monotonic()
+        trial["in_flight"] = buf._pipe.in_flight if buf._pipe is not None else 0
         inst.inject_fault("interlock_open")
         trial["t_injected"] = time.monotonic()
 
-    def timed_flush(self, batch):
-        full = batch.nbytes >= BATCH_BYTES // 4      # a full-size DSP batch, not a scan's short tail
-        if full and trial.get("armed") and "flush" not in trial:
-            threading.Thread(target=open_later, args=(trial["delay_s"],), daemon=True).start()
+    def timed_flush(self):
+        full = self._pending_bytes >= BATCH_BYTES // 4      # a full-size DSP batch, not a scan's short tail
         t0 = time.monotonic()
         try:
-            return original(self, batch)
+            return original(self)
         finally:
             if full:
-                flush_s.append(time.monotonic() - t0)
-                trial.setdefault("flush", (t0, time.monotonic()))
+                if last_full:
+                    flush_s.append(t0 - last_full[-1])
+                last_full[:] = [t0]
+                if trial.get("armed") and "flush" not in trial:
+                    trial["flush"] = t0
+                    threading.Thread(target=open_later, args=(trial["delay_s"], self), daemon=True).start()
 
-    PointBuffer._process = timed_flush
+    PointBuffer.flush = timed_flush  # type: ignore[method-assign]
     rows: list[dict[str, Any]] = []
     try:
-        inst.run_scan(WALL_ROI, lambda p: None, threading.Event())      # warm-up: the DSP's duration
-        dsp_s = float(np.median(flush_s))
+        inst.run_scan(WALL_ROI, lambda p: None, threading.Event())      # warm-up: the DSP's period
+        dsp_s = float(np.median(flush_s)) if flush_s else 0.5
         for _ in range(trials):
             inst.clear_faults()
             inst.controller.clear_faults()
             trial.clear()
+            last_full.clear()
             trial.update(armed=True, delay_s=float(rng.uniform(0.1, 0.6)) * dsp_s)
             res = inst.run_scan(WALL_ROI, lambda p: None, threading.Event())
             lt = inst.safety.last_trip or {}
@@ -290,12 +298,12 @@ def wall_time_to_safe(trials: int = 8, bench: str = "child", seed: int = 1) -> d
                          "detect_ms": (lt["wall_detected_s"] - t0) * 1e3,
                          "off_commanded_ms": (lt["wall_off_commanded_s"] - t0) * 1e3,
                          "safe_ms": (lt["wall_safe_s"] - t0) * 1e3,
-                         "dsp_busy": trial["flush"][1] > lt["wall_safe_s"],
+                         "dsp_busy": trial["in_flight"] > 0,
                          "virtual_safe_ms": (lt["safe"]["safe_at_s"] - lt["safe"]["off_commanded_at_s"]) * 1e3})
         inst.clear_faults()
         inst.controller.clear_faults()
     finally:
-        PointBuffer._process = original
+        PointBuffer.flush = original  # type: ignore[method-assign]
         inst.close()
     ok = [r for r in rows if r["tripped"]]
     safe = np.array([r["safe_ms"] for r in ok])
@@ -310,9 +318,9 @@ def wall_time_to_safe(trials: int = 8, bench: str = "child", seed: int = 1) -> d
 
 def print_wall(w: dict[str, Any]) -> None:
     print(f"\nwall time to safe state ({w['bench']} bench, watch period {w['safety_period_s'] * 1e3:g} ms, "
-          f"DSP of one {w['dsp_batch_bytes'] >> 20} MiB batch {w['dsp_call_s_median']:.2f} s): "
-          f"{w['tripped']}/{w['trials']} tripped, {w['by_watch']} by the watch, {w['dsp_busy']} with the DSP "
-          f"still busy at the readback")
+          f"one {w['dsp_batch_bytes'] >> 20} MiB batch handed to the DSP every {w['dsp_call_s_median']:.2f} s): "
+          f"{w['tripped']}/{w['trials']} tripped, {w['by_watch']} by the watch, {w['dsp_busy']} with DSP batches "
+          f"in flight at the opening")
     if w["tripped"]:
         print(f"  opening -> laser and HV read back off: median {w['safe_ms_median']:.1f} ms, min "
               f"{w['safe_ms_min']:.1f} ms, max {w['safe_ms_max']:.1f} ms (detection max {w['detect_ms_max']:.1f} "
