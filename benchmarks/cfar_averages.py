@@ -29,11 +29,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from resolution_table import CELL_M, CW, FS_HZ, RAMP, RATE, WAVELENGTH, scan_dsp  # noqa: E402
+from resolution_table import CELL_M, CW, FS_HZ, RAMP, RATE, WAVELENGTH, scan_dsp
 
-from lidard.dsp.detect import os_cfar  # noqa: E402
-from lidard.dsp.frame import FrameDsp  # noqa: E402
-from lidard.dsp.ranging.lines import lines, render  # noqa: E402
+from lidard.dsp.detect import os_cfar
+from lidard.dsp.frame import FrameDsp
+from lidard.dsp.ranging.lines import lines, render
 
 KS = (1, 4, 10)
 NOISE_PFA = 1e-5          # false points per range cell: a per-ramp level q = 1e-3 (m = 10), enough alarms to count
