@@ -8,7 +8,9 @@ Detection on power spectra |X|^2 (exponentially distributed in white noise), bat
   Near the spectrum edges fewer cells exist; alpha is recomputed for the cells actually used.
 * Ordered statistic (OS): noise = k-th smallest of N reference cells (robust to a second target in
   the reference window); alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) (Rohling 1983),
-  found numerically once per (N, k, Pfa) and cached.  Edges use mirrored reference cells.
+  found numerically once per (N, k, Pfa) and cached.  Edges use mirrored reference cells.  On a
+  spectrum averaged over K records (``CfarSettings.records``) the cells are Gamma(K), and alpha solves
+  the exact Pfa of that model instead (:mod:`lidard.dsp.detect.os_gamma`).
 
 A detection is a cell above threshold that is also a local maximum.  Then:
 
