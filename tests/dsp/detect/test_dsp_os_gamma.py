@@ -102,3 +102,30 @@ def test_chain_takes_the_records_from_the_averaged_axis() -> None:
 def test_bad_records_is_refused(bad: object) -> None:
     with pytest.raises(DspInputError, match="records"):
         cfar_detect_with(np.ones((1, 64)), CfarSettings(records=bad))  # type: ignore[arg-type]
+
+
+def test_screens_and_compiled_pass_decide_as_the_dense_averaged_threshold(monkeypatch) -> None:
+    """The sparse screens (numpy and, with numba, compiled) take the Gamma(K) constants too: their
+    detections are exactly the local maxima over the dense exact threshold of the same model."""
+    from lidard.dsp.spectrum import jit
+    records = 8
+    rng = np.random.default_rng(11)
+    p = rng.gamma(records, 1.0 / records, size=(200, 512))
+    p[:, 100] += np.linspace(0.5, 6.0, 200)     # lines from below to above the K = 8 threshold
+    noise, thr = _noise_os(p, N_REF // 2, 2, 1e-4, None, exact=True, records=records)
+    peak = np.ones(p.shape, bool)
+    peak[:, 1:] &= p[:, 1:] >= p[:, :-1]
+    peak[:, :-1] &= p[:, :-1] > p[:, 1:]
+    want = np.nonzero(peak & (p > thr * noise))
+    assert want[0].size > 100
+    kerns = [None] + ([jit.kernels()] if jit.kernels() is not None else [])
+    for kern in kerns:
+        if kern is None:
+            monkeypatch.setenv("LIDARD_DSP_JIT", "0")
+        from lidard.dsp.detect.os_cfar import _os_detected
+        found = _os_detected(p, N_REF // 2, 2, 1e-4, None, 1e-20, kern, records)
+        assert found is not None
+        np.testing.assert_array_equal(found[0], want[0])
+        np.testing.assert_array_equal(found[1], want[1])
+        np.testing.assert_allclose(found[2], noise[want], rtol=1e-12)
+        monkeypatch.delenv("LIDARD_DSP_JIT", raising=False)
