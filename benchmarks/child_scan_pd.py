@@ -70,13 +70,13 @@ def capture(out: Path, averages: int, child_env: dict[str, str]) -> tuple[Path, 
     return out, res.points
 
 
-def _margin_db(p: np.ndarray, ramp_pfa: float) -> np.ndarray:
+def _margin_db(p: np.ndarray, ramp_pfa: float, records: int) -> np.ndarray:
     """Per row of ramp power spectra: the largest ratio (dB) of a cell near the line to its OS-CFAR
     threshold (alpha times the ordered statistic of its reference cells, as the frame DSP's)."""
     from lidard.dsp.detect.os_cfar import _noise_os
     from lidard.raw.spectrum import _N_GUARD, _N_REF
 
-    noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, ramp_pfa, None, exact=True)
+    noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, ramp_pfa, None, exact=True, records=records)
     near = slice(LINE_BIN - NEAR_BINS, LINE_BIN + NEAR_BINS + 1)
     return 10 * np.log10((p[:, near] / (alpha[None, near] * noise[:, near])).max(axis=1))
 
@@ -88,7 +88,7 @@ def down_margins_db(cap) -> np.ndarray:
 
     rep = replay_dsp(cap.attrs)
     beat = cap.chunks(0, cap.n_chunks).channel("beat", cap.channels, cap.averages)
-    return _margin_db(_ramp_power(rep, beat, None, None, rep.dsp.ramp_samples), rep.dsp.ramp_pfa)
+    return _margin_db(_ramp_power(rep, beat, None, None, rep.dsp.ramp_samples), rep.dsp.ramp_pfa, cap.averages)
 
 
 def seed_scans(seeds: list[int], averages: int, as_json: bool) -> None:
@@ -134,7 +134,7 @@ def detections(rep, codes: np.ndarray, rng: np.random.Generator, sigma_codes: fl
 
     d = rep.dsp
     s = CfarSettings(method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
-                     bin_range=d.bin_range, iq=d.iq)
+                     bin_range=d.bin_range, iq=d.iq, records=averages)
     miss = {"up": 0, "down": 0, "pixel": 0}
     margins: list[np.ndarray] = []
     for t0 in range(0, trials, batch):
@@ -149,7 +149,7 @@ def detections(rep, codes: np.ndarray, rng: np.random.Generator, sigma_codes: fl
             miss[name] += int((~hit).sum())
             found &= hit
             if name == "down":
-                margins.append(_margin_db(p, d.ramp_pfa))
+                margins.append(_margin_db(p, d.ramp_pfa, averages))
         miss["pixel"] += int((~found).sum())
     m = np.concatenate(margins)
     k = miss["pixel"]

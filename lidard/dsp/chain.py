@@ -59,6 +59,12 @@ def detect_and_refine(spec: np.ndarray, refine: RefineSignals, *, cfar: CfarSett
     """
     p_ramps = p = power_of(spec) if power is None else power
     if average_axis is not None:
+        # the detector's noise model is the averaged cell's (Gamma(K), K the records averaged here): K
+        # is this axis's length, nowhere else
+        if cfar.records != 1:
+            raise DspInputError(f"cfar.records={cfar.records} given with average_axis: the records averaged "
+                                "are the axis's length")
+        cfar = replace(cfar, records=int(p.shape[average_axis]))
         p = p.mean(axis=average_axis)
     window, zero_pad = cfar.window, cfar.zero_pad
     det = cfar_detect_with(p, cfar)

@@ -105,9 +105,11 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
     power, threshold, dets = {}, {}, []
     for name, start in (("up", 0), ("down", d.ramp_samples)):
         p = _ramp_power(replay, beat, mzi, mzi_q, start)
+        # p averages the pixel's records: the detector's noise model is Gamma(records), as the scan's
         det = cfar_detect_with(p, CfarSettings(method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
-                          bin_range=gate, iq=d.iq))
-        noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True)   # drawn at every bin
+                          bin_range=gate, iq=d.iq, records=cap.averages))
+        noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True,
+                                 records=cap.averages)   # drawn at every bin
         power[name], threshold[name] = p[0], (alpha * noise)[0]
         for j in np.flatnonzero(det.valid[0]):
             b = int(det.index[0, j])

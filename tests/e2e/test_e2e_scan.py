@@ -181,9 +181,10 @@ def test_child_process_bench_over_pty_modbus_and_usb_socket():
         assert all(d["connected"] for d in devs.values())
         # 8 averages, from the Pd model of this scan (benchmarks/child_scan_pd.py, docs/measured/27_synthesis.md):
         # the broad down-ramp peak's own skirts fill the OS-CFAR's reference cells, so its margin over the
-        # threshold is ~2 dB (sd 0.87 dB at one average, 0.38 dB at 8) however far it stands above the white
-        # noise (~29 dB). A pixel is missed with P 1.1e-2 at one average (16 of 16 in ~84 % of seeds, on any
-        # noise generator), 4e-5 at 4, none in 650,000 trials at 8: 16 of 16 with P >= 1 - 9.1e-5 (95 %);
+        # threshold is ~2 dB at one average (sd 0.87 dB) however far it stands above the white noise (~29 dB).
+        # A pixel is missed with P 1.1e-2 at one average (16 of 16 in ~84 % of seeds, on any noise
+        # generator). With the threshold of the averaged spectrum (Gamma(K) cells) the margin rises with the
+        # averages: 9.3 +- 0.38 dB at 8, no miss in 20,000 trials (docs/measured/27_cfar_averages_child.md);
         # false points 16 px x 143 cells x 1e-9 ~ 2e-6 a scan
         res = inst.run_scan(ScanRequest(pattern="roi", rows=(44, 46), cols=(60, 68), max_range_m=2.0, averages=8),
                             lambda p: None, threading.Event(), None)

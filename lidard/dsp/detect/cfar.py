@@ -8,7 +8,9 @@ Detection on power spectra |X|^2 (exponentially distributed in white noise), bat
   Near the spectrum edges fewer cells exist; alpha is recomputed for the cells actually used.
 * Ordered statistic (OS): noise = k-th smallest of N reference cells (robust to a second target in
   the reference window); alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) (Rohling 1983),
-  found numerically once per (N, k, Pfa) and cached.  Edges use mirrored reference cells.
+  found numerically once per (N, k, Pfa) and cached.  Edges use mirrored reference cells.  On a
+  spectrum averaged over K records (``CfarSettings.records``) the cells are Gamma(K), and alpha solves
+  the exact Pfa of that model instead (:mod:`lidard.dsp.detect.os_gamma`).
 
 A detection is a cell above threshold that is also a local maximum.  Then:
 
@@ -41,7 +43,7 @@ import numpy as np
 
 from lidard.dsp.spectrum import jit
 from lidard.dsp.detect.os_cfar import (  # noqa: F401  (re-exported: the detector's public names and tests' reach)
-    _OS_BLOCK, _check_pfa, _mirror_padded, _noise_os, _os_detected, _os_screened, os_cfar_alpha, os_cfar_pfa,
+    _OS_BLOCK, _check_pfa, _check_records, _mirror_padded, _noise_os, _os_detected, _os_screened, os_cfar_alpha, os_cfar_pfa,
 )
 from lidard.dsp.detect._post import (  # noqa: F401  (re-exported: tests' reach)
     _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db,
@@ -165,6 +167,9 @@ class CfarSettings:
     bin_range: (first, last) spectrum indices searched (e.g. a range gate).
     dc_guard_bins: bins with |frequency bin| < dc_guard_bins are never reported (default: the
         window's main-lobe half-width, so DC and its lobe are excluded).
+    records: the records whose powers were averaged into each cell (incoherent averaging): OS-CFAR's
+        threshold factor and noise scale are those of Gamma(records) noise cells (lidard.dsp.detect.os_gamma),
+        so ``pfa`` is the rate the detector runs at; CA-CFAR's factor stays the exponential one.
     """
 
     method: CfarMethod = "os"
@@ -181,6 +186,7 @@ class CfarSettings:
     sidelobe_margin_db: float = 6.0
     harmonic_ratio_db: float = 15.0
     unresolved_factor: float = 1.12
+    records: int = 1
 
 
 _DEFAULT_SETTINGS = CfarSettings()    # OS-CFAR at pfa 1e-5 on a one-sided Hann spectrum
@@ -244,6 +250,7 @@ def _checked_power(power: np.ndarray, s: CfarSettings) -> np.ndarray:
     if max_detections < 1:
         raise DspInputError(f"max_detections={max_detections} must be >= 1")
     _check_pfa(pfa)
+    _check_records(s.records)
     return p
 
 
@@ -281,7 +288,7 @@ def _candidates(p2: np.ndarray, s: CfarSettings,
         r, c = np.nonzero(cand)
         nz = noise[r, c]
     else:   # OS: only the local maxima that may pass were given the exact statistic (os_cfar)
-        found = _os_detected(p2, n_ref_side, n_guard, pfa, os_rank, _FLOOR, kern)
+        found = _os_detected(p2, n_ref_side, n_guard, pfa, os_rank, _FLOOR, kern, s.records)
         if found is None:   # the compiled pass met a NaN, infinite or negative value: name it
             _check_power_values(p2)
             raise DspInputError("power holds a value the compiled CFAR pass refused")

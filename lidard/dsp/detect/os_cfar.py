@@ -2,7 +2,9 @@
 
 Ordered statistic (Rohling 1983): the noise of a cell is the k-th smallest of its N reference cells;
 alpha solves Pfa = prod_{i=0}^{k-1} (N - i) / (N - i + alpha) for exponential noise (§2.4: detection
-at a chosen false-alarm rate). The detector computes the statistic exactly only at the local maxima
+at a chosen false-alarm rate). On a spectrum averaged over K records each noise cell is Gamma(K), not
+exponential, and both alpha and the noise-mean scale come from that model (:mod:`.os_gamma`; K = 1 is
+Rohling's closed form, used as is). The detector computes the statistic exactly only at the local maxima
 that could pass the threshold (:func:`_os_screened`: screens that are necessary conditions of
 the exact test, so the detections are the exact statistic's); :func:`_noise_os` gives the statistic at
 every bin (exactly, or a lower bound where nothing can pass). Pure numpy;
@@ -17,31 +19,41 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from lidard.dsp.detect.os_gamma import os_gamma_mean_kth, os_gamma_pfa
 from lidard.dsp.spectrum import jit
 from lidard.dsp.spectrum.window import DspInputError
 
 
-def os_cfar_pfa(alpha: float, n_ref: int, k: int) -> float:
-    """Exact Pfa of OS-CFAR (k-th of N cells, exponential noise) for threshold factor alpha."""
-    i = np.arange(k)
-    return float(np.prod((n_ref - i) / (n_ref - i + alpha)))
+def os_cfar_pfa(alpha: float, n_ref: int, k: int, records: int = 1) -> float:
+    """Exact Pfa of OS-CFAR (k-th of N cells) for threshold factor alpha, each cell the mean power of
+    ``records`` records (1: exponential noise, Rohling's product; more: :func:`.os_gamma.os_gamma_pfa`)."""
+    if records == 1:
+        i = np.arange(k)
+        return float(np.prod((n_ref - i) / (n_ref - i + alpha)))
+    return os_gamma_pfa(alpha, n_ref, k, records)
 
 
 @lru_cache(maxsize=256)
-def os_cfar_alpha(n_ref: int, k: int, pfa: float) -> float:
-    """OS-CFAR threshold factor solving os_cfar_pfa(alpha) = pfa (bisection, cached)."""
+def os_cfar_alpha(n_ref: int, k: int, pfa: float, records: int = 1) -> float:
+    """OS-CFAR threshold factor solving os_cfar_pfa(alpha, records=records) = pfa (bisection, cached)."""
     _check_pfa(pfa)
     if not 1 <= k <= n_ref:
         raise DspInputError(f"OS-CFAR rank k={k} must lie in 1..n_ref={n_ref}")
+    _check_records(records)
     lo, hi = 0.0, 1.0
-    while os_cfar_pfa(hi, n_ref, k) > pfa:
+    while os_cfar_pfa(hi, n_ref, k, records) > pfa:
         lo, hi = hi, hi * 2.0
     # Pfa falls monotonically with alpha: bisect to a relative 1e-13 (not scipy.optimize: importing it
     # costs ~0.4 s of every scan's start-up)
     while hi - lo > 1e-13 * hi:
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if os_cfar_pfa(mid, n_ref, k) > pfa else (lo, mid)
+        lo, hi = (mid, hi) if os_cfar_pfa(mid, n_ref, k, records) > pfa else (lo, mid)
     return 0.5 * (lo + hi)
+
+
+def _check_records(records: int) -> None:
+    if isinstance(records, bool) or not isinstance(records, (int, np.integer)) or records < 1:
+        raise DspInputError(f"records={records!r} (the records averaged into each cell) must be an integer >= 1")
 
 
 def _check_pfa(pfa: float) -> None:
@@ -50,7 +62,7 @@ def _check_pfa(pfa: float) -> None:
 
 
 def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None,
-              exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+              exact: bool = False, records: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """OS-CFAR noise per bin, exact wherever the threshold test can pass.
 
     The k-th smallest of a set is never below the k-th smallest of a superset, so the k-th smallest
@@ -61,26 +73,22 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
     the same as with the exact statistic at every bin; the noise reported for a bin that was not
     computed exactly is its lower bound (only detections' noise is used downstream); ``exact=True``
     computes every bin exactly (a spectrum view that draws the threshold). The detector itself uses
-    :func:`_os_screened` (the same decisions without a dense noise array)."""
-    n_ref = 2 * n_ref_side
-    k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
+    :func:`_os_screened` (the same decisions without a dense noise array). ``records``: the records
+    averaged into each cell of ``p`` (the noise model's K)."""
     reach = n_guard + n_ref_side
     lead = p.shape[:-1]
     p = p.reshape(-1, p.shape[-1])
     rows, n = p.shape
     if n <= reach:
         raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
-    alpha = os_cfar_alpha(n_ref, k, float(pfa))
-    mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
+    k, mean_kth, scaled_alpha, _ = _os_constants(n_ref_side, pfa, rank, records)
     n_blocks = -(-n // _OS_BLOCK)
     pp = _mirror_padded(p, reach, n_blocks * _OS_BLOCK - n + reach)
     hood = np.lib.stride_tricks.as_strided(
         pp, (rows, n_blocks, _OS_BLOCK + 2 * reach), (pp.strides[0], _OS_BLOCK * pp.strides[1], pp.strides[1]))
     lower = np.partition(hood, k - 1, axis=-1)[..., k - 1]
-    # Scale the order statistic to a mean-noise estimate for the SNR report:
-    # E[k-th of N exponentials] = sum_{i=N-k+1}^{N} 1/i.
+    # Scale the order statistic to a mean-noise estimate for the SNR report: E[k-th of N cells]
     lower = lower / mean_kth
-    scaled_alpha = alpha * mean_kth
     # the test against each block's bound, block by block (no per-bin copy of the bound), with the
     # products the detector compares against (so a bin left out here fails it there too)
     cells = pp[:, reach:reach + n_blocks * _OS_BLOCK].reshape(rows, n_blocks, _OS_BLOCK)
@@ -96,7 +104,7 @@ def _noise_os(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: in
 
 
 def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float,
-                 rank: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+                 rank: int | None, records: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """The detector's sparse OS-CFAR: ``(r, c, noise, scaled_alpha)`` for the local maxima
     of ``p`` (rows, n) that may pass the threshold, with the exact statistic at each (as
     :func:`_noise_os` computes it); no local maximum left out passes ``p > scaled_alpha * noise``.
@@ -113,7 +121,7 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float,
     rows, n = p.shape
     if n <= reach:
         raise DspInputError(f"spectrum of {n} bins is too short for OS-CFAR reach {reach}")
-    k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank)
+    k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank, records)
     kern = jit.kernels(p.size)
     if kern is not None and rows:   # the same screen cell by cell in one compiled pass (lidard.dsp.spectrum.jit)
         return jit.os_screen(p, n_ref_side, n_guard, k, thr_factor, mean_kth, kern) + (scaled_alpha,)
@@ -140,20 +148,21 @@ def _os_screened(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float,
     return r, c, noise, scaled_alpha
 
 
-def _os_constants(n_ref_side: int, pfa: float, rank: int | None) -> tuple[int, float, float, float]:
-    """(k, mean_kth, scaled_alpha, thr_factor) of OS-CFAR with ``2 n_ref_side`` reference cells: the rank,
-    E[k-th of N exponentials], the factor on the noise (k-th / mean_kth) and the screens' factor on a
-    cell's power (a cell c may pass only if its k-th smallest is below p[c] * thr_factor)."""
+def _os_constants(n_ref_side: int, pfa: float, rank: int | None, records: int = 1) -> tuple[int, float, float, float]:
+    """(k, mean_kth, scaled_alpha, thr_factor) of OS-CFAR with ``2 n_ref_side`` reference cells, each the
+    mean of ``records`` records' powers: the rank, E[k-th of N unit-mean cells], the factor on the noise
+    (k-th / mean_kth) and the screens' factor on a cell's power (a cell c may pass only if its k-th
+    smallest is below p[c] * thr_factor)."""
     n_ref = 2 * n_ref_side
     k = rank if rank is not None else max(1, int(round(0.75 * n_ref)))
-    alpha = os_cfar_alpha(n_ref, k, float(pfa))
-    mean_kth = float(np.sum(1.0 / np.arange(n_ref - k + 1, n_ref + 1)))
+    alpha = os_cfar_alpha(n_ref, k, float(pfa), records)     # checks k and records
+    mean_kth = os_gamma_mean_kth(n_ref, k, int(records))
     # the margin covers the rounding of the detector's scaled_alpha * (kth / mean_kth) (a few ulps)
     return k, mean_kth, alpha * mean_kth, (1.0 + 1e-9) / alpha
 
 
 def _os_detected(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank: int | None, floor_factor: float,
-                 kern: SimpleNamespace | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+                 kern: SimpleNamespace | None, records: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(r, c, noise) of the cells of ``p`` (rows, n) OS-CFAR detects, row-major: the local maxima with
     p > scaled_alpha * noise, noise > 0 and p > ``floor_factor`` times the row's largest cell.
 
@@ -162,9 +171,9 @@ def _os_detected(p: np.ndarray, n_ref_side: int, n_guard: int, pfa: float, rank:
     if kern is not None:
         if p.shape[-1] <= n_guard + n_ref_side:
             raise DspInputError(f"spectrum of {p.shape[-1]} bins is too short for OS-CFAR reach {n_guard + n_ref_side}")
-        k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank)
+        k, mean_kth, scaled_alpha, thr_factor = _os_constants(n_ref_side, pfa, rank, records)
         return jit.os_detect(p, n_ref_side, n_guard, k, thr_factor, mean_kth, scaled_alpha, floor_factor, kern)
-    r, c, nz, scaled_alpha = _os_screened(p, n_ref_side, n_guard, pfa, rank)
+    r, c, nz, scaled_alpha = _os_screened(p, n_ref_side, n_guard, pfa, rank, records)
     floor = floor_factor * p.max(axis=-1)
     pr = p[r, c]
     ok = (pr > scaled_alpha * nz) & (nz > 0) & (pr > floor[r])

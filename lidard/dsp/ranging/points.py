@@ -9,7 +9,9 @@ the rate of false points per range cell is
 
     P_point = m q^2        and the detector runs at        q = sqrt(P_point / m)
 
-(much looser than P_point: the per-ramp search finds candidates, the pair decides). ``pfa`` of the
+(much looser than P_point: the per-ramp search finds candidates, the pair decides). q is a
+probability per cell whatever the number K of records a pixel averages: the detector meets it with the
+threshold of Gamma(K) noise cells (lidard.dsp.detect.os_gamma), and the two ramps stay independent. ``pfa`` of the
 frame DSP (``scan.pfa``) is P_point: the expected number of valid false points per range cell of the
 searched band (one FFT bin of the ramp, c / 2B) in noise-only records, the rate measured by
 benchmarks/resolution_table.py (docs/measured/25_joint_model.md).

@@ -35,7 +35,11 @@ def test_the_detected_bin_is_the_targets_range_and_clears_the_threshold(capture)
     sel = far & (np.arange(len(spec.range_m)) >= lo) & (np.arange(len(spec.range_m)) <= hi)
     assert np.mean(spec.power["up"][sel] > spec.threshold["up"][sel]) < 0.01
     # the threshold is alpha times an order-statistic noise level: well above the median noise power
-    assert np.median(spec.threshold["up"][sel]) > 0.5 * os_cfar_alpha(16, 12, 1e-6) * np.median(spec.power["up"][sel])
+    # (alpha of the pixel's averaged spectrum: Gamma(K) cells, K its records)
+    from lidard.raw.capture import RawCapture
+    k = RawCapture(capture.path).averages
+    alpha = os_cfar_alpha(16, 12, 1e-6, k)
+    assert np.median(spec.threshold["up"][sel]) > 0.5 * alpha * np.median(spec.power["up"][sel])
     whole = reprocess(capture.path).points
     assert np.array_equal(spec.points, whole[(whole["row"] == row) & (whole["col"] == col)])
 
@@ -52,7 +56,8 @@ def test_overrides_change_what_the_spectrum_shows(capture):
     attrs = RawCapture(capture.path).attrs
     q0, q1 = (replay_dsp(attrs, s).dsp.ramp_pfa for s in (None, ReprocessSettings(pfa=1e-2)))
     assert q1 / q0 == pytest.approx(np.sqrt(1e-2 / replay_dsp(attrs).dsp.pfa))
-    ratio = os_cfar_alpha(16, 12, q1) / os_cfar_alpha(16, 12, q0)
+    k = RawCapture(capture.path).averages     # the records the pixel's spectrum averages (Gamma(K) cells)
+    ratio = os_cfar_alpha(16, 12, q1, k) / os_cfar_alpha(16, 12, q0, k)
     assert np.allclose(loose.threshold["up"], ratio * hann.threshold["up"], rtol=1e-9)
     bh = pixel_spectrum(capture.path, row, col, ReprocessSettings(window="blackmanharris"))
     assert bh.dsp["window"] == "blackmanharris" and not np.array_equal(bh.power["up"], hann.power["up"])
