@@ -4,6 +4,7 @@ the diff that puts a step of a process's RSS in the mapping that grew and the th
 from __future__ import annotations
 
 import json
+import mmap
 import os
 import sys
 import threading
@@ -15,13 +16,17 @@ from benchmarks import soak, soak_smaps
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
-STEP = 24 << 20          # a step of 24 MiB: its own mapping (above any mmap threshold)
+STEP = 24 << 20          # a step of 24 MiB, mapped on its own (mmap: whatever malloc's thresholds are)
 
 
 def test_a_step_and_a_new_thread_show_in_the_diff(tmp_path, capsys):
     me = os.getpid()
     soak_smaps.write_sample(tmp_path, 0, 0.0, {"bench": [me]})
-    block = np.ones(STEP, np.uint8)                 # touched: resident
+    # an anonymous mapping of its own: a malloc'd block may come from freed, already-resident heap in a
+    # long-lived worker (glibc's dynamic mmap threshold rises to 32 MiB after large frees)
+    region = mmap.mmap(-1, STEP)
+    block = np.frombuffer(region, np.uint8)
+    block[:] = 1                                    # touched: resident
     release = threading.Event()
     t = threading.Thread(target=release.wait, name="held")
     t.start()
