@@ -45,7 +45,7 @@ from .ranging.cwhold import HoldProfile
 from .ranging.threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
 from .ranging.assign import line_snr
 from .ranging.points import hypotheses_per_cell, ramp_pfa
-from .ranging.ramp import refine_ramp
+from .ranging.ramp import RampModel, refine_ramp
 from .spectrum.scratch import scratch
 from .ranging.velocity import pair_up_down_matched
 from .spectrum.window import WindowName
@@ -325,9 +325,9 @@ class FrameDsp:
             # the ramp's detections refined jointly (no mutual leakage bias), and the model-order test:
             # a peak the fitted tones do not explain hides a second surface (lidard.dsp.ranging)
             assert res.power is not None   # power=p was given
-            frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_bins, rf=rf, window=self.window,
-                                    level=self.order_level, pfa=self.ramp_pfa, ml=self.pixel_ml,
-                                    max_drift=self.max_drift_bins)
+            frac, det = refine_ramp(ramp, spec, res.power, det, res.frac_bins, rf=rf,
+                                    model=RampModel(self.window, self.order_level, self.ramp_pfa, self.pixel_ml,
+                                                    self.max_drift_bins))
             out_f.append(frac * rf.delta_f)
             out_det.append(det)
         return out_f, out_det

@@ -50,9 +50,19 @@ GROW_REACH_BINS = 1.25
 SKIRT_BINS = 8
 
 
+class RampModel(NamedTuple):
+    """How a ramp's detections are refined and judged (:func:`refine_ramp`): the range FFT's ``window``,
+    the model-order test's ``level``, the detector's per-ramp ``pfa``, ``ml`` and ``max_drift``."""
+
+    window: str
+    level: float
+    pfa: float
+    ml: bool = True
+    max_drift: float = 0.0
+
+
 def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Detections, frac: np.ndarray, *,
-                rf: RangeFFT, window: str, level: float, pfa: float, ml: bool = True,
-                max_drift: float = 0.0) -> tuple[np.ndarray, Detections]:
+                rf: RangeFFT, model: RampModel) -> tuple[np.ndarray, Detections]:
     """(refined frac (P, K); the detections with ``unresolved`` set and hidden returns added).
 
     ``ramp`` (P, L, N) the records, ``spec``/``power`` (P, L, n_bins) their windowed spectra and
@@ -61,13 +71,15 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     and have their own complex amplitudes (the speckle, the record's start phase): the likelihood of
     the frequencies is the sum of the records' projections (:func:`.tones.refine_joint`), maximised
     once per pixel. ``ml``: ``frac`` is only a start (:func:`lidard.dsp.ranging.estimators.pooled_jacobsen`)
-    and a lone detection is refined by that likelihood too (the ``newton`` estimator); else ``frac``
-    is the selected estimator's mean over the records and only a ramp's several detections are
+    and a detection alone in its cells (no other of the ramp within SKIRT_BINS: :func:`_isolated`) is
+    refined by that likelihood too (the ``newton`` estimator); else ``frac``
+    is the selected estimator's mean over the records and only detections that share cells are
     refined, jointly. ``max_drift``: the largest change of a lone return's beat from one record to the
     next (bins of the N-point grid) inside the speed band: it is fitted with the frequency
     (:mod:`.pixeltone`), which is then the beat at the pixel's middle record, and kept where its
     likelihood ratio passes ``level`` (:func:`_drift_seen`; else the common frequency, whose tests
-    take the window's DTFT once a pixel)."""
+    take the window's DTFT once a pixel). ``model``: the window, level, pfa, ml and max_drift (:class:`RampModel`)."""
+    window, level, pfa, ml, max_drift = model
     zp, (p_n, l_n, n) = rf.zero_pad, ramp.shape
     k = det.valid.shape[-1]
     out = np.array(frac, dtype=np.float64)
@@ -79,43 +91,49 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     if judged.size:
         noise[judged] = cell_noise(power, None if judged.size == p_n else judged)
     drift = np.zeros(out.shape)     # (P, K) a lone return's beat drift per record (bins of the spectrum grid)
+    alone = _isolated(out / zp, valid)     # no other detection of the ramp within SKIRT_BINS
     if ml:
-        lone = np.flatnonzero(count == 1)
-        if lone.size:
-            slot = np.argmax(valid[lone], axis=-1)
-            fit = refine_pixel_tone(ramp, out[lone, slot] / zp, max_drift=max_drift, rows=lone)
-            moving = _drift_seen(fit.gain, noise[lone], rf, level)
-            out[lone, slot] = np.where(moving, fit.freq, fit.common) * zp
-            drift[lone, slot] = np.where(moving, fit.drift, 0.0) * zp
-    several = np.flatnonzero(count >= 2)
+        pix, slot = np.nonzero(alone)
+        if pix.size:
+            fit = refine_pixel_tone(ramp, out[pix, slot] / zp, max_drift=max_drift, rows=pix)
+            moving = _drift_seen(fit.gain, noise[pix], rf, level)
+            out[pix, slot] = np.where(moving, fit.freq, fit.common) * zp
+            drift[pix, slot] = np.where(moving, fit.drift, 0.0) * zp
+    near = valid & ~alone              # detections that share cells with another: fitted jointly
+    several = np.flatnonzero(np.count_nonzero(near, axis=-1) >= 2)
     if several.size:
         if ml:  # each tone alone first (as the one-tone Newton started the joint fit): the three-bin
             # start carries a neighbour's leakage (~0.1-0.2 bin two cells apart), beyond the joint fit's few steps
-            pix, slots = np.nonzero(valid[several])
+            pix, slots = np.nonzero(near[several])
             out[several[pix], slots] = refine_pixel_tone(ramp, out[several[pix], slots] / zp,
                                                          rows=several[pix]).freq * zp
-        out[several] = refine_joint(ramp[several], out[several] / zp, valid[several]) * zp
+        out[several] = refine_joint(ramp[several], out[several] / zp, near[several]) * zp
     if judged.size == 0:
         return out, replace(det, unresolved=flags)
     test = dict(level=level, window=window, n_samples=n, zero_pad=zp, iq=rf.iq)
-    moved: np.ndarray = np.asarray(drift.any(axis=-1))
-
     def freqs(pix: np.ndarray, ks: slice) -> tuple[np.ndarray, np.ndarray | None]:
         """The frequencies the tests fit on ``pix``: the pixel's (P, K), or where a lone return keeps
         its drift every record's (P, L, K), with each pixel's frequency parameters a tone (1 or 2)."""
-        if not moved[pix].any():
+        moved = drift[pix][:, ks].any(axis=-1)
+        if not moved.any():
             return out[pix][..., ks], None
         rec = out[pix][:, None, ks] + record_offsets(l_n)[None, :, None] * drift[pix][:, None, ks]
-        return rec, np.where(moved[pix], 2, 1)
+        return rec, np.where(moved, 2, 1)
 
-    # most ramps hold one detection in slot 0: those are tested with that slot alone (half the work)
-    lone = valid[judged, 0] & (count[judged] == 1)
-    for sel, ks in ((lone, slice(0, 1)), (~lone, slice(None))):
-        if sel.any():
-            pix = judged[sel]
+    # a detection alone in its cells is tested alone (its drift, if it has one, in its model); the
+    # detections that share cells are tested together
+    for k_ in range(k):
+        pix = judged[alone[judged, k_]]
+        if pix.size:
+            ks = slice(k_, k_ + 1)
             f_t, params = freqs(pix, ks)
             flags[pix, ks] = unresolved(spec, det.index[pix, ks], f_t, valid[pix, ks], noise[pix], rows=pix,
                                         freq_params=params, **test)
+    if several.size:
+        f_t = out[several]              # no drift in a joint fit (``near`` slots have none)
+        got = unresolved(spec, det.index[several], f_t, near[several], noise[several], rows=several,
+                         freq_params=None, **test)
+        flags[several] = np.where(near[several], got, flags[several])
     flags |= _too_close(out / zp, valid)
     det = replace(det, unresolved=flags)
     free = ~valid[judged].all(axis=-1)
@@ -172,6 +190,14 @@ def _floor(noise: np.ndarray, peak: np.ndarray, pfa: float, l_n: int) -> np.ndar
     a cell averaged over L records, and the misfit the model leaves on the ramp's strongest peak
     (MODEL_ERROR of its power: phase noise and linearization residue are not returns)."""
     return np.maximum(noise * chi2_isf(pfa, 2 * l_n) / (2 * l_n), MODEL_ERROR * peak)
+
+
+def _isolated(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Detections (P, K) with no other of their ramp within SKIRT_BINS (``f`` in bins): their test cells,
+    search cells and skirts are their own, so each is fitted and tested as a lone return."""
+    d = np.abs(f[:, :, None] - f[:, None, :])
+    both = valid[:, :, None] & valid[:, None, :] & ~np.eye(f.shape[-1], dtype=bool)[None]
+    return valid & ~(both & (d <= SKIRT_BINS)).any(axis=-1)
 
 
 def _too_close(f: np.ndarray, valid: np.ndarray) -> np.ndarray:
