@@ -63,6 +63,7 @@ from sim_devices.usb.backend import (
     usb_stall,
     usb_timeout,
 )
+from sim_devices.world import synth_jit
 from sim_devices.world.antialias import BeatFilter
 
 SAMPLE_RATE_MIN_HZ = 1_000
@@ -168,6 +169,10 @@ class SimDigitizer(SimUsbDevice):
                 self.state = p.State.ARMED
                 self._armed_cfg = self.config
                 self._armed_at_s = self.clock.now()
+                # the acquisition's size is known from here: the synthesis decides its compiled
+                # kernels' load on it (its records carry the bench's white noise)
+                c = self.config
+                synth_jit.expect(c.segments * c.record_length * len(c.channels))
             elif r is p.Req.ABORT:
                 self._reset_acquisition()
             elif r is p.Req.READ_SEGMENTS:

@@ -80,6 +80,15 @@ def _worth_it(samples: int, saved_s: float = SAVED_S_PHASE) -> bool:
     return True
 
 
+def expect(samples: int) -> None:
+    """An acquisition of ``samples`` noisy record samples was just armed (the simulated digitizer's
+    ARM): their savings count toward the break-even now, so a scan that will pass it is synthesized
+    compiled from its first read instead of after ~36 M samples on the numpy path (a 3,072-pixel
+    region scan is about that size: all of it on the slower path)."""
+    if os.environ.get("LIDARD_DSP_JIT", "1") != "0":
+        _asked[0] += int(samples) * SAVED_S_NOISE
+
+
 def static_fill(samples: int) -> Callable[..., Any] | None:
     """The compiled kernel, or None (numba missing, LIDARD_DSP_JIT=0, or not worth loading yet:
     module docstring; ``samples``: how many this call is about to fill)."""
