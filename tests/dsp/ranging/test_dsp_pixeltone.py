@@ -103,16 +103,18 @@ def test_the_drifts_likelihood_gain_on_a_static_return_is_chi_square_with_one_de
     assert np.abs(fit.common - one).max() < 0.05 * np.sqrt(_bound(sigma))
 
 
-def test_a_fast_return_through_the_frame_dsp_is_one_clean_point_at_its_mid_pixel_range():
-    # the 10 m/s band (40 MS/s, 3200-sample ramps, the three-segment record 238 us long), a return
-    # receding at 8 m/s: its beat moves ~0.9 bin over the pixel's 10 records. Range from the ramps'
-    # beats at the pixel's middle; the model-order test must not read the drift as a second surface.
+def _fast_returns(seed: int, r_lo: float, r_hi: float, wall_bins: float | None = None):
+    """40 pixels of a return receding at 8 m/s in the 10 m/s band (40 MS/s, 3200-sample ramps, the
+    three-segment record 238 us long: its beat moves ~0.9 bin over the pixel's 10 records), 25 dB a
+    record, through the frame DSP's plain front end; with ``wall_bins`` a static surface that many range
+    bins behind it, at 0.3 of its amplitude. (frequencies, detections, the truth's range at the pixel's
+    middle record)."""
     fs, ramp, gamma, lam = 40e6, 3200, 8.6e9 / 80e-6, 1.55e-6
     dsp = FrameDsp(ramp_samples=ramp, fs_hz=fs, chirp_rate_hz_per_s=gamma, wavelength_m=lam, max_range_m=2.0,
                    max_speed_mps=10.0, cw_samples=9520 - 2 * ramp)
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(seed)
     p_n, v, period = 40, 8.0, 9520 / fs
-    r0 = rng.uniform(1.2, 1.4, p_n)
+    r0 = rng.uniform(r_lo, r_hi, p_n)
     t = np.arange(ramp) / fs
     sigma = np.sqrt(dsp.n_used / (4 * 10 ** 2.5))                                      # 25 dB a record
     x = rng.normal(0.0, sigma, (p_n, L, 2 * ramp))
@@ -122,8 +124,19 @@ def test_a_fast_return_through_the_frame_dsp_is_one_clean_point_at_its_mid_pixel
         f0 = 2 * gamma * (r0[:, None, None] + v * t0[None]) / C_M_PER_S + sign * f_d
         ph = 2 * np.pi * (f0 * t + gamma * v / C_M_PER_S * t * t) + rng.uniform(0, 2 * np.pi, (p_n, L, 1))
         x[..., k * ramp:(k + 1) * ramp] += np.cos(ph)
+        if wall_bins is not None:
+            r_wall = r0 + wall_bins * fs / dsp.n_used * C_M_PER_S / (2 * gamma)
+            f_w = 2 * gamma * r_wall[:, None, None] / C_M_PER_S
+            x[..., k * ramp:(k + 1) * ramp] += 0.3 * np.cos(2 * np.pi * f_w * t
+                                                            + rng.uniform(0, 2 * np.pi, (p_n, L, 1)))
     f, det = dsp._plain_front_end(x, 1.0)
-    r_mid = r0 + v * (ramp / fs + 0.5 * (L - 1) * period)
+    return f, det, r0 + v * (ramp / fs + 0.5 * (L - 1) * period), gamma
+
+
+def test_a_fast_return_through_the_frame_dsp_is_one_clean_point_at_its_mid_pixel_range():
+    # range from the ramps' beats at the pixel's middle; the model-order test must not read the drift
+    # as a second surface
+    f, det, r_mid, gamma = _fast_returns(7, 1.2, 1.4)
     for d in det:
         assert d.valid[:, 0].all() and not d.unresolved[:, 0].any()
     fu, fd = f[0][:, 0], f[1][:, 0]
@@ -132,29 +145,10 @@ def test_a_fast_return_through_the_frame_dsp_is_one_clean_point_at_its_mid_pixel
 
 
 def test_a_fast_return_beside_a_far_second_return_keeps_its_drift_model():
-    # the fast return above with a static second surface 40 range bins away on every pixel (a wall
+    # the fast return with a static second surface 40 range bins behind it on every pixel (a wall
     # behind a moving object): the two share no cells, so the moving one is still fitted with its
     # drift and tested alone; judged jointly with the far one (no drift) it was flagged unresolved
-    fs, ramp, gamma, lam = 40e6, 3200, 8.6e9 / 80e-6, 1.55e-6
-    dsp = FrameDsp(ramp_samples=ramp, fs_hz=fs, chirp_rate_hz_per_s=gamma, wavelength_m=lam, max_range_m=2.0,
-                   max_speed_mps=10.0, cw_samples=9520 - 2 * ramp)
-    rng = np.random.default_rng(11)
-    p_n, v, period = 40, 8.0, 9520 / fs
-    r0 = rng.uniform(1.0, 1.1, p_n)
-    t = np.arange(ramp) / fs
-    sigma = np.sqrt(dsp.n_used / (4 * 10 ** 2.5))                                      # 25 dB a record
-    x = rng.normal(0.0, sigma, (p_n, L, 2 * ramp))
-    f_d = -2 * v / lam
-    bin_hz = fs / dsp.n_used
-    r_wall = r0 + 40 * bin_hz * C_M_PER_S / (2 * gamma)
-    for k, sign in ((0, -1.0), (1, 1.0)):
-        t0 = np.arange(L)[:, None] * period + k * ramp / fs
-        f0 = 2 * gamma * (r0[:, None, None] + v * t0[None]) / C_M_PER_S + sign * f_d
-        ph = 2 * np.pi * (f0 * t + gamma * v / C_M_PER_S * t * t) + rng.uniform(0, 2 * np.pi, (p_n, L, 1))
-        x[..., k * ramp:(k + 1) * ramp] += np.cos(ph)
-        f_w = 2 * gamma * r_wall[:, None, None] / C_M_PER_S
-        x[..., k * ramp:(k + 1) * ramp] += 0.3 * np.cos(2 * np.pi * f_w * t + rng.uniform(0, 2 * np.pi, (p_n, L, 1)))
-    f, det = dsp._plain_front_end(x, 1.0)
+    f, det, r_mid, gamma = _fast_returns(11, 1.0, 1.1, wall_bins=40)
     for d in det:
         assert (d.valid.sum(axis=-1) >= 2).all()                     # both surfaces detected on every ramp
         assert not (d.unresolved & d.valid).any()
@@ -162,7 +156,6 @@ def test_a_fast_return_beside_a_far_second_return_keeps_its_drift_model():
     # the pixel's middle record, as for the lone fast return
     fu, fd = (np.take_along_axis(fr, np.argmax(np.where(d.valid, d.power, -1.0), axis=-1)[:, None], -1)[:, 0]
               for fr, d in zip(f, det))
-    r_mid = r0 + v * (ramp / fs + 0.5 * (L - 1) * period)
     rng_m = C_M_PER_S * np.abs(fd - fu) / 2 / (2 * gamma)
     assert np.abs(rng_m - r_mid).max() < 0.5e-3
 
