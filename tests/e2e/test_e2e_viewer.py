@@ -99,6 +99,32 @@ def check_panels(page, api):
     assert page.inner_text("#linearization").startswith(("chirp error", "chirp re-linearized"))
 
 
+# Every answer of GET /control reaches the page 1.5 s late: a refresh that asked while the lock was free
+# is answered after the user took control (what a loaded machine does to a refresh in flight).
+LATE_CONTROL = """(() => { const send = window.fetch;
+  window.fetch = async (url, opts) => { const r = await send(url, opts);
+    if (String(url) === '/control' && !(opts && opts.method)) await new Promise((ok) => setTimeout(ok, 1500));
+    return r; }; })()"""
+
+
+def check_take_outlives_a_late_refresh(browser, url: str) -> None:
+    """Taking control while a refresh is in flight: that refresh's answer (lock free) arrives after the
+    take and must not void the lease just taken (on main before this check, the button stayed disabled)."""
+    page = browser.new_page()
+    page.add_init_script(LATE_CONTROL)
+    page.goto(url + "/")
+    page.wait_for_function("window.viewer && window.viewer.ready")   # its first refresh is on its way
+    assert page.evaluate("window.viewer.refreshes") == 0 and not _control(url)["held"]
+    page.click("#control-take")
+    page.wait_for_selector("#scan-start:not([disabled])", timeout=WAIT_S * 1000)
+    page.wait_for_function("window.viewer.refreshes >= 1", timeout=WAIT_S * 1000)  # the late answer is in
+    assert page.evaluate("window.viewer.lease") is not None
+    assert page.is_enabled("#scan-start") and _control(url)["holder"] == "web viewer"
+    page.click("#control-release")
+    poll(lambda: not _control(url)["held"], WAIT_S, "the release")
+    page.close()
+
+
 def _control(url: str) -> dict:
     return httpx.get(f"{url}/control", timeout=HTTP_S).json()
 
@@ -137,6 +163,7 @@ def test_viewer_starts_a_scan_and_shows_every_point(tmp_path):
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             try:
+                check_take_outlives_a_late_refresh(browser, url)
                 page = browser.new_page(viewport={"width": 1100, "height": 700})
                 sid = run_scan_in_page(page, url, (40, 56), (56, 72), timeout_s=WAIT_S)
                 api = httpx.get(f"{url}/scans/{sid}", timeout=HTTP_S).json()

@@ -9,7 +9,7 @@ const FIELDS = ["x", "y", "z", "range", "velocity", "intensity", "snr_db", "row"
 const $ = (id) => document.getElementById(id);
 
 const viewer = window.viewer = {
-  lease: null, holder: null, simulated: false,
+  lease: null, holder: null, simulated: false, refreshes: 0,
   scanId: null, pointCount: 0, complete: false, scanState: null, lastError: null,
   streamId: null, frameIndex: null, framesShown: 0, frameRateHz: null, streamState: null,
   cloud: new Cloud($("cloud"), FIELDS),
@@ -97,9 +97,13 @@ function showStream(id) {
 // over to itself (POST /control/handover: a fresh lease, the old one void, so an old page's late
 // release cannot free the new one), or, when the release came first, by a plain POST /control.
 const LEASE_KEY = "lidard.lease";
+// Bumped whenever this page's lease changes: an answer of GET /control asked for before that change
+// (a refresh still in flight when the user took control) says nothing about the new lease.
+let leaseSeq = 0;
 const CLIENT = "web viewer";
 
 function keepLease(lease, holder) {
+  leaseSeq++;
   viewer.lease = lease; viewer.holder = holder;
   if (lease) sessionStorage.setItem(LEASE_KEY, JSON.stringify({ lease, holder }));
   else sessionStorage.removeItem(LEASE_KEY);
@@ -172,13 +176,15 @@ function showControl(control) {
 // Each panel refreshes on its own, so a slow device check never holds up the queue or the controls.
 let calTick = 0;
 async function refresh() {
+  const seq = leaseSeq;
   try {
     const [health, control, list, streams] = await Promise.all([getJSON("/health"), getJSON("/control"),
       getJSON("/scans?limit=12"), getJSON("/streams")]);
     viewer.simulated = health.simulated;
     $("health").textContent = `${health.version} · ${health.simulated ? "simulated bench" : "hardware"} · ${health.status}`;
     $("linearization").textContent = panels.linearizationLine(health.linearization);
-    const mine = showControl(control);
+    // a stale answer (the lease changed while it was on its way) neither voids nor shows the lease
+    const mine = seq === leaseSeq ? showControl(control) : !!viewer.lease;
     panels.renderQueue($("queue"), list.scans, { canAct: mine, onCancel: cancelScan, onShow: showScan, shownId: viewer.scanId });
     renderStreams($("streams"), streams.streams.slice(0, 8), { onShow: showStream, shownId: viewer.streamId });
     if (streams.running && !autoShown.has(streams.running)) showStream(streams.running);
@@ -186,6 +192,8 @@ async function refresh() {
     refreshSlow(health.simulated, calTick++ % 5 === 0 || !!list.running);
   } catch (e) {
     $("health").textContent = `daemon unreachable (${e})`;
+  } finally {
+    viewer.refreshes++;   // panel refreshes finished (tests wait on it)
   }
 }
 
