@@ -3,8 +3,9 @@
 The frame DSP (:mod:`lidard.dsp.frame`) hands over a ramp's records, their windowed spectra and the
 detector's cells with their one-tone estimates. Here
 
-1. the frequencies of a ramp with several detections are refined jointly (:mod:`.tones`: no
-   estimate carries the others' leakage);
+1. detections that share cells (another of the ramp within ``SKIRT_BINS``) are refined jointly
+   (:mod:`.tones`: no estimate carries the others' leakage); a detection alone in its cells is
+   refined as a lone return over the pixel's records (:mod:`.pixeltone`, the beat's drift included);
 2. every detection's cells are tested against the fitted tones (:mod:`.order`, at ``level``);
 3. where the fitted tones do not explain a peak and the ramp has a free slot, the model grows by one
    tone: the records less the fitted tones are searched around that peak, the new tone is refined
