@@ -11,6 +11,7 @@ import pytest
 from lidard.dsp.spectrum import jit
 from lidard.offline.spec import expand_sweep
 from lidard.offline.sweep import task_frame
+from tests.helpers.jit_ab import as_a_fresh_process
 
 FIELDS = ("range_m", "velocity_mps", "intensity_v", "snr_db")
 
@@ -20,8 +21,7 @@ def test_a_task_in_a_fresh_worker_takes_the_compiled_path_and_gives_the_same_res
     raw = {"sweep": {"seeds": 1, "trials_per_task": 2}, "grid": {"scan.max_range_m": 15.0},
            "target": {"distances_m": [3.0], "reflectivity": 0.5}}
     (task,) = expand_sweep(raw).tasks
-    jit._compiled.cache_clear()                 # this process as a fresh worker has it: nothing loaded,
-    monkeypatch.setattr(jit, "_asked", [0])     # no cells counted (a small task stays below the count)
+    as_a_fresh_process(monkeypatch)      # nothing loaded, no cells counted (a small task stays below the count)
     first = task_frame(task).result
     # settled before the DSP ran: compiled, the path of a worker that had loaded the kernels before
     assert jit._compiled.cache_info().currsize == 1 and jit._asked[0] == 0

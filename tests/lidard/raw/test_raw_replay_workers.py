@@ -23,7 +23,7 @@ from lidard.raw import RawCapture, reprocess
 from lidard.raw import record as raw_record
 from lidard.raw import replay
 from lidard.dsp.spectrum import jit
-from tests.helpers.jit_ab import compiled_and_numpy
+from tests.helpers.jit_ab import as_a_fresh_process, compiled_and_numpy
 from tests.helpers.replay_spy import task_points_and_results
 
 pytestmark = pytest.mark.slow      # an embedded bench's scan and three freshly spawned worker processes
@@ -54,12 +54,6 @@ def _tasks(map_fn, path) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([p for p, _ in parts]), np.concatenate([r for _, r in parts], axis=1)
 
 
-def _as_a_fresh_process(monkeypatch) -> None:
-    """This process's DSP kernels as a fresh process has them: not loaded, no cells counted yet."""
-    jit._compiled.cache_clear()
-    monkeypatch.setattr(jit, "_asked", [0])
-
-
 def test_the_capture_holds_two_return_pixels_on_which_the_dsp_paths_differ_by_rounding(capture, monkeypatch):
     path, res = capture
     cap = RawCapture(path)
@@ -81,7 +75,7 @@ def test_the_capture_holds_two_return_pixels_on_which_the_dsp_paths_differ_by_ro
 
 def test_a_replay_gives_the_same_bytes_on_any_worker_count_and_twice_in_a_process(capture, monkeypatch):
     path, _ = capture
-    _as_a_fresh_process(monkeypatch)
+    as_a_fresh_process(monkeypatch)
     runs = {"this thread (workers=0), first in the process": _tasks(map, path),
             "this thread, again": _tasks(map, path)}
     spawn = get_context("spawn")         # fresh interpreters: kernels not loaded, nothing counted
@@ -98,7 +92,7 @@ def test_a_replay_gives_the_same_bytes_on_any_worker_count_and_twice_in_a_proces
 
 def test_the_public_replay_and_its_metadata_do_not_depend_on_the_map(capture, monkeypatch):
     path, _ = capture
-    _as_a_fresh_process(monkeypatch)
+    as_a_fresh_process(monkeypatch)
     first = reprocess(path, map_fn=map)
     pooled = reprocess(path)                       # local_map: the DSP pool (threads on one core)
     again = reprocess(path, map_fn=map)
