@@ -14,7 +14,9 @@
   sample rate of that band); CPU includes the worker processes', and the points' digest shows the three
   give the same bytes.
 * ``replay``: the DSP alone on a recorded capture (a 10 m/s region scan recorded raw, lidard.raw):
-  reprocessed on one thread and on the DSP's worker processes, alternated, against the digitizer's rate.
+  reprocessed on one thread and on the DSP's worker processes, alternated, against the digitizer's rate;
+  ``points_identical``: a round's points equal the first (warm-up) replay's, byte for byte;
+  ``points_equal_scan``: they equal the scan's own.
 * ``threads``: the threads each of three region scans in one process starts (by name), and the live
   threads and child processes after each (the DSP's pool is started once, not per scan).
 * ``startup``: CPU time (user + sys, children) of a 16-pixel one-shot ``lidarctl scan --sim`` with a
@@ -289,7 +291,8 @@ def replay(quick: bool, repeats: int = 1) -> dict:
                 if r:
                     out[f"{mode} #{r}"] = {"wall_s": wall, "cpu_s": cpu, "x_digitizer_rate": samples / wall / fs,
                                            "x_digitizer_rate_per_cpu_s": samples / cpu / fs,
-                                           "points_identical": bool(np.array_equal(pts, ref)), "load": load()}
+                                           "points_identical": bool(np.array_equal(pts, ref)),
+                                           "points_equal_scan": bool(np.array_equal(pts, res.points)), "load": load()}
     return out
 
 

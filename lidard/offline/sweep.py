@@ -46,6 +46,7 @@ from lidard.config import Config
 from lidard.dsp.ranging.crlb import crlb_freq_var
 from lidard.dsp.ranging.cwhold import PROFILE_DT_S
 from lidard.dsp.frame import FrameResult
+from lidard.dsp.spectrum.jit import decide as decide_dsp_path
 from lidard.instrument.acquisition import AWG_RATE_HZ, plain_drive
 from lidard.instrument.dsp_plan import AdcPlan, DspCalibration, SignalPlan, plan_signal
 from lidard.instrument.dsp_plan import phase_noise_on as pn_rule
@@ -188,6 +189,9 @@ def task_frame(task: SweepTask, rng: np.random.Generator | None = None,
     shape = (n, avg, rl)
     beat = _recorded(cfg, fs, syn.beat).reshape(shape)
     mzi = _recorded(cfg, fs, syn.mzi).reshape(shape) if pn_on and syn.mzi is not None else None
+    # the DSP's path settled first: a task's figures must not depend on the worker that ran it or on
+    # the tasks it ran before (the tone fits' compiled and numpy paths agree only to rounding)
+    decide_dsp_path()
     res = dsp.process(beat, syn.lsb_v, mzi=mzi,
                       mzi_delay_s=cfg.monitor.delay_s if pn_on else None, mzi_lsb_v=syn.lsb_v)
     return TaskFrame(result=res, plan=sig, pixel=(row, col), world=world, hits=bh, noise_asd_v_per_rthz=asd)

@@ -9,6 +9,14 @@ rebuild from today's configuration) and feeds it the same int16 records, so the 
 reproduce the original points exactly (the DSP treats every pixel on its own: the result does not
 depend on how pixels are batched).
 
+The points are a function of the capture's bytes and the settings only, whatever the process, the
+worker count or what ran before: every task settles its process's DSP path before its DSP
+(:func:`lidard.dsp.spectrum.jit.decide`: the compiled kernels where numba is installed, as the DSP
+pool's workers have them). Without that, the first replay in a process that had not yet loaded them
+ran its first tasks on numpy and the rest compiled, and the tone fits' two paths agree only to
+rounding: 2 of 1,744 float32 velocities of a 10 m/s region replay differed by one last bit from the
+replay after it, or from the same replay on the pool's workers (docs/measured/27_replay.md).
+
 The capture is stored in chunks of ~1 MiB (lidard.raw.record); the DSP is run on batches of
 consecutive chunks (``TASK_BYTES``): a call's fixed costs are paid per task, not per chunk (1 MiB
 tasks were 1.8x slower, 8 MiB ones ~12 % slower in DSP CPU than 24 MiB ones on a recorded 10 m/s
@@ -34,6 +42,7 @@ import numpy as np
 
 from ..dsp.ranging.estimators import EstimatorName
 from ..dsp.frame import FrameDsp
+from ..dsp.spectrum.jit import decide as decide_dsp_path
 from ..dsp.spectrum.scratch import release as release_scratch
 from ..dsp.spectrum.window import WINDOW_NAMES
 from ..outputs.schema import POINT_DTYPE
@@ -100,6 +109,7 @@ class ReplayDsp:
         return chunk.channel("mzi", channels, averages), q
 
     def points(self, chunk: RawChunk, channels: list[str], averages: int) -> np.ndarray:
+        decide_dsp_path()    # the same kernels in every process and on every task (module docstring)
         # an I/Q capture (adc.iq) holds beat_i and beat_q; its imbalance correction is in the dsp settings
         beat = chunk.channel("beat_i" if self.dsp.iq else "beat", channels, averages)
         mzi, mzi_q = self.monitor(chunk, channels, averages)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 from lidard.dsp.spectrum import jit
 
 
@@ -15,3 +17,10 @@ def compiled_and_numpy(monkeypatch, fn):
     want = fn()
     monkeypatch.delenv("LIDARD_DSP_JIT")
     return got, want
+
+
+def as_a_fresh_process(monkeypatch) -> None:
+    """This process's DSP kernels as a fresh process has them until the test ends: not loaded, no cells
+    counted (a fresh cache of the loader in place of the process's; the process's own is put back after)."""
+    monkeypatch.setattr(jit, "_compiled", lru_cache(maxsize=1)(jit._compiled.__wrapped__))
+    monkeypatch.setattr(jit, "_asked", [0])

@@ -23,7 +23,7 @@ a few ns per spectrum cell (1-10 ns measured on this 2-core Xeon, benchmarks/ban
 small scan pays more to load them than they save. So the DSP's own calls say how many cells they are
 about to process (``kernels(cells)``) and numba is loaded only once the process has asked for
 ``LOAD_AFTER_CELLS`` of them; until then those calls take the numpy path (the same values).
-A call without a count (tests, tools) loads it at once.
+A call without a count (tests, tools, :func:`decide`) loads it at once.
 """
 
 from __future__ import annotations
@@ -66,6 +66,19 @@ def kernels(cells: int | None = None) -> SimpleNamespace | None:
         if _asked[0] < LOAD_AFTER_CELLS:
             return None
     return _compiled()
+
+
+def decide() -> bool:
+    """Settle this process's DSP path now, before a job's first batch: the compiled kernels loaded where
+    they can be (True), else numpy for good (False); every later call takes that path.
+
+    The cell count above lets a small scan skip numba's load, but it makes the path depend on the work the
+    process did before, and the tone fits' kernels agree with numpy only to rounding (module docstring):
+    enough to move a float32 point's last bit now and then (2 of 1,744 points' velocities in a 10 m/s
+    region replay). A job whose results must depend on its input and its settings only (a raw capture's
+    replay, a sweep task) calls this first: it then takes the path the DSP pool's workers take (they
+    load the kernels at start, lidard.dsp_pool_preload) in every process and on every worker count."""
+    return kernels() is not None
 
 
 def power(spec: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
