@@ -9,8 +9,13 @@ The white noise does not depend on the cut: record s of the read is record ``noi
 the stream (:mod:`sim_devices.world.gauss`, a function of the record's index), so a read gives the
 same records in one part or in four. The phase noise (when the bench synthesizes it) is drawn from
 ``rng_for(first)``, the generator the bench seeds for a read starting at that segment, so a part is
-exactly the records a read of those segments alone would give. A read smaller than two parts of
-``MIN_PART_SAMPLES`` stays on the calling thread, unchanged.
+exactly the records a read of those segments alone would give. So the cut must be a function of
+the read alone, not of the machine: a read of ``n`` segments of ``m`` samples is cut into the largest
+power of two of parts, at most ``MAX_PARTS``, that leaves each at least ``MIN_PART_SAMPLES``
+(:func:`read_parts`), whatever the cores; the parts then run on as many threads as the process has
+cores for (one core: one after another on the calling thread, the same records). The same seed gives
+the same bytes on a laptop, a 2-core CI runner and a 16-core workstation. A read smaller than two parts
+stays whole, on the calling thread.
 """
 
 from __future__ import annotations
@@ -31,6 +36,10 @@ from sim_devices.world.synth_types import HitBatch, Synthesized
 #: chunk set-up, the pool's hand-off) is a noticeable share of its work
 MIN_PART_SAMPLES = 1 << 16
 
+#: parts of one read at most: the most threads a pool gets (lidard.cores.MAX_POOL_WORKERS), a power of two
+#: so that 1, 2 and 4 threads share the parts evenly
+MAX_PARTS = 4
+
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 
@@ -46,6 +55,14 @@ def _pool(workers: int) -> ThreadPoolExecutor:
         if _POOL is None or _POOL._max_workers < workers:      # grown once; threads idle between reads
             _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sim-synth")
         return _POOL
+
+
+def read_parts(n_seg: int, n_samples: int) -> int:
+    """The parts a read of ``n_seg`` segments of ``n_samples`` is cut into: the largest power of two, at
+    most MAX_PARTS and ``n_seg``, with at least MIN_PART_SAMPLES samples in each (1: the read stays whole).
+    A function of the read only: the phase noise a part draws depends on where the read is cut."""
+    fit = min(MAX_PARTS, int(n_seg), int(n_seg) * int(n_samples) // MIN_PART_SAMPLES)
+    return 1 << (fit.bit_length() - 1) if fit >= 1 else 1
 
 
 def _part_hits(hits: HitBatch | None, a: int, b: int) -> HitBatch | None:
@@ -81,19 +98,25 @@ def _joined(parts: list[Synthesized]) -> Synthesized:
 
 def synthesize_read(traj, adc, t_start_s, hits: HitBatch | None, rng_for: Callable[[int], np.random.Generator],
                     *, workers: int | None = None, noise: NoiseStream | None = None, **kw) -> Synthesized:
-    """:func:`synthesize` of a read, in parts on ``workers`` threads (default :func:`synth_threads`);
-    ``rng_for(s)``: the generator of a read starting at segment ``s`` of this one; ``noise``: the white
-    noise's stream from the read's first segment (None: each part keys its own from its generator)."""
+    """:func:`synthesize` of a read, cut into :func:`read_parts` parts run on up to ``workers`` threads
+    (default :func:`synth_threads`); ``rng_for(s)``: the generator of a read starting at segment ``s`` of
+    this one; ``noise``: the white noise's stream from the read's first segment (None: each part keys its
+    own from its generator). The records do not depend on ``workers``."""
     t0 = np.asarray(t_start_s, dtype=np.float64)
     n_seg = t0.size
     workers = synth_threads() if workers is None else int(workers)
-    parts = max(1, min(workers, n_seg, n_seg * int(adc.n_samples) // MIN_PART_SAMPLES))
+    parts = read_parts(n_seg, int(adc.n_samples))
     if parts == 1:
         return synthesize(traj, adc, t0, hits, rng=rng_for(0), noise=noise, **kw)
     bounds = np.linspace(0, n_seg, parts + 1).astype(int)
     jobs = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-    pool = _pool(parts)
-    futs = [pool.submit(synthesize, traj, adc, t0[a:b], _part_hits(hits, a, b), rng=rng_for(a),
-                        noise=None if noise is None else noise.shifted(a), **kw)
-            for a, b in jobs]
+
+    def part(a: int, b: int) -> Synthesized:
+        return synthesize(traj, adc, t0[a:b], _part_hits(hits, a, b), rng=rng_for(a),
+                          noise=None if noise is None else noise.shifted(a), **kw)
+
+    if workers <= 1:
+        return _joined([part(a, b) for a, b in jobs])
+    pool = _pool(min(workers, parts))
+    futs = [pool.submit(part, a, b) for a, b in jobs]
     return _joined([f.result() for f in futs])
