@@ -1,6 +1,6 @@
 """What a scan pays for its Doppler band, and whether it uses every core (docs/measured/27_band_and_cores.md).
 
-    nice python benchmarks/band_and_cores.py [frame] [taskset] [dsp] [replay] [threads] [startup] [--quick] [--json] [--priority]
+    nice python benchmarks/band_and_cores.py [frame] [taskset] [dsp] [replay] [threads] [startup] [--quick] [--warm] [--json] [--priority]
 
 * ``frame``: a full CAL frame (every bonded pixel, 10 averages, cal_letters scene, embedded bench) at
   the default band (config/sim.toml's scan.max_speed_mps) and at 10 m/s: hardware time over wall time
@@ -8,6 +8,9 @@
 * ``taskset``: the same region scan (rows 40:72, every column, 10 averages) in a fresh process pinned
   to one core (``taskset -c 0``) and to two (``taskset -c 0,1``), alternated; the wall speed-up, the
   CPU over wall of each run (its utilisation: the cores it kept busy) and the CPU per thread group.
+  ``--warm``: the timed scan is the process's second (the same scan once before on the same bench, as a
+  daemon's later scans run), so the one-off loads of the first (numba and the cached kernels, ~0.55 s
+  on one core before the second has work) are left out.
 * ``dsp``: the frame DSP alone on records of a 10 m/s scan (bench-synthesized plane at 1.2 m): the
   samples it processes per second serially (one core's worth), on the pipeline's worker threads and on
   the DSP's worker processes (lidard.dsp_pool), against the digitizer's data rate (the
@@ -132,8 +135,10 @@ def _pids_cpu(pids: list[int]) -> float:
     return total
 
 
-def scan_figures(req_kw: dict, bench: str = "embedded") -> dict:
-    """One scan on a fresh simulated bench: wall, CPU, hardware time and the ADC plan."""
+def scan_figures(req_kw: dict, bench: str = "embedded", warm: bool = False) -> dict:
+    """One scan on a fresh simulated bench: wall, CPU, hardware time and the ADC plan. ``warm``: the same
+    scan once before, untimed, on the same bench (what a daemon's later scans are: the bench's and the
+    DSP's compiled kernels loaded, every per-process table built)."""
     from lidard.config import load_config
     from lidard.instrument import ScanRequest
     from lidard import dsp_pool
@@ -142,6 +147,8 @@ def scan_figures(req_kw: dict, bench: str = "embedded") -> dict:
     dsp_pool.warm()      # as the daemon has it: its DSP worker processes started before its first scan
     try:
         req = ScanRequest(**req_kw)
+        if warm:
+            inst.run_scan(req, lambda p: None, threading.Event(), cal)
         pool = dsp_pool.dsp_pool()
         pids = pool.pids if pool is not None else []
         with ThreadCpu() as tc:
@@ -174,12 +181,12 @@ def frame(quick: bool) -> dict:
 
 
 _CHILD = ("import json, sys; sys.path.insert(0, {repo!r}); from benchmarks.band_and_cores import scan_figures; "
-          "print(json.dumps(scan_figures({req}, bench={bench!r})))")
+          "print(json.dumps(scan_figures({req}, bench={bench!r}, warm={warm!r})))")
 
 
-def taskset(repeats: int, bench: str = "embedded") -> dict:
+def taskset(repeats: int, bench: str = "embedded", warm: bool = False) -> dict:
     req = dict(REGION, rows=(40, 56) if repeats < 2 else REGION["rows"])
-    code = _CHILD.format(repo=str(REPO), req=repr(req), bench=bench)
+    code = _CHILD.format(repo=str(REPO), req=repr(req), bench=bench, warm=warm)
     runs: dict[str, list] = {"0": [], "0,1": []}
     for _ in range(max(1, repeats)):
         for cpus in ("0", "0,1"):           # alternated: the machine's load drifts
@@ -188,7 +195,7 @@ def taskset(repeats: int, bench: str = "embedded") -> dict:
             runs[cpus].append(json.loads(out.strip().splitlines()[-1]))
     one = [r["wall_s"] for r in runs["0"]]
     two = [r["wall_s"] for r in runs["0,1"]]
-    return {"region": req, "bench": bench, "one_core_wall_s": one, "two_cores_wall_s": two,
+    return {"region": req, "bench": bench, "warm": warm, "one_core_wall_s": one, "two_cores_wall_s": two,
             "speedup_each": [a / b for a, b in zip(one, two)], "speedup_of_sums": sum(one) / sum(two),
             "cpu_s_one_core": [r["cpu_s"] for r in runs["0"]], "cpu_s_two_cores": [r["cpu_s"] for r in runs["0,1"]],
             # CPU over wall: the cores the scan kept busy (<= 1 pinned to one core, <= 2 on two)
@@ -367,6 +374,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--bench", choices=["embedded", "child"], default="embedded",
                     help="taskset: the simulated bench in the scanning process, or (the daemon's default) a "
                          "lidar-sim child process of its own")
+    ap.add_argument("--warm", action="store_true",
+                    help="taskset: time the region scan after the same scan on the same bench (a daemon's "
+                         "later scans: compiled kernels loaded); default: the first scan of a fresh process")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--priority", action="store_true",
                     help="root: run in a session of its own at autogroup nice -20 (wall times on a shared machine)")
@@ -375,7 +385,7 @@ def main(argv: list[str] | None = None) -> None:
         _high_priority()
     out = {"machine": f"{os.cpu_count()} cores", "load_start": load()}
     for s in a.sections:
-        out[s] = {"frame": lambda: frame(a.quick), "taskset": lambda: taskset(1 if a.quick else a.repeats, a.bench),
+        out[s] = {"frame": lambda: frame(a.quick), "taskset": lambda: taskset(1 if a.quick else a.repeats, a.bench, a.warm),
                   "dsp": lambda: dsp(a.quick, 1 if a.quick else a.repeats),
                   "replay": lambda: replay(a.quick, 1 if a.quick else a.repeats),
                   "threads": lambda: threads_per_scan(a.repeats), "startup": lambda: startup(a.repeats)}[s]()
