@@ -10,7 +10,9 @@ until ``flush_bytes`` are together: memory stays bounded by one buffer, never a 
 With ``processes`` the batches go to the process's DSP worker processes (:class:`.pipeline.ProcessDspPipeline`,
 :mod:`lidard.dsp_pool`), with ``workers`` (or when no pool is to be had) to DSP worker threads
 (:class:`.pipeline.DspPipeline`); either is bounded and in order, and the reads go on meanwhile; the
-points keep the pixel order and are the serial DSP's bit for bit.
+points keep the pixel order and are the serial DSP's bit for bit. Every batch takes the one DSP path
+decided when the buffer is made (:attr:`PointBuffer.dsp_path`, lidard.dsp.spectrum.jit.plan_path),
+on whichever thread or worker process runs it.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.frame import FrameDsp
+from ..dsp.spectrum.jit import DspPath, check_path, follow, plan_path
 from ..dsp.spectrum.scratch import release as release_scratch
 from ..raw.points import frame_points
 from .pipeline import DspPipeline, ProcessDspPipeline
@@ -52,9 +55,12 @@ class PointBuffer:
     """Collects raw batches, runs the DSP once ``flush_bytes`` are together, keeps the points."""
 
     def __init__(self, dsp: FrameDsp, optics, *, lsb_v: float, mzi_delay_s: float, flush_bytes: int,
-                 zero_offset_m: float = 0.0, workers: int = 0, processes: bool = False):
+                 zero_offset_m: float = 0.0, workers: int = 0, processes: bool = False, cells: int = 0,
+                 dsp_path: str | None = None):
         """``workers``: DSP threads (0: the DSP runs in :meth:`flush`, on the caller's thread);
-        ``processes``: the process's DSP pool instead, when it has one free (else ``workers`` threads)."""
+        ``processes``: the process's DSP pool instead, when it has one free (else ``workers`` threads);
+        ``cells``: the spectrum cells the job will process, from which its DSP path is decided here
+        (once it is known where its batches run), unless ``dsp_path`` gives it (a stream's frames)."""
         self.dsp = dsp
         self.zero_offset_m = zero_offset_m
         self.optics = optics
@@ -70,6 +76,10 @@ class PointBuffer:
             self._pipe = ProcessDspPipeline.open(dsp, lsb_v=lsb_v, mzi_delay_s=mzi_delay_s, finish=self._finish)
         if self._pipe is None and workers > 0:
             self._pipe = DspPipeline(self._process, workers)
+        pooled = isinstance(self._pipe, ProcessDspPipeline)
+        self.dsp_path: DspPath = check_path(dsp_path) if dsp_path else plan_path(cells, preloaded=pooled)
+        if isinstance(self._pipe, ProcessDspPipeline):
+            self._pipe.dsp_path = self.dsp_path
 
     def _collect(self, wait: bool = False) -> None:
         """Move the DSP workers' finished batches (in order) to the points; a worker's error is raised."""
@@ -116,8 +126,9 @@ class PointBuffer:
 
     def _process(self, b: RawBatch) -> np.ndarray:
         """One batch through the frame DSP into point records (on whichever thread runs it)."""
-        res = self.dsp.process(b.beat, self.lsb_v, mzi=b.mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v,
-                               mzi_q=b.mzi_q, beat_q=b.beat_q)
+        with follow(self.dsp_path):
+            res = self.dsp.process(b.beat, self.lsb_v, mzi=b.mzi, mzi_delay_s=self.mzi_delay_s,
+                                   mzi_lsb_v=self.lsb_v, mzi_q=b.mzi_q, beat_q=b.beat_q)
         return points_from(res, self.optics, b.pixels, b.t_pix_s, b.clipped, self.zero_offset_m,
                            delay_s=self.dsp.measurement_delay_s(b.beat.shape[1]))
 
