@@ -26,7 +26,7 @@ small scan pays more to load them than they save.
 batch, and every batch of the job takes it, on whichever thread or worker process runs it: the tone
 fits' two paths differ in the last bits, so a job that switched part-way (or a replay that took the
 other path) would not give the same points. The rule (:func:`plan_path`), from what the job will
-process (its range spectra's cells, :meth:`lidard.dsp.frame.FrameDsp.spectrum_cells`) and what is
+process (the spectrum cells its calls will go over, :meth:`lidard.dsp.frame.FrameDsp.spectrum_cells`) and what is
 already paid for:
 
 * ``numpy`` where the kernels cannot run (numba not installed, ``LIDARD_DSP_JIT=0``);
@@ -34,7 +34,8 @@ already paid for:
   batches go to the DSP pool's workers (they load the kernels at start, lidard.dsp_pool_preload);
 * else the break-even: ``compiled`` once the cells of this process's jobs so far, this one's included,
   reach ``LOAD_AFTER_CELLS`` (the load is then worth it; the kernels are loaded at the decision, before
-  the first batch), ``numpy`` below (a small one-shot scan never pays the load).
+  the first batch), ``numpy`` below (a small one-shot scan never pays the load). A scan that records
+  its raw segments counts one replay's cells too: its replays follow the path it takes.
 
 The job then runs its DSP inside :func:`follow` (a thread-local setting: it never leaks into another
 job on the same thread or pool); the path is recorded with the job's results (a scan's sidecar, its raw
