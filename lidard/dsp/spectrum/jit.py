@@ -140,11 +140,6 @@ def follow(path: DspPath | None) -> Iterator[None]:
         _job.path = before
 
 
-def current_path() -> DspPath | None:
-    """The path this thread's job follows (None outside :func:`follow`)."""
-    return getattr(_job, "path", None)
-
-
 def kernels(cells: int | None = None) -> SimpleNamespace | None:
     """The compiled kernels, or None: numba missing, or LIDARD_DSP_JIT=0, or this thread's job follows
     the numpy path (:func:`follow`), or, outside a job, not loaded yet while this process has asked for
