@@ -11,7 +11,7 @@ With ``processes`` the batches go to the process's DSP worker processes (:class:
 :mod:`lidard.dsp_pool`), with ``workers`` (or when no pool is to be had) to DSP worker threads
 (:class:`.pipeline.DspPipeline`); either is bounded and in order, and the reads go on meanwhile; the
 points keep the pixel order and are the serial DSP's bit for bit. Every batch takes the one DSP path
-decided when the buffer is made (:attr:`PointBuffer.dsp_path`, lidard.dsp.spectrum.jit.plan_path),
+the job decided before its first batch (:meth:`PointBuffer.set_path`, lidard.dsp.spectrum.jit.plan_path),
 on whichever thread or worker process runs it.
 """
 
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.frame import FrameDsp
-from ..dsp.spectrum.jit import DspPath, check_path, follow, plan_path
+from ..dsp.spectrum.jit import DspPath, check_path, follow
 from ..dsp.spectrum.scratch import release as release_scratch
 from ..raw.points import frame_points
 from .pipeline import DspPipeline, ProcessDspPipeline
@@ -55,12 +55,9 @@ class PointBuffer:
     """Collects raw batches, runs the DSP once ``flush_bytes`` are together, keeps the points."""
 
     def __init__(self, dsp: FrameDsp, optics, *, lsb_v: float, mzi_delay_s: float, flush_bytes: int,
-                 zero_offset_m: float = 0.0, workers: int = 0, processes: bool = False, cells: int = 0,
-                 dsp_path: str | None = None):
+                 zero_offset_m: float = 0.0, workers: int = 0, processes: bool = False):
         """``workers``: DSP threads (0: the DSP runs in :meth:`flush`, on the caller's thread);
-        ``processes``: the process's DSP pool instead, when it has one free (else ``workers`` threads);
-        ``cells``: the spectrum cells the job will process, from which its DSP path is decided here
-        (once it is known where its batches run), unless ``dsp_path`` gives it (a stream's frames)."""
+        ``processes``: the process's DSP pool instead, when it has one free (else ``workers`` threads)."""
         self.dsp = dsp
         self.zero_offset_m = zero_offset_m
         self.optics = optics
@@ -76,8 +73,20 @@ class PointBuffer:
             self._pipe = ProcessDspPipeline.open(dsp, lsb_v=lsb_v, mzi_delay_s=mzi_delay_s, finish=self._finish)
         if self._pipe is None and workers > 0:
             self._pipe = DspPipeline(self._process, workers)
-        pooled = isinstance(self._pipe, ProcessDspPipeline)
-        self.dsp_path: DspPath = check_path(dsp_path) if dsp_path else plan_path(cells, preloaded=pooled)
+        self.dsp_path: DspPath | None = None      # the job's (set_path); None: the process's rule
+        self._started = False
+
+    @property
+    def pooled(self) -> bool:
+        """Whether the batches go to the DSP pool's worker processes (they have the kernels loaded)."""
+        return isinstance(self._pipe, ProcessDspPipeline)
+
+    def set_path(self, path: str) -> None:
+        """The DSP path every batch takes (lidard.dsp.spectrum.jit), set once it is known where the
+        batches run and before the first one: a job never changes paths part-way."""
+        if self._started:
+            raise RuntimeError("PointBuffer.set_path: the DSP path is set before the first batch")
+        self.dsp_path = check_path(path)
         if isinstance(self._pipe, ProcessDspPipeline):
             self._pipe.dsp_path = self.dsp_path
 
@@ -111,6 +120,7 @@ class PointBuffer:
         if not self._pending:
             return
         pend, self._pending, self._pending_bytes = self._pending, [], 0
+        self._started = True
         if isinstance(self._pipe, ProcessDspPipeline):     # joined straight into the worker's slot
             big = {f: [getattr(b, f) for b in pend] for f in ("beat", "mzi", "mzi_q", "beat_q")
                    if getattr(pend[0], f) is not None}

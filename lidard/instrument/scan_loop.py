@@ -32,6 +32,7 @@ from ..config import Config
 from ..cores import pool_workers
 from ..dsp.frame import FrameDsp
 from ..dsp.pnframe import compensator_for, gate_m_range
+from ..dsp.spectrum.jit import plan_path
 from .plan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
 from .calibration.applied import AppliedCalibrations
@@ -197,13 +198,13 @@ class ScanLoop:
         DSP path (``dsp_path``, else decided for the run's planned pixels: lidard.dsp.spectrum.jit).
         ``replayed``: the run records its raw segments, whose replays follow the path it takes, so a
         replay's cells count in its decision too."""
-        return ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
-                                      mzi_delay_s=p.mzi_delay_s, flush_bytes=flush_bytes,
-                                      zero_offset_m=self.applied.zero_offset_m, workers=workers,
-                                      processes=processes,
-                                      cells=p.dsp.spectrum_cells(p.n_pixels, p.averages) * (1 + replayed),
-                                      dsp_path=dsp_path),
-                       calibration_id=calibration_id)
+        points = PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v, mzi_delay_s=p.mzi_delay_s,
+                             flush_bytes=flush_bytes, zero_offset_m=self.applied.zero_offset_m, workers=workers,
+                             processes=processes)
+        # decided once it is known where the batches run (the pool's workers have the kernels loaded)
+        cells = p.dsp.spectrum_cells(p.n_pixels, p.averages) * (1 + replayed)
+        points.set_path(dsp_path or plan_path(cells, preloaded=points.pooled))
+        return ScanRun(p, points, calibration_id=calibration_id)
 
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
         from ..raw.record import (  # zarr is loaded only by scans that record
