@@ -89,14 +89,17 @@ def _run_batch(dsp, msg: tuple) -> Any:
 
 
 def _serve(conn: connection.Connection) -> None:
-    """A worker's loop: ("dsp", record) sets the scan's DSP, ("batch", seq, slot, layout, lsb_v,
-    mzi_delay_s) answers (seq, ok, FrameResult or exception), ("call", seq, fn, args) answers fn(*args),
+    """A worker's loop: ("dsp", record, path) sets the scan's DSP and the DSP path its batches take
+    (lidard.dsp.spectrum.jit.follow: the scan's, whatever this worker has loaded), ("batch", seq, slot,
+    layout, lsb_v, mzi_delay_s) answers (seq, ok, FrameResult or exception), ("call", seq, fn, args) answers fn(*args),
     ("release",) drops the DSP's scratch buffers, ("stop",) or a closed pipe ends it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # Ctrl-C is the acquiring process's to handle
     os.nice(WORKER_NICE)                              # the acquiring chain first (module docstring)
     from .dsp.frame import FrameDsp
+    from .dsp.spectrum.jit import follow
     from .dsp.spectrum.scratch import release as release_scratch
     dsp = None
+    path = None                    # the scan's DSP path (None: the process's own rule)
     built: dict[str, Any] = {}     # FrameDsp by its record: the next scan with the same DSP finds its tables
     while True:
         try:
@@ -113,6 +116,7 @@ def _serve(conn: connection.Connection) -> None:
                 if len(built) >= 4:
                     built.pop(next(iter(built)))
                 dsp = built[key] = FrameDsp.from_record(msg[1])
+            path = msg[2]
             continue
         if kind == "release":
             dsp = None
@@ -120,7 +124,11 @@ def _serve(conn: connection.Connection) -> None:
             continue
         seq = msg[1]
         try:
-            out = (seq, True, _run_batch(dsp, msg) if kind == "batch" else msg[2](*msg[3]))
+            if kind == "batch":
+                with follow(path):
+                    out = (seq, True, _run_batch(dsp, msg))
+            else:
+                out = (seq, True, msg[2](*msg[3]))
         except Exception as exc:     # handed back in order; an unpicklable one as its text
             out = (seq, False, exc)
         try:

@@ -222,14 +222,25 @@ class FrameDsp:
         period_s = (2 * self.ramp_samples + self.cw_samples) / self.fs_hz
         return self.ramp_samples / self.fs_hz + 0.5 * (int(averages) - 1) * period_s
 
-    def sidecar(self, phase_noise: bool) -> dict[str, Any]:
-        """The ``dsp`` block of a scan's sidecar (the scan loop's and a reprocessing's alike)."""
-        return {"window": self.window, "estimator": self.estimator, "pfa": self.pfa,
-                "range_resolution_m": self.range_resolution_m, "use_fraction": self.use_fraction,
-                "phase_noise_compensation": phase_noise, "receiver": "iq" if self.iq else "real",
-                # three-segment: the linearization's measured drift of the held segment resolves the
-                # regimes' meeting (|f_D| ~ f_R); without it such pixels are drawn, not valid
-                "hold_profile": self.hold_profile is not None}
+    def sidecar(self, phase_noise: bool, path: str | None = None) -> dict[str, Any]:
+        """The ``dsp`` block of a scan's sidecar (the scan loop's and a reprocessing's alike);
+        ``path``: the DSP path the points were computed on (lidard.dsp.spectrum.jit.DspPath)."""
+        out = {"window": self.window, "estimator": self.estimator, "pfa": self.pfa,
+               "range_resolution_m": self.range_resolution_m, "use_fraction": self.use_fraction,
+               "phase_noise_compensation": phase_noise, "receiver": "iq" if self.iq else "real",
+               # three-segment: the linearization's measured drift of the held segment resolves the
+               # regimes' meeting (|f_D| ~ f_R); without it such pixels are drawn, not valid
+               "hold_profile": self.hold_profile is not None}
+        if path is not None:
+            out["path"] = path
+        return out
+
+    def spectrum_cells(self, pixels: int, averages: int) -> int:
+        """Spectrum cells the DSP's calls go over for ``pixels`` of ``averages`` records, as they count
+        them for the compiled kernels (lidard.dsp.spectrum.jit): each ramp's range spectrum of every
+        record, and the pixel's averaged spectrum in the OS-CFAR's two passes. The size of a job in the
+        DSP path's cost model (lidard.dsp.spectrum.jit.plan_path)."""
+        return int(pixels) * 2 * (int(averages) + 2) * int(self.rfft.spectrum_shape((1,))[-1])
 
     def _bin_range(self, rf: RangeFFT) -> tuple[int, int]:
         """A real beat is searched over [f_R,min - D, f_R,max + D] folded to >= 0; an I/Q beat (the

@@ -173,6 +173,7 @@ class ProcessDspPipeline(_InOrder):
                  finish: Callable[[Any, Any], Any]):
         self._pool, self._finish = pool, finish
         self._record = dsp.to_record()
+        self.dsp_path: str | None = None   # the scan's DSP path, sent with its DSP (set before the first batch)
         self._token = object()
         self._lsb_v, self._mzi_delay_s = lsb_v, mzi_delay_s
         self._free: list[Slot] = []
@@ -225,7 +226,7 @@ class ProcessDspPipeline(_InOrder):
         w = min(self._pool.workers, key=lambda w: len(w.outstanding))
         try:
             if w.scan_token is not self._token:
-                self._pool.send(w, ("dsp", self._record))
+                self._pool.send(w, ("dsp", self._record, self.dsp_path))
                 w.scan_token = self._token
             self._pool.send(w, ("batch", mid, slot.name, layout, self._lsb_v, self._mzi_delay_s))
         except BaseException:

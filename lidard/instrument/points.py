@@ -10,7 +10,9 @@ until ``flush_bytes`` are together: memory stays bounded by one buffer, never a 
 With ``processes`` the batches go to the process's DSP worker processes (:class:`.pipeline.ProcessDspPipeline`,
 :mod:`lidard.dsp_pool`), with ``workers`` (or when no pool is to be had) to DSP worker threads
 (:class:`.pipeline.DspPipeline`); either is bounded and in order, and the reads go on meanwhile; the
-points keep the pixel order and are the serial DSP's bit for bit.
+points keep the pixel order and are the serial DSP's bit for bit. Every batch takes the one DSP path
+the job decided before its first batch (:meth:`PointBuffer.set_path`, lidard.dsp.spectrum.jit.plan_path),
+on whichever thread or worker process runs it.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dsp.frame import FrameDsp
+from ..dsp.spectrum.jit import DspPath, check_path, follow
 from ..dsp.spectrum.scratch import release as release_scratch
 from ..raw.points import frame_points
 from .pipeline import DspPipeline, ProcessDspPipeline
@@ -70,6 +73,22 @@ class PointBuffer:
             self._pipe = ProcessDspPipeline.open(dsp, lsb_v=lsb_v, mzi_delay_s=mzi_delay_s, finish=self._finish)
         if self._pipe is None and workers > 0:
             self._pipe = DspPipeline(self._process, workers)
+        self.dsp_path: DspPath | None = None      # the job's (set_path); None: the process's rule
+        self._started = False
+
+    @property
+    def pooled(self) -> bool:
+        """Whether the batches go to the DSP pool's worker processes (they have the kernels loaded)."""
+        return isinstance(self._pipe, ProcessDspPipeline)
+
+    def set_path(self, path: str) -> None:
+        """The DSP path every batch takes (lidard.dsp.spectrum.jit), set once it is known where the
+        batches run and before the first one: a job never changes paths part-way."""
+        if self._started:
+            raise RuntimeError("PointBuffer.set_path: the DSP path is set before the first batch")
+        self.dsp_path = check_path(path)
+        if isinstance(self._pipe, ProcessDspPipeline):
+            self._pipe.dsp_path = self.dsp_path
 
     def _collect(self, wait: bool = False) -> None:
         """Move the DSP workers' finished batches (in order) to the points; a worker's error is raised."""
@@ -101,6 +120,7 @@ class PointBuffer:
         if not self._pending:
             return
         pend, self._pending, self._pending_bytes = self._pending, [], 0
+        self._started = True
         if isinstance(self._pipe, ProcessDspPipeline):     # joined straight into the worker's slot
             big = {f: [getattr(b, f) for b in pend] for f in ("beat", "mzi", "mzi_q", "beat_q")
                    if getattr(pend[0], f) is not None}
@@ -116,8 +136,9 @@ class PointBuffer:
 
     def _process(self, b: RawBatch) -> np.ndarray:
         """One batch through the frame DSP into point records (on whichever thread runs it)."""
-        res = self.dsp.process(b.beat, self.lsb_v, mzi=b.mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v,
-                               mzi_q=b.mzi_q, beat_q=b.beat_q)
+        with follow(self.dsp_path):
+            res = self.dsp.process(b.beat, self.lsb_v, mzi=b.mzi, mzi_delay_s=self.mzi_delay_s,
+                                   mzi_lsb_v=self.lsb_v, mzi_q=b.mzi_q, beat_q=b.beat_q)
         return points_from(res, self.optics, b.pixels, b.t_pix_s, b.clipped, self.zero_offset_m,
                            delay_s=self.dsp.measurement_delay_s(b.beat.shape[1]))
 

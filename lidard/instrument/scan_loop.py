@@ -32,6 +32,7 @@ from ..config import Config
 from ..cores import pool_workers
 from ..dsp.frame import FrameDsp
 from ..dsp.pnframe import compensator_for, gate_m_range
+from ..dsp.spectrum.jit import plan_path
 from .plan import plan
 from .acquisition import Acquisition, AcquisitionLifecycle, AcquisitionPlan
 from .calibration.applied import AppliedCalibrations
@@ -159,7 +160,8 @@ class ScanLoop:
         flush = dsp_batch_bytes(p, workers)
         # the DSP pool's processes for a scan of more than one batch (one batch: nothing to overlap)
         run = self.new_run(p, (calibration.meta or {}).get("id") if calibration else None,
-                           flush_bytes=flush, workers=workers, processes=p.n_pixels * pixel_bytes(p) > flush)
+                           flush_bytes=flush, workers=workers, processes=p.n_pixels * pixel_bytes(p) > flush,
+                           replayed=raw_path is not None)
         try:
             self.safety.bring_up()
             try:
@@ -191,13 +193,18 @@ class ScanLoop:
             run.points.close()      # the DSP workers end on every path (after result(): nothing left)
 
     def new_run(self, p: ScanPlan, calibration_id: Any = None, *, flush_bytes: int, workers: int = 0,
-                processes: bool = False) -> ScanRun:
-        """The context of one run of ``p``: its points computed with the calibrations in use."""
-        return ScanRun(p, PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v,
-                                      mzi_delay_s=p.mzi_delay_s, flush_bytes=flush_bytes,
-                                      zero_offset_m=self.applied.zero_offset_m, workers=workers,
-                                      processes=processes),
-                       calibration_id=calibration_id)
+                processes: bool = False, dsp_path: str | None = None, replayed: bool = False) -> ScanRun:
+        """The context of one run of ``p``: its points computed with the calibrations in use, on one
+        DSP path (``dsp_path``, else decided for the run's planned pixels: lidard.dsp.spectrum.jit).
+        ``replayed``: the run records its raw segments, whose replays follow the path it takes, so a
+        replay's cells count in its decision too."""
+        points = PointBuffer(p.dsp, self.applied.optics(self.optics), lsb_v=p.lsb_v, mzi_delay_s=p.mzi_delay_s,
+                             flush_bytes=flush_bytes, zero_offset_m=self.applied.zero_offset_m, workers=workers,
+                             processes=processes)
+        # decided once it is known where the batches run (the pool's workers have the kernels loaded)
+        cells = p.dsp.spectrum_cells(p.n_pixels, p.averages) * (1 + replayed)
+        points.set_path(dsp_path or plan_path(cells, preloaded=points.pooled))
+        return ScanRun(p, points, calibration_id=calibration_id)
 
     def _recorder(self, raw_path, run: ScanRun, acq: Acquisition, request: ScanRequest, drive_v: np.ndarray):
         from ..raw.record import (  # zarr is loaded only by scans that record
@@ -212,7 +219,8 @@ class ScanLoop:
             raw_path,
             RecordLayout(pixels=p.pixels, directions=optics.directions(p.pixels[:, 0], p.pixels[:, 1]),
                          averages=p.averages, channels=tuple(acq.layout.channels), record_length=adc.record_length),
-            ReplayRecipe(dsp=p.dsp, lsb_v=p.lsb_v, phase_noise=p.phase_noise, mzi_delay_s=p.mzi_delay_s),
+            ReplayRecipe(dsp=p.dsp, lsb_v=p.lsb_v, phase_noise=p.phase_noise, mzi_delay_s=p.mzi_delay_s,
+                         dsp_path=run.points.dsp_path),
             ScanDescription(
                 adc={"sample_rate_hz": adc.fs_hz, "record_length": adc.record_length, "bits": adc.bits,
                      "ramp_samples": adc.ramp_samples, "input_range_v": self.cfg.adc.input_range_v},
@@ -337,7 +345,7 @@ class ScanLoop:
                     # target's beat lies outside it and is flagged, never ranged
                     "max_speed_mps": dsp.max_speed_mps,
                     "doppler_band_hz": 2 * dsp.max_speed_mps / dsp.wavelength_m},
-            "dsp": dsp.sidecar(p.phase_noise),
+            "dsp": dsp.sidecar(p.phase_noise, run.points.dsp_path),
             "simulated": self.simulated,
             "calibration_id": run.calibration_id,
             "faults": dict(run.faults),

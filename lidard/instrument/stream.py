@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from ..dsp.spectrum.jit import plan_path
 from .acquisition import Acquisition
 from .errors import describe_failure, driver_error
 from .frames import Frame, FramePlan, Planner, StreamResult, pixel_period_s
@@ -87,6 +88,7 @@ class _State:
     health: list = field(default_factory=list)
     acq: Acquisition | None = None      # the last frame's acquisition, when the next may run on its arm
     arms: int = 0                       # digitizer acquisitions set up (configure + arm) so far
+    dsp_path: str | None = None         # every frame's DSP path, decided once (lidard.dsp.spectrum.jit)
 
     def start_s(self, frame_t0_ns: float | None) -> float:
         """A frame's start on the stream's time axis: its first trigger; for a frame that never
@@ -134,7 +136,8 @@ class StreamLoop:
         if not health_interval_s > 0:
             raise ValueError(f"health_interval_s: {health_interval_s} must be > 0")
         base = self.base_plan(request, calibration)
-        st = _State(tec_c=self._read_tec(), interval_s=float(health_interval_s))
+        st = _State(tec_c=self._read_tec(), interval_s=float(health_interval_s),
+                    dsp_path=plan_path(base.dsp.spectrum_cells(base.n_pixels, base.averages) * (frames or 1)))
         cal_id = (calibration.meta or {}).get("id") if calibration else None
         count, stop_reason, safe = 0, None, None
         if self._scene_clock is not None:
@@ -175,7 +178,7 @@ class StreamLoop:
         hw = 0.0 if st.end_ns is None or st.t0_ns is None else (st.end_ns - st.t0_ns) * 1e-9
         meta = {"pixel_period_s": self.pixel_period_s(base), "calibration_id": cal_id,
                 "adc": {"sample_rate_hz": base.adc.fs_hz, "record_length": base.adc.record_length},
-                "dsp": base.dsp.sidecar(base.phase_noise), "simulated": self.loop.simulated,
+                "dsp": base.dsp.sidecar(base.phase_noise, st.dsp_path), "simulated": self.loop.simulated,
                 "health_interval_s": float(health_interval_s), "digitizer_arms": st.arms}
         if safe is not None:
             meta["safe_state"] = safe
@@ -187,7 +190,7 @@ class StreamLoop:
         px = np.asarray(fp.pixels, dtype=np.int64).reshape(-1, 2)
         p = dataclasses.replace(base, pixels=px, acquisition=dataclasses.replace(base.acquisition, pixels=px))
         loop = self.loop
-        run = loop.new_run(p, cal_id, flush_bytes=BATCH_BYTES)
+        run = loop.new_run(p, cal_id, flush_bytes=BATCH_BYTES, dsp_path=st.dsp_path)
         if len(px):
             try:
                 acq = None if st.acq is None else self.lifecycle.next_pattern(st.acq, p.acquisition, run.faults)

@@ -22,7 +22,7 @@ from drivers.digitizer.protocol_headers import header_column
 
 from ..dsp.frame import FrameDsp
 from .capture import RawWriter, chunk_pixels_for
-from .replay import frame_dsp_attrs
+from .replay import DSP_PATH_ATTR, frame_dsp_attrs
 
 # Raw bytes per chunk (one reprocessing task): 1 MiB keeps a few thousand pixels in several tasks
 # for a pool or a cluster and is still a comfortable size for the store (one file per chunk). The
@@ -49,12 +49,14 @@ class RecordLayout:
 @dataclass(frozen=True)
 class ReplayRecipe:
     """What :mod:`lidard.raw.replay` needs to run the same DSP again: the frame DSP, the ADC's volts
-    per code, the phase-noise choice and the monitor's delay (§2.3)."""
+    per code, the phase-noise choice, the monitor's delay (§2.3) and the DSP path the scan's points
+    were computed on (lidard.dsp.spectrum.jit; None: not known, the replay decides as for an older capture)."""
 
     dsp: FrameDsp
     lsb_v: float
     phase_noise: bool
     mzi_delay_s: float
+    dsp_path: str | None = None
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,7 @@ class ScanRecorder:
             "adc": {**about.adc, "lsb_v": float(recipe.lsb_v)},
             "dsp": frame_dsp_attrs(recipe.dsp),
             "phase_noise": {"on": bool(recipe.phase_noise), "mzi_delay_s": float(recipe.mzi_delay_s)},
+            **({} if recipe.dsp_path is None else {DSP_PATH_ATTR: recipe.dsp_path}),
             "chirp": about.chirp,
             "calibration_id": about.calibration_id,
             "scan": about.scan or {},

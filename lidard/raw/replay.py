@@ -10,12 +10,15 @@ reproduce the original points exactly (the DSP treats every pixel on its own: th
 depend on how pixels are batched).
 
 The points are a function of the capture's bytes and the settings only, whatever the process, the
-worker count or what ran before: every task settles its process's DSP path before its DSP
-(:func:`lidard.dsp.spectrum.jit.decide`: the compiled kernels where numba is installed, as the DSP
-pool's workers have them). Without that, the first replay in a process that had not yet loaded them
-ran its first tasks on numpy and the rest compiled, and the tone fits' two paths agree only to
-rounding: 2 of 1,744 float32 velocities of a 10 m/s region replay differed by one last bit from the
-replay after it, or from the same replay on the pool's workers (docs/measured/27_replay.md).
+worker count or what ran before: every task runs its DSP on the path the scan took (the capture's
+``dsp_path``, :data:`DSP_PATH_ATTR`: ``numpy`` or ``compiled``, lidard.dsp.spectrum.jit.follow), so a
+replay with the scan's settings gives the scan's own points bit for bit. The tone fits' two paths agree
+only to rounding: a replay on the other path, or one that changed paths part-way, differed from the
+scan in float32 last bits (2 of 1,744 velocities of a 10 m/s region replay, docs/measured/27_replay.md).
+A capture recorded before the path was (no ``dsp_path``) replays on the path every replay of it takes
+(:func:`lidard.dsp.spectrum.jit.decide`: compiled where numba is installed) and its metadata says so;
+a compiled capture replayed where this process has no compiled kernels (numba missing,
+``LIDARD_DSP_JIT=0``) runs on numpy and its metadata warns that the points may differ in last bits.
 
 The capture is stored in chunks of ~1 MiB (lidard.raw.record); the DSP is run on batches of
 consecutive chunks (``TASK_BYTES``): a call's fixed costs are paid per task, not per chunk (1 MiB
@@ -42,7 +45,7 @@ import numpy as np
 
 from ..dsp.ranging.estimators import EstimatorName
 from ..dsp.frame import FrameDsp
-from ..dsp.spectrum.jit import decide as decide_dsp_path
+from ..dsp.spectrum.jit import DspPath, check_path, follow, installed
 from ..dsp.spectrum.scratch import release as release_scratch
 from ..dsp.spectrum.window import WINDOW_NAMES
 from ..outputs.schema import POINT_DTYPE
@@ -54,6 +57,8 @@ ESTIMATORS: tuple[str, ...] = get_args(EstimatorName)
 #: 10 m/s records (~23 MB) and is flat beyond; its working memory grows with it (~2.4x the task's samples
 #: at the peak), and a task is read whole by the worker that runs it.
 TASK_BYTES = 24 << 20
+#: the capture attribute naming the DSP path the scan's points were computed on (lidard.dsp.spectrum.jit.DspPath)
+DSP_PATH_ATTR = "dsp_path"
 #: tasks a capture is cut into at least (when it has the chunks): two for each of a pool's up to four
 #: workers (lidard.dsp_pool.pool_workers), so that a small capture still runs on every core
 MIN_TASKS = 8
@@ -95,10 +100,21 @@ class ReplayDsp:
     lsb_v: float
     phase_noise: bool
     mzi_delay_s: float | None
+    dsp_path: DspPath = "numpy"          # the path every task takes (:func:`replay_path`)
+    dsp_path_recorded: str | None = None   # the capture's (None: recorded before the path was)
+    dsp_path_warning: str | None = None    # why the path is not the recorded one, when it is not
 
     def meta(self) -> dict[str, Any]:
         """The ``dsp`` block of a scan's sidecar, as the scan loop writes it."""
-        return self.dsp.sidecar(self.phase_noise)
+        return self.dsp.sidecar(self.phase_noise, self.dsp_path)
+
+    def path_meta(self) -> dict[str, Any]:
+        """What a replay's metadata says of its DSP path: the recorded one and, where the replay's
+        differs or none was recorded, why (``dsp_path_warning``)."""
+        out: dict[str, Any] = {"dsp_path_recorded": self.dsp_path_recorded}
+        if self.dsp_path_warning is not None:
+            out["dsp_path_warning"] = self.dsp_path_warning
+        return out
 
     def monitor(self, chunk: RawChunk, channels: list[str], averages: int):
         """(mzi, mzi_q) as the DSP takes them: None without compensation; ``mzi_q`` (the monitor's
@@ -109,14 +125,15 @@ class ReplayDsp:
         return chunk.channel("mzi", channels, averages), q
 
     def points(self, chunk: RawChunk, channels: list[str], averages: int) -> np.ndarray:
-        decide_dsp_path()    # the same kernels in every process and on every task (module docstring)
         # an I/Q capture (adc.iq) holds beat_i and beat_q; its imbalance correction is in the dsp settings
         beat = chunk.channel("beat_i" if self.dsp.iq else "beat", channels, averages)
         mzi, mzi_q = self.monitor(chunk, channels, averages)
         kw = {} if mzi_q is None else {"mzi_q": mzi_q}
         if self.dsp.iq:
             kw["beat_q"] = chunk.channel("beat_q", channels, averages)
-        res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v, **kw)
+        with follow(self.dsp_path):      # the scan's path on every task (module docstring)
+            res = self.dsp.process(beat, self.lsb_v, mzi=mzi, mzi_delay_s=self.mzi_delay_s, mzi_lsb_v=self.lsb_v,
+                                   **kw)
         return frame_points(res, chunk.pixels, chunk.t_s, chunk.directions, chunk.clipped,
                             self.dsp.measurement_delay_s(averages))
 
@@ -142,7 +159,29 @@ def replay_dsp(attrs: dict[str, Any], settings: ReprocessSettings | None = None)
     delay = pn.get("mzi_delay_s")
     if pn_on and delay is None:
         raise RawCaptureError("phase_noise=on: the capture does not record the monitor delay (phase_noise.mzi_delay_s)")
-    return ReplayDsp(dsp=dsp, lsb_v=lsb_v, phase_noise=pn_on, mzi_delay_s=None if delay is None else float(delay))
+    recorded = attrs.get(DSP_PATH_ATTR)
+    path, warning = replay_path(recorded)
+    return ReplayDsp(dsp=dsp, lsb_v=lsb_v, phase_noise=pn_on, mzi_delay_s=None if delay is None else float(delay),
+                     dsp_path=path, dsp_path_recorded=recorded, dsp_path_warning=warning)
+
+
+def replay_path(recorded: object) -> tuple[DspPath, str | None]:
+    """The DSP path a replay of a capture that recorded ``recorded`` takes here, and a warning when
+    it is not the recorded one (or none was recorded): module docstring."""
+    if recorded is None:
+        path: DspPath = "compiled" if installed() else "numpy"
+        return path, ("the capture does not record its DSP path (recorded before lidard did): replayed on "
+                      f"{path}, the path every replay of it takes here; its points may differ from the scan's "
+                      "own in float32 last bits")
+    try:
+        want = check_path(recorded)
+    except ValueError as exc:
+        raise RawCaptureError(f"raw capture attribute {DSP_PATH_ATTR}: {exc}") from None
+    if want == "compiled" and not installed():
+        return "numpy", ("the scan's points were computed on the compiled DSP path, which this process does "
+                         "not have (numba not installed, or LIDARD_DSP_JIT=0): replayed on numpy, the points "
+                         "may differ from the scan's in float32 last bits")
+    return want, None
 
 
 def chunk_count(raw_path: str | Path) -> int:
@@ -232,5 +271,5 @@ def reprocess(raw_path: str | Path, settings: ReprocessSettings | None = None, *
     points = np.concatenate(parts) if parts else np.zeros(0, POINT_DTYPE)
     meta = {"dsp": replay.meta(), "overrides": (settings or ReprocessSettings()).overrides(),
             "chunks": cap.n_chunks, "tasks": n, "pixels": cap.n_pixels, "raw_complete": cap.complete,
-            "calibration_id": cap.attrs.get("calibration_id")}
+            "calibration_id": cap.attrs.get("calibration_id"), **replay.path_meta()}
     return Reprocessed(points=points, meta=meta, timings={"wall_s": time.perf_counter() - t0})

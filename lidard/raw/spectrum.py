@@ -22,6 +22,7 @@ from ..dsp.pnframe import compensator_for
 from ..dsp.spectrum.window import get_window
 from ..outputs.schema import POINT_DTYPE, POINT_NAMES
 from .capture import PixelNotRecorded, RawCapture
+from ..dsp.spectrum.jit import follow
 from .replay import ReplayDsp, ReprocessSettings, replay_dsp
 
 # CfarSettings defaults, which FrameDsp uses (n_ref cells in total, n_guard per side)
@@ -103,19 +104,20 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
     mzi, mzi_q = replay.monitor(one, cap.channels, cap.averages)
     gate = d.bin_range
     power, threshold, dets = {}, {}, []
-    for name, start in (("up", 0), ("down", d.ramp_samples)):
-        p = _ramp_power(replay, beat, mzi, mzi_q, start)
-        # p averages the pixel's records: the detector's noise model is Gamma(records), as the scan's
-        det = cfar_detect_with(p, CfarSettings(method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
-                          bin_range=gate, iq=d.iq, records=cap.averages))
-        noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True,
-                                 records=cap.averages)   # drawn at every bin
-        power[name], threshold[name] = p[0], (alpha * noise)[0]
-        for j in np.flatnonzero(det.valid[0]):
-            b = int(det.index[0, j])
-            dets.append({"ramp": name, "bin": b, "range_m": float(d.rfft.range_m[b]),
-                         "snr_db": float(det.snr_db[0, j]), "harmonic": bool(det.harmonic[0, j]),
-                         "unresolved": bool(det.unresolved[0, j])})
+    with follow(replay.dsp_path):      # the scan's DSP path, as the replay's points take it
+        for name, start in (("up", 0), ("down", d.ramp_samples)):
+            p = _ramp_power(replay, beat, mzi, mzi_q, start)
+            # p averages the pixel's records: the detector's noise model is Gamma(records), as the scan's
+            det = cfar_detect_with(p, CfarSettings(method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
+                              bin_range=gate, iq=d.iq, records=cap.averages))
+            noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True,
+                                     records=cap.averages)   # drawn at every bin
+            power[name], threshold[name] = p[0], (alpha * noise)[0]
+            for j in np.flatnonzero(det.valid[0]):
+                b = int(det.index[0, j])
+                dets.append({"ramp": name, "bin": b, "range_m": float(d.rfft.range_m[b]),
+                             "snr_db": float(det.snr_db[0, j]), "harmonic": bool(det.harmonic[0, j]),
+                             "unresolved": bool(det.unresolved[0, j])})
     return PixelSpectrum(row=int(row), col=int(col), range_m=d.rfft.range_m, power=power, threshold=threshold,
                          gate=(int(gate[0]), int(gate[1])), detections=dets,
                          points=replay.points(one, cap.channels, cap.averages), dsp=replay.meta())

@@ -17,6 +17,7 @@ from tests.helpers.deadlines import HTTP_S
 
 from lidard.config import load_config
 from lidard.dsp.frame import FrameDsp
+from lidard.dsp.spectrum import jit
 from lidard.instrument import open_instrument
 from lidard.instrument import ScanRequest
 from lidard.raw import RawCapture, RawCaptureError, ReprocessSettings, frame_points, reprocess
@@ -47,7 +48,8 @@ def _direct(path, **dsp_over):
     beat = seg[:, cap.channels.index("beat")].reshape(cap.n_pixels, cap.averages, -1)
     pixels, dirs = (np.concatenate([getattr(c, k) for c in chunks]) for k in ("pixels", "directions"))
     t_s, clipped = (np.concatenate([getattr(c, k) for c in chunks]) for k in ("t_s", "clipped"))
-    res = dsp.process(beat, cap.attrs["adc"]["lsb_v"])
+    with jit.follow(cap.attrs.get("dsp_path")):     # the DSP path the scan took, as its replay follows it
+        res = dsp.process(beat, cap.attrs["adc"]["lsb_v"])
     return frame_points(res, pixels, t_s, dirs, clipped, dsp.measurement_delay_s(cap.averages))
 
 

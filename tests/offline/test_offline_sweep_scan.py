@@ -100,7 +100,7 @@ def test_a_sweep_task_and_a_scan_of_its_pixel_give_the_same_points(tmp_path, dis
     # the same plan: rate, record, band and DSP settings as the scan's sidecar reports them
     assert meta["adc"]["sample_rate_hz"] == tf.plan.adc.fs_hz
     assert meta["adc"]["record_length"] == tf.plan.adc.record_length
-    assert meta["dsp"] == dsp.sidecar(tf.plan.phase_noise)
+    assert meta["dsp"] == dsp.sidecar(tf.plan.phase_noise, meta["dsp"]["path"])     # and the DSP path it took
     row, col = tf.pixel
     optics = task.point.profile.optics(task.point.cfg.lens, task.point.cfg.chirp.wavelength_m)
     sweep = frame_points(tf.result, np.array([[row, col]]), np.zeros(1), optics.directions(np.array([row]),

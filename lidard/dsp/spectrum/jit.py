@@ -20,17 +20,42 @@ the kernels off (for comparing the two paths; the results do not depend on it).
 
 Loading numba and the cached kernels costs about 0.9 s of CPU once per process, and the kernels save
 a few ns per spectrum cell (1-10 ns measured on this 2-core Xeon, benchmarks/band_and_cores.py): a
-small scan pays more to load them than they save. So the DSP's own calls say how many cells they are
-about to process (``kernels(cells)``) and numba is loaded only once the process has asked for
-``LOAD_AFTER_CELLS`` of them; until then those calls take the numpy path (the same values).
-A call without a count (tests, tools, :func:`decide`) loads it at once.
+small scan pays more to load them than they save.
+
+**A job's DSP path** (``"numpy"`` or ``"compiled"``, :data:`DspPath`) is decided once, before its first
+batch, and every batch of the job takes it, on whichever thread or worker process runs it: the tone
+fits' two paths differ in the last bits, so a job that switched part-way (or a replay that took the
+other path) would not give the same points. The rule (:func:`plan_path`), from what the job will
+process (the spectrum cells its calls will go over, :meth:`lidard.dsp.frame.FrameDsp.spectrum_cells`) and what is
+already paid for:
+
+* ``numpy`` where the kernels cannot run (numba not installed, ``LIDARD_DSP_JIT=0``);
+* ``compiled`` where the load is already paid: the kernels are loaded in this process, or the job's
+  batches go to the DSP pool's workers (they load the kernels at start, lidard.dsp_pool_preload);
+* else the break-even: ``compiled`` once the cells of this process's jobs so far, this one's included,
+  reach ``LOAD_AFTER_CELLS`` (the load is then worth it; the kernels are loaded at the decision, before
+  the first batch), ``numpy`` below (a small one-shot scan never pays the load). A scan that records
+  its raw segments counts one replay's cells too: its replays follow the path it takes.
+
+The job then runs its DSP inside :func:`follow` (a thread-local setting: it never leaks into another
+job on the same thread or pool); the path is recorded with the job's results (a scan's sidecar, its raw
+capture), and a replay follows the recorded one (lidard.raw.replay). A call outside any job (tests,
+tools) counts its cells as before: ``kernels(cells)`` loads numba once the process has asked for
+``LOAD_AFTER_CELLS``, and a call without a count loads it at once. :func:`decide` settles the
+compiled path where a job has no recorded path to follow (a sweep task; a capture older than the
+recording of the path).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import lru_cache
 from types import SimpleNamespace
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -39,6 +64,11 @@ import numpy as np
 #: cell at best (the model of the module docstring), so a scan that processes fewer never loads it.
 LOAD_AFTER_CELLS = 1 << 26
 _asked = [0]        # cells asked for so far in this process (a count; races only delay the load)
+
+#: how a job's DSP runs: the numpy reference or the compiled kernels (module docstring)
+DspPath = Literal["numpy", "compiled"]
+DSP_PATHS: tuple[str, ...] = get_args(DspPath)
+_job = threading.local()     # .path: the path of the job this thread runs (follow), None outside one
 
 
 @lru_cache(maxsize=1)
@@ -56,12 +86,70 @@ def _compiled() -> SimpleNamespace | None:
                            window_grid=fit_kernels.window_grid)
 
 
+def _enabled() -> bool:
+    return os.environ.get("LIDARD_DSP_JIT", "1") != "0"
+
+
+def _loaded() -> bool:
+    return _compiled.cache_info().currsize == 1 and _compiled() is not None
+
+
+def installed() -> bool:
+    """Whether this process can take the compiled path: numba installed and LIDARD_DSP_JIT not 0
+    (without loading it)."""
+    return _enabled() and (_loaded() or importlib.util.find_spec("numba") is not None)
+
+
+def plan_path(cells: int, *, preloaded: bool = False) -> DspPath:
+    """A job's DSP path, decided once before its first batch (the rule of the module docstring):
+    ``cells``: the spectrum cells the job will process; ``preloaded``: its batches run where the
+    kernels are loaded already (the DSP pool's workers). A compiled path decided here on the
+    break-even loads the kernels now."""
+    if cells < 0:
+        raise ValueError(f"plan_path: cells must be >= 0, got {cells!r}")
+    if not installed():
+        return "numpy"
+    if preloaded or _loaded():
+        return "compiled"
+    _asked[0] += int(cells)
+    if _asked[0] < LOAD_AFTER_CELLS:
+        return "numpy"
+    return "compiled" if _compiled() is not None else "numpy"
+
+
+def check_path(path: object) -> DspPath:
+    """``path`` if it names a DSP path, else a ValueError naming it."""
+    if path not in DSP_PATHS:
+        raise ValueError(f"DSP path {path!r} is not one of {', '.join(DSP_PATHS)}")
+    return path     # type: ignore[return-value]
+
+
+@contextmanager
+def follow(path: DspPath | None) -> Iterator[None]:
+    """Every DSP call of this thread inside the block takes ``path`` (None: the cell count of a call
+    outside any job); the thread's setting before is put back after. ``compiled`` loads the kernels
+    at the first call that wants them (numpy where this process has none: a caller that records the
+    path checks :func:`installed` first)."""
+    if path is not None:
+        check_path(path)
+    before = getattr(_job, "path", None)
+    _job.path = path
+    try:
+        yield
+    finally:
+        _job.path = before
+
+
 def kernels(cells: int | None = None) -> SimpleNamespace | None:
-    """The compiled kernels, or None (numba missing, or LIDARD_DSP_JIT=0, or not loaded yet while this
-    process has asked for fewer than LOAD_AFTER_CELLS cells, counting ``cells``)."""
-    if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
+    """The compiled kernels, or None: numba missing, or LIDARD_DSP_JIT=0, or this thread's job follows
+    the numpy path (:func:`follow`), or, outside a job, not loaded yet while this process has asked for
+    fewer than LOAD_AFTER_CELLS cells, counting ``cells``."""
+    if not _enabled():
         return None
-    if cells is not None and _compiled.cache_info().currsize == 0:
+    path = getattr(_job, "path", None)
+    if path == "numpy":
+        return None
+    if path is None and cells is not None and _compiled.cache_info().currsize == 0:
         _asked[0] += int(cells)
         if _asked[0] < LOAD_AFTER_CELLS:
             return None
@@ -77,7 +165,8 @@ def decide() -> bool:
     enough to move a float32 point's last bit now and then (2 of 1,744 points' velocities in a 10 m/s
     region replay). A job whose results must depend on its input and its settings only (a raw capture's
     replay, a sweep task) calls this first: it then takes the path the DSP pool's workers take (they
-    load the kernels at start, lidard.dsp_pool_preload) in every process and on every worker count."""
+    load the kernels at start, lidard.dsp_pool_preload) in every process and on every worker count.
+    A job that records its path decides it with :func:`plan_path` and runs inside :func:`follow`."""
     return kernels() is not None
 
 
