@@ -15,23 +15,20 @@ import numpy as np
 import pytest
 from tests.helpers.deadlines import HTTP_S
 
-from lidard.config import load_config
 from lidard.dsp.frame import FrameDsp
 from lidard.dsp.spectrum import jit
-from lidard.instrument import open_instrument
 from lidard.instrument import ScanRequest
 from lidard.raw import RawCapture, RawCaptureError, ReprocessSettings, frame_points, reprocess
 from lidard.raw import record as raw_record
+from tests.helpers.sim_bench import cal_letters_instrument
 
 pytestmark = pytest.mark.slow  # embedded benches and real daemons recording raw captures
 
 
 @pytest.fixture(scope="module")
 def bench():
-    inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/cal_letters.toml",
-                           bench="embedded")
-    yield inst
-    inst.close()
+    with cal_letters_instrument() as inst:
+        yield inst
 
 
 def _scan(inst, path, **kw):

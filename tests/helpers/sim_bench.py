@@ -101,6 +101,18 @@ def pane_before_wall(z0_m: float, dz_m: float) -> dict:
 
 
 @contextlib.contextmanager
+def cal_letters_instrument() -> Iterator:
+    """The instrument on an embedded bench (config/sim.toml, the CAL letters), closed after."""
+    from lidard.instrument import open_instrument
+    inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/cal_letters.toml",
+                           bench="embedded")
+    try:
+        yield inst
+    finally:
+        inst.close()
+
+
+@contextlib.contextmanager
 def linearized_embedded_instrument() -> Iterator[tuple]:
     """The instrument on an embedded bench (config/sim.toml, an empty scene), linearized once:
     ``(instrument, bench, calibration)``."""

@@ -23,14 +23,14 @@ import pytest
 import zarr
 
 from lidard import dsp_pool
-from lidard.config import load_config
 from lidard.dsp.spectrum import jit
-from lidard.instrument import ScanRequest, open_instrument
+from lidard.instrument import ScanRequest
 from lidard.instrument import points as inst_points
 from lidard.instrument import scan_loop
 from lidard.raw import RawCapture, reprocess
 from lidard.raw import replay
 from tests.helpers.jit_ab import as_a_fresh_process
+from tests.helpers.sim_bench import cal_letters_instrument
 
 pytestmark = [pytest.mark.slow,      # an embedded bench's scans, the DSP pool's workers
               pytest.mark.skipif(importlib.util.find_spec("numba") is None,
@@ -43,10 +43,8 @@ REGION = {"pattern": "roi", "rows": (52, 56), "cols": (40, 56), "averages": 3, "
 
 @pytest.fixture(scope="module")
 def bench():
-    inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/cal_letters.toml",
-                           bench="embedded")
-    yield inst
-    inst.close()
+    with cal_letters_instrument() as inst:
+        yield inst
 
 
 def _spy(mp: pytest.MonkeyPatch, module) -> list[np.ndarray]:

@@ -17,14 +17,14 @@ from multiprocessing import get_context
 import numpy as np
 import pytest
 
-from lidard.config import load_config
-from lidard.instrument import ScanRequest, open_instrument
+from lidard.instrument import ScanRequest
 from lidard.raw import RawCapture, reprocess
 from lidard.raw import record as raw_record
 from lidard.raw import replay
 from lidard.dsp.spectrum import jit
 from tests.helpers.jit_ab import as_a_fresh_process, compiled_and_numpy
 from tests.helpers.replay_spy import task_points_and_results
+from tests.helpers.sim_bench import cal_letters_instrument
 
 pytestmark = pytest.mark.slow      # an embedded bench's scan and three freshly spawned worker processes
 
@@ -34,14 +34,10 @@ def capture(tmp_path_factory):
     path = tmp_path_factory.mktemp("replay-workers") / "raw.zarr"
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(raw_record, "RAW_CHUNK_BYTES", 64 << 10)       # one pixel a chunk: several tasks
-        inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/cal_letters.toml",
-                               bench="embedded")
-        try:
+        with cal_letters_instrument() as inst:
             res = inst.run_scan(ScanRequest(pattern="roi", rows=(52, 56), cols=(40, 56), averages=3,
                                             max_range_m=2.0, max_speed_mps=10.0),
                                 lambda p: None, threading.Event(), None, raw_path=path)
-        finally:
-            inst.close()
     return path, res
 
 
