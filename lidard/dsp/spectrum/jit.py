@@ -90,6 +90,12 @@ def _enabled() -> bool:
     return os.environ.get("LIDARD_DSP_JIT", "1") != "0"
 
 
+def _past_break_even(cells: int) -> bool:
+    """Count ``cells`` toward this process's total; whether it has reached LOAD_AFTER_CELLS."""
+    _asked[0] += int(cells)
+    return _asked[0] >= LOAD_AFTER_CELLS
+
+
 def _loaded() -> bool:
     return _compiled.cache_info().currsize == 1 and _compiled() is not None
 
@@ -111,8 +117,7 @@ def plan_path(cells: int, *, preloaded: bool = False) -> DspPath:
         return "numpy"
     if preloaded or _loaded():
         return "compiled"
-    _asked[0] += int(cells)
-    if _asked[0] < LOAD_AFTER_CELLS:
+    if not _past_break_even(cells):
         return "numpy"
     return "compiled" if _compiled() is not None else "numpy"
 
@@ -149,10 +154,9 @@ def kernels(cells: int | None = None) -> SimpleNamespace | None:
     path = getattr(_job, "path", None)
     if path == "numpy":
         return None
-    if path is None and cells is not None and _compiled.cache_info().currsize == 0:
-        _asked[0] += int(cells)
-        if _asked[0] < LOAD_AFTER_CELLS:
-            return None
+    if path is None and cells is not None and _compiled.cache_info().currsize == 0 \
+            and not _past_break_even(cells):
+        return None
     return _compiled()
 
 
