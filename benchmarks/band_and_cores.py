@@ -1,6 +1,6 @@
 """What a scan pays for its Doppler band, and whether it uses every core (docs/measured/27_band_and_cores.md).
 
-    nice python benchmarks/band_and_cores.py [frame] [taskset] [dsp] [replay] [threads] [startup] [--quick] [--warm] [--json] [--priority]
+    nice python benchmarks/band_and_cores.py [frame] [taskset] [oneshot] [dsp] [replay] [threads] [startup] [--quick] [--warm] [--json] [--priority]
 
 * ``frame``: a full CAL frame (every bonded pixel, 10 averages, cal_letters scene, embedded bench) at
   the default band (config/sim.toml's scan.max_speed_mps) and at 10 m/s: hardware time over wall time
@@ -11,6 +11,10 @@
   ``--warm``: the timed scan is the process's second (the same scan once before on the same bench, as a
   daemon's later scans run), so the one-off loads of the first (numba and the cached kernels, ~0.55 s
   on one core before the second has work) are left out.
+* ``oneshot``: the whole command a user types for that region, ``lidarctl scan --sim --rows 40:72
+  --averages 10 --max-range 2`` (start-up, the bench, the DSP's worker processes, the scan, the point
+  file), pinned to one core and to two, alternated, with a warm calibration cache (one untimed run
+  first): the wall speed-up a user sees.
 * ``dsp``: the frame DSP alone on records of a 10 m/s scan (bench-synthesized plane at 1.2 m): the
   samples it processes per second serially (one core's worth), on the pipeline's worker threads and on
   the DSP's worker processes (lidard.dsp_pool), against the digitizer's data rate (the
@@ -333,6 +337,30 @@ def threads_per_scan(repeats: int) -> dict:
     return {"scans": out}
 
 
+def oneshot(repeats: int) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(PYTHONPATH=str(REPO), PYTHONPYCACHEPREFIX="/tmp/lidard-bench-pycache")
+    rows = f"{REGION['rows'][0]}:{REGION['rows'][1]}"
+    cmd = [sys.executable, "-c", "import sys; from lidard.cli.lidarctl import main; sys.exit(main())",
+           "scan", "--sim", "--rows", rows, "--averages", str(REGION["averages"]),
+           "--max-range", str(REGION["max_range_m"]), "--progress", "none",
+           "--out", "/tmp/lidard-bench-oneshot.ply", "--json"]
+    subprocess.run(cmd, capture_output=True, check=True, env=env)       # byte-compiles, fills the cache
+    runs: dict[str, list] = {"0": [], "0,1": []}
+    for _ in range(max(1, repeats)):
+        for cpus in ("0", "0,1"):           # alternated: the machine's load drifts
+            t = time.perf_counter()
+            out = subprocess.run(["taskset", "-c", cpus, *cmd], capture_output=True, text=True, check=True,
+                                 env=env).stdout
+            runs[cpus].append({"wall_s": time.perf_counter() - t, "points": json.loads(out)["points"], "load": load()})
+    one = [r["wall_s"] for r in runs["0"]]
+    two = [r["wall_s"] for r in runs["0,1"]]
+    return {"command": " ".join(cmd[3:]), "one_core_wall_s": one, "two_cores_wall_s": two,
+            "speedup_each": [a / b for a, b in zip(one, two)], "speedup_of_sums": sum(one) / sum(two),
+            "points": sorted({r["points"] for rs in runs.values() for r in rs}),
+            "loads": [r["load"] for rs in runs.values() for r in rs]}
+
+
 def _child_cpu(argv: list[str], env: dict) -> float:
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     subprocess.run(argv, capture_output=True, check=True, env=env)
@@ -368,9 +396,10 @@ def _high_priority() -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sections", nargs="*", default=["frame", "taskset", "dsp", "startup"],
-                    choices=["frame", "taskset", "dsp", "replay", "threads", "startup"])
+                    choices=["frame", "taskset", "oneshot", "dsp", "replay", "threads", "startup"])
     ap.add_argument("--quick", action="store_true", help="a region instead of the full frame; one taskset pair")
-    ap.add_argument("--repeats", type=int, default=3, help="taskset pairs, dsp rounds and start-up runs (alternated)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="taskset and oneshot pairs, dsp rounds and start-up runs (alternated)")
     ap.add_argument("--bench", choices=["embedded", "child"], default="embedded",
                     help="taskset: the simulated bench in the scanning process, or (the daemon's default) a "
                          "lidar-sim child process of its own")
@@ -386,6 +415,7 @@ def main(argv: list[str] | None = None) -> None:
     out = {"machine": f"{os.cpu_count()} cores", "load_start": load()}
     for s in a.sections:
         out[s] = {"frame": lambda: frame(a.quick), "taskset": lambda: taskset(1 if a.quick else a.repeats, a.bench, a.warm),
+                  "oneshot": lambda: oneshot(1 if a.quick else a.repeats),
                   "dsp": lambda: dsp(a.quick, 1 if a.quick else a.repeats),
                   "replay": lambda: replay(a.quick, 1 if a.quick else a.repeats),
                   "threads": lambda: threads_per_scan(a.repeats), "startup": lambda: startup(a.repeats)}[s]()

@@ -333,6 +333,13 @@ def warm() -> None:
     dsp_pool()
 
 
+def warm_in_background() -> None:
+    """:func:`warm` on a thread of its own: the workers start (in their own processes: the forkserver
+    imports and warms the DSP there, ~1 s) while the caller goes on; a scan that needs the pool before it
+    is up waits for it (:func:`dsp_pool` holds the pool's lock while it starts)."""
+    threading.Thread(target=warm, name="lidard-dsp-pool-warm", daemon=True).start()
+
+
 def shutdown() -> None:
     """Stop the pool's workers (at exit; safe to call again)."""
     global _POOL

@@ -45,13 +45,19 @@ def run_meta(cfg, scene_path: str | None) -> dict:
 
 
 @contextlib.contextmanager
-def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = False):
+def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = False, scan=None):
     """Yield ``(worker, store, instrument)``; on exit stop the worker, close the store and the bench.
-    ``factory``: calibrate range and pointing before the first scan when nothing of this set-up is stored."""
+    ``factory``: calibrate range and pointing before the first scan when nothing of this set-up is stored.
+    ``scan``: the ScanRequest the command is about to run: the bench prepares for it while the command
+    sets up (LidarInstrument.expect_scan)."""
+    from ..dsp_pool import warm_in_background
     from ..instrument.calibration.setup import instrument_setup
     from ..jobs import ScanWorker
     from ..store import Store
     cfg = cfg if cfg is not None else sim_config(args)
+    # The DSP's worker processes start first, in their own processes, while this one opens the store,
+    # the bench and the calibrations (the scan worker would start them only after all of that; ~1 s).
+    warm_in_background()
     meta = run_meta(cfg, scene_path)
     kw = {"scene_path": scene_path} if scene_path is not None else {}
     tmp = None
@@ -76,6 +82,8 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
         raise
     use_cache = tmp is not None and not getattr(args, "no_cal_cache", False)
     try:
+        if scan is not None:
+            inst.expect_scan(scan)
         seeded = _seed_from_cache(cfg, store) if use_cache else None
         setup = instrument_setup(cfg, inst)
         if use_cache and factory:

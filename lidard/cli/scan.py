@@ -277,7 +277,8 @@ def _scan_sim(args, body: dict[str, Any], bar, interrupted: list[int | None]) ->
     cfg = sim_config(args)
     req = sim_request(body, cfg)
     check_plan(req, cfg.resolved.optics)  # before the bench starts
-    with embedded(args, cfg, scene_path=resolve(args.scene), factory=not args.uncalibrated) as (worker, store, inst):
+    with embedded(args, cfg, scene_path=resolve(args.scene), factory=not args.uncalibrated,
+                  scan=req) as (worker, store, inst):
         rec = worker.submit_scan(req)
         worker.subscribe(rec.id, bar)
         try:

@@ -139,7 +139,7 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
                      inject_fault=lambda kind, **params: b.inject_fault(kind, **params),
                      clear_faults=b.clear_faults,
                      active_faults=lambda: b.active_faults(),
-                     fidelity=b.fidelity.snapshot, hold_scene_clock=b.hold_scene_clock)
+                     fidelity=b.fidelity.snapshot, hold_scene_clock=b.hold_scene_clock, expect_scan=b.expect_scan)
     # on_close is the bench's own close: tests reach the embedded bench as ``inst._on_close.__self__``
     return LidarInstrument(cfg, drivers, simulated=True, sleep=b.clock.advance, now=b.clock.now, sim=hooks,
                            on_close=b.close)

@@ -40,7 +40,7 @@ from .errors import NotSimulated, SimFaultError
 from .errors import on_device
 from .frames import Frame, Planner, StreamResult
 from .safety import FaultsStillOpen, SafetyMonitor, acknowledge, latched_state
-from .scan_loop import ScanLoop
+from .scan_loop import ScanLoop, plan_scan
 from .selftest import run_selftest
 from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
 
@@ -61,6 +61,8 @@ class SimHooks:
     fidelity: Callable[[], dict] | None = None
     #: hold the scene's clock across runs (a stream's frames share the scene time of its first trigger)
     hold_scene_clock: Callable[[bool], object] | None = None
+    #: a scan of this many record samples is coming: the bench prepares what it will need (its kernels)
+    expect_scan: Callable[[int], bool] | None = None
 
 
 class LidarInstrument:
@@ -250,6 +252,17 @@ class LidarInstrument:
         if self._sim is None:
             raise NotSimulated(f"{what}: the instrument is real hardware; only a simulated bench has this")
         return self._sim
+
+    def expect_scan(self, request: ScanRequest) -> bool:
+        """A scan of ``request`` is coming (a one-shot command knows it before the bench has armed): a
+        simulated bench prepares what the scan will need now, beside the command's set-up (its compiled
+        synthesis kernels, when this scan alone pays for loading them). Nothing on real hardware.
+        Answers whether the bench started preparing."""
+        hook = self._sim.expect_scan if self._sim is not None else None
+        if hook is None:
+            return False
+        acq = plan_scan(self.cfg, self.optics, request).acquisition
+        return bool(hook(acq.segments * acq.record_length * len(acq.channels)))
 
     def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
         """Simulation only: replace the bench's scene (the scene-file structure as a dict).

@@ -81,6 +81,10 @@ class Instrument(Protocol):
         """Clear the controller's latched faults when their causes are gone; answers ``{"cleared":
         [names], "by": by, "at": unix time}``, else raises FaultsStillOpen naming what is still open."""
 
+    def expect_scan(self, request: ScanRequest) -> bool:
+        """A scan of ``request`` is coming (a one-shot command, before the bench arms): a simulated
+        bench prepares what it will need now; answers whether it started. Real hardware: False."""
+
     def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
         """Simulation only: replace the scene; returns ``{"name", "targets"}``. A scene the bench
         refuses raises a ``ValueError`` naming what is wrong; real hardware raises NotSimulated."""
@@ -102,5 +106,5 @@ class Instrument(Protocol):
 #: The names callers may use on an instrument (what a fake must provide; checked in the tests).
 INSTRUMENT_MEMBERS = ("simulated", "devices", "scanner", "run_scan", "run_stream", "linearize",
                       "check_linearization", "use_calibrations", "monitor_delay_s", "laser_temperature_c",
-                      "selftest", "controller_faults", "acknowledge_faults", "set_scene", "inject_fault",
+                      "selftest", "controller_faults", "acknowledge_faults", "expect_scan", "set_scene", "inject_fault",
                       "clear_faults", "active_faults", "close")

@@ -225,8 +225,8 @@ class ScanWorker:
             # DSP worker processes started. Beside the queue, not before it: a scan queued at start-up
             # runs at once (it waits for the pool only if it needs it before the pool is up). Imported
             # here so that the API and the queue load no DSP (tests/lidard/test_instrument_rooms.py).
-            from ..dsp_pool import warm as warm_dsp_pool
-            threading.Thread(target=warm_dsp_pool, name="lidard-dsp-pool-warm", daemon=True).start()
+            from ..dsp_pool import warm_in_background
+            warm_in_background()
         while True:
             with self._cv:
                 while not self._queue and not self._stopping:

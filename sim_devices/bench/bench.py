@@ -306,6 +306,12 @@ class Bench:
         :meth:`SegmentSynthesizer.hold_scene_clock`)."""
         self.synthesizer.hold_scene_clock(hold)
 
+    def expect_scan(self, samples: int) -> bool:
+        """A scan of ``samples`` record samples is coming (a one-shot command, before the scan's ARM):
+        the synthesis loads the compiled kernels it will need now, beside the command's set-up, when the
+        scan alone pays for them (sim_devices.world.synth_jit.load_ahead). Answers whether a load started."""
+        return synth_jit.load_ahead(samples)
+
     def truth(self) -> BenchTruth:
         """The bench's hidden true values (sim_devices.world.tolerances): for tests and benchmarks
         only, never for the daemon."""

@@ -27,12 +27,18 @@ kernel ~2), so the kernels are used when numba is already loaded in the process 
 loads it for large scans, lidard.dsp.spectrum.jit) or once the savings this process has asked for
 reach the loading cost (the break-even of that model); until then, and without numba, the numpy
 path runs. ``LIDARD_DSP_JIT=0`` turns the kernels off as it does the DSP's.
+
+A one-shot command knows its scan before its bench has started: :func:`load_ahead` starts the load on
+a thread of its own when that scan alone passes the break-even, so that it runs while the command sets
+up (the DSP's worker processes start in other processes meanwhile) instead of at the scan's first read,
+which waits for it if it is not done.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import threading
 from collections.abc import Callable
 from functools import lru_cache
 from typing import Any
@@ -44,6 +50,8 @@ SAVED_S_PHASE, SAVED_S_NOISE = 5e-9, 25e-9
 #: samples of static beat phase before numba is loaded for this kernel alone (the break-even)
 LOAD_AFTER_SAMPLES = int(LOAD_CPU_S / SAVED_S_PHASE)
 _asked = [0.0]      # CPU seconds the kernels would have saved so far (a race only delays the load)
+_loader: list[threading.Thread] = []      # load_ahead's thread, once per process
+_loader_lock = threading.Lock()
 
 
 @lru_cache(maxsize=1)
@@ -73,6 +81,8 @@ def _worth_it(samples: int, saved_s: float = SAVED_S_PHASE) -> bool:
     seconds (module docstring)."""
     if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
         return False
+    if _loader and _loader[0].is_alive():
+        _loader[0].join()       # load_ahead's load is under way: the kernels are coming
     if not _numba_loaded() and _compiled.cache_info().currsize == 0:
         _asked[0] += int(samples) * saved_s
         if _asked[0] < LOAD_CPU_S:
@@ -87,6 +97,22 @@ def expect(samples: int) -> None:
     region scan is about that size: all of it on the slower path)."""
     if os.environ.get("LIDARD_DSP_JIT", "1") != "0":
         _asked[0] += int(samples) * SAVED_S_NOISE
+
+
+def load_ahead(samples: int) -> bool:
+    """A scan of ``samples`` noisy record samples is coming (a one-shot command, before its bench
+    arms): when they alone pass the break-even that :func:`expect` counts at the ARM, start
+    :func:`load_now` on a thread now (module docstring). Nothing is counted here (the ARM counts the
+    scan). Answers whether a load was started."""
+    if os.environ.get("LIDARD_DSP_JIT", "1") == "0" or int(samples) * SAVED_S_NOISE < LOAD_CPU_S:
+        return False
+    with _loader_lock:
+        if _loader or _reducer.cache_info().currsize:
+            return False        # loading, or loaded
+        t = threading.Thread(target=load_now, name="sim-jit-load", daemon=True)
+        _loader.append(t)
+        t.start()
+    return True
 
 
 def static_fill(samples: int) -> Callable[..., Any] | None:

@@ -161,6 +161,9 @@ class FakeInstrument:
             k += 1
         return StreamResult(k, t0, None, cancel.is_set(), [], {"fake": True})
 
+    def expect_scan(self, request):
+        return False            # nothing to prepare: the fake synthesizes nothing
+
     def set_scene(self, scene):
         # like the real instrument: the simulator's parser decides, a refusal is a ValueError
         from sim_devices.world.scene import Scene, SceneError

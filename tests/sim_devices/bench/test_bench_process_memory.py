@@ -68,3 +68,34 @@ def test_lidar_sim_process_loads_the_kernels_at_start():
     finally:
         proc.terminate()
         proc.wait(timeout=60)
+
+
+_AHEAD = """
+import json, sys, threading
+from sim_devices.world import synth_jit
+small = synth_jit.load_ahead(1000)                     # a 16-pixel scan: not worth numba's load
+small_loaded = "numba" in sys.modules
+big = synth_jit.load_ahead(int(2 * synth_jit.LOAD_CPU_S / synth_jit.SAVED_S_NOISE))
+loader = [t.name for t in threading.enumerate() if t.name == "sim-jit-load"]
+again = synth_jit.load_ahead(10 ** 9)                  # one load per process
+# a read asks before the load is done: it waits for the kernels instead of loading them a second time
+# or falling back to numpy; nothing was counted toward the break-even (the ARM counts the scan)
+kernel = synth_jit.static_fill(1) is not None
+print(json.dumps({"small": small, "small_loaded": small_loaded, "big": big, "loader": loader,
+                  "again": again, "kernel": kernel, "asked": synth_jit._asked[0],
+                  "alive": [t.name for t in threading.enumerate() if t.name == "sim-jit-load"]}))
+"""
+
+
+def test_load_ahead_loads_for_a_large_scan_only_and_reads_wait_for_it():
+    r = _fresh(_AHEAD, LIDARD_DSP_JIT="1")
+    assert r["small"] is False and r["small_loaded"] is False
+    assert r["big"] is True and r["loader"] == ["sim-jit-load"]
+    assert r["again"] is False
+    assert r["kernel"] is True and r["alive"] == []
+    assert r["asked"] == 0
+
+
+def test_load_ahead_respects_the_jit_switch():
+    r = _fresh(_AHEAD, LIDARD_DSP_JIT="0")
+    assert r["big"] is False and r["kernel"] is False and r["loader"] == []
