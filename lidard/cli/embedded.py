@@ -48,16 +48,13 @@ def run_meta(cfg, scene_path: str | None) -> dict:
 def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = False, scan=None):
     """Yield ``(worker, store, instrument)``; on exit stop the worker, close the store and the bench.
     ``factory``: calibrate range and pointing before the first scan when nothing of this set-up is stored.
-    ``scan``: the ScanRequest the command is about to run: the bench prepares for it while the command
-    sets up (LidarInstrument.expect_scan)."""
-    from ..dsp_pool import warm_in_background
+    ``scan``: the ScanRequest the command is about to run: what it needs starts while the command sets
+    up (Instrument.expect_scan: the DSP's worker processes if its batches go to them, the bench's
+    compiled kernels if it pays for them); without one the scan worker starts the worker processes."""
     from ..instrument.calibration.setup import instrument_setup
     from ..jobs import ScanWorker
     from ..store import Store
     cfg = cfg if cfg is not None else sim_config(args)
-    # The DSP's worker processes start first, in their own processes, while this one opens the store,
-    # the bench and the calibrations (the scan worker would start them only after all of that; ~1 s).
-    warm_in_background()
     meta = run_meta(cfg, scene_path)
     kw = {"scene_path": scene_path} if scene_path is not None else {}
     tmp = None
@@ -89,7 +86,8 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
         if use_cache and factory:
             _seed_records(setup, store)
         worker = ScanWorker(inst, store, laser=cfg.laser, meta=meta, max_queue=1, optics=cfg.resolved.optics,
-                            recalibrate_delta_c=cfg.scan.recalibrate_delta_c, setup=setup)
+                            recalibrate_delta_c=cfg.scan.recalibrate_delta_c, setup=setup,
+                            warm_dsp_pool=scan is None)
         if factory and cfg.sim.factory_calibration and inst.simulated:
             worker.factory = _factory(cfg, scene_path, "the user's cache" if use_cache else
                                       "the data directory" if args.data_dir else "this run only (--no-cal-cache)")

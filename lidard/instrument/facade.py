@@ -31,6 +31,8 @@ from collections.abc import Callable
 import numpy as np
 
 from ..config import Config
+from ..cores import pool_workers
+from ..dsp_pool import warm_in_background
 from .acquisition import AcquisitionLifecycle, drive_for_chirp, plain_drive
 from .calibration.applied import AppliedCalibrations
 from .calibration.health import HealthCheck, LinearizationHealth
@@ -40,7 +42,7 @@ from .errors import NotSimulated, SimFaultError
 from .errors import on_device
 from .frames import Frame, Planner, StreamResult
 from .safety import FaultsStillOpen, SafetyMonitor, acknowledge, latched_state
-from .scan_loop import ScanLoop, plan_scan
+from .scan_loop import ScanLoop, plan_scan, uses_dsp_processes
 from .selftest import run_selftest
 from .types import CalibrationResult, ProgressFn, ScanRequest, ScanResult
 
@@ -254,15 +256,19 @@ class LidarInstrument:
         return self._sim
 
     def expect_scan(self, request: ScanRequest) -> bool:
-        """A scan of ``request`` is coming (a one-shot command knows it before the bench has armed): a
-        simulated bench prepares what the scan will need now, beside the command's set-up (its compiled
-        synthesis kernels, when this scan alone pays for loading them). Nothing on real hardware.
-        Answers whether the bench started preparing."""
+        """A scan of ``request`` is coming (a one-shot command knows it before anything else has run):
+        start what it will need now, beside the caller's set-up: the DSP's worker processes when its
+        batches go to them (lidard.dsp_pool, ~1 s to start in processes of their own), and on a simulated
+        bench its compiled synthesis kernels when this scan alone pays for loading them. Answers
+        whether anything was started."""
+        p = plan_scan(self.cfg, self.optics, request)
+        pool = uses_dsp_processes(p, pool_workers())
+        if pool:
+            warm_in_background()
         hook = self._sim.expect_scan if self._sim is not None else None
-        if hook is None:
-            return False
-        acq = plan_scan(self.cfg, self.optics, request).acquisition
-        return bool(hook(acq.segments * acq.record_length * len(acq.channels)))
+        acq = p.acquisition
+        kernels = hook is not None and bool(hook(acq.segments * acq.record_length * len(acq.channels)))
+        return pool or kernels
 
     def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
         """Simulation only: replace the bench's scene (the scene-file structure as a dict).

@@ -82,8 +82,9 @@ class Instrument(Protocol):
         [names], "by": by, "at": unix time}``, else raises FaultsStillOpen naming what is still open."""
 
     def expect_scan(self, request: ScanRequest) -> bool:
-        """A scan of ``request`` is coming (a one-shot command, before the bench arms): a simulated
-        bench prepares what it will need now; answers whether it started. Real hardware: False."""
+        """A scan of ``request`` is coming (a one-shot command, before anything else has run): start
+        what it will need (the DSP's worker processes; a simulated bench's compiled kernels) beside the
+        caller's set-up; answers whether anything was started."""
 
     def set_scene(self, scene: dict[str, Any]) -> dict[str, Any]:
         """Simulation only: replace the scene; returns ``{"name", "targets"}``. A scene the bench

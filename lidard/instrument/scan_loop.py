@@ -122,6 +122,12 @@ def dsp_batch_bytes(p: ScanPlan, workers: int) -> int:
     return int(min(BATCH_BYTES, max(DSP_MIN_BYTES, p.n_pixels * pixel_bytes(p) // (2 * workers + 2))))
 
 
+def uses_dsp_processes(p: ScanPlan, workers: int) -> bool:
+    """Whether a scan of ``p`` hands its batches to the DSP's worker processes: more than one batch
+    (one batch has nothing to overlap) on a process that may use more than one core."""
+    return workers >= 2 and p.n_pixels * pixel_bytes(p) > dsp_batch_bytes(p, workers)
+
+
 @dataclass
 class ScanRun:
     """The state of one scan between its stages (what used to live in closures and cells)."""
@@ -157,11 +163,9 @@ class ScanLoop:
                       self.applied.iq_imbalance, (calibration.meta or {}).get("hold_profile") if calibration else None)
         progress(ScanProgress(0, p.n_pixels, 0, 0.0, stage="preparing"))
         workers = pool_workers()
-        flush = dsp_batch_bytes(p, workers)
-        # the DSP pool's processes for a scan of more than one batch (one batch: nothing to overlap)
         run = self.new_run(p, (calibration.meta or {}).get("id") if calibration else None,
-                           flush_bytes=flush, workers=workers, processes=p.n_pixels * pixel_bytes(p) > flush,
-                           replayed=raw_path is not None)
+                           flush_bytes=dsp_batch_bytes(p, workers), workers=workers,
+                           processes=uses_dsp_processes(p, workers), replayed=raw_path is not None)
         try:
             self.safety.bring_up()
             try:

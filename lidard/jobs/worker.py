@@ -41,8 +41,13 @@ class ScanWorker:
     def __init__(self, instrument: Instrument, store: Store, *, laser: str, max_queue: int = 16,
                  progress_interval_s: float = 0.25, meta: dict[str, Any] | None = None,
                  pixels_planned: Callable[[ScanRequest], int] | None = None,
-                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5, setup=None):
+                 optics: FpsaOptics | None = None, recalibrate_delta_c: float = 0.5, setup=None,
+                 warm_dsp_pool: bool = True):
+        """``warm_dsp_pool``: start the DSP's worker processes beside the queue (a daemon); a one-shot
+        command whose scan the instrument was told of (Instrument.expect_scan) has started them already
+        if its scan needs them."""
         self.instrument = instrument
+        self.warm_dsp_pool = warm_dsp_pool
         self.store = store
         self.laser = laser
         self.max_queue = max_queue
@@ -221,7 +226,7 @@ class ScanWorker:
 
     # -- the worker ----------------------------------------------------------------------------
     def _run(self) -> None:
-        if self.setup is not None:      # a real instrument (not a test double): its first scan finds the
+        if self.setup is not None and self.warm_dsp_pool:   # a real instrument (not a test double): its first scan finds the
             # DSP worker processes started. Beside the queue, not before it: a scan queued at start-up
             # runs at once (it waits for the pool only if it needs it before the pool is up). Imported
             # here so that the API and the queue load no DSP (tests/lidard/test_instrument_rooms.py).

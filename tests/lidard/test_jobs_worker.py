@@ -271,3 +271,17 @@ def test_heap_trim_returns_pages_on_glibc():
     assert heap.trim() is True
     assert rss_kb() < before - 8_000, (before, rss_kb())
     del blocks
+
+
+@pytest.mark.parametrize("warm, setup, started", [(True, {}, 1), (False, {}, 0), (True, None, 0)])
+def test_the_worker_starts_the_dsp_processes_unless_told_not_to(tmp_path, monkeypatch, warm, setup, started):
+    # a daemon's worker starts them beside its queue; a one-shot command that told its instrument of
+    # the scan (Instrument.expect_scan) has started them if the scan needs them; a test double never
+    from lidard import dsp_pool
+    calls = []
+    monkeypatch.setattr(dsp_pool, "warm_in_background", lambda: calls.append(1))
+    w = ScanWorker(FakeInstrument(), Store(tmp_path / "data"), laser="dfb_default", setup=setup,
+                   warm_dsp_pool=warm)
+    w.start()
+    w.stop()                    # joins the worker's thread, which decides at its start
+    assert len(calls) == started
