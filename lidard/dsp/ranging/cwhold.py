@@ -34,7 +34,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -117,16 +117,28 @@ def hold_profile(records: ArrayLike, fs_hz: float, start: int, mzi_delay_s: floa
     return HoldProfile(t0, step / fs_hz, tuple(nu[::step]))
 
 
+class CwPeak(NamedTuple):
+    """A candidate's dechirped CW peak (:func:`dechirp_peak`), each (m,)."""
+
+    f_hz: np.ndarray            # |f_D| (NaN where the band holds no bin)
+    power: np.ndarray           # the peak's power (averaged over the records)
+    noise: np.ndarray           # the spectrum's median power
+    shoulder: np.ndarray        # the larger of the mean powers SHOULDER_BINS either side of the peak
+
+
 def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: np.ndarray, fs_hz: float,
                  band_hz: tuple[np.ndarray, np.ndarray], side: np.ndarray, window: np.ndarray,
-                 zero_pad: int = _ZERO_PAD) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """|f_D| (Hz), its peak power and the spectrum's median power per candidate: ``cw`` (m, n_avg, n)
-    CW samples at record times ``t_s`` (n,), each candidate's round trip ``tau_s`` (m,), the band
-    [lo, hi] (m,) of |f_D| searched on the ``side`` (m,) of 0 Hz where the tone lies: +1 for a
+                 zero_pad: int = _ZERO_PAD) -> CwPeak:
+    """|f_D| (Hz), its peak power, the spectrum's median power and its shoulder per candidate: ``cw``
+    (m, n_avg, n) CW samples at record times ``t_s`` (n,), each candidate's round trip ``tau_s`` (m,),
+    the band [lo, hi] (m,) of |f_D| searched on the ``side`` (m,) of 0 Hz where the tone lies: +1 for a
     receding target (the beat's CW phase is 2 pi (tau nu(t) - f_D t) with f_D = -2 v / lambda; its
     e^{+j psi} half lands on -f_D, the other half is the spread mirror). Powers are averaged over the
     records; NaN where the band holds no bin. ``zero_pad``: of the spectrum (the sub-bin peak's
-    accuracy; 2 suffices to screen, 8 to estimate)."""
+    accuracy; 2 suffices to screen, 8 to estimate). The shoulder: the mean power over the bins
+    ``SHOULDER_BINS`` (CW bins) below and above the peak, the larger of the two sides; bins within
+    ``CW_DC_BINS`` of 0 Hz (the DC term and the mirror's side) are left out, and a side with none left
+    counts 0."""
     m, _, n = cw.shape
     nu = profile.at(t_s[None, :] - 0.5 * tau_s[:, None])              # (m, n)
     ref = np.exp(-2j * np.pi * tau_s[:, None] * (nu - nu[:, :1])) * window
@@ -150,7 +162,15 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
     den = y0 - 2 * y1 + y2
     frac = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
     best_f = np.where(best_p > 0, (k[j] + np.clip(frac, -0.5, 0.5)) * df, np.nan)
-    return best_f, np.maximum(best_p, 0.0), np.median(p, axis=1)
+    off = np.arange(SHOULDER_BINS[0] * zero_pad, SHOULDER_BINS[1] * zero_pad + 1)
+    shoulder = np.zeros(m)
+    for sign in (-1, 1):
+        kk = k[j][:, None] + sign * off[None, :]                             # (m, offsets), this side
+        use = (kk >= CW_DC_BINS * zero_pad) & (kk < n_fft // 2)
+        ps = p[r[:, None], (s * kk) % n_fft]
+        mean = np.where(use, ps, 0.0).sum(axis=1) / np.maximum(use.sum(axis=1), 1)
+        shoulder = np.maximum(shoulder, mean)
+    return CwPeak(best_f, np.maximum(best_p, 0.0), np.median(p, axis=1), shoulder)
 
 
 # -- the frame DSP's use (lidard.dsp.ranging.threeseg.pair_frame_three) ---------------------------------------
@@ -161,6 +181,20 @@ PairSlots = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
 #: a candidate's dechirped CW peak must stand this far over the spectrum's median (13 dB: an exponential
 #: noise cell passes with probability exp(-20 ln 2) ~ 1e-6)
 PEAK_SNR = 20.0
+#: ... and this far over each of its shoulders (:func:`dechirp_peak`, SHOULDER_BINS CW bins either side):
+#: the candidate's own return, dechirped with its own round trip, is one tone, whose shoulders hold its
+#: Hann sidelobes (< -31 dB) and noise; a line spread over several bins is not that tone -- the CW beat
+#: of another return (one beyond the range gate, whose ramp beats the gate cut, still beats in the held
+#: segment within the Doppler band, smeared by the hold's drift over its round trip) dechirped with
+#: the candidate's round trip. Without this test such a line confirmed noise peaks on one ramp as
+#: near-range points (~1.6e-4 a pixel with a bright wall at 3-5.5 m, against the 1e-11 the detection is
+#: set for). Noise alone: a shoulder is the mean of 4 CW bins x the records, within ~20 % of the noise
+#: mean at 10 records, so a tone at PEAK_SNR passes with ~1.7x to spare.
+TONE_CONTRAST = 10.0
+#: the shoulders' CW bins, from the peak (the Hann main lobe is +-2 bins)
+SHOULDER_BINS = (3, 6)
+#: CW bins next to 0 Hz left out of the shoulders: the DC term of static returns and the mirror's side
+CW_DC_BINS = 2
 #: a lower ramp beat this many ramp bins from DC or more is estimated without bias: the ramps range it
 RAMP_CLEAR_BINS = 4.0
 
@@ -198,20 +232,20 @@ def measure_boundary(dsp: Any, x: np.ndarray, profile: HoldProfile, cand: Candid
         # f_cw, 8x padded, for the candidates that can pass (a first guess of tau off by lo / 2 smears
         # the tone by a few dB at most): most lone peaks are noise
         side = cand.sign[sl]
-        f_new, p_peak, noise = dechirp_peak(cw, t_s, profile, (hi - f_cw[sl]) / kappa, dsp.fs_hz, band, side,
-                                            w, zero_pad=2)
+        f_new, p_peak, noise, shoulder = dechirp_peak(cw, t_s, profile, (hi - f_cw[sl]) / kappa, dsp.fs_hz,
+                                                      band, side, w, zero_pad=2)
         f_cw[sl] = np.where(np.isfinite(f_new), f_new, f_cw[sl])
         ok_screen = np.zeros(cw.shape[0], dtype=bool)
         again = np.flatnonzero(p_peak >= 0.5 * PEAK_SNR * noise)
         if again.size:
             idx = np.arange(c0, c0 + cw.shape[0])[again]
-            f2, p2, n2 = dechirp_peak(cw[again], t_s, profile, (cand.hi[idx] - f_cw[idx]) / kappa, dsp.fs_hz,
-                                      (band[0][again], band[1][again]), side[again], w)
-            f_new[again], p_peak[again], noise[again] = f2, p2, n2
+            f2, p2, n2, s2 = dechirp_peak(cw[again], t_s, profile, (cand.hi[idx] - f_cw[idx]) / kappa, dsp.fs_hz,
+                                          (band[0][again], band[1][again]), side[again], w)
+            f_new[again], p_peak[again], noise[again], shoulder[again] = f2, p2, n2, s2
             f_cw[idx] = np.where(np.isfinite(f2), f2, f_cw[idx])
             ok_screen[again] = True
         ok[sl] = (ok_screen & np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise)
-                  & (np.abs(2 * f_cw[sl] - hi) <= lo_max))
+                  & (p_peak >= TONE_CONTRAST * shoulder) & (np.abs(2 * f_cw[sl] - hi) <= lo_max))
     # f_cw says which regime holds; where the lower ramp beat stands clear of DC (its real-signal
     # image biases it within a few bins) both ramps then give the range, as elsewhere (two linearized
     # ramps against one ramp and the shorter CW window); nearer DC, R = c (hi - f_cw) / (2 kappa)

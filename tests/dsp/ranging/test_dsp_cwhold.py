@@ -109,18 +109,19 @@ def test_dechirped_cw_beat_is_one_sharp_tone_at_the_doppler_shift(range_m, v_mps
     band = (np.array([0.5 * abs(f_d)]), np.array([1.5 * abs(f_d)]))
     side = np.array([np.sign(v_mps)])                                   # the tone at -f_D = 2 v / lambda
     w = get_window("hann", t.size)
-    f, p, noise = dechirp_peak(cw, t, _profile(), tau, FS, band, side, w)
+    f, p, noise, shoulder = dechirp_peak(cw, t, _profile(), tau, FS, band, side, w)
     bin_hz = FS / t.size
     assert abs(f[0] - abs(f_d)) < 0.03 * bin_hz                          # ~0.5 kHz: 0.4 mm/s
     assert p[0] > 100 * noise[0]
+    assert p[0] > 100 * shoulder[0]              # one tone: its shoulders hold sidelobes and noise only
     # without the drift taken out, the beat's peak sits tau nu' off |f_D| (several mm of range): the
     # error the regime search's bands allow for (lidard.dsp.ranging.threeseg.RHO_MAX)
     flat = HoldProfile(0.0, 1e-7, tuple(np.zeros(len(_profile().nu_hz))))
-    f0, _, _ = dechirp_peak(cw, t, flat, tau, FS, band, side, w)
+    f0 = dechirp_peak(cw, t, flat, tau, FS, band, side, w).f_hz
     assert abs(f0[0] - abs(f_d)) > 0.3 * bin_hz
     assert abs(f0[0] - abs(f_d)) > 20 * abs(f[0] - abs(f_d))
     # the other side holds the mirror half, shifted by 2 tau nu' (and spread): never the estimate
-    fm, pm, _ = dechirp_peak(cw, t, _profile(), tau, FS, band, -side, w)
+    fm, pm, _, _ = dechirp_peak(cw, t, _profile(), tau, FS, band, -side, w)
     assert abs(fm[0] - abs(f_d)) > 20 * abs(f[0] - abs(f_d))
 
 
@@ -227,3 +228,30 @@ def test_a_spurious_peak_at_twice_a_returns_doppler_is_not_a_boundary_target():
     x[..., :r] += 0.5 * np.cos(2 * np.pi * (2 * 2 * v / WL - 3e3) * np.arange(r) / FS + 0.9)
     res = _with_drift(dsp).process(x)
     _assert_one_point(res, range_m, v)
+
+
+def test_a_far_returns_cw_line_dechirped_at_a_near_round_trip_is_not_a_tone():
+    # a wall beyond the range gate still beats in the held segment within the Doppler band, smeared by
+    # the hold's drift over its round trip; dechirped with the round trip of a noise peak on one ramp
+    # (a near range) it stays smeared: its peak does not stand TONE_CONTRAST over its shoulders, while
+    # a return inside the gate dechirped with its own round trip is one tone that does. The window the
+    # DSP dechirps: the hold after its first 2 % (lidard.dsp.ranging.threeseg.DECHIRP_SKIP_FRACTION).
+    from lidard.dsp.ranging.cwhold import TONE_CONTRAST
+    from lidard.dsp.ranging.threeseg import DECHIRP_SKIP_FRACTION
+    rng = np.random.default_rng(3)
+    t = np.arange(int(DECHIRP_SKIP_FRACTION * T_HOLD * FS), int(T_HOLD * FS)) / FS
+    far_m, f_d = 5.5, -30e3                                       # a wall's slow drift of 2 cm/s
+    cw = _cw_beat(far_m, f_d, t, 10, rng, snr_amp=0.05)[None]
+    w = get_window("hann", t.size)
+    band = (np.array([0.0]), np.array([1e6]))
+    side = np.array([1.0])
+    near = dechirp_peak(cw, t, _profile(), np.array([2 * 0.2 / C_M_PER_S]), FS, band, side, w)
+    assert near.power[0] > 20 * near.noise[0]                    # a strong line: the median test alone passes it
+    assert near.power[0] < TONE_CONTRAST * near.shoulder[0]
+    for range_m in (0.3, 1.0, 1.9):                               # where the regimes can meet, inside the gate
+        cw_in = _cw_beat(range_m, f_d, t, 10, rng, snr_amp=0.05)[None]
+        own = dechirp_peak(cw_in, t, _profile(), np.array([2 * range_m / C_M_PER_S]), FS, band, side, w)
+        assert abs(own.f_hz[0] - abs(f_d)) < FS / t.size          # the tone at |f_D|
+        # its shoulders hold the tail of its own mirror half (spread by 2 tau nu', nearer the tone the
+        # later the hold): the farther the return, the less the margin (~24x at 1.9 m here)
+        assert own.power[0] > 1.5 * TONE_CONTRAST * own.shoulder[0], (range_m, own.power[0] / own.shoulder[0])
