@@ -167,7 +167,11 @@ class ScanDefaults(_Model):
     # the rate of valid false points per range cell (c / 2B of the searched band) in noise alone; the
     # per-ramp detector runs at the looser level this implies (lidard.dsp.ranging.points)
     pfa: float = Field(default=1e-11, gt=0, lt=0.1)
-    max_returns: int = Field(default=2, ge=1, le=8)
+    # returns a pixel may give (the model order's ceiling, lidard.dsp.ranging.order). 3: double glazing in
+    # front of a wall is three surfaces in one beam, and with 2 the order test refused the pixel whole
+    # (903 of 903 such pixels of a hold-out scene gave no valid point; 880 give all three now). The DSP
+    # costs ~8 % more CPU (a CAL frame: 2.89-3.03 s against 3.16-3.25 s; benchmarks/frame.py, 27 Nov).
+    max_returns: int = Field(default=3, ge=1, le=8)
     window: Literal["rectangular", "hann", "blackmanharris"] = "hann"
     # The fastest radial speed a scan is asked to measure (a request, like max_range_m; per scan:
     # `lidarctl scan --max-speed`, max_speed_mps in POST /scans). It sizes the digitizer: the ADC band
