@@ -40,3 +40,10 @@ def test_a_drifted_table_is_caught_and_rewritten():
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     drifted = text.replace("| `flags` |", "| `flagz` |")
     assert gen.render(drifted) != drifted and gen.render(drifted) == text
+
+
+def test_the_flags_field_names_every_flag_bit_the_dsp_sets():
+    from lidard.dsp.detect.gate import PointFlag
+    desc = next(f.meaning for f in POINT_FIELDS if f.name == "flags")
+    for flag in PointFlag:
+        assert f"{int(flag)} {flag.name.lower().replace('_', ' ')}" in desc, flag

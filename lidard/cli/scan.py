@@ -67,7 +67,7 @@ def add_parser(sub) -> None:
     sp.add_argument("--averages", type=int, default=None, metavar="N",
                     help="chirps averaged per pixel, 1..100 (count; default: scan.averages)")
     sp.add_argument("--max-range", type=float, default=None, metavar="M",
-                    help="range gate in metres, > 0 (default: scan.max_range_m)")
+                    help="range gate in metres, > 0 (default: scan.max_range_m); points are reported up to 5 %% past it, none beyond")
     sp.add_argument("--max-speed", type=float, default=None, metavar="M",
                     help="fastest radial speed to measure, m/s, > 0: sizes the digitizer's Doppler band "
                          "(default: scan.max_speed_mps)")

@@ -34,7 +34,7 @@ def add_parser(sub) -> None:
     sp.add_argument("--frames", type=int, default=None, metavar="N", help="stop after N frames (default: until stopped)")
     sp.add_argument("--frame-rate", type=float, default=None, metavar="HZ",
                     help="track: the frame rate the pixel budget of every frame is planned for (default 10)")
-    sp.add_argument("--max-range", type=float, default=None, metavar="M", help="range gate in metres")
+    sp.add_argument("--max-range", type=float, default=None, metavar="M", help="range gate in metres; points are reported up to 5 %% past it, none beyond")
     sp.add_argument("--max-speed", type=float, default=None, metavar="M/S",
                     help="fastest radial speed to measure, sizes the ADC's Doppler band (default: scan.max_speed_mps)")
     sp.add_argument("--averages", type=int, default=None, metavar="N", help="chirps averaged per pixel")

@@ -37,7 +37,7 @@ import numpy as np
 from .chain import detect_and_refine
 from .detect.cfar import CfarSettings
 from .ranging.estimators import DEFAULT_METHOD
-from .detect.gate import PointFlag, aliased, gate_top_hz, out_of_band, point_flags
+from .detect.gate import PointFlag, aliased, gate_top_hz, in_gate, out_of_band, point_flags
 from .ranging.iqbalance import check_imbalance, correct, mirror_images, ramp_volts
 from .pnframe import compensated_front_end
 from .spectrum.rangefft import C_M_PER_S, RangeFFT
@@ -364,8 +364,7 @@ class FrameDsp:
         # drawn (valid=0).
         rng_fallback = C_M_PER_S * np.abs(out_f[0]) / (2 * self.chirp_rate_hz_per_s)
         rng_m = np.where(ok, rng_m, rng_fallback)
-        in_gate = (rng_m >= self.min_range_m) & (rng_m <= self.max_range_m * 1.05)
-        present = paired & in_gate
+        present = paired & in_gate(rng_m, self.min_range_m, self.max_range_m)
         flags = point_flags(unresolved=unres, leak=leak, harmonic=du.harmonic, unpaired=~ok)
         return FrameResult(present=present, valid=valid & present, range_m=rng_m, velocity_mps=vel,
                            snr_db=du.snr_db, intensity_v=intensity, flags=flags)

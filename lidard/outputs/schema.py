@@ -50,7 +50,8 @@ POINT_FIELDS: tuple[PointField, ...] = (
     PointField("t", "<f8", "s", "since scan start (a stream: its first frame's): hardware time of the pixel's first trigger"),
     PointField("valid", "u1", "", "1 = a clean point; 0 = the DSP flagged it (see flags)"),
     PointField("flags", "u1", "", "why not valid, bits: 1 unresolved, 2 aliased, 4 harmonic, "
-                                  "8 ambiguous pairing, 16 clipped; 0 on a clean point"),
+                                  "8 ambiguous pairing, 16 clipped, 32 out of band (radial speed past the "
+                                  "scan's max_speed_mps); 0 on a clean point"),
     PointField("frame", "<i4", "", "frame index inside a stream (0 for a single scan)"),
 )
 

@@ -261,3 +261,15 @@ def test_progress_bar_draws_only_when_enabled(capsys):
     quiet({"event": "progress", "fraction": 1.0})
     quiet.close()
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("command", ["scan", "stream"])
+def test_max_range_help_states_the_gate_margin_the_dsp_applies(capsys, command):
+    # the help and the API docs say how far past max_range_m points are still reported: the DSP's figure
+    from pathlib import Path
+    from lidard.dsp.detect.gate import GATE_MARGIN
+    said = f"points are reported up to {round((GATE_MARGIN - 1) * 100)} % past it"
+    code, out, _ = run(capsys, command, "--help")
+    assert code == 0 and said in " ".join(out.split())
+    api = Path(__file__).resolve().parents[2] / "docs" / "api.md"
+    assert f"up to {round((GATE_MARGIN - 1) * 100)} % past it" in " ".join(api.read_text().split())

@@ -33,6 +33,16 @@ from ...physics.decimation import DecimationFilter
 
 #: an alias's measured amplitude may exceed the ceiling by the noise on it: 6 dB of margin
 ALIAS_MARGIN = 2.0
+#: points are reported up to this factor x the scan's max_range_m: a surface at the gate's edge is not
+#: dropped for its range noise or the bins' quantisation (the band searched holds beats that far: the
+#: range beat of max_range_m plus the Doppler allowance); farther returns give no point at all
+GATE_MARGIN = 1.05
+
+
+def in_gate(range_m: np.ndarray, min_range_m: float, max_range_m: float) -> np.ndarray:
+    """Whether each range lies in the gate [min_range_m, GATE_MARGIN x max_range_m]."""
+    r = np.asarray(range_m)
+    return (r >= min_range_m) & (r <= max_range_m * GATE_MARGIN)
 
 
 class PointFlag(IntFlag):

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .cwhold import HoldProfile, PairSlots, resolve_boundary
-from ..detect.gate import aliased, point_flags
+from ..detect.gate import aliased, in_gate, point_flags
 from ..spectrum.rangefft import C_M_PER_S, RangeFFT, check_samples
 from ..spectrum.scratch import scratch
 from .assign import best_matching, line_snr, pair_loglik, tie_llr
@@ -343,8 +343,7 @@ def pair_frame_three(dsp: Any, out_f: list[Any], out_det: list[Any], cw: tuple[n
     # no stronger than what the decimation filter lets through from beyond the gate (lidard.dsp.detect.gate)
     leak = seen & aliased(intensity, dsp.alias_ceiling_v)
     flagged = harmonic | unres | leak
-    in_gate = (rng >= dsp.min_range_m) & (rng <= dsp.max_range_m * 1.05)
-    present = seen & in_gate
+    present = seen & in_gate(rng, dsp.min_range_m, dsp.max_range_m)
     shape = lead + (k,)
     flags = point_flags(unresolved=unres, leak=leak, harmonic=harmonic, unpaired=~ok)
     return dict(present=present.reshape(shape), valid=(present & ok & ~flagged).reshape(shape),
