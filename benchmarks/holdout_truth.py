@@ -9,7 +9,7 @@ optics) is intersected with it in closed form. The radial velocity of a hit is d
 (positive receding): the Doppler term of every scatterer of a rigidly translating target (§2.1.2).
 
 Supported kinds: plane (infinite, or a rectangle of ``size`` about ``point`` with ``up``), sphere,
-box (``rotation_deg`` extrinsic about x, then y, then z) and planar convex polygon. Transmission
+box (``rotation_deg`` extrinsic about x, then y, then z) and planar polygon (convex or not). Transmission
 is honoured: surfaces along a ray up to and including the first opaque one are visible.
 """
 
@@ -97,17 +97,28 @@ def _box(d, shift, p):
 
 
 def _polygon(d, shift, p):
-    """Convex planar polygon: plane hit, then inside every edge (same side as the centroid)."""
+    """Planar polygon, convex or not: plane hit, then inside by the even-odd rule (a ray from the hit
+    along the plane crosses the outline an odd number of times), in coordinates of the plane."""
     v = np.asarray(p["vertices"], float)
     n = np.cross(v[1] - v[0], v[2] - v[0])
+    for i in range(3, len(v)):                 # a non-convex outline's first three vertices may be collinear
+        if np.linalg.norm(n) > 0:
+            break
+        n = np.cross(v[1] - v[0], v[i] - v[0])
     n /= np.linalg.norm(n)
     r = _plane(d, shift, {"point": v[0], "normal": n})
     hit = d * r[:, None] - shift
-    inside = np.ones(len(d), bool)
-    cen = v.mean(axis=0)
-    for a, b in zip(v, np.roll(v, -1, axis=0)):
-        edge = np.cross(b - a, n)
-        inside &= np.sign((hit - a) @ edge) == np.sign((cen - a) @ edge)
+    u = v[1] - v[0]
+    u /= np.linalg.norm(u)
+    w = np.cross(n, u)
+    hx, hy = (hit - v[0]) @ u, (hit - v[0]) @ w
+    px, py = (v - v[0]) @ u, (v - v[0]) @ w
+    inside = np.zeros(len(d), bool)
+    for (ax, ay), (bx, by) in zip(zip(px, py), zip(np.roll(px, -1), np.roll(py, -1))):
+        spans = (ay > hy) != (by > hy)                # the edge crosses the hit's horizontal line
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_cross = ax + (hy - ay) * (bx - ax) / (by - ay)
+        inside ^= spans & (hx < x_cross)
     return np.where(inside, r, np.nan)
 
 
