@@ -53,9 +53,7 @@ def _pool(workers: int) -> ThreadPoolExecutor:
     global _POOL
     with _POOL_LOCK:
         if _POOL is None or _POOL._max_workers < workers:      # grown once; threads idle between reads
-            old, _POOL = _POOL, ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sim-synth")
-            if old is not None:
-                old.shutdown(wait=False)     # its threads end once the parts a read gave them are done
+            _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sim-synth")
         return _POOL
 
 

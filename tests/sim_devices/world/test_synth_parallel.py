@@ -116,19 +116,3 @@ def test_a_read_with_phase_noise_gives_the_same_records_on_any_number_of_threads
     # the phase noise is in the records: another cut (one part) draws other phase noise
     whole = synthesize(traj, adc, t0, hits, rng=_rng_for(0), **kw).beat
     assert not np.array_equal(whole, reads[1])
-
-
-def test_a_grown_pool_lets_the_smaller_one_end(monkeypatch):
-    # a process whose reads ask for more threads than its pool has gets a larger pool; the smaller
-    # one's threads end once their parts are done instead of idling for the rest of the process
-    from sim_devices.world import synth_parallel as sp
-    monkeypatch.setattr(sp, "_POOL", None)
-    small = sp._pool(1)
-    small.submit(lambda: None).result()
-    threads = list(small._threads)
-    assert len(threads) == 1 and threads[0].is_alive()
-    big = sp._pool(2)
-    assert big is not small and big._max_workers == 2 and sp._pool(2) is big
-    threads[0].join(timeout=10)
-    assert not threads[0].is_alive()
-    big.shutdown()
