@@ -100,11 +100,8 @@ def _polygon(d, shift, p):
     """Planar polygon, convex or not: plane hit, then inside by the even-odd rule (a ray from the hit
     along the plane crosses the outline an odd number of times), in coordinates of the plane."""
     v = np.asarray(p["vertices"], float)
-    n = np.cross(v[1] - v[0], v[2] - v[0])
-    for i in range(3, len(v)):                 # a non-convex outline's first three vertices may be collinear
-        if np.linalg.norm(n) > 0:
-            break
-        n = np.cross(v[1] - v[0], v[i] - v[0])
+    # Newell's normal: the outline's area vector, whatever vertices are collinear or where it is not convex
+    n = np.cross(v - v.mean(axis=0), np.roll(v, -1, axis=0) - v.mean(axis=0)).sum(axis=0)
     n /= np.linalg.norm(n)
     r = _plane(d, shift, {"point": v[0], "normal": n})
     hit = d * r[:, None] - shift

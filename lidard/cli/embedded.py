@@ -91,6 +91,7 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
         if factory and cfg.sim.factory_calibration and inst.simulated:
             worker.factory = _factory(cfg, scene_path, "the user's cache" if use_cache else
                                       "the data directory" if args.data_dir else "this run only (--no-cal-cache)")
+            worker.warm_dsp_pool = True     # its scans come first, whatever the scan itself needs
         worker.start()
         try:
             yield worker, store, inst

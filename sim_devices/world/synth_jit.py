@@ -36,6 +36,7 @@ which waits for it if it is not done.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
 import threading
@@ -106,6 +107,8 @@ def load_ahead(samples: int) -> bool:
     scan). Answers whether a load was started."""
     if os.environ.get("LIDARD_DSP_JIT", "1") == "0" or int(samples) * SAVED_S_NOISE < LOAD_CPU_S:
         return False
+    if "numba" not in sys.modules and importlib.util.find_spec("numba") is None:
+        return False            # nothing to load: the numpy path runs
     with _loader_lock:
         if _loader or _reducer.cache_info().currsize:
             return False        # loading, or loaded

@@ -34,3 +34,15 @@ def test_a_collinear_first_vertex_triple_still_gives_the_plane():
     d, dist = _rays([(1.0, 1.0), (3.0, 1.0)], z)
     r = ht.ranges([sq], d, np.zeros(2))[:, 0]
     assert abs(r[0] - dist[0]) < 1e-12 and np.isnan(r[1])
+
+
+def test_a_tilted_outline_with_collinear_vertices_in_floating_point():
+    # z = 3 + 0.3 x: the first three vertices on one edge, their cross product ~1e-16, not 0
+    def pt(x, y):
+        return [x, y, 3.0 + 0.3 * x]
+    sq = ht.Surface(0, "polygon", {"vertices": [pt(0.1, 0.1), pt(0.4, 0.1), pt(0.7, 0.1), pt(0.7, 0.7), pt(0.1, 0.7)]},
+                    np.zeros(3), 0.0)
+    hits = np.array([pt(0.3, 0.3), pt(0.6, 0.6)])
+    d = hits / np.linalg.norm(hits, axis=1, keepdims=True)
+    r = ht.ranges([sq], d, np.zeros(2))[:, 0]
+    np.testing.assert_allclose(r, np.linalg.norm(hits, axis=1), rtol=1e-12)
