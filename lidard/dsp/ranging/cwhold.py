@@ -193,6 +193,12 @@ PEAK_SNR = 20.0
 TONE_CONTRAST = 10.0
 #: the shoulders' CW bins, from the peak (the Hann main lobe is +-2 bins)
 SHOULDER_BINS = (3, 6)
+#: a shoulder is a line, not noise, when its mean stands this far over the spectrum's median (6 dB): only
+#: then does TONE_CONTRAST apply. Noise alone puts a shoulder (the mean of 4 CW bins) there for ~0.5 % of
+#: candidates at one record (the gamma tail; a side is the larger of two), fewer with more records,
+#: so a tone in noise is judged by PEAK_SNR alone as before, while the lines that confirmed false
+#: points stood 50-100x over the median
+SHOULDER_LINE = 4.0
 #: CW bins next to 0 Hz left out of the shoulders: the DC term of static returns and the mirror's side
 CW_DC_BINS = 2
 #: a lower ramp beat this many ramp bins from DC or more is estimated without bias: the ramps range it
@@ -244,8 +250,8 @@ def measure_boundary(dsp: Any, x: np.ndarray, profile: HoldProfile, cand: Candid
             f_new[again], p_peak[again], noise[again], shoulder[again] = f2, p2, n2, s2
             f_cw[idx] = np.where(np.isfinite(f2), f2, f_cw[idx])
             ok_screen[again] = True
-        ok[sl] = (ok_screen & np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise)
-                  & (p_peak >= TONE_CONTRAST * shoulder) & (np.abs(2 * f_cw[sl] - hi) <= lo_max))
+        ok[sl] = (ok_screen & np.isfinite(f_new) & (p_peak >= PEAK_SNR * noise) & is_tone(p_peak, shoulder, noise)
+                  & (np.abs(2 * f_cw[sl] - hi) <= lo_max))
     # f_cw says which regime holds; where the lower ramp beat stands clear of DC (its real-signal
     # image biases it within a few bins) both ramps then give the range, as elsewhere (two linearized
     # ramps against one ramp and the shorter CW window); nearer DC, R = c (hi - f_cw) / (2 kappa)
@@ -255,6 +261,12 @@ def measure_boundary(dsp: Any, x: np.ndarray, profile: HoldProfile, cand: Candid
     rng = C_M_PER_S * f_r / (2 * kappa)
     vel = cand.sign * dsp.wavelength_m * (cand.hi - f_r) / 2
     return rng, vel, ok
+
+
+def is_tone(peak: np.ndarray, shoulder: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """Whether a dechirped CW peak is one tone: its shoulders are noise (SHOULDER_LINE), or it stands
+    TONE_CONTRAST over them (:func:`dechirp_peak`'s figures)."""
+    return (shoulder <= SHOULDER_LINE * noise) | (peak >= TONE_CONTRAST * shoulder)
 
 
 def boundary_candidates(flat_f: RampPair, flat_valid: RampPair, pairs: PairSlots, cw_df_hz: float, ramp_df_hz: float) -> Candidates:

@@ -255,3 +255,24 @@ def test_a_far_returns_cw_line_dechirped_at_a_near_round_trip_is_not_a_tone():
         # its shoulders hold the tail of its own mirror half (spread by 2 tau nu', nearer the tone the
         # later the hold): the farther the return, the less the margin (~24x at 1.9 m here)
         assert own.power[0] > 1.5 * TONE_CONTRAST * own.shoulder[0], (range_m, own.power[0] / own.shoulder[0])
+
+
+@pytest.mark.parametrize("noise_amp", [4.2, 2.5])
+def test_a_tone_in_noise_at_one_record_is_judged_by_its_snr_alone(noise_amp):
+    # the default scan averages one record: a shoulder of noise then fluctuates widely, and asking every
+    # tone to stand TONE_CONTRAST over it dropped ~20 % of boundary points that passed PEAK_SNR; the
+    # contrast applies only to a shoulder that is a line (SHOULDER_LINE over the median)
+    from lidard.dsp.ranging.cwhold import PEAK_SNR, TONE_CONTRAST, is_tone
+    from lidard.dsp.ranging.threeseg import DECHIRP_SKIP_FRACTION
+    rng = np.random.default_rng(11)
+    t = np.arange(int(DECHIRP_SKIP_FRACTION * T_HOLD * FS), int(T_HOLD * FS)) / FS
+    m, range_m = 300, 0.6
+    cw = np.stack([_cw_beat(range_m, -200e3, t, 1, rng, snr_amp=noise_amp) for _ in range(m)])
+    pk = dechirp_peak(cw, t, _profile(), np.full(m, 2 * range_m / C_M_PER_S), FS,
+                      (np.full(m, 100e3), np.full(m, 300e3)), np.ones(m), get_window("hann", t.size))
+    by_snr = pk.power >= PEAK_SNR * pk.noise
+    assert 0.3 < by_snr.mean() <= 1.0                          # near the detection threshold, or just above
+    kept = by_snr & is_tone(pk.power, pk.shoulder, pk.noise)
+    assert kept.sum() >= 0.97 * by_snr.sum()
+    if by_snr.mean() < 0.9:                                    # control: the unconditional contrast loses more
+        assert (by_snr & (pk.power >= TONE_CONTRAST * pk.shoulder)).sum() < 0.9 * by_snr.sum()
