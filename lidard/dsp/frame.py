@@ -42,7 +42,8 @@ from .ranging.iqbalance import check_imbalance, correct, mirror_images, ramp_vol
 from .pnframe import compensated_front_end
 from .spectrum.rangefft import C_M_PER_S, RangeFFT
 from .ranging.cwhold import HoldProfile
-from .ranging.threeseg import CW_GUARD_BINS, cw_front_end, cw_window, drift_rho, pair_frame_three
+from .ranging.cwhold import CW_GUARD_BINS
+from .ranging.threeseg import cw_front_end, cw_window, drift_rho, pair_frame_three
 from .ranging.assign import line_snr
 from .ranging.points import hypotheses_per_cell, ramp_pfa
 from .ranging.ramp import RampModel, refine_ramp

@@ -137,7 +137,7 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
     records; NaN where the band holds no bin. ``zero_pad``: of the spectrum (the sub-bin peak's
     accuracy; 2 suffices to screen, 8 to estimate). The shoulder: the mean power over the bins
     ``SHOULDER_BINS`` (CW bins) below and above the peak, the larger of the two sides; bins within
-    ``CW_DC_BINS`` of 0 Hz (the DC term and the mirror's side) are left out, and a side with none left
+    ``CW_GUARD_BINS`` of 0 Hz (the DC term and its window's main lobe) are left out, and a side with none left
     counts 0."""
     m, _, n = cw.shape
     nu = profile.at(t_s[None, :] - 0.5 * tau_s[:, None])              # (m, n)
@@ -166,7 +166,7 @@ def dechirp_peak(cw: np.ndarray, t_s: np.ndarray, profile: HoldProfile, tau_s: n
     shoulder = np.zeros(m)
     for sign in (-1, 1):
         kk = k[j][:, None] + sign * off[None, :]                             # (m, offsets), this side
-        use = (kk >= CW_DC_BINS * zero_pad) & (kk < n_fft // 2)
+        use = (kk >= CW_GUARD_BINS * zero_pad) & (kk < n_fft // 2)
         ps = p[r[:, None], (s * kk) % n_fft]
         mean = np.where(use, ps, 0.0).sum(axis=1) / np.maximum(use.sum(axis=1), 1)
         shoulder = np.maximum(shoulder, mean)
@@ -191,16 +191,17 @@ PEAK_SNR = 20.0
 #: set for). Noise alone: a shoulder is the mean of 4 CW bins x the records, within ~20 % of the noise
 #: mean at 10 records, so a tone at PEAK_SNR passes with ~1.7x to spare.
 TONE_CONTRAST = 10.0
-#: the shoulders' CW bins, from the peak (the Hann main lobe is +-2 bins)
-SHOULDER_BINS = (3, 6)
+#: bins of the CW spectrum left out at DC (the DC bin and its Hann window's main lobe): a regime that
+#: predicts |f_D| inside them expects no CW beat (the static hypotheses of lidard.dsp.ranging.points)
+CW_GUARD_BINS = 2
+#: the shoulders' CW bins, from the peak: the four bins just outside the window's main lobe
+SHOULDER_BINS = (CW_GUARD_BINS + 1, CW_GUARD_BINS + 4)
 #: a shoulder is a line, not noise, when its mean stands this far over the spectrum's median (6 dB): only
 #: then does TONE_CONTRAST apply. Noise alone puts a shoulder (the mean of 4 CW bins) there for ~0.5 % of
 #: candidates at one record (the gamma tail; a side is the larger of two), fewer with more records,
 #: so a tone in noise is judged by PEAK_SNR alone as before, while the lines that confirmed false
 #: points stood 50-100x over the median
 SHOULDER_LINE = 4.0
-#: CW bins next to 0 Hz left out of the shoulders: the DC term of static returns and the mirror's side
-CW_DC_BINS = 2
 #: a lower ramp beat this many ramp bins from DC or more is estimated without bias: the ramps range it
 RAMP_CLEAR_BINS = 4.0
 

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .cwhold import HoldProfile, PairSlots, resolve_boundary
+from .cwhold import CW_GUARD_BINS, HoldProfile, PairSlots, resolve_boundary
 from ..detect.gate import aliased, in_gate, point_flags
 from ..spectrum.rangefft import C_M_PER_S, RangeFFT, check_samples
 from ..spectrum.scratch import scratch
@@ -67,9 +67,6 @@ CW_SKIP_FRACTION = 0.25
 DECHIRP_SKIP_FRACTION = 0.02
 
 
-#: bins of the CW spectrum left out at DC (the DC bin and its Hann window's main lobe): a regime that
-#: predicts |f_D| inside them expects no CW beat (the static hypotheses of lidard.dsp.ranging.points)
-CW_GUARD_BINS = 2
 
 
 def _range_max_table(p: np.ndarray, top_level: int | None = None,

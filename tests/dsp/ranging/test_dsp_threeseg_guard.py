@@ -1,4 +1,4 @@
-"""The CW spectrum's DC guard (lidard.dsp.ranging.threeseg.CW_GUARD_BINS) derived from the window, and what it protects.
+"""The CW spectrum's DC guard (lidard.dsp.ranging.cwhold.CW_GUARD_BINS) derived from the window, and what it protects.
 
 The held (CW) segment carries the receiver's DC: the photocurrent of the local oscillator and of every
 return, orders of magnitude above a Doppler beat. In the CW power spectrum that DC is a line at exactly
@@ -16,7 +16,8 @@ import pytest
 
 from lidard.dsp.spectrum.windowdtft import _window_dtft_bins
 from lidard.dsp.frame import FrameDsp
-from lidard.dsp.ranging.threeseg import CW_GUARD_BINS, cw_band_power, cw_front_end, cw_line_threshold, cw_noise, cw_window
+from lidard.dsp.ranging.cwhold import CW_GUARD_BINS
+from lidard.dsp.ranging.threeseg import cw_band_power, cw_front_end, cw_line_threshold, cw_noise, cw_window
 
 FS = 40e6
 RAMP, CW = 3200, 3120
