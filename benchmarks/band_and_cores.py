@@ -337,12 +337,18 @@ def threads_per_scan(repeats: int) -> dict:
     return {"scans": out}
 
 
-def oneshot(repeats: int) -> dict:
+def _lidarctl() -> tuple[list[str], dict]:
+    """``lidarctl`` from this tree, byte-compiled (a pycache under /tmp, as an installed package has),
+    and its environment."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     env.update(PYTHONPATH=str(REPO), PYTHONPYCACHEPREFIX="/tmp/lidard-bench-pycache")
+    return [sys.executable, "-c", "import sys; from lidard.cli.lidarctl import main; sys.exit(main())"], env
+
+
+def oneshot(repeats: int) -> dict:
+    cli, env = _lidarctl()
     rows = f"{REGION['rows'][0]}:{REGION['rows'][1]}"
-    cmd = [sys.executable, "-c", "import sys; from lidard.cli.lidarctl import main; sys.exit(main())",
-           "scan", "--sim", "--rows", rows, "--averages", str(REGION["averages"]),
+    cmd = [*cli, "scan", "--sim", "--rows", rows, "--averages", str(REGION["averages"]),
            "--max-range", str(REGION["max_range_m"]), "--progress", "none",
            "--out", "/tmp/lidard-bench-oneshot.ply", "--json"]
     subprocess.run(cmd, capture_output=True, check=True, env=env)       # byte-compiles, fills the cache
@@ -355,7 +361,7 @@ def oneshot(repeats: int) -> dict:
             runs[cpus].append({"wall_s": time.perf_counter() - t, "points": json.loads(out)["points"], "load": load()})
     one = [r["wall_s"] for r in runs["0"]]
     two = [r["wall_s"] for r in runs["0,1"]]
-    return {"command": " ".join(cmd[3:]), "one_core_wall_s": one, "two_cores_wall_s": two,
+    return {"command": " ".join(cmd[len(cli):]), "one_core_wall_s": one, "two_cores_wall_s": two,
             "speedup_each": [a / b for a, b in zip(one, two)], "speedup_of_sums": sum(one) / sum(two),
             "points": sorted({r["points"] for rs in runs.values() for r in rs}),
             "loads": [r["load"] for rs in runs.values() for r in rs]}
@@ -369,9 +375,7 @@ def _child_cpu(argv: list[str], env: dict) -> float:
 
 
 def startup(repeats: int) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env.update(PYTHONPATH=str(REPO), PYTHONPYCACHEPREFIX="/tmp/lidard-bench-pycache")
-    cli = [sys.executable, "-c", "import sys; from lidard.cli.lidarctl import main; sys.exit(main())"]
+    cli, env = _lidarctl()
     scan = [*cli, "scan", "--sim", "--rows", "60:66", "--cols", "60:64",
             "--progress", "none", "--out", "/tmp/lidard-bench-startup.ply"]
     helpc = [*cli, "--help"]
