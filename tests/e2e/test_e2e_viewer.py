@@ -94,6 +94,10 @@ def check_panels(page, api):
     assert "awg: ready (error queue empty)" in devices and not any(d.endswith(": none") for d in devices)
     assert not any("Status(" in d or "<" in d for d in devices)
     # calibrations: the linearization the scan made, and the chirp check line
+    # the panel reads the calibrations again on the refresh after a scan ends (a scan shorter than a
+    # refresh tick may save its linearization between two reads)
+    page.wait_for_function("document.getElementById('calibrations').innerText.includes('it.,')",
+                           timeout=WAIT_S * 1000)
     cals = page.inner_text("#calibrations")
     assert "it.," in cals and "loading" not in cals
     assert page.inner_text("#linearization").startswith(("chirp error", "chirp re-linearized"))

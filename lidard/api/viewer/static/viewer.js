@@ -175,6 +175,7 @@ function showControl(control) {
 
 // Each panel refreshes on its own, so a slow device check never holds up the queue or the controls.
 let calTick = 0;
+let wasRunning = false;   // a scan was running at the last refresh: the one after it ends reads the calibrations
 async function refresh() {
   const seq = leaseSeq;
   try {
@@ -189,7 +190,8 @@ async function refresh() {
     renderStreams($("streams"), streams.streams.slice(0, 8), { onShow: showStream, shownId: viewer.streamId });
     if (streams.running && !autoShown.has(streams.running)) showStream(streams.running);
     else if (!viewer.scanId && !viewer.streamId && list.scans.length) showScan(list.running || list.scans[0].id);
-    refreshSlow(health.simulated, calTick++ % 5 === 0 || !!list.running);
+    refreshSlow(health.simulated, calTick++ % 5 === 0 || !!list.running || wasRunning);
+    wasRunning = !!list.running;
   } catch (e) {
     $("health").textContent = `daemon unreachable (${e})`;
   } finally {
