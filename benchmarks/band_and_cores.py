@@ -8,9 +8,11 @@
 * ``taskset``: the same region scan (rows 40:72, every column, 10 averages) in a fresh process pinned
   to one core (``taskset -c 0``) and to two (``taskset -c 0,1``), alternated; the wall speed-up, the
   CPU over wall of each run (its utilisation: the cores it kept busy) and the CPU per thread group.
-  ``--warm``: the timed scan is the process's second (the same scan once before on the same bench, as a
-  daemon's later scans run), so the one-off loads of the first (numba and the cached kernels, ~0.55 s
-  on one core before the second has work) are left out.
+  Default: the timed scan is a fresh process's first, on a bench opened without an announced scan,
+  which is ready once its compiled synthesis kernels are loaded (lidard.instrument.open_instrument, as
+  a ``lidar-sim`` process is), so numba's one-off load (~0.4 s that holds the interpreter) is the
+  simulator's start, not the scan's. ``--warm``: the timed scan is the process's second (the same scan
+  once before on the same bench, as a daemon's later scans run).
 * ``oneshot``: the whole command a user types for that region, ``lidarctl scan --sim --rows 40:72
   --averages 10 --max-range 2`` (start-up, the bench, the DSP's worker processes, the scan, the point
   file), pinned to one core and to two, alternated, with a warm calibration cache (one untimed run

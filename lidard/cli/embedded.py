@@ -71,7 +71,9 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
             tmp.cleanup()
         raise
     try:
-        inst = base.open_instrument(cfg, bench="embedded", **kw)
+        # a scan is announced as the bench opens (open_instrument's ``expect``): what it needs starts
+        # now, beside this set-up; without one the bench is ready once its kernels are loaded
+        inst = base.open_instrument(cfg, bench="embedded", expect=scan, **kw)
     except BaseException:
         store.close()
         if tmp is not None:
@@ -79,8 +81,6 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
         raise
     use_cache = tmp is not None and not getattr(args, "no_cal_cache", False)
     try:
-        if scan is not None:
-            inst.expect_scan(scan)
         seeded = _seed_from_cache(cfg, store) if use_cache else None
         setup = instrument_setup(cfg, inst)
         if use_cache and factory:

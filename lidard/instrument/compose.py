@@ -29,6 +29,7 @@ from ..config import Config
 from .devices import DeviceRegistry
 from .errors import InstrumentError, SceneRejected, SimFaultError
 from .facade import LidarInstrument, SimHooks
+from .types import ScanRequest
 
 log = logging.getLogger(__name__)
 
@@ -92,31 +93,55 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
     return DeviceRegistry(fpsa=fpsa, awg=awg, digitizer=dig, controller=ctrl)
 
 
-def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | None = None) -> LidarInstrument:
+def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | None = None,
+                    expect: ScanRequest | None = None) -> LidarInstrument:
     """Build the instrument a configuration describes.
 
     Simulated configurations start the bench first: ``bench="embedded"`` runs it in this process
     (the default of ``lidarctl scan --sim``), ``"child"`` as a ``lidar-sim`` child process that talks
     over a real pty, Modbus TCP and the USB socket bridge (the daemon's default, ``sim.bench``).
+
+    ``expect``: the one scan the instrument is opened for (a one-shot command). What that scan needs
+    starts as soon as the instrument is open and runs beside the caller's set-up
+    (:meth:`LidarInstrument.expect_scan`). Without it, a simulated bench will serve scans nobody has
+    announced, so it is ready only once its compiled synthesis kernels are loaded (an embedded bench
+    here; a ``lidar-sim`` process at its start): that one-off load (~0.4 s, numba and its code
+    generator) belongs to the simulated instrument's start, never to its first scan, which real
+    hardware would not pay either.
     """
     if not cfg.sim.enabled:
         if scene_path is not None:
             raise InstrumentError("--scene needs a simulated configuration (sim.enabled = true)")
         from usb.backend import libusb1
 
-        return LidarInstrument(cfg, _connect(cfg, None, libusb1.get_backend(), time.sleep), simulated=False)
-    mode = bench or cfg.sim.bench
-    if mode == "embedded":
-        return _open_embedded(cfg, scene_path)
-    if mode != "child":
-        raise InstrumentError(f"sim.bench must be 'embedded' or 'child', got {mode!r}")
-    return _open_child(cfg, scene_path)
+        inst = LidarInstrument(cfg, _connect(cfg, None, libusb1.get_backend(), time.sleep), simulated=False)
+    else:
+        mode = bench or cfg.sim.bench
+        if mode == "embedded":
+            inst = _open_embedded(cfg, scene_path, load_kernels=expect is None)
+        elif mode == "child":
+            inst = _open_child(cfg, scene_path)
+        else:
+            raise InstrumentError(f"sim.bench must be 'embedded' or 'child', got {mode!r}")
+    if expect is not None:
+        try:
+            inst.expect_scan(expect)
+        except BaseException:
+            inst.close()
+            raise
+    return inst
 
 
 def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | None = None,
-                   scene: dict | None = None) -> LidarInstrument:
+                   scene: dict | None = None, load_kernels: bool = True) -> LidarInstrument:
+    """``load_kernels``: the bench's compiled synthesis kernels load beside its construction and the
+    instrument is returned once they are loaded (open_instrument)."""
     from sim_devices.bench.bench import Bench
+    from sim_devices.world import synth_jit
     from sim_devices.world.scene import Scene, SceneError
+
+    if load_kernels:
+        synth_jit.start_load()
 
     start_scene: Scene | None
     if scene is not None:
@@ -126,6 +151,8 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
     b = Bench(bench_cfg or cfg, start_scene)
     ep = b.start(usb="inproc")
     drivers = _connect(cfg, ep, b.usb_backend, b.clock.advance)
+    if load_kernels:
+        synth_jit.wait_loaded()
 
     def set_scene(d: dict) -> dict:
         try:

@@ -336,8 +336,7 @@ def main(argv: list[str] | None = None) -> int:
     # bench's construction, and the bench serves only once it is done: numba's import and code
     # generator hold the interpreter for seconds on a busy machine, and a controller read that waits
     # behind them past the driver's timeouts (3 x 0.5 s) failed a daemon's first self-test or scan.
-    jit_load = threading.Thread(target=synth_jit.load_now, name="lidar-sim-jit-load", daemon=True)
-    jit_load.start()
+    synth_jit.start_load()
     try:
         cfg = load_config(args.config or Path(__file__).resolve().parent.parent / "config" / "sim.toml")
         scene = Scene.from_toml(args.scene) if args.scene else None
@@ -345,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, SceneError) as exc:
         print(f"lidar-sim: {exc}", file=sys.stderr)
         return 2
-    jit_load.join()
+    synth_jit.wait_loaded()
     stop = threading.Event()
     trimmer = heap.IdleTrimmer(lambda: bench.synthesizer.segments_synthesized, heap.BENCH_IDLE_S)
     threading.Thread(target=trimmer.run, args=(stop,), name="lidar-sim-heap-trim", daemon=True).start()

@@ -107,6 +107,17 @@ def load_ahead(samples: int) -> bool:
     scan). Answers whether a load was started."""
     if os.environ.get("LIDARD_DSP_JIT", "1") == "0" or int(samples) * SAVED_S_NOISE < LOAD_CPU_S:
         return False
+    return start_load()
+
+
+def start_load() -> bool:
+    """Start :func:`load_now` on a thread of its own, once per process, whatever has been asked (a
+    bench that will serve scans nobody has announced: a ``lidar-sim`` process, an embedded bench
+    opened without a scan); a read that needs the kernels meanwhile waits for it (:func:`_worth_it`),
+    and :func:`wait_loaded` joins it. Answers whether a load was started: not where numba is
+    missing, ``LIDARD_DSP_JIT=0``, or the kernels are loading or loaded."""
+    if os.environ.get("LIDARD_DSP_JIT", "1") == "0":
+        return False
     if "numba" not in sys.modules and importlib.util.find_spec("numba") is None:
         return False            # nothing to load: the numpy path runs
     with _loader_lock:
@@ -116,6 +127,12 @@ def load_ahead(samples: int) -> bool:
         _loader.append(t)
         t.start()
     return True
+
+
+def wait_loaded() -> None:
+    """Wait for the load :func:`start_load` or :func:`load_ahead` started, if any."""
+    if _loader:
+        _loader[0].join()
 
 
 def static_fill(samples: int) -> Callable[..., Any] | None:

@@ -99,3 +99,43 @@ def test_load_ahead_loads_for_a_large_scan_only_and_reads_wait_for_it():
 def test_load_ahead_respects_the_jit_switch():
     r = _fresh(_AHEAD, LIDARD_DSP_JIT="0")
     assert r["big"] is False and r["kernel"] is False and r["loader"] == []
+
+
+_OPEN = """
+import json, sys
+from lidard.config import load_config
+from lidard.instrument import ScanRequest, open_instrument
+from sim_devices.world import synth_jit
+expect = {expect}
+inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/empty.toml", bench="embedded",
+                       expect=None if expect is None else ScanRequest(**expect))
+try:
+    # what the instrument's first scan finds: the kernels loaded (a read would not wait), or the numpy
+    # path below the break-even with numba not even imported
+    r = {{"numba": "numba" in sys.modules, "loaded": synth_jit._reducer.cache_info().currsize == 1,
+          "loading": bool(synth_jit._loader) and synth_jit._loader[0].is_alive()}}
+finally:
+    inst.close()
+print(json.dumps(r))
+"""
+SMALL = {"pattern": "roi", "rows": (40, 42), "cols": (0, 8)}                 # 16 pixels: not worth the load
+REGION = {"pattern": "roi", "rows": (40, 72), "cols": (0, 128), "averages": 10, "max_range_m": 2.0}
+
+
+@pytest.mark.slow  # three fresh processes, each opening a bench (numba's import in two of them)
+def test_an_embedded_bench_opened_for_unknown_scans_is_ready_with_its_kernels_loaded():
+    # opened without a scan, the bench will serve scans nobody announced (an API user, a calibration):
+    # like a lidar-sim process it is returned once its kernels are loaded, so its first scan does not
+    # pay numba's one-off load (real hardware would not)
+    assert _fresh(_OPEN.format(expect=None), LIDARD_DSP_JIT="1") == {"numba": True, "loaded": True, "loading": False}
+    # opened for a 16-pixel scan (a one-shot command): the scan alone does not pay for the load
+    assert _fresh(_OPEN.format(expect=SMALL), LIDARD_DSP_JIT="1")["numba"] is False
+    # ... and LIDARD_DSP_JIT=0 loads nothing either way
+    assert _fresh(_OPEN.format(expect=None), LIDARD_DSP_JIT="0")["numba"] is False
+
+
+def test_an_embedded_bench_opened_for_a_large_scan_loads_beside_the_set_up():
+    # a region scan that pays for the load: it starts as the instrument opens and runs on a thread of
+    # its own while the caller sets up (the first read waits for it if it is not done)
+    r = _fresh(_OPEN.format(expect=REGION), LIDARD_DSP_JIT="1")
+    assert r["loaded"] or r["loading"]
