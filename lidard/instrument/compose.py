@@ -137,11 +137,10 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
     """``load_kernels``: the bench's compiled synthesis kernels load beside its construction and the
     instrument is returned once they are loaded (open_instrument)."""
     from sim_devices.bench.bench import Bench
-    from sim_devices.world import synth_jit
     from sim_devices.world.scene import Scene, SceneError
 
     if load_kernels:
-        synth_jit.start_load()
+        Bench.start_kernel_load()
 
     start_scene: Scene | None
     if scene is not None:
@@ -152,7 +151,7 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
     ep = b.start(usb="inproc")
     drivers = _connect(cfg, ep, b.usb_backend, b.clock.advance)
     if load_kernels:
-        synth_jit.wait_loaded()
+        Bench.wait_kernels()
 
     def set_scene(d: dict) -> dict:
         try:

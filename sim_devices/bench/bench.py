@@ -306,6 +306,18 @@ class Bench:
         :meth:`SegmentSynthesizer.hold_scene_clock`)."""
         self.synthesizer.hold_scene_clock(hold)
 
+    @staticmethod
+    def start_kernel_load() -> bool:
+        """Load the compiled synthesis kernels on a thread of their own now (once per process), for a
+        bench that will serve scans nobody has announced (sim_devices.world.synth_jit.start_load); a
+        read that needs them meanwhile waits for them. Answers whether a load started."""
+        return synth_jit.start_load()
+
+    @staticmethod
+    def wait_kernels() -> None:
+        """Wait for a load :meth:`start_kernel_load` or :meth:`expect_scan` started, if any."""
+        synth_jit.wait_loaded()
+
     def expect_scan(self, samples: int) -> bool:
         """A scan of ``samples`` record samples is coming (a one-shot command, before the scan's ARM):
         the synthesis loads the compiled kernels it will need now, beside the command's set-up, when the
@@ -336,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
     # bench's construction, and the bench serves only once it is done: numba's import and code
     # generator hold the interpreter for seconds on a busy machine, and a controller read that waits
     # behind them past the driver's timeouts (3 x 0.5 s) failed a daemon's first self-test or scan.
-    synth_jit.start_load()
+    Bench.start_kernel_load()
     try:
         cfg = load_config(args.config or Path(__file__).resolve().parent.parent / "config" / "sim.toml")
         scene = Scene.from_toml(args.scene) if args.scene else None
@@ -344,7 +356,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, SceneError) as exc:
         print(f"lidar-sim: {exc}", file=sys.stderr)
         return 2
-    synth_jit.wait_loaded()
+    Bench.wait_kernels()
     stop = threading.Event()
     trimmer = heap.IdleTrimmer(lambda: bench.synthesizer.segments_synthesized, heap.BENCH_IDLE_S)
     threading.Thread(target=trimmer.run, args=(stop,), name="lidar-sim-heap-trim", daemon=True).start()
