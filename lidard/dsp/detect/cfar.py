@@ -294,7 +294,11 @@ def _candidates(p2: np.ndarray, s: CfarSettings,
             raise DspInputError("power holds a value the compiled CFAR pass refused")
         r, c, nz = found
 
-    info = window_info(window, 64)
+    # the leakage of the window the spectrum was taken with: its DTFT repeats every n_samples bins, so a
+    # shorter stand-in (64 samples) put a main lobe back at 60-64 bins from every peak and took a
+    # surface there for a side-lobe of a stronger one
+    n_samples = (n_bins if iq else 2 * (n_bins - 1)) // max(int(zero_pad), 1)
+    info = window_info(window, max(n_samples, 8))
     env = info.leakage_envelope
     null = int(np.ceil(info.first_null_bins * zero_pad))
     margin = 10 ** (sidelobe_margin_db / 10.0)

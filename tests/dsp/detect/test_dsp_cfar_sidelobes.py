@@ -96,3 +96,25 @@ def test_os_noise_is_the_per_cell_sort_wherever_the_threshold_can_pass(shape, to
                 exact_cells += 1
     if tones:
         assert exact_cells > 0
+
+
+@pytest.mark.parametrize("zero_pad", [1, 2])
+@pytest.mark.parametrize("distance", [40.0, 60.3, 62.0, 63.6, 64.0])
+def test_a_weaker_surface_far_from_a_strong_one_is_not_its_side_lobe(distance, zero_pad):
+    # A Hann side-lobe 40-64 bins out is below -75 dB: a tone 20 dB under a strong one there is a
+    # surface. The side-lobe screen's leakage envelope must be the ramp's window's, not a 64-sample
+    # stand-in's, whose DTFT comes back to its main lobe at 64 bins (the old envelope hid these).
+    n, rows = 360, 40
+    rng = np.random.default_rng(int(distance * 10) + zero_pad)
+    t = np.arange(n)
+    f0 = 30.0 + rng.uniform(0, 1, (rows, 1))
+    x = (np.cos(2 * np.pi * f0 * t / n) + 0.1 * np.cos(2 * np.pi * (f0 + distance) * t / n + 1.0)
+         + 10 ** (-45 / 20) * np.sqrt(n / 4) * rng.standard_normal((rows, n)))    # near at ~45 dB post-FFT
+    spec = np.fft.rfft(x * get_window("hann", n), n * zero_pad, axis=-1)
+    det = cfar.cfar_detect_with(np.abs(spec) ** 2, cfar.CfarSettings(window="hann", zero_pad=zero_pad,
+                                                                     pfa=1e-6, max_detections=4))
+    found = det.valid & (np.abs(det.index / zero_pad - (f0 + distance)) <= 1.0)
+    assert found.any(axis=1).all()
+    # and the screen still works where it should: no detection on the strong tone's near side-lobes
+    near = det.valid & (np.abs(det.index / zero_pad - f0) > 1.5) & (np.abs(det.index / zero_pad - f0) < 8)
+    assert not near.any()
