@@ -108,6 +108,13 @@ class Adc(_Model):
     min_sample_rate_hz: PosFloat = 1e6
     oversample: float = Field(default=2.5, ge=2.0, le=16.0)
     stopband_db: float = Field(default=100.0, gt=0, le=200)
+    # Spurious-free dynamic range of the receiver chain (TIA and digitizer together, data sheet): how far
+    # below a full-scale tone its strongest harmonic stays while nothing clips. It bounds the harmonic
+    # a return can make at any smaller amplitude (a smooth nonlinearity's h-th harmonic falls by h - 1 dB
+    # per dB of back-off), so a peak at 2x / 3x a stronger one's beat is a real surface when it stands
+    # above that bound (lidard.dsp.detect.cfar); a clipped record's points are never valid. 40 dBc: an
+    # 8-bit digitizer's ~45-50 dBc less the TIA's share.
+    sfdr_dbc: float = Field(default=40.0, gt=0, le=150)
     # false: one photodiode, the real beat (channel "beat"); true: a coherent receiver (90-degree hybrid,
     # two photodiodes, channels "beat_i" and "beat_q"; the monitor MZI stays on its own channel), whose
     # two-sided spectrum gives the beat's sign on the triangle alone (lidard.dsp.ranging.iqbalance)

@@ -116,6 +116,9 @@ class FrameDsp:
     # the model-order test's level (lidard.dsp.ranging.order): the probability that one clean return
     # is flagged unresolved (its cells not explained by the fitted tones) by noise alone
     order_level: float = 1e-3
+    # the receiver's spurious-free dynamic range while nothing clips (adc.sfdr_dbc): a peak at 2x / 3x a
+    # stronger one's beat is screened as its harmonic only when it is at least this far below it
+    sfdr_dbc: float = 40.0
 
     def __post_init__(self) -> None:
         if not 0.2 <= self.use_fraction <= 1.0:
@@ -184,6 +187,15 @@ class FrameDsp:
         m = hypotheses_per_cell(ramp_cell_hz=self.fs_hz / self.n_used, band_cells=(hi - lo + 1) // self.rfft.zero_pad,
                                 doppler_max_hz=2 * self.max_speed_mps / self.wavelength_m, static_guard_hz=guard)
         return ramp_pfa(self.pfa, m)
+
+    @property
+    def cfar(self) -> CfarSettings:
+        """The per-ramp detector's settings (every front end's and the spectrum view's): OS-CFAR at
+        ``ramp_pfa`` over the gate's bins, ``candidate_slots`` peaks, and the harmonic screen at the
+        receiver's spurious-free dynamic range (``sfdr_dbc``): a record that clipped gives no valid
+        point whatever the screen says, so only the unclipped receiver's harmonics are screened."""
+        return CfarSettings(method="os", pfa=self.ramp_pfa, max_detections=self.candidate_slots, window=self.window,
+                            iq=self.iq, bin_range=self.bin_range, harmonic_ratio_db=self.sfdr_dbc)
 
     @property
     def candidate_slots(self) -> int:
@@ -326,8 +338,7 @@ class FrameDsp:
                 return ramp, rf.index_to_bin(idx), spec
 
             res = detect_and_refine(
-                spec, signals, cfar=CfarSettings(method="os", pfa=self.ramp_pfa, max_detections=self.candidate_slots,
-                                                 window=self.window, iq=self.iq, bin_range=self.bin_range),
+                spec, signals, cfar=self.cfar,
                 estimator=None if self.pixel_ml else self.estimator, average_axis=1,
                 idle_index=int(rf.bin_to_index(1)), power=p)
             det = res.detections

@@ -115,6 +115,8 @@ class FrameGeometry(Protocol):
     def rfft(self) -> RangeFFT: ...
     @property
     def bin_range(self) -> tuple[int, int]: ...
+    @property
+    def cfar(self) -> CfarSettings: ...
 
 @dataclass(frozen=True)
 class PhaseNoiseCompensator:
@@ -361,8 +363,7 @@ def compensated_front_end(dsp: FrameGeometry, beat: np.ndarray, mzi: np.ndarray,
             return ramps.real_signals(m_of_bin[idx]), rf.index_to_bin(idx), None
 
         res = detect_and_refine(
-            spec, signals, cfar=CfarSettings(method="os", pfa=dsp.ramp_pfa, max_detections=dsp.candidate_slots,
-                                             window=dsp.window, iq=dsp.iq, bin_range=dsp.bin_range),
+            spec, signals, cfar=dsp.cfar,
             estimator=dsp.estimator, average_axis=1, idle_index=int(rf.bin_to_index(1)))
         det = res.detections
         if dsp.iq:      # the hybrid's image of a stronger return is not a return

@@ -128,7 +128,7 @@ def frame_dsp(cfg: Config, adc: AdcPlan, calibration: DspCalibration, *, max_ran
                     max_returns=cfg.scan.max_returns, cw_samples=adc.cw_samples,
                     iq=cfg.adc.iq, iq_gain=calibration.iq_gain, iq_phase_rad=calibration.iq_phase_rad,
                     hold_profile=calibration.hold_profile if three else None,
-                    estimator=DEFAULT_METHOD if estimator is None else estimator,
+                    estimator=DEFAULT_METHOD if estimator is None else estimator, sfdr_dbc=cfg.adc.sfdr_dbc,
                     **decimation_gate(adc.fs_hz, cfg.adc.max_sample_rate_hz, cfg.adc.stopband_db,
                                       cfg.adc.input_range_v))
 

@@ -51,7 +51,7 @@ Scalar = bool | int | float | str
 # Configuration keys the sweep task honours (it builds the link budget, the ADC plan, the synthesis
 # and the DSP from them exactly as the daemon and the bench do). Whole sections end with ".".
 SWEEPABLE = ("profile", "lens", "laser", "chirp.", "detector.", "link.", "monitor.", "adc.bits",
-             "adc.input_range_v", "adc.max_sample_rate_hz", "adc.min_sample_rate_hz", "adc.oversample",
+             "adc.input_range_v", "adc.sfdr_dbc", "adc.max_sample_rate_hz", "adc.min_sample_rate_hz", "adc.oversample",
              "scan.averages", "scan.max_range_m", "scan.pfa", "scan.max_returns", "scan.window",
              "scan.max_speed_mps", "scan.phase_noise_compensation", "sim.effects.")
 # Keys that exist but that the task cannot honour (yet), with the reason given to the user.

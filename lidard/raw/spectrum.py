@@ -9,13 +9,13 @@ bins CFAR detected and the points the pairing made of them. :func:`plot_pixel_sp
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..dsp.detect.cfar import CfarSettings, cfar_detect_with
+from ..dsp.detect.cfar import cfar_detect_with
 from ..dsp.detect.os_cfar import _noise_os   # the kernel cfar_detect_with thresholds with (no public twin)
 from ..dsp.ranging.iqbalance import correct, ramp_volts
 from ..dsp.pnframe import compensator_for
@@ -108,8 +108,7 @@ def pixel_spectrum(raw_path: str | Path, row: int, col: int,
         for name, start in (("up", 0), ("down", d.ramp_samples)):
             p = _ramp_power(replay, beat, mzi, mzi_q, start)
             # p averages the pixel's records: the detector's noise model is Gamma(records), as the scan's
-            det = cfar_detect_with(p, CfarSettings(method="os", pfa=d.ramp_pfa, max_detections=d.candidate_slots, window=d.window,
-                              bin_range=gate, iq=d.iq, records=cap.averages))
+            det = cfar_detect_with(p, replace(d.cfar, records=cap.averages))
             noise, alpha = _noise_os(p, _N_REF // 2, _N_GUARD, d.ramp_pfa, None, exact=True,
                                      records=cap.averages)   # drawn at every bin
             power[name], threshold[name] = p[0], (alpha * noise)[0]

@@ -92,3 +92,31 @@ def test_double_glazing_in_front_of_a_wall_gives_all_three_surfaces(embedded):
     per_pixel = [np.unique(pix[which == s]) for s in range(3)]
     all_three = np.intersect1d(np.intersect1d(per_pixel[0], per_pixel[1]), per_pixel[2]).size
     assert all_three >= 0.9 * res.pixels_scanned, (all_three, res.pixels_scanned)
+
+
+@pytest.mark.slow
+def test_a_dark_wall_at_twice_a_panes_range_is_a_surface_not_its_harmonic(embedded):
+    # a pane (50 % reflective, half the light through) at 0.6 m and a dark wall (10 %) at 1.2 m: the wall
+    # beats at twice the pane's frequency, ~19.5 dB under it, and nothing clips. Only a clipped record
+    # or the receiver's own distortion (adc.sfdr_dbc, 40 dBc) could put a harmonic there, so the wall is
+    # a surface (the former screen flagged any peak >= 15 dB under a stronger one at 2x its beat)
+    inst, bench, cal = embedded
+    pane_m, wall_m = 0.6, 1.2
+    inst.set_scene({"target": [
+        {"kind": "plane", "point": [0, 0, pane_m], "normal": [0, 0, -1], "reflectivity": 0.5, "transmission": 0.5},
+        {"kind": "plane", "point": [0, 0, wall_m], "normal": [0, 0, -1], "reflectivity": 0.1}]})
+    res = inst.run_scan(ScanRequest(pattern="roi", rows=(56, 72), cols=(56, 72), max_range_m=2.0), lambda p: None,
+                        threading.Event(), cal)
+    assert res.meta["faults"]["overrange_pixels"] == 0          # the premise: no record clipped
+    pts = res.points
+    near = bench.ground_truth(pts["row"], pts["col"])
+    far = near * wall_m / pane_m
+    on_far = np.abs(pts["range"] - far) < 0.5 * CELL_M
+    ok = on_far & (pts["valid"] == 1)
+    pix = pts["row"].astype(np.int64) * 4096 + pts["col"]
+    assert np.unique(pix[ok]).size >= 0.95 * res.pixels_scanned, (np.unique(pix[ok]).size, res.pixels_scanned)
+    assert not np.any(on_far & ((pts["flags"] & 4) != 0))      # none of its points flagged harmonic
+    valid = pts[pts["valid"] == 1]
+    vnear = bench.ground_truth(valid["row"], valid["col"])
+    on_a_surface = (np.abs(valid["range"] - vnear) < 0.5 * CELL_M) | (np.abs(valid["range"] - vnear * wall_m / pane_m) < 0.5 * CELL_M)
+    assert on_a_surface.all()

@@ -71,3 +71,13 @@ def test_a_record_rebuilds_the_same_dsp_and_names_what_it_does_not_know():
     attrs = {"dsp": {**rec, "speed_prior": 1.0}, "adc": {"lsb_v": 1.0}}
     with pytest.raises(RawCaptureError, match="speed_prior"):
         replay_dsp(attrs)
+
+
+@pytest.mark.parametrize("sfdr", ["25", "55"])
+def test_the_receivers_sfdr_sets_the_harmonic_screen_of_every_front_end(sfdr):
+    # adc.sfdr_dbc reaches the per-ramp detector the scan, the phase-noise front end and the spectrum
+    # view share (FrameDsp.cfar), and a capture's record keeps it for its replays
+    cfg = _cfg(LIDARD__ADC__SFDR_DBC=sfdr)
+    dsp = plan_signal(cfg, DspCalibration.nominal(cfg), max_range_m=2.0).dsp
+    assert dsp.sfdr_dbc == float(sfdr) == dsp.cfar.harmonic_ratio_db
+    assert FrameDsp.from_record(json.loads(json.dumps(dsp.to_record()))).cfar.harmonic_ratio_db == float(sfdr)
