@@ -134,6 +134,7 @@ def test_an_embedded_bench_opened_for_unknown_scans_is_ready_with_its_kernels_lo
     assert _fresh(_OPEN.format(expect=None), LIDARD_DSP_JIT="0")["numba"] is False
 
 
+@pytest.mark.slow  # a fresh process opening a bench
 def test_an_embedded_bench_opened_for_a_large_scan_loads_beside_the_set_up():
     # a region scan that pays for the load: it starts as the instrument opens and runs on a thread of
     # its own while the caller sets up (the first read waits for it if it is not done)
