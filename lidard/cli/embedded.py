@@ -72,8 +72,9 @@ def embedded(args, cfg=None, scene_path: str | None = None, factory: bool = Fals
         raise
     try:
         # a scan is announced as the bench opens (open_instrument's ``expect``): what it needs starts
-        # now, beside this set-up; without one the bench is ready once its kernels are loaded
-        inst = base.open_instrument(cfg, bench="embedded", expect=scan, **kw)
+        # now, beside this set-up; a command without one (a self-test, a calibration, a stream) leaves
+        # the kernels to the synthesis's break-even, as a one-shot process that may never pass it
+        inst = base.open_instrument(cfg, bench="embedded", expect=scan, preload=False, **kw)
     except BaseException:
         store.close()
         if tmp is not None:

@@ -85,6 +85,11 @@ def keep_returns(res: FrameResult, k: int) -> FrameResult:
     return FrameResult(**pick)
 
 
+#: settings a capture recorded before they were fields ran with, where today's default differs: its
+#: replay then builds the DSP its scan ran (the harmonic screen's level was a fixed 15 dB)
+_BEFORE_RECORDED: dict[str, Any] = {"sfdr_dbc": 15.0}
+
+
 @dataclass(frozen=True)
 class FrameDsp:
     ramp_samples: int
@@ -144,7 +149,7 @@ class FrameDsp:
         if unknown:
             raise ValueError(f"recorded dsp fields {sorted(unknown)} are not FrameDsp settings "
                              "(written by another lidard version?)")
-        return cls(**{**record, **overrides})
+        return cls(**{**_BEFORE_RECORDED, **record, **overrides})
 
     @property
     def n_used(self) -> int:

@@ -94,7 +94,7 @@ def _connect(cfg: Config, endpoints: dict[str, Any] | None, usb_backend, sleep) 
 
 
 def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | None = None,
-                    expect: ScanRequest | None = None) -> LidarInstrument:
+                    expect: ScanRequest | None = None, preload: bool = True) -> LidarInstrument:
     """Build the instrument a configuration describes.
 
     Simulated configurations start the bench first: ``bench="embedded"`` runs it in this process
@@ -107,7 +107,8 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
     announced, so it is ready only once its compiled synthesis kernels are loaded (an embedded bench
     here; a ``lidar-sim`` process at its start): that one-off load (~0.4 s, numba and its code
     generator) belongs to the simulated instrument's start, never to its first scan, which real
-    hardware would not pay either.
+    hardware would not pay either. ``preload=False``: a one-shot command that runs no scan of its own
+    (a self-test) leaves the load to the synthesis's break-even.
     """
     if not cfg.sim.enabled:
         if scene_path is not None:
@@ -118,7 +119,7 @@ def open_instrument(cfg: Config, *, scene_path: str | None = None, bench: str | 
     else:
         mode = bench or cfg.sim.bench
         if mode == "embedded":
-            inst = _open_embedded(cfg, scene_path, load_kernels=expect is None)
+            inst = _open_embedded(cfg, scene_path, load_kernels=expect is None and preload)
         elif mode == "child":
             inst = _open_child(cfg, scene_path)
         else:
@@ -148,10 +149,12 @@ def _open_embedded(cfg: Config, scene_path: str | None, *, bench_cfg: Config | N
     else:
         start_scene = Scene.from_toml(scene_path) if scene_path else None
     b = Bench(bench_cfg or cfg, start_scene)
+    if load_kernels:
+        # loaded before the bench serves, as a lidar-sim process is: numba's load holds the interpreter,
+        # and the drivers' first reads behind it would run into their timeouts on a busy machine
+        Bench.wait_kernels()
     ep = b.start(usb="inproc")
     drivers = _connect(cfg, ep, b.usb_backend, b.clock.advance)
-    if load_kernels:
-        Bench.wait_kernels()
 
     def set_scene(d: dict) -> dict:
         try:

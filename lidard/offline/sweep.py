@@ -37,7 +37,7 @@ from __future__ import annotations
 import os
 import socket
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -45,6 +45,7 @@ from drivers.digitizer import protocol as digitizer_protocol
 from lidard.config import Config
 from lidard.dsp.ranging.crlb import crlb_freq_var
 from lidard.dsp.ranging.cwhold import PROFILE_DT_S
+from lidard.dsp.detect.gate import PointFlag
 from lidard.dsp.frame import FrameResult
 from lidard.dsp.spectrum.jit import decide as decide_dsp_path
 from lidard.instrument.acquisition import AWG_RATE_HZ, plain_drive
@@ -187,28 +188,37 @@ def task_frame(task: SweepTask, rng: np.random.Generator | None = None,
                      mzi=MonitorMzi(cfg.monitor.delay_s, cfg.monitor.amplitude_v,
                                     _monitor_asd(cfg, pt.laser.rin_db_per_hz, fs)) if pn_on else None)
     shape = (n, avg, rl)
-    beat = _recorded(cfg, fs, syn.beat).reshape(shape)
-    mzi = _recorded(cfg, fs, syn.mzi).reshape(shape) if pn_on and syn.mzi is not None else None
+    beat, over = _recorded(cfg, fs, syn.beat)
+    beat = beat.reshape(shape)
+    mzi = _recorded(cfg, fs, syn.mzi)[0].reshape(shape) if pn_on and syn.mzi is not None else None
     # the DSP's path settled first: a task's figures must not depend on the worker that ran it or on
     # the tasks it ran before (the tone fits' compiled and numpy paths agree only to rounding)
     decide_dsp_path()
     res = dsp.process(beat, syn.lsb_v, mzi=mzi,
                       mzi_delay_s=cfg.monitor.delay_s if pn_on else None, mzi_lsb_v=syn.lsb_v)
+    # a pixel whose beat clipped in any record gives no valid point, as the scan's (lidard.raw.points):
+    # its spectrum holds the clipping's harmonics, which the harmonic screen leaves to this rule
+    clipped = (over | syn.overrange[:, 0]).reshape(n, avg).any(axis=1)      # channel 0: the beat
+    if clipped.any():
+        res = replace(res, valid=res.valid & ~clipped[:, None],
+                      flags=(res.flags if res.flags is not None else np.zeros(res.valid.shape, np.uint8))
+                      | np.where(clipped[:, None], np.uint8(PointFlag.CLIPPED), np.uint8(0)))
     return TaskFrame(result=res, plan=sig, pixel=(row, col), world=world, hits=bh, noise_asd_v_per_rthz=asd)
 
 
-def _recorded(cfg: Config, fs_hz: float, codes: np.ndarray) -> np.ndarray:
+def _recorded(cfg: Config, fs_hz: float, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The digitizer's record of a channel's synthesized codes (n_seg, n): its analogue anti-alias
     corner and its quantizer at the resolution the daemon asks for (config.Adc.record_bits), as the
-    bench's digitizer applies them (sim_devices.digitizer.front_end.write_samples)."""
+    bench's digitizer applies them (sim_devices.digitizer.front_end.write_samples); and the records
+    that went over range there (n_seg,)."""
     n_seg, n = codes.shape
     pcfg = digitizer_protocol.Config(
         sample_rate_hz=round(fs_hz), record_length=n, segments=n_seg, channel_mask=1, bits=RECORD_BITS,
         input_range_mv=round(cfg.adc.input_range_v * 1000), resolution_bits=cfg.adc.record_bits(fs_hz, RECORD_BITS),
         bandwidth_hz=round(cfg.adc.bandwidth_hz))
     out = np.empty((n_seg, 1, n), np.int16)
-    write_samples(out, codes[:, None, :], np.zeros((n_seg, 1), bool), pcfg)
-    return out[:, 0, :]
+    over = write_samples(out, codes[:, None, :], np.zeros((n_seg, 1), bool), pcfg)
+    return out[:, 0, :], over[:, 0]
 
 
 def run_task(task: SweepTask) -> dict:

@@ -81,3 +81,14 @@ def test_the_receivers_sfdr_sets_the_harmonic_screen_of_every_front_end(sfdr):
     dsp = plan_signal(cfg, DspCalibration.nominal(cfg), max_range_m=2.0).dsp
     assert dsp.sfdr_dbc == float(sfdr) == dsp.cfar.harmonic_ratio_db
     assert FrameDsp.from_record(json.loads(json.dumps(dsp.to_record()))).cfar.harmonic_ratio_db == float(sfdr)
+
+
+def test_a_capture_recorded_before_the_sfdr_replays_with_the_screen_its_scan_ran():
+    # a record without sfdr_dbc was written when the harmonic screen sat at a fixed 15 dB: its replay
+    # runs that, not today's default (a replay is the DSP its scan built)
+    cfg = _cfg()
+    rec = plan_signal(cfg, DspCalibration.nominal(cfg), max_range_m=2.0).dsp.to_record()
+    assert FrameDsp.from_record(rec).sfdr_dbc == cfg.adc.sfdr_dbc == 40.0
+    old = {k: v for k, v in rec.items() if k != "sfdr_dbc"}
+    assert FrameDsp.from_record(old).cfar.harmonic_ratio_db == 15.0
+    assert FrameDsp.from_record(old, sfdr_dbc=30.0).sfdr_dbc == 30.0

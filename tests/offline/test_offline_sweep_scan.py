@@ -124,3 +124,19 @@ def test_a_sweep_task_and_a_scan_of_its_pixel_give_the_same_points(tmp_path, dis
     np.testing.assert_allclose(scan["velocity"], sweep["velocity"], rtol=0, atol=10e-6)
     np.testing.assert_allclose(scan["intensity"], sweep["intensity"], rtol=3e-3)
     np.testing.assert_allclose(scan["snr_db"], sweep["snr_db"], rtol=0, atol=1.0)
+
+
+def test_a_sweep_task_whose_beat_clips_gives_no_valid_point_as_a_scan():
+    # a bright plate at 0.5 m into a 50 mV digitizer range: every record clips. A scan refuses such a
+    # pixel's points (lidard.raw.points, flag CLIPPED); the sweep must too, or the clipping's harmonics
+    # (which the harmonic screen leaves to this rule: adc.sfdr_dbc is the unclipped receiver's) count
+    # as ranged points at 2x / 3x the range. Control: the same plate into the 1 V range does not clip.
+    from lidard.dsp.detect.gate import PointFlag
+    grid = {"scan.max_range_m": 4.0, "link.tx_power_w": 0.1}
+    raw = {"sweep": {"seeds": 1, "trials_per_task": 8}, "target": {"distances_m": [0.5], "reflectivity": 0.9},
+           "grid": {**grid, "adc.input_range_v": [0.05, 1.0]}}
+    clipped, clean = (task_frame(t).result for t in expand_sweep(raw).tasks)
+    assert not (clipped.valid & clipped.present).any()
+    assert np.all(clipped.flags[clipped.present] & PointFlag.CLIPPED)
+    assert (clean.valid & clean.present).any(axis=1).all()
+    assert not np.any(clean.flags & PointFlag.CLIPPED)

@@ -73,9 +73,10 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     the frequencies is the sum of the records' projections (:func:`.tones.refine_joint`), maximised
     once per pixel. ``ml``: ``frac`` is only a start (:func:`lidard.dsp.ranging.estimators.pooled_jacobsen`)
     and a detection alone in its cells (no other of the ramp within SKIRT_BINS: :func:`_isolated`) is
-    refined by that likelihood too (the ``newton`` estimator); else ``frac``
-    is the selected estimator's mean over the records and only detections that share cells are
-    refined, jointly. ``max_drift``: the largest change of a lone return's beat from one record to the
+    refined by that likelihood too (the ``newton`` estimator), and where such a lone return shares its
+    ramp with other returns, however far, all of them are then refined jointly (the others' leakage in
+    the model); else ``frac`` is the selected estimator's mean over the records and only detections
+    that share cells are refined, jointly. ``max_drift``: the largest change of a lone return's beat from one record to the
     next (bins of the N-point grid) inside the speed band: it is fitted with the frequency
     (:mod:`.pixeltone`), which is then the beat at the pixel's middle record, and kept where its
     likelihood ratio passes ``level`` (:func:`_drift_seen`; else the common frequency, whose tests
@@ -118,7 +119,7 @@ def refine_ramp(ramp: np.ndarray, spec: np.ndarray, power: np.ndarray, det: Dete
     # joint model has none) and stays out.
     fixed = valid & (drift == 0)
     mixed = np.flatnonzero((np.count_nonzero(fixed, axis=-1) >= 2) & (alone & fixed).any(axis=-1))
-    if mixed.size:
+    if ml and mixed.size:
         out[mixed] = refine_joint(ramp[mixed], out[mixed] / zp, fixed[mixed]) * zp
     if judged.size == 0:
         return out, replace(det, unresolved=flags)

@@ -29,6 +29,9 @@ from typing import Any
 
 KINDS = ("range", "pointing", "iq")
 _RANGE_SECTIONS = ("chirp", "monitor", "adc", "detector", "link")
+#: keys of those sections that set how the DSP judges points, not what the receiver measures: a range
+#: or I/Q calibration made under one value holds under another (the harmonic screen's level)
+_JUDGEMENT_ONLY = {"adc": ("sfdr_dbc",)}
 
 
 def _digest(value: Any) -> str:
@@ -86,7 +89,8 @@ def calibration_setup(cfg, identities: dict[str, Any] | None = None) -> Calibrat
     profile = cfg.resolved.profile
     lens = cfg.lens or profile.default_lens
     receiver = {"laser_preset": cfg.resolved.laser.model_dump(mode="json"), "chirp": data["chirp"],
-                **{s: data[s] for s in _RANGE_SECTIONS if s != "chirp"}}
+                **{s: {k: v for k, v in data[s].items() if k not in _JUDGEMENT_ONLY.get(s, ())}
+                   for s in _RANGE_SECTIONS if s != "chirp"}}
     instruments = _digest(bench)
     rng = Setup({"laser": cfg.laser, "receiver": _digest(receiver), "instruments": instruments})
     pointing = Setup({"profile": profile.name, "lens": str(lens),

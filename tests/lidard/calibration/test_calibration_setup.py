@@ -29,7 +29,8 @@ def test_each_part_moves_only_its_kinds_hash():
     assert bench["range"].hash != base["range"].hash and bench["pointing"].hash != base["pointing"].hash
     assert "instruments" in base["pointing"].differs(bench["pointing"].as_dict())
     # what a scan sets, not the instrument: the max speed (ADC rate), the scan defaults, the scene
-    same = _setup(scan__max_speed_mps="3.0", scan__averages="4", sim__scene="scenes/empty.toml")
+    # ... and how the DSP judges points: the harmonic screen's level (a stored calibration stays valid)
+    same = _setup(scan__max_speed_mps="3.0", scan__averages="4", sim__scene="scenes/empty.toml", adc__sfdr_dbc="25")
     assert same["range"].hash == base["range"].hash and same["pointing"].hash == base["pointing"].hash
 
 

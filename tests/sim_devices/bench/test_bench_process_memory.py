@@ -108,7 +108,7 @@ from lidard.instrument import ScanRequest, open_instrument
 from sim_devices.world import synth_jit
 expect = {expect}
 inst = open_instrument(load_config("config/sim.toml"), scene_path="config/scenes/empty.toml", bench="embedded",
-                       expect=None if expect is None else ScanRequest(**expect))
+                       expect=None if expect is None else ScanRequest(**expect), preload={preload})
 try:
     # what the instrument's first scan finds: the kernels loaded (a read would not wait), or the numpy
     # path below the break-even with numba not even imported
@@ -122,21 +122,23 @@ SMALL = {"pattern": "roi", "rows": (40, 42), "cols": (0, 8)}                 # 1
 REGION = {"pattern": "roi", "rows": (40, 72), "cols": (0, 128), "averages": 10, "max_range_m": 2.0}
 
 
-@pytest.mark.slow  # three fresh processes, each opening a bench (numba's import in two of them)
+@pytest.mark.slow  # four fresh processes, each opening a bench (numba's import in one of them)
 def test_an_embedded_bench_opened_for_unknown_scans_is_ready_with_its_kernels_loaded():
     # opened without a scan, the bench will serve scans nobody announced (an API user, a calibration):
     # like a lidar-sim process it is returned once its kernels are loaded, so its first scan does not
     # pay numba's one-off load (real hardware would not)
-    assert _fresh(_OPEN.format(expect=None), LIDARD_DSP_JIT="1") == {"numba": True, "loaded": True, "loading": False}
+    assert _fresh(_OPEN.format(expect=None, preload=True), LIDARD_DSP_JIT="1") == {"numba": True, "loaded": True, "loading": False}
     # opened for a 16-pixel scan (a one-shot command): the scan alone does not pay for the load
-    assert _fresh(_OPEN.format(expect=SMALL), LIDARD_DSP_JIT="1")["numba"] is False
+    assert _fresh(_OPEN.format(expect=SMALL, preload=True), LIDARD_DSP_JIT="1")["numba"] is False
+    # a one-shot command that runs no scan of its own (a self-test) opens with preload=False: nothing
+    assert _fresh(_OPEN.format(expect=None, preload=False), LIDARD_DSP_JIT="1")["numba"] is False
     # ... and LIDARD_DSP_JIT=0 loads nothing either way
-    assert _fresh(_OPEN.format(expect=None), LIDARD_DSP_JIT="0")["numba"] is False
+    assert _fresh(_OPEN.format(expect=None, preload=True), LIDARD_DSP_JIT="0")["numba"] is False
 
 
 @pytest.mark.slow  # a fresh process opening a bench
 def test_an_embedded_bench_opened_for_a_large_scan_loads_beside_the_set_up():
     # a region scan that pays for the load: it starts as the instrument opens and runs on a thread of
     # its own while the caller sets up (the first read waits for it if it is not done)
-    r = _fresh(_OPEN.format(expect=REGION), LIDARD_DSP_JIT="1")
+    r = _fresh(_OPEN.format(expect=REGION, preload=True), LIDARD_DSP_JIT="1")
     assert r["loaded"] or r["loading"]
