@@ -273,3 +273,6 @@ def test_max_range_help_states_the_gate_margin_the_dsp_applies(capsys, command):
     assert code == 0 and said in " ".join(out.split())
     api = Path(__file__).resolve().parents[2] / "docs" / "api.md"
     assert f"up to {round((GATE_MARGIN - 1) * 100)} % past it" in " ".join(api.read_text().split())
+    # ... and the near end the DSP keeps (no point nearer: a 4.5 cm plate gave none, unannounced)
+    from lidard.dsp.frame import FrameDsp
+    assert f"none nearer than {FrameDsp.min_range_m * 100:g} cm" in " ".join(api.read_text().split())
