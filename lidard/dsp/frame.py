@@ -70,6 +70,15 @@ class FrameResult:
     intensity_v: np.ndarray
     flags: np.ndarray | None = None     # uint8 lidard.dsp.detect.gate.PointFlag bits (why not valid)
 
+    def refused(self, where: np.ndarray, flag: PointFlag) -> FrameResult:
+        """These returns are not valid, for this reason: ``where`` (broadcast to (n_pix, K)) loses
+        ``valid`` and gains ``flag`` (a speed past the band, a clipped record)."""
+        where = np.broadcast_to(np.asarray(where, dtype=bool), self.valid.shape)
+        if not where.any():
+            return self
+        flags = np.zeros(self.valid.shape, np.uint8) if self.flags is None else self.flags
+        return replace(self, valid=self.valid & ~where, flags=flags | np.where(where, np.uint8(flag), np.uint8(0)))
+
 
 def keep_returns(res: FrameResult, k: int) -> FrameResult:
     """The ``k`` slots of each pixel that matter most: valid points first, then drawn ones, each by SNR."""
@@ -317,11 +326,7 @@ class FrameDsp:
         # a speed beyond the band the record was sized for: flagged, never valid (lidard.dsp.detect.gate)
         fast = out_of_band(res.present, res.velocity_mps, self.max_speed_mps,
                            self.wavelength_m * self.fs_hz / (2 * self.n_used))
-        if fast.any():
-            flags = np.zeros(fast.shape, np.uint8) if res.flags is None else res.flags
-            res = replace(res, valid=res.valid & ~fast,
-                          flags=flags | np.where(fast, np.uint8(PointFlag.OUT_OF_BAND), np.uint8(0)))
-        return keep_returns(res, self.max_returns)
+        return keep_returns(res.refused(fast, PointFlag.OUT_OF_BAND), self.max_returns)
 
     def _plain_front_end(self, x: np.ndarray, lsb_v: float, codes: bool = False) -> tuple[list[Any], list[Any]]:
         """Per ramp (up, down): refined beat frequencies (n_pix, K) and detections of the range FFT.

@@ -37,7 +37,7 @@ from __future__ import annotations
 import os
 import socket
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -199,10 +199,7 @@ def task_frame(task: SweepTask, rng: np.random.Generator | None = None,
     # a pixel whose beat clipped in any record gives no valid point, as the scan's (lidard.raw.points):
     # its spectrum holds the clipping's harmonics, which the harmonic screen leaves to this rule
     clipped = (over | syn.overrange[:, 0]).reshape(n, avg).any(axis=1)      # channel 0: the beat
-    if clipped.any():
-        res = replace(res, valid=res.valid & ~clipped[:, None],
-                      flags=(res.flags if res.flags is not None else np.zeros(res.valid.shape, np.uint8))
-                      | np.where(clipped[:, None], np.uint8(PointFlag.CLIPPED), np.uint8(0)))
+    res = res.refused(clipped[:, None], PointFlag.CLIPPED)
     return TaskFrame(result=res, plan=sig, pixel=(row, col), world=world, hits=bh, noise_asd_v_per_rthz=asd)
 
 

@@ -27,6 +27,8 @@ def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directio
     Order: by pixel, then by the DSP's return slot; ``return_index`` counts returns along one beam
     by range (0 = nearest).
     """
+    if clipped is not None:     # a clipped record's spectrum has harmonics
+        res = res.refused(np.asarray(clipped, dtype=bool)[:, None], PointFlag.CLIPPED)
     pi, ki = np.nonzero(res.present)
     out = np.zeros(len(pi), POINT_DTYPE)
     if not len(pi):
@@ -52,8 +54,4 @@ def frame_points(res: FrameResult, pixels: np.ndarray, t_s: np.ndarray, directio
     out["valid"] = res.valid[pi, ki]
     if res.flags is not None:
         out["flags"] = res.flags[pi, ki]
-    if clipped is not None:
-        clip = np.asarray(clipped, dtype=bool)[pi]
-        out["valid"][clip] = 0   # a clipped record's spectrum has harmonics
-        out["flags"][clip] |= np.uint8(PointFlag.CLIPPED)
     return out

@@ -48,7 +48,7 @@ from lidard.dsp.detect.os_cfar import (  # noqa: F401  (re-exported: the detecto
 from lidard.dsp.detect._post import (  # noqa: F401  (re-exported: tests' reach)
     _harmonic_ghosts, _single_tone_width, _strongest, _strongest_cells, _width_6db,
 )
-from lidard.dsp.spectrum.window import DspInputError, WindowName, check_window_name, window_info
+from lidard.dsp.spectrum.window import LEAKAGE_REACH_BINS, DspInputError, WindowName, check_window_name, window_info
 
 
 CfarMethod = Literal["ca", "os"]
@@ -296,11 +296,11 @@ def _candidates(p2: np.ndarray, s: CfarSettings,
 
     # the leakage of the window the spectrum was taken with: its DTFT repeats every n_samples bins, so a
     # shorter stand-in (64 samples) put a main lobe back at 60-64 bins from every peak and took a
-    # surface there for a side-lobe of a stronger one. The screen reads at most 64 bins out
-    # (window_info's envelope): a window of 256 samples has no periodic copy within reach, and its
-    # lobes are the longer ramp's (the exact length is kept below that)
+    # surface there for a side-lobe of a stronger one. The screen reads LEAKAGE_REACH_BINS out at most:
+    # a window of four times that has no periodic copy within reach, and its lobes are the longer
+    # ramp's (the exact length is kept below that; the envelope's cost grows with it)
     n_samples = (n_bins if iq else 2 * (n_bins - 1)) // max(int(zero_pad), 1)
-    info = window_info(window, min(max(n_samples, 8), 256))
+    info = window_info(window, min(max(n_samples, 8), 4 * LEAKAGE_REACH_BINS))
     env = info.leakage_envelope
     null = int(np.ceil(info.first_null_bins * zero_pad))
     margin = 10 ** (sidelobe_margin_db / 10.0)

@@ -94,8 +94,12 @@ class WindowInfo:
     leakage_envelope: np.ndarray  # index d: worst-case |W|^2 at d bins from the peak bin / peak bin power
 
 
+#: bins out from a peak that the leakage envelope covers (and so CFAR's side-lobe screen reads)
+LEAKAGE_REACH_BINS = 64
+
+
 @lru_cache(maxsize=64)
-def window_info(window: WindowName, n: int, max_distance_bins: int = 64) -> WindowInfo:
+def window_info(window: WindowName, n: int, max_distance_bins: int = LEAKAGE_REACH_BINS) -> WindowInfo:
     """Compute (and cache) the :class:`WindowInfo` of ``window`` with ``n`` samples."""
     w = get_window(window, n)
     cg = float(np.mean(w))
